@@ -1,0 +1,39 @@
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = "sfs_ros"
+
+setup(
+    name=package_name,
+    version="0.1.0",
+    packages=find_packages(exclude=["test", "test.*", "bench"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
+        ("share/" + package_name, ["package.xml"]),
+        ("share/" + package_name + "/config", glob("config/*.yaml")),
+    ],
+    python_requires=">=3.10",
+    install_requires=[
+        "numpy>=2,<3",
+        # OpenCV 5 has just been released; the 4.x API is what we test against.
+        "opencv-python-headless>=4.9,<5",
+        "scipy>=1.11",
+        "scikit-image>=0.24",
+        "numba>=0.60",
+        "trimesh>=4",
+        "pyyaml>=6",
+    ],
+    extras_require={"test": ["pytest>=8"]},
+    zip_safe=True,
+    maintainer="sfs_ros maintainers",
+    maintainer_email="maintainers@sfs-ros.invalid",
+    description="Turntable + C-arm camera cell as a 3-D scanner (shape from silhouette).",
+    license="Apache-2.0",
+    entry_points={
+        "console_scripts": [
+            "sfs-reconstruct = sfs_ros.cli.reconstruct:main",
+            "sfs-demo = sfs_ros.cli.demo:main",
+        ],
+    },
+)
