@@ -1,0 +1,79 @@
+"""Marching cubes speed on a carved-like occupancy (a torus) at 256^3 and 512^3.
+
+Baseline: scikit-image's marching cubes alone on the same cropped volume
+(what ``marching_cubes_mesh`` wraps), so the ratio is the cost of cropping,
+padding, smoothing and orientation. Run: ``python -m bench.bench_marching``.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from skimage import measure
+
+from sfs_ros.core.grid import VoxelGrid
+from sfs_ros.core.marching import LEVEL, marching_cubes_mesh
+from sfs_ros.core.mesh_checks import check_mesh
+
+#: Torus (metres) in a 0.2 m box, axis Z: like a carved ring-shaped object.
+MAJOR_RADIUS_M = 0.06
+MINOR_RADIUS_M = 0.025
+BOX_MIN_M = (-0.1, -0.1, -0.05)
+BOX_MAX_M = (0.1, 0.1, 0.15)
+
+
+def torus_occupancy(grid: VoxelGrid) -> np.ndarray:
+    """(nx, ny, nz) bool torus, built per column (no 3-D float temporaries)."""
+    x = grid.centers_axis(0)[:, None]
+    y = grid.centers_axis(1)[None, :]
+    z = grid.centers_axis(2)
+    ring = np.hypot(x, y) - MAJOR_RADIUS_M
+    half_height = np.sqrt(np.maximum(MINOR_RADIUS_M ** 2 - ring ** 2, 0.0))
+    half_height[ring ** 2 > MINOR_RADIUS_M ** 2] = -1.0
+    return np.abs(z - 0.05)[None, None, :] <= half_height[:, :, None]
+
+
+def _best_of(fn, repeats: int) -> float:
+    best = float("inf")
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - start)
+    return best
+
+
+def run(quick: bool = False) -> list[dict]:
+    """Time marching cubes (and the mesh check) at 256^3 and, unless quick, 512^3.
+
+    Returns rows ``{name, seconds, baseline_seconds, ratio}`` (seconds: best
+    of a few runs; ratio = seconds / baseline_seconds).
+    """
+    rows = []
+    for resolution in (256,) if quick else (256, 512):
+        grid = VoxelGrid.cube(BOX_MIN_M, BOX_MAX_M, resolution)
+        occ = torus_occupancy(grid)
+        repeats = 3 if resolution <= 256 else 2
+        ii, jj, kk = (np.flatnonzero(occ.any(axis=tuple(a for a in range(3) if a != axis)))
+                      for axis in range(3))
+        cropped = np.pad(occ[ii[0]:ii[-1] + 1, jj[0]:jj[-1] + 1, kk[0]:kk[-1] + 1]
+                         .astype(np.float32), 1)
+        baseline = _best_of(lambda: measure.marching_cubes(cropped, LEVEL), repeats)
+        for sigma in (0.0, 0.5):
+            seconds = _best_of(lambda: marching_cubes_mesh(occ, grid, smooth_sigma_vox=sigma),
+                               repeats)
+            rows.append({"name": f"marching_cubes_mesh {resolution}^3 torus sigma={sigma}",
+                         "seconds": seconds, "baseline_seconds": baseline,
+                         "ratio": seconds / baseline})
+        vertices, faces = marching_cubes_mesh(occ, grid)
+        seconds = _best_of(lambda: check_mesh(vertices, faces), repeats)
+        rows.append({"name": f"check_mesh {resolution}^3 torus ({len(faces)} faces)",
+                     "seconds": seconds, "baseline_seconds": None, "ratio": None})
+    return rows
+
+
+if __name__ == "__main__":
+    for row in run():
+        ratio = ("" if row["ratio"] is None
+                 else f"  x{row['ratio']:.2f} of {row['baseline_seconds']:.3f} s")
+        print(f"{row['name']:<55} {row['seconds']:.3f} s{ratio}")

@@ -1,0 +1,176 @@
+"""Write triangle meshes for 3-D tools (.ply, .obj, .stl, .glb) and read them back.
+
+Axes and units
+--------------
+Our object frame is right-handed, Z up (the turntable axis), in metres.
+Each format is written in the axes its importers expect:
+
+* ``.ply`` (binary) and ``.stl`` (binary): Z up, as written (Blender's PLY
+  and STL importers assume Z up).
+* ``.glb`` (binary glTF 2.0): Y up by specification, so ``(x, y, z)`` is
+  written as ``(x, z, -y)``; a rotation of -90 degrees about X, which keeps the
+  frame right-handed and the faces counter-clockwise seen from outside.
+* ``.obj``: conventionally Y up (Blender's default OBJ import settings are
+  forward -Z, up Y), converted the same way as glTF.
+
+``units`` scales the metres we hold: ``"m"`` writes metres, ``"mm"``
+millimetres. glTF is metres by specification, so ``.glb`` only takes ``"m"``.
+
+Vertex colours (uint8 RGB/RGBA or float in [0, 1]) are kept by .ply (RGBA),
+.glb (``COLOR_0``, RGBA) and .obj (RGB only, as ``v x y z r g b``, which
+Blender's OBJ importer reads); binary STL cannot hold them.
+
+Files are written atomically: to a temporary file in the same folder, then
+renamed, so a crash never leaves a partial file under the final name.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+__all__ = ["SUPPORTED_SUFFIXES", "export_mesh", "load_mesh"]
+
+SUPPORTED_SUFFIXES = (".ply", ".obj", ".stl", ".glb")
+#: Metres -> file units.
+UNIT_SCALE = {"m": 1.0, "mm": 1000.0}
+#: Formats stored Y up (glTF by specification, OBJ by convention).
+Y_UP_SUFFIXES = (".glb", ".obj")
+#: trimesh file type for each suffix.
+#: Permissions of written files (mkstemp would leave them owner-only).
+FILE_MODE = 0o644
+_FILE_TYPE = {".ply": "ply", ".obj": "obj", ".stl": "stl", ".glb": "glb"}
+
+
+def export_mesh(vertices, faces, path, *, vertex_colors=None, units: str = "m") -> Path:
+    """Write a triangle mesh, choosing the format from the file suffix.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float64
+        Metres, object frame (Z up).
+    faces : (m, 3) int
+        Vertex indices, counter-clockwise seen from outside.
+    path : str or os.PathLike
+        Destination ending in .ply, .obj, .stl or .glb (case-insensitive);
+        its folder must exist.
+    vertex_colors : (n, 3) or (n, 4) uint8, or float in [0, 1], optional
+        RGB(A) per vertex; not for .stl.
+    units : {"m", "mm"}, keyword-only
+        Length unit written to the file ("m" only for .glb).
+
+    Returns
+    -------
+    Path
+        The written file.
+    """
+    path = Path(path)
+    suffix = _suffix(path)
+    if units not in UNIT_SCALE:
+        raise ValueError(f"units must be one of {sorted(UNIT_SCALE)}, got {units!r}")
+    if suffix == ".glb" and units != "m":
+        raise ValueError("glTF (.glb) stores metres by specification; use units='m'")
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces)
+    if v.ndim != 2 or v.shape[1] != 3 or len(v) == 0:
+        raise ValueError(f"vertices must be an (n, 3) array with n >= 1, got shape {v.shape}")
+    if not np.all(np.isfinite(v)):
+        raise ValueError("vertices must be finite")
+    if f.ndim != 2 or f.shape[1] != 3 or len(f) == 0 or not np.issubdtype(f.dtype, np.integer):
+        raise ValueError(
+            f"faces must be an (m, 3) integer array with m >= 1, got {f.dtype} {f.shape}")
+    if f.min() < 0 or f.max() >= len(v):
+        raise ValueError(f"face indices must lie in [0, {len(v)}), got [{f.min()}, {f.max()}]")
+    colors = None
+    if vertex_colors is not None:
+        if suffix == ".stl":
+            raise ValueError("STL cannot store vertex colours; pass vertex_colors=None "
+                             "or write .ply, .obj or .glb")
+        colors = _colors_uint8(vertex_colors, len(v))
+
+    v = v * UNIT_SCALE[units]
+    if suffix in Y_UP_SUFFIXES:
+        v = np.column_stack((v[:, 0], v[:, 2], -v[:, 1]))
+    mesh = trimesh.Trimesh(vertices=v, faces=f.astype(np.int64), vertex_colors=colors,
+                           process=False)
+    data = mesh.export(file_type=_FILE_TYPE[suffix])
+    if isinstance(data, str):
+        data = data.encode("utf-8")
+    _write_atomic(path, data)
+    return path
+
+
+def load_mesh(path, *, units: str = "m"):
+    """Read a mesh written by :func:`export_mesh`, back in our frame.
+
+    Undoes the Y-up conversion of .glb/.obj and the unit scale. STL stores
+    a triangle soup, so its bit-identical vertices are merged; other formats
+    keep the file's vertices and order.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A .ply, .obj, .stl or .glb file.
+    units : {"m", "mm"}, keyword-only
+        Length unit of the file.
+
+    Returns
+    -------
+    vertices : (n, 3) float64
+        Metres, object frame (Z up).
+    faces : (m, 3) int64
+    """
+    path = Path(path)
+    suffix = _suffix(path)
+    if units not in UNIT_SCALE:
+        raise ValueError(f"units must be one of {sorted(UNIT_SCALE)}, got {units!r}")
+    mesh = trimesh.load(path, file_type=_FILE_TYPE[suffix], force="mesh", process=False)
+    v = np.asarray(mesh.vertices, dtype=np.float64)
+    f = np.asarray(mesh.faces, dtype=np.int64)
+    if suffix == ".stl":
+        v, inverse = np.unique(v, axis=0, return_inverse=True)
+        f = inverse.reshape(-1)[f]
+    if suffix in Y_UP_SUFFIXES:
+        v = np.column_stack((v[:, 0], -v[:, 2], v[:, 1]))
+    return v / UNIT_SCALE[units], f
+
+
+def _suffix(path: Path) -> str:
+    suffix = path.suffix.lower()
+    if suffix not in SUPPORTED_SUFFIXES:
+        raise ValueError(f"unsupported mesh file suffix {path.suffix!r} in {path.name!r}; "
+                         f"supported: {', '.join(SUPPORTED_SUFFIXES)}")
+    return suffix
+
+
+def _colors_uint8(colors, n: int) -> np.ndarray:
+    """(n, 3|4) uint8 or float in [0, 1] -> (n, 3|4) uint8."""
+    c = np.asarray(colors)
+    if c.ndim != 2 or c.shape[0] != n or c.shape[1] not in (3, 4):
+        raise ValueError(f"vertex_colors must be ({n}, 3) or ({n}, 4), got shape {c.shape}")
+    if c.dtype == np.uint8:
+        return c
+    if np.issubdtype(c.dtype, np.floating):
+        if not (np.all(np.isfinite(c)) and c.min() >= 0.0 and c.max() <= 1.0):
+            raise ValueError("float vertex_colors must lie in [0, 1]")
+        return np.round(c * 255.0).astype(np.uint8)
+    raise ValueError(f"vertex_colors must be uint8 or float in [0, 1], got dtype {c.dtype}")
+
+
+def _write_atomic(path: Path, data: bytes) -> None:
+    """Write ``data`` to a temporary file beside ``path``, then rename it over ``path``."""
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        os.fchmod(fd, FILE_MODE)
+        with os.fdopen(fd, "wb") as handle:
+            handle.write(data)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        os.unlink(tmp)
+        raise

@@ -1,0 +1,224 @@
+"""Topology and geometry checks of a triangle mesh, without modifying it.
+
+Everything is computed from the arrays as given (no vertex merging, no
+re-orientation): two vertices at the same position are two vertices.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+from scipy import sparse
+from scipy.sparse import csgraph
+
+__all__ = ["MeshReport", "check_mesh"]
+
+#: A face is degenerate when twice its area is below this times the squared
+#: extent of the mesh (or when it repeats a vertex index).
+DEGENERATE_REL_AREA = 1e-12
+
+
+@dataclass(frozen=True)
+class MeshReport:
+    """What :func:`check_mesh` found.
+
+    Attributes
+    ----------
+    n_vertices, n_faces : int
+        Array sizes (unreferenced vertices included in ``n_vertices``).
+    watertight : bool
+        Every undirected edge belongs to exactly two faces.
+    edge_manifold : bool
+        No undirected edge belongs to more than two faces.
+    vertex_manifold : bool
+        Edge-manifold, and the faces around every referenced vertex form a
+        single fan (a closed disc or an open fan), so no two sheets touch at
+        a vertex.
+    consistently_oriented : bool
+        Edge-manifold, and no directed edge is used twice: each interior edge
+        is traversed once in each direction by its two faces.
+    outward : bool or None
+        Signed volume > 0; None unless the mesh is watertight and
+        consistently oriented.
+    n_boundary_loops : int
+        Connected pieces of the boundary (edges used by one face), i.e. holes.
+    n_components : int
+        Connected pieces of the mesh (faces linked through shared vertices).
+    euler_characteristic : int
+        V - E + F, with V counting referenced vertices only.
+    genus : int or None
+        Total genus ``(2 * n_components - euler_characteristic) / 2``; None
+        unless the mesh is watertight, vertex-manifold and consistently
+        oriented (a closed orientable surface).
+    volume_m3 : float
+        Signed enclosed volume (divergence theorem), cubic metres; meaningful
+        only for closed meshes.
+    area_m2 : float
+        Total surface area, square metres.
+    degenerate_faces : int
+        Faces with a repeated vertex index or (relatively) zero area.
+    duplicate_faces : int
+        Faces whose vertex set repeats an earlier face (any order/orientation).
+    """
+
+    n_vertices: int
+    n_faces: int
+    watertight: bool
+    edge_manifold: bool
+    vertex_manifold: bool
+    consistently_oriented: bool
+    outward: bool | None
+    n_boundary_loops: int
+    n_components: int
+    euler_characteristic: int
+    genus: int | None
+    volume_m3: float
+    area_m2: float
+    degenerate_faces: int
+    duplicate_faces: int
+
+    def as_dict(self) -> dict:
+        """JSON-ready dict (Python bool/int/float/None values)."""
+        return asdict(self)
+
+
+def check_mesh(vertices, faces) -> MeshReport:
+    """Check a triangle mesh's topology and measure it.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float64
+        Positions, metres.
+    faces : (m, 3) int
+        Vertex indices, m >= 1; counter-clockwise seen from outside is
+        reported as ``outward``.
+
+    Returns
+    -------
+    MeshReport
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces)
+    if v.ndim != 2 or v.shape[1] != 3:
+        raise ValueError(f"vertices must be an (n, 3) array, got shape {v.shape}")
+    if not np.all(np.isfinite(v)):
+        raise ValueError("vertices must be finite")
+    if f.ndim != 2 or f.shape[1] != 3 or f.shape[0] == 0:
+        raise ValueError(f"faces must be an (m, 3) array with m >= 1, got shape {f.shape}")
+    if not np.issubdtype(f.dtype, np.integer):
+        raise ValueError(f"faces must hold integer vertex indices, got dtype {f.dtype}")
+    f = f.astype(np.int64, copy=False)
+    n, m = len(v), len(f)
+    if f.min() < 0 or f.max() >= n:
+        raise ValueError(f"face indices must lie in [0, {n}), got [{f.min()}, {f.max()}]")
+
+    # Half-edges: face t, corner k goes from f[t, k] to f[t, (k + 1) % 3].
+    start = f.reshape(-1)
+    end = f[:, [1, 2, 0]].reshape(-1)
+    lo, hi = np.minimum(start, end), np.maximum(start, end)
+    key = lo * n + hi
+    order = np.argsort(key, kind="stable")
+    skey = key[order]
+    first = np.r_[True, skey[1:] != skey[:-1]]
+    edge_of_sorted = np.cumsum(first) - 1
+    counts = np.bincount(edge_of_sorted)
+    n_edges = len(counts)
+
+    watertight = bool(np.all(counts == 2))
+    edge_manifold = bool(np.all(counts <= 2))
+    # On an edge-manifold mesh, consecutive sorted half-edges with the same key
+    # are the two uses of an interior edge: they must start at different ends.
+    pair = ~first[1:]
+    sstart = start[order]
+    opposite = bool(np.all(sstart[1:][pair] != sstart[:-1][pair]))
+    consistently_oriented = edge_manifold and opposite
+    vertex_manifold = edge_manifold and _single_fans(f, start, end, order, pair, n)
+
+    referenced = np.zeros(n, dtype=bool)
+    referenced[start] = True
+    n_ref = int(referenced.sum())
+    euler = n_ref - n_edges + m
+
+    graph = sparse.coo_matrix((np.ones(len(start), dtype=np.int8), (start, end)), shape=(n, n))
+    _, labels = csgraph.connected_components(graph, directed=False)
+    n_components = int(np.count_nonzero(np.bincount(labels[referenced])))
+
+    boundary = counts[edge_of_sorted] == 1
+    n_boundary_loops = _count_loops(lo[order][boundary], hi[order][boundary], n)
+
+    p0, p1, p2 = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    cross = np.cross(p1 - p0, p2 - p0)
+    double_area = np.sqrt(np.einsum("ij,ij->i", cross, cross))
+    area = 0.5 * float(double_area.sum())
+    # p0 . (p1 x p2) = p0 . ((p1 - p0) x (p2 - p0)): six times the signed
+    # volume of the tetrahedron (origin, p0, p1, p2).
+    volume = float(np.einsum("ij,ij->", p0, cross)) / 6.0
+    extent = float(np.max(np.ptp(v[referenced], axis=0)))
+    repeated = (f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 2] == f[:, 0])
+    degenerate = repeated | (double_area <= DEGENERATE_REL_AREA * extent * extent)
+    duplicates = _count_duplicate_rows(np.sort(f, axis=1), n)
+
+    closed = watertight and consistently_oriented
+    genus = None
+    if closed and vertex_manifold:
+        genus = (2 * n_components - euler) // 2
+    return MeshReport(
+        n_vertices=n,
+        n_faces=m,
+        watertight=watertight,
+        edge_manifold=edge_manifold,
+        vertex_manifold=bool(vertex_manifold),
+        consistently_oriented=bool(consistently_oriented),
+        outward=bool(volume > 0) if closed else None,
+        n_boundary_loops=int(n_boundary_loops),
+        n_components=int(n_components),
+        euler_characteristic=int(euler),
+        genus=None if genus is None else int(genus),
+        volume_m3=volume,
+        area_m2=area,
+        degenerate_faces=int(degenerate.sum()),
+        duplicate_faces=int(duplicates),
+    )
+
+
+def _single_fans(f, start, end, order, pair, n) -> bool:
+    """True if the corners around every vertex form one connected fan.
+
+    Corners (face t, slot k) of the same vertex are linked when their faces
+    share an edge through that vertex; a vertex is a single fan when its
+    corners form one connected component. Assumes an edge-manifold mesh.
+    """
+    n_corners = 3 * len(f)
+    corner_start = np.arange(n_corners)
+    corner_end = (corner_start // 3) * 3 + (corner_start % 3 + 1) % 3
+    # For each half-edge, the corner at its lower and at its higher vertex.
+    low_first = start < end
+    corner_lo = np.where(low_first, corner_start, corner_end)[order]
+    corner_hi = np.where(low_first, corner_end, corner_start)[order]
+    # Consecutive sorted half-edges of the same undirected edge are its two faces.
+    a = np.r_[corner_lo[:-1][pair], corner_hi[:-1][pair]]
+    b = np.r_[corner_lo[1:][pair], corner_hi[1:][pair]]
+    graph = sparse.coo_matrix((np.ones(len(a), dtype=np.int8), (a, b)),
+                              shape=(n_corners, n_corners))
+    n_fans, labels = csgraph.connected_components(graph, directed=False)
+    # Corners are only linked to corners of the same vertex: one vertex per fan.
+    vertex_of_fan = np.empty(n_fans, dtype=np.int64)
+    vertex_of_fan[labels] = f.reshape(-1)
+    return bool(np.all(np.bincount(vertex_of_fan, minlength=n) <= 1))
+
+
+def _count_loops(lo, hi, n) -> int:
+    """Connected pieces of the graph of boundary edges ``(lo[i], hi[i])``."""
+    if len(lo) == 0:
+        return 0
+    graph = sparse.coo_matrix((np.ones(len(lo), dtype=np.int8), (lo, hi)), shape=(n, n))
+    _, labels = csgraph.connected_components(graph, directed=False)
+    return int(np.count_nonzero(np.bincount(labels[np.r_[lo, hi]])))
+
+
+def _count_duplicate_rows(rows, n) -> int:
+    """Rows of a (m, 3) int64 array (values in [0, n)) equal to an earlier row."""
+    order = np.lexsort((rows[:, 2], rows[:, 0] * n + rows[:, 1]))
+    s = rows[order]
+    return int(np.count_nonzero(np.all(s[1:] == s[:-1], axis=1)))

@@ -1,0 +1,129 @@
+"""Marching cubes on occupancies with known shapes."""
+
+import numpy as np
+import pytest
+
+from sfs_ros.core.grid import VoxelGrid
+from sfs_ros.core.marching import LEVEL, marching_cubes_mesh
+from sfs_ros.core.mesh_checks import check_mesh
+
+RADIUS_M = 0.031
+CENTRE_M = np.array([0.004, -0.003, 0.041])
+#: Outward offset of the surface, in voxels, from contouring just below 0.5.
+LEVEL_SHIFT = 0.5 - LEVEL
+
+
+def sphere_occupancy(grid, centre, radius):
+    """(nx, ny, nz) bool: voxel centres inside the ball."""
+    ijk = np.indices(grid.shape).reshape(3, -1).T
+    inside = np.linalg.norm(grid.index_to_world(ijk) - centre, axis=1) <= radius
+    return inside.reshape(grid.shape)
+
+
+def ball_volume(radius):
+    return 4.0 / 3.0 * np.pi * radius ** 3
+
+
+@pytest.fixture(scope="module")
+def sphere():
+    # Box larger than the ball and off-centre from it, so cropping and the
+    # origin offset are exercised: 48 voxels across the longest side.
+    grid = VoxelGrid.cube(CENTRE_M - 0.045, CENTRE_M + 0.05, 48)
+    return grid, sphere_occupancy(grid, CENTRE_M, RADIUS_M)
+
+
+@pytest.mark.parametrize("sigma", [0.0, 0.5])
+def test_sphere_closed_outward_and_on_the_surface(sphere, sigma):
+    grid, occ = sphere
+    h = grid.voxel_size
+    vertices, faces = marching_cubes_mesh(occ, grid, smooth_sigma_vox=sigma)
+    assert vertices.dtype == np.float64 and faces.dtype == np.int64
+    report = check_mesh(vertices, faces)
+    assert report.watertight and report.vertex_manifold and report.consistently_oriented
+    assert report.outward is True
+    assert report.n_components == 1 and report.genus == 0
+    assert report.degenerate_faces == 0 and report.duplicate_faces == 0
+
+    distance = np.linalg.norm(vertices - CENTRE_M, axis=1) - RADIUS_M
+    # Unsmoothed, each vertex is (up to LEVEL_SHIFT) the midpoint of a grid
+    # edge whose ends lie on opposite sides of the sphere, so it is within
+    # half a voxel of it. Smoothing (sigma 0.5 voxel) moves vertices by a
+    # fraction of a voxel: allow one voxel.
+    bound = (0.5 + LEVEL_SHIFT) * h if sigma == 0 else h
+    assert np.max(np.abs(distance)) <= bound
+
+    # Vertices lie within half a voxel of the sphere and triangles span one
+    # cell (chord sag ~ h^2 / r << h), so the surface lies in the shell of
+    # radii r -/+ one voxel: its volume lies between those two balls.
+    assert ball_volume(RADIUS_M - h) < report.volume_m3 < ball_volume(RADIUS_M + h)
+
+
+def test_object_touching_the_box_is_closed():
+    # Every voxel occupied: the object fills the box. Unsmoothed, the surface
+    # lies on the outer voxel faces, i.e. on the box itself.
+    grid = VoxelGrid([0.1, -0.2, 0.0], [0.14, -0.17, 0.02], 0.005)
+    occ = np.ones(grid.shape, dtype=bool)
+    vertices, faces = marching_cubes_mesh(occ, grid, smooth_sigma_vox=0.0)
+    report = check_mesh(vertices, faces)
+    assert report.watertight and report.vertex_manifold and report.outward is True
+    assert report.genus == 0
+    h = grid.voxel_size
+    # The iso-level sits LEVEL_SHIFT below 0.5, moving the surface outward by
+    # LEVEL_SHIFT voxel (1e-12 m of rounding on top).
+    np.testing.assert_allclose(vertices.min(axis=0), grid.bounds_min - LEVEL_SHIFT * h, atol=1e-12)
+    np.testing.assert_allclose(vertices.max(axis=0), grid.bounds_max + LEVEL_SHIFT * h, atol=1e-12)
+    # Edges and corners of the box are chamfered (a 45-degree cut of half a
+    # voxel), so the volume is below the box's and above the box shrunk by
+    # one voxel.
+    extent = grid.bounds_max - grid.bounds_min
+    assert np.prod(extent - h) < report.volume_m3 < np.prod(extent)
+
+
+def test_half_sphere_cut_by_the_floor_is_closed():
+    # Ball centred on the bottom face of the box: the occupancy is cut there.
+    centre = np.array([0.0, 0.0, 0.0])
+    grid = VoxelGrid([-0.04, -0.04, 0.0], [0.04, 0.04, 0.04], 0.002)
+    occ = sphere_occupancy(grid, centre, 0.03)
+    vertices, faces = marching_cubes_mesh(occ, grid, smooth_sigma_vox=0.0)
+    report = check_mesh(vertices, faces)
+    assert report.watertight and report.vertex_manifold and report.outward is True
+    assert report.genus == 0
+    # The cut is closed by a flat cap on the bottom voxel faces, z = 0.
+    # (Moved out by LEVEL_SHIFT voxel, see marching.LEVEL.)
+    assert vertices[:, 2].min() == pytest.approx(-LEVEL_SHIFT * grid.voxel_size, abs=1e-12)
+
+
+@pytest.mark.parametrize("sigma", [0.0, 0.5])
+def test_noisy_occupancy_gives_a_closed_manifold(sigma):
+    # Random voxels touch each other along edges and at corners: the ambiguous
+    # marching-cubes configurations. Every piece must still be closed,
+    # manifold and outward.
+    rng = np.random.default_rng(7)
+    grid = VoxelGrid([0, 0, 0], [0.02, 0.02, 0.02], 0.001)
+    occ = rng.random(grid.shape) > 0.7
+    report = check_mesh(*marching_cubes_mesh(occ, grid, smooth_sigma_vox=sigma))
+    assert report.watertight and report.vertex_manifold and report.consistently_oriented
+    assert report.outward is True and report.duplicate_faces == 0
+
+
+def test_torus_has_genus_one():
+    grid = VoxelGrid([-0.05, -0.05, -0.02], [0.05, 0.05, 0.02], 0.002)
+    world = grid.index_to_world(np.indices(grid.shape).reshape(3, -1).T)
+    ring = np.hypot(world[:, 0], world[:, 1]) - 0.03
+    occ = (np.hypot(ring, world[:, 2]) <= 0.012).reshape(grid.shape)
+    report = check_mesh(*marching_cubes_mesh(occ, grid))
+    assert report.watertight and report.outward is True and report.genus == 1
+
+
+def test_invalid_input():
+    grid = VoxelGrid([0, 0, 0], [0.01, 0.01, 0.01], 0.001)
+    with pytest.raises(ValueError, match="empty"):
+        marching_cubes_mesh(np.zeros(grid.shape, dtype=bool), grid)
+    with pytest.raises(ValueError, match="does not match the grid shape"):
+        marching_cubes_mesh(np.ones((3, 3, 3), dtype=bool), grid)
+    with pytest.raises(ValueError, match="smooth_sigma_vox"):
+        marching_cubes_mesh(np.ones(grid.shape, dtype=bool), grid, smooth_sigma_vox=-1)
+    single = np.zeros(grid.shape, dtype=bool)
+    single[5, 5, 5] = True
+    with pytest.raises(ValueError, match="removes the whole object"):
+        marching_cubes_mesh(single, grid, smooth_sigma_vox=2.0)
