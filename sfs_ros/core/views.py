@@ -1,0 +1,176 @@
+"""Views: images with the cameras that took them, and reading the images.
+
+A :class:`ViewSet` is what every input format (scan session, Middlebury,
+NeRF transforms) loads into and what the reconstruction consumes. Images are
+not decoded while loading; :func:`read_image` reads one when it is needed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from .camera import Camera
+from .rig import RigCalibration
+
+__all__ = ["SOURCES", "IMAGE_SUFFIXES", "ViewError", "View", "ViewSet", "read_image", "image_size",
+           "as_bounds", "nearest_rotation"]
+
+#: Input formats a :class:`ViewSet` can come from.
+SOURCES = ("session", "middlebury", "nerf")
+
+#: File name endings (lower case) treated as images when a folder is searched.
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp", ".ppm", ".pgm")
+
+#: Decode as 8-bit, 3-channel BGR; keep the sensor's pixel grid (no EXIF rotation),
+#: since calibrations refer to it.
+_IMREAD_FLAGS = cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION
+
+
+class ViewError(ValueError):
+    """An input that cannot be read as views; the message is one line naming the file."""
+
+
+@dataclass(frozen=True)
+class View:
+    """One image and its camera.
+
+    Attributes
+    ----------
+    name : str
+        Identifier, unique within a :class:`ViewSet` (usually the image file name).
+    image_path : Path
+        The image file.
+    camera : Camera
+        Object frame -> pixels of this image.
+    theta_rad, phi_rad : float or None
+        Encoder readings (turntable, carriage) at the shutter, radians, before
+        removing the calibration's zero offsets; None when the input has none.
+    """
+
+    name: str
+    image_path: Path
+    camera: Camera
+    theta_rad: float | None = None
+    phi_rad: float | None = None
+
+
+@dataclass
+class ViewSet:
+    """The views of one input.
+
+    Attributes
+    ----------
+    views : list of View
+        The usable views, in input order.
+    source : str
+        ``"session"``, ``"middlebury"`` or ``"nerf"``.
+    bounds_m : (2, 3) float64 or None
+        Bounding box ``[min, max]`` of the object stored by the input, metres.
+    segmentation : dict or None
+        Segmentation parameters stored by the input (for ``SegmentationParams.from_dict``).
+    rejected : list of (str, str)
+        ``(name, reason)`` of views dropped while loading (e.g. NaN angles).
+    calibration : RigCalibration or None
+        The rig calibration, when the input is a scan session.
+    """
+
+    views: list[View]
+    source: str
+    bounds_m: np.ndarray | None = None
+    segmentation: dict | None = None
+    rejected: list[tuple[str, str]] = field(default_factory=list)
+    calibration: RigCalibration | None = None
+
+    def __post_init__(self) -> None:
+        if self.source not in SOURCES:
+            raise ValueError(f"view set source must be one of {SOURCES}, got {self.source!r}")
+        if self.bounds_m is not None:
+            self.bounds_m = as_bounds(self.bounds_m, what="bounding box")
+
+
+def _decode(path: Path, flags: int) -> np.ndarray:
+    """Decode an image file with cv2 (works for any path encoding); ViewError if impossible."""
+    path = Path(path)
+    if not path.exists():
+        raise ViewError(f"image {path} does not exist")
+    if not path.is_file():
+        raise ViewError(f"image {path} is not a file")
+    data = np.fromfile(path, dtype=np.uint8)
+    image = cv2.imdecode(data, flags) if data.size else None
+    if image is None:
+        raise ViewError(f"image {path} is not a readable image (empty, corrupt or an "
+                        f"unsupported format; expected e.g. {', '.join(IMAGE_SUFFIXES[:4])})")
+    return image
+
+
+def read_image(path: Path | str, *, expected_size: tuple[int, int] | None = None) -> np.ndarray:
+    """Read an image file as RGB.
+
+    16-bit images are scaled to 8 bits (divided by 256), grey images are
+    repeated into three channels and an alpha channel is dropped (the colour
+    under transparent pixels is kept as stored). EXIF orientation is ignored:
+    the pixels are those of the sensor, which the calibration refers to.
+
+    Parameters
+    ----------
+    path : path-like
+        The image file.
+    expected_size : (width, height) int or None
+        Raise unless the image has this size, pixels (the camera's).
+
+    Returns
+    -------
+    (H, W, 3) uint8
+        RGB image.
+
+    Raises
+    ------
+    ViewError
+        Missing file, a file that is not a readable image, or the wrong size.
+    """
+    bgr = _decode(Path(path), _IMREAD_FLAGS)
+    height, width = bgr.shape[:2]
+    if expected_size is not None and (width, height) != tuple(int(v) for v in expected_size):
+        raise ViewError(f"image {path} is {width}x{height} pixels, expected "
+                        f"{int(expected_size[0])}x{int(expected_size[1])} (the camera's size)")
+    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+
+
+def image_size(path: Path | str) -> tuple[int, int]:
+    """``(width, height)`` of an image file, pixels; ViewError if it cannot be read."""
+    height, width = _decode(Path(path), cv2.IMREAD_UNCHANGED | cv2.IMREAD_IGNORE_ORIENTATION).shape[:2]
+    return int(width), int(height)
+
+
+def as_bounds(value, *, what: str) -> np.ndarray:
+    """``value`` as a (2, 3) float64 box ``[min, max]``; ViewError (naming ``what``) otherwise."""
+    try:
+        bounds = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        bounds = np.zeros(0)
+    if bounds.shape != (2, 3) or not np.all(np.isfinite(bounds)) or np.any(bounds[1] <= bounds[0]):
+        raise ViewError(f"{what} must be [[xmin, ymin, zmin], [xmax, ymax, zmax]] with finite "
+                        f"min < max, got {value!r}")
+    return bounds
+
+
+def nearest_rotation(matrix: np.ndarray, *, what: str, tolerance: float = 1e-3) -> np.ndarray:
+    """The rotation nearest to ``matrix`` (3, 3), for rotations stored with rounding.
+
+    Raises ViewError (naming ``what``) if ``matrix`` is further than
+    ``tolerance`` (largest element of ``M M^T - I``) from orthonormal or is a
+    reflection.
+    """
+    matrix = np.asarray(matrix, dtype=np.float64)
+    if matrix.shape != (3, 3) or not np.all(np.isfinite(matrix)):
+        raise ViewError(f"{what}: rotation must be a finite 3x3 matrix")
+    error = np.abs(matrix @ matrix.T - np.eye(3)).max()
+    if error > tolerance or np.linalg.det(matrix) <= 0:
+        raise ViewError(f"{what}: not a rotation (|R R^T - I| = {error:.2g}, det = "
+                        f"{np.linalg.det(matrix):.3g}; expected orthonormal with det +1)")
+    u, _, vt = np.linalg.svd(matrix)
+    return u @ vt

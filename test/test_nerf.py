@@ -1,0 +1,146 @@
+"""NeRF / instant-ngp transforms.json reader, on files written here with known cameras."""
+
+import json
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from sfs_ros.core.inputs import load_views
+from sfs_ros.core.nerf import read_transforms
+from sfs_ros.core.views import ViewError
+
+WIDTH, HEIGHT = 40, 30
+ANGLE_X = 0.7  # radians, horizontal field of view
+#: Camera positions (world units), all looking at the origin with world +Z up.
+POSITIONS = np.array([[2.0, 0.0, 0.5], [0.0, 2.0, 1.0], [-1.5, -1.5, 0.2], [0.3, -1.0, 2.5]])
+
+
+def look_at_origin(position):
+    """Camera-to-world 4x4 in the OpenGL / Blender convention (x right, y up, z backwards)."""
+    back = position / np.linalg.norm(position)
+    right = np.cross([0.0, 0.0, 1.0], back)
+    right /= np.linalg.norm(right)
+    up = np.cross(back, right)
+    pose = np.eye(4)
+    pose[:3, :3] = np.column_stack([right, up, back])
+    pose[:3, 3] = position
+    return pose
+
+
+def write_scene(folder, extra=None, frames_extra=None, name="transforms.json", extension=""):
+    (folder / "train").mkdir(parents=True, exist_ok=True)
+    frames = []
+    for n, position in enumerate(POSITIONS):
+        cv2.imwrite(str(folder / "train" / f"r_{n}.png"), np.full((HEIGHT, WIDTH, 3), n, np.uint8))
+        frame = {"file_path": f"./train/r_{n}{extension}",
+                 "transform_matrix": look_at_origin(position).tolist()}
+        frame.update((frames_extra or {}).get(n, {}))
+        frames.append(frame)
+    document = {"camera_angle_x": ANGLE_X, "frames": frames, **(extra or {})}
+    path = folder / name
+    path.write_text(json.dumps(document))
+    return path
+
+
+def test_nerf_synthetic_style(tmp_path):
+    views = read_transforms(write_scene(tmp_path))
+    assert views.source == "nerf" and views.bounds_m is None and len(views.views) == 4
+    fx = 0.5 * WIDTH / math.tan(0.5 * ANGLE_X)
+    for n, (view, position) in enumerate(zip(views.views, POSITIONS)):
+        camera = view.camera
+        assert view.name == f"train/r_{n}.png"  # extension found on disk
+        assert view.image_path == tmp_path / "train" / f"r_{n}.png"
+        assert (camera.width, camera.height) == (WIDTH, HEIGHT)  # read from the first image
+        assert np.allclose(camera.K, [[fx, 0, 19.5], [0, fx, 14.5], [0, 0, 1]])
+        assert np.allclose(camera.center, position, atol=1e-12)
+        # The origin is on the optical axis: the image centre (pixel-centre coordinates).
+        assert np.allclose(camera.project(np.zeros((1, 3))), [[19.5, 14.5]], atol=1e-9)
+        # A point h above the origin, seen from distance d at elevation e, sits
+        # fy * h cos(e) / (d - h sin(e)) pixels above the centre, on the same column.
+        h, d = 0.3, np.linalg.norm(position)
+        e = math.asin(position[2] / d)
+        u, v = camera.project(np.array([[0.0, 0.0, h]]))[0]
+        assert abs(u - 19.5) < 1e-9
+        assert v == pytest.approx(14.5 - fx * h * math.cos(e) / (d - h * math.sin(e)), abs=1e-9)
+        assert v < 14.5
+        assert camera.depth(np.zeros((1, 3)))[0] == pytest.approx(np.linalg.norm(position))
+
+
+def test_explicit_intrinsics_per_frame_win(tmp_path):
+    extra = {"fl_x": 30.0, "fl_y": 33.0, "cx": 20.0, "cy": 15.0, "w": WIDTH, "h": HEIGHT}
+    per_frame = {1: {"fl_x": 60.0, "cx": 25.0}, 2: {"camera_angle_y": 1.0}}
+    views = read_transforms(write_scene(tmp_path, extra, per_frame, extension=".png"))
+    K = [v.camera.K for v in views.views]
+    # File convention: image centre at w / 2 (pixel corners); ours: (w - 1) / 2.
+    assert np.allclose(K[0], [[30, 0, 19.5], [0, 33, 14.5], [0, 0, 1]])
+    assert np.allclose(K[1], [[60, 0, 24.5], [0, 33, 14.5], [0, 0, 1]])
+    assert K[2][1, 1] == pytest.approx(0.5 * HEIGHT / math.tan(0.5))  # frame angle beats top fl_y
+    assert np.allclose(views.views[1].camera.project(np.zeros((1, 3))), [[24.5, 14.5]])
+
+
+@pytest.mark.parametrize("extra, expected", [
+    ({"aabb": [[-1, -1, -1], [1, 1, 1]]}, [[-1, -1, -1], [1, 1, 1]]),
+    ({"aabb": [[-1, -1, -1], [1, 1, 1]], "bounds_m": [[0, 0, 0], [0.5, 0.5, 0.5]]},
+     [[0, 0, 0], [0.5, 0.5, 0.5]]),
+    ({"aabb_scale": 16}, None),
+])
+def test_bounds(tmp_path, extra, expected):
+    bounds = read_transforms(write_scene(tmp_path, extra)).bounds_m
+    assert (bounds is None) if expected is None else np.array_equal(bounds, expected)
+
+
+def test_load_views_finds_the_json(tmp_path):
+    write_scene(tmp_path, name="transforms_train.json")
+    assert load_views(tmp_path / "transforms_train.json").source == "nerf"
+    assert load_views(tmp_path).source == "nerf"  # the only transforms*.json
+    write_scene(tmp_path, name="transforms_test.json")
+    with pytest.raises(ViewError, match="transforms_test.json, transforms_train.json"):
+        load_views(tmp_path)
+    write_scene(tmp_path, {"fl_x": 99.0})  # transforms.json is preferred
+    assert load_views(tmp_path).views[0].camera.K[0, 0] == 99.0
+
+
+def bad_pose():
+    pose = look_at_origin(POSITIONS[0])
+    pose[:3, :3] *= 2.0  # scaled, not rigid
+    return pose.tolist()
+
+
+@pytest.mark.parametrize("extra, per_frame, message", [
+    ({"camera_angle_x": None}, {}, "camera_angle_x must be a finite number"),
+    ({"camera_angle_x": 4.0}, {}, r"camera_angle_x must be in \(0, pi\)"),
+    ({}, {2: {"file_path": "./train/missing"}}, r"frame 2: image .*missing does not exist"),
+    ({}, {1: {"file_path": "./train/r_0"}}, r"frame 1: image 'train/r_0.png' is listed twice"),
+    ({"k1": 0.01}, {}, "frame 0: lens distortion k1 is not supported"),
+    ({}, {0: {"is_fisheye": True}}, "fisheye"),
+    ({}, {3: {"transform_matrix": bad_pose()}}, "frame 3: transform_matrix: not a rotation"),
+    ({}, {0: {"transform_matrix": [[1, 0, 0], [0, 1, 0]]}}, "must be a finite 4x4"),
+    ({"aabb": [0, 1]}, {}, r"aabb must be \[\[xmin"),
+    ({"frames": []}, {}, "non-empty 'frames' list"),
+])
+def test_bad_transforms(tmp_path, extra, per_frame, message):
+    with pytest.raises(ViewError, match=message):
+        read_transforms(write_scene(tmp_path, extra, per_frame))
+
+
+def test_no_focal_length(tmp_path):
+    path = write_scene(tmp_path)
+    document = json.loads(path.read_text())
+    del document["camera_angle_x"]
+    path.write_text(json.dumps(document))
+    with pytest.raises(ViewError, match="no focal length; expected camera_angle_x or fl_x"):
+        read_transforms(path)
+
+
+def test_zero_distortion_is_accepted(tmp_path):
+    views = read_transforms(write_scene(tmp_path, {"k1": 0.0, "p1": 0, "is_fisheye": False}))
+    assert len(views.views) == 4
+
+
+def test_invalid_json(tmp_path):
+    path = tmp_path / "transforms.json"
+    path.write_text('{"frames": [')
+    with pytest.raises(ViewError, match="is not valid JSON"):
+        read_transforms(path)
