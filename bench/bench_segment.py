@@ -1,0 +1,84 @@
+"""Segmentation speed per ~1 MP image (1024x1024 and 1280x800).
+
+The image: a shaded object with a hole on a backdrop with a gentle gradient,
+vignetting, noise and specks (white and black backdrops). Baseline: a plain
+fixed threshold on the largest channel difference to a known background (one
+numpy expression, no estimation, morphology or connectivity test), measured
+in the same run. Ratio = baseline / ours (below 1: ours does more work).
+
+Run: ``python -m bench.bench_segment`` (``--quick`` for fewer repeats).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from sfs_ros.core.segment import PRESETS, SegmentationParams, segment
+
+SIZES = ((1024, 1024), (1280, 800))  # (width, height)
+BACKDROPS = {"white": (240, 240, 235), "black": (12, 10, 14)}
+
+
+def synthetic_image(width: int, height: int, backdrop, seed: int = 0) -> np.ndarray:
+    """(height, width, 3) uint8: shaded ellipse with a hole on a graded, noisy backdrop."""
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[0:height, 0:width].astype(np.float32)
+    u, v = xx / width - 0.5, yy / height - 0.5
+    sign = 1.0 if np.mean(backdrop) < 128 else -1.0
+    image = np.asarray(backdrop, np.float32) + sign * 15 * (0.5 * u + 0.5 - (u * u + v * v))[..., None]
+    body = (u / 0.3) ** 2 + (v / 0.25) ** 2 <= 1
+    hole = ((u - 0.1) / 0.06) ** 2 + (v / 0.06) ** 2 <= 1
+    obj = body & ~hole
+    shade = 0.3 + 0.7 * np.clip((u + 0.3) / 0.6, 0, 1)
+    image[obj] = np.array([210, 170, 120], np.float32) * shade[obj, None]
+    for x, y in rng.integers(0, min(width, height), (20, 2)):
+        image[y:y + 4, x:x + 4] = 255 - np.asarray(backdrop, np.float32)
+    image += rng.normal(0, 3, image.shape).astype(np.float32)
+    return np.clip(image, 0, 255).astype(np.uint8)
+
+
+def plain_threshold(image: np.ndarray, background, threshold: float) -> np.ndarray:
+    """The baseline: largest channel difference to a known background above a fixed threshold."""
+    diff = np.abs(image.astype(np.int16) - np.asarray(background, np.int16)).max(axis=2)
+    return diff > threshold * 255
+
+
+def _best_of(fn, repeats: int) -> float:
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - start)
+    return min(times)
+
+
+def run(quick: bool = False) -> list[dict]:
+    repeats = 3 if quick else 7
+    configs = [("default (auto, smooth background)", {}),
+               ("middlebury-dino preset", PRESETS["middlebury-dino"]),
+               ("middlebury-temple preset", PRESETS["middlebury-temple"])]
+    rows = []
+    for width, height in SIZES:
+        for backdrop_name, backdrop in BACKDROPS.items():
+            image = synthetic_image(width, height, backdrop)
+            baseline = _best_of(lambda: plain_threshold(image, backdrop, 0.2), repeats)
+            for label, values in configs:
+                if backdrop_name == "white" and label.startswith("middlebury"):
+                    continue  # the Middlebury presets assume a black backdrop
+                params = SegmentationParams.from_dict(values)
+                seconds = _best_of(lambda: segment(image, params), repeats)
+                rows.append({"name": f"segment {width}x{height} {backdrop_name}: {label}",
+                             "seconds": seconds, "baseline_seconds": baseline,
+                             "ratio": baseline / seconds})
+    return rows
+
+
+if __name__ == "__main__":
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--quick", action="store_true", help="fewer repeats")
+    for row in run(quick=parser.parse_args().quick):
+        print(f"{row['name']:<62} {row['seconds'] * 1e3:8.1f} ms   baseline "
+              f"{row['baseline_seconds'] * 1e3:7.1f} ms   ratio {row['ratio']:.2f}")

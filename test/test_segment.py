@@ -1,0 +1,266 @@
+"""Segmentation on synthetic captures with a known ground-truth silhouette."""
+
+import numpy as np
+import pytest
+from scipy.ndimage import binary_dilation
+
+from sfs_ros.core.segment import (PRESETS, Segmentation, SegmentationParams, estimate_background,
+                                  segment)
+
+H, W = 240, 320
+# The object: an ellipse with a large hole (a handle: real, must stay open) and
+# a small hole (a blemish: must be filled).
+CENTRE = (150.0, 120.0)          # (x, y) pixels
+AXES = (80.0, 62.0)              # semi-axes, pixels
+BIG_HOLE = ((185.0, 118.0), 20.0)     # centre, radius: ~1250 px, ~8 % of the object
+SMALL_HOLE = ((110.0, 100.0), 3.0)    # ~29 px, ~0.2 % of the object
+FILL_FRACTION = 0.01                  # holes under 1 % of the object area are filled
+
+# Tolerances. Edges are hard (no anti-aliasing) and the noise is small against
+# the contrast, so the mask may differ from the truth only in a 1-pixel band
+# along the outline (the opening/closing radius). Outline ~ 2*pi*(71 + 20)
+# ~ 570 px against ~14 000 px of object: IoU >= 1 - 570 / 14 000 ~ 0.96.
+IOU_MIN = 0.95
+BAND_PX = 1
+# Background: within 3 grey levels of the truth (noise sigma 4 averaged over
+# thousands of border pixels; the gradient is what the estimate must absorb).
+BACKGROUND_TOL = 3.0
+
+
+def _disk(shape, centre, radius):
+    yy, xx = np.mgrid[0:shape[0], 0:shape[1]]
+    return (xx - centre[0]) ** 2 + (yy - centre[1]) ** 2 <= radius ** 2
+
+
+def ground_truth(shape=(H, W), centre=CENTRE):
+    yy, xx = np.mgrid[0:shape[0], 0:shape[1]]
+    body = ((xx - centre[0]) / AXES[0]) ** 2 + ((yy - centre[1]) / AXES[1]) ** 2 <= 1
+    dx, dy = centre[0] - CENTRE[0], centre[1] - CENTRE[1]
+    big = _disk(shape, (BIG_HOLE[0][0] + dx, BIG_HOLE[0][1] + dy), BIG_HOLE[1])
+    small = _disk(shape, (SMALL_HOLE[0][0] + dx, SMALL_HOLE[0][1] + dy), SMALL_HOLE[1])
+    return body & ~big & ~small, body & ~big  # truth as seen, truth after filling
+
+
+def render(background, *, object_rgb=(200, 120, 60), shade=(0.35, 1.0), gradient=12.0,
+           noise=4.0, specks=True, centre=CENTRE, shape=(H, W), seed=0):
+    """A shaded object on a background with a gentle gradient + vignetting, noise and specks.
+
+    Returns (image uint8 (H, W, 3), true background field (H, W, 3) float64, truth mask).
+    """
+    rng = np.random.default_rng(seed)
+    h, w = shape
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    r2 = ((xx - w / 2) / w) ** 2 + ((yy - h / 2) / h) ** 2
+    sign = 1.0 if np.mean(background) < 128 else -1.0  # the gradient stays inside 0..255
+    field = np.asarray(background, np.float64) + sign * gradient * (
+        0.5 * (xx / w) + 0.5 * (1 - 2 * r2))[..., None]
+    image = field.copy()
+    truth, _ = ground_truth(shape, centre)
+    # Lambert-like shading: dark on the left, lit on the right.
+    light = np.clip((xx - (centre[0] - AXES[0])) / (2 * AXES[0]), 0, 1)
+    level = shade[0] + (shade[1] - shade[0]) * light
+    image[truth] = (np.asarray(object_rgb, np.float64) * level[truth, None])
+    if specks:
+        for x, y, s in ((20, 20, 3), (290, 30, 4), (40, 200, 5), (300, 215, 2), (260, 180, 3)):
+            image[y:y + s, x:x + s] = 255 - np.asarray(background)
+    image += rng.normal(0, noise, image.shape)
+    return np.clip(np.round(image), 0, 255).astype(np.uint8), field, truth
+
+
+def iou(a, b):
+    return (a & b).sum() / (a | b).sum()
+
+
+def within_band(mask, truth, band=BAND_PX):
+    """Pixels of ``mask`` / ``truth`` farther than ``band`` from the other's outline."""
+    return (int((mask & ~binary_dilation(truth, iterations=band)).sum()),
+            int((truth & ~binary_dilation(mask, iterations=band)).sum()))
+
+
+@pytest.mark.parametrize("background, object_rgb, shade", [
+    ((245, 245, 240), (200, 120, 60), (0.3, 1.0)),   # white: dark faces are easy, ...
+    ((240, 240, 245), (150, 150, 150), (0.4, 1.3)),  # ... light faces approach the backdrop
+    ((12, 10, 14), (220, 215, 200), (0.25, 1.0)),    # black: dark faces approach the backdrop
+])
+@pytest.mark.parametrize("model", ["constant", "smooth"])
+def test_mask_matches_truth(background, object_rgb, shade, model):
+    image, _, _ = render(background, object_rgb=object_rgb, shade=shade)
+    _, filled_truth = ground_truth()
+    params = SegmentationParams(background_model=model, fill_holes_max_fraction=FILL_FRACTION,
+                                dilate_px=0)
+    result = segment(image, params)
+    assert isinstance(result, Segmentation)
+    assert result.mask.dtype == bool and result.mask.shape == (H, W)
+    assert not result.empty and not result.touches_border
+    assert iou(result.mask, filled_truth) > IOU_MIN
+    extra, missing = within_band(result.mask, filled_truth)
+    assert extra == 0 and missing == 0
+    assert result.n_blobs_removed >= 1   # the larger specks survive the opening
+    assert result.holes_filled == 1      # the small hole, never the big one
+    big_hole = _disk((H, W), BIG_HOLE[0], BIG_HOLE[1] - BAND_PX - 0.5)  # inside the band
+    assert not result.mask[big_hole].any()
+    assert result.foreground_fraction == pytest.approx(result.mask.mean())
+
+
+@pytest.mark.parametrize("background", [(245, 245, 240), (12, 10, 14)])
+def test_background_estimate(background):
+    image, field, _ = render(background)
+    smooth = segment(image, SegmentationParams(background_model="smooth"))
+    # The smooth model reports the mean of its field: the mean of the true field.
+    np.testing.assert_allclose(smooth.background_rgb, field.reshape(-1, 3).mean(axis=0),
+                               atol=BACKGROUND_TOL)
+    # The constant model reports the border mode: within the border's spread.
+    border = np.concatenate([field[0], field[-1], field[:, 0], field[:, -1]])
+    constant = estimate_background(image)
+    assert np.all(constant >= border.min(axis=0) - BACKGROUND_TOL)
+    assert np.all(constant <= border.max(axis=0) + BACKGROUND_TOL)
+
+
+def test_smooth_background_absorbs_strong_vignetting():
+    # A 60-level vignette on a white backdrop (the corners at ~190, the centre
+    # at 240) against a flat grey object 0.2-0.3 below the local backdrop: a
+    # single background colour calls the dark corners object, the fitted
+    # quadratic field does not.
+    image, _, _ = render((240, 240, 240), object_rgb=(150, 150, 150), shade=(0.9, 1.0),
+                         gradient=60.0)
+    _, filled_truth = ground_truth()
+    params = dict(fill_holes_max_fraction=FILL_FRACTION, dilate_px=0)
+    smooth = segment(image, SegmentationParams(background_model="smooth", **params))
+    constant = segment(image, SegmentationParams(background_model="constant", **params))
+    assert iou(smooth.mask, filled_truth) > IOU_MIN
+    assert within_band(smooth.mask, filled_truth) == (0, 0)
+    assert iou(constant.mask, filled_truth) < 0.9
+
+
+def test_background_estimate_survives_object_on_the_border():
+    # The object covers a third of the top edge: the border mode ignores it.
+    image, _, _ = render((245, 245, 240), centre=(150.0, 40.0), gradient=0.0, specks=False)
+    np.testing.assert_allclose(estimate_background(image), (245, 245, 240), atol=BACKGROUND_TOL)
+    result = segment(image, SegmentationParams(dilate_px=0))
+    truth, _ = ground_truth(centre=(150.0, 40.0))
+    assert result.touches_border
+    assert iou(result.mask, truth) > IOU_MIN
+
+
+def test_white_and_black_hints_and_given_colour():
+    image, _, _ = render((245, 245, 240), gradient=0.0)
+    np.testing.assert_allclose(estimate_background(image, background="white"), (245, 245, 240),
+                               atol=BACKGROUND_TOL)
+    given = segment(image, SegmentationParams(background=(245, 245, 240)))
+    np.testing.assert_array_equal(given.background_rgb, (245, 245, 240))
+    # Told "black", a white-backdrop image has no dark border pixels: black is assumed
+    # and the whole frame is "object" touching the border.
+    black = segment(image, SegmentationParams(background="black", background_model="constant"))
+    assert black.touches_border and black.foreground_fraction > 0.9
+
+
+def test_hysteresis_keeps_shadows_connected_to_the_object_only():
+    # Black backdrop; the object's shaded left part (0.12 of full scale) is
+    # below the sure threshold (0.3), above the weak one (0.09). A separate
+    # dim patch at the same level is not connected to anything sure.
+    image = np.full((H, W, 3), 10, np.uint8)
+    image[80:160, 60:120] = 40     # shadowed part of the object
+    image[80:160, 120:220] = 200   # lit part
+    image[20:50, 250:300] = 40     # dim patch elsewhere
+    strong_only = segment(image, SegmentationParams(threshold=0.3, weak_ratio=1.0, dilate_px=0))
+    hysteresis = segment(image, SegmentationParams(threshold=0.3, weak_ratio=0.3, grow_px=None,
+                                                   dilate_px=0))
+    limited = segment(image, SegmentationParams(threshold=0.3, weak_ratio=0.3, grow_px=10,
+                                                dilate_px=0))
+    assert strong_only.mask[80:160, 60:120].sum() == 0
+    # (Interiors: the opening rounds the corners of the rectangles.)
+    assert hysteresis.mask[81:159, 61:219].all()
+    assert not hysteresis.mask[20:50, 250:300].any()
+    # Limited growth stops 10 px into the shadow.
+    assert limited.mask[81:159, 110:120].all() and not limited.mask[80:160, 60:108].any()
+
+
+def test_keep_largest_only_and_min_blob_fraction():
+    image = np.full((H, W, 3), 250, np.uint8)
+    image[40:140, 40:140] = 30     # 10 000 px
+    image[160:200, 200:240] = 30   # 1 600 px: 16 % of the largest
+    params = dict(dilate_px=0, open_px=0, background_model="constant")
+    both = segment(image, SegmentationParams(min_blob_fraction=0.1, **params))
+    largest = segment(image, SegmentationParams(keep_largest_only=True, **params))
+    strict = segment(image, SegmentationParams(min_blob_fraction=0.2, **params))
+    assert both.mask.sum() == 11600 and both.n_blobs_removed == 0
+    assert largest.mask.sum() == 10000 and largest.n_blobs_removed == 1
+    assert strict.mask.sum() == 10000 and strict.n_blobs_removed == 1
+
+
+def test_dilation_is_conservative():
+    image, _, _ = render((12, 10, 14), object_rgb=(220, 215, 200))
+    _, filled_truth = ground_truth()
+    mask = segment(image, SegmentationParams(dilate_px=2, fill_holes_max_fraction=FILL_FRACTION)).mask
+    assert mask[filled_truth].all()   # one-sided: the truth is inside the dilated mask
+    extra, _ = within_band(mask, filled_truth, band=3)
+    assert extra == 0
+
+
+def test_grey_input_matches_rgb():
+    image, _, _ = render((12, 12, 12), object_rgb=(200, 200, 200), noise=0.0)
+    grey = image[:, :, 0]
+    np.testing.assert_array_equal(segment(grey).mask, segment(np.dstack([grey] * 3)).mask)
+
+
+@pytest.mark.parametrize("image", [
+    np.zeros((H, W, 3), np.uint8),
+    np.full((H, W, 3), 255, np.uint8),
+    np.clip(np.random.default_rng(1).normal(128, 4, (H, W, 3)), 0, 255).astype(np.uint8),
+])
+def test_no_object_is_empty_not_an_error(image):
+    result = segment(image)
+    assert result.empty and not result.mask.any()
+    assert result.foreground_fraction == 0.0 and not result.touches_border
+
+
+@pytest.mark.parametrize("image, words", [
+    (np.zeros((H, W, 3), np.float32), "dtype float32"),
+    (np.zeros((H, W, 3), np.uint16), "dtype uint16"),
+    (np.zeros((H, W, 4), np.uint8), "shape (240, 320, 4)"),
+    (np.zeros((H * W,), np.uint8), "shape (76800,)"),
+    (np.zeros((4, 4), np.uint8), "at least 8x8"),
+])
+def test_bad_images_are_rejected(image, words):
+    with pytest.raises(ValueError, match="expected|must") as info:
+        segment(image)
+    assert words in str(info.value)
+
+
+@pytest.mark.parametrize("values, words", [
+    ({"background": "grey"}, "background"),
+    ({"background": (255, 255)}, "3 values"),
+    ({"background": (0, 0, 300)}, "0..255"),
+    ({"background_model": "spline"}, "background_model"),
+    ({"threshold": 0.0}, "threshold"),
+    ({"threshold": 1.5}, "threshold"),
+    ({"threshold_range": (0.5, 0.1)}, "threshold_range"),
+    ({"weak_ratio": 0.0}, "weak_ratio"),
+    ({"grow_px": -1}, "grow_px"),
+    ({"grow_px": 2.5}, "grow_px"),
+    ({"chroma_weight": -1.0}, "chroma_weight"),
+    ({"close_px": -2}, "close_px"),
+    ({"open_px": True}, "open_px"),
+    ({"min_blob_fraction": 1.5}, "min_blob_fraction"),
+    ({"fill_holes_max_fraction": -0.1}, "fill_holes_max_fraction"),
+    ({"min_area_fraction": 1.0}, "min_area_fraction"),
+    ({"border_fraction": 0.5}, "border_fraction"),
+    ({"keep_largest_only": "yes"}, "keep_largest_only"),
+])
+def test_bad_params_are_rejected(values, words):
+    with pytest.raises(ValueError, match=words):
+        SegmentationParams(**values)
+
+
+def test_from_dict():
+    params = SegmentationParams.from_dict({"background": [10, 20, 30], "threshold": 0.2,
+                                           "threshold_range": [0.1, 0.3]})
+    assert params.background == (10, 20, 30) and params.threshold_range == (0.1, 0.3)
+    with pytest.raises(ValueError, match="unknown segmentation parameter.*'thresh'"):
+        SegmentationParams.from_dict({"thresh": 0.2})
+    with pytest.raises(ValueError, match="dict"):
+        SegmentationParams.from_dict([("threshold", 0.2)])
+    for name, values in PRESETS.items():
+        assert isinstance(SegmentationParams.from_dict(values), SegmentationParams), name
+    with pytest.raises(ValueError, match="SegmentationParams"):
+        segment(np.zeros((H, W), np.uint8), {"threshold": 0.2})
