@@ -1,0 +1,274 @@
+"""Shape from silhouette: keep the voxels whose centres project into every mask.
+
+The pixel test: a voxel centre projects to ``(u, v)``; it lands in pixel
+``(floor(u + 0.5), floor(v + 0.5))`` (the pixel whose centre is nearest) and
+hits the view when that pixel is foreground. A voxel whose centre projects
+outside the image (or lies behind a pinhole camera) is kept
+(``outside_image="keep"``: the view knows nothing about it, so objects may be
+partly out of frame) or carved (``"carve"``). With ``max_misses=k`` a voxel
+survives when at most ``k`` views miss it (tolerance to a few bad masks).
+
+Two exact algorithms compute that same test (see :mod:`.carve_kernels`):
+
+* line path: when every view is orthographic and one grid axis ``a`` leaves
+  either the image column or the image row unchanged in every view (the
+  physical rig maps each vertical Z-line of voxels onto one image column, the
+  paper's convention each X-line onto one image row), masks are stored as
+  runs of foreground per column (row), and each voxel line keeps a list of
+  surviving intervals, intersected view by view with early exit;
+* block path (any camera): blocks of voxels are tested against each view
+  with a summed-area table over the bounding pixel rectangle of the block's
+  projection (all foreground: every voxel hits; none: every voxel misses);
+  only undecided blocks are split, down to a per-voxel test.
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numba
+import numpy as np
+
+from . import carve_kernels as _k
+from .camera import Camera
+from .grid import VoxelGrid
+
+__all__ = ["OUTSIDE_IMAGE", "carve", "Carver", "validate_masks", "view_coefficients"]
+
+OUTSIDE_IMAGE = ("keep", "carve")
+
+#: Projection-matrix entries this small relative to their row count as zero.
+_ZERO_TOL = 1e-12
+#: Block path: edge of the first blocks and of the blocks tested voxel by voxel.
+_TOP_BLOCK = 16
+_LEAF_BLOCK = 2
+#: Line path: voxel lines per parallel task.
+_LINE_CHUNK = 256
+
+
+def _check_options(max_misses, outside_image) -> int:
+    if isinstance(max_misses, bool) or not isinstance(max_misses, (int, np.integer)) \
+            or max_misses < 0:
+        raise ValueError(f"max_misses must be an integer >= 0, got {max_misses!r}")
+    if outside_image not in OUTSIDE_IMAGE:
+        raise ValueError(f"outside_image must be one of {OUTSIDE_IMAGE}, got {outside_image!r}")
+    return int(max_misses)
+
+
+def _check_mask(index: int, mask, camera) -> np.ndarray:
+    """(H, W) bool C-contiguous copy-free view where possible; ValueError otherwise."""
+    if not isinstance(camera, Camera):
+        raise ValueError(f"camera of view {index} must be a Camera, got {type(camera).__name__}")
+    m = np.asarray(mask)
+    expected = (camera.height, camera.width)
+    if m.shape != expected:
+        raise ValueError(f"mask of view {index} has shape {m.shape}, expected the camera's "
+                         f"(height, width) = {expected}")
+    if m.dtype != np.bool_:
+        numeric = np.issubdtype(m.dtype, np.integer) or np.issubdtype(m.dtype, np.floating)
+        if not numeric or not np.all((m == 0) | (m == 1)):
+            raise ValueError(f"mask of view {index} must be bool or hold only 0 and 1, "
+                             f"got dtype {m.dtype}")
+        m = m != 0
+    return np.ascontiguousarray(m)
+
+
+def validate_masks(cameras, masks) -> list:
+    """Masks as (H, W) bool arrays, one per camera; ValueError naming the bad view."""
+    cameras = list(cameras)
+    if len(masks) != len(cameras):
+        raise ValueError(f"got {len(cameras)} cameras but {len(masks)} masks; expected one mask "
+                         "per camera")
+    return [_check_mask(i, m, c) for i, (c, m) in enumerate(zip(cameras, masks))]
+
+
+def view_coefficients(grid: VoxelGrid, cameras: Sequence[Camera]) -> np.ndarray:
+    """Per view, the projection as an affine function of voxel indices.
+
+    Returns
+    -------
+    (n_views, 3, 4) float64
+        ``coef[v, r] = (c, a_i, a_j, a_k)``: row ``r`` of the homogeneous pixel
+        of voxel ``(i, j, k)`` is ``((c + i a_i) + j a_j) + k a_k``. Entries
+        below ``1e-12`` times the largest of their row are set to exactly 0.
+    """
+    coef = np.empty((len(cameras), 3, 4))
+    for v, cam in enumerate(cameras):
+        P = cam.projection_matrix
+        A = P[:, :3].copy()
+        scale = np.abs(A).max(axis=1, keepdims=True)
+        A[np.abs(A) <= _ZERO_TOL * scale] = 0.0
+        coef[v, :, 0] = A @ grid.origin + P[:, 3]
+        coef[v, :, 1:] = A * grid.voxel_size
+    return coef
+
+
+def _line_setup(coef: np.ndarray, cameras) -> tuple[int, np.ndarray] | None:
+    """Grid axis whose lines each fall on one image row or column in every view.
+
+    Returns ``(axis, by_row)`` with ``by_row[v]`` true when view ``v`` keeps the
+    image row fixed along the line (runs are then taken along mask rows), or
+    None when the views need the block path.
+    """
+    if not all(c.orthographic for c in cameras):
+        return None
+    if len({(c.height, c.width) for c in cameras}) != 1:
+        return None
+    for axis in (2, 1, 0):  # 2 first: Z-lines are contiguous in memory
+        u_fixed = coef[:, 0, 1 + axis] == 0.0
+        v_fixed = coef[:, 1, 1 + axis] == 0.0
+        if np.all(u_fixed | v_fixed):
+            return axis, ~u_fixed
+    return None
+
+
+def _view_order(cameras) -> np.ndarray:
+    """Views ordered so that each next one looks most unlike those before
+    (greedy farthest direction): lines and blocks die after fewer views."""
+    d = np.array([c.forward for c in cameras])
+    n = len(d)
+    order = [0]
+    similar = np.abs(d @ d[0])
+    similar[0] = np.inf
+    for _ in range(n - 1):
+        nxt = int(np.argmin(similar))
+        order.append(nxt)
+        similar = np.maximum(similar, np.abs(d @ d[nxt]))
+        similar[nxt] = np.inf
+    return np.array(order, dtype=np.int64)
+
+
+def _runs(masks: np.ndarray, by_row: np.ndarray):
+    """Foreground runs of each mask column (or row): (offsets, run_lo, run_hi, L)."""
+    n, H, W = masks.shape
+    L = max(H, W)
+    counts = np.empty((n, L), np.int32)
+    _k.count_runs(masks, by_row, counts)
+    offsets = np.zeros(n * L + 1, np.int64)
+    np.cumsum(counts.ravel(), out=offsets[1:])
+    run_lo = np.empty(offsets[-1], np.int32)
+    run_hi = np.empty(offsets[-1], np.int32)
+    _k.fill_runs(masks, by_row, offsets, run_lo, run_hi)
+    return offsets, run_lo, run_hi, L
+
+
+def _flat_views(cameras, masks):
+    """Masks and their summed-area tables, flattened for the block path."""
+    heights = np.array([c.height for c in cameras], np.int64)
+    widths = np.array([c.width for c in cameras], np.int64)
+    moff = np.zeros(len(cameras), np.int64)
+    moff[1:] = np.cumsum(heights * widths)[:-1]
+    ioff = np.zeros(len(cameras), np.int64)
+    ioff[1:] = np.cumsum((heights + 1) * (widths + 1))[:-1]
+    flat = np.concatenate([m.ravel() for m in masks]).view(np.uint8)
+    integ = np.empty(int(np.sum((heights + 1) * (widths + 1))), np.int32)
+    _k.integral_images(flat, moff, heights, widths, ioff, integ)
+    ortho = np.array([c.orthographic for c in cameras])
+    return ortho, flat, moff, integ, ioff, heights, widths
+
+
+def carve(grid: VoxelGrid, cameras: Sequence[Camera], masks, *, max_misses: int = 0,
+          outside_image: str = "keep") -> np.ndarray:
+    """Visual hull of the silhouettes ``masks`` seen by ``cameras``.
+
+    Parameters
+    ----------
+    grid : VoxelGrid
+        Voxels to test.
+    cameras : sequence of n Camera
+    masks : sequence of n (H, W) bool (or 0/1) arrays, or one (n, H, W) array
+        ``masks[v]`` has the shape ``(cameras[v].height, cameras[v].width)``.
+    max_misses : int
+        A voxel survives when at most this many views miss it.
+    outside_image : {"keep", "carve"}
+        What a view says about a voxel projecting outside its image.
+
+    Returns
+    -------
+    (nx, ny, nz) bool
+        True for the voxels that stay.
+    """
+    max_misses = _check_options(max_misses, outside_image)
+    cameras = list(cameras)
+    masks = validate_masks(cameras, masks)
+    if max_misses >= len(cameras):
+        return np.ones(grid.shape, dtype=bool)
+    keep = outside_image == "keep"
+    coef = view_coefficients(grid, cameras)
+    order = _view_order(cameras)
+    out = np.zeros(grid.shape, dtype=bool)
+    line = _line_setup(coef, cameras)
+    with numba.parallel_chunksize(1):
+        if line is not None:
+            axis, by_row = line
+            offsets, run_lo, run_hi, L = _runs(np.stack(masks), by_row)
+            H, W = masks[0].shape
+            _k.carve_lines(coef, by_row, order, offsets, run_lo, run_hi, L, H, W, axis, keep,
+                           max_misses, _LINE_CHUNK, 0 if max_misses == 0 else 1, out,
+                           np.zeros((1, 1, 1), np.uint8))
+        else:
+            ortho, flat, moff, integ, ioff, heights, widths = _flat_views(cameras, masks)
+            _k.carve_blocks(coef, ortho, flat, moff, integ, ioff, heights, widths, order, keep,
+                            max_misses, _TOP_BLOCK, _LEAF_BLOCK, out)
+    return out
+
+
+class Carver:
+    """Incremental carving: add views one at a time while a scan runs.
+
+    After any sequence of :meth:`add_view` calls, :attr:`occupancy` equals
+    ``carve(grid, cameras_so_far, masks_so_far, ...)`` exactly.
+
+    Parameters
+    ----------
+    grid : VoxelGrid
+    max_misses : int
+        A voxel survives when at most this many views miss it.
+    outside_image : {"keep", "carve"}
+        What a view says about a voxel projecting outside its image.
+    """
+
+    def __init__(self, grid: VoxelGrid, *, max_misses: int = 0, outside_image: str = "keep"):
+        self.max_misses = _check_options(max_misses, outside_image)
+        if self.max_misses >= np.iinfo(np.uint16).max:
+            raise ValueError(f"max_misses must be below {np.iinfo(np.uint16).max}, "
+                             f"got {max_misses}")
+        self.grid = grid
+        self.outside_image = outside_image
+        dtype = np.uint8 if self.max_misses < np.iinfo(np.uint8).max else np.uint16
+        # Miss count per voxel, saturating at max_misses + 1 (= carved).
+        self._misses = np.zeros(grid.shape, dtype=dtype)
+        n_blocks = int(np.prod([(n + _TOP_BLOCK - 1) // _TOP_BLOCK for n in grid.shape]))
+        self._alive = np.ones(n_blocks, dtype=bool)
+        self._n_views = 0
+
+    @property
+    def n_views(self) -> int:
+        """Number of views added so far."""
+        return self._n_views
+
+    @property
+    def occupancy(self) -> np.ndarray:
+        """(nx, ny, nz) bool: the voxels that stay after the views added so far."""
+        return self._misses <= self.max_misses
+
+    def add_view(self, camera: Camera, mask) -> None:
+        """Carve with one more view; ``mask`` (camera.height, camera.width) bool or 0/1."""
+        mask = _check_mask(self._n_views, mask, camera)
+        keep = self.outside_image == "keep"
+        coef = view_coefficients(self.grid, [camera])
+        line = _line_setup(coef, [camera])
+        with numba.parallel_chunksize(1):
+            if line is not None:
+                axis, by_row = line
+                offsets, run_lo, run_hi, L = _runs(mask[None], by_row)
+                H, W = mask.shape
+                _k.carve_lines(coef, by_row, np.zeros(1, np.int64), offsets, run_lo, run_hi, L,
+                               H, W, axis, keep, self.max_misses, _LINE_CHUNK, 2,
+                               np.zeros((1, 1, 1), bool), self._misses)
+            else:
+                ortho, flat, _, integ, _, heights, widths = _flat_views([camera], [mask])
+                _k.carve_blocks_one(coef, ortho, flat, integ, int(widths[0]), int(heights[0]),
+                                    keep, self.max_misses + 1, _TOP_BLOCK, _LEAF_BLOCK,
+                                    self._alive, self._misses)
+        self._n_views += 1

@@ -1,0 +1,249 @@
+"""Checks that one bad mask or a too small bounding box does not pass silently.
+
+A visual hull trusts every view: a single mask with a chunk missing (a
+segmentation failure, a hand in front of the object) carves that chunk away
+for good. :func:`find_inconsistent_views` carves with a tolerance (a voxel
+may be missed by ``max_misses`` views), projects that tolerant hull back into
+every view and compares it with the view's mask: the hull projection of a
+good view lies inside its mask, that of a bad view does not.
+
+:func:`bbox_clips_object` finds views whose foreground reaches outside the
+projection of the grid's box: the box misses part of the object.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Sequence
+
+import cv2
+import numpy as np
+from numba import njit, prange
+
+from .camera import Camera
+from .carve import carve, validate_masks, view_coefficients
+from .grid import VoxelGrid
+
+__all__ = ["ViewCheck", "hull_silhouettes", "find_inconsistent_views", "bbox_clips_object"]
+
+
+@dataclass(frozen=True)
+class ViewCheck:
+    """How well one view's mask agrees with the hull of all views.
+
+    Attributes
+    ----------
+    index : int
+        View index.
+    iou : float
+        Intersection over union of the projected tolerant hull and the mask.
+    missing_fraction : float
+        Fraction of the projected hull's pixels that the mask (dilated by the
+        voxel footprint) does not cover.
+    consistent : bool
+        ``missing_fraction <= max_missing_fraction and iou >= min_iou``.
+    """
+
+    index: int
+    iou: float
+    missing_fraction: float
+    consistent: bool
+
+
+@njit(parallel=True, cache=True, error_model="numpy")
+def _splat(coef, voxels, heights, widths, offsets, out, half_max):
+    """Paint the projected footprint (bounding box of its cube, at least the
+    pixel of its centre) of each voxel whose centre lands inside the image into
+    the flat images ``out``; records the largest footprint half-size per view
+    in ``half_max``."""
+    for v in prange(heights.size):
+        H = heights[v]
+        W = widths[v]
+        hmax = 0.0
+        for n in range(voxels.shape[0]):
+            i = voxels[n, 0]
+            j = voxels[n, 1]
+            k = voxels[n, 2]
+            h0 = ((coef[v, 0, 0] + i * coef[v, 0, 1]) + j * coef[v, 0, 2]) + k * coef[v, 0, 3]
+            h1 = ((coef[v, 1, 0] + i * coef[v, 1, 1]) + j * coef[v, 1, 2]) + k * coef[v, 1, 3]
+            h2 = ((coef[v, 2, 0] + i * coef[v, 2, 1]) + j * coef[v, 2, 2]) + k * coef[v, 2, 3]
+            if not h2 > 0.0:
+                continue
+            u = h0 / h2
+            w = h1 / h2
+            # Half-size of the footprint: |d(u, v)/d(index)| summed over axes / 2.
+            hu = 0.0
+            hv = 0.0
+            for a in range(1, 4):
+                hu += abs(coef[v, 0, a] - u * coef[v, 2, a])
+                hv += abs(coef[v, 1, a] - w * coef[v, 2, a])
+            hu *= 0.5 / h2
+            hv *= 0.5 / h2
+            hmax = max(hmax, hu, hv)
+            cu = np.floor(u + 0.5)
+            cw = np.floor(w + 0.5)
+            if not (cu >= 0.0 and cu < W and cw >= 0.0 and cw < H):
+                continue  # the view says nothing about voxels outside its image
+            c0 = max(0.0, min(cu, np.ceil(u - hu)))
+            c1 = min(W - 1.0, max(cu, np.floor(u + hu)))
+            r0 = max(0.0, min(cw, np.ceil(w - hv)))
+            r1 = min(H - 1.0, max(cw, np.floor(w + hv)))
+            if c0 > c1 or r0 > r1:
+                continue
+            for r in range(int(r0), int(r1) + 1):
+                for c in range(int(c0), int(c1) + 1):
+                    out[offsets[v] + r * W + c] = 1
+        half_max[v] = hmax
+
+
+def _surface_voxels(occupancy: np.ndarray) -> np.ndarray:
+    """(n, 3) int64 indices of occupied voxels with an empty 6-neighbour (or on
+    the grid border): their projection equals that of the whole volume."""
+    occ = np.asarray(occupancy, dtype=bool)
+    inner = np.zeros_like(occ)
+    core = occ[1:-1, 1:-1, 1:-1].copy()
+    for axis in range(3):
+        for step in (-1, 1):
+            sl = [slice(1, -1)] * 3
+            sl[axis] = slice(1 + step, occ.shape[axis] - 1 + step)
+            core &= occ[tuple(sl)]
+    inner[1:-1, 1:-1, 1:-1] = core
+    return np.argwhere(occ & ~inner)
+
+
+def hull_silhouettes(grid: VoxelGrid, occupancy: np.ndarray,
+                     cameras: Sequence[Camera]) -> tuple[list, np.ndarray]:
+    """Project a voxel volume into each camera.
+
+    Parameters
+    ----------
+    grid : VoxelGrid
+    occupancy : (nx, ny, nz) bool
+    cameras : sequence of n Camera
+
+    Returns
+    -------
+    images : list of n (H, W) bool
+        Pixels covered by the footprint (bounding box of the projected cube)
+        of an occupied voxel whose centre projects inside the image.
+    half_px : (n,) float64
+        Largest footprint half-size per view, pixels.
+    """
+    occupancy = np.asarray(occupancy)
+    if occupancy.shape != grid.shape:
+        raise ValueError(f"occupancy has shape {occupancy.shape}, expected the grid's {grid.shape}")
+    cameras = list(cameras)
+    heights = np.array([c.height for c in cameras], np.int64)
+    widths = np.array([c.width for c in cameras], np.int64)
+    offsets = np.zeros(len(cameras), np.int64)
+    offsets[1:] = np.cumsum(heights * widths)[:-1]
+    flat = np.zeros(int(np.sum(heights * widths)), np.uint8)
+    half = np.zeros(len(cameras))
+    _splat(view_coefficients(grid, cameras), _surface_voxels(occupancy), heights, widths,
+           offsets, flat, half)
+    images = [flat[o:o + h * w].reshape(h, w).astype(bool)
+              for o, h, w in zip(offsets, heights, widths)]
+    return images, half
+
+
+def find_inconsistent_views(grid: VoxelGrid, cameras: Sequence[Camera], masks, *,
+                            max_misses: int = 1, min_iou: float = 0.8,
+                            max_missing_fraction: float = 0.05,
+                            outside_image: str = "keep") -> list[ViewCheck]:
+    """Check every view's mask against the hull carved with tolerance.
+
+    Parameters
+    ----------
+    grid : VoxelGrid
+    cameras : sequence of n Camera
+    masks : sequence of n (H, W) bool (or 0/1)
+    max_misses : int
+        Tolerance of the reference hull: a voxel stays when at most this many
+        views miss it, so up to ``max_misses`` bad views cannot carve it.
+    min_iou, max_missing_fraction : float
+        Thresholds of :attr:`ViewCheck.consistent`.
+    outside_image : {"keep", "carve"}
+        As in :func:`sfs_ros.core.carve.carve`.
+
+    Returns
+    -------
+    list of n ViewCheck
+        One per view, in order (filter on ``consistent``). The reference hull
+        leaves out voxels inside the image of ``max_misses`` views or fewer
+        (nothing could carve them). When it is empty, every view with
+        foreground is inconsistent.
+    """
+    if not 0.0 <= min_iou <= 1.0 or not 0.0 <= max_missing_fraction <= 1.0:
+        raise ValueError(f"min_iou and max_missing_fraction must lie in [0, 1], got {min_iou}, "
+                         f"{max_missing_fraction}")
+    cameras = list(cameras)
+    masks = validate_masks(cameras, masks)
+    hull = carve(grid, cameras, masks, max_misses=max_misses, outside_image=outside_image)
+    # A voxel inside the image of at most max_misses views is never carved by
+    # the tolerant hull, whatever the masks say: leave such voxels out.
+    if len(cameras) > max_misses:
+        hull &= carve(grid, cameras, [np.ones(m.shape, bool) for m in masks],
+                      max_misses=len(cameras) - max_misses - 1, outside_image="carve")
+    images, half = hull_silhouettes(grid, hull, cameras)
+    checks = []
+    for v, (mask, proj) in enumerate(zip(masks, images)):
+        r = int(math.ceil(half[v] + 0.5))
+        grown = cv2.dilate(mask.view(np.uint8), np.ones((2 * r + 1, 2 * r + 1), np.uint8)) > 0
+        n_proj = int(proj.sum())
+        union = int((proj | mask).sum())
+        iou = float((proj & mask).sum()) / union if union else 1.0
+        missing = float((proj & ~grown).sum()) / n_proj if n_proj else 0.0
+        checks.append(ViewCheck(index=v, iou=iou, missing_fraction=missing,
+                                consistent=iou >= min_iou and missing <= max_missing_fraction))
+    return checks
+
+
+def bbox_clips_object(grid: VoxelGrid, cameras: Sequence[Camera], masks, *,
+                      tolerance_px: float = 1.5, min_pixels: int = 1) -> list[int]:
+    """Views with foreground outside the projection of the grid's box.
+
+    Parameters
+    ----------
+    grid : VoxelGrid
+    cameras : sequence of n Camera
+    masks : sequence of n (H, W) bool (or 0/1)
+    tolerance_px : float
+        Foreground up to this far outside the projected box is ignored, pixels.
+    min_pixels : int
+        A view is reported when at least this many foreground pixels lie
+        farther out.
+
+    Returns
+    -------
+    list of int
+        Indices of the views where the box misses part of the object. A
+        pinhole view whose camera sits inside or beside the box (a corner at
+        or behind the camera plane) cannot be judged and is not reported.
+    """
+    if tolerance_px < 0 or int(min_pixels) < 1:
+        raise ValueError(f"tolerance_px must be >= 0 and min_pixels >= 1, got {tolerance_px}, "
+                         f"{min_pixels}")
+    cameras = list(cameras)
+    masks = validate_masks(cameras, masks)
+    lo, hi = grid.bounds_min, grid.bounds_max
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                        for z in (lo[2], hi[2])])
+    clipped = []
+    for v, (cam, mask) in enumerate(zip(cameras, masks)):
+        if not cam.orthographic and np.any(cam.depth(corners) <= 0):
+            continue
+        hull = cv2.convexHull(cam.project(corners).astype(np.float32))[:, 0, :].astype(np.float64)
+        rows, cols = np.nonzero(mask)
+        pts = np.stack([cols, rows], axis=1).astype(np.float64)
+        # Signed distance to each edge's line, positive outside (the hull's
+        # orientation fixes the sign); outside the box = beyond any edge.
+        edge = np.roll(hull, -1, axis=0) - hull
+        normal = np.stack([edge[:, 1], -edge[:, 0]], axis=1)
+        normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+        centre = hull.mean(axis=0)
+        normal *= np.sign(np.sum((hull - centre) * normal, axis=1))[:, None]
+        dist = pts @ normal.T - np.sum(hull * normal, axis=1)
+        if int(np.sum(dist.max(axis=1) > tolerance_px)) >= int(min_pixels):
+            clipped.append(v)
+    return clipped
