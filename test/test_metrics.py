@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 import trimesh
+from scipy import ndimage
 
 from sfs_ros.core.camera import Camera
 from sfs_ros.core.grid import VoxelGrid
@@ -192,3 +193,17 @@ def test_reprojection_iou_of_empty_mesh():
     camera = Camera(K=np.eye(3), R=np.eye(3), t=np.zeros(3), width=5, height=4, orthographic=True)
     assert reprojection_iou(np.zeros((0, 3)), np.zeros((0, 3), int), camera,
                             np.zeros((4, 5), bool)) == 1.0
+
+
+def test_mesh_occupancy_of_marching_cubes_mesh_is_its_occupancy():
+    # Marching cubes puts vertices and vertical faces exactly on voxel-column
+    # lines: the degenerate case for ray parity. The mesh surrounds exactly the
+    # occupied voxel centres, so the round trip must be exact, voxel for voxel.
+    from sfs_ros.core.marching import marching_cubes_mesh
+
+    rng = np.random.default_rng(3)
+    grid = VoxelGrid([0, 0, 0], [1, 1, 1], 1 / 40)
+    occupancy = ndimage.binary_opening(rng.random(grid.shape) < 0.6, iterations=1)
+    for sigma in (0.0, 0.5):
+        vertices, faces = marching_cubes_mesh(occupancy, grid, smooth_sigma_vox=sigma)
+        np.testing.assert_array_equal(mesh_occupancy(vertices, faces, grid), occupancy)

@@ -83,6 +83,10 @@ def occupancy_from_contains(contains_fn, grid: VoxelGrid, *, chunk_voxels: int =
     return out
 
 
+#: Offset of the +Z rays from the voxel-column centres, in voxels (u, v).
+COLUMN_NUDGE = (1e-6, 1e-9)
+
+
 @njit(cache=True)
 def _column_crossings(h, zk, faces, crossings):
     """Add +1 where a +Z column enters the surface, -1 where it leaves, at the first voxel above."""
@@ -145,7 +149,13 @@ def mesh_occupancy(vertices, faces, grid: VoxelGrid) -> np.ndarray:
     """
     vertices, faces = as_mesh_arrays(vertices, faces)
     index = grid.world_to_index(vertices)
-    h = np.ascontiguousarray(np.column_stack([index[:, 0], index[:, 1], np.ones(len(index))]))
+    # Columns run at (i, j) + COLUMN_NUDGE: far above rounding, far below a voxel.
+    # Faces standing exactly on a column line (marching cubes puts vertical faces
+    # at integer i or j) have an orientation that is pure rounding noise there;
+    # nudged columns never touch them. The nudge points the way of the tie rule
+    # (eps, eps^2), so shapes with edges on exact column centres keep that rule.
+    h = np.ascontiguousarray(np.column_stack([index[:, 0] - COLUMN_NUDGE[0],
+                                              index[:, 1] - COLUMN_NUDGE[1], np.ones(len(index))]))
     crossings = np.zeros(grid.shape, dtype=np.int16)
     _column_crossings(h, np.ascontiguousarray(index[:, 2]), faces, crossings)
     out = np.empty(grid.shape, dtype=bool)
