@@ -1,0 +1,44 @@
+"""All benchmarks in one run: ``python -m bench.run [--quick]`` from the repository.
+
+Each row is a time measured in this run and, where there is one, a baseline
+measured in the same run, printed as a ratio (baseline / ours): the machine is
+noisy, so ratios are what to compare between runs, not seconds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import platform
+import os
+import sys
+
+import numpy as np
+
+SUITES = [("bench_carve", "run"), ("bench_marching", "run"),
+          ("bench_mesh", "run_advancing_front"), ("bench_segment", "run")]
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--quick", action="store_true", help="smaller sizes, for a smoke run")
+    parser.add_argument("--only", nargs="+", help="run only these suites, e.g. bench_carve")
+    args = parser.parse_args(argv)
+    print(f"python {platform.python_version()}, numpy {np.__version__}, "
+          f"{platform.machine()}, {len(os.sched_getaffinity(0))} cores")
+    print(f"{'benchmark':<58} {'seconds':>9} {'baseline s':>11} {'ratio':>8}")
+    for module_name, function in SUITES:
+        if args.only and module_name not in args.only:
+            continue
+        rows = getattr(importlib.import_module(f"bench.{module_name}"), function)(quick=args.quick)
+        for row in rows:
+            base = row.get("baseline_seconds")
+            ratio = row.get("ratio")
+            print(f"{row['name']:<58} {row['seconds']:>9.3f} "
+                  f"{'' if base is None else f'{base:.3f}':>11} "
+                  f"{'' if ratio is None else f'{ratio:.1f}x':>8}", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,29 @@
+#!/usr/bin/env bash
+# Set up a virtual environment with sfs_ros and its dependencies on a fresh
+# Debian machine with Python 3.11. Usage: scripts/setup.sh [--test]
+#   --test  also install what the tests need (pytest; Debian's assimp-utils,
+#           an independent mesh reader the export tests open files with).
+# The environment goes to $SFS_VENV (default: .venv in the repository).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+venv="${SFS_VENV:-.venv}"
+
+debian=()
+python3 -c 'import ensurepip, venv' 2>/dev/null || debian+=(python3-venv)
+if [[ "${1:-}" == "--test" ]] && ! command -v assimp >/dev/null; then
+    debian+=(assimp-utils)
+fi
+if ((${#debian[@]})); then
+    sudo=""
+    [[ $(id -u) -eq 0 ]] || sudo="sudo"
+    echo "installing Debian packages: ${debian[*]}"
+    $sudo apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq "${debian[@]}" >/dev/null
+fi
+
+[[ -x "$venv/bin/python" ]] || python3 -m venv "$venv"
+"$venv/bin/python" -m pip install -q --upgrade pip
+extras=""
+[[ "${1:-}" == "--test" ]] && extras="[test]"
+"$venv/bin/python" -m pip install -q ".$extras"
+echo "environment ready: $venv"

@@ -1,0 +1,1 @@
+"""Thin command-line entry points over :mod:`sfs_ros.core`."""

@@ -1,0 +1,53 @@
+"""A PNG preview of a mesh: the shaded mesh seen from a few directions."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from .render import render_image
+from .rig import RigCalibration, rig_camera
+
+__all__ = ["PREVIEW_VIEWS_DEG", "preview_image", "write_png"]
+
+#: (theta, phi) in degrees of the preview panels: three around, one from above.
+PREVIEW_VIEWS_DEG = ((30.0, 20.0), (150.0, 20.0), (270.0, 20.0), (0.0, 89.0))
+
+
+def preview_image(vertices: np.ndarray, faces: np.ndarray, *, size_px: int = 360,
+                  views_deg=PREVIEW_VIEWS_DEG, vertex_colors=None) -> np.ndarray:
+    """(size_px, size_px * len(views_deg), 3) uint8 RGB panels of the shaded mesh.
+
+    Orthographic views of the mesh moved so that the centre of its bounding
+    box is at the origin (on the turntable axis, where the rig aims), scaled
+    so the whole mesh fits every panel.
+    """
+    vertices = np.asarray(vertices, dtype=np.float64)
+    if len(vertices) == 0 or len(faces) == 0:
+        raise ValueError("cannot preview an empty mesh")
+    lo, hi = vertices.min(axis=0), vertices.max(axis=0)
+    vertices = vertices - (lo + hi) / 2
+    radius = max(float(np.linalg.norm(hi - lo)) / 2, 1e-9)
+    scale = 0.45 * size_px / radius  # pixels per metre: the bounding sphere fits with a margin
+    calibration = RigCalibration(width=size_px, height=size_px, projection="orthographic",
+                                 fx=scale, fy=scale, camera_distance_m=4 * radius)
+    panels = []
+    for theta_deg, phi_deg in views_deg:
+        camera = rig_camera(math.radians(theta_deg), math.radians(phi_deg), calibration)
+        panels.append(render_image(vertices, faces, camera, vertex_colors=vertex_colors,
+                                   background_rgb=(245, 245, 245), noise_sigma=0.0))
+    return np.hstack(panels)
+
+
+def write_png(path, image_rgb: np.ndarray) -> Path:
+    """Write an RGB (H, W, 3) or grey (H, W) uint8 image as PNG; returns the path."""
+    path = Path(path)
+    image = np.asarray(image_rgb)
+    if image.ndim == 3:
+        image = cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
+    if not cv2.imwrite(str(path), image):
+        raise OSError(f"could not write image {path}")
+    return path

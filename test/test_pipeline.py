@@ -1,0 +1,49 @@
+"""End to end on a simulated scan of a known, non-convex object (the mug)."""
+
+import pytest
+
+from sfs_ros.core.pipeline import ReconstructionParams, reconstruct
+from sfs_ros.core.synthetic import score_against_truth
+
+
+@pytest.fixture(scope="module")
+def results(mug, mug_views):
+    """Both meshers on one scan (module scope: reconstructing is the slow part)."""
+    out = {}
+    for mesher in ("marching-cubes", "advancing-front"):
+        params = ReconstructionParams(resolution=128, mesher=mesher, holdout=("view_005.png",))
+        result = reconstruct(mug_views, params)
+        out[mesher] = (result, score_against_truth(mug, result.vertices, result.faces, result.grid))
+    return out
+
+
+@pytest.mark.parametrize("mesher", ["marching-cubes", "advancing-front"])
+def test_mesh_is_closed_and_outward(results, mesher):
+    mesh = results[mesher][0].report["mesh"]
+    assert mesh["watertight"] and mesh["edge_manifold"] and mesh["vertex_manifold"]
+    assert mesh["consistently_oriented"] and mesh["outward"]
+    assert mesh["n_boundary_loops"] == 0
+    # The mug is a body with a ring handle: one component of genus 1.
+    assert mesh["n_components"] == 1 and mesh["genus"] == 1
+
+
+@pytest.mark.parametrize("mesher", ["marching-cubes", "advancing-front"])
+def test_shape_matches_the_true_object(results, mesher):
+    truth = results[mesher][1]
+    # A visual hull always contains the object; with 49 views on three rings the
+    # extra volume is a few percent (DESIGN.md: ~0.967 for a torus with 72 views),
+    # and the 128^3 grid of 1.1 mm voxels adds about a voxel shell of error.
+    assert truth["volume_iou"] >= 0.90
+    # Surface distance: within about two voxels on average.
+    voxel = results[mesher][0].grid.voxel_size
+    assert truth["chamfer_mean_m"] <= 2.0 * voxel
+
+
+def test_held_out_view_is_predicted(results):
+    report = results["marching-cubes"][0].report
+    assert "view_005.png" not in report["views"]["used"]
+    held = [v for v in report["silhouette_iou"]["per_view"] if v["role"] == "held-out"]
+    assert [v["view"] for v in held] == ["view_005.png"]
+    # The hull reprojects onto a view it never saw almost as well as onto the others.
+    assert held[0]["silhouette_iou"] >= 0.95
+    assert report["silhouette_iou"]["mean_used"] >= 0.97
