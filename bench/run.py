@@ -1,8 +1,9 @@
 """All benchmarks in one run: ``python -m bench.run [--quick]`` from the repository.
 
 Each row is a time measured in this run and, where there is one, a baseline
-measured in the same run, printed as a ratio (baseline / ours): the machine is
-noisy, so ratios are what to compare between runs, not seconds.
+measured in the same run, printed as a ratio baseline / ours (above 1: faster
+than the baseline): the machine is noisy, so ratios are what to compare
+between runs, not seconds.
 """
 
 from __future__ import annotations
