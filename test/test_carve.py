@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from sfs_ros.core import carve as carve_module
+from analytic_masks import sphere_mask
 from sfs_ros.core.camera import Camera
 from sfs_ros.core.carve import Carver, carve, view_coefficients
 from sfs_ros.core.grid import VoxelGrid
@@ -14,19 +15,6 @@ from sfs_ros.core.rig import RigCalibration, rig_camera
 #: Half the diagonal of a pixel: rounding a projected centre to the nearest
 #: pixel centre moves it by at most this much, pixels.
 HALF_PIXEL_DIAGONAL = math.sqrt(2.0) / 2.0
-
-
-def sphere_mask(camera: Camera, centre, radius: float) -> np.ndarray:
-    """(H, W) bool: pixels whose centre ray hits the sphere."""
-    u, v = np.meshgrid(np.arange(camera.width, dtype=float), np.arange(camera.height, dtype=float))
-    if camera.orthographic:
-        uc, vc = camera.project(np.asarray(centre, float)[None])[0]
-        return (u - uc) ** 2 + (v - vc) ** 2 <= (radius * camera.K[0, 0]) ** 2
-    rays = np.stack([u, v, np.ones_like(u)], -1) @ np.linalg.inv(camera.K).T @ camera.R
-    rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
-    w = np.asarray(centre, float) - camera.center
-    along = rays @ w
-    return (along > 0) & (w @ w - along ** 2 <= radius ** 2)
 
 
 def naive_carve(grid, cameras, masks, max_misses=0, keep=True):

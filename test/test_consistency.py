@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from sfs_ros.core.camera import Camera
+from analytic_masks import sphere_mask
 from sfs_ros.core.carve import carve
 from sfs_ros.core.consistency import (ViewCheck, bbox_clips_object, find_inconsistent_views,
                                       hull_silhouettes)
@@ -15,19 +15,6 @@ from sfs_ros.core.rig import RigCalibration, rig_camera
 CENTRE, RADIUS = np.array([0.004, -0.006, 0.01]), 0.08
 GRID = VoxelGrid.cube([-0.12] * 3, [0.12] * 3, 64)
 BAD = 5
-
-
-def sphere_mask(camera: Camera, centre, radius: float) -> np.ndarray:
-    """(H, W) bool: pixels whose centre ray hits the sphere."""
-    u, v = np.meshgrid(np.arange(camera.width, dtype=float), np.arange(camera.height, dtype=float))
-    if camera.orthographic:
-        uc, vc = camera.project(np.asarray(centre, float)[None])[0]
-        return (u - uc) ** 2 + (v - vc) ** 2 <= (radius * camera.K[0, 0]) ** 2
-    rays = np.stack([u, v, np.ones_like(u)], -1) @ np.linalg.inv(camera.K).T @ camera.R
-    rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
-    w = np.asarray(centre, float) - camera.center
-    along = rays @ w
-    return (along > 0) & (w @ w - along ** 2 <= radius ** 2)
 
 
 def scan(projection, phis_deg=(0, 35, 70), n_theta=8):

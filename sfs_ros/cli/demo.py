@@ -22,7 +22,7 @@ from ..core.preview import preview_image, write_png
 from ..core.rig import RigCalibration
 from ..core.session import write_session
 from ..core.synthetic import carving_box, score_against_truth, simulate_scan
-from .progress import StageProgress
+from .common import StageProgress, run_reporting_errors
 from .reconstruct import summary
 
 PROG = "sfs-demo"
@@ -74,12 +74,9 @@ def run(args) -> dict:
 
 
 def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)
-    try:
-        report = run(args)
-    except (ValueError, OSError) as err:
-        print(f"{PROG}: error: {err}", file=sys.stderr)
-        return 2
+    status, report = run_reporting_errors(PROG, run, build_parser().parse_args(argv))
+    if status:
+        return status
     print(summary(report))
     truth = report["ground_truth"]
     print(f"against the true {report['object']}: volume IoU {truth['volume_iou']:.4f}, "

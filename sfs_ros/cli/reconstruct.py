@@ -18,7 +18,7 @@ from ..core.inputs import load_views
 from ..core.pipeline import MESHERS, ReconstructionParams, reconstruct
 from ..core.preview import preview_image, write_png
 from ..core.segment import PRESETS, SegmentationParams
-from .progress import StageProgress
+from .common import StageProgress, run_reporting_errors
 
 PROG = "sfs-reconstruct"
 
@@ -123,15 +123,9 @@ def summary(report: dict) -> str:
 
 
 def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)
-    try:
-        report = run(args)
-    except (ValueError, OSError) as err:
-        print(f"{PROG}: error: {err}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print(f"{PROG}: interrupted", file=sys.stderr)
-        return 130
+    status, report = run_reporting_errors(PROG, run, build_parser().parse_args(argv))
+    if status:
+        return status
     print(summary(report))
     return 0
 

@@ -1,4 +1,4 @@
-"""Progress on a terminal: one updating line per stage, plain lines when piped."""
+"""What the command-line tools share: progress on a terminal, errors as one line."""
 
 from __future__ import annotations
 
@@ -32,3 +32,18 @@ class StageProgress:
             self.stream.write("\n")
             self.stream.flush()
         self.stage = None
+
+
+def run_reporting_errors(prog: str, run, args):
+    """``(0, run(args))``, or ``(status, None)`` after printing one line on stderr.
+
+    Bad input (``ValueError``, ``OSError``) exits with status 2, Ctrl-C with 130.
+    """
+    try:
+        return 0, run(args)
+    except (ValueError, OSError) as err:
+        print(f"{prog}: error: {err}", file=sys.stderr)
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted", file=sys.stderr)
+        return 130, None
+    return 2, None
