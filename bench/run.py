@@ -28,6 +28,7 @@ def main(argv=None) -> int:
     print(f"python {platform.python_version()}, numpy {np.__version__}, "
           f"{platform.machine()}, {len(os.sched_getaffinity(0))} cores")
     print(f"{'benchmark':<58} {'seconds':>9} {'baseline s':>11} {'ratio':>8}")
+    notes = []
     for module_name, function in SUITES:
         if args.only and module_name not in args.only:
             continue
@@ -38,6 +39,9 @@ def main(argv=None) -> int:
             print(f"{row['name']:<58} {row['seconds']:>9.3f} "
                   f"{'' if base is None else f'{base:.3f}':>11} "
                   f"{'' if ratio is None else f'{ratio:.1f}x':>8}", flush=True)
+            notes += row.get("notes", [])
+    for note in notes:
+        print("note: " + note)
     return 0
 
 
