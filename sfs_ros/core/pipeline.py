@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -112,21 +113,14 @@ class Reconstruction:
     report: dict = field(default_factory=dict)
 
 
-class _Timer:
-    def __init__(self) -> None:
-        self.seconds: dict[str, float] = {}
-
-    def stage(self, name: str):
-        timer = self
-
-        class _Stage:
-            def __enter__(self):
-                self.start = time.perf_counter()
-
-            def __exit__(self, *exc):
-                timer.seconds[name] = timer.seconds.get(name, 0.0) + time.perf_counter() - self.start
-
-        return _Stage()
+@contextmanager
+def _timed(seconds: dict[str, float], stage: str):
+    """Add the wall time of the ``with`` block to ``seconds[stage]``."""
+    start = time.perf_counter()
+    try:
+        yield
+    finally:
+        seconds[stage] = seconds.get(stage, 0.0) + time.perf_counter() - start
 
 
 def _segment_views(views: list[View], params: SegmentationParams, progress: Progress,
@@ -176,7 +170,7 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
     view, a bounding box that misses the object, an empty hull).
     """
     progress = progress or (lambda stage, fraction: None)
-    timer = _Timer()
+    timings: dict[str, float] = {}
     rejected = [{"view": name, "reason": reason} for name, reason in view_set.rejected]
     seg_params = params.segmentation or SegmentationParams.from_dict(view_set.segmentation or {})
 
@@ -185,7 +179,7 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
     if unknown:
         raise ValueError(f"held-out views {unknown} are not in the input (views: {names[:5]}...)")
 
-    with timer.stage("segmentation"):
+    with _timed(timings, "segmentation"):
         views, masks = _segment_views(view_set.views, seg_params, progress, rejected)
     used = [i for i, v in enumerate(views) if v.name not in params.holdout]
     if not used:
@@ -195,7 +189,7 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
     cameras = [views[i].camera for i in used]
     used_masks = [masks[i] for i in used]
 
-    with timer.stage("bounds"):
+    with _timed(timings, "bounds"):
         if params.bounds_m is not None:
             bounds, bounds_source = np.asarray(params.bounds_m, dtype=np.float64), "given"
         elif view_set.bounds_m is not None:
@@ -213,7 +207,7 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
                 f"{len(clipped)} of {len(cameras)} views; enlarge it")
 
     consistency = []
-    with timer.stage("consistency"):
+    with _timed(timings, "consistency"):
         if params.check_consistency and len(cameras) >= 4:
             progress("consistency", 0.0)
             # Detecting a bad view needs the hull's shape, not its detail: a coarse grid.
@@ -237,7 +231,7 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
             cameras = [views[i].camera for i in used]
             used_masks = [masks[i] for i in used]
 
-    with timer.stage("carving"):
+    with _timed(timings, "carving"):
         progress("carving", 0.0)
         occupancy = carve(grid, cameras, used_masks, max_misses=params.max_misses)
         progress("carving", 1.0)
@@ -247,14 +241,14 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
             "the visual hull is empty: the silhouettes have no common volume inside the "
             "bounding box (check the bounding box, the camera calibration and the masks)")
 
-    with timer.stage("meshing"):
+    with _timed(timings, "meshing"):
         progress("meshing", 0.0)
         vertices, faces, mesher_stats = _mesh(occupancy, grid, params)
         progress("meshing", 1.0)
-    with timer.stage("mesh_checks"):
+    with _timed(timings, "mesh_checks"):
         mesh_report = check_mesh(vertices, faces).as_dict()
 
-    with timer.stage("evaluation"):
+    with _timed(timings, "evaluation"):
         used_names = {views[i].name for i in used}
         per_view = []
         for n, (view, mask) in enumerate(zip(views, masks)):
@@ -287,7 +281,7 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
         "mesh": mesh_report,
         "silhouette_iou": {"per_view": per_view, "mean_used": mean_iou("used"),
                            "mean_held_out": mean_iou("held-out")},
-        "timings_s": timer.seconds,
+        "timings_s": timings,
     }
     return Reconstruction(vertices=vertices, faces=faces, occupancy=occupancy, grid=grid,
                           report=report)
