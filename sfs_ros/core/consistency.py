@@ -24,6 +24,7 @@ from numba import njit, prange
 from .camera import Camera
 from .carve import carve, validate_masks, view_coefficients
 from .grid import VoxelGrid
+from .metrics import silhouette_iou
 
 __all__ = ["ViewCheck", "hull_silhouettes", "find_inconsistent_views", "bbox_clips_object"]
 
@@ -191,8 +192,7 @@ def find_inconsistent_views(grid: VoxelGrid, cameras: Sequence[Camera], masks, *
         r = int(math.ceil(half[v] + 0.5))
         grown = cv2.dilate(mask.view(np.uint8), np.ones((2 * r + 1, 2 * r + 1), np.uint8)) > 0
         n_proj = int(proj.sum())
-        union = int((proj | mask).sum())
-        iou = float((proj & mask).sum()) / union if union else 1.0
+        iou = silhouette_iou(proj, mask)
         missing = float((proj & ~grown).sum()) / n_proj if n_proj else 0.0
         checks.append(ViewCheck(index=v, iou=iou, missing_fraction=missing,
                                 consistent=iou >= min_iou and missing <= max_missing_fraction))
