@@ -1,0 +1,399 @@
+"""One scan on the reconstruction side: silhouettes arrive one by one while the rig moves.
+
+:class:`LiveReconstruction` carves each arriving mask into a voxel hull at
+once (a preview that grows sharper with every view), writes every view to a
+session folder as it arrives, and on request runs the full reconstruction
+(:func:`sfs_ros.core.pipeline.reconstruct`) on the views received so far.
+
+Persistence and the final reconstruction share one path: each mask is stored
+as a black-and-white PNG (object 255, background 0) in a scan session folder
+(:mod:`sfs_ros.core.session`) whose ``session.yaml`` holds the rig
+calibration, the carving box and :data:`MASK_SEGMENTATION`, segmentation
+parameters under which :func:`sfs_ros.core.segment.segment` returns such an
+image's mask unchanged (a fixed threshold at half scale against a black
+background, no morphology, no blob or hole filtering, no dilation). The
+reconstruction reads that folder back, so a crash loses nothing and
+``sfs-reconstruct SCAN_FOLDER -o mesh.ply`` (same resolution) later gives
+the same mesh as :meth:`LiveReconstruction.reconstruct`.
+
+Output folder layout::
+
+    OUTPUT_DIR/
+      scan_001/            # one session folder per scan (session.yaml, views.csv, images/)
+      scan_001.ply         # meshes, named by the request (default: the scan's name)
+      scan_001.report.json # the pipeline's report beside each mesh
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..core.carve import Carver
+from ..core.export import SUPPORTED_SUFFIXES, export_mesh
+from ..core.grid import VoxelGrid
+from ..core.inputs import load_views
+from ..core.pipeline import ReconstructionParams, reconstruct
+from ..core.rig import RigCalibration, rig_camera
+from ..core.segment import SegmentationParams
+from ..core.session import append_view, write_session
+from ..core.views import as_bounds
+from .paths import confined_path
+
+__all__ = ["MASK_SEGMENTATION", "DuplicateViewError", "AddedView", "LiveReconstruction",
+           "surface_points", "mask_to_rgb"]
+
+#: Segmentation under which a 0/255 mask image segments to exactly that mask.
+MASK_SEGMENTATION = SegmentationParams(
+    background=(0, 0, 0), background_model="constant", threshold=0.5, weak_ratio=1.0,
+    open_px=0, close_px=0, min_blob_fraction=0.0, fill_holes_max_fraction=0.0, dilate_px=0,
+    min_area_fraction=0.0)
+
+#: Longest accepted view key, characters.
+MAX_KEY_CHARS = 200
+_SCAN_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,99}")
+_AUTO_SCAN = re.compile(r"scan_(\d{3,})")
+_KEY_AS_FILE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,95}\.png")
+_UNSAFE = re.compile(r"[^A-Za-z0-9_.-]")
+
+
+class DuplicateViewError(ValueError):
+    """A view key that was already received: the view is not carved again."""
+
+
+@dataclass(frozen=True)
+class AddedView:
+    """What :meth:`LiveReconstruction.add_view` did with a view.
+
+    key : str, the view's key; file : Path, its image in the session folder;
+    carved : bool, whether it carved the live hull (an empty mask does not);
+    reason : str, why not (empty when carved); n_views : int, views received;
+    occupied_voxels : int, voxels left in the live hull.
+    """
+
+    key: str
+    file: Path
+    carved: bool
+    reason: str
+    n_views: int
+    occupied_voxels: int
+
+
+@dataclass(frozen=True)
+class _Received:
+    name: str
+    packed_mask: np.ndarray  # np.packbits of the (H, W) bool mask
+    theta_rad: float
+    phi_rad: float
+
+
+def mask_to_rgb(mask: np.ndarray) -> np.ndarray:
+    """(H, W) bool -> (H, W, 3) uint8 image: object 255, background 0."""
+    return np.repeat(np.where(mask, np.uint8(255), np.uint8(0))[:, :, None], 3, axis=2)
+
+
+def surface_points(occupancy: np.ndarray, grid: VoxelGrid, max_points: int) -> np.ndarray:
+    """Centres of the occupied voxels with a free 6-neighbour (the grid edge counts as free).
+
+    Parameters
+    ----------
+    occupancy : (nx, ny, nz) bool, on ``grid``
+    grid : VoxelGrid
+    max_points : int >= 1
+        With more surface voxels, an evenly spaced subset (in index order) of
+        this many is returned.
+
+    Returns
+    -------
+    (n, 3) float64
+        Metres, object frame.
+    """
+    if isinstance(max_points, bool) or not isinstance(max_points, (int, np.integer)) \
+            or max_points < 1:
+        raise ValueError(f"max_points must be an integer >= 1, got {max_points!r}")
+    occ = np.asarray(occupancy, dtype=bool)
+    if occ.shape != grid.shape:
+        raise ValueError(f"occupancy has shape {occ.shape}, expected the grid's {grid.shape}")
+    padded = np.pad(occ, 1)
+    interior = occ.copy()
+    for axis in range(3):
+        for step in (-1, 1):
+            interior &= np.roll(padded, step, axis=axis)[1:-1, 1:-1, 1:-1]
+    ijk = np.argwhere(occ & ~interior)
+    if len(ijk) > max_points:
+        ijk = ijk[np.linspace(0, len(ijk) - 1, int(max_points)).round().astype(np.int64)]
+    return grid.index_to_world(ijk)
+
+
+def _check_key(key) -> str:
+    if isinstance(key, bool) or not isinstance(key, (str, int, np.integer)):
+        raise ValueError(f"view key must be a string or an integer (e.g. a stamp), got "
+                         f"{type(key).__name__}")
+    key = str(key)
+    if not key or len(key) > MAX_KEY_CHARS:
+        raise ValueError(f"view key must have 1 to {MAX_KEY_CHARS} characters, got {len(key)}")
+    if any(ord(c) < 0x20 or ord(c) == 0x7F for c in key):
+        raise ValueError(f"view key {key!r} contains control characters")
+    return key
+
+
+def _check_mask(mask, calibration: RigCalibration) -> np.ndarray:
+    """(H, W) bool from a bool, 0/1 or 0/255 array of the rig's size."""
+    m = np.asarray(mask)
+    expected = (calibration.height, calibration.width)
+    if m.shape != expected:
+        raise ValueError(f"mask has shape {m.shape}, expected the rig's (height, width) = "
+                         f"{expected}")
+    if m.dtype == np.bool_:
+        return m.copy()
+    if not np.issubdtype(m.dtype, np.integer):
+        raise ValueError(f"mask must be bool, or integers 0/1 or 0/255, got dtype {m.dtype}")
+    values = set(np.unique(m).tolist())
+    if not (values <= {0, 1} or values <= {0, 255}):
+        raise ValueError(f"mask must hold only 0 and 1 (or 0 and 255), got values "
+                         f"{sorted(values)[:6]}")
+    return m != 0
+
+
+class LiveReconstruction:
+    """The reconstruction side of one scan: incremental hull, persisted views, final mesh.
+
+    Parameters
+    ----------
+    calibration : RigCalibration
+        Turns each view's encoder angles into its camera; masks have its size.
+    bounds_m : (2, 3) array-like
+        Carving box ``[min, max]``, metres, object frame.
+    output_dir : path-like, keyword-only
+        Folder for the scan session folders, meshes and reports (created if
+        needed). Only one :class:`LiveReconstruction` should write to it.
+    resolution : int
+        Voxels along the longest side of the box, for the live hull and the
+        final reconstruction alike (default 192, as ``sfs-reconstruct``).
+    mesher : str
+        ``"marching-cubes"`` or ``"advancing-front"``.
+    max_misses : int
+        A voxel survives when at most this many views miss it.
+    check_consistency : bool
+        Let the final reconstruction drop views inconsistent with the others
+        (the live hull uses every non-empty mask).
+    scan_name : str or None
+        Name of the first scan's session folder; None: ``scan_NNN``, the
+        next number after those in ``output_dir``.
+    """
+
+    def __init__(self, calibration: RigCalibration, bounds_m, *, output_dir,
+                 resolution: int = 192, mesher: str = "marching-cubes", max_misses: int = 0,
+                 check_consistency: bool = True, scan_name: str | None = None):
+        if not isinstance(calibration, RigCalibration):
+            raise ValueError(f"calibration must be a RigCalibration, got "
+                             f"{type(calibration).__name__}")
+        self.calibration = calibration
+        self.bounds_m = as_bounds(bounds_m, what="bounds_m")
+        self.params = ReconstructionParams(resolution=resolution, mesher=mesher,
+                                           max_misses=max_misses,
+                                           check_consistency=check_consistency)
+        self.grid = VoxelGrid.cube(self.bounds_m[0], self.bounds_m[1], resolution)
+        self.output_dir = Path(output_dir)
+        self.output_dir.mkdir(parents=True, exist_ok=True)
+        self.reset(scan_name)
+
+    # ------------------------------------------------------------ state
+
+    def reset(self, scan_name: str | None = None) -> None:
+        """Start a new scan: empty hull, no views; the next view opens a new session folder.
+
+        Earlier scans' folders stay on disk. ``scan_name`` as in the constructor;
+        ValueError if that folder already exists.
+        """
+        if scan_name is not None:
+            if not isinstance(scan_name, str) or not _SCAN_NAME.fullmatch(scan_name):
+                raise ValueError(f"scan name {scan_name!r} must be 1-100 letters, digits, "
+                                 "'_', '-' or '.', not starting with '.', '_' or '-'")
+            if (self.output_dir / scan_name).exists():
+                raise ValueError(f"scan folder {self.output_dir / scan_name} already exists; "
+                                 "choose a new scan name")
+        self._requested_name = scan_name
+        self._session: Path | None = None
+        self._carver = Carver(self.grid, max_misses=self.params.max_misses)
+        self._views: dict[str, _Received] = {}
+        self._mesh: tuple[np.ndarray, np.ndarray] | None = None
+
+    @property
+    def n_views(self) -> int:
+        """Views received in this scan."""
+        return len(self._views)
+
+    @property
+    def keys(self) -> list[str]:
+        """Keys of the views received, in arrival order."""
+        return list(self._views)
+
+    @property
+    def session_dir(self) -> Path | None:
+        """This scan's session folder; None until the first view arrives."""
+        return self._session
+
+    @property
+    def last_mesh(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """``(vertices (n, 3) float64 metres, faces (m, 3) int64)`` of this scan's latest
+        :meth:`reconstruct`, for publishing; None before one."""
+        return self._mesh
+
+    @property
+    def occupancy(self) -> np.ndarray:
+        """(nx, ny, nz) bool on :attr:`grid`: the live hull of the non-empty masks so far."""
+        return self._carver.occupancy
+
+    def views(self) -> list[tuple[str, np.ndarray, float, float]]:
+        """``(key, mask (H, W) bool, theta_rad, phi_rad)`` of every view received, in order."""
+        shape = (self.calibration.height, self.calibration.width)
+        count = shape[0] * shape[1]
+        return [(key, np.unpackbits(v.packed_mask, count=count).reshape(shape).astype(bool),
+                 v.theta_rad, v.phi_rad) for key, v in self._views.items()]
+
+    # ------------------------------------------------------------ views
+
+    def _file_name(self, key: str) -> str:
+        if _KEY_AS_FILE.fullmatch(key):
+            return key
+        return f"view_{len(self._views):03d}_{_UNSAFE.sub('_', key)[:64]}.png"
+
+    def _open_session(self, name: str, rgb: np.ndarray, theta: float, phi: float) -> Path:
+        """Create this scan's session folder holding its first view."""
+        if self._requested_name is not None:
+            candidates = [self._requested_name]
+        else:
+            numbers = [int(m.group(1)) for p in self.output_dir.iterdir()
+                       if (m := _AUTO_SCAN.fullmatch(p.name))]
+            start = max(numbers, default=0) + 1
+            candidates = [f"scan_{n:03d}" for n in range(start, start + 100)]
+        for candidate in candidates:
+            folder = self.output_dir / candidate
+            try:
+                folder.mkdir()  # claims the name, also against another process
+            except FileExistsError:
+                continue
+            write_session(folder, [(name, rgb)], [(theta, phi)], self.calibration,
+                          bounds_m=self.bounds_m, segmentation=MASK_SEGMENTATION)
+            return folder
+        raise ValueError(f"cannot create a scan folder in {self.output_dir}: "
+                         f"{', '.join(candidates[:3])}... exist")
+
+    def add_view(self, key, mask, theta_rad: float, phi_rad: float) -> AddedView:
+        """Take one silhouette: store it in the session folder, then carve the live hull.
+
+        Parameters
+        ----------
+        key : str or int
+            Identifies the view (a name or a capture stamp); each key is taken once.
+        mask : (H, W) bool, or 0/1 or 0/255 integers
+            Silhouette, True = object, of the rig's size.
+        theta_rad, phi_rad : float
+            Encoder readings at the shutter, radians.
+
+        Returns
+        -------
+        AddedView
+            An empty mask is stored but does not carve (the reconstruction
+            rejects it too).
+
+        Raises
+        ------
+        DuplicateViewError
+            ``key`` was already received (nothing is stored or carved).
+        ValueError
+            A bad key, mask or angles (nothing is stored or carved).
+        """
+        key = _check_key(key)
+        if key in self._views:
+            raise DuplicateViewError(f"view {key!r} was already received (stored as "
+                                     f"{self._views[key].name}); it is not carved twice")
+        mask = _check_mask(mask, self.calibration)
+        theta, phi = float(theta_rad), float(phi_rad)
+        camera = rig_camera(theta, phi, self.calibration)  # ValueError for unusable angles
+        name = self._file_name(key)
+        rgb = mask_to_rgb(mask)
+        if self._session is None:
+            self._session = self._open_session(name, rgb, theta, phi)
+        else:
+            append_view(self._session, name, rgb, theta, phi)
+        carved = bool(mask.any())
+        if carved:
+            self._carver.add_view(camera, mask)
+        self._views[key] = _Received(name, np.packbits(mask, axis=None), theta, phi)
+        return AddedView(key=key, file=self._session / "images" / name, carved=carved,
+                         reason="" if carved else "empty mask: no object to carve with",
+                         n_views=len(self._views),
+                         occupied_voxels=int(np.count_nonzero(self._carver.occupancy)))
+
+    def hull_points(self, max_points: int = 100_000) -> np.ndarray:
+        """(n, 3) float64 surface voxel centres of the live hull, metres (see
+        :func:`surface_points`); empty (0, 3) until a non-empty mask has carved."""
+        if self._carver.n_views == 0:
+            return np.zeros((0, 3))
+        return surface_points(self._carver.occupancy, self.grid, max_points)
+
+    # ------------------------------------------------------------ final mesh
+
+    def reconstruct(self, name: str | None = None) -> dict:
+        """Run the full pipeline on the views received so far and write the mesh.
+
+        Parameters
+        ----------
+        name : str or None
+            Mesh file name inside ``output_dir`` (format from the suffix:
+            .ply, .obj, .stl, .glb; see :func:`.paths.confined_path` for what
+            is refused); None: ``<scan name>.ply``. The report goes beside it
+            as ``<stem>.report.json``. Existing files are replaced.
+
+        Returns
+        -------
+        dict
+            JSON-ready summary: ``path``, ``report_path``, ``session``,
+            ``views_received``, ``views_used``, ``views_rejected`` (list of
+            ``{view, reason}``), ``n_vertices``, ``n_faces``, ``watertight``,
+            ``volume_m3``, ``area_m2``, ``silhouette_iou_mean``,
+            ``voxel_size_m``, ``seconds``.
+
+        Raises
+        ------
+        ValueError
+            No views yet, a refused name, or a reconstruction that cannot be
+            made (the pipeline's one-line reason).
+        """
+        if self._session is None:
+            raise ValueError("no views received yet")
+        start = time.perf_counter()
+        path = confined_path(self.output_dir, name or f"{self._session.name}.ply",
+                             suffixes=SUPPORTED_SUFFIXES)
+        root = self.output_dir.resolve()
+        report_name = path.relative_to(root).with_name(path.stem + ".report.json").as_posix()
+        report_path = confined_path(root, report_name, suffixes=(".json",))
+        result = reconstruct(load_views(self._session), self.params)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        export_mesh(result.vertices, result.faces, path)
+        self._mesh = (result.vertices, result.faces)
+        report = {"output": str(path), "session": str(self._session), **result.report}
+        tmp = report_path.with_name(f".{report_path.name}.tmp")
+        tmp.write_text(json.dumps(report, indent=2), encoding="utf-8")
+        os.replace(tmp, report_path)
+        mesh, views = result.report["mesh"], result.report["views"]
+        mean_iou = result.report["silhouette_iou"]["mean_used"]
+        return {"path": str(path), "report_path": str(report_path),
+                "session": str(self._session), "views_received": len(self._views),
+                "views_used": len(views["used"]), "views_rejected": views["rejected"],
+                "n_vertices": mesh["n_vertices"], "n_faces": mesh["n_faces"],
+                "watertight": mesh["watertight"], "volume_m3": mesh["volume_m3"],
+                "area_m2": mesh["area_m2"],
+                "silhouette_iou_mean": None if mean_iou is None or math.isnan(mean_iou)
+                else float(mean_iou),
+                "voxel_size_m": result.grid.voxel_size,
+                "seconds": time.perf_counter() - start}

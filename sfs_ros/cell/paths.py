@@ -1,0 +1,99 @@
+"""Output files named by a request (a service call, a parameter), kept inside one folder.
+
+A name that arrives over the network must never choose where a file is
+written: :func:`confined_path` accepts only a plain relative name, with an
+allowed suffix, that resolves (symbolic links followed) inside the configured
+folder.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path, PurePosixPath
+
+__all__ = ["MAX_NAME_BYTES", "MAX_COMPONENT_BYTES", "confined_path"]
+
+#: Longest accepted requested name, bytes of UTF-8.
+MAX_NAME_BYTES = 1024
+#: Longest accepted file or folder name (POSIX NAME_MAX), bytes of UTF-8.
+MAX_COMPONENT_BYTES = 255
+
+
+def _relative_parts(name: str) -> tuple[str, ...]:
+    """The components of ``name``; ValueError naming the problem."""
+    if not isinstance(name, str):
+        raise ValueError(f"output name must be a string, got {type(name).__name__}")
+    if not name.strip():
+        raise ValueError("output name is empty; expected a file name such as 'scan.ply'")
+    if "\x00" in name:
+        raise ValueError(f"output name {name!r} contains a NUL byte")
+    if any(ord(c) < 0x20 or ord(c) == 0x7F for c in name):
+        raise ValueError(f"output name {name!r} contains control characters")
+    try:
+        size = len(name.encode("utf-8"))
+    except UnicodeEncodeError:
+        raise ValueError(f"output name {name!r} is not valid Unicode text") from None
+    if size > MAX_NAME_BYTES:
+        raise ValueError(f"output name is too long ({size} bytes, at most {MAX_NAME_BYTES})")
+    if "\\" in name:
+        raise ValueError(f"output name {name!r} contains '\\'; use '/' between folders")
+    path = PurePosixPath(name)
+    if path.is_absolute():
+        raise ValueError(f"output name {name!r} is an absolute path; expected a name relative "
+                         "to the output folder")
+    for part in path.parts:
+        if part == "..":
+            raise ValueError(f"output name {name!r} contains '..'; expected a name inside the "
+                             "output folder")
+        if part.startswith("."):
+            raise ValueError(f"output name {name!r} has a hidden component {part!r} "
+                             "(starting with '.')")
+        if len(part.encode("utf-8")) > MAX_COMPONENT_BYTES:
+            raise ValueError(f"output name has a component of {len(part.encode('utf-8'))} "
+                             f"bytes; at most {MAX_COMPONENT_BYTES}")
+    return path.parts
+
+
+def confined_path(root, requested_name: str, *, suffixes) -> Path:
+    """Where to write ``requested_name`` inside the folder ``root``.
+
+    Parameters
+    ----------
+    root : path-like
+        The configured output folder; must exist.
+    requested_name : str
+        A relative file name, optionally with sub-folders (``"a/b.ply"``).
+        Refused: empty, absolute, containing ``..``, a NUL byte, control
+        characters or ``\\``, a hidden component, too long, or resolving
+        (through symbolic links) outside ``root``.
+    suffixes : iterable of str
+        Allowed endings such as ``(".ply", ".obj")``, compared case-insensitively.
+
+    Returns
+    -------
+    Path
+        Absolute, symbolic links resolved, inside ``root`` resolved. Missing
+        sub-folders are not created (the caller does that).
+
+    Raises
+    ------
+    ValueError
+        Naming what is wrong with the name (or the folder).
+    """
+    allowed = tuple(s.lower() for s in suffixes)
+    if not allowed or not all(s.startswith(".") and len(s) > 1 for s in allowed):
+        raise ValueError(f"suffixes must be non-empty endings such as '.ply', got {suffixes!r}")
+    parts = _relative_parts(requested_name)
+    if not parts[-1].lower().endswith(allowed) or parts[-1].lower() in allowed:
+        raise ValueError(f"output name {requested_name!r} must end in one of "
+                         f"{', '.join(allowed)} (after a file stem)")
+    base = Path(root)
+    if not base.is_dir():
+        raise ValueError(f"output folder {base} does not exist or is not a folder")
+    base = base.resolve(strict=True)
+    target = base.joinpath(*parts).resolve(strict=False)
+    if not target.is_relative_to(base) or target == base:
+        raise ValueError(f"output name {requested_name!r} leads outside the output folder "
+                         f"{base} (through a symbolic link)")
+    if target.is_dir():
+        raise ValueError(f"output name {requested_name!r} names a folder in {base}")
+    return target
