@@ -23,6 +23,7 @@ setup(
         "numba>=0.60",
         "trimesh>=4",
         "pyyaml>=6",
+        "pyserial>=3.5",
     ],
     extras_require={"test": ["pytest>=8"]},
     zip_safe=True,
@@ -34,6 +35,7 @@ setup(
         "console_scripts": [
             "sfs-reconstruct = sfs_ros.cli.reconstruct:main",
             "sfs-demo = sfs_ros.cli.demo:main",
+            "sfs-segmentation = sfs_ros.nodes.segmentation_node:main",
         ],
     },
 )

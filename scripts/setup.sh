@@ -1,6 +1,8 @@
 #!/usr/bin/env bash
 # Set up a virtual environment with sfs_ros and its dependencies on a fresh
-# Debian machine with Python 3.11. Usage: scripts/setup.sh [--test]
+# Debian machine with Python 3.11, including ROS 2 Kilted's Python packages
+# from PyPI (requirements-ros.txt; a colcon build in a ROS install uses the
+# install's packages instead). Usage: scripts/setup.sh [--test]
 #   --test  also install what the tests need (pytest; Debian's assimp-utils,
 #           an independent mesh reader the export tests open files with).
 # The environment goes to $SFS_VENV (default: .venv in the repository).
@@ -25,5 +27,9 @@ fi
 "$venv/bin/python" -m pip install -q --upgrade pip
 extras=""
 [[ "${1:-}" == "--test" ]] && extras="[test]"
-"$venv/bin/python" -m pip install -q ".$extras"
+"$venv/bin/python" -m pip install -q -r requirements-ros.txt ".$extras"
+"$venv/bin/python" -c "import rclpy, sensor_msgs.msg" || {
+    echo "error: rclpy does not import in $venv" >&2
+    exit 1
+}
 echo "environment ready: $venv"

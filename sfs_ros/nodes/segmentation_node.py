@@ -1,0 +1,292 @@
+"""Segmentation node: captures in, silhouettes out.
+
+| kind | name | type | notes |
+|---|---|---|---|
+| sub | ``capture/image`` | sensor_msgs/Image | rgb8, bgr8 or mono8 |
+| sub | ``capture/joint_state`` | sensor_msgs/JointState | same stamp as its image |
+| pub | ``capture/mask`` | sensor_msgs/Image | mono8, 255 = object, image's header |
+| pub | ``capture/mask_joint_state`` | sensor_msgs/JointState | the capture's, same header |
+| pub | ``diagnostics`` | diagnostic_msgs/DiagnosticArray | per capture and at 1 Hz |
+
+Capture topics: reliable, volatile, depth ``queue_depth``
+(:func:`sfs_ros.ros.capture_qos`). Joint states name "turntable" and
+"carriage" (radians). Diagnostics: counts and the last problem.
+
+Every capture whose image and joint state both arrive (exactly equal
+stamps, either order) gives exactly one mask and one joint state. An image
+without an object gives an **all-zero mask** (published, so downstream sees
+every view once, and carving can reject it by its empty mask) and a WARN
+diagnostic; a mask touching the image border is a WARN too. A malformed
+message (unknown encoding, sizes that do not add up, a joint state without
+both joints or with NaN) is logged, counted in the diagnostics (ERROR level
+until the next good capture) and its capture is dropped; the node carries on.
+
+Parameters: the fields of :class:`sfs_ros.core.segment.SegmentationParams`
+(see there) with ROS-friendly encodings, plus ``preset`` and
+``queue_depth``; see :data:`PARAMS`. ``preset`` (read-only) names an entry of
+``PRESETS`` whose values become the defaults of the other parameters;
+values given explicitly still win.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from sensor_msgs.msg import Image, JointState
+
+from sfs_ros.core.segment import PRESETS, SegmentationParams, segment
+from sfs_ros.ros import capture_qos
+from sfs_ros.ros.convert import angles_from_joint_state, image_to_msg, msg_to_image
+from sfs_ros.ros.pairing import DuplicateStampError, StampPairer, stamp_key
+from sfs_ros.ros.params import Param, ParameterError, declare, read, validating_callback
+
+__all__ = ["SegmentationNode", "PARAMS", "segmentation_params", "main"]
+
+NODE_NAME = "segmentation"
+
+PRESET = Param("preset", "", "Named segmentation preset whose values become the defaults of the "
+               "other parameters (explicit values still win); empty = none.",
+               choices=("",) + tuple(PRESETS), read_only=True)
+QUEUE_DEPTH = Param("queue_depth", 100, "Depth of the reliable capture topics and of the buffer "
+                    "of unpaired halves per topic; at least the number of views of a scan.",
+                    bounds=(1, 100000), read_only=True)
+
+
+def _params(defaults: SegmentationParams) -> list[Param]:
+    """The segmentation parameters with ``defaults`` as their default values."""
+    d = defaults
+    bg = d.background if isinstance(d.background, str) else ",".join(map(str, d.background))
+    return [
+        Param("background", bg, "Background colour: auto (most common border colour), white, "
+              "black (most common bright / dark border colour) or 'r,g,b' (0..255, used as given).",
+              constraints="auto, white, black or three integers 0..255 'r,g,b'"),
+        Param("background_model", d.background_model, "constant, or smooth (a quadratic field "
+              "fitted to the background: gradients, vignetting).", choices=("constant", "smooth")),
+        Param("threshold", 0.0 if d.threshold is None else float(d.threshold),
+              "Sure-object threshold on the colour distance, fraction of full scale.",
+              bounds=(0.0, 1.0), constraints="0 = automatic (Otsu); else below 1"),
+        Param("threshold_range", [float(v) for v in d.threshold_range],
+              "Bounds [low, high] of the automatic threshold.", bounds=(0.0, 1.0),
+              constraints="0 < low <= high < 1"),
+        Param("weak_ratio", float(d.weak_ratio), "Hysteresis: pixels above weak_ratio * threshold "
+              "are object when connected to sure pixels (1 disables hysteresis).",
+              bounds=(0.0, 1.0), constraints="above 0"),
+        Param("grow_px", -1 if d.grow_px is None else int(d.grow_px),
+              "How far (pixels) weak pixels may extend from sure ones.", bounds=(-1, 100000),
+              constraints="-1 = unlimited"),
+        Param("chroma_weight", float(d.chroma_weight), "Weight of the chromatic part of the "
+              "colour difference (1 = RMS of channel differences, 0 = brightness only).",
+              bounds=(0.0, 100.0)),
+        Param("open_px", int(d.open_px), "Radius (pixels) of the morphological opening.",
+              bounds=(0, 1000)),
+        Param("close_px", int(d.close_px), "Radius (pixels) of the morphological closing.",
+              bounds=(0, 1000)),
+        Param("min_blob_fraction", float(d.min_blob_fraction), "Components smaller than this "
+              "fraction of the largest are removed.", bounds=(0.0, 1.0)),
+        Param("keep_largest_only", bool(d.keep_largest_only), "Keep only the largest component."),
+        Param("fill_holes_max_fraction", float(d.fill_holes_max_fraction), "Interior holes "
+              "smaller than this fraction of the object area are filled.", bounds=(0.0, 1.0)),
+        Param("dilate_px", int(d.dilate_px), "Final dilation radius (pixels), for conservative "
+              "silhouettes.", bounds=(0, 1000)),
+        Param("min_area_fraction", float(d.min_area_fraction), "A largest component below this "
+              "fraction of the image means an empty view.", bounds=(0.0, 1.0),
+              constraints="below 1"),
+        Param("border_fraction", float(d.border_fraction), "Width of the border band used to "
+              "estimate the background, fraction of the smaller image side.",
+              bounds=(0.0, 0.25), constraints="above 0"),
+    ]
+
+
+#: The node's parameters with the core defaults (``preset`` changes the defaults).
+PARAMS: list[Param] = [PRESET, QUEUE_DEPTH, *_params(SegmentationParams())]
+
+
+def segmentation_params(values: dict) -> SegmentationParams:
+    """:class:`SegmentationParams` from the node's parameter values (ROS encodings decoded).
+
+    Raises :class:`ParameterError` naming the parameter the core rejects.
+    """
+    names = {p.name for p in _params(SegmentationParams())}
+    fields = {k: v for k, v in values.items() if k in names}
+    bg = fields["background"]
+    if bg not in ("auto", "white", "black"):
+        try:
+            fields["background"] = tuple(int(c) for c in bg.split(","))
+        except ValueError:
+            raise ParameterError("background", f"got {bg!r}, expected auto, white, black or "
+                                 "'r,g,b' with integers 0..255") from None
+    fields["threshold"] = None if fields["threshold"] == 0.0 else fields["threshold"]
+    fields["threshold_range"] = tuple(fields["threshold_range"])
+    fields["grow_px"] = None if fields["grow_px"] == -1 else fields["grow_px"]
+    try:
+        return SegmentationParams(**fields)
+    except ValueError as exc:
+        message = str(exc)
+        name = next((n for n in sorted(names, key=len, reverse=True) if message.startswith(n)),
+                    "segmentation")
+        raise ParameterError(name, message) from None
+
+
+class SegmentationNode(Node):
+    """Pairs ``capture/image`` with ``capture/joint_state`` by stamp and publishes masks.
+
+    Raises :class:`ParameterError` at construction for invalid parameters.
+    """
+
+    def __init__(self, **kwargs):
+        super().__init__(NODE_NAME, **kwargs)
+        preset = declare(self, [PRESET])["preset"]
+        defaults = SegmentationParams.from_dict(PRESETS[preset]) if preset \
+            else SegmentationParams()
+        self._param_list = _params(defaults)
+        depth = declare(self, [QUEUE_DEPTH])["queue_depth"]
+        self._seg = segmentation_params(declare(self, self._param_list))
+        self.add_on_set_parameters_callback(
+            validating_callback(self, self._param_list, segmentation_params))
+        self.add_post_set_parameters_callback(self._parameters_changed)
+
+        self._counts = {"masks": 0, "empty": 0, "touching_border": 0, "malformed": 0,
+                        "duplicates": 0, "unpaired_dropped": 0}
+        self._problem = ""  # the last malformed / dropped input, "" after a good capture
+        self._warning = ""  # about the last mask (empty, touches border)
+        self._pairer = StampPairer(depth, on_evict=self._given_up)
+        qos = capture_qos(depth)
+        self._mask_pub = self.create_publisher(Image, "capture/mask", qos)
+        self._joints_pub = self.create_publisher(JointState, "capture/mask_joint_state", qos)
+        self._diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
+        self.create_subscription(Image, "capture/image", self._on_image, qos)
+        self.create_subscription(JointState, "capture/joint_state", self._on_joint_state, qos)
+        self.create_timer(1.0, self._publish_diagnostics)
+        self.get_logger().info(f"segmenting with {self._seg} (preset {preset or 'none'}, "
+                               f"queue depth {depth})")
+
+    def _parameters_changed(self, _changed) -> None:
+        self._seg = segmentation_params(read(self, self._param_list))
+        self.get_logger().info(f"segmentation parameters now {self._seg}")
+
+    # -- inputs ------------------------------------------------------------------------------
+
+    def _on_image(self, msg: Image) -> None:
+        stamp = stamp_key(msg.header.stamp)
+        try:
+            image = msg_to_image(msg)
+            if image.dtype != np.uint8:
+                raise ValueError(f"image encoding {msg.encoding!r} is not 8-bit")
+        except ValueError as exc:
+            self._malformed("image", stamp, exc)
+            return
+        self._add(self._pairer.add_a, "image", stamp, (msg, image))
+
+    def _on_joint_state(self, msg: JointState) -> None:
+        stamp = stamp_key(msg.header.stamp)
+        try:
+            angles_from_joint_state(msg)
+        except ValueError as exc:
+            self._malformed("joint state", stamp, exc)
+            return
+        self._add(self._pairer.add_b, "joint state", stamp, msg)
+
+    def _add(self, add, what: str, stamp, item) -> None:
+        try:
+            pair = add(stamp, item)
+        except DuplicateStampError as exc:
+            self._counts["duplicates"] += 1
+            self._report_problem(f"{what} ignored: {exc}")
+            return
+        if pair is not None:
+            (image_msg, image), joints = pair
+            self._process(image_msg, image, joints)
+
+    def _malformed(self, what: str, stamp, exc: Exception) -> None:
+        self._counts["malformed"] += 1
+        self._pairer.reject(stamp)
+        self._report_problem(f"malformed {what} at stamp {_fmt(stamp)} dropped with its "
+                             f"capture: {exc}")
+
+    def _given_up(self, stream: str, stamp, _item, reason: str) -> None:
+        self._counts["unpaired_dropped"] += 1
+        what = "image" if stream == "a" else "joint state"
+        why = ("no partner arrived before the buffer filled" if reason == "evicted"
+               else "its partner was malformed")
+        self._report_problem(f"{what} at stamp {_fmt(stamp)} dropped: {why}")
+
+    def _report_problem(self, text: str) -> None:
+        self._problem = text
+        self.get_logger().error(text)
+        self._publish_diagnostics()
+
+    # -- output ------------------------------------------------------------------------------
+
+    def _process(self, image_msg: Image, image: np.ndarray, joints: JointState) -> None:
+        try:
+            result = segment(image, self._seg)
+        except ValueError as exc:  # e.g. an image smaller than the core accepts
+            self._malformed("image", stamp_key(image_msg.header.stamp), exc)
+            return
+        mask_msg = image_to_msg(result.mask, stamp=image_msg.header.stamp,
+                                frame_id=image_msg.header.frame_id)
+        self._mask_pub.publish(mask_msg)
+        self._joints_pub.publish(joints)
+        self._counts["masks"] += 1
+        self._problem = ""
+        stamp = _fmt(stamp_key(image_msg.header.stamp))
+        if result.empty:
+            self._counts["empty"] += 1
+            self._warning = f"view at stamp {stamp}: empty silhouette (all-zero mask published)"
+            self.get_logger().warning(self._warning)
+        elif result.touches_border:
+            self._counts["touching_border"] += 1
+            self._warning = f"view at stamp {stamp}: silhouette touches the image border"
+            self.get_logger().warning(self._warning)
+        else:
+            self._warning = ""
+        self._publish_diagnostics()
+
+    def _publish_diagnostics(self) -> None:
+        if self._problem:
+            level, message = DiagnosticStatus.ERROR, self._problem
+        elif self._warning:
+            level, message = DiagnosticStatus.WARN, self._warning
+        else:
+            level, message = DiagnosticStatus.OK, f"{self._counts['masks']} masks"
+        values = dict(self._counts)
+        values.update(waiting_images=self._pairer.pending("a"),
+                      waiting_joint_states=self._pairer.pending("b"))
+        status = DiagnosticStatus(level=level, name=f"{self.get_name()}: segmentation",
+                                  message=message, hardware_id="",
+                                  values=[KeyValue(key=k, value=str(v))
+                                          for k, v in values.items()])
+        array = DiagnosticArray(status=[status])
+        array.header.stamp = self.get_clock().now().to_msg()
+        self._diag_pub.publish(array)
+
+
+def _fmt(stamp) -> str:
+    return f"{stamp[0]}.{stamp[1]:09d}"
+
+
+def main(args=None) -> None:
+    """Entry point ``sfs-segmentation`` (``--ros-args --params-file config/segmentation.yaml``)."""
+    rclpy.init(args=args)
+    try:
+        node = SegmentationNode()
+    except ParameterError as exc:
+        print(f"sfs-segmentation: {exc}", file=sys.stderr)
+        rclpy.try_shutdown()
+        sys.exit(2)
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,149 @@
+"""Exact pairing of two message streams by header stamp (no ROS imports).
+
+A capture is an image and a joint state published with the *same*
+``header.stamp``; they travel on two topics and may arrive in either order.
+:class:`StampPairer` holds the unmatched half of each capture until its
+partner arrives, and hands out every pair exactly once:
+
+* stamps must be identical (``sec``, ``nanosec``): no "nearest" matching,
+  which could give a view another view's angles;
+* buffers are bounded: when ``capacity`` items of one stream wait, the one
+  that has waited longest is evicted (counted, and reported through
+  ``on_evict``);
+* a stamp seen twice on the same stream, or again after its pair was
+  completed or rejected, raises :class:`DuplicateStampError`; the pairer
+  remembers the last ``capacity`` completed or rejected stamps for this;
+* :meth:`StampPairer.reject` marks a capture bad (one half was malformed):
+  its waiting half is dropped, and so is the other half when it comes.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from typing import Any, Callable
+
+__all__ = ["DuplicateStampError", "StampPairer", "stamp_key"]
+
+Stamp = tuple[int, int]
+
+
+class DuplicateStampError(ValueError):
+    """A stamp arrived twice on one stream (or after its capture was finished)."""
+
+    def __init__(self, stream: str, stamp: Stamp, reason: str):
+        super().__init__(f"duplicate stamp {stamp[0]}.{stamp[1]:09d} on stream {stream!r}: "
+                         f"{reason}")
+        self.stream = stream
+        self.stamp = stamp
+
+
+def stamp_key(stamp) -> Stamp:
+    """``(sec, nanosec)`` ints from a ``builtin_interfaces/Time`` (or anything with
+    ``sec`` and ``nanosec``) or from a ``(sec, nanosec)`` pair; ``ValueError`` otherwise."""
+    if hasattr(stamp, "sec") and hasattr(stamp, "nanosec"):
+        sec, nanosec = stamp.sec, stamp.nanosec
+    else:
+        try:
+            sec, nanosec = stamp
+        except (TypeError, ValueError):
+            raise ValueError(f"stamp must be a Time message or a (sec, nanosec) pair, "
+                             f"got {stamp!r}") from None
+    if not (float(sec).is_integer() and float(nanosec).is_integer()
+            and 0 <= nanosec < 1_000_000_000):
+        raise ValueError(f"stamp must have integer sec and nanosec in [0, 1e9), got {stamp!r}")
+    return int(sec), int(nanosec)
+
+
+class StampPairer:
+    """Pairs items of stream ``a`` and stream ``b`` that carry identical stamps.
+
+    capacity : int >= 1
+        Most items waiting per stream; also how many finished stamps are
+        remembered for duplicate detection.
+    on_evict : callable(stream, stamp, item, reason), optional
+        Called for every item given up: ``stream`` "a" or "b", ``stamp``
+        (sec, nanosec), ``reason`` "evicted" (full buffer) or "rejected"
+        (its capture was marked by :meth:`reject`).
+
+    Counters: ``pairs``, ``evicted`` ({"a": n, "b": n}), ``duplicates``,
+    ``rejected`` (captures marked by :meth:`reject`), ``dropped`` (halves
+    discarded because their capture was rejected).
+    """
+
+    def __init__(self, capacity: int, *,
+                 on_evict: Callable[[str, Stamp, Any, str], None] | None = None):
+        if isinstance(capacity, bool) or not isinstance(capacity, int) or capacity < 1:
+            raise ValueError(f"capacity must be an integer >= 1, got {capacity!r}")
+        self.capacity = capacity
+        self._on_evict = on_evict
+        self._pending: dict[str, OrderedDict[Stamp, Any]] = {"a": OrderedDict(), "b": OrderedDict()}
+        self._finished: OrderedDict[Stamp, str] = OrderedDict()  # stamp -> "paired" / "rejected"
+        self.pairs = 0
+        self.evicted = {"a": 0, "b": 0}
+        self.duplicates = 0
+        self.rejected = 0
+        self.dropped = 0
+
+    def add_a(self, stamp, item) -> tuple[Any, Any] | None:
+        """Add an item of stream a; ``(item_a, item_b)`` when it completes a pair, else None.
+
+        Raises :class:`DuplicateStampError` for a repeated stamp (the item is ignored).
+        """
+        return self._add("a", "b", stamp_key(stamp), item)
+
+    def add_b(self, stamp, item) -> tuple[Any, Any] | None:
+        """Add an item of stream b; ``(item_a, item_b)`` when it completes a pair, else None.
+
+        Raises :class:`DuplicateStampError` for a repeated stamp (the item is ignored).
+        """
+        pair = self._add("b", "a", stamp_key(stamp), item)
+        return None if pair is None else (pair[1], pair[0])
+
+    def reject(self, stamp) -> None:
+        """Give up the capture at ``stamp``: drop its waiting half now and its other half later."""
+        key = stamp_key(stamp)
+        if self._finished.get(key) == "rejected":
+            return
+        self.rejected += 1
+        for stream in ("a", "b"):
+            if key in self._pending[stream]:
+                self._drop(stream, key, self._pending[stream].pop(key))
+        self._finish(key, "rejected")
+
+    def pending(self, stream: str) -> int:
+        """Number of items of ``stream`` ("a" or "b") waiting for a partner."""
+        return len(self._pending[stream])
+
+    def _add(self, own: str, other: str, key: Stamp, item):
+        state = self._finished.get(key)
+        if state == "rejected":
+            self._drop(own, key, item)
+            return None
+        if state == "paired" or key in self._pending[own]:
+            self.duplicates += 1
+            raise DuplicateStampError(own, key, "capture already paired" if state
+                                      else "an item with this stamp is already waiting")
+        if key in self._pending[other]:
+            partner = self._pending[other].pop(key)
+            self._finish(key, "paired")
+            self.pairs += 1
+            return item, partner
+        buffer = self._pending[own]
+        buffer[key] = item
+        if len(buffer) > self.capacity:
+            old_key, old_item = buffer.popitem(last=False)
+            self.evicted[own] += 1
+            if self._on_evict is not None:
+                self._on_evict(own, old_key, old_item, "evicted")
+        return None
+
+    def _drop(self, stream: str, key: Stamp, item) -> None:
+        self.dropped += 1
+        if self._on_evict is not None:
+            self._on_evict(stream, key, item, "rejected")
+
+    def _finish(self, key: Stamp, state: str) -> None:
+        self._finished[key] = state
+        self._finished.move_to_end(key)
+        while len(self._finished) > self.capacity:
+            self._finished.popitem(last=False)

@@ -1,0 +1,163 @@
+"""Multi-process ROS 2 test harness (no launch_testing on PyPI).
+
+* Importing this module isolates the test run: ``ROS_DOMAIN_ID`` derived
+  from the process id (1..101, the range the ROS docs call safe on every
+  platform; 0, the default, is left to interactive use) and
+  ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``, in ``os.environ`` before any
+  rclpy context exists, so the test process and every child share them.
+  Nodes and the probe also run in the namespace ``/sfs_test_<pid>``: two
+  test runs that draw the same domain id still cannot see each other's
+  topics (all of the cell's names are relative).
+* :class:`NodeProcess` runs a node module as a separate OS process
+  (``sys.executable -m <module> --ros-args ...``) importing the same
+  ``sfs_ros`` as the tests, with message field checks on, logs to a file,
+  and stops it with SIGINT (a node killed with SIGKILL leaves Fast DDS
+  shared-memory files in /dev/shm; SIGTERM then SIGKILL only if SIGINT is
+  ignored for ``grace_s`` seconds).
+* :class:`RosProbe` is the test side: an rclpy node in its own context with
+  helpers to spin until a condition holds (timeouts generous for a loaded
+  2-core machine: node start-up including imports takes several seconds).
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Callable
+
+import sfs_ros
+
+#: Seconds to wait for a process to come up / for a message.
+STARTUP_TIMEOUT_S = 20.0
+MESSAGE_TIMEOUT_S = 20.0
+
+DOMAIN_ID = 1 + os.getpid() % 101
+os.environ["ROS_DOMAIN_ID"] = str(DOMAIN_ID)
+os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+
+#: Namespace of the nodes and the probe of this test run.
+NAMESPACE = f"/sfs_test_{os.getpid()}"
+
+#: The directory holding the ``sfs_ros`` package the tests import.
+SOURCE_ROOT = Path(sfs_ros.__file__).resolve().parent.parent
+
+
+class NodeProcess:
+    """A node module running in its own process.
+
+    module : str, e.g. ``"sfs_ros.nodes.segmentation_node"`` (run with ``-m``)
+    params_file : path, optional (``--params-file``)
+    parameters : dict, optional, ``-p name:=value`` overrides (values in
+        YAML syntax: ``True`` -> ``true``, lists as ``[a, b]``)
+    """
+
+    def __init__(self, module: str, *, params_file=None, parameters: dict | None = None):
+        self.module = module
+        args = [sys.executable, "-m", module, "--ros-args", "-r", f"__ns:={NAMESPACE}"]
+        if params_file is not None:
+            args += ["--params-file", str(params_file)]
+        for name, value in (parameters or {}).items():
+            args += ["-p", f"{name}:={_yaml(value)}"]
+        self.args = args
+        self._log = tempfile.NamedTemporaryFile(prefix="node_", suffix=".log", delete=False)
+        # ROS_PYTHON_CHECK_FIELDS: messages check their fields (a misspelt keyword
+        # argument is otherwise silently ignored).
+        env = dict(os.environ, PYTHONUNBUFFERED="1", ROS_PYTHON_CHECK_FIELDS="1")
+        env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(SOURCE_ROOT),
+                                                          env.get("PYTHONPATH")]))
+        self.process = subprocess.Popen(args, stdin=subprocess.DEVNULL, stdout=self._log,
+                                        stderr=subprocess.STDOUT, env=env, cwd=SOURCE_ROOT)
+
+    def alive(self) -> bool:
+        return self.process.poll() is None
+
+    def output(self) -> str:
+        """Everything the process wrote so far (stdout and stderr)."""
+        return Path(self._log.name).read_text(errors="replace")
+
+    def wait_exit(self, timeout: float = STARTUP_TIMEOUT_S) -> int:
+        """Wait for the process to end by itself; returns its exit code."""
+        return self.process.wait(timeout=timeout)
+
+    def stop(self, grace_s: float = 10.0) -> int:
+        """SIGINT, then (only if ignored for ``grace_s`` s) SIGTERM, then SIGKILL; the exit code."""
+        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
+            if not self.alive():
+                break
+            self.process.send_signal(sig)
+            try:
+                self.process.wait(timeout=grace_s)
+            except subprocess.TimeoutExpired:
+                continue
+        code = self.process.wait()
+        self._log.close()
+        return code
+
+    def cleanup(self) -> None:
+        """Stop the process if running and delete its log."""
+        if self.alive():
+            self.stop()
+        self._log.close()
+        Path(self._log.name).unlink(missing_ok=True)
+
+
+def _yaml(value) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_yaml(v) for v in value) + "]"
+    return str(value)
+
+
+class RosProbe:
+    """The test process's ROS node, in a private context; call :meth:`close` at the end."""
+
+    def __init__(self, name: str = "test_probe"):
+        import rclpy
+        from rclpy.context import Context
+        from rclpy.executors import SingleThreadedExecutor
+
+        self.context = Context()
+        rclpy.init(context=self.context)
+        self.node = rclpy.create_node(name, namespace=NAMESPACE, context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+
+    def spin_until(self, condition: Callable[[], bool], *, timeout: float = MESSAGE_TIMEOUT_S,
+                   what: str = "condition", process: NodeProcess | None = None) -> None:
+        """Spin the probe until ``condition()`` is true; ``AssertionError`` on timeout or if
+        ``process`` ends meanwhile (with its output in the message)."""
+        deadline = time.monotonic() + timeout
+        while not condition():
+            if process is not None and not process.alive():
+                raise AssertionError(f"{process.module} exited with code "
+                                     f"{process.process.returncode} while waiting for {what}:\n"
+                                     f"{process.output()}")
+            if time.monotonic() > deadline:
+                log = f"\nnode output:\n{process.output()}" if process is not None else ""
+                raise AssertionError(f"timed out after {timeout:.0f} s waiting for {what}{log}")
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def spin_for(self, seconds: float) -> None:
+        """Spin the probe for ``seconds`` (to catch messages that should not come)."""
+        deadline = time.monotonic() + seconds
+        while time.monotonic() < deadline:
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def wait_connected(self, publishers=(), subscriptions=(), *, process: NodeProcess | None = None,
+                       timeout: float = STARTUP_TIMEOUT_S) -> None:
+        """Until every publisher has a matched subscription and every subscription a matched
+        publisher (the node under test is up and its QoS compatible)."""
+        self.spin_until(lambda: all(p.get_subscription_count() > 0 for p in publishers)
+                        and all(s.get_publisher_count() > 0 for s in subscriptions),
+                        timeout=timeout, what="the node's topics", process=process)
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self.context.try_shutdown()
