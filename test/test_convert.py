@@ -189,3 +189,10 @@ def test_bad_meshes_are_refused():
         mesh_to_shape(vertices, faces + 1)
     with pytest.raises(ValueError, match="color"):
         mesh_to_marker(vertices, faces, stamp=STAMP, frame_id="c", color=(2, 0, 0, 1))
+
+
+def test_empty_cloud_round_trips():
+    # An empty hull (after a reset) is a valid cloud with no points.
+    msg = points_to_cloud(np.zeros((0, 3)), stamp=(1, 2), frame_id="turntable")
+    assert (msg.width, msg.row_step, len(msg.data)) == (0, 0, 0)
+    assert cloud_to_points(msg).shape == (0, 3)

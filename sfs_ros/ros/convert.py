@@ -50,7 +50,7 @@ def header(*, stamp, frame_id: str) -> Header:
 def _bytes_array(data: np.ndarray) -> array.array:
     """``array('B')`` holding the bytes of ``data`` (one copy; C order)."""
     out = array.array("B")
-    out.frombytes(np.ascontiguousarray(data).data.cast("B"))
+    out.frombytes(np.ascontiguousarray(data).reshape(-1).view(np.uint8))  # also for 0 elements
     return out
 
 
