@@ -1,0 +1,429 @@
+"""Reconstruction node: silhouettes in, live hull and final mesh out.
+
+| kind | name | type | notes |
+|---|---|---|---|
+| sub | ``capture/mask`` | sensor_msgs/Image | mono8, 0 / 255 (or 0 / 1), the rig's size |
+| sub | ``capture/mask_joint_state`` | sensor_msgs/JointState | same stamp as its mask |
+| pub | ``hull`` | sensor_msgs/PointCloud2 | surface voxels of the live hull, frame "turntable" |
+| pub | ``mesh`` | visualization_msgs/Marker | TRIANGLE_LIST of the last reconstruction |
+| pub | ``mesh_shape`` | shape_msgs/Mesh | the same mesh |
+| pub | ``diagnostics`` | diagnostic_msgs/DiagnosticArray | per event and at 1 Hz |
+| srv | ``reconstruct`` | std_srvs/Trigger | message: JSON summary of the written mesh |
+| srv | ``reset`` | std_srvs/Trigger | start a new scan |
+
+One node does both carving and meshing: both work on the same
+:class:`sfs_ros.cell.live.LiveReconstruction` (live hull, views persisted in a
+session folder under ``output_dir``), which two processes would duplicate.
+
+Mask and joint state topics: reliable, volatile, depth ``queue_depth``
+(:func:`sfs_ros.ros.capture_qos`); they are paired by exactly equal stamps
+(either order). ``hull``, ``mesh`` and ``mesh_shape``: reliable,
+transient-local, depth 1 (:func:`sfs_ros.ros.result_qos`), so a viewer
+started later gets the latest.
+
+Threads: the executor (several threads) only decodes and pairs messages and
+answers services; one worker thread owns the ``LiveReconstruction`` and
+takes, in arrival order, views, ``reconstruct`` and ``reset`` requests. A
+reconstruction therefore uses exactly the views that arrived before the
+request, and messages keep being received (and queued for the worker) while
+it runs. ``reconstruct`` answers once the mesh and its report are written:
+``success`` and the JSON of :meth:`LiveReconstruction.reconstruct` (path,
+report_path, views used / rejected, watertight, volume_m3, seconds, ...);
+``success=False`` with the reason when there are no views or no mesh can be
+made. ``reset`` starts a new scan (new session folder on the next view) and
+publishes an empty hull; the last mesh stays on ``mesh`` until the next one.
+
+A malformed message (encoding other than mono8, sizes that do not add up,
+values other than 0/1 or 0/255, a joint state without both joints), a
+duplicate stamp or an unusable view is logged, counted in the diagnostics
+(ERROR until the next good view) and dropped; the node carries on. An
+all-zero mask is stored but carves nothing (WARN).
+
+Parameters: see :data:`PARAMS` (all read-only: they define the scan);
+``output_dir`` is required. Output files stay inside ``output_dir``.
+"""
+
+from __future__ import annotations
+
+import json
+import queue
+import sys
+import threading
+import time
+import traceback
+from concurrent.futures import Future
+
+import numpy as np
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.node import Node
+from sensor_msgs.msg import Image, JointState, PointCloud2
+from shape_msgs.msg import Mesh
+from std_srvs.srv import Trigger
+from visualization_msgs.msg import Marker
+
+from sfs_ros.cell.live import DuplicateViewError, LiveReconstruction
+from sfs_ros.core.pipeline import MESHERS
+from sfs_ros.core.rig import CONVENTIONS, RigCalibration
+from sfs_ros.core.views import as_bounds
+from sfs_ros.ros import capture_qos, result_qos
+from sfs_ros.ros.convert import (angles_from_joint_state, mesh_to_marker, mesh_to_shape,
+                                 msg_to_image, points_to_cloud)
+from sfs_ros.ros.pairing import DuplicateStampError, StampPairer, stamp_key
+from sfs_ros.ros.params import Param, ParameterError, declare
+
+__all__ = ["ReconstructionNode", "PARAMS", "rig_calibration", "main"]
+
+NODE_NAME = "reconstruction"
+#: Frame of the hull and the mesh: the object frame on the turntable.
+FRAME_ID = "turntable"
+
+_RIG = RigCalibration()
+
+#: The node's parameters (all read-only).
+PARAMS: list[Param] = [
+    Param("projection", _RIG.projection, "Camera model of the rig.",
+          choices=("orthographic", "pinhole"), read_only=True),
+    Param("width", _RIG.width, "Image width, pixels (masks must have it).", bounds=(1, 100000),
+          read_only=True),
+    Param("height", _RIG.height, "Image height, pixels (masks must have it).",
+          bounds=(1, 100000), read_only=True),
+    Param("fx", _RIG.fx, "Pinhole: focal length, pixels; orthographic: pixels per metre.",
+          bounds=(1e-9, 1e9), read_only=True),
+    Param("fy", _RIG.fy, "As fx, vertically.", bounds=(1e-9, 1e9), read_only=True),
+    Param("cx", -1.0, "Principal point x, pixels.", bounds=(-1.0, 1e6), read_only=True,
+          constraints="below 0 = image centre"),
+    Param("cy", -1.0, "Principal point y, pixels.", bounds=(-1.0, 1e6), read_only=True,
+          constraints="below 0 = image centre"),
+    Param("camera_distance_m", _RIG.camera_distance_m, "Distance from the C-arm centre to the "
+          "camera centre, metres.", bounds=(1e-6, 1000.0), read_only=True),
+    Param("aim_point_m", [float(v) for v in _RIG.aim_point_m], "C-arm centre [x, y, z] in the "
+          "lab frame, metres.", read_only=True, constraints="three values"),
+    Param("theta_zero_rad", _RIG.theta_zero_rad, "Turntable encoder reading at its true zero, "
+          "radians.", read_only=True),
+    Param("phi_zero_rad", _RIG.phi_zero_rad, "Carriage encoder reading at its true zero, "
+          "radians.", read_only=True),
+    Param("convention", _RIG.convention, "Angle convention of the rig.", choices=CONVENTIONS,
+          read_only=True),
+    Param("bounds_m", [-0.1, -0.1, 0.0, 0.1, 0.1, 0.2], "Carving box [xmin, ymin, zmin, xmax, "
+          "ymax, zmax], metres, object frame.", read_only=True,
+          constraints="six values, min < max on each axis"),
+    Param("resolution", 192, "Voxels along the longest side of the box (live hull and final "
+          "reconstruction).", bounds=(8, 2048), read_only=True),
+    Param("mesher", MESHERS[0], "Surface extraction of the final reconstruction.",
+          choices=MESHERS, read_only=True),
+    Param("output_dir", "", "Folder for scan session folders, meshes and reports (created if "
+          "needed); every file the node writes stays inside it.", read_only=True,
+          constraints="required, non-empty"),
+    Param("hull_rate_hz", 2.0, "Most hull clouds per second; the latest is always published "
+          "once the views received so far are carved.", bounds=(0.0, 1000.0), read_only=True,
+          constraints="0 = after every view"),
+    Param("max_hull_points", 100000, "Most points of a hull cloud (an evenly spaced subset "
+          "of the surface voxels beyond that).", bounds=(1, 100_000_000), read_only=True),
+    Param("queue_depth", 100, "Depth of the reliable mask topics and of the buffer of unpaired "
+          "halves per topic; at least the number of views of a scan.", bounds=(1, 100000),
+          read_only=True),
+]
+
+
+def rig_calibration(values: dict) -> RigCalibration:
+    """:class:`RigCalibration` from the node's parameter values; :class:`ParameterError`."""
+    aim = values["aim_point_m"]
+    if len(aim) != 3:
+        raise ParameterError("aim_point_m", f"got {aim!r}, expected three values [x, y, z]")
+    try:
+        return RigCalibration(
+            width=values["width"], height=values["height"], projection=values["projection"],
+            fx=values["fx"], fy=values["fy"],
+            cx=None if values["cx"] < 0 else values["cx"],
+            cy=None if values["cy"] < 0 else values["cy"],
+            camera_distance_m=values["camera_distance_m"], aim_point_m=tuple(aim),
+            theta_zero_rad=values["theta_zero_rad"], phi_zero_rad=values["phi_zero_rad"],
+            convention=values["convention"])
+    except ValueError as exc:
+        raise ParameterError("calibration", str(exc)) from None
+
+
+def _bounds(values: dict) -> np.ndarray:
+    box = values["bounds_m"]
+    try:
+        if len(box) != 6:
+            raise ValueError(f"got {len(box)} values")
+        return as_bounds(np.reshape(box, (2, 3)), what="bounds_m")
+    except ValueError:
+        raise ParameterError("bounds_m", f"got {box!r}, expected [xmin, ymin, zmin, xmax, ymax, "
+                             "zmax] with finite min < max") from None
+
+
+def _fmt(stamp) -> str:
+    return f"{stamp[0]}.{stamp[1]:09d}"
+
+
+class ReconstructionNode(Node):
+    """Carves paired masks into a live hull and meshes the scan on request.
+
+    Raises :class:`ParameterError` at construction for invalid parameters.
+    Call :meth:`close` before ``destroy_node`` (stops the worker thread).
+    """
+
+    def __init__(self, **kwargs):
+        super().__init__(NODE_NAME, **kwargs)
+        values = declare(self, PARAMS)
+        if not values["output_dir"].strip():
+            raise ParameterError("output_dir", "is required: the folder for scans and meshes")
+        calibration = rig_calibration(values)
+        try:
+            self._live = LiveReconstruction(calibration, _bounds(values),
+                                            output_dir=values["output_dir"],
+                                            resolution=values["resolution"],
+                                            mesher=values["mesher"])
+        except (ValueError, OSError) as exc:
+            raise ParameterError("output_dir" if isinstance(exc, OSError) else "resolution",
+                                 str(exc)) from None
+        self._hull_period = 0.0 if values["hull_rate_hz"] == 0 else 1.0 / values["hull_rate_hz"]
+        self._max_hull_points = values["max_hull_points"]
+        depth = values["queue_depth"]
+
+        self._stats_lock = threading.Lock()
+        self._counts = {"views_received": 0, "carved": 0, "empty": 0, "rejected": 0,
+                        "malformed": 0, "duplicates": 0, "unpaired_dropped": 0,
+                        "reconstructions": 0, "reconstruction_failures": 0, "scan_views": 0}
+        self._problem = ""
+        self._warning = ""
+
+        inputs = MutuallyExclusiveCallbackGroup()     # pairer, timers
+        services = MutuallyExclusiveCallbackGroup()   # one request at a time, waits on the worker
+        self._pairer = StampPairer(depth, on_evict=self._given_up)
+        qos = capture_qos(depth)
+        self._hull_pub = self.create_publisher(PointCloud2, "hull", result_qos())
+        self._marker_pub = self.create_publisher(Marker, "mesh", result_qos())
+        self._shape_pub = self.create_publisher(Mesh, "mesh_shape", result_qos())
+        self._diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
+        self.create_subscription(Image, "capture/mask", self._on_mask, qos,
+                                 callback_group=inputs)
+        self.create_subscription(JointState, "capture/mask_joint_state", self._on_joint_state,
+                                 qos, callback_group=inputs)
+        self.create_service(Trigger, "reconstruct", self._on_reconstruct,
+                            callback_group=services)
+        self.create_service(Trigger, "reset", self._on_reset, callback_group=services)
+        self.create_timer(1.0, self._publish_diagnostics, callback_group=inputs)
+
+        self._jobs: queue.Queue = queue.Queue()
+        self._worker = threading.Thread(target=self._work, name="reconstruction", daemon=True)
+        self._worker.start()
+        self.get_logger().info(
+            f"reconstructing into {self._live.output_dir} (box {self._live.bounds_m.tolist()}, "
+            f"resolution {values['resolution']}, {values['mesher']}, queue depth {depth})")
+
+    def close(self) -> None:
+        """Finish the queued work and stop the worker thread."""
+        self._jobs.put(None)
+        self._worker.join()
+
+    # -- inputs (executor threads) -----------------------------------------------------------
+
+    def _on_mask(self, msg: Image) -> None:
+        stamp = stamp_key(msg.header.stamp)
+        try:
+            if msg.encoding != "mono8":
+                raise ValueError(f"mask encoding is {msg.encoding!r}, expected 'mono8'")
+            mask = msg_to_image(msg).copy()
+        except ValueError as exc:
+            self._malformed("mask", stamp, exc)
+            return
+        self._add(self._pairer.add_a, "mask", stamp, mask)
+
+    def _on_joint_state(self, msg: JointState) -> None:
+        stamp = stamp_key(msg.header.stamp)
+        try:
+            angles = angles_from_joint_state(msg)
+        except ValueError as exc:
+            self._malformed("joint state", stamp, exc)
+            return
+        self._add(self._pairer.add_b, "joint state", stamp, angles)
+
+    def _add(self, add, what: str, stamp, item) -> None:
+        try:
+            pair = add(stamp, item)
+        except DuplicateStampError as exc:
+            self._count("duplicates")
+            self._report_problem(f"{what} ignored: {exc}")
+            return
+        if pair is not None:
+            mask, (theta, phi) = pair
+            self._count("views_received")
+            self._jobs.put(("view", stamp, mask, theta, phi))
+
+    def _malformed(self, what: str, stamp, exc: Exception) -> None:
+        self._count("malformed")
+        self._pairer.reject(stamp)
+        self._report_problem(f"malformed {what} at stamp {_fmt(stamp)} dropped with its view: "
+                             f"{exc}")
+
+    def _given_up(self, stream: str, stamp, _item, reason: str) -> None:
+        self._count("unpaired_dropped")
+        what = "mask" if stream == "a" else "joint state"
+        why = ("no partner arrived before the buffer filled" if reason == "evicted"
+               else "its partner was malformed")
+        self._report_problem(f"{what} at stamp {_fmt(stamp)} dropped: {why}")
+
+    def _on_reconstruct(self, _request, response):
+        return self._request("reconstruct", response)
+
+    def _on_reset(self, _request, response):
+        return self._request("reset", response)
+
+    def _request(self, kind: str, response):
+        done: Future = Future()
+        self._jobs.put((kind, done))
+        response.success, response.message = done.result()
+        return response
+
+    # -- worker thread -----------------------------------------------------------------------
+
+    def _work(self) -> None:
+        last_hull = -float("inf")
+        dirty = False
+        while True:
+            job = self._jobs.get()
+            if job is None:
+                return
+            try:
+                dirty |= self._do(job)
+                now = time.monotonic()
+                if dirty and (self._jobs.empty() or now - last_hull >= self._hull_period):
+                    self._publish_hull()
+                    last_hull, dirty = now, False
+            except Exception as exc:  # noqa: BLE001 -- keep serving; the caller gets the reason
+                text = f"internal error in {job[0]}: {type(exc).__name__}: {exc}"
+                self.get_logger().error(f"{text}\n{traceback.format_exc()}")
+                if job[0] != "view" and not job[1].done():
+                    job[1].set_result((False, text))
+                self._report_problem(text)
+
+    def _do(self, job) -> bool:
+        """Run one job; whether the hull changed."""
+        kind = job[0]
+        if kind == "view":
+            return self._add_view(*job[1:])
+        if kind == "reconstruct":
+            job[1].set_result(self._reconstruct())
+            return False
+        self._live.reset()
+        with self._stats_lock:
+            self._counts["scan_views"] = 0
+            self._problem = self._warning = ""
+        self.get_logger().info("reset: the next view starts a new scan")
+        job[1].set_result((True, "new scan: no views yet"))
+        return True
+
+    def _add_view(self, stamp, mask, theta: float, phi: float) -> bool:
+        """Give one view to the live reconstruction; whether the hull changed."""
+        try:
+            added = self._live.add_view(f"{stamp[0]}_{stamp[1]:09d}", mask, theta, phi)
+        except DuplicateViewError as exc:
+            self._count("duplicates")
+            self._report_problem(f"view at stamp {_fmt(stamp)} ignored: {exc}")
+            return False
+        except ValueError as exc:
+            self._count("rejected")
+            self._report_problem(f"view at stamp {_fmt(stamp)} rejected: {exc}")
+            return False
+        with self._stats_lock:
+            self._counts["scan_views"] = added.n_views
+            self._counts["carved" if added.carved else "empty"] += 1
+            self._problem = ""
+            self._warning = "" if added.carved else f"view at stamp {_fmt(stamp)}: {added.reason}"
+        if self._warning:
+            self.get_logger().warning(self._warning)
+        self._publish_diagnostics()
+        return added.carved
+
+    def _reconstruct(self) -> tuple[bool, str]:
+        try:
+            summary = self._live.reconstruct()
+        except ValueError as exc:
+            self._count("reconstruction_failures")
+            reason = str(exc)
+            if self._live.n_views == 0:
+                reason += ": publish masks with their joint states first"
+            text = f"reconstruction failed: {reason}"
+            self.get_logger().error(text)
+            self._publish_diagnostics()
+            return False, text
+        self._count("reconstructions")
+        vertices, faces = self._live.last_mesh
+        stamp = self.get_clock().now().to_msg()
+        self._marker_pub.publish(mesh_to_marker(vertices, faces, stamp=stamp, frame_id=FRAME_ID))
+        self._shape_pub.publish(mesh_to_shape(vertices, faces))
+        self.get_logger().info(f"mesh written to {summary['path']} ({summary['views_used']} "
+                               f"views, {summary['n_faces']} faces, "
+                               f"{summary['seconds']:.1f} s)")
+        self._publish_diagnostics()
+        return True, json.dumps(summary)
+
+    def _publish_hull(self) -> None:
+        points = self._live.hull_points(self._max_hull_points)
+        stamp = self.get_clock().now().to_msg()
+        self._hull_pub.publish(points_to_cloud(points, stamp=stamp, frame_id=FRAME_ID))
+
+    # -- diagnostics (any thread) ------------------------------------------------------------
+
+    def _count(self, name: str) -> None:
+        with self._stats_lock:
+            self._counts[name] += 1
+
+    def _report_problem(self, text: str) -> None:
+        with self._stats_lock:
+            self._problem = text
+        self.get_logger().error(text)
+        self._publish_diagnostics()
+
+    def _publish_diagnostics(self) -> None:
+        with self._stats_lock:
+            values = dict(self._counts)
+            problem, warning = self._problem, self._warning
+        if problem:
+            level, message = DiagnosticStatus.ERROR, problem
+        elif warning:
+            level, message = DiagnosticStatus.WARN, warning
+        else:
+            level, message = DiagnosticStatus.OK, f"{values['scan_views']} views in this scan"
+        values.update(waiting_masks=self._pairer.pending("a"),
+                      waiting_joint_states=self._pairer.pending("b"))
+        status = DiagnosticStatus(level=level, name=f"{self.get_name()}: reconstruction",
+                                  message=message, hardware_id="",
+                                  values=[KeyValue(key=k, value=str(v))
+                                          for k, v in values.items()])
+        array = DiagnosticArray(status=[status])
+        array.header.stamp = self.get_clock().now().to_msg()
+        self._diag_pub.publish(array)
+
+
+def main(args=None) -> None:
+    """Entry point ``sfs-reconstruction``
+    (``--ros-args --params-file config/reconstruction.yaml``, with ``output_dir`` set)."""
+    rclpy.init(args=args)
+    try:
+        node = ReconstructionNode()
+    except ParameterError as exc:
+        print(f"sfs-reconstruction: {exc}", file=sys.stderr)
+        rclpy.try_shutdown()
+        sys.exit(2)
+    executor = MultiThreadedExecutor(num_threads=3)
+    executor.add_node(node)
+    try:
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        executor.shutdown()
+        node.close()
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    main()
