@@ -35,6 +35,7 @@ from __future__ import annotations
 import collections
 import math
 import numbers
+import termios
 import threading
 import time
 from dataclasses import dataclass
@@ -460,7 +461,8 @@ class GrblClient:
         except serial.SerialTimeoutException as exc:
             raise MotorTimeout(f"could not write to {self.port} within {self.timeout_s:.3g} s"
                                ) from exc
-        except (serial.SerialException, OSError) as exc:
+        except (serial.SerialException, OSError, termios.error) as exc:
+            # flush() (tcdrain) on a vanished port raises termios.error, no OSError.
             raise self._fail(exc) from exc
 
     def _command(self, line: bytes, deadline: float, *, alarm_seq: int | None = None) -> None:
