@@ -36,6 +36,9 @@ setup(
             "sfs-reconstruct = sfs_ros.cli.reconstruct:main",
             "sfs-demo = sfs_ros.cli.demo:main",
             "sfs-segmentation = sfs_ros.nodes.segmentation_node:main",
+            "sfs-motor = sfs_ros.nodes.motor_node:main",
+            "sfs-mock-hardware = sfs_ros.nodes.mock_hardware_node:main",
+            "sfs-reconstruction = sfs_ros.nodes.reconstruction_node:main",
         ],
     },
 )

@@ -1,0 +1,449 @@
+"""Motor node: the turntable and carriage behind a GRBL 1.1 controller.
+
+| kind | name | type | notes |
+|---|---|---|---|
+| pub | ``joint_states`` | sensor_msgs/JointState | turntable, carriage; rad; encoder read-back |
+| pub | ``diagnostics`` | diagnostic_msgs/DiagnosticArray | 1 Hz and on every fault |
+| sub | ``joint_command`` | sensor_msgs/JointState | target positions by joint name, rad |
+| srv | ``home`` | std_srvs/Trigger | homing cycle; also recovers from an alarm |
+| srv | ``stop`` | std_srvs/Trigger | stop now, keep the position |
+
+Behaviour
+---------
+* ``joint_states`` is published at ``status_rate_hz`` from a timer that polls
+  the controller (``?``); nothing is published while the position is unknown
+  (not connected, critical alarm, homing before the first report).
+* Moves and homing run one at a time in a worker thread, never in the
+  executor. A ``joint_command`` that arrives while a move runs **preempts**
+  it: the axes come to a controlled stop (feed hold, no alarm) and the new
+  move starts from there; a command that arrives during homing waits for the
+  homing to end. Only the latest waiting command is kept.
+* A command without both joints, or with a non-finite position, is refused
+  with a log line and an ERROR diagnostic; the node carries on.
+* ``stop`` drops any waiting command and interrupts the running move: feed
+  hold, then a soft reset once stopped, so the position is kept and no alarm
+  raised (homing: soft reset, after which the controller wants homing again).
+  It succeeds when the axes are at rest, also when an alarm had already
+  stopped them (the message says so); it fails when not connected.
+* ``home`` waits for the homing cycle (its answer comes when the axes are
+  home, or with the reason they are not). After a limit alarm the controller
+  answers nothing but a soft reset: ``home`` then resets first, then homes
+  (GRBL accepts ``$H`` in the alarm lock, so no separate unlock is needed).
+* Faults (timeouts, alarms, stalls, rejected commands, lost connection) are
+  logged and reported as ERROR diagnostics until the next successful move or
+  homing. A lost connection closes the port; the node tries to reopen it every
+  ``reconnect_period_s`` (also when the port cannot be opened at start-up).
+
+The executor is multi-threaded (4 threads): the services and the command
+subscription are reentrant (``home`` holds one thread while it waits for the
+worker), the polling and reconnect timers mutually exclusive with each other.
+Parameters: :data:`PARAMS`; the timeouts may be changed at run time (validated).
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import threading
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger
+
+from sfs_ros.hardware.driver import (ConnectionLost, GrblClient, MotionCancelled, MotorAlarm,
+                                     MotorError, MotorTimeout)
+from sfs_ros.ros.convert import angles_from_joint_state, joint_state
+from sfs_ros.ros.params import Param, ParameterError, declare, validating_callback
+
+__all__ = ["MotorNode", "PARAMS", "main"]
+
+NODE_NAME = "motor"
+
+PARAMS: list[Param] = [
+    Param("port", "", "Serial port of the GRBL controller (/dev/ttyACM0, a pty, or a pyserial "
+          "URL).", read_only=True, constraints="required, non-empty"),
+    Param("baudrate", 115200, "Serial baud rate.", bounds=(1200, 4000000), read_only=True),
+    Param("status_rate_hz", 10.0, "Rate of joint_states (one status query each).",
+          bounds=(0.5, 50.0), read_only=True),
+    Param("move_timeout_s", 30.0, "Deadline of one move, seconds.", bounds=(0.1, 3600.0)),
+    Param("home_timeout_s", 60.0, "Deadline of the homing cycle, seconds.",
+          bounds=(0.1, 3600.0)),
+    Param("home_on_start", False, "Home as soon as the controller is connected.",
+          read_only=True),
+    Param("reconnect_period_s", 2.0, "Period of the attempts to reopen a lost port, seconds.",
+          bounds=(0.1, 600.0), read_only=True),
+]
+
+
+def _validate(values: dict) -> None:
+    """Cross-field rules beyond types and ranges; raises :class:`ParameterError`."""
+    if not values["port"].strip():
+        raise ParameterError("port", f"got {values['port']!r}, expected the controller's serial "
+                             f"port, e.g. /dev/ttyACM0")
+
+
+class _Job:
+    """A move or a homing cycle for the worker; ``done`` is set with ``error`` (None = ok)."""
+
+    def __init__(self, kind: str, target: tuple[float, float] | None = None):
+        self.kind = kind
+        self.target = target
+        self.done = threading.Event()
+        self.error: str | None = None
+
+
+class MotorNode(Node):
+    """Drives the cell's two axes through :class:`GrblClient`.
+
+    Raises :class:`ParameterError` at construction for invalid parameters.
+    """
+
+    def __init__(self, **kwargs):
+        super().__init__(NODE_NAME, **kwargs)
+        try:
+            self._p = declare(self, PARAMS)
+            _validate(self._p)
+        except ParameterError:
+            super().destroy_node()         # nothing of ours to release yet
+            raise
+        self.add_on_set_parameters_callback(validating_callback(self, PARAMS, _validate))
+        self._client_lock = threading.Lock()
+        self._client: GrblClient | None = None
+        self._connection_error = ""
+        self._fault = ""                   # the last fault, "" after a good move / homing
+        self._faults = 0
+        self._refused = 0
+        self._state = "unknown"
+        self._position: tuple[float, float] | None = None
+        self._alarm: str = ""
+        self._home_on_start = bool(self._p["home_on_start"])
+
+        self._cv = threading.Condition()
+        self._pending: _Job | None = None
+        self._running: _Job | None = None
+        self._interrupting = 0             # stops under way: the worker waits for them
+        self._closing = False
+        self._worker = threading.Thread(target=self._work, name="motor-worker", daemon=True)
+
+        self._joints_pub = self.create_publisher(JointState, "joint_states", 10)
+        self._diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
+        reentrant = ReentrantCallbackGroup()
+        polling = MutuallyExclusiveCallbackGroup()
+        self.create_subscription(JointState, "joint_command", self._on_command, 10,
+                                 callback_group=reentrant)
+        self.create_service(Trigger, "home", self._on_home, callback_group=reentrant)
+        self.create_service(Trigger, "stop", self._on_stop, callback_group=reentrant)
+        self.create_timer(1.0 / self._p["status_rate_hz"], self._poll, callback_group=polling)
+        self.create_timer(self._p["reconnect_period_s"], self._reconnect, callback_group=polling)
+        self.create_timer(1.0, self._publish_diagnostics, callback_group=reentrant)
+        self._worker.start()
+        self._reconnect()
+        self.get_logger().info(f"motor controller on {self._p['port']}, joint_states at "
+                               f"{self._p['status_rate_hz']} Hz")
+
+    # -- connection --------------------------------------------------------------------------
+
+    def _reconnect(self) -> None:
+        if self._client is not None:
+            return
+        try:
+            client = GrblClient(self._p["port"], baudrate=self._p["baudrate"])
+        except (MotorError, ValueError) as exc:
+            if str(exc) != self._connection_error:
+                self.get_logger().error(f"{exc}; retrying every {self._p['reconnect_period_s']} s")
+            self._connection_error = str(exc)
+            self._publish_diagnostics()
+            return
+        with self._client_lock:
+            self._client = client
+        self._connection_error = ""
+        self.get_logger().info(f"connected to the motor controller on {self._p['port']}")
+        if self._home_on_start:            # the first connection only
+            self._home_on_start = False
+            self._submit(_Job("home"))
+        self._publish_diagnostics()
+
+    def _lost(self, exc: Exception) -> None:
+        """The port failed: close it; the reconnect timer reopens it."""
+        with self._client_lock:
+            client, self._client = self._client, None
+        if client is not None:
+            client.close()
+            self._connection_error = f"connection lost: {exc}"
+            self._state, self._position = "disconnected", None
+            self.get_logger().error(f"{self._connection_error}; retrying every "
+                                    f"{self._p['reconnect_period_s']} s")
+            self._publish_diagnostics()
+
+    # -- polling -------------------------------------------------------------------------
+
+    def _poll(self) -> None:
+        client = self._client
+        if client is None:
+            return
+        try:
+            status = client.status(timeout_s=0.5)
+        except ConnectionLost as exc:
+            self._lost(exc)
+            return
+        except MotorAlarm as exc:
+            self._state, self._position = "Alarm", None
+            self._set_alarm(str(exc))
+            return
+        except MotorTimeout as exc:
+            if self._state != "no answer":     # once, not at every poll
+                self._state = "no answer"
+                self._report_fault(str(exc))
+            return
+        except MotorError as exc:
+            self._report_fault(str(exc))
+            return
+        self._state = status.state
+        if status.state == "Alarm":
+            code = client.alarm_code
+            self._set_alarm(str(MotorAlarm(code)))
+        else:
+            self._alarm = ""
+        if math.isfinite(status.theta_rad) and math.isfinite(status.phi_rad):
+            self._position = (status.theta_rad, status.phi_rad)
+            self._joints_pub.publish(joint_state(status.theta_rad, status.phi_rad,
+                                                 stamp=self.get_clock().now().to_msg()))
+
+    def _set_alarm(self, text: str) -> None:
+        if text != self._alarm:
+            self._alarm = text
+            self.get_logger().error(text)
+            self._publish_diagnostics()
+
+    # -- commands --------------------------------------------------------------------------
+
+    def _on_command(self, msg: JointState) -> None:
+        try:
+            target = angles_from_joint_state(msg)
+        except ValueError as exc:
+            self._refused += 1
+            self._report_fault(f"joint_command refused: {exc}")
+            return
+        preempt = self._submit(_Job("move", target))
+        if preempt:
+            self._interrupt()
+
+    def _on_home(self, _request, response):
+        job = _Job("home")
+        if self._submit(job):
+            self._interrupt()
+        job.done.wait()
+        response.success = job.error is None
+        response.message = job.error or f"homed; state {self._state}"
+        return response
+
+    def _on_stop(self, _request, response):
+        with self._cv:
+            if self._pending is not None:
+                self._pending.error = "cancelled by stop"
+                self._pending.done.set()
+            self._pending = None
+            self._interrupting += 1
+        client = self._client
+        try:
+            if client is None:
+                response.success = False
+                response.message = f"not connected: {self._connection_error}"
+                return response
+            status = client.stop()
+        except MotorAlarm as exc:
+            response.success, response.message = True, f"axes stopped by an alarm: {exc}"
+            return response
+        except ConnectionLost as exc:
+            self._lost(exc)
+            response.success, response.message = False, str(exc)
+            return response
+        except MotorError as exc:
+            self._report_fault(f"stop failed: {exc}")
+            response.success, response.message = False, str(exc)
+            return response
+        finally:
+            self._interrupted()
+        response.success = True
+        response.message = (f"stopped at theta={status.theta_rad:.4f} rad, "
+                            f"phi={status.phi_rad:.4f} rad (state {status.state})")
+        self.get_logger().info(response.message)
+        return response
+
+    def _submit(self, job: _Job) -> bool:
+        """Queue ``job`` (replacing a waiting one); True if a running move should be stopped."""
+        with self._cv:
+            if self._pending is not None:
+                self._pending.error = "superseded by a later request"
+                self._pending.done.set()
+            self._pending = job
+            self._cv.notify_all()
+            preempt = self._running is not None and self._running.kind == "move"
+            self._interrupting += preempt
+            return preempt
+
+    def _interrupt(self) -> None:
+        """Stop the axes; the worker starts no job until this has finished (callers count
+        themselves in ``_interrupting`` first, under the condition's lock)."""
+        client = self._client
+        try:
+            if client is not None:
+                client.stop()
+        except ConnectionLost as exc:
+            self._lost(exc)
+        except MotorError as exc:          # alarm, timeout: the running job reports it
+            self.get_logger().warning(f"could not stop the running move: {exc}")
+        finally:
+            self._interrupted()
+
+    def _interrupted(self) -> None:
+        with self._cv:
+            self._interrupting -= 1
+            self._cv.notify_all()
+
+    # -- worker ----------------------------------------------------------------------------
+
+    def _work(self) -> None:
+        while True:
+            with self._cv:
+                while (self._pending is None or self._interrupting) and not self._closing:
+                    self._cv.wait()
+                if self._closing:
+                    if self._pending is not None:
+                        self._pending.error = "node shutting down"
+                        self._pending.done.set()
+                    return
+                job, self._pending = self._pending, None
+                self._running = job
+            try:
+                job.error = self._run(job)
+            finally:
+                with self._cv:
+                    self._running = None
+                job.done.set()
+
+    def _run(self, job: _Job) -> str | None:
+        client = self._client
+        if client is None:
+            error = f"{job.kind} refused: not connected ({self._connection_error})"
+            self._report_fault(error)
+            return error
+        try:
+            if job.kind == "move":
+                theta, phi = job.target
+                self.get_logger().info(f"moving to theta={theta:.4f} rad, phi={phi:.4f} rad")
+                client.move_to(theta, phi, timeout_s=self._param("move_timeout_s"))
+            else:
+                self.get_logger().info("homing")
+                try:
+                    client.status()
+                except MotorAlarm as exc:
+                    if exc.critical:
+                        self.get_logger().info("soft reset to clear the alarm before homing")
+                        client.reset()
+                client.home(timeout_s=self._param("home_timeout_s"))
+        except MotionCancelled as exc:
+            self.get_logger().info(str(exc))
+            return str(exc)
+        except ConnectionLost as exc:
+            self._lost(exc)
+            return str(exc)
+        except MotorTimeout as exc:
+            self._report_fault(str(exc))
+            if job.kind == "move":         # the axes may still be moving
+                with self._cv:
+                    self._interrupting += 1
+                self._interrupt()
+            return str(exc)
+        except MotorError as exc:
+            self._report_fault(str(exc))
+            return str(exc)
+        self._fault = ""
+        self._alarm = ""
+        self.get_logger().info(f"{job.kind} done")
+        self._publish_diagnostics()
+        return None
+
+    def _param(self, name: str):
+        return self.get_parameter(name).value
+
+    # -- diagnostics ----------------------------------------------------------------------
+
+    def _report_fault(self, text: str) -> None:
+        self._fault = text
+        self._faults += 1
+        self.get_logger().error(text)
+        self._publish_diagnostics()
+
+    def _publish_diagnostics(self) -> None:
+        client = self._client
+        if client is None:
+            level = DiagnosticStatus.ERROR
+            message = self._connection_error or "not connected"
+        elif self._alarm:
+            level, message = DiagnosticStatus.ERROR, self._alarm
+        elif self._fault:
+            level, message = DiagnosticStatus.ERROR, self._fault
+        else:
+            level, message = DiagnosticStatus.OK, f"state {self._state}"
+        running = self._running
+        values = {
+            "port": self._p["port"], "connected": client is not None, "state": self._state,
+            "alarm": self._alarm, "last_fault": self._fault, "faults": self._faults,
+            "refused_commands": self._refused,
+            "noise_lines": client.noise_lines if client is not None else "",
+            "job": running.kind if running is not None else "",
+        }
+        if self._position is not None:
+            values.update(theta_rad=f"{self._position[0]:.6f}",
+                          phi_rad=f"{self._position[1]:.6f}")
+        status = DiagnosticStatus(level=level, name=f"{self.get_name()}: motor",
+                                  message=message, hardware_id=self._p["port"],
+                                  values=[KeyValue(key=k, value=str(v))
+                                          for k, v in values.items()])
+        array = DiagnosticArray(status=[status])
+        array.header.stamp = self.get_clock().now().to_msg()
+        self._diag_pub.publish(array)
+
+    def destroy_node(self) -> None:
+        with self._cv:
+            self._closing = True
+            self._cv.notify_all()
+            busy = self._running is not None
+            self._interrupting += busy
+        if busy:
+            self._interrupt()
+        self._worker.join(timeout=5.0)
+        with self._client_lock:
+            client, self._client = self._client, None
+        if client is not None:
+            client.close()
+        super().destroy_node()
+
+
+def main(args=None) -> None:
+    """Entry point ``sfs-motor`` (``--ros-args --params-file config/motor.yaml -p port:=...``)."""
+    rclpy.init(args=args)
+    try:
+        node = MotorNode()
+    except ParameterError as exc:
+        print(f"sfs-motor: {exc}", file=sys.stderr)
+        rclpy.try_shutdown()
+        sys.exit(2)
+    executor = MultiThreadedExecutor(num_threads=4)
+    executor.add_node(node)
+    try:
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,253 @@
+"""The motor node as a separate OS process, driving a simulated GRBL controller in the test.
+
+The simulator runs in the test process on a pseudo-terminal; the node opens it
+by path as it would open the real controller's port.
+"""
+
+import math
+import os
+
+import numpy as np
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from sensor_msgs.msg import JointState
+from std_msgs.msg import String
+from std_srvs.srv import Trigger
+
+from ros_harness import NodeProcess, RosProbe
+from sfs_ros.hardware.driver import GrblClient
+from sfs_ros.hardware.simulator import SimulatedGrbl
+from sfs_ros.ros import result_qos
+from sfs_ros.ros.convert import joint_state
+
+MODULE = "sfs_ros.nodes.motor_node"
+OFFSET_DEG = (0.03, -0.02)
+NOISE_DEG = (0.01, 0.01)
+# Targets go on the wire in degrees with 3 decimals: GRBL's step counters end
+# within ROUND_DEG of the target. The read-back adds the encoder offset and
+# noise of at most NOISE_DEG: |joint_states - target| <= round + |offset| + noise.
+ROUND_DEG = 0.0005
+BOUND_RAD = np.radians(ROUND_DEG + np.abs(OFFSET_DEG) + NOISE_DEG) + 1e-12
+SPEED_DEG_S = (720.0, 360.0)      # fast axes keep the test short
+
+
+@pytest.fixture(scope="module")
+def simulator():
+    sim = SimulatedGrbl(max_speed_deg_s=SPEED_DEG_S, accel_deg_s2=(3600.0, 1800.0),
+                        homing_speed_deg_s=600.0, encoder_offset_deg=OFFSET_DEG,
+                        encoder_noise_deg=NOISE_DEG, power_up_true_deg=(30.0, 10.0),
+                        start_locked=True, seed=1).start()
+    yield sim
+    sim.close()
+
+
+class Cell:
+    """The node process plus the probe's publisher, service clients and recorders."""
+
+    def __init__(self, port: str):
+        self.process = NodeProcess(MODULE, parameters={
+            "port": port, "status_rate_hz": 20.0, "reconnect_period_s": 0.5,
+            "move_timeout_s": 10.0, "home_timeout_s": 5.0})
+        self.probe = RosProbe()
+        node = self.probe.node
+        self.command_pub = node.create_publisher(JointState, "joint_command", 10)
+        self.joints, self.diagnostics = [], []
+        subs = [node.create_subscription(JointState, "joint_states", self.joints.append, 10),
+                node.create_subscription(DiagnosticArray, "diagnostics",
+                                         self.diagnostics.append, 10)]
+        self.home_client = node.create_client(Trigger, "home")
+        self.stop_client = node.create_client(Trigger, "stop")
+        self.probe.wait_connected([self.command_pub], subs, process=self.process)
+        self.probe.spin_until(lambda: self.home_client.service_is_ready()
+                              and self.stop_client.service_is_ready(),
+                              what="home and stop services", process=self.process)
+
+    def call(self, client) -> Trigger.Response:
+        future = client.call_async(Trigger.Request())
+        self.probe.spin_until(future.done, what=f"answer of {client.srv_name}",
+                              process=self.process)
+        return future.result()
+
+    def command(self, theta: float, phi: float) -> None:
+        self.command_pub.publish(joint_state(theta, phi, stamp=(0, 0)))
+
+    def position(self) -> np.ndarray:
+        return np.array(self.joints[-1].position) if self.joints else np.full(2, np.nan)
+
+    def wait_at(self, theta: float, phi: float) -> None:
+        target = np.array([theta, phi])
+        self.probe.spin_until(lambda: np.all(np.abs(self.position() - target) <= BOUND_RAD),
+                              what=f"joint_states at {target}", process=self.process)
+
+    def errors(self) -> list[str]:
+        return [s.message for a in self.diagnostics for s in a.status
+                if s.level == DiagnosticStatus.ERROR]
+
+    def wait_error(self, text: str) -> None:
+        self.probe.spin_until(lambda: any(text in e for e in self.errors()),
+                              what=f"an ERROR diagnostic with {text!r}", process=self.process)
+
+
+@pytest.fixture(scope="module")
+def device(simulator, tmp_path_factory):
+    """A stable device name (like a udev symlink) pointing at the simulator's pty."""
+    link = tmp_path_factory.mktemp("dev") / "ttyGRBL"
+    link.symlink_to(simulator.port)
+    return link
+
+
+@pytest.fixture(scope="module")
+def cell(device):
+    cell = Cell(str(device))
+    yield cell
+    cell.probe.close()
+    code = cell.process.stop()
+    output = cell.process.output()
+    cell.process.cleanup()
+    assert code == 0, f"node did not exit cleanly on SIGINT (code {code}):\n{output}"
+
+
+def test_home_then_move_converges(cell, simulator):
+    answer = cell.call(cell.home_client)
+    assert answer.success, answer.message
+    assert simulator.state == "Idle"
+    cell.wait_at(0.0, 0.0)
+    cell.command(1.2, 0.6)
+    cell.wait_at(1.2, 0.6)
+    cell.probe.spin_for(0.3)                 # and it stays there
+    assert np.all(np.abs(cell.position() - [1.2, 0.6]) <= BOUND_RAD)
+    last = cell.joints[-1]
+    assert list(last.name) == ["turntable", "carriage"]
+    assert last.header.stamp.sec > 0         # stamped now, not the command's stamp
+    np.testing.assert_allclose(simulator.true_position_rad(), [1.2, 0.6],
+                               atol=math.radians(ROUND_DEG) + 1e-12)
+
+
+def test_bad_commands_are_refused(cell, simulator):
+    before = simulator.machine_position_deg()
+    cell.diagnostics.clear()
+    cell.command_pub.publish(joint_state(math.nan, 0.3, stamp=(0, 0)))
+    cell.command_pub.publish(JointState(name=["turntable"], position=[0.5]))
+    cell.wait_error("joint_command refused")
+    cell.probe.spin_until(lambda: sum("joint_command refused" in e for e in cell.errors()) >= 2,
+                          what="two refusals", process=cell.process)
+    assert any("carriage" in e for e in cell.errors())
+    assert simulator.machine_position_deg() == before
+    cell.command(1.0, 0.5)                   # still obeys good commands
+    cell.wait_at(1.0, 0.5)
+
+
+def test_new_command_preempts_and_stop_interrupts(cell, simulator):
+    cell.command(60.0, 0.5)                  # ~3400 deg: ~5 s at 720 deg/s
+    cell.probe.spin_until(lambda: cell.position()[0] > 3.0, what="the long move under way",
+                          process=cell.process)
+    cell.command(2.0, 0.2)                   # behind the axis now: stop, then come back
+    cell.wait_at(2.0, 0.2)
+
+    cell.command(60.0, 0.5)
+    cell.probe.spin_until(lambda: cell.position()[0] > 5.0, what="the long move under way",
+                          process=cell.process)
+    answer = cell.call(cell.stop_client)
+    assert answer.success, answer.message
+    stopped = simulator.machine_position_deg()
+    cell.probe.spin_for(0.5)
+    assert simulator.machine_position_deg() == stopped        # at rest
+    assert math.radians(stopped[0]) < 50.0                    # well short of the target
+    assert simulator.state == "Idle"                          # a controlled stop: no alarm
+    cell.wait_at(*np.radians(stopped))
+
+
+def test_limit_alarm_is_reported_and_home_recovers(cell, simulator):
+    cell.diagnostics.clear()
+    simulator.faults.limit_at_fraction = 0.5
+    cell.command(3.0, 0.8)
+    cell.wait_error("ALARM:1")
+    assert simulator.state == "Alarm"
+    cell.probe.spin_for(0.5)
+    assert cell.process.alive()
+    answer = cell.call(cell.home_client)
+    assert answer.success, answer.message
+    assert simulator.state == "Idle"
+    cell.command(0.4, 0.3)
+    cell.wait_at(0.4, 0.3)
+    cell.diagnostics.clear()
+    cell.probe.spin_until(lambda: cell.diagnostics, what="diagnostics", process=cell.process)
+    assert cell.diagnostics[-1].status[0].level == DiagnosticStatus.OK
+
+
+def test_stall_is_reported_and_home_recovers(cell, simulator):
+    cell.diagnostics.clear()
+    simulator.faults.stall_axis = "X"        # the turntable slips half way; GRBL goes on
+    try:
+        cell.command(2.0, 0.5)
+        cell.wait_error("short of the target")
+    finally:
+        simulator.faults.stall_axis = None
+    assert cell.process.alive()
+    answer = cell.call(cell.home_client)     # homing finds the true position again
+    assert answer.success, answer.message
+    cell.command(1.5, 0.2)
+    cell.wait_at(1.5, 0.2)
+
+
+def test_lost_connection_is_reported_and_the_port_reopened(cell, simulator, device):
+    cell.diagnostics.clear()
+    simulator.disconnect()
+    cell.wait_error("connection lost")
+    cell.joints.clear()
+    cell.probe.spin_for(1.0)                 # several reconnect attempts (every 0.5 s)
+    assert cell.process.alive()
+    assert not cell.joints                   # no position while disconnected
+    answer = cell.call(cell.home_client)
+    assert not answer.success and "not connected" in answer.message
+    # The controller comes back (cable plugged in again): same device name, new pty.
+    with SimulatedGrbl(max_speed_deg_s=SPEED_DEG_S, homing_speed_deg_s=600.0,
+                       encoder_offset_deg=OFFSET_DEG, encoder_noise_deg=NOISE_DEG,
+                       seed=2) as replugged:
+        device.unlink()
+        device.symlink_to(replugged.port)
+        cell.probe.spin_until(lambda: cell.joints, what="joint_states after reconnecting",
+                              process=cell.process)
+        answer = cell.call(cell.home_client)
+        assert answer.success, answer.message
+        cell.command(0.7, 0.1)
+        cell.wait_at(0.7, 0.1)
+        device.unlink()                      # a later pty may reuse the number
+
+
+def test_empty_port_exits_with_one_line():
+    process = NodeProcess(MODULE, parameters={"port": "''"})
+    try:
+        code = process.wait_exit()
+        lines = process.output().strip().splitlines()
+    finally:
+        process.cleanup()
+    assert code != 0
+    assert len(lines) == 1 and "'port'" in lines[0], lines
+
+
+def test_mock_hardware_publishes_a_usable_port_and_stops_cleanly():
+    process = NodeProcess("sfs_ros.nodes.mock_hardware_node",
+                          parameters={"max_speed_deg_s": [720.0, 360.0], "seed": 3})
+    probe = RosProbe("mock_probe")
+    try:
+        ports = []
+        # Subscribed after the node published: transient-local still delivers the path.
+        probe.node.create_subscription(String, "mock/port", ports.append, result_qos())
+        probe.spin_until(lambda: ports, what="mock/port", process=process)
+        port = ports[0].data
+        probe.spin_until(lambda: port in process.output(), what="the port in the log",
+                         process=process)
+        with GrblClient(port) as client:
+            assert client.status().state == "Alarm"        # start_locked: home first
+            assert client.home(timeout_s=5.0).state == "Idle"
+            final = client.move_to(0.5, 0.25, timeout_s=5.0)
+        assert abs(final.theta_rad - 0.5) <= BOUND_RAD[0]
+        assert abs(final.phi_rad - 0.25) <= BOUND_RAD[1]
+    finally:
+        probe.close()
+        code = process.stop()
+        output = process.output()
+        process.cleanup()
+    assert code == 0, f"mock hardware did not exit cleanly on SIGINT (code {code}):\n{output}"
+    assert not os.path.exists(port)                         # the pty is closed
