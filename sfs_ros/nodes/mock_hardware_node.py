@@ -15,14 +15,11 @@ motor node sees as an unplugged cable.
 
 from __future__ import annotations
 
-import sys
-
-import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from std_msgs.msg import String
 
 from sfs_ros.hardware.simulator import SimulatedGrbl
+from sfs_ros.nodes.entry import run_node
 from sfs_ros.ros import result_qos
 from sfs_ros.ros.params import Param, ParameterError, declare
 
@@ -89,20 +86,7 @@ def main(args=None) -> None:
 
     ``sfs-mock-hardware --ros-args --params-file config/mock_hardware.yaml``
     """
-    rclpy.init(args=args)
-    try:
-        node = MockHardwareNode()
-    except ParameterError as exc:
-        print(f"sfs-mock-hardware: {exc}", file=sys.stderr)
-        rclpy.try_shutdown()
-        sys.exit(2)
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    run_node("sfs-mock-hardware", MockHardwareNode, args)
 
 
 if __name__ == "__main__":

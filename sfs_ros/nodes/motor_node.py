@@ -43,18 +43,23 @@ Parameters: :data:`PARAMS`; the timeouts may be changed at run time (validated).
 from __future__ import annotations
 
 import math
-import sys
 import threading
-import rclpy
+
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
-from sfs_ros.hardware.driver import (ConnectionLost, GrblClient, MotionCancelled, MotorAlarm,
-                                     MotorError, MotorTimeout)
+from sfs_ros.hardware.driver import (
+    ConnectionLost,
+    GrblClient,
+    MotionCancelled,
+    MotorAlarm,
+    MotorError,
+    MotorTimeout,
+)
+from sfs_ros.nodes.entry import run_node
 from sfs_ros.ros.convert import angles_from_joint_state, joint_state
 from sfs_ros.ros.params import Param, ParameterError, declare, validating_callback
 
@@ -426,23 +431,7 @@ class MotorNode(Node):
 
 def main(args=None) -> None:
     """Entry point ``sfs-motor`` (``--ros-args --params-file config/motor.yaml -p port:=...``)."""
-    rclpy.init(args=args)
-    try:
-        node = MotorNode()
-    except ParameterError as exc:
-        print(f"sfs-motor: {exc}", file=sys.stderr)
-        rclpy.try_shutdown()
-        sys.exit(2)
-    executor = MultiThreadedExecutor(num_threads=4)
-    executor.add_node(node)
-    try:
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown()
+    run_node("sfs-motor", MotorNode, args, threads=4)
 
 
 if __name__ == "__main__":

@@ -47,17 +47,14 @@ from __future__ import annotations
 
 import json
 import queue
-import sys
 import threading
 import time
 import traceback
 from concurrent.futures import Future
 
 import numpy as np
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from sensor_msgs.msg import Image, JointState, PointCloud2
 from shape_msgs.msg import Mesh
@@ -68,9 +65,15 @@ from sfs_ros.cell.live import DuplicateViewError, LiveReconstruction
 from sfs_ros.core.pipeline import MESHERS
 from sfs_ros.core.rig import CONVENTIONS, RigCalibration
 from sfs_ros.core.views import as_bounds
+from sfs_ros.nodes.entry import run_node
 from sfs_ros.ros import capture_qos, result_qos
-from sfs_ros.ros.convert import (angles_from_joint_state, mesh_to_marker, mesh_to_shape,
-                                 msg_to_image, points_to_cloud)
+from sfs_ros.ros.convert import (
+    angles_from_joint_state,
+    mesh_to_marker,
+    mesh_to_shape,
+    msg_to_image,
+    points_to_cloud,
+)
 from sfs_ros.ros.pairing import DuplicateStampError, StampPairer, stamp_key
 from sfs_ros.ros.params import Param, ParameterError, declare
 
@@ -165,10 +168,11 @@ class ReconstructionNode(Node):
     """Carves paired masks into a live hull and meshes the scan on request.
 
     Raises :class:`ParameterError` at construction for invalid parameters.
-    Call :meth:`close` before ``destroy_node`` (stops the worker thread).
+    ``destroy_node`` finishes the queued work and stops the worker thread.
     """
 
     def __init__(self, **kwargs):
+        self._worker = None  # started last; a node refused at start-up has none to stop
         super().__init__(NODE_NAME, **kwargs)
         values = declare(self, PARAMS)
         if not values["output_dir"].strip():
@@ -217,10 +221,12 @@ class ReconstructionNode(Node):
             f"reconstructing into {self._live.output_dir} (box {self._live.bounds_m.tolist()}, "
             f"resolution {values['resolution']}, {values['mesher']}, queue depth {depth})")
 
-    def close(self) -> None:
-        """Finish the queued work and stop the worker thread."""
-        self._jobs.put(None)
-        self._worker.join()
+    def destroy_node(self) -> None:
+        """Finish the queued work, stop the worker thread, then destroy the node."""
+        if self._worker is not None:
+            self._jobs.put(None)
+            self._worker.join()
+        super().destroy_node()
 
     # -- inputs (executor threads) -----------------------------------------------------------
 
@@ -405,24 +411,7 @@ class ReconstructionNode(Node):
 def main(args=None) -> None:
     """Entry point ``sfs-reconstruction``
     (``--ros-args --params-file config/reconstruction.yaml``, with ``output_dir`` set)."""
-    rclpy.init(args=args)
-    try:
-        node = ReconstructionNode()
-    except ParameterError as exc:
-        print(f"sfs-reconstruction: {exc}", file=sys.stderr)
-        rclpy.try_shutdown()
-        sys.exit(2)
-    executor = MultiThreadedExecutor(num_threads=3)
-    executor.add_node(node)
-    try:
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        executor.shutdown()
-        node.close()
-        node.destroy_node()
-        rclpy.try_shutdown()
+    run_node("sfs-reconstruction", ReconstructionNode, args, threads=3)
 
 
 if __name__ == "__main__":

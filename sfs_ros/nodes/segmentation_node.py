@@ -30,16 +30,13 @@ values given explicitly still win.
 
 from __future__ import annotations
 
-import sys
-
 import numpy as np
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from sensor_msgs.msg import Image, JointState
 
 from sfs_ros.core.segment import PRESETS, SegmentationParams, segment
+from sfs_ros.nodes.entry import run_node
 from sfs_ros.ros import capture_qos
 from sfs_ros.ros.convert import angles_from_joint_state, image_to_msg, msg_to_image
 from sfs_ros.ros.pairing import DuplicateStampError, StampPairer, stamp_key
@@ -272,20 +269,7 @@ def _fmt(stamp) -> str:
 
 def main(args=None) -> None:
     """Entry point ``sfs-segmentation`` (``--ros-args --params-file config/segmentation.yaml``)."""
-    rclpy.init(args=args)
-    try:
-        node = SegmentationNode()
-    except ParameterError as exc:
-        print(f"sfs-segmentation: {exc}", file=sys.stderr)
-        rclpy.try_shutdown()
-        sys.exit(2)
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    run_node("sfs-segmentation", SegmentationNode, args)
 
 
 if __name__ == "__main__":
