@@ -45,7 +45,7 @@ from __future__ import annotations
 import math
 import threading
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
@@ -60,7 +60,7 @@ from sfs_ros.hardware.driver import (
     MotorTimeout,
 )
 from sfs_ros.nodes.entry import run_node
-from sfs_ros.ros.convert import angles_from_joint_state, joint_state
+from sfs_ros.ros.convert import angles_from_joint_state, diagnostic_array, joint_state
 from sfs_ros.ros.params import Param, ParameterError, declare, validating_callback
 
 __all__ = ["MotorNode", "PARAMS", "main"]
@@ -405,13 +405,9 @@ class MotorNode(Node):
         if self._position is not None:
             values.update(theta_rad=f"{self._position[0]:.6f}",
                           phi_rad=f"{self._position[1]:.6f}")
-        status = DiagnosticStatus(level=level, name=f"{self.get_name()}: motor",
-                                  message=message, hardware_id=self._p["port"],
-                                  values=[KeyValue(key=k, value=str(v))
-                                          for k, v in values.items()])
-        array = DiagnosticArray(status=[status])
-        array.header.stamp = self.get_clock().now().to_msg()
-        self._diag_pub.publish(array)
+        self._diag_pub.publish(diagnostic_array(
+            f"{self.get_name()}: motor", level, message, values,
+            stamp=self.get_clock().now().to_msg(), hardware_id=self._p["port"]))
 
     def destroy_node(self) -> None:
         with self._cv:

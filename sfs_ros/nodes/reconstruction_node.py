@@ -53,7 +53,7 @@ import traceback
 from concurrent.futures import Future
 
 import numpy as np
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
 from sensor_msgs.msg import Image, JointState, PointCloud2
@@ -69,6 +69,7 @@ from sfs_ros.nodes.entry import run_node
 from sfs_ros.ros import capture_qos, result_qos
 from sfs_ros.ros.convert import (
     angles_from_joint_state,
+    diagnostic_array,
     mesh_to_marker,
     mesh_to_shape,
     msg_to_image,
@@ -399,13 +400,9 @@ class ReconstructionNode(Node):
             level, message = DiagnosticStatus.OK, f"{values['scan_views']} views in this scan"
         values.update(waiting_masks=self._pairer.pending("a"),
                       waiting_joint_states=self._pairer.pending("b"))
-        status = DiagnosticStatus(level=level, name=f"{self.get_name()}: reconstruction",
-                                  message=message, hardware_id="",
-                                  values=[KeyValue(key=k, value=str(v))
-                                          for k, v in values.items()])
-        array = DiagnosticArray(status=[status])
-        array.header.stamp = self.get_clock().now().to_msg()
-        self._diag_pub.publish(array)
+        self._diag_pub.publish(diagnostic_array(
+            f"{self.get_name()}: reconstruction", level, message, values,
+            stamp=self.get_clock().now().to_msg()))
 
 
 def main(args=None) -> None:

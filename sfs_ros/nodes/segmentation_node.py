@@ -31,14 +31,19 @@ values given explicitly still win.
 from __future__ import annotations
 
 import numpy as np
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.node import Node
 from sensor_msgs.msg import Image, JointState
 
 from sfs_ros.core.segment import PRESETS, SegmentationParams, segment
 from sfs_ros.nodes.entry import run_node
 from sfs_ros.ros import capture_qos
-from sfs_ros.ros.convert import angles_from_joint_state, image_to_msg, msg_to_image
+from sfs_ros.ros.convert import (
+    angles_from_joint_state,
+    diagnostic_array,
+    image_to_msg,
+    msg_to_image,
+)
 from sfs_ros.ros.pairing import DuplicateStampError, StampPairer, stamp_key
 from sfs_ros.ros.params import Param, ParameterError, declare, read, validating_callback
 
@@ -254,13 +259,9 @@ class SegmentationNode(Node):
         values = dict(self._counts)
         values.update(waiting_images=self._pairer.pending("a"),
                       waiting_joint_states=self._pairer.pending("b"))
-        status = DiagnosticStatus(level=level, name=f"{self.get_name()}: segmentation",
-                                  message=message, hardware_id="",
-                                  values=[KeyValue(key=k, value=str(v))
-                                          for k, v in values.items()])
-        array = DiagnosticArray(status=[status])
-        array.header.stamp = self.get_clock().now().to_msg()
-        self._diag_pub.publish(array)
+        self._diag_pub.publish(diagnostic_array(
+            f"{self.get_name()}: segmentation", level, message, values,
+            stamp=self.get_clock().now().to_msg()))
 
 
 def _fmt(stamp) -> str:

@@ -18,6 +18,7 @@ import operator
 
 import numpy as np
 from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point
 from sensor_msgs.msg import CameraInfo, Image, JointState, PointCloud2, PointField
 from shape_msgs.msg import Mesh, MeshTriangle
@@ -284,3 +285,13 @@ def shape_to_mesh(msg: Mesh) -> tuple[np.ndarray, np.ndarray]:
     vertices = np.array([(p.x, p.y, p.z) for p in msg.vertices], dtype=np.float64).reshape(-1, 3)
     faces = np.array([t.vertex_indices for t in msg.triangles], dtype=np.int64).reshape(-1, 3)
     return vertices, faces
+
+
+def diagnostic_array(name: str, level, message: str, values: dict, *, stamp,
+                     hardware_id: str = "") -> DiagnosticArray:
+    """``diagnostic_msgs/DiagnosticArray`` holding one status; ``values`` become key/value strings."""
+    status = DiagnosticStatus(level=level, name=name, message=message, hardware_id=hardware_id,
+                              values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
+    array = DiagnosticArray(status=[status])
+    array.header.stamp = stamp
+    return array
