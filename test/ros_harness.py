@@ -98,6 +98,21 @@ class NodeProcess:
         self._log.close()
         return code
 
+    def exit_lines(self, timeout: float = STARTUP_TIMEOUT_S) -> tuple[int, list[str]]:
+        """For a process expected to end by itself: its exit code and output lines; cleans up."""
+        try:
+            code = self.wait_exit(timeout)
+            return code, self.output().strip().splitlines()
+        finally:
+            self.cleanup()
+
+    def stop_and_read(self) -> tuple[int, str]:
+        """Stop (SIGINT first) and return the exit code and everything written; cleans up."""
+        code = self.stop()
+        output = self.output()
+        self.cleanup()
+        return code, output
+
     def cleanup(self) -> None:
         """Stop the process if running and delete its log."""
         if self.alive():

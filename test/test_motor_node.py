@@ -101,9 +101,7 @@ def cell(device):
     cell = Cell(str(device))
     yield cell
     cell.probe.close()
-    code = cell.process.stop()
-    output = cell.process.output()
-    cell.process.cleanup()
+    code, output = cell.process.stop_and_read()
     assert code == 0, f"node did not exit cleanly on SIGINT (code {code}):\n{output}"
 
 
@@ -217,11 +215,7 @@ def test_lost_connection_is_reported_and_the_port_reopened(cell, simulator, devi
 
 def test_empty_port_exits_with_one_line():
     process = NodeProcess(MODULE, parameters={"port": "''"})
-    try:
-        code = process.wait_exit()
-        lines = process.output().strip().splitlines()
-    finally:
-        process.cleanup()
+    code, lines = process.exit_lines()
     assert code != 0
     assert len(lines) == 1 and "'port'" in lines[0], lines
 
@@ -246,8 +240,6 @@ def test_mock_hardware_publishes_a_usable_port_and_stops_cleanly():
         assert abs(final.phi_rad - 0.25) <= BOUND_RAD[1]
     finally:
         probe.close()
-        code = process.stop()
-        output = process.output()
-        process.cleanup()
+        code, output = process.stop_and_read()
     assert code == 0, f"mock hardware did not exit cleanly on SIGINT (code {code}):\n{output}"
     assert not os.path.exists(port)                         # the pty is closed

@@ -125,9 +125,7 @@ def cell(params_file):
     cell = Cell(params_file)
     yield cell
     cell.probe.close()
-    code = cell.process.stop()
-    output = cell.process.output()
-    cell.process.cleanup()
+    code, output = cell.process.stop_and_read()
     assert code == 0, f"node did not exit cleanly on SIGINT (code {code}):\n{output}"
 
 
@@ -217,11 +215,7 @@ def test_reset_then_reconstruct_without_views_fails_clearly(scan, cell):
 
 def test_missing_output_dir_exits_with_one_line():
     process = NodeProcess(MODULE)
-    try:
-        code = process.wait_exit()
-        lines = process.output().strip().splitlines()
-    finally:
-        process.cleanup()
+    code, lines = process.exit_lines()
     assert code != 0
     assert len(lines) == 1 and "'output_dir'" in lines[0], lines
 

@@ -84,9 +84,7 @@ def cell(params_file):
     cell = Cell(params_file)
     yield cell
     cell.probe.close()
-    code = cell.process.stop()
-    output = cell.process.output()
-    cell.process.cleanup()
+    code, output = cell.process.stop_and_read()
     assert code == 0, f"node did not exit cleanly on SIGINT (code {code}):\n{output}"
 
 
@@ -196,10 +194,6 @@ def test_runtime_parameter_changes_are_validated(cell):
 
 def test_invalid_parameter_at_startup_exits_with_one_line(params_file):
     process = NodeProcess(MODULE, params_file=params_file, parameters={"threshold": 7.0})
-    try:
-        code = process.wait_exit()
-        lines = process.output().strip().splitlines()
-    finally:
-        process.cleanup()
+    code, lines = process.exit_lines()
     assert code != 0
     assert len(lines) == 1 and "'threshold'" in lines[0] and "7.0" in lines[0], lines
