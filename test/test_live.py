@@ -3,6 +3,7 @@
 import csv
 import math
 
+import cv2
 import numpy as np
 import pytest
 
@@ -139,6 +140,10 @@ def test_reconstruction_matches_the_mug(scan, mug, tmp_path):
     live, _, result = scan
     assert result["path"] == str(live.output_dir.resolve() / "mug.ply")
     assert result["report_path"].endswith("mug.report.json")
+    # The picture beside the mesh shows it: its panels are not all background.
+    picture = cv2.imread(result["preview_path"])
+    assert result["preview_path"].endswith("mug.png") and picture is not None
+    assert np.count_nonzero(picture.std(axis=2) > 5) > 0.02 * picture.shape[0] * picture.shape[1]
     assert result["views_received"] == result["views_used"] == 49
     assert result["views_rejected"] == [] and result["watertight"]
     vertices, faces = load_mesh(result["path"])

@@ -70,6 +70,19 @@ def test_duplicates_are_refused_while_waiting_and_after_pairing():
     assert pairer.duplicates == 3 and pairer.pairs == 1
 
 
+def test_repeats_pair_a_completed_capture_again():
+    pairer = StampPairer(8, repeats=True)
+    assert pairer.add_a((1, 0), "image") is None
+    assert pairer.add_b((1, 0), "joints") == ("image", "joints")
+    # Sent again (not acknowledged downstream): paired afresh, in either order.
+    assert pairer.add_b((1, 0), "joints again") is None
+    assert pairer.add_a((1, 0), "image again") == ("image again", "joints again")
+    pairer.add_a((2, 0), "x")
+    with pytest.raises(DuplicateStampError, match="already waiting"):
+        pairer.add_a((2, 0), "x")                 # still refused while waiting
+    assert pairer.repeated == 1 and pairer.pairs == 2 and pairer.duplicates == 1
+
+
 def test_rejected_capture_drops_both_halves():
     dropped = []
     pairer = StampPairer(8, on_evict=lambda *args: dropped.append(args))

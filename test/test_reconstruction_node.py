@@ -8,6 +8,7 @@ import pytest
 import yaml
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from sensor_msgs.msg import Image, JointState, PointCloud2
+from std_msgs.msg import Header
 from shape_msgs.msg import Mesh
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker
@@ -21,6 +22,7 @@ from sfs_ros.core.render import rasterize_silhouette
 from sfs_ros.core.rig import RigCalibration, rig_camera
 from sfs_ros.core.synthetic import carving_box, score_against_truth
 from sfs_ros.nodes.reconstruction_node import PARAMS
+from sfs_ros.ros.rig_params import RIG_PARAMS
 from sfs_ros.ros import capture_qos, result_qos
 from sfs_ros.ros.convert import cloud_to_points, image_to_msg, joint_state, shape_to_mesh
 
@@ -77,7 +79,9 @@ class Cell:
         self.mask_pub = node.create_publisher(Image, "capture/mask", qos)
         self.joints_pub = node.create_publisher(JointState, "capture/mask_joint_state", qos)
         self.hulls, self.markers, self.shapes, self.diagnostics = [], [], [], []
+        self.receipts = []
         subs = [node.create_subscription(PointCloud2, "hull", self.hulls.append, result_qos()),
+                node.create_subscription(Header, "capture/stored", self.receipts.append, qos),
                 node.create_subscription(Marker, "mesh", self.markers.append, result_qos()),
                 node.create_subscription(Mesh, "mesh_shape", self.shapes.append, result_qos()),
                 node.create_subscription(DiagnosticArray, "diagnostics",
@@ -150,6 +154,8 @@ def test_reconstruct_writes_the_mug_inside_output_dir(scan, mug, out_dir):
     assert path.is_file() and report.is_file()
     assert path.resolve().is_relative_to(out_dir.resolve())
     assert report.resolve().is_relative_to(out_dir.resolve())
+    preview = Path(summary["preview_path"])
+    assert preview.is_file() and preview.resolve().is_relative_to(out_dir.resolve())
     assert summary["views_received"] == summary["views_used"] == len(PLAN)
     assert summary["views_rejected"] == [] and summary["watertight"]
     assert summary["seconds"] > 0 and summary["volume_m3"] > 0
@@ -183,15 +189,38 @@ def test_hull_cloud_lies_in_the_box(scan, cell, mug):
     assert np.all(points >= box[0]) and np.all(points <= box[1])
 
 
+def _receipts(cell, stamp) -> int:
+    return sum((r.stamp.sec, r.stamp.nanosec) == stamp for r in cell.receipts)
+
+
+def test_every_view_gets_one_receipt(scan, cell):
+    cell.probe.spin_until(lambda: len(cell.receipts) >= len(PLAN), what="receipts",
+                          process=cell.process)
+    assert sorted((r.stamp.sec, r.stamp.nanosec) for r in cell.receipts[:len(PLAN)]) == \
+        sorted(_stamp(i) for i in range(len(PLAN)))
+    assert cell.receipts[0].frame_id == "camera_optical"
+
+
+def test_a_view_sent_again_is_receipted_not_carved_twice(scan, cell, masks):
+    cell.probe.spin_until(lambda: _receipts(cell, _stamp(3)) == 1, what="the first receipt",
+                          process=cell.process)
+    cell.send(_stamp(3), masks[3], *PLAN[3])                           # a resend
+    cell.probe.spin_until(lambda: _receipts(cell, _stamp(3)) == 2, what="a second receipt",
+                          process=cell.process)
+    cell.wait_values("the repeat counted", repeats=1, scan_views=len(PLAN), carved=len(PLAN))
+    assert cell.statuses()[-1].level == DiagnosticStatus.OK
+
+
 def test_malformed_mask_and_duplicate_stamp_are_reported_and_the_node_carries_on(scan, cell,
                                                                                   masks):
     cell.diagnostics.clear()
     cell.send((2000, 0), masks[0], *PLAN[0], encoding="rgb8")          # wrong encoding
-    cell.send(_stamp(3), masks[3], *PLAN[3])                           # already received
+    cell.mask_pub.publish(image_to_msg(masks[1], stamp=(2002, 0), frame_id="c"))
+    cell.mask_pub.publish(image_to_msg(masks[1], stamp=(2002, 0), frame_id="c"))  # twice
     cell.probe.spin_for(QUIET_S)
     errors = [s.message for s in cell.statuses() if s.level == DiagnosticStatus.ERROR]
     assert any("malformed mask at stamp 2000.000000000" in e and "rgb8" in e for e in errors)
-    assert any("duplicate stamp" in e for e in errors)
+    assert any("duplicate stamp" in e and "already waiting" in e for e in errors)
     assert cell.process.alive()
     # A good view after the bad ones is carved, and clears the error.
     n = len(PLAN)
@@ -220,7 +249,10 @@ def test_missing_output_dir_exits_with_one_line():
     assert len(lines) == 1 and "'output_dir'" in lines[0], lines
 
 
-def test_config_file_lists_every_parameter_with_its_default():
-    config = Path(__file__).resolve().parent.parent / "config" / "reconstruction.yaml"
-    values = yaml.safe_load(config.read_text())["/**"]["ros__parameters"]
-    assert values == {p.name: p.default for p in PARAMS}
+def test_config_files_list_every_parameter():
+    config = Path(__file__).resolve().parent.parent / "config"
+    rig = yaml.safe_load((config / "rig.yaml").read_text())["/**"]["ros__parameters"]
+    own = yaml.safe_load((config / "reconstruction.yaml").read_text())["/**"]["ros__parameters"]
+    # The rig file holds the simulated cell's calibration, the node's file the defaults.
+    assert set(rig) == {p.name for p in RIG_PARAMS}
+    assert own == {p.name: p.default for p in PARAMS if p not in RIG_PARAMS}

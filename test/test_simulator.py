@@ -229,6 +229,23 @@ def test_disconnect_makes_the_port_fail(sim, idle_port):
         idle_port.read(1)
 
 
+def test_replug_gives_a_new_port_and_keeps_the_position(sim, idle_port):
+    assert exchange(idle_port, b"G0 X12 Y3\n", b"ok\r\n") == b"ok\r\n"
+    wait_state(idle_port, "Idle")
+    old = sim.port
+    sim.disconnect()
+    with pytest.raises(RuntimeError, match="disconnect"):
+        SimulatedGrbl().replug()                 # never unplugged
+    new = sim.replug()
+    assert new == sim.port and new != old
+    with serial.Serial(new, 115200, timeout=0.05) as port:
+        # Noise off: MPos is the kept machine position plus the encoder offset.
+        r = report(port)
+        assert r.state == "Idle"
+        assert r.mpos[:2] == pytest.approx((12.03, 2.98), abs=1e-9)
+        assert exchange(port, b"G0 X0\n", b"ok\r\n") == b"ok\r\n"
+
+
 def test_garbage_and_fragmented_output(sim, idle_port):
     sim.faults.garbage = b"\xff\x00#\r\n"
     sim.faults.fragment_output = True

@@ -22,6 +22,7 @@ Output folder layout::
       scan_001/            # one session folder per scan (session.yaml, views.csv, images/)
       scan_001.ply         # meshes, named by the request (default: the scan's name)
       scan_001.report.json # the pipeline's report beside each mesh
+      scan_001.png         # and a picture of the mesh
 """
 
 from __future__ import annotations
@@ -41,6 +42,7 @@ from ..core.export import SUPPORTED_SUFFIXES, export_mesh
 from ..core.grid import VoxelGrid
 from ..core.inputs import load_views
 from ..core.pipeline import ReconstructionParams, reconstruct
+from ..core.preview import preview_image, write_png
 from ..core.rig import RigCalibration, rig_camera
 from ..core.segment import SegmentationParams
 from ..core.session import append_view, write_session
@@ -352,12 +354,13 @@ class LiveReconstruction:
             Mesh file name inside ``output_dir`` (format from the suffix:
             .ply, .obj, .stl, .glb; see :func:`.paths.confined_path` for what
             is refused); None: ``<scan name>.ply``. The report goes beside it
-            as ``<stem>.report.json``. Existing files are replaced.
+            as ``<stem>.report.json``, a picture of the mesh as ``<stem>.png``.
+            Existing files are replaced.
 
         Returns
         -------
         dict
-            JSON-ready summary: ``path``, ``report_path``, ``session``,
+            JSON-ready summary: ``path``, ``report_path``, ``preview_path``, ``session``,
             ``views_received``, ``views_used``, ``views_rejected`` (list of
             ``{view, reason}``), ``n_vertices``, ``n_faces``, ``watertight``,
             ``volume_m3``, ``area_m2``, ``silhouette_iou_mean``,
@@ -377,6 +380,8 @@ class LiveReconstruction:
         root = self.output_dir.resolve()
         report_name = path.relative_to(root).with_name(path.stem + ".report.json").as_posix()
         report_path = confined_path(root, report_name, suffixes=(".json",))
+        preview_path = confined_path(root, report_name[:-len(".report.json")] + ".png",
+                                     suffixes=(".png",))
         result = reconstruct(load_views(self._session), self.params)
         path.parent.mkdir(parents=True, exist_ok=True)
         export_mesh(result.vertices, result.faces, path)
@@ -385,9 +390,11 @@ class LiveReconstruction:
         tmp = report_path.with_name(f".{report_path.name}.tmp")
         tmp.write_text(json.dumps(report, indent=2), encoding="utf-8")
         os.replace(tmp, report_path)
+        write_png(preview_path, preview_image(result.vertices, result.faces))
         mesh, views = result.report["mesh"], result.report["views"]
         mean_iou = result.report["silhouette_iou"]["mean_used"]
         return {"path": str(path), "report_path": str(report_path),
+                "preview_path": str(preview_path),
                 "session": str(self._session), "views_received": len(self._views),
                 "views_used": len(views["used"]), "views_rejected": views["rejected"],
                 "n_vertices": mesh["n_vertices"], "n_faces": mesh["n_faces"],

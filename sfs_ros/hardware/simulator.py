@@ -266,14 +266,17 @@ class SimulatedGrbl:
         self._out = bytearray()
         self._received = bytearray()
 
-        self._master, self._slave = os.openpty()
-        tty.setraw(self._slave)     # no echo or line editing before a client configures it
-        os.set_blocking(self._master, False)
-        self.port = os.ttyname(self._slave)
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
         self._disconnect = threading.Event()
         self._disconnected = threading.Event()
+        self._open_port()
+
+    def _open_port(self) -> None:
+        self._master, self._slave = os.openpty()
+        tty.setraw(self._slave)     # no echo or line editing before a client configures it
+        os.set_blocking(self._master, False)
+        self.port = os.ttyname(self._slave)
 
     # --- life cycle ------------------------------------------------------------
 
@@ -311,6 +314,25 @@ class SimulatedGrbl:
             self._close_port()
         elif not self._disconnected.wait(timeout_s):
             raise RuntimeError("simulator thread did not close the port in time")
+
+    def replug(self) -> str:
+        """Plug the cable back in after :meth:`disconnect`: a new pseudo-terminal (its path,
+        also :attr:`port`, is returned). The controller kept its power: position, state and
+        queued motion are as they were; bytes in flight on the old port are lost."""
+        if not self._disconnected.is_set():
+            raise RuntimeError("replug() needs a disconnect() first")
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+        with self._lock:
+            self._rx.clear()
+            self._out.clear()
+            self._open_port()
+            self._disconnect.clear()
+            self._disconnected.clear()
+        if self._thread is not None:
+            self._thread = None
+            self.start()
+        return self.port
 
     def trigger_limit(self) -> None:
         """A limit switch closes now: ``ALARM:1``, immediate halt, reset required."""

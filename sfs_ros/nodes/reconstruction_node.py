@@ -4,6 +4,7 @@
 |---|---|---|---|
 | sub | ``capture/mask`` | sensor_msgs/Image | mono8, 0 / 255 (or 0 / 1), the rig's size |
 | sub | ``capture/mask_joint_state`` | sensor_msgs/JointState | same stamp as its mask |
+| pub | ``capture/stored`` | std_msgs/Header | a view's stamp once stored (or rejected): its receipt |
 | pub | ``hull`` | sensor_msgs/PointCloud2 | surface voxels of the live hull, frame "turntable" |
 | pub | ``mesh`` | visualization_msgs/Marker | TRIANGLE_LIST of the last reconstruction |
 | pub | ``mesh_shape`` | shape_msgs/Mesh | the same mesh |
@@ -15,9 +16,15 @@ One node does both carving and meshing: both work on the same
 :class:`sfs_ros.cell.live.LiveReconstruction` (live hull, views persisted in a
 session folder under ``output_dir``), which two processes would duplicate.
 
-Mask and joint state topics: reliable, volatile, depth ``queue_depth``
-(:func:`sfs_ros.ros.capture_qos`); they are paired by exactly equal stamps
-(either order). ``hull``, ``mesh`` and ``mesh_shape``: reliable,
+Mask, joint state and receipt topics: reliable, volatile, depth ``queue_depth``
+(:func:`sfs_ros.ros.capture_qos`); masks and joint states are paired by
+exactly equal stamps (either order).
+
+Receipts: once a view is stored in the session folder (or rejected as
+unusable), its header goes out on ``capture/stored``. The scan node resends
+a capture that has no receipt in time (at-least-once delivery); a view that
+comes again is not carved twice: it is counted in ``repeats`` and its
+receipt sent again. ``hull``, ``mesh`` and ``mesh_shape``: reliable,
 transient-local, depth 1 (:func:`sfs_ros.ros.result_qos`), so a viewer
 started later gets the latest.
 
@@ -26,9 +33,10 @@ answers services; one worker thread owns the ``LiveReconstruction`` and
 takes, in arrival order, views, ``reconstruct`` and ``reset`` requests. A
 reconstruction therefore uses exactly the views that arrived before the
 request, and messages keep being received (and queued for the worker) while
-it runs. ``reconstruct`` answers once the mesh and its report are written:
-``success`` and the JSON of :meth:`LiveReconstruction.reconstruct` (path,
-report_path, views used / rejected, watertight, volume_m3, seconds, ...);
+it runs. ``reconstruct`` answers once the mesh, its report and its picture are
+written: ``success`` and the JSON of :meth:`LiveReconstruction.reconstruct`
+(path, report_path, preview_path, views used / rejected, watertight,
+volume_m3, seconds, ...);
 ``success=False`` with the reason when there are no views or no mesh can be
 made. ``reset`` starts a new scan (new session folder on the next view) and
 publishes an empty hull; the last mesh stays on ``mesh`` until the next one.
@@ -58,18 +66,19 @@ from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
 from sensor_msgs.msg import Image, JointState, PointCloud2
 from shape_msgs.msg import Mesh
+from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker
 
 from sfs_ros.cell.live import DuplicateViewError, LiveReconstruction
 from sfs_ros.core.pipeline import MESHERS
-from sfs_ros.core.rig import CONVENTIONS, RigCalibration
 from sfs_ros.core.views import as_bounds
 from sfs_ros.nodes.entry import run_node
 from sfs_ros.ros import capture_qos, result_qos
 from sfs_ros.ros.convert import (
     angles_from_joint_state,
     diagnostic_array,
+    header,
     mesh_to_marker,
     mesh_to_shape,
     msg_to_image,
@@ -77,40 +86,17 @@ from sfs_ros.ros.convert import (
 )
 from sfs_ros.ros.pairing import DuplicateStampError, StampPairer, stamp_key
 from sfs_ros.ros.params import Param, ParameterError, declare
+from sfs_ros.ros.rig_params import RIG_PARAMS, rig_calibration
 
-__all__ = ["ReconstructionNode", "PARAMS", "rig_calibration", "main"]
+__all__ = ["ReconstructionNode", "PARAMS", "main"]
 
 NODE_NAME = "reconstruction"
 #: Frame of the hull and the mesh: the object frame on the turntable.
 FRAME_ID = "turntable"
 
-_RIG = RigCalibration()
-
-#: The node's parameters (all read-only).
+#: The node's parameters (all read-only): the rig calibration, then the scan's own.
 PARAMS: list[Param] = [
-    Param("projection", _RIG.projection, "Camera model of the rig.",
-          choices=("orthographic", "pinhole"), read_only=True),
-    Param("width", _RIG.width, "Image width, pixels (masks must have it).", bounds=(1, 100000),
-          read_only=True),
-    Param("height", _RIG.height, "Image height, pixels (masks must have it).",
-          bounds=(1, 100000), read_only=True),
-    Param("fx", _RIG.fx, "Pinhole: focal length, pixels; orthographic: pixels per metre.",
-          bounds=(1e-9, 1e9), read_only=True),
-    Param("fy", _RIG.fy, "As fx, vertically.", bounds=(1e-9, 1e9), read_only=True),
-    Param("cx", -1.0, "Principal point x, pixels.", bounds=(-1.0, 1e6), read_only=True,
-          constraints="below 0 = image centre"),
-    Param("cy", -1.0, "Principal point y, pixels.", bounds=(-1.0, 1e6), read_only=True,
-          constraints="below 0 = image centre"),
-    Param("camera_distance_m", _RIG.camera_distance_m, "Distance from the C-arm centre to the "
-          "camera centre, metres.", bounds=(1e-6, 1000.0), read_only=True),
-    Param("aim_point_m", [float(v) for v in _RIG.aim_point_m], "C-arm centre [x, y, z] in the "
-          "lab frame, metres.", read_only=True, constraints="three values"),
-    Param("theta_zero_rad", _RIG.theta_zero_rad, "Turntable encoder reading at its true zero, "
-          "radians.", read_only=True),
-    Param("phi_zero_rad", _RIG.phi_zero_rad, "Carriage encoder reading at its true zero, "
-          "radians.", read_only=True),
-    Param("convention", _RIG.convention, "Angle convention of the rig.", choices=CONVENTIONS,
-          read_only=True),
+    *RIG_PARAMS,
     Param("bounds_m", [-0.1, -0.1, 0.0, 0.1, 0.1, 0.2], "Carving box [xmin, ymin, zmin, xmax, "
           "ymax, zmax], metres, object frame.", read_only=True,
           constraints="six values, min < max on each axis"),
@@ -130,24 +116,6 @@ PARAMS: list[Param] = [
           "halves per topic; at least the number of views of a scan.", bounds=(1, 100000),
           read_only=True),
 ]
-
-
-def rig_calibration(values: dict) -> RigCalibration:
-    """:class:`RigCalibration` from the node's parameter values; :class:`ParameterError`."""
-    aim = values["aim_point_m"]
-    if len(aim) != 3:
-        raise ParameterError("aim_point_m", f"got {aim!r}, expected three values [x, y, z]")
-    try:
-        return RigCalibration(
-            width=values["width"], height=values["height"], projection=values["projection"],
-            fx=values["fx"], fy=values["fy"],
-            cx=None if values["cx"] < 0 else values["cx"],
-            cy=None if values["cy"] < 0 else values["cy"],
-            camera_distance_m=values["camera_distance_m"], aim_point_m=tuple(aim),
-            theta_zero_rad=values["theta_zero_rad"], phi_zero_rad=values["phi_zero_rad"],
-            convention=values["convention"])
-    except ValueError as exc:
-        raise ParameterError("calibration", str(exc)) from None
 
 
 def _bounds(values: dict) -> np.ndarray:
@@ -193,15 +161,16 @@ class ReconstructionNode(Node):
 
         self._stats_lock = threading.Lock()
         self._counts = {"views_received": 0, "carved": 0, "empty": 0, "rejected": 0,
-                        "malformed": 0, "duplicates": 0, "unpaired_dropped": 0,
+                        "malformed": 0, "duplicates": 0, "repeats": 0, "unpaired_dropped": 0,
                         "reconstructions": 0, "reconstruction_failures": 0, "scan_views": 0}
         self._problem = ""
         self._warning = ""
 
         inputs = MutuallyExclusiveCallbackGroup()     # pairer, timers
         services = MutuallyExclusiveCallbackGroup()   # one request at a time, waits on the worker
-        self._pairer = StampPairer(depth, on_evict=self._given_up)
+        self._pairer = StampPairer(depth, on_evict=self._given_up, repeats=True)
         qos = capture_qos(depth)
+        self._stored_pub = self.create_publisher(Header, "capture/stored", qos)
         self._hull_pub = self.create_publisher(PointCloud2, "hull", result_qos())
         self._marker_pub = self.create_publisher(Marker, "mesh", result_qos())
         self._shape_pub = self.create_publisher(Mesh, "mesh_shape", result_qos())
@@ -240,7 +209,7 @@ class ReconstructionNode(Node):
         except ValueError as exc:
             self._malformed("mask", stamp, exc)
             return
-        self._add(self._pairer.add_a, "mask", stamp, mask)
+        self._add(self._pairer.add_a, "mask", stamp, (mask, msg.header.frame_id))
 
     def _on_joint_state(self, msg: JointState) -> None:
         stamp = stamp_key(msg.header.stamp)
@@ -259,9 +228,9 @@ class ReconstructionNode(Node):
             self._report_problem(f"{what} ignored: {exc}")
             return
         if pair is not None:
-            mask, (theta, phi) = pair
+            (mask, frame_id), (theta, phi) = pair
             self._count("views_received")
-            self._jobs.put(("view", stamp, mask, theta, phi))
+            self._jobs.put(("view", stamp, frame_id, mask, theta, phi))
 
     def _malformed(self, what: str, stamp, exc: Exception) -> None:
         self._count("malformed")
@@ -326,18 +295,24 @@ class ReconstructionNode(Node):
         job[1].set_result((True, "new scan: no views yet"))
         return True
 
-    def _add_view(self, stamp, mask, theta: float, phi: float) -> bool:
-        """Give one view to the live reconstruction; whether the hull changed."""
+    def _add_view(self, stamp, frame_id: str, mask, theta: float, phi: float) -> bool:
+        """Give one view to the live reconstruction and send its receipt; whether the hull
+        changed."""
+        receipt = header(stamp=stamp, frame_id=frame_id)
         try:
             added = self._live.add_view(f"{stamp[0]}_{stamp[1]:09d}", mask, theta, phi)
-        except DuplicateViewError as exc:
-            self._count("duplicates")
-            self._report_problem(f"view at stamp {_fmt(stamp)} ignored: {exc}")
+        except DuplicateViewError:
+            self._count("repeats")
+            self.get_logger().info(f"view at stamp {_fmt(stamp)} came again: already stored, "
+                                   "receipt sent again")
+            self._stored_pub.publish(receipt)
             return False
         except ValueError as exc:
             self._count("rejected")
+            self._stored_pub.publish(receipt)      # resending cannot make it usable
             self._report_problem(f"view at stamp {_fmt(stamp)} rejected: {exc}")
             return False
+        self._stored_pub.publish(receipt)
         with self._stats_lock:
             self._counts["scan_views"] = added.n_views
             self._counts["carved" if added.carved else "empty"] += 1

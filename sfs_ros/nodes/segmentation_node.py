@@ -13,7 +13,10 @@ Capture topics: reliable, volatile, depth ``queue_depth``
 "carriage" (radians). Diagnostics: counts and the last problem.
 
 Every capture whose image and joint state both arrive (exactly equal
-stamps, either order) gives exactly one mask and one joint state. An image
+stamps, either order) gives exactly one mask and one joint state. A capture
+sent again after it was segmented (the scan node resends what the
+reconstruction has not receipted) is segmented again and counted in
+``repeats``: the reconstruction stores each view once. An image
 without an object gives an **all-zero mask** (published, so downstream sees
 every view once, and carving can reject it by its empty mask) and a WARN
 diagnostic; a mask touching the image border is a WARN too. A malformed
@@ -156,7 +159,7 @@ class SegmentationNode(Node):
                         "duplicates": 0, "unpaired_dropped": 0}
         self._problem = ""  # the last malformed / dropped input, "" after a good capture
         self._warning = ""  # about the last mask (empty, touches border)
-        self._pairer = StampPairer(depth, on_evict=self._given_up)
+        self._pairer = StampPairer(depth, on_evict=self._given_up, repeats=True)
         qos = capture_qos(depth)
         self._mask_pub = self.create_publisher(Image, "capture/mask", qos)
         self._joints_pub = self.create_publisher(JointState, "capture/mask_joint_state", qos)
@@ -257,7 +260,7 @@ class SegmentationNode(Node):
         else:
             level, message = DiagnosticStatus.OK, f"{self._counts['masks']} masks"
         values = dict(self._counts)
-        values.update(waiting_images=self._pairer.pending("a"),
+        values.update(repeats=self._pairer.repeated, waiting_images=self._pairer.pending("a"),
                       waiting_joint_states=self._pairer.pending("b"))
         self._diag_pub.publish(diagnostic_array(
             f"{self.get_name()}: segmentation", level, message, values,

@@ -12,7 +12,10 @@ partner arrives, and hands out every pair exactly once:
   ``on_evict``);
 * a stamp seen twice on the same stream, or again after its pair was
   completed or rejected, raises :class:`DuplicateStampError`; the pairer
-  remembers the last ``capacity`` completed or rejected stamps for this;
+  remembers the last ``capacity`` completed or rejected stamps for this.
+  With ``repeats=True`` a completed capture may come again (a sender that
+  delivers at least once, resending what was not acknowledged): it is paired
+  afresh and counted in ``repeated``;
 * :meth:`StampPairer.reject` marks a capture bad (one half was malformed):
   its waiting half is dropped, and so is the other half when it comes.
 """
@@ -64,17 +67,23 @@ class StampPairer:
         Called for every item given up: ``stream`` "a" or "b", ``stamp``
         (sec, nanosec), ``reason`` "evicted" (full buffer) or "rejected"
         (its capture was marked by :meth:`reject`).
+    repeats : bool
+        Accept a completed capture again (paired anew) instead of raising.
 
     Counters: ``pairs``, ``evicted`` ({"a": n, "b": n}), ``duplicates``,
     ``rejected`` (captures marked by :meth:`reject`), ``dropped`` (halves
-    discarded because their capture was rejected).
+    discarded because their capture was rejected), ``repeated`` (completed
+    captures that came again, with ``repeats``).
     """
 
     def __init__(self, capacity: int, *,
-                 on_evict: Callable[[str, Stamp, Any, str], None] | None = None):
+                 on_evict: Callable[[str, Stamp, Any, str], None] | None = None,
+                 repeats: bool = False):
         if isinstance(capacity, bool) or not isinstance(capacity, int) or capacity < 1:
             raise ValueError(f"capacity must be an integer >= 1, got {capacity!r}")
         self.capacity = capacity
+        self.repeats = bool(repeats)
+        self.repeated = 0
         self._on_evict = on_evict
         self._pending: dict[str, OrderedDict[Stamp, Any]] = {"a": OrderedDict(), "b": OrderedDict()}
         self._finished: OrderedDict[Stamp, str] = OrderedDict()  # stamp -> "paired" / "rejected"
@@ -119,6 +128,10 @@ class StampPairer:
         if state == "rejected":
             self._drop(own, key, item)
             return None
+        if state == "paired" and self.repeats:
+            del self._finished[key]
+            self.repeated += 1
+            state = None
         if state == "paired" or key in self._pending[own]:
             self.duplicates += 1
             raise DuplicateStampError(own, key, "capture already paired" if state
