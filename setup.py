@@ -12,6 +12,7 @@ setup(
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
         ("share/" + package_name + "/config", glob("config/*.yaml")),
+        ("share/" + package_name + "/launch", glob("launch/*.launch.py")),
     ],
     python_requires=">=3.10",
     install_requires=[
@@ -35,6 +36,10 @@ setup(
         "console_scripts": [
             "sfs-reconstruct = sfs_ros.cli.reconstruct:main",
             "sfs-demo = sfs_ros.cli.demo:main",
+            "sfs-simulate = sfs_ros.cli.simulate:main",
+            "sfs-cell = sfs_ros.cli.cell:main",
+            "sfs-camera = sfs_ros.nodes.camera_node:main",
+            "sfs-scan = sfs_ros.nodes.scan_node:main",
             "sfs-segmentation = sfs_ros.nodes.segmentation_node:main",
             "sfs-motor = sfs_ros.nodes.motor_node:main",
             "sfs-mock-hardware = sfs_ros.nodes.mock_hardware_node:main",

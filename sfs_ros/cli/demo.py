@@ -1,88 +1,118 @@
-"""``sfs-demo``: a complete simulated scan, reconstructed end to end.
+"""``sfs-demo``: a complete simulated scan through the cell's ROS 2 nodes.
 
-Renders a known object from a plan of viewpoints on the upper hemisphere
-(each image tagged with the actual, slightly-off angles), writes the scan as
-a session folder, reconstructs it like ``sfs-reconstruct`` would, and writes
-the mesh, a PNG picture of it and a report scored against the true shape.
+Brings up the cell with the mock hardware (:mod:`sfs_ros.cli.bringup`:
+mock controller + mock camera, motor, scan, segmentation and reconstruction
+nodes, each a separate process), calls ``scan/start``, follows the scan
+until every view is stored, calls ``reconstruct``, stops the cell, and
+scores the mesh against the true shape of the object the mock camera
+rendered. Writes into ``--out``::
+
+    mesh.ply      the mesh (a copy of the one the reconstruction node wrote)
+    mesh.png      a picture of it
+    report.json   the reconstruct answer, the scan's figures, the score vs truth
+    cell/         the reconstruction node's output_dir: scan folders, meshes, reports
+    cell.log      every node's output
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
+import shutil
 import sys
+import time
 from pathlib import Path
 
-from ..core.export import SUPPORTED_SUFFIXES, export_mesh
-from ..core.inputs import load_views
-from ..core.objects import OBJECT_NAMES, make_object
-from ..core.pipeline import MESHERS, ReconstructionParams, reconstruct
-from ..core.plan import ring_plan
-from ..core.preview import preview_image, write_png
-from ..core.rig import RigCalibration
-from ..core.session import write_session
-from ..core.synthetic import carving_box, score_against_truth, simulate_scan
-from .common import StageProgress, run_reporting_errors
-from .reconstruct import summary
+import yaml
+
+from ..core.export import load_mesh
+from ..core.grid import VoxelGrid
+from ..core.objects import make_object
+from ..core.synthetic import score_against_truth
+from ..ros.cell_client import CellClient, ScanFailed
+from ..ros.services import ServiceError
+from .bringup import Cell, cell_nodes, default_config_dir
+from .common import StageProgress
 
 PROG = "sfs-demo"
-
-#: The simulated camera: 640 x 480 pinhole, 0.6 m from the C-arm centre.
-DEMO_RIG = RigCalibration(width=640, height=480, projection="pinhole", fx=1400.0, fy=1400.0,
-                          camera_distance_m=0.6, aim_point_m=(0.0, 0.0, 0.04))
 
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
     p.add_argument("-o", "--out", type=Path, default=Path("out/demo"), help="output folder")
-    p.add_argument("--object", choices=OBJECT_NAMES, default="mug")
-    p.add_argument("--rings", type=float, nargs="+", default=[15.0, 40.0, 65.0], metavar="PHI_DEG",
-                   help="carriage elevations of the view rings, degrees")
-    p.add_argument("--per-ring", type=int, default=24, help="turntable stops per ring")
-    p.add_argument("-r", "--resolution", type=int, default=192)
-    p.add_argument("-m", "--mesher", choices=MESHERS, default="marching-cubes")
-    p.add_argument("--format", choices=[s[1:] for s in SUPPORTED_SUFFIXES], default="ply")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("-q", "--quiet", action="store_true")
+    p.add_argument("--config", type=Path, default=None,
+                   help="folder of the YAML parameter files (default: the installed ones)")
+    p.add_argument("--timeout", type=float, default=1800.0, help="longest scan, seconds")
     return p
 
 
+def _ros_parameters(path: Path) -> dict:
+    return yaml.safe_load(path.read_text())["/**"]["ros__parameters"]
+
+
 def run(args) -> dict:
-    obj = make_object(args.object)
-    plan = ring_plan(args.rings, args.per_ring, top_view=True)
-    progress = StageProgress(quiet=args.quiet)
-    progress("capture", 0.0)
-    captures = simulate_scan(obj, DEMO_RIG, plan, seed=args.seed)
-    progress("capture", 1.0)
-    session = args.out / "session"
-    write_session(session, [(c.name, c.image) for c in captures],
-                  [(c.theta_rad, c.phi_rad) for c in captures], DEMO_RIG,
-                  bounds_m=carving_box(obj))
-    try:
-        result = reconstruct(load_views(session),
-                             ReconstructionParams(resolution=args.resolution, mesher=args.mesher),
-                             progress=progress)
-    finally:
-        progress.close()
-    mesh_path = export_mesh(result.vertices, result.faces, args.out / f"mesh.{args.format}")
-    picture = write_png(args.out / "mesh.png", preview_image(result.vertices, result.faces))
-    report = {"output": str(mesh_path), "preview": str(picture), "session": str(session),
-              "object": args.object, **result.report,
-              "ground_truth": score_against_truth(obj, result.vertices, result.faces, result.grid)}
-    (args.out / "report.json").write_text(json.dumps(report, indent=2))
+    config = args.config or default_config_dir()
+    out = args.out
+    cell_dir = out / "cell"
+    if cell_dir.exists():
+        shutil.rmtree(cell_dir)                   # a demo run starts from scan_001
+    cell_dir.mkdir(parents=True)
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    specs = cell_nodes(config, cell_dir, mock=True)
+    start = time.perf_counter()
+    with open(out / "cell.log", "w") as log, Cell(specs, log=log) as cell, \
+            CellClient(name="sfs_demo") as client:
+        print(f"{PROG}: cell up ({', '.join(s.name for s in specs)}); log in {log.name}",
+              file=sys.stderr)
+        try:
+            client.wait_ready(timeout_s=120.0)
+            scan = client.start_scan()
+            progress = StageProgress()
+            status = client.wait_scan_done(
+                scan, timeout_s=args.timeout,
+                progress=lambda s: progress("scan", s.count("receipted") / s.count("total")))
+            progress.close()
+            scan_s = time.perf_counter() - start
+            summary = client.reconstruct()
+        except (ServiceError, ScanFailed, TimeoutError) as exc:
+            ended = cell.exited()
+            raise ValueError(f"{exc}" + (f" (nodes ended: {ended})" if ended else "")) from None
+    mesh_path = out / f"mesh{Path(summary['path']).suffix}"
+    shutil.copyfile(summary["path"], mesh_path)
+    shutil.copyfile(summary["preview_path"], out / "mesh.png")
+    mock = _ros_parameters(config / "mock_hardware.yaml")
+    own = _ros_parameters(config / "reconstruction.yaml")
+    obj = make_object(mock["object"])
+    vertices, faces = load_mesh(mesh_path)
+    box = [own["bounds_m"][:3], own["bounds_m"][3:]]
+    truth = score_against_truth(obj, vertices, faces, VoxelGrid.cube(*box, own["resolution"]))
+    report = {"mesh": str(mesh_path), "picture": str(out / "mesh.png"), "object": obj.name,
+              "views": status.count("total"), "scan_seconds": scan_s,
+              "total_seconds": time.perf_counter() - start, "scan": status.values,
+              "reconstruct": summary, "ground_truth": truth}
+    (out / "report.json").write_text(json.dumps(report, indent=2))
     return report
 
 
 def main(argv=None) -> int:
-    status, report = run_reporting_errors(PROG, run, build_parser().parse_args(argv))
-    if status:
-        return status
-    print(summary(report))
-    truth = report["ground_truth"]
+    args = build_parser().parse_args(argv)
+    try:
+        report = run(args)
+    except (ValueError, OSError) as exc:
+        print(f"\n{PROG}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"\n{PROG}: interrupted", file=sys.stderr)
+        return 130
+    summary, truth = report["reconstruct"], report["ground_truth"]
+    print(f"mesh: {report['mesh']} ({summary['n_vertices']} vertices, {summary['n_faces']} "
+          f"faces, watertight={summary['watertight']}), picture: {report['picture']}")
+    print(f"scan: {report['views']} views through the nodes in {report['scan_seconds']:.1f} s; "
+          f"reconstruct {summary['seconds']:.1f} s; {summary['views_used']} views used")
     print(f"against the true {report['object']}: volume IoU {truth['volume_iou']:.4f}, "
           f"Chamfer {1000 * truth['chamfer_mean_m']:.3f} mm, "
           f"Hausdorff {1000 * truth['hausdorff_m']:.3f} mm")
-    print(f"picture: {report['preview']}")
     return 0
 
 

@@ -14,28 +14,33 @@ from sfs_ros.ros.params import ParameterError
 __all__ = ["run_node"]
 
 
-def run_node(prog: str, make_node: Callable[[], Node], args=None, *, threads: int = 1) -> None:
-    """Initialise rclpy, build the node and spin it until SIGINT or shutdown.
+def run_node(prog: str, make_node: Callable[[], Node | list[Node]], args=None, *,
+             threads: int = 1) -> None:
+    """Initialise rclpy, build the node (or nodes, composed in one process) and spin until
+    SIGINT or shutdown.
 
     A parameter refused at start-up prints one line ``prog: reason`` and exits
     with status 2. ``threads`` > 1 spins a multi-threaded executor (for nodes
-    whose services wait on worker threads). The node is destroyed and rclpy
-    shut down on every way out.
+    whose services wait on worker threads). The nodes are destroyed (in
+    reverse order) and rclpy shut down on every way out.
     """
     rclpy.init(args=args)
     try:
-        node = make_node()
+        made = make_node()
     except ParameterError as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
         rclpy.try_shutdown()
         sys.exit(2)
+    nodes = made if isinstance(made, list) else [made]
     executor = MultiThreadedExecutor(num_threads=threads) if threads > 1 else SingleThreadedExecutor()
-    executor.add_node(node)
+    for node in nodes:
+        executor.add_node(node)
     try:
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
         executor.shutdown()
-        node.destroy_node()
+        for node in reversed(nodes):
+            node.destroy_node()
         rclpy.try_shutdown()

@@ -1,29 +1,53 @@
-"""Mock hardware node: a simulated GRBL controller on a pseudo-terminal, for the real motor node.
+"""Mock hardware: a simulated GRBL controller on a pseudo-terminal, and a mock camera.
 
-| kind | name | type | notes |
-|---|---|---|---|
-| pub | ``mock/port`` | std_msgs/String | the pty path (``/dev/pts/N``); reliable, transient-local |
+A drop-in for the cell's hardware: the real motor node opens the simulated
+controller's serial port through pyserial, exactly as it opens
+``/dev/ttyACM0``; the camera is the real :class:`CameraNode` (same name,
+topics, services and parameters) composed into this process with a
+:class:`~sfs_ros.hardware.cameras.RenderedSource`, which renders a known
+object at the controller's *true* angles (the encoders read those plus an
+offset and noise, as real ones do).
 
-The controller (:class:`sfs_ros.hardware.simulator.SimulatedGrbl`) answers on
-the pseudo-terminal from its own thread; the motor node opens the published
-path as it would open ``/dev/ttyACM0``. The path is also logged at start-up.
-Speeds, accelerations, encoder offset and noise are parameters (defaults: a
-turntable at 90 deg/s, a carriage at 45 deg/s). On shutdown (SIGINT) the
-simulator thread stops and the pseudo-terminal is closed, which a connected
-motor node sees as an unplugged cable.
+| node | kind | name | type | notes |
+|---|---|---|---|---|
+| mock_hardware | pub | ``mock/port`` | std_msgs/String | the pty path; reliable, transient-local |
+| mock_hardware | srv | ``mock/unplug`` | std_srvs/SetBool | true: unplug the cable; false: plug it back |
+| mock_hardware | srv | ``mock/hang`` | std_srvs/SetBool | true: the controller stops answering |
+| mock_hardware | srv | ``mock/drop_frame`` | std_srvs/Trigger | the next shutter gives no frame |
+| camera | | | | as :mod:`sfs_ros.nodes.camera_node` (backend "mock") |
+
+``port_link`` (optional) is a stable device name kept pointing at the
+current pseudo-terminal, as a udev rule keeps ``/dev/serial/by-id/...``:
+give it to the motor node as ``port``. Unplugging removes the link and
+closes the pty (the motor node sees a lost connection); plugging back opens a
+new pty and restores the link. The controller has its own power: it keeps
+its position and state across an unplug. On shutdown (SIGINT) the pty is
+closed and the link removed.
+
+Parameters: :data:`PARAMS` (all read-only), the camera's, and the rig
+calibration (``config/rig.yaml``), with which the object is rendered.
 """
 
 from __future__ import annotations
 
-from rclpy.node import Node
-from std_msgs.msg import String
+import os
+from pathlib import Path
 
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from std_msgs.msg import String
+from std_srvs.srv import SetBool, Trigger
+
+from sfs_ros.core.objects import OBJECT_NAMES, make_object
+from sfs_ros.hardware.cameras import RenderedSource
 from sfs_ros.hardware.simulator import SimulatedGrbl
+from sfs_ros.nodes.camera_node import CameraNode
 from sfs_ros.nodes.entry import run_node
 from sfs_ros.ros import result_qos
 from sfs_ros.ros.params import Param, ParameterError, declare
+from sfs_ros.ros.rig_params import RIG_PARAMS, rig_calibration
 
-__all__ = ["MockHardwareNode", "PARAMS", "main"]
+__all__ = ["MockHardwareNode", "PARAMS", "main", "make_nodes"]
 
 NODE_NAME = "mock_hardware"
 
@@ -43,50 +67,132 @@ PARAMS: list[Param] = [
           bounds=(0.0, 10.0), read_only=True),
     Param("start_locked", True, "Start in the alarm lock (home first), like GRBL with homing "
           "enabled.", read_only=True),
-    Param("seed", -1, "Seed of the encoder noise.", bounds=(-1, 2 ** 31 - 1), read_only=True,
-          constraints="-1 = random"),
+    Param("port_link", "", "Symbolic link kept pointing at the controller's pty; empty = none.",
+          read_only=True),
+    Param("object", "mug", "Known object on the turntable, rendered by the mock camera.",
+          choices=OBJECT_NAMES, read_only=True),
+    Param("image_noise", 2.0, "Standard deviation of the mock camera's pixel noise, grey "
+          "levels.", bounds=(0.0, 100.0), read_only=True),
+    Param("background_rgb", [255, 255, 255], "Backdrop colour of the mock camera, 0..255.",
+          bounds=(0, 255), read_only=True, constraints="three values"),
+    Param("seed", -1, "Seed of the encoder and image noise.", bounds=(-1, 2 ** 31 - 1),
+          read_only=True, constraints="-1 = random"),
 ]
 
 
 class MockHardwareNode(Node):
-    """Runs a :class:`SimulatedGrbl` and publishes its port; call :meth:`destroy_node` to close it.
+    """Runs a :class:`SimulatedGrbl`, publishes its port and serves the fault switches.
 
     Raises :class:`ParameterError` at construction for invalid parameters.
+    :attr:`camera_source` renders at the simulator's true angles (for the
+    camera node); :meth:`destroy_node` closes the pty.
     """
 
     def __init__(self, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
         try:
-            p = declare(self, PARAMS)
+            p = declare(self, [*PARAMS, *RIG_PARAMS])
             low, high = p["carriage_limits_deg"]
             if not low < high:
                 raise ParameterError("carriage_limits_deg",
                                      f"got {[low, high]}, expected min < max")
+            if len(p["background_rgb"]) != 3:
+                raise ParameterError("background_rgb", f"got {p['background_rgb']}, expected "
+                                     "three values r, g, b")
+            calibration = rig_calibration(p)
         except ParameterError:
             super().destroy_node()         # no simulator started yet
             raise
+        seed = None if p["seed"] < 0 else p["seed"]
         self.simulator = SimulatedGrbl(
             max_speed_deg_s=p["max_speed_deg_s"], accel_deg_s2=p["accel_deg_s2"],
             soft_limits_deg=(None, (low, high)), encoder_offset_deg=p["encoder_offset_deg"],
             encoder_noise_deg=p["encoder_noise_deg"],
             homing_speed_deg_s=p["homing_speed_deg_s"], start_locked=p["start_locked"],
-            seed=None if p["seed"] < 0 else p["seed"]).start()
-        self.get_logger().info(f"simulated GRBL controller on {self.simulator.port} "
-                               f"(speeds {p['max_speed_deg_s']} deg/s)")
+            seed=seed).start()
+        self.camera_source = RenderedSource(
+            make_object(p["object"]), calibration, self.simulator.true_position_rad,
+            background_rgb=p["background_rgb"], noise_sigma=p["image_noise"], seed=seed)
+        self._link = Path(p["port_link"]) if p["port_link"] else None
         self._port_pub = self.create_publisher(String, "mock/port", result_qos())
-        self._port_pub.publish(String(data=self.simulator.port))
+        self.create_service(SetBool, "mock/unplug", self._on_unplug)
+        self.create_service(SetBool, "mock/hang", self._on_hang)
+        self.create_service(Trigger, "mock/drop_frame", self._on_drop_frame)
+        self._plugged_in()
+        self.get_logger().info(f"simulated GRBL controller on {self.simulator.port}"
+                               f"{f' (link {self._link})' if self._link else ''}, speeds "
+                               f"{p['max_speed_deg_s']} deg/s; mock camera renders the "
+                               f"{p['object']}")
+
+    def _plugged_in(self) -> None:
+        port = self.simulator.port
+        if self._link is not None:
+            tmp = self._link.with_name(f".{self._link.name}.tmp")
+            tmp.unlink(missing_ok=True)
+            tmp.symlink_to(port)
+            os.replace(tmp, self._link)          # atomic: the link is never missing midway
+        self._port_pub.publish(String(data=port))
+
+    def _unlink(self) -> None:
+        if self._link is not None and self._link.is_symlink():
+            self._link.unlink()
+
+    def _on_unplug(self, request, response):
+        if request.data:
+            self._unlink()
+            self.simulator.disconnect()
+            response.message = "cable unplugged: the controller's port is closed"
+        else:
+            try:
+                self.simulator.replug()
+            except RuntimeError:
+                response.success, response.message = False, "the cable is plugged in already"
+                return response
+            self._plugged_in()
+            response.message = f"cable plugged back in: {self.simulator.port}"
+        self.get_logger().warning(response.message)
+        response.success = True
+        return response
+
+    def _on_hang(self, request, response):
+        self.simulator.faults.no_answer = bool(request.data)
+        response.success = True
+        response.message = ("the controller stops answering" if request.data
+                            else "the controller answers again")
+        self.get_logger().warning(response.message)
+        return response
+
+    def _on_drop_frame(self, _request, response):
+        self.camera_source.fail_next(1)
+        response.success, response.message = True, "the next shutter gives no frame"
+        self.get_logger().warning(response.message)
+        return response
 
     def destroy_node(self) -> None:
+        self._unlink()
         self.simulator.close()
         super().destroy_node()
+
+
+def make_nodes() -> list[Node]:
+    """The mock hardware node and the camera node rendering from its simulator."""
+    hardware = MockHardwareNode()
+    try:
+        camera = CameraNode(source=hardware.camera_source,
+                            parameter_overrides=[Parameter("backend", value="mock")])
+    except ParameterError:
+        hardware.destroy_node()
+        raise
+    return [hardware, camera]
 
 
 def main(args=None) -> None:
     """Entry point ``sfs-mock-hardware``.
 
-    ``sfs-mock-hardware --ros-args --params-file config/mock_hardware.yaml``
+    ``sfs-mock-hardware --ros-args --params-file config/rig.yaml --params-file
+    config/mock_hardware.yaml``
     """
-    run_node("sfs-mock-hardware", MockHardwareNode, args)
+    run_node("sfs-mock-hardware", make_nodes, args, threads=2)
 
 
 if __name__ == "__main__":

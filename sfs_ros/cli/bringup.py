@@ -1,0 +1,198 @@
+"""Starting and stopping the cell's nodes as separate processes (no ``ros2 launch`` on PyPI).
+
+:class:`Cell` starts each node as ``python -m sfs_ros.nodes.<module>
+--ros-args --params-file ...`` with the YAML files of a config folder, in its
+own process group (so a Ctrl-C in the terminal reaches the bring-up, which
+then stops the nodes in order), copies their output to the terminal with the
+node's name in front, and stops them with SIGINT, in reverse order, then
+SIGTERM and SIGKILL only for a node that ignores it (a node killed outright
+leaves Fast DDS shared-memory files behind).
+
+With ``mock=True`` the hardware is the mock hardware node (simulated
+controller + mock camera), whose pseudo-terminal is linked at
+``OUTPUT_DIR/ttyMOCK`` for the motor node; otherwise the camera node and the
+motor node's ``port`` from ``motor.yaml``.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+from dataclasses import dataclass, field
+from pathlib import Path
+
+__all__ = ["NodeSpec", "Cell", "cell_nodes", "default_config_dir", "wait_until_signal"]
+
+#: Seconds a node gets to stop after SIGINT (then SIGTERM, then SIGKILL).
+STOP_GRACE_S = 10.0
+
+
+def default_config_dir() -> Path:
+    """The installed ``share/sfs_ros/config`` (pip or colcon), else the source tree's."""
+    candidates = [Path(sys.prefix) / "share" / "sfs_ros" / "config",
+                  Path(__file__).resolve().parents[2] / "config"]
+    try:
+        from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
+        try:
+            candidates.insert(0, Path(get_package_share_directory("sfs_ros")) / "config")
+        except PackageNotFoundError:
+            pass
+    except ImportError:
+        pass
+    for folder in candidates:
+        if (folder / "rig.yaml").is_file():
+            return folder
+    raise FileNotFoundError(f"no sfs_ros config folder (rig.yaml) in "
+                            f"{', '.join(map(str, candidates))}: pass --config DIR")
+
+
+@dataclass
+class NodeSpec:
+    """One node process: ``module`` under ``sfs_ros.nodes``, its params files (in order,
+    later ones win) and ``-p name:=value`` overrides."""
+
+    name: str
+    module: str
+    params_files: list[str]
+    overrides: dict[str, str] = field(default_factory=dict)
+
+    def command(self, namespace: str = "") -> list[str]:
+        args = [sys.executable, "-m", f"sfs_ros.nodes.{self.module}", "--ros-args"]
+        if namespace:
+            args += ["-r", f"__ns:={namespace}"]
+        for path in self.params_files:
+            args += ["--params-file", path]
+        for name, value in self.overrides.items():
+            args += ["-p", f"{name}:={value}"]
+        return args
+
+
+def cell_nodes(config_dir, output_dir, *, mock: bool) -> list[NodeSpec]:
+    """The cell's node processes in start order (hardware first, reconstruction last)."""
+    config = Path(config_dir)
+    output = Path(output_dir).resolve()
+
+    def files(*names: str) -> list[str]:
+        paths = [config / n for n in names]
+        missing = [str(p) for p in paths if not p.is_file()]
+        if missing:
+            raise FileNotFoundError(f"config file(s) missing: {', '.join(missing)}")
+        return [str(p) for p in paths]
+
+    link = output / "ttyMOCK"
+    if mock:
+        hardware = [NodeSpec("mock_hardware", "mock_hardware_node",
+                             files("rig.yaml", "camera.yaml", "mock_hardware.yaml"),
+                             {"port_link": str(link)}),
+                    NodeSpec("motor", "motor_node", files("motor.yaml"), {"port": str(link)})]
+    else:
+        hardware = [NodeSpec("camera", "camera_node", files("rig.yaml", "camera.yaml")),
+                    NodeSpec("motor", "motor_node", files("motor.yaml"))]
+    return hardware + [
+        NodeSpec("segmentation", "segmentation_node", files("segmentation.yaml")),
+        NodeSpec("reconstruction", "reconstruction_node",
+                 files("rig.yaml", "reconstruction.yaml"), {"output_dir": str(output)}),
+        NodeSpec("scan", "scan_node", files("scan.yaml"),
+                 {"plan_file": str(config / "scan_plan.yaml")}),
+    ]
+
+
+class Cell:
+    """The node processes of :func:`cell_nodes`; a context manager that stops them on exit.
+
+    specs : list of NodeSpec
+    namespace : str
+        ROS namespace of every node ("" = the root).
+    log : file, optional
+        Where the nodes' output lines go, prefixed with ``[name]``; None = discarded.
+    env : dict, optional
+        Environment of the processes (default: this process's).
+    """
+
+    def __init__(self, specs: list[NodeSpec], *, namespace: str = "", log=sys.stdout,
+                 env: dict | None = None):
+        self.specs = specs
+        self.namespace = namespace
+        self._log = log
+        self._env = dict(os.environ if env is None else env, PYTHONUNBUFFERED="1")
+        self._log_lock = threading.Lock()
+        self.processes: dict[str, subprocess.Popen] = {}
+        self._readers: list[threading.Thread] = []
+
+    def start(self) -> Cell:
+        for spec in self.specs:
+            self.start_node(spec.name)
+        return self
+
+    def start_node(self, name: str) -> None:
+        """Start (or start again) the node called ``name``."""
+        spec = next(s for s in self.specs if s.name == name)
+        process = subprocess.Popen(spec.command(self.namespace), stdin=subprocess.DEVNULL,
+                                   stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                   env=self._env, start_new_session=True)
+        self.processes[name] = process
+        reader = threading.Thread(target=self._copy_output, args=(name, process), daemon=True)
+        reader.start()
+        self._readers.append(reader)
+
+    def _copy_output(self, name: str, process: subprocess.Popen) -> None:
+        for line in iter(process.stdout.readline, b""):
+            if self._log is not None:
+                with self._log_lock:
+                    self._log.write(f"[{name}] {line.decode(errors='replace').rstrip()}\n")
+                    self._log.flush()
+        process.stdout.close()
+
+    def exited(self) -> dict[str, int]:
+        """``{name: exit code}`` of the nodes that have ended."""
+        return {n: p.returncode for n, p in self.processes.items() if p.poll() is not None}
+
+    def stop_node(self, name: str, grace_s: float = STOP_GRACE_S) -> int:
+        """SIGINT, then SIGTERM and SIGKILL each after ``grace_s``; the exit code."""
+        process = self.processes[name]
+        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
+            if process.poll() is not None:
+                break
+            process.send_signal(sig)
+            try:
+                process.wait(timeout=grace_s)
+            except subprocess.TimeoutExpired:
+                continue
+        return process.wait()
+
+    def stop(self) -> dict[str, int]:
+        """Stop every node, the last started first; ``{name: exit code}``."""
+        codes = {name: self.stop_node(name) for name in reversed(list(self.processes))}
+        for reader in self._readers:
+            reader.join(timeout=2.0)
+        return codes
+
+    def __enter__(self) -> Cell:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+
+def wait_until_signal(cell: Cell) -> int:
+    """Until SIGINT/SIGTERM or a node ends by itself; then stop the cell. Exit status."""
+    stopping = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stopping.set())
+    status = 0
+    while not stopping.wait(0.2):
+        ended = cell.exited()
+        if ended:
+            print(f"sfs-cell: node(s) ended by themselves: {ended}; stopping the cell",
+                  file=sys.stderr)
+            status = 1
+            break
+    codes = cell.stop()
+    unclean = {n: c for n, c in codes.items() if c not in (0, -signal.SIGINT)}
+    if unclean and not status:
+        print(f"sfs-cell: node(s) did not stop cleanly: {unclean}", file=sys.stderr)
+        status = 1
+    return status

@@ -1,0 +1,164 @@
+"""A program's handle on a running cell: start a scan, follow it, reconstruct.
+
+What a robot cell's controller (or ``sfs-demo``) does over ROS: call
+``scan/start``, follow the scan node's progress on ``diagnostics``, and call
+``reconstruct`` once every view is stored. :class:`CellClient` runs its own
+node in a private rclpy context, spun by a background thread, so it can be
+used from plain synchronous code::
+
+    with CellClient() as cell:
+        cell.wait_ready()
+        scan = cell.start_scan()
+        cell.wait_scan_done(scan)
+        summary = cell.reconstruct()      # {"path": ..., "preview_path": ..., ...}
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import threading
+import time
+from typing import Callable
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from std_srvs.srv import Trigger
+
+from sfs_ros.ros.services import ServiceError, call
+
+__all__ = ["CellClient", "ScanFailed", "ScanStatus"]
+
+SERVICES = ("scan/start", "scan/cancel", "scan/resume", "reconstruct", "reset")
+
+
+class ScanFailed(RuntimeError):
+    """The scan paused on a fault, or the reconstruction failed; the text says why."""
+
+
+class ScanStatus:
+    """The scan node's latest progress: ``level``, ``message`` and ``values`` (str -> str)."""
+
+    def __init__(self, status: DiagnosticStatus):
+        self.level = status.level
+        self.message = status.message
+        self.values = {kv.key: kv.value for kv in status.values}
+
+    @property
+    def state(self) -> str:
+        return self.values.get("state", "")
+
+    def count(self, key: str) -> int:
+        return int(self.values.get(key, "0"))
+
+    @property
+    def complete(self) -> bool:
+        """Every planned view captured and receipted by the reconstruction."""
+        total = self.count("total")
+        return self.state == "done" and total > 0 and self.count("receipted") == total
+
+
+class CellClient:
+    """Service calls and scan progress of a cell in ``namespace``; call :meth:`close`."""
+
+    def __init__(self, namespace: str = "", *, name: str = "cell_client"):
+        import rclpy
+        from rclpy.context import Context
+        from rclpy.executors import MultiThreadedExecutor
+
+        self._context = Context()
+        rclpy.init(context=self._context)
+        self.node = rclpy.create_node(name, namespace=namespace or "/", context=self._context)
+        self._lock = threading.Lock()
+        self._scan: ScanStatus | None = None
+        self._changed = threading.Condition(self._lock)
+        self.node.create_subscription(DiagnosticArray, "diagnostics", self._on_diagnostics, 50)
+        self._clients = {n: self.node.create_client(Trigger, n) for n in SERVICES}
+        self._executor = MultiThreadedExecutor(num_threads=2, context=self._context)
+        self._executor.add_node(self.node)
+        self._spinner = threading.Thread(target=self._executor.spin, daemon=True)
+        self._spinner.start()
+
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            if status.name.endswith(": scan"):
+                with self._changed:
+                    self._scan = ScanStatus(status)
+                    self._changed.notify_all()
+
+    @property
+    def scan(self) -> ScanStatus | None:
+        """The scan node's latest progress (None before the first report)."""
+        with self._lock:
+            return self._scan
+
+    def wait_ready(self, timeout_s: float = 60.0) -> None:
+        """Until every service of the cell answers and the scan node reports; ServiceError."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            missing = [n for n, c in self._clients.items() if not c.service_is_ready()]
+            if not missing and self.scan is not None:
+                return
+            if time.monotonic() > deadline:
+                raise ServiceError(f"the cell is not up after {timeout_s:g} s: "
+                                   f"{', '.join(missing) or 'no scan progress'} missing")
+            time.sleep(0.1)
+
+    def call(self, service: str, timeout_s: float = 30.0) -> Trigger.Response:
+        """Call one of :data:`SERVICES` (std_srvs/Trigger); the response."""
+        return call(self._clients[service], Trigger.Request(), timeout_s=timeout_s)
+
+    def wait_scan(self, scan: int, until: Callable[[ScanStatus], bool], *, timeout_s: float,
+                  progress: Callable[[ScanStatus], None] | None = None) -> ScanStatus:
+        """Until ``until(status)`` holds for scan number ``scan`` (reports of other scans are
+        passed over); ScanFailed if it pauses or is cancelled first, TimeoutError after
+        ``timeout_s``. ``progress`` sees every new report of the scan."""
+        deadline = time.monotonic() + timeout_s
+        seen = None
+        while True:
+            with self._changed:
+                self._changed.wait_for(lambda: self._scan is not seen, timeout=0.5)
+                status = seen = self._scan
+            if status is not None and status.count("scan") == scan:
+                if progress is not None:
+                    progress(status)
+                if until(status):
+                    return status
+                if status.state in ("paused", "cancelled"):
+                    raise ScanFailed(status.message)
+            if time.monotonic() > deadline:
+                last = status.message if status is not None else "no progress received"
+                raise TimeoutError(f"scan {scan} not finished after {timeout_s:g} s "
+                                   f"(last: {last})")
+
+    def start_scan(self) -> int:
+        """Call ``scan/start``; the number of the new scan, or ScanFailed with the reason."""
+        answer = self.call("scan/start")
+        found = re.match(r"scan (\d+) started", answer.message)
+        if not answer.success or found is None:
+            raise ScanFailed(f"scan/start refused: {answer.message}")
+        return int(found.group(1))
+
+    def wait_scan_done(self, scan: int, *, timeout_s: float = 1800.0,
+                       progress=None) -> ScanStatus:
+        """Until scan ``scan`` has every planned view captured and receipted
+        (:attr:`ScanStatus.complete`)."""
+        return self.wait_scan(scan, lambda s: s.complete, timeout_s=timeout_s,
+                              progress=progress)
+
+    def reconstruct(self, timeout_s: float = 600.0) -> dict:
+        """Call ``reconstruct``; its JSON summary, or ScanFailed with the node's reason."""
+        answer = self.call("reconstruct", timeout_s=timeout_s)
+        if not answer.success:
+            raise ScanFailed(answer.message)
+        return json.loads(answer.message)
+
+    def close(self) -> None:
+        self._executor.shutdown()
+        self.node.destroy_node()
+        self._context.try_shutdown()
+
+    def __enter__(self) -> CellClient:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

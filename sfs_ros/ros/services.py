@@ -1,0 +1,44 @@
+"""Calling a service from a worker thread: a deadline and specific exceptions.
+
+As controller_manager's ``controller_manager_services.py`` does: wait for the
+service, call it, wait for the answer, each with a deadline, and raise an
+exception that says which service failed and how. The node must be spun by
+another thread (a multi-threaded executor) while :func:`call` waits.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+
+__all__ = ["ServiceError", "call"]
+
+
+class ServiceError(RuntimeError):
+    """A service was not available or did not answer in time."""
+
+
+def call(client, request, *, timeout_s: float, cancelled: threading.Event | None = None):
+    """Call ``client`` with ``request``; the response, or :class:`ServiceError`.
+
+    ``cancelled``, when set meanwhile, ends the wait early (ServiceError too).
+    """
+    deadline = time.monotonic() + timeout_s
+    while not client.service_is_ready():
+        if time.monotonic() > deadline:
+            raise ServiceError(f"service {client.srv_name} is not available "
+                               f"(waited {timeout_s:g} s): is its node running?")
+        if cancelled is not None and cancelled.is_set():
+            raise ServiceError(f"call of {client.srv_name} cancelled")
+        time.sleep(0.05)
+    answered = threading.Event()
+    future = client.call_async(request)
+    future.add_done_callback(lambda _f: answered.set())
+    while not answered.wait(0.05):
+        if time.monotonic() > deadline or (cancelled is not None and cancelled.is_set()):
+            future.cancel()
+            client.remove_pending_request(future)
+            why = "cancelled" if time.monotonic() <= deadline else \
+                f"not answered within {timeout_s:g} s"
+            raise ServiceError(f"call of {client.srv_name} {why}")
+    return future.result()
