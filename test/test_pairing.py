@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from sfs_ros.ros.pairing import DuplicateStampError, StampPairer, stamp_key
+from sfs_ros.ros.pairing import StampPairer, stamp_key
 
 
 class FakeTime:
@@ -57,30 +57,23 @@ def test_full_buffer_evicts_the_longest_waiting():
     assert pairer.add_b((4, 0), "joints4") == ("img4", "joints4")
 
 
-def test_duplicates_are_refused_while_waiting_and_after_pairing():
+def test_a_half_sent_again_while_waiting_replaces_the_waiting_copy():
     pairer = StampPairer(8)
     pairer.add_a((1, 0), "first")
-    with pytest.raises(DuplicateStampError, match="already waiting"):
-        pairer.add_a((1, 0), "again")
-    assert pairer.add_b((1, 0), "joints") == ("first", "joints")  # the first one is kept
-    with pytest.raises(DuplicateStampError, match="already paired"):
-        pairer.add_b((1, 0), "joints again")
-    with pytest.raises(DuplicateStampError):
-        pairer.add_a((1, 0), "image again")
-    assert pairer.duplicates == 3 and pairer.pairs == 1
+    assert pairer.add_a((1, 0), "again") is None
+    assert pairer.pending("a") == 1
+    assert pairer.add_b((1, 0), "joints") == ("again", "joints")
+    assert pairer.repeated == 1 and pairer.pairs == 1
 
 
-def test_repeats_pair_a_completed_capture_again():
-    pairer = StampPairer(8, repeats=True)
+def test_a_capture_sent_again_after_pairing_is_paired_afresh():
+    pairer = StampPairer(8)
     assert pairer.add_a((1, 0), "image") is None
     assert pairer.add_b((1, 0), "joints") == ("image", "joints")
-    # Sent again (not acknowledged downstream): paired afresh, in either order.
+    # Sent again (not receipted downstream): paired afresh, in either order, counted once.
     assert pairer.add_b((1, 0), "joints again") is None
     assert pairer.add_a((1, 0), "image again") == ("image again", "joints again")
-    pairer.add_a((2, 0), "x")
-    with pytest.raises(DuplicateStampError, match="already waiting"):
-        pairer.add_a((2, 0), "x")                 # still refused while waiting
-    assert pairer.repeated == 1 and pairer.pairs == 2 and pairer.duplicates == 1
+    assert pairer.repeated == 1 and pairer.pairs == 2
 
 
 def test_rejected_capture_drops_both_halves():
@@ -97,15 +90,14 @@ def test_rejected_capture_drops_both_halves():
     assert pairer.rejected == 2 and pairer.dropped == 2 and pairer.pairs == 0
 
 
-def test_finished_stamps_are_remembered_for_capacity_captures():
+def test_rejected_stamps_are_remembered_for_capacity_captures():
     pairer = StampPairer(2)
     for i in range(3):
-        pairer.add_a((i, 0), i)
-        pairer.add_b((i, 0), i)
-    # (0, 0) has been forgotten (3 captures finished, capacity 2): accepted as new.
-    assert pairer.add_a((0, 0), "new") is None
-    with pytest.raises(DuplicateStampError):
-        pairer.add_a((2, 0), "dup")
+        pairer.reject((i, 0))
+    # (0, 0) has been forgotten (3 captures rejected, capacity 2): accepted as new.
+    assert pairer.add_a((0, 0), "new") is None and pairer.pending("a") == 1
+    assert pairer.add_a((2, 0), "still rejected") is None and pairer.pending("a") == 1
+    assert pairer.dropped == 1
 
 
 @pytest.mark.parametrize("capacity", [0, -1, 2.0, True])

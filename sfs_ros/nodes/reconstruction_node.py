@@ -42,8 +42,8 @@ made. ``reset`` starts a new scan (new session folder on the next view) and
 publishes an empty hull; the last mesh stays on ``mesh`` until the next one.
 
 A malformed message (encoding other than mono8, sizes that do not add up,
-values other than 0/1 or 0/255, a joint state without both joints), a
-duplicate stamp or an unusable view is logged, counted in the diagnostics
+values other than 0/1 or 0/255, a joint state without both joints) or an
+unusable view is logged, counted in the diagnostics
 (ERROR until the next good view) and dropped; the node carries on. An
 all-zero mask is stored but carves nothing (WARN).
 
@@ -84,7 +84,7 @@ from sfs_ros.ros.convert import (
     msg_to_image,
     points_to_cloud,
 )
-from sfs_ros.ros.pairing import DuplicateStampError, StampPairer, stamp_key
+from sfs_ros.ros.pairing import StampPairer, stamp_key
 from sfs_ros.ros.params import Param, ParameterError, declare
 from sfs_ros.ros.rig_params import RIG_PARAMS, rig_calibration
 
@@ -161,14 +161,14 @@ class ReconstructionNode(Node):
 
         self._stats_lock = threading.Lock()
         self._counts = {"views_received": 0, "carved": 0, "empty": 0, "rejected": 0,
-                        "malformed": 0, "duplicates": 0, "repeats": 0, "unpaired_dropped": 0,
+                        "malformed": 0, "repeats": 0, "unpaired_dropped": 0,
                         "reconstructions": 0, "reconstruction_failures": 0, "scan_views": 0}
         self._problem = ""
         self._warning = ""
 
         inputs = MutuallyExclusiveCallbackGroup()     # pairer, timers
         services = MutuallyExclusiveCallbackGroup()   # one request at a time, waits on the worker
-        self._pairer = StampPairer(depth, on_evict=self._given_up, repeats=True)
+        self._pairer = StampPairer(depth, on_evict=self._given_up)
         qos = capture_qos(depth)
         self._stored_pub = self.create_publisher(Header, "capture/stored", qos)
         self._hull_pub = self.create_publisher(PointCloud2, "hull", result_qos())
@@ -209,7 +209,7 @@ class ReconstructionNode(Node):
         except ValueError as exc:
             self._malformed("mask", stamp, exc)
             return
-        self._add(self._pairer.add_a, "mask", stamp, (mask, msg.header.frame_id))
+        self._add(self._pairer.add_a, stamp, (mask, msg.header.frame_id))
 
     def _on_joint_state(self, msg: JointState) -> None:
         stamp = stamp_key(msg.header.stamp)
@@ -218,15 +218,10 @@ class ReconstructionNode(Node):
         except ValueError as exc:
             self._malformed("joint state", stamp, exc)
             return
-        self._add(self._pairer.add_b, "joint state", stamp, angles)
+        self._add(self._pairer.add_b, stamp, angles)
 
-    def _add(self, add, what: str, stamp, item) -> None:
-        try:
-            pair = add(stamp, item)
-        except DuplicateStampError as exc:
-            self._count("duplicates")
-            self._report_problem(f"{what} ignored: {exc}")
-            return
+    def _add(self, add, stamp, item) -> None:
+        pair = add(stamp, item)
         if pair is not None:
             (mask, frame_id), (theta, phi) = pair
             self._count("views_received")

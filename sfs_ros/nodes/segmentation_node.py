@@ -13,10 +13,10 @@ Capture topics: reliable, volatile, depth ``queue_depth``
 "carriage" (radians). Diagnostics: counts and the last problem.
 
 Every capture whose image and joint state both arrive (exactly equal
-stamps, either order) gives exactly one mask and one joint state. A capture
-sent again after it was segmented (the scan node resends what the
-reconstruction has not receipted) is segmented again and counted in
-``repeats``: the reconstruction stores each view once. An image
+stamps, either order) gives one mask and one joint state. A capture sent
+again (the scan node resends what the reconstruction has not receipted) is
+segmented again and counted in ``repeats`` (a half sent twice before its
+partner came is taken once): the reconstruction stores each view once. An image
 without an object gives an **all-zero mask** (published, so downstream sees
 every view once, and carving can reject it by its empty mask) and a WARN
 diagnostic; a mask touching the image border is a WARN too. A malformed
@@ -47,7 +47,7 @@ from sfs_ros.ros.convert import (
     image_to_msg,
     msg_to_image,
 )
-from sfs_ros.ros.pairing import DuplicateStampError, StampPairer, stamp_key
+from sfs_ros.ros.pairing import StampPairer, stamp_key
 from sfs_ros.ros.params import Param, ParameterError, declare, read, validating_callback
 
 __all__ = ["SegmentationNode", "PARAMS", "segmentation_params", "main"]
@@ -156,10 +156,10 @@ class SegmentationNode(Node):
         self.add_post_set_parameters_callback(self._parameters_changed)
 
         self._counts = {"masks": 0, "empty": 0, "touching_border": 0, "malformed": 0,
-                        "duplicates": 0, "unpaired_dropped": 0}
+                        "unpaired_dropped": 0}
         self._problem = ""  # the last malformed / dropped input, "" after a good capture
         self._warning = ""  # about the last mask (empty, touches border)
-        self._pairer = StampPairer(depth, on_evict=self._given_up, repeats=True)
+        self._pairer = StampPairer(depth, on_evict=self._given_up)
         qos = capture_qos(depth)
         self._mask_pub = self.create_publisher(Image, "capture/mask", qos)
         self._joints_pub = self.create_publisher(JointState, "capture/mask_joint_state", qos)
@@ -185,7 +185,7 @@ class SegmentationNode(Node):
         except ValueError as exc:
             self._malformed("image", stamp, exc)
             return
-        self._add(self._pairer.add_a, "image", stamp, (msg, image))
+        self._add(self._pairer.add_a, stamp, (msg, image))
 
     def _on_joint_state(self, msg: JointState) -> None:
         stamp = stamp_key(msg.header.stamp)
@@ -194,15 +194,10 @@ class SegmentationNode(Node):
         except ValueError as exc:
             self._malformed("joint state", stamp, exc)
             return
-        self._add(self._pairer.add_b, "joint state", stamp, msg)
+        self._add(self._pairer.add_b, stamp, msg)
 
-    def _add(self, add, what: str, stamp, item) -> None:
-        try:
-            pair = add(stamp, item)
-        except DuplicateStampError as exc:
-            self._counts["duplicates"] += 1
-            self._report_problem(f"{what} ignored: {exc}")
-            return
+    def _add(self, add, stamp, item) -> None:
+        pair = add(stamp, item)
         if pair is not None:
             (image_msg, image), joints = pair
             self._process(image_msg, image, joints)

@@ -70,6 +70,7 @@ class CellClient:
         self.node = rclpy.create_node(name, namespace=namespace or "/", context=self._context)
         self._lock = threading.Lock()
         self._scan: ScanStatus | None = None
+        self._motor_connected = False
         self._changed = threading.Condition(self._lock)
         self.node.create_subscription(DiagnosticArray, "diagnostics", self._on_diagnostics, 50)
         self._clients = {n: self.node.create_client(Trigger, n) for n in SERVICES}
@@ -84,6 +85,9 @@ class CellClient:
                 with self._changed:
                     self._scan = ScanStatus(status)
                     self._changed.notify_all()
+            elif status.name.endswith(": motor"):
+                self._motor_connected = any(kv.key == "connected" and kv.value == "True"
+                                            for kv in status.values)
 
     @property
     def scan(self) -> ScanStatus | None:
@@ -92,15 +96,20 @@ class CellClient:
             return self._scan
 
     def wait_ready(self, timeout_s: float = 60.0) -> None:
-        """Until every service of the cell answers and the scan node reports; ServiceError."""
+        """Until every service of the cell answers, the scan node reports and the motor node
+        is connected to its controller; ServiceError."""
         deadline = time.monotonic() + timeout_s
         while True:
             missing = [n for n, c in self._clients.items() if not c.service_is_ready()]
-            if not missing and self.scan is not None:
+            if self.scan is None:
+                missing.append("scan progress")
+            if not self._motor_connected:
+                missing.append("a connected motor controller")
+            if not missing:
                 return
             if time.monotonic() > deadline:
                 raise ServiceError(f"the cell is not up after {timeout_s:g} s: "
-                                   f"{', '.join(missing) or 'no scan progress'} missing")
+                                   f"{', '.join(missing)} missing")
             time.sleep(0.1)
 
     def call(self, service: str, timeout_s: float = 30.0) -> Trigger.Response:

@@ -3,19 +3,19 @@
 A capture is an image and a joint state published with the *same*
 ``header.stamp``; they travel on two topics and may arrive in either order.
 :class:`StampPairer` holds the unmatched half of each capture until its
-partner arrives, and hands out every pair exactly once:
+partner arrives, and hands out the pair when its second half comes:
 
 * stamps must be identical (``sec``, ``nanosec``): no "nearest" matching,
   which could give a view another view's angles;
 * buffers are bounded: when ``capacity`` items of one stream wait, the one
   that has waited longest is evicted (counted, and reported through
   ``on_evict``);
-* a stamp seen twice on the same stream, or again after its pair was
-  completed or rejected, raises :class:`DuplicateStampError`; the pairer
-  remembers the last ``capacity`` completed or rejected stamps for this.
-  With ``repeats=True`` a completed capture may come again (a sender that
-  delivers at least once, resending what was not acknowledged): it is paired
-  afresh and counted in ``repeated``;
+* a stamp may come again (senders deliver at least once, resending what
+  was not receipted): a copy of a half that is still waiting replaces it,
+  and a capture already paired is paired afresh when its halves come
+  again; both count in ``repeated`` (the pairer remembers the last
+  ``capacity`` completed stamps for this count). Whoever consumes the
+  pairs must tolerate a capture twice (the reconstruction stores each once);
 * :meth:`StampPairer.reject` marks a capture bad (one half was malformed):
   its waiting half is dropped, and so is the other half when it comes.
 """
@@ -25,19 +25,9 @@ from __future__ import annotations
 from collections import OrderedDict
 from typing import Any, Callable
 
-__all__ = ["DuplicateStampError", "StampPairer", "stamp_key"]
+__all__ = ["StampPairer", "stamp_key"]
 
 Stamp = tuple[int, int]
-
-
-class DuplicateStampError(ValueError):
-    """A stamp arrived twice on one stream (or after its capture was finished)."""
-
-    def __init__(self, stream: str, stamp: Stamp, reason: str):
-        super().__init__(f"duplicate stamp {stamp[0]}.{stamp[1]:09d} on stream {stream!r}: "
-                         f"{reason}")
-        self.stream = stream
-        self.stamp = stamp
 
 
 def stamp_key(stamp) -> Stamp:
@@ -62,49 +52,37 @@ class StampPairer:
 
     capacity : int >= 1
         Most items waiting per stream; also how many finished stamps are
-        remembered for duplicate detection.
+        remembered (rejected ones stay rejected, paired ones count as repeats).
     on_evict : callable(stream, stamp, item, reason), optional
         Called for every item given up: ``stream`` "a" or "b", ``stamp``
         (sec, nanosec), ``reason`` "evicted" (full buffer) or "rejected"
         (its capture was marked by :meth:`reject`).
-    repeats : bool
-        Accept a completed capture again (paired anew) instead of raising.
 
-    Counters: ``pairs``, ``evicted`` ({"a": n, "b": n}), ``duplicates``,
-    ``rejected`` (captures marked by :meth:`reject`), ``dropped`` (halves
-    discarded because their capture was rejected), ``repeated`` (completed
-    captures that came again, with ``repeats``).
+    Counters: ``pairs``, ``evicted`` ({"a": n, "b": n}), ``repeated`` (halves
+    that came again), ``rejected`` (captures marked by :meth:`reject`),
+    ``dropped`` (halves discarded because their capture was rejected).
     """
 
     def __init__(self, capacity: int, *,
-                 on_evict: Callable[[str, Stamp, Any, str], None] | None = None,
-                 repeats: bool = False):
+                 on_evict: Callable[[str, Stamp, Any, str], None] | None = None):
         if isinstance(capacity, bool) or not isinstance(capacity, int) or capacity < 1:
             raise ValueError(f"capacity must be an integer >= 1, got {capacity!r}")
         self.capacity = capacity
-        self.repeats = bool(repeats)
         self.repeated = 0
         self._on_evict = on_evict
         self._pending: dict[str, OrderedDict[Stamp, Any]] = {"a": OrderedDict(), "b": OrderedDict()}
         self._finished: OrderedDict[Stamp, str] = OrderedDict()  # stamp -> "paired" / "rejected"
         self.pairs = 0
         self.evicted = {"a": 0, "b": 0}
-        self.duplicates = 0
         self.rejected = 0
         self.dropped = 0
 
     def add_a(self, stamp, item) -> tuple[Any, Any] | None:
-        """Add an item of stream a; ``(item_a, item_b)`` when it completes a pair, else None.
-
-        Raises :class:`DuplicateStampError` for a repeated stamp (the item is ignored).
-        """
+        """Add an item of stream a; ``(item_a, item_b)`` when it completes a pair, else None."""
         return self._add("a", "b", stamp_key(stamp), item)
 
     def add_b(self, stamp, item) -> tuple[Any, Any] | None:
-        """Add an item of stream b; ``(item_a, item_b)`` when it completes a pair, else None.
-
-        Raises :class:`DuplicateStampError` for a repeated stamp (the item is ignored).
-        """
+        """Add an item of stream b; ``(item_a, item_b)`` when it completes a pair, else None."""
         pair = self._add("b", "a", stamp_key(stamp), item)
         return None if pair is None else (pair[1], pair[0])
 
@@ -128,14 +106,12 @@ class StampPairer:
         if state == "rejected":
             self._drop(own, key, item)
             return None
-        if state == "paired" and self.repeats:
+        if state == "paired":                    # the whole capture comes again
             del self._finished[key]
             self.repeated += 1
-            state = None
-        if state == "paired" or key in self._pending[own]:
-            self.duplicates += 1
-            raise DuplicateStampError(own, key, "capture already paired" if state
-                                      else "an item with this stamp is already waiting")
+        elif key in self._pending[own]:          # the newer copy replaces the waiting one
+            del self._pending[own][key]
+            self.repeated += 1
         if key in self._pending[other]:
             partner = self._pending[other].pop(key)
             self._finish(key, "paired")

@@ -1,0 +1,342 @@
+"""The whole cell as separate OS processes: a scan of the mock mug, and the faults it survives.
+
+The cell is brought up by :mod:`sfs_ros.cli.bringup` (mock hardware with
+its mock camera, motor, segmentation, reconstruction and scan nodes) in the
+test run's private namespace and domain, with a small camera and fast axes
+so a scan takes seconds. A probe records every capture the scan node
+publishes; :class:`CellClient` drives the scan as a user's program would.
+The tests share one cell and run in order: each fault test starts a new
+scan, injects its fault mid-scan, checks that it is reported, mends it,
+resumes, and checks that every planned view reached the reconstruction
+exactly once.
+"""
+
+import math
+import os
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from sensor_msgs.msg import Image, JointState
+from std_srvs.srv import SetBool, Trigger
+
+from ros_harness import NAMESPACE, SOURCE_ROOT, RosProbe
+from sfs_ros.cell.scan_plan import ScanPlan
+from sfs_ros.cli.bringup import Cell, cell_nodes
+from sfs_ros.core.export import load_mesh
+from sfs_ros.core.grid import VoxelGrid
+from sfs_ros.core.objects import make_object
+from sfs_ros.core.synthetic import carving_box, score_against_truth
+from sfs_ros.ros import capture_qos
+from sfs_ros.ros.cell_client import CellClient, ScanFailed
+from sfs_ros.ros.convert import image_to_msg
+
+CONFIG = Path(__file__).resolve().parent.parent / "config"
+RINGS_DEG, PER_RING = [20.0, 55.0], 8
+PLAN = ScanPlan.from_rings(RINGS_DEG, PER_RING, True)         # 17 views
+RESOLUTION = 64
+# The capture is tagged with an encoder reading of the settled axes: machine position
+# (the target to the 3 decimals of the G-code line, 0.0005 deg) plus the encoder offset
+# (0.03, -0.02 deg) plus noise of at most 0.01 deg.
+ANGLE_BOUND_RAD = math.radians(0.0005 + 0.03 + 0.01) + 1e-9
+# A visual hull of 17 exact-enough silhouettes at 64^3: it contains the mug, and adds volume
+# where no view sees in (the cup, between the rings) plus half a voxel (1.8 mm) of surface
+# placement; test_reconstruction_node measures 0.955 with 29 views.
+VOLUME_IOU_MIN = 0.85
+SCAN_TIMEOUT_S = 180.0
+
+OVERRIDES = {
+    "rig.yaml": {"width": 320, "height": 240, "fx": 700.0, "fy": 700.0},
+    "mock_hardware.yaml": {"max_speed_deg_s": [720.0, 360.0], "accel_deg_s2": [7200.0, 3600.0],
+                           "homing_speed_deg_s": 600.0, "seed": 7},
+    "motor.yaml": {"status_rate_hz": 20.0, "reconnect_period_s": 0.5, "move_timeout_s": 5.0},
+    "reconstruction.yaml": {"resolution": RESOLUTION, "hull_rate_hz": 1.0,
+                            "bounds_m": carving_box(make_object("mug")).ravel().tolist()},
+    "scan.yaml": {"settle_samples": 2, "stall_s": 1.5, "move_timeout_s": 4.0, "move_retries": 1,
+                  "capture_timeout_s": 3.0, "capture_retries": 1, "receipt_timeout_s": 3.0,
+                  "home_timeout_s": 20.0},
+}
+
+
+def _write_config(folder: Path) -> Path:
+    """The repository's config with the test's small camera and fast axes."""
+    folder.mkdir()
+    for path in CONFIG.glob("*.yaml"):
+        data = yaml.safe_load(path.read_text())
+        if path.name in OVERRIDES:
+            data["/**"]["ros__parameters"].update(OVERRIDES[path.name])
+        (folder / path.name).write_text(yaml.safe_dump(data))
+    plan = {"rings": {"phi_deg": RINGS_DEG, "per_ring": PER_RING, "top_view": True}}
+    (folder / "scan_plan.yaml").write_text(yaml.safe_dump(plan))
+    return folder
+
+
+def wait(condition, *, what: str, timeout: float = 60.0) -> None:
+    """Poll ``condition`` until true (the probe spins in its own thread); AssertionError."""
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout:.0f} s waiting for {what}")
+        time.sleep(0.05)
+
+
+class Recorder:
+    """The probe's view of the captures, the diagnostics and the fault switches.
+
+    The probe spins in a background thread for the whole module, so nothing
+    queues up (and nothing is dropped) while the test waits on the client.
+    """
+
+    def __init__(self, probe: RosProbe):
+        self.probe = probe
+        node = probe.node
+        qos = capture_qos(100)
+        self.images, self.joints, self.diagnostics, self.encoders = [], [], [], []
+        node.create_subscription(JointState, "joint_states", self.encoders.append, 10)
+        node.create_subscription(Image, "capture/image", self.images.append, qos)
+        node.create_subscription(JointState, "capture/joint_state", self.joints.append, qos)
+        node.create_subscription(DiagnosticArray, "diagnostics", self.diagnostics.append, 100)
+        self.bad_image_pub = node.create_publisher(Image, "capture/image", qos)
+        self.bad_joints_pub = node.create_publisher(JointState, "joint_states", 10)
+        self.switches = {name: node.create_client(SetBool, f"mock/{name}")
+                         for name in ("unplug", "hang")}
+        self.drop_frame = node.create_client(Trigger, "mock/drop_frame")
+        threading.Thread(target=probe.executor.spin, daemon=True).start()
+
+    def set(self, switch: str, on: bool) -> None:
+        future = self.switches[switch].call_async(SetBool.Request(data=on))
+        wait(future.done, what=f"mock/{switch} answer")
+        assert future.result().success, future.result().message
+
+    def drop_next_frame(self) -> None:
+        future = self.drop_frame.call_async(Trigger.Request())
+        wait(future.done, what="mock/drop_frame answer")
+
+    def clear(self) -> None:
+        self.images.clear()
+        self.joints.clear()
+        self.diagnostics.clear()
+
+    def statuses(self, node: str, level=None) -> list[DiagnosticStatus]:
+        return [s for a in self.diagnostics for s in a.status
+                if s.name.endswith(f": {node}") and (level is None or s.level == level)]
+
+    def wait_status(self, node: str, text: str, level=DiagnosticStatus.ERROR) -> str:
+        """Spin until ``node`` reports ``text`` at ``level``; that message."""
+        def found():
+            return [s.message for s in self.statuses(node, level) if text in s.message]
+        wait(found, what=f"{node} diagnostics with {text!r}")
+        return found()[0]
+
+    def wait_encoders(self) -> None:
+        """Spin until the motor node publishes joint states again (after a fault is mended)."""
+        self.encoders.clear()
+        wait(lambda: len(self.encoders) >= 3, what="joint_states from the motor node")
+
+    def wait_captures(self, n: int) -> None:
+        wait(lambda: len(self.images) >= n and len(self.joints) >= n, what=f"{n} captures")
+
+
+@pytest.fixture(scope="module")
+def cell(tmp_path_factory):
+    root = tmp_path_factory.mktemp("cell")
+    config = _write_config(root / "config")
+    output = root / "output"
+    output.mkdir()
+    env = dict(os.environ, PYTHONPATH=str(SOURCE_ROOT))
+    log_path = root / "cell.log"
+    with open(log_path, "w") as log:
+        bringup = Cell(cell_nodes(config, output, mock=True), namespace=NAMESPACE, log=log,
+                       env=env).start()
+        client = CellClient(NAMESPACE, name="test_cell_client")
+        probe = RosProbe("cell_probe")
+        try:
+            client.wait_ready(timeout_s=90.0)
+            yield {"cell": bringup, "client": client, "recorder": Recorder(probe),
+                   "output": output, "log": log_path}
+        finally:
+            probe.close()
+            client.close()
+            codes = bringup.stop()
+    assert all(code == 0 for code in codes.values()), \
+        f"nodes did not stop cleanly: {codes}\n{log_path.read_text()[-5000:]}"
+    assert not (output / "ttyMOCK").exists()
+
+
+def _stamps(messages) -> list[tuple[int, int]]:
+    return [(m.header.stamp.sec, m.header.stamp.nanosec) for m in messages]
+
+
+def _matched_views(joints) -> list[int]:
+    """The plan view each capture's encoder angles belong to (asserting they are close)."""
+    views = []
+    for msg in joints:
+        angles = np.array(msg.position)
+        error = np.abs(PLAN.views - angles).max(axis=1)
+        best = int(np.argmin(error))
+        assert error[best] <= ANGLE_BOUND_RAD, \
+            f"capture angles {angles} are {error[best]:.2e} rad from the nearest planned view"
+        views.append(best)
+    return views
+
+
+def _reconstruction_views(rec: Recorder) -> int:
+    """Views in the reconstruction node's current scan, by its latest report (-1: none yet)."""
+    statuses = rec.statuses("reconstruction")
+    if not statuses:
+        return -1
+    return int({kv.key: kv.value for kv in statuses[-1].values}["scan_views"])
+
+
+def _check_every_view_once(rec: Recorder, status, *, resent_ok: bool = False) -> None:
+    """Every planned view captured once, and stored once by the reconstruction."""
+    assert status.complete and status.count("total") == len(PLAN)
+    wait(lambda: len(set(_stamps(rec.joints))) >= len(PLAN), what="every capture", timeout=10)
+    stamps = _stamps(rec.joints)
+    unique = sorted(set(stamps))
+    assert set(unique) <= set(_stamps(rec.images))              # each angle with its image
+    if not resent_ok:
+        assert len(stamps) == len(unique)
+    by_stamp = dict(zip(stamps, rec.joints))
+    assert sorted(_matched_views(by_stamp[s] for s in unique)) == list(range(len(PLAN)))
+    wait(lambda: _reconstruction_views(rec) == len(PLAN), timeout=30.0,
+         what=f"the reconstruction holding {len(PLAN)} views")
+
+
+def _scan(cell, *, midway=None, at: int = 4):
+    """Start a scan; once ``at`` captures are out, call ``midway()``. Returns the scan number."""
+    rec, client = cell["recorder"], cell["client"]
+    rec.clear()
+    scan = client.start_scan()
+    if midway is not None:
+        rec.wait_captures(at)
+        midway()
+    return scan
+
+
+def test_reconstruct_without_views_fails_clearly(cell):
+    client = cell["client"]
+    assert client.call("reset").success
+    with pytest.raises(ScanFailed, match="no views"):
+        client.reconstruct()
+
+
+def test_full_scan_reconstructs_the_mug_from_every_view_once(cell):
+    rec, client = cell["recorder"], cell["client"]
+    scan = _scan(cell)
+    status = client.wait_scan_done(scan, timeout_s=SCAN_TIMEOUT_S)
+    _check_every_view_once(rec, status)
+    assert status.count("resends") == 0 and status.level == DiagnosticStatus.OK
+    summary = client.reconstruct()
+    path = Path(summary["path"])
+    assert path.is_file() and path.resolve().is_relative_to(cell["output"].resolve())
+    assert Path(summary["preview_path"]).is_file()
+    assert summary["views_received"] == summary["views_used"] == len(PLAN)
+    assert summary["watertight"]
+    mug = make_object("mug")
+    vertices, faces = load_mesh(path)
+    grid = VoxelGrid.cube(*carving_box(mug), RESOLUTION)
+    assert score_against_truth(mug, vertices, faces, grid)["volume_iou"] >= VOLUME_IOU_MIN
+
+
+def test_a_missing_frame_is_retaken(cell):
+    rec, client = cell["recorder"], cell["client"]
+    scan = _scan(cell, midway=rec.drop_next_frame)
+    status = client.wait_scan_done(scan, timeout_s=SCAN_TIMEOUT_S)
+    warning = rec.wait_status("scan", "frame missing", DiagnosticStatus.WARN)
+    assert "retrying" in warning
+    assert status.count("capture_retries") == 1
+    _check_every_view_once(rec, status)
+
+
+def test_serial_device_unplugged_mid_scan_pauses_then_resumes(cell):
+    rec, client = cell["recorder"], cell["client"]
+    scan = _scan(cell, midway=lambda: rec.set("unplug", True))
+    with pytest.raises(ScanFailed, match="paused at view"):
+        client.wait_scan_done(scan, timeout_s=SCAN_TIMEOUT_S)
+    rec.wait_status("motor", "connection lost")
+    rec.set("unplug", False)
+    rec.wait_encoders()                                         # the motor node reconnected
+    assert client.call("scan/resume").success
+    status = client.wait_scan_done(scan, timeout_s=SCAN_TIMEOUT_S)
+    _check_every_view_once(rec, status)
+
+
+def test_a_move_that_times_out_pauses_then_resumes(cell):
+    rec, client = cell["recorder"], cell["client"]
+    scan = _scan(cell, midway=lambda: rec.set("hang", True))
+    with pytest.raises(ScanFailed, match="timeout"):
+        client.wait_scan_done(scan, timeout_s=SCAN_TIMEOUT_S)
+    rec.wait_status("motor", "no answer")
+    rec.set("hang", False)
+    rec.wait_encoders()
+    assert client.call("scan/resume").success
+    status = client.wait_scan_done(scan, timeout_s=SCAN_TIMEOUT_S)
+    _check_every_view_once(rec, status)
+
+
+def test_cancel_then_resume(cell):
+    rec, client = cell["recorder"], cell["client"]
+    scan = _scan(cell)
+    rec.wait_captures(3)
+    answer = client.call("scan/cancel")
+    assert answer.success and "cancelled at view" in answer.message
+    with pytest.raises(ScanFailed):
+        client.wait_scan_done(scan, timeout_s=30.0)
+    assert client.call("scan/resume").success
+    status = client.wait_scan_done(scan, timeout_s=SCAN_TIMEOUT_S)
+    _check_every_view_once(rec, status)
+
+
+def test_reconstruction_restarted_mid_scan_loses_no_view(cell):
+    rec, client, bringup = cell["recorder"], cell["client"], cell["cell"]
+
+    def restart():
+        assert bringup.stop_node("reconstruction") == 0
+        bringup.start_node("reconstruction")
+
+    scan = _scan(cell, midway=restart, at=6)
+    status = client.wait_scan_done(scan, timeout_s=SCAN_TIMEOUT_S)
+    # The scan node sent every capture again to the new reconstruction node.
+    assert status.count("resends") >= 6
+    _check_every_view_once(rec, status, resent_ok=True)
+    summary = client.reconstruct()
+    assert summary["views_received"] == summary["views_used"] == len(PLAN)
+
+
+def test_segmentation_restarted_mid_scan_loses_no_view(cell):
+    rec, client, bringup = cell["recorder"], cell["client"], cell["cell"]
+
+    def restart():
+        assert bringup.stop_node("segmentation") == 0
+        bringup.start_node("segmentation")
+
+    scan = _scan(cell, midway=restart, at=6)
+    status = client.wait_scan_done(scan, timeout_s=SCAN_TIMEOUT_S)
+    _check_every_view_once(rec, status, resent_ok=True)
+
+
+def test_malformed_messages_are_reported_and_the_scan_goes_on(cell):
+    rec, client = cell["recorder"], cell["client"]
+
+    def garbage():
+        bad = image_to_msg(np.zeros((4, 4, 3), np.uint8), stamp=(5, 0), frame_id="c")
+        bad.encoding = "yuv422"
+        rec.bad_image_pub.publish(bad)
+        rec.bad_joints_pub.publish(JointState(name=["turntable"], position=[0.1]))
+
+    scan = _scan(cell, midway=garbage)
+    status = client.wait_scan_done(scan, timeout_s=SCAN_TIMEOUT_S)
+    rec.wait_status("segmentation", "yuv422")
+    _check_every_view_once(rec, status)
+    assert cell["cell"].exited() == {}
+
+
+def test_every_node_is_still_running_and_the_last_scan_reconstructs(cell):
+    assert cell["cell"].exited() == {}
+    summary = cell["client"].reconstruct()
+    assert summary["views_used"] == len(PLAN)
