@@ -35,12 +35,9 @@ def default_config_dir() -> Path:
     candidates = [Path(sys.prefix) / "share" / "sfs_ros" / "config",
                   Path(__file__).resolve().parents[2] / "config"]
     try:
-        from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
-        try:
-            candidates.insert(0, Path(get_package_share_directory("sfs_ros")) / "config")
-        except PackageNotFoundError:
-            pass
-    except ImportError:
+        from ament_index_python.packages import get_package_share_directory
+        candidates.insert(0, Path(get_package_share_directory("sfs_ros")) / "config")
+    except (ImportError, LookupError, OSError):   # no ament index (a plain venv) or no entry
         pass
     for folder in candidates:
         if (folder / "rig.yaml").is_file():

@@ -46,7 +46,8 @@ a restarted node and never carved twice.
 Diagnostics values: ``scan`` (1 for the first ``scan/start``, then 2, ...),
 ``state`` (idle, starting, running, paused, cancelled, done), ``view`` (the view being taken, 1-based), ``total``, ``captured``,
 ``receipted``, ``resends``, ``move_retries``, ``capture_retries``,
-``lost_in_transport``, ``malformed``. Parameters: :data:`PARAMS`.
+``lost_in_transport``, ``malformed``, and this scan's seconds of ``motion_s``
+(command to settled) and ``shutter_s`` (shutter call to frame in hand). Parameters: :data:`PARAMS`.
 """
 
 from __future__ import annotations
@@ -171,8 +172,7 @@ class ScanNode(Node):
         self._ledger = self._new_ledger()
         self._state, self._view, self._scan = "idle", 0, 0
         self._problem = self._warning = ""
-        self._counts = {"resends": 0, "move_retries": 0, "capture_retries": 0,
-                        "lost_in_transport": 0, "malformed": 0}
+        self._counts = self._new_counts()
         self._receivers: int | None = None    # publishers of receipts at the last tick
         self._prepared = False
 
@@ -200,6 +200,11 @@ class ScanNode(Node):
         self.get_logger().info(f"scan plan of {len(self.plan)} views ({turntable:.0f} deg of "
                                f"turntable and {carriage:.0f} deg of carriage travel); "
                                "call scan/start")
+
+    @staticmethod
+    def _new_counts() -> dict:
+        return {"resends": 0, "move_retries": 0, "capture_retries": 0, "lost_in_transport": 0,
+                "malformed": 0, "motion_s": 0.0, "shutter_s": 0.0}
 
     def _new_ledger(self) -> CaptureLedger:
         return CaptureLedger(self._p["receipt_timeout_s"], self._p["max_sends"])
@@ -277,6 +282,7 @@ class ScanNode(Node):
             return response
         with self._lock:
             self._ledger = self._new_ledger()
+            self._counts = self._new_counts()
             self._problem = self._warning = ""
         self._prepared = False
         self._view = 0
@@ -400,6 +406,8 @@ class ScanNode(Node):
                     state = detector.poll(time.monotonic())
                 else:
                     state = detector.update(time.monotonic(), *reading)
+            with self._lock:
+                self._counts["motion_s"] += state.elapsed_s
             if state.settled:
                 return
             reason = f"move {state.reason}"
@@ -411,6 +419,7 @@ class ScanNode(Node):
         reason = ""
         for attempt in range(p["capture_retries"] + 1):
             self._check_cancel()
+            start = time.monotonic()
             try:
                 frame, reading = self._shoot()
             except ValueError as exc:
@@ -420,6 +429,7 @@ class ScanNode(Node):
             stamp = stamp_key(frame.header.stamp)
             joints = joint_state(reading.theta_rad, reading.phi_rad, stamp=stamp)
             with self._lock:
+                self._counts["shutter_s"] += time.monotonic() - start
                 self._ledger.add(view, stamp, (frame, joints), time.monotonic())
             self._image_pub.publish(frame)
             self._joints_pub.publish(joints)
@@ -466,7 +476,8 @@ class ScanNode(Node):
 
     def _publish_diagnostics(self) -> None:
         with self._lock:
-            values = dict(self._counts, scan=self._scan, state=self._state, view=self._view + 1,
+            values = dict(self._counts, motion_s=round(self._counts["motion_s"], 4),
+                          shutter_s=round(self._counts["shutter_s"], 4), scan=self._scan, state=self._state, view=self._view + 1,
                           total=len(self.plan), captured=self._ledger.captured,
                           receipted=self._ledger.receipted)
         if self._problem:

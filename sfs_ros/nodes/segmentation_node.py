@@ -24,6 +24,10 @@ message (unknown encoding, sizes that do not add up, a joint state without
 both joints or with NaN) is logged, counted in the diagnostics (ERROR level
 until the next good capture) and its capture is dropped; the node carries on.
 
+Diagnostics values: counts (masks, empty, touching_border, malformed,
+unpaired_dropped, repeats), waiting halves, and ``segment_s``, the seconds
+spent segmenting since start-up.
+
 Parameters: the fields of :class:`sfs_ros.core.segment.SegmentationParams`
 (see there) with ROS-friendly encodings, plus ``preset`` and
 ``queue_depth``; see :data:`PARAMS`. ``preset`` (read-only) names an entry of
@@ -32,6 +36,8 @@ values given explicitly still win.
 """
 
 from __future__ import annotations
+
+import time
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
@@ -157,6 +163,7 @@ class SegmentationNode(Node):
 
         self._counts = {"masks": 0, "empty": 0, "touching_border": 0, "malformed": 0,
                         "unpaired_dropped": 0}
+        self._segment_s = 0.0   # time spent segmenting, for the benchmark
         self._problem = ""  # the last malformed / dropped input, "" after a good capture
         self._warning = ""  # about the last mask (empty, touches border)
         self._pairer = StampPairer(depth, on_evict=self._given_up)
@@ -223,11 +230,13 @@ class SegmentationNode(Node):
     # -- output ------------------------------------------------------------------------------
 
     def _process(self, image_msg: Image, image: np.ndarray, joints: JointState) -> None:
+        start = time.perf_counter()
         try:
             result = segment(image, self._seg)
         except ValueError as exc:  # e.g. an image smaller than the core accepts
             self._malformed("image", stamp_key(image_msg.header.stamp), exc)
             return
+        self._segment_s += time.perf_counter() - start
         mask_msg = image_to_msg(result.mask, stamp=image_msg.header.stamp,
                                 frame_id=image_msg.header.frame_id)
         self._mask_pub.publish(mask_msg)
@@ -255,7 +264,8 @@ class SegmentationNode(Node):
         else:
             level, message = DiagnosticStatus.OK, f"{self._counts['masks']} masks"
         values = dict(self._counts)
-        values.update(repeats=self._pairer.repeated, waiting_images=self._pairer.pending("a"),
+        values.update(repeats=self._pairer.repeated, segment_s=round(self._segment_s, 4),
+                      waiting_images=self._pairer.pending("a"),
                       waiting_joint_states=self._pairer.pending("b"))
         self._diag_pub.publish(diagnostic_array(
             f"{self.get_name()}: segmentation", level, message, values,

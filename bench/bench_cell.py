@@ -1,0 +1,207 @@
+"""End to end: a 72-view simulated scan through the cell's nodes, stage by stage.
+
+The cell runs as in ``sfs-demo`` (mock hardware with its mock camera, motor,
+scan, segmentation and reconstruction nodes, each a separate process; the
+repository's config: 640 x 480 camera, the mock axes' real speeds, 192^3),
+with a plan of three rings of 24 views. An observer node in this process
+sees each capture on ``capture/image`` and its receipt on ``capture/stored``,
+and calls ``reconstruct`` the moment the last receipt arrives.
+
+Stages (sums over the views, seconds): motion (command to settled, scan
+node), capture (shutter call to frame in hand: rendering plus the frame's
+trip), segmentation (segmentation node), storing and carving
+(reconstruction node), transport (capture seen to receipt, minus
+segmentation and carving: the two hops and any queueing), meshing (the
+``reconstruct`` call: the pipeline again on the stored masks), and the
+latency from the last view to the mesh.
+
+Baseline, measured in the same run: the same views rendered, segmented,
+carved and meshed in one process by the core pipeline, no ROS (the
+``sfs-simulate`` path). Ratio = baseline / cell.
+
+Run: ``python -m bench.bench_cell`` (``--quick``: 24 views at 128^3).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import yaml
+
+from sfs_ros.cell.scan_plan import ScanPlan
+from sfs_ros.cli.bringup import Cell, cell_nodes
+from sfs_ros.core.inputs import load_views
+from sfs_ros.core.objects import make_object
+from sfs_ros.core.pipeline import ReconstructionParams, reconstruct
+from sfs_ros.core.session import write_session
+from sfs_ros.core.synthetic import simulate_scan
+from sfs_ros.ros.rig_params import RIG_PARAMS, rig_calibration
+
+CONFIG = Path(__file__).resolve().parent.parent / "config"
+
+
+def _config(folder: Path, rings: dict, resolution: int) -> dict:
+    """The repository's config with the benchmark's plan and grid; the merged parameters."""
+    folder.mkdir()
+    merged = {}
+    for path in CONFIG.glob("*.yaml"):
+        data = yaml.safe_load(path.read_text())
+        if path.name == "reconstruction.yaml":
+            data["/**"]["ros__parameters"]["resolution"] = resolution
+        if path.name == "scan_plan.yaml":
+            data = {"rings": rings}
+        else:
+            merged.update(data["/**"]["ros__parameters"])
+        (folder / path.name).write_text(yaml.safe_dump(data))
+    return merged
+
+
+class Observer:
+    """Times each capture and its receipt, and reconstructs when the last receipt is in."""
+
+    def __init__(self, client, total: int):
+        from sensor_msgs.msg import Image
+        from std_msgs.msg import Header
+
+        from sfs_ros.ros import capture_qos
+
+        self.seen, self.receipted = {}, {}
+        self.total = total
+        self.all_in = threading.Event()
+        qos = capture_qos(200)
+        client.node.create_subscription(Image, "capture/image", self._on_capture, qos)
+        client.node.create_subscription(Header, "capture/stored", self._on_receipt, qos)
+
+    def _on_capture(self, msg) -> None:
+        self.seen.setdefault((msg.header.stamp.sec, msg.header.stamp.nanosec), time.monotonic())
+
+    def _on_receipt(self, msg) -> None:
+        self.receipted.setdefault((msg.stamp.sec, msg.stamp.nanosec), time.monotonic())
+        if len(self.receipted) >= self.total:
+            self.all_in.set()
+
+    def in_flight_s(self) -> float:
+        """Capture seen to receipt, summed over the views."""
+        return sum(self.receipted[s] - t for s, t in self.seen.items() if s in self.receipted)
+
+
+def _cell_run(config: Path, output: Path, total: int) -> dict:
+    from sfs_ros.ros.cell_client import CellClient
+
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    namespace = f"/sfs_bench_{os.getpid()}"
+    with open(output / "cell.log", "w") as log, \
+            Cell(cell_nodes(config, output, mock=True), namespace=namespace, log=log), \
+            CellClient(namespace, name="bench_observer") as client:
+        observer = Observer(client, total)
+        client.wait_ready(timeout_s=120.0)
+        start = time.monotonic()
+        scan = client.start_scan()
+        if not observer.all_in.wait(timeout=1800.0):
+            raise RuntimeError(f"only {len(observer.receipted)} of {total} views receipted")
+        summary = client.reconstruct()
+        end = time.monotonic()
+        status = client.wait_scan_done(scan, timeout_s=30.0)
+        seg = _node_value(client, "segmentation", "segment_s")
+        carve = _node_value(client, "reconstruction", "carve_s")
+    return {"total_s": end - start, "latency_s": end - max(observer.seen.values()),
+            "motion_s": float(status.values["motion_s"]),
+            "capture_s": float(status.values["shutter_s"]),
+            "segmentation_s": seg, "carving_s": carve,
+            "transport_s": observer.in_flight_s() - seg - carve,
+            "meshing_s": summary["seconds"], "views_used": summary["views_used"]}
+
+
+def _node_value(client, node: str, key: str) -> float:
+    """The latest value of ``key`` in the ``node``'s diagnostics (waits up to 5 s)."""
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    found = threading.Event()
+    value = {}
+
+    def on(msg):
+        for status in msg.status:
+            if status.name.endswith(f": {node}"):
+                value.update({kv.key: kv.value for kv in status.values})
+                found.set()
+
+    sub = client.node.create_subscription(DiagnosticArray, "diagnostics", on, 50)
+    try:
+        if not found.wait(5.0):
+            raise RuntimeError(f"no diagnostics from the {node} node")
+        return float(value[key])
+    finally:
+        client.node.destroy_subscription(sub)
+
+
+def _baseline(params: dict, plan: ScanPlan, resolution: int, folder: Path) -> dict:
+    rig = rig_calibration({p.name: params[p.name] for p in RIG_PARAMS})
+    mug = make_object(params["object"])
+    start = time.perf_counter()
+    captures = simulate_scan(mug, rig, plan.views, seed=0)
+    render_s = time.perf_counter() - start
+    box = params["bounds_m"]
+    write_session(folder, [(c.name, c.image) for c in captures],
+                  [(c.theta_rad, c.phi_rad) for c in captures], rig,
+                  bounds_m=[box[:3], box[3:]])
+    result = reconstruct(load_views(folder), ReconstructionParams(resolution=resolution))
+    t = result.report["timings_s"]
+    after_segmentation = sum(v for k, v in t.items() if k != "segmentation")
+    return {"capture_s": render_s, "segmentation_s": t["segmentation"],
+            "carving_s": t["carving"], "meshing_s": after_segmentation,
+            "total_s": render_s + sum(t.values())}
+
+
+def run(quick: bool = False) -> list[dict]:
+    rings = ({"phi_deg": [20, 50], "per_ring": 12} if quick
+             else {"phi_deg": [15, 40, 65], "per_ring": 24})
+    resolution = 128 if quick else 192
+    plan = ScanPlan.from_dict({"rings": rings})
+    n = len(plan)
+    with tempfile.TemporaryDirectory(prefix="sfs_bench_cell_") as tmp:
+        root = Path(tmp)
+        params = _config(root / "config", rings, resolution)
+        (root / "output").mkdir()
+        cell = _cell_run(root / "config", root / "output", n)
+        base = _baseline(params, plan, resolution, root / "baseline")
+    label = f"cell, {n} views of {params['width']}x{params['height']} at {resolution}^3"
+
+    def row(stage, ours, baseline=None):
+        return {"name": f"{label}: {stage}", "seconds": ours, "baseline_seconds": baseline,
+                "ratio": None if baseline is None else baseline / ours}
+
+    notes = [f"cell: {cell['views_used']} of {n} views used; baselines are the in-process "
+             "pipeline on the same views (rendering for capture; everything after "
+             "segmentation for meshing and for the latency)"]
+    return [
+        row("end to end (start to mesh)", cell["total_s"], base["total_s"]),
+        row("motion (move + settle)", cell["motion_s"]),
+        row("capture (shutter to frame)", cell["capture_s"], base["capture_s"]),
+        row("transport (2 hops + queueing)", cell["transport_s"]),
+        row("segmentation", cell["segmentation_s"], base["segmentation_s"]),
+        row("storing + carving, incremental", cell["carving_s"], base["carving_s"]),
+        row("meshing (reconstruct service)", cell["meshing_s"], base["meshing_s"]),
+        {**row("latency, last view to mesh", cell["latency_s"], base["meshing_s"]),
+         "notes": notes},
+    ]
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--quick", action="store_true")
+    args = parser.parse_args(argv)
+    for r in run(quick=args.quick):
+        base = "" if r["baseline_seconds"] is None else \
+            f"  baseline {r['baseline_seconds']:.3f} s  ratio {r['ratio']:.2f}x"
+        print(f"{r['name']:<70} {r['seconds']:8.3f} s{base}")
+        for note in r.get("notes", []):
+            print("note: " + note)
+
+
+if __name__ == "__main__":
+    main()
