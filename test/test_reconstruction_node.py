@@ -21,8 +21,6 @@ from sfs_ros.core.plan import ring_plan
 from sfs_ros.core.render import rasterize_silhouette
 from sfs_ros.core.rig import RigCalibration, rig_camera
 from sfs_ros.core.synthetic import carving_box, score_against_truth
-from sfs_ros.nodes.reconstruction_node import PARAMS
-from sfs_ros.ros.rig_params import RIG_PARAMS
 from sfs_ros.ros import capture_qos, result_qos
 from sfs_ros.ros.convert import cloud_to_points, image_to_msg, joint_state, shape_to_mesh
 
@@ -244,14 +242,3 @@ def test_missing_output_dir_exits_with_one_line():
     code, lines = process.exit_lines()
     assert code != 0
     assert len(lines) == 1 and "'output_dir'" in lines[0], lines
-
-
-def test_config_files_list_every_parameter():
-    config = Path(__file__).resolve().parent.parent / "config"
-    rig = yaml.safe_load((config / "rig.yaml").read_text())["/**"]["ros__parameters"]
-    own = yaml.safe_load((config / "reconstruction.yaml").read_text())["/**"]["ros__parameters"]
-    # The rig file holds the simulated cell's calibration, the node's file the rest (with
-    # the simulated mug's carving box): every parameter, each in one place.
-    assert set(rig) == {p.name for p in RIG_PARAMS}
-    assert set(own) == {p.name for p in PARAMS if p not in RIG_PARAMS}
-    assert all(own[p.name] == p.default for p in PARAMS if p.name not in {"bounds_m", *rig})
