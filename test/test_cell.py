@@ -253,30 +253,28 @@ def test_a_missing_frame_is_retaken(cell):
     _check_every_view_once(rec, status)
 
 
-def test_serial_device_unplugged_mid_scan_pauses_then_resumes(cell):
+def _fault_pauses_then_resumes(cell, switch: str, *, paused: str, motor_says: str) -> None:
+    """Switch a mock fault on mid-scan: the scan pauses (``paused`` in its reason) and the
+    motor node reports ``motor_says``; switched off again, the scan resumes and completes."""
     rec, client = cell["recorder"], cell["client"]
-    scan = _scan(cell, midway=lambda: rec.set("unplug", True))
-    with pytest.raises(ScanFailed, match="paused at view"):
+    scan = _scan(cell, midway=lambda: rec.set(switch, True))
+    with pytest.raises(ScanFailed, match=paused):
         client.wait_scan_done(scan, timeout_s=SCAN_TIMEOUT_S)
-    rec.wait_status("motor", "connection lost")
-    rec.set("unplug", False)
-    rec.wait_encoders()                                         # the motor node reconnected
+    rec.wait_status("motor", motor_says)
+    rec.set(switch, False)
+    rec.wait_encoders()                                         # the motor node is back
     assert client.call("scan/resume").success
     status = client.wait_scan_done(scan, timeout_s=SCAN_TIMEOUT_S)
     _check_every_view_once(rec, status)
+
+
+def test_serial_device_unplugged_mid_scan_pauses_then_resumes(cell):
+    _fault_pauses_then_resumes(cell, "unplug", paused="paused at view",
+                               motor_says="connection lost")
 
 
 def test_a_move_that_times_out_pauses_then_resumes(cell):
-    rec, client = cell["recorder"], cell["client"]
-    scan = _scan(cell, midway=lambda: rec.set("hang", True))
-    with pytest.raises(ScanFailed, match="timeout"):
-        client.wait_scan_done(scan, timeout_s=SCAN_TIMEOUT_S)
-    rec.wait_status("motor", "no answer")
-    rec.set("hang", False)
-    rec.wait_encoders()
-    assert client.call("scan/resume").success
-    status = client.wait_scan_done(scan, timeout_s=SCAN_TIMEOUT_S)
-    _check_every_view_once(rec, status)
+    _fault_pauses_then_resumes(cell, "hang", paused="move timeout", motor_says="no answer")
 
 
 def test_cancel_then_resume(cell):
@@ -292,32 +290,31 @@ def test_cancel_then_resume(cell):
     _check_every_view_once(rec, status)
 
 
-def test_reconstruction_restarted_mid_scan_loses_no_view(cell):
-    rec, client, bringup = cell["recorder"], cell["client"], cell["cell"]
+def _restarted_mid_scan(cell, node: str):
+    """Stop ``node`` (SIGINT) after 6 captures and start it again; the finished scan's status,
+    every view checked to have reached the reconstruction once."""
+    rec, bringup = cell["recorder"], cell["cell"]
 
     def restart():
-        assert bringup.stop_node("reconstruction") == 0
-        bringup.start_node("reconstruction")
+        assert bringup.stop_node(node) == 0
+        bringup.start_node(node)
 
     scan = _scan(cell, midway=restart, at=6)
-    status = client.wait_scan_done(scan, timeout_s=SCAN_TIMEOUT_S)
+    status = cell["client"].wait_scan_done(scan, timeout_s=SCAN_TIMEOUT_S)
+    _check_every_view_once(rec, status, resent_ok=True)
+    return status
+
+
+def test_reconstruction_restarted_mid_scan_loses_no_view(cell):
+    status = _restarted_mid_scan(cell, "reconstruction")
     # The scan node sent every capture again to the new reconstruction node.
     assert status.count("resends") >= 6
-    _check_every_view_once(rec, status, resent_ok=True)
-    summary = client.reconstruct()
+    summary = cell["client"].reconstruct()
     assert summary["views_received"] == summary["views_used"] == len(PLAN)
 
 
 def test_segmentation_restarted_mid_scan_loses_no_view(cell):
-    rec, client, bringup = cell["recorder"], cell["client"], cell["cell"]
-
-    def restart():
-        assert bringup.stop_node("segmentation") == 0
-        bringup.start_node("segmentation")
-
-    scan = _scan(cell, midway=restart, at=6)
-    status = client.wait_scan_done(scan, timeout_s=SCAN_TIMEOUT_S)
-    _check_every_view_once(rec, status, resent_ok=True)
+    _restarted_mid_scan(cell, "segmentation")
 
 
 def test_malformed_messages_are_reported_and_the_scan_goes_on(cell):

@@ -203,8 +203,8 @@ class ScanNode(Node):
 
     @staticmethod
     def _new_counts() -> dict:
-        return {"resends": 0, "move_retries": 0, "capture_retries": 0, "lost_in_transport": 0,
-                "malformed": 0, "motion_s": 0.0, "shutter_s": 0.0}
+        return {"resends": 0, "move_retries": 0, "capture_retries": 0, "malformed": 0,
+                "motion_s": 0.0, "shutter_s": 0.0}
 
     def _new_ledger(self) -> CaptureLedger:
         return CaptureLedger(self._p["receipt_timeout_s"], self._p["max_sends"])
@@ -254,7 +254,6 @@ class ScanNode(Node):
             more, lost = self._ledger.due(now)
             resend += more
             self._counts["resends"] += len(resend)
-            self._counts["lost_in_transport"] += len(lost)
         if came_back:
             self.get_logger().warning(f"the reconstruction is (back) up: sending all "
                                       f"{len(resend)} captures of the scan again")
@@ -479,7 +478,8 @@ class ScanNode(Node):
             values = dict(self._counts, motion_s=round(self._counts["motion_s"], 4),
                           shutter_s=round(self._counts["shutter_s"], 4), scan=self._scan, state=self._state, view=self._view + 1,
                           total=len(self.plan), captured=self._ledger.captured,
-                          receipted=self._ledger.receipted)
+                          receipted=self._ledger.receipted,
+                          lost_in_transport=self._ledger.given_up)
         if self._problem:
             level, message = DiagnosticStatus.ERROR, self._problem
         elif self._warning:
