@@ -59,9 +59,6 @@ class EncoderHistory:
             raise ValueError(f"encoder angles must be finite, got {theta_rad}, {phi_rad}")
         self._readings.append(EncoderReading(tuple(stamp), float(theta_rad), float(phi_rad)))
 
-    def latest(self) -> EncoderReading | None:
-        return self._readings[-1] if self._readings else None
-
     def has_after(self, stamp: Stamp) -> bool:
         """Whether a reading stamped at or after ``stamp`` has arrived."""
         return any(r.stamp >= tuple(stamp) for r in self._readings)
@@ -134,11 +131,12 @@ class CaptureLedger:
         return entry
 
     def receipt(self, stamp: Stamp) -> bool:
-        """Mark the capture at ``stamp`` received downstream; False if it is not ours."""
+        """Mark the capture at ``stamp`` received downstream (also one given up: it made it
+        after all); False if it is not ours."""
         entry = self.entries.get(tuple(stamp))
         if entry is None:
             return False
-        entry.receipted = True
+        entry.receipted, entry.given_up = True, False
         return True
 
     def due(self, now_s: float) -> tuple[list[LedgerEntry], list[LedgerEntry]]:

@@ -93,7 +93,7 @@ def cell_nodes(config_dir, output_dir, *, mock: bool) -> list[NodeSpec]:
         NodeSpec("reconstruction", "reconstruction_node",
                  files("rig.yaml", "reconstruction.yaml"), {"output_dir": str(output)}),
         NodeSpec("scan", "scan_node", files("scan.yaml"),
-                 {"plan_file": str(config / "scan_plan.yaml")}),
+                 {"plan_file": files("scan_plan.yaml")[0]}),
     ]
 
 

@@ -100,6 +100,10 @@ class MockHardwareNode(Node):
                 raise ParameterError("background_rgb", f"got {p['background_rgb']}, expected "
                                      "three values r, g, b")
             calibration = rig_calibration(p)
+            link = Path(p["port_link"]) if p["port_link"] else None
+            if link is not None and not link.parent.is_dir():
+                raise ParameterError("port_link", f"got {p['port_link']!r}: its folder does not "
+                                     "exist; expected a path in an existing folder")
         except ParameterError:
             super().destroy_node()         # no simulator started yet
             raise
@@ -113,7 +117,7 @@ class MockHardwareNode(Node):
         self.camera_source = RenderedSource(
             make_object(p["object"]), calibration, self.simulator.true_position_rad,
             background_rgb=p["background_rgb"], noise_sigma=p["image_noise"], seed=seed)
-        self._link = Path(p["port_link"]) if p["port_link"] else None
+        self._link = link
         self._port_pub = self.create_publisher(String, "mock/port", result_qos())
         self.create_service(SetBool, "mock/unplug", self._on_unplug)
         self.create_service(SetBool, "mock/hang", self._on_hang)

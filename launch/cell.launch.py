@@ -1,0 +1,44 @@
+"""The cell with its real hardware: the camera and the motor controller (motor.yaml's port).
+
+    ros2 launch sfs_ros cell.launch.py output_dir:=/data/scans [namespace:=/cell1]
+
+The same nodes, params files and overrides as ``sfs-cell -o OUTPUT_DIR``
+(``sfs_ros.cli.bringup.cell_nodes(..., mock=False)``).
+"""
+
+import os
+
+from ament_index_python.packages import get_package_share_directory
+from launch import LaunchDescription
+from launch.actions import DeclareLaunchArgument
+from launch.substitutions import LaunchConfiguration
+from launch_ros.actions import Node
+
+
+def generate_launch_description():
+    config = os.path.join(get_package_share_directory('sfs_ros'), 'config')
+    output_dir = LaunchConfiguration('output_dir')
+    namespace = LaunchConfiguration('namespace')
+    return LaunchDescription([
+        DeclareLaunchArgument('output_dir',
+                              description='Folder of the scans, meshes and reports'),
+        DeclareLaunchArgument('namespace', default_value='',
+                              description='ROS namespace of all nodes'),
+        Node(package='sfs_ros', executable='sfs-camera', name='camera', namespace=namespace,
+             output='screen',
+             parameters=[os.path.join(config, 'rig.yaml'), os.path.join(config, 'camera.yaml')]),
+        Node(package='sfs_ros', executable='sfs-motor', name='motor', namespace=namespace,
+             output='screen', parameters=[os.path.join(config, 'motor.yaml')]),
+        Node(package='sfs_ros', executable='sfs-segmentation', name='segmentation',
+             namespace=namespace, output='screen',
+             parameters=[os.path.join(config, 'segmentation.yaml')]),
+        Node(package='sfs_ros', executable='sfs-reconstruction', name='reconstruction',
+             namespace=namespace, output='screen',
+             parameters=[os.path.join(config, 'rig.yaml'),
+                         os.path.join(config, 'reconstruction.yaml'),
+                         {'output_dir': output_dir}]),
+        Node(package='sfs_ros', executable='sfs-scan', name='scan', namespace=namespace,
+             output='screen',
+             parameters=[os.path.join(config, 'scan.yaml'),
+                         {'plan_file': os.path.join(config, 'scan_plan.yaml')}]),
+    ])

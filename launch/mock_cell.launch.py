@@ -1,0 +1,56 @@
+"""The cell with simulated hardware: the mock controller and camera of sfs-mock-hardware.
+
+    ros2 launch sfs_ros mock_cell.launch.py output_dir:=out/cell [namespace:=/cell1]
+
+The same nodes, params files and overrides as ``sfs-cell --mock -o OUTPUT_DIR``
+(``sfs_ros.cli.bringup.cell_nodes(..., mock=True)``): the motor node opens
+the simulated controller through the link ``OUTPUT_DIR/ttyMOCK``.
+"""
+
+import os
+
+from ament_index_python.packages import get_package_share_directory
+from launch import LaunchDescription
+from launch.actions import DeclareLaunchArgument, OpaqueFunction
+from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
+from launch_ros.actions import Node
+
+
+def make_output_dir(context):
+    """The link is made in the output folder as the mock starts: create the folder first."""
+    os.makedirs(LaunchConfiguration('output_dir').perform(context), exist_ok=True)
+    return []
+
+
+def generate_launch_description():
+    config = os.path.join(get_package_share_directory('sfs_ros'), 'config')
+    output_dir = LaunchConfiguration('output_dir')
+    namespace = LaunchConfiguration('namespace')
+    port = PathJoinSubstitution([output_dir, 'ttyMOCK'])
+    return LaunchDescription([
+        DeclareLaunchArgument('output_dir',
+                              description='Folder of the scans, meshes and reports'),
+        DeclareLaunchArgument('namespace', default_value='',
+                              description='ROS namespace of all nodes'),
+        OpaqueFunction(function=make_output_dir),
+        # One process, two nodes (mock_hardware and camera): no name, which would rename both.
+        Node(package='sfs_ros', executable='sfs-mock-hardware', namespace=namespace,
+             output='screen',
+             parameters=[os.path.join(config, 'rig.yaml'), os.path.join(config, 'camera.yaml'),
+                         os.path.join(config, 'mock_hardware.yaml'), {'port_link': port}]),
+        Node(package='sfs_ros', executable='sfs-motor', name='motor', namespace=namespace,
+             output='screen',
+             parameters=[os.path.join(config, 'motor.yaml'), {'port': port}]),
+        Node(package='sfs_ros', executable='sfs-segmentation', name='segmentation',
+             namespace=namespace, output='screen',
+             parameters=[os.path.join(config, 'segmentation.yaml')]),
+        Node(package='sfs_ros', executable='sfs-reconstruction', name='reconstruction',
+             namespace=namespace, output='screen',
+             parameters=[os.path.join(config, 'rig.yaml'),
+                         os.path.join(config, 'reconstruction.yaml'),
+                         {'output_dir': output_dir}]),
+        Node(package='sfs_ros', executable='sfs-scan', name='scan', namespace=namespace,
+             output='screen',
+             parameters=[os.path.join(config, 'scan.yaml'),
+                         {'plan_file': os.path.join(config, 'scan_plan.yaml')}]),
+    ])

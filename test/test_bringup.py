@@ -1,0 +1,253 @@
+"""Bring-up: ``sfs_ros.cli.bringup.cell_nodes`` and ``sfs-cell`` running the mock cell.
+
+``sfs-cell`` runs as a separate process (``python -m sfs_ros.cli.cell``) with
+the environment of the harness (its ROS domain, localhost discovery) and a
+namespace of its own, so that its nodes meet no other test's.
+"""
+
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from std_srvs.srv import Trigger
+
+from ros_harness import NAMESPACE, SOURCE_ROOT, NodeProcess, RosProbe
+from sfs_ros.cli.bringup import cell_nodes, default_config_dir
+
+REPO = Path(__file__).resolve().parents[1]
+CONFIG = REPO / "config"
+#: Five node processes importing rclpy, numpy, OpenCV and numba on a loaded 2-core machine.
+CELL_UP_TIMEOUT_S = 120.0
+#: sfs-cell stops its nodes one after the other, each with SIGINT.
+CELL_STOP_TIMEOUT_S = 30.0
+MOCK = [("mock_hardware", "mock_hardware_node", ["rig.yaml", "camera.yaml", "mock_hardware.yaml"]),
+        ("motor", "motor_node", ["motor.yaml"])]
+REAL = [("camera", "camera_node", ["rig.yaml", "camera.yaml"]),
+        ("motor", "motor_node", ["motor.yaml"])]
+REST = [("segmentation", "segmentation_node", ["segmentation.yaml"]),
+        ("reconstruction", "reconstruction_node", ["rig.yaml", "reconstruction.yaml"]),
+        ("scan", "scan_node", ["scan.yaml"])]
+
+
+def config_copy(folder: Path, *, without: str = "") -> Path:
+    """A copy of the repository's config folder, less the file ``without``."""
+    folder.mkdir(parents=True)
+    for path in CONFIG.glob("*.yaml"):
+        if path.name != without:
+            shutil.copy(path, folder)
+    return folder
+
+
+@pytest.mark.parametrize("mock", [True, False])
+def test_cell_nodes_in_start_order_with_their_files_and_overrides(mock, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    # The real cell needs no mock_hardware.yaml.
+    config = CONFIG if mock else config_copy(tmp_path / "config", without="mock_hardware.yaml")
+    specs = cell_nodes(config, "out", mock=mock)           # a relative output folder
+    assert [(s.name, s.module, [Path(p).name for p in s.params_files]) for s in specs] == \
+        (MOCK if mock else REAL) + REST
+    assert all(Path(p).parent == config for s in specs for p in s.params_files)
+
+    output = tmp_path.resolve() / "out"                    # made absolute
+    hardware = [{"port_link": str(output / "ttyMOCK")}, {"port": str(output / "ttyMOCK")}]
+    assert [s.overrides for s in specs] == (hardware if mock else [{}, {}]) + [
+        {}, {"output_dir": str(output)}, {"plan_file": str(config / "scan_plan.yaml")}]
+
+    scan = specs[-1]
+    assert scan.command("/cell1") == [
+        sys.executable, "-m", "sfs_ros.nodes.scan_node", "--ros-args", "-r", "__ns:=/cell1",
+        "--params-file", str(config / "scan.yaml"),
+        "-p", f"plan_file:={config / 'scan_plan.yaml'}"]
+
+
+@pytest.mark.parametrize("missing", sorted(p.name for p in CONFIG.glob("*.yaml")))
+def test_cell_nodes_names_a_missing_config_file(missing, tmp_path):
+    config = config_copy(tmp_path / "config", without=missing)
+    with pytest.raises(FileNotFoundError, match=re.escape(str(config / missing))):
+        cell_nodes(config, tmp_path / "out", mock=True)
+
+
+def test_default_config_dir_without_a_ros_installation(monkeypatch):
+    # A virtual environment with rclpy from PyPI: ament_index_python is there, no ROS sourced.
+    monkeypatch.delenv("AMENT_PREFIX_PATH", raising=False)
+    assert (default_config_dir() / "rig.yaml").is_file()
+
+
+def test_default_config_dir_prefers_the_ament_index(tmp_path, monkeypatch):
+    # As colcon installs the package: a marker in the ament index, the config in share/.
+    index = tmp_path / "share" / "ament_index" / "resource_index" / "packages"
+    index.mkdir(parents=True)
+    (index / "sfs_ros").touch()
+    config = config_copy(tmp_path / "share" / "sfs_ros" / "config")
+    monkeypatch.setenv("AMENT_PREFIX_PATH", str(tmp_path))
+    assert default_config_dir() == config
+
+
+def test_sfs_cell_with_a_config_file_missing_exits_2_naming_it(tmp_path):
+    config = config_copy(tmp_path / "config", without="motor.yaml")
+    done = subprocess.run([sys.executable, "-m", "sfs_ros.cli.cell", "--mock", "-o",
+                           str(tmp_path / "out"), "--config", str(config)],
+                          capture_output=True, text=True, env=_environment(), cwd=tmp_path,
+                          timeout=60)
+    assert done.returncode == 2
+    lines = (done.stdout + done.stderr).strip().splitlines()
+    assert len(lines) == 1 and str(config / "motor.yaml") in lines[0], lines
+
+
+def test_mock_hardware_refuses_a_port_link_in_a_missing_folder(tmp_path):
+    # sfs-cell and mock_cell.launch.py create the output folder of the link first; a node
+    # given a link elsewhere should refuse it like any invalid parameter.
+    link = tmp_path / "no_such_folder" / "ttyMOCK"
+    process = NodeProcess("sfs_ros.nodes.mock_hardware_node", parameters={"port_link": link})
+    code, lines = process.exit_lines()
+    assert code == 2
+    assert len(lines) == 1 and "'port_link'" in lines[0], lines
+
+
+def _environment() -> dict:
+    """The harness's environment (ROS domain, discovery range) importing this ``sfs_ros``."""
+    return dict(os.environ, PYTHONPATH=os.pathsep.join(
+        filter(None, [str(SOURCE_ROOT), os.environ.get("PYTHONPATH")])))
+
+
+def _processes_in(namespace: str) -> dict[int, list[str]]:
+    """``{pid: command line}`` of the processes started in ``namespace`` (``-r __ns:=...``)."""
+    found = {}
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            args = (entry / "cmdline").read_bytes().decode(errors="replace").split("\0")
+        except OSError:                                      # ended meanwhile
+            continue
+        if f"__ns:={namespace}" in args:
+            found[int(entry.name)] = args
+    return found
+
+
+class MockCell:
+    """``sfs-cell --mock`` in a namespace of its own, its output in a file."""
+
+    NODES = [name for name, _, _ in MOCK + REST]
+
+    def __init__(self, tmp_path: Path, name: str):
+        self.namespace = f"{NAMESPACE}_{name}"
+        tmp_path.mkdir()
+        self.output_dir = tmp_path / "out"
+        self._log = tmp_path / "sfs-cell.log"
+        with self._log.open("wb") as log:
+            self.process = subprocess.Popen(
+                [sys.executable, "-m", "sfs_ros.cli.cell", "--mock", "-o", str(self.output_dir),
+                 "--config", str(CONFIG), "--namespace", self.namespace],
+                stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT,
+                env=_environment(), cwd=tmp_path)
+
+    def output(self) -> str:
+        return self._log.read_text(errors="replace")
+
+    def nodes(self) -> dict[int, list[str]]:
+        return _processes_in(self.namespace)
+
+    def wait_up(self) -> None:
+        """Until every node has written a line, the mock serves its controller, and the scan
+        and reconstruction services are ready."""
+        probe = RosProbe()
+        try:
+            clients = [probe.node.create_client(Trigger, f"{self.namespace}/{name}")
+                       for name in ("scan/start", "reconstruct")]
+
+            def up() -> bool:
+                output = self.output()
+                return self.process.poll() is not None or (
+                    all(f"[{name}] " in output for name in self.NODES)
+                    and "simulated GRBL controller" in output
+                    and all(c.service_is_ready() for c in clients))
+
+            try:
+                probe.spin_until(up, timeout=CELL_UP_TIMEOUT_S, what="the cell")
+            except AssertionError as exc:
+                raise AssertionError(f"{exc}\nsfs-cell output:\n{self.output()}") from None
+            if self.process.poll() is not None:
+                raise AssertionError(f"sfs-cell exited with {self.process.returncode} while "
+                                     f"starting:\n{self.output()}")
+        finally:
+            probe.close()
+
+    def wait_exit(self) -> int:
+        try:
+            return self.process.wait(timeout=CELL_STOP_TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            raise AssertionError(f"sfs-cell still running {CELL_STOP_TIMEOUT_S:.0f} s later:\n"
+                                 f"{self.output()}") from None
+
+    def cleanup(self) -> None:
+        """After a failure: stop sfs-cell, then any node it left behind, SIGINT first."""
+        if self.process.poll() is None:
+            self.process.send_signal(signal.SIGINT)
+            try:
+                self.process.wait(timeout=CELL_STOP_TIMEOUT_S)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait()
+        for pid in self.nodes():
+            _stop(pid)
+
+
+def _stop(pid: int, grace_s: float = 10.0) -> None:
+    """SIGINT to process ``pid``, SIGKILL if it is still there ``grace_s`` later."""
+    for sig in (signal.SIGINT, signal.SIGKILL):
+        try:
+            os.kill(pid, sig)
+        except ProcessLookupError:
+            return
+        deadline = time.monotonic() + grace_s
+        while Path(f"/proc/{pid}").exists() and time.monotonic() < deadline:
+            time.sleep(0.1)
+
+
+@pytest.fixture()
+def start_cell(tmp_path):
+    """``start_cell(name)`` -> a :class:`MockCell` in namespace ``<harness namespace>_<name>``."""
+    cells = []
+
+    def start(name: str) -> MockCell:
+        cells.append(MockCell(tmp_path / name, name))
+        return cells[-1]
+
+    yield start
+    for cell in cells:
+        cell.cleanup()
+
+
+def test_sfs_cell_brings_up_the_mock_cell_and_stops_it_on_sigint(start_cell):
+    mock_cell = start_cell("bringup")
+    mock_cell.wait_up()
+    link = mock_cell.output_dir / "ttyMOCK"
+    assert link.is_symlink() and Path(os.readlink(link)).exists()     # the mock's pty
+    assert len(mock_cell.nodes()) == len(MockCell.NODES)
+
+    mock_cell.process.send_signal(signal.SIGINT)
+    assert mock_cell.wait_exit() == 0, mock_cell.output()
+    assert mock_cell.nodes() == {}, mock_cell.output()
+    assert not link.is_symlink() and not link.exists()
+
+
+def test_sfs_cell_stops_when_a_node_ends_by_itself(start_cell):
+    mock_cell = start_cell("node_ends")
+    mock_cell.wait_up()
+    [segmentation] = [pid for pid, args in mock_cell.nodes().items()
+                      if "sfs_ros.nodes.segmentation_node" in args]
+    os.kill(segmentation, signal.SIGINT)
+
+    assert mock_cell.wait_exit() == 1, mock_cell.output()
+    lines = [line for line in mock_cell.output().splitlines() if line.startswith("sfs-cell:")]
+    assert any("ended by themselves" in line and "'segmentation'" in line for line in lines), \
+        lines
+    assert mock_cell.nodes() == {}, mock_cell.output()
+    assert not (mock_cell.output_dir / "ttyMOCK").is_symlink()

@@ -1,0 +1,149 @@
+"""The launch files start what ``sfs-cell`` starts (``bringup.cell_nodes``), read with ast.
+
+``launch`` and ``launch_ros`` are not on PyPI, so the files are parsed with
+``ast`` and their ``Node(...)`` actions evaluated here for the few
+constructs they use (strings, lists, dicts, names assigned in the file,
+``os.path.join``, ``PathJoinSubstitution``, ``LaunchConfiguration``,
+``get_package_share_directory``); anything else fails the test, naming the
+line, rather than being skipped. The package share folder is a temporary
+copy of the repository's ``config/*.yaml``, so the comparison with
+``cell_nodes`` is of full paths and values.
+"""
+
+import ast
+import importlib
+import os
+import re
+import shutil
+from pathlib import Path
+
+import pytest
+
+from sfs_ros.cli.bringup import cell_nodes
+
+REPO = Path(__file__).resolve().parents[1]
+LAUNCH_FILES = {"cell.launch.py": False, "mock_cell.launch.py": True}     # file: mock
+#: Processes that compose more than one node: a name remap would rename them all.
+COMPOSED = {"mock_hardware_node"}
+
+
+def console_scripts() -> dict[str, str]:
+    """``{script: "module:function"}`` of setup.py's ``entry_points``."""
+    tree = ast.parse((REPO / "setup.py").read_text())
+    setup = next(n for n in ast.walk(tree) if isinstance(n, ast.Call)
+                 and isinstance(n.func, ast.Name) and n.func.id == "setup")
+    entry_points = ast.literal_eval(next(k.value for k in setup.keywords
+                                         if k.arg == "entry_points"))
+    return dict(re.fullmatch(r"\s*(\S+)\s*=\s*(\S+)\s*", line).groups()
+                for line in entry_points["console_scripts"])
+
+
+class LaunchFile:
+    """A launch file's ``DeclareLaunchArgument`` and ``Node`` calls, evaluated for given
+    launch arguments and package share folder."""
+
+    def __init__(self, path: Path, *, arguments: dict[str, str], share: Path):
+        self.path = path
+        self.tree = ast.parse(path.read_text(), filename=str(path))
+        self.assigned = {n.targets[0].id: n.value for n in ast.walk(self.tree)
+                         if isinstance(n, ast.Assign) and len(n.targets) == 1
+                         and isinstance(n.targets[0], ast.Name)}
+        self.share = share
+        self.declared = {self.value(c.args[0]): self.keywords(c)
+                         for c in self.calls("DeclareLaunchArgument")}
+        self.arguments = {name: kw["default_value"] for name, kw in self.declared.items()
+                          if "default_value" in kw} | arguments
+
+    def calls(self, function: str) -> list[ast.Call]:
+        """Calls of ``function`` in source order."""
+        found = [n for n in ast.walk(self.tree) if isinstance(n, ast.Call)
+                 and isinstance(n.func, ast.Name) and n.func.id == function]
+        return sorted(found, key=lambda n: (n.lineno, n.col_offset))
+
+    def keywords(self, call: ast.Call) -> dict:
+        return {k.arg: self.value(k.value) for k in call.keywords}
+
+    def nodes(self) -> list[dict]:
+        return [self.keywords(call) for call in self.calls("Node")]
+
+    def value(self, expr: ast.expr):
+        if isinstance(expr, ast.Constant):
+            return expr.value
+        if isinstance(expr, ast.Name) and expr.id in self.assigned:
+            return self.value(self.assigned[expr.id])
+        if isinstance(expr, ast.List):
+            return [self.value(e) for e in expr.elts]
+        if isinstance(expr, ast.Dict):
+            return {self.value(k): self.value(v) for k, v in zip(expr.keys, expr.values)}
+        if isinstance(expr, ast.Call) and not expr.keywords:
+            function, args = ast.unparse(expr.func), [self.value(a) for a in expr.args]
+            if function == "os.path.join":
+                return os.path.join(*args)
+            if function == "PathJoinSubstitution":
+                return os.path.join(*args[0])
+            if function == "LaunchConfiguration":
+                return self.arguments[args[0]]
+            if function == "get_package_share_directory" and args == ["sfs_ros"]:
+                return str(self.share)
+        raise AssertionError(f"{self.path.name}:{expr.lineno}: {ast.unparse(expr)!r} is not "
+                             "understood by this test; extend LaunchFile.value")
+
+
+@pytest.fixture()
+def share(tmp_path):
+    """A package share folder ``.../share/sfs_ros`` with copies of the repository's config."""
+    folder = tmp_path / "share" / "sfs_ros"
+    (folder / "config").mkdir(parents=True)
+    for path in (REPO / "config").glob("*.yaml"):
+        shutil.copy(path, folder / "config")
+    return folder
+
+
+@pytest.mark.parametrize("filename, mock", LAUNCH_FILES.items())
+@pytest.mark.parametrize("namespace", [None, "/cell1"])
+def test_launch_file_starts_the_nodes_of_cell_nodes(filename, mock, namespace, share, tmp_path):
+    output_dir = str(tmp_path.resolve() / "scans")
+    arguments = {"output_dir": output_dir} | ({} if namespace is None else {"namespace": namespace})
+    launch = LaunchFile(REPO / "launch" / filename, arguments=arguments, share=share)
+    script = {target: name for name, target in console_scripts().items()}
+    specs = cell_nodes(share / "config", output_dir, mock=mock)
+
+    # What the launch file starts, as (executable, params files then the overrides dict).
+    started = [(n["executable"], n["parameters"]) for n in launch.nodes()]
+    assert started == [(script[f"sfs_ros.nodes.{spec.module}:main"],
+                        spec.params_files + ([spec.overrides] if spec.overrides else []))
+                       for spec in specs]
+
+    for spec, node in zip(specs, launch.nodes()):
+        assert node["package"] == "sfs_ros"
+        assert node["namespace"] == (namespace or "")       # sfs-cell --namespace, default root
+        # A name is only a no-op remap to the node's own name; none for a composed process.
+        if spec.module in COMPOSED:
+            assert node.get("name") is None, spec.module
+        else:
+            module = importlib.import_module(f"sfs_ros.nodes.{spec.module}")
+            assert node.get("name") in (None, module.NODE_NAME), spec.module
+    if mock:        # the motor opens the mock's link
+        overrides = {k: v for n in launch.nodes() for entry in n["parameters"]
+                     if isinstance(entry, dict) for k, v in entry.items()}
+        assert overrides["port_link"] == overrides["port"] == os.path.join(output_dir, "ttyMOCK")
+
+
+@pytest.mark.parametrize("filename", LAUNCH_FILES)
+def test_launch_arguments_output_dir_required_namespace_root_by_default(filename, share):
+    launch = LaunchFile(REPO / "launch" / filename, arguments={}, share=share)
+    assert set(launch.declared) == {"output_dir", "namespace"}
+    assert "default_value" not in launch.declared["output_dir"]          # required
+    assert launch.declared["namespace"]["default_value"] == ""
+    assert all(kw.get("description") for kw in launch.declared.values())
+    assert any(isinstance(n, ast.FunctionDef) and n.name == "generate_launch_description"
+               for n in launch.tree.body)
+
+
+def test_every_executable_is_a_console_script(share):
+    scripts = console_scripts()
+    for filename in LAUNCH_FILES:
+        launch = LaunchFile(REPO / "launch" / filename, arguments={"output_dir": "out"},
+                            share=share)
+        for node in launch.nodes():
+            assert node["executable"] in scripts, (filename, node["executable"])

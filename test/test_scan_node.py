@@ -1,0 +1,177 @@
+"""The scan node alone, as a separate OS process: start-up refusals, its services, and the
+pauses when its peers (reconstruction, motor, encoders) are missing.
+
+No other node of the cell runs here (the whole cell is tested with ``sfs-cell``):
+the probe calls the scan services and watches ``diagnostics`` and ``joint_command``.
+"""
+
+import time
+
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger
+
+from ros_harness import MESSAGE_TIMEOUT_S, NodeProcess, RosProbe
+from sfs_ros.cell.scan_plan import ScanPlan
+
+MODULE = "sfs_ros.nodes.scan_node"
+#: A small ring plan: the ring listed second (20 deg) is staggered by half a step and taken
+#: first, so the first view is (45, 20) deg, not (0, 20).
+RINGS = {"rings_phi_deg": [50.0, 20.0], "per_ring": 4, "top_view": True}
+PLAN = ScanPlan.from_rings(RINGS["rings_phi_deg"], RINGS["per_ring"], RINGS["top_view"],
+                           stagger=True, reorder=True)
+N = len(PLAN)                 # 9 views
+SERVICE_TIMEOUT_S = 1.0       # service_timeout_s and home_timeout_s
+MOVE_TIMEOUT_S = 1.0
+MOVE_RETRIES = 2
+FAST = {**RINGS, "service_timeout_s": SERVICE_TIMEOUT_S, "home_timeout_s": SERVICE_TIMEOUT_S,
+        "move_timeout_s": MOVE_TIMEOUT_S, "move_retries": MOVE_RETRIES, "queue_depth": 20}
+QUIET_S = 1.0   # after the expected messages, listen this long for extras
+
+
+class ScanStatus:
+    """One status of the scan node's diagnostics."""
+
+    def __init__(self, status: DiagnosticStatus):
+        self.level, self.message = status.level, status.message
+        self.values = {kv.key: kv.value for kv in status.values}
+
+
+class ScanNodeUnderTest:
+    """The node process, the probe's ``scan/*`` clients and its recorders."""
+
+    def __init__(self, parameters: dict):
+        self.process = NodeProcess(MODULE, parameters={**FAST, **parameters})
+        self.probe = RosProbe()
+        node = self.probe.node
+        self.diagnostics, self.commands = [], []
+        subs = [node.create_subscription(DiagnosticArray, "diagnostics",
+                                         self.diagnostics.append, 10),
+                node.create_subscription(JointState, "joint_command", self.commands.append, 10)]
+        self.clients = {name: node.create_client(Trigger, f"scan/{name}")
+                        for name in ("start", "cancel", "resume")}
+        self.probe.wait_connected(subscriptions=subs, process=self.process)
+        # The services, and a first report (the node's writers have matched the probe too).
+        self.probe.spin_until(lambda: all(c.service_is_ready() for c in self.clients.values())
+                              and self.statuses(), what="scan services and a report", process=self.process)
+
+    def call(self, name: str) -> Trigger.Response:
+        future = self.clients[name].call_async(Trigger.Request())
+        self.probe.spin_until(future.done, what=f"scan/{name} answer", process=self.process)
+        return future.result()
+
+    def statuses(self) -> list[ScanStatus]:
+        return [ScanStatus(s) for array in self.diagnostics for s in array.status
+                if s.name.endswith(": scan")]
+
+    def wait_paused(self, scan: int, *, timeout: float = MESSAGE_TIMEOUT_S) -> ScanStatus:
+        """Until scan number ``scan`` reports state paused; that status."""
+        def paused():
+            return [s for s in self.statuses()
+                    if s.values["scan"] == str(scan) and s.values["state"] == "paused"]
+        self.probe.spin_until(paused, timeout=timeout, what=f"scan {scan} paused",
+                              process=self.process)
+        return paused()[0]
+
+    def close(self) -> tuple[int, str]:
+        self.probe.close()
+        return self.process.stop_and_read()
+
+
+@pytest.fixture()
+def start():
+    """``start(**parameters)`` -> a running node; each must exit with 0 on SIGINT."""
+    nodes = []
+
+    def start_node(**parameters) -> ScanNodeUnderTest:
+        nodes.append(ScanNodeUnderTest(parameters))
+        return nodes[-1]
+
+    yield start_node
+    for node in nodes:
+        code, output = node.close()
+        assert code == 0, f"node did not exit cleanly on SIGINT (code {code}):\n{output}"
+        assert "Traceback" not in output, output
+
+
+@pytest.mark.parametrize("plan_text, parameters, name, words", [
+    (None, {"plan_file": "no/such/plan.yaml"}, "plan_file",
+     "cannot read scan plan no/such/plan.yaml"),
+    ("views: [[0, 100]]\n", {}, "plan_file", "phi 100.0 deg, outside the carriage range"),
+    # The default rings: 16 per ring x 3 rings + the top view = 49 views.
+    (None, {"queue_depth": 10}, "queue_depth", "got 10, expected at least the 49 views"),
+])
+def test_invalid_start_up_exits_with_one_line_naming_the_parameter(tmp_path, plan_text,
+                                                                   parameters, name, words):
+    if plan_text is not None:
+        (tmp_path / "plan.yaml").write_text(plan_text)
+        parameters = {"plan_file": str(tmp_path / "plan.yaml")}
+    code, lines = NodeProcess(MODULE, parameters=parameters).exit_lines()
+    assert code == 2
+    assert len(lines) == 1 and f"'{name}'" in lines[0] and words in lines[0], lines
+
+
+def test_idle_services_and_a_start_without_the_reconstruction_pauses(start):
+    node = start()
+    idle = node.statuses()[0]
+    assert idle.level == DiagnosticStatus.OK and idle.message.startswith(f"idle: 0 of {N} views")
+    assert (idle.values["state"], idle.values["scan"], idle.values["total"]) == ("idle", "0", str(N))
+    response = node.call("resume")
+    assert not response.success and response.message.startswith("no scan to resume"), \
+        response.message
+    response = node.call("cancel")
+    assert not response.success and response.message.startswith("no scan is running"), \
+        response.message
+
+    for scan in (1, 2):           # the node stays up and takes the next scan/start
+        sent_s = time.monotonic()
+        response = node.call("start")
+        assert response.success and response.message == f"scan {scan} started: {N} views"
+        status = node.wait_paused(scan)
+        # The reset call gives up only after service_timeout_s (counted from before the call).
+        assert time.monotonic() - sent_s >= SERVICE_TIMEOUT_S
+        assert status.level == DiagnosticStatus.ERROR
+        assert f"scan paused at view 1 of {N}" in status.message, status.message
+        assert "service reset is not available (waited 1 s)" in status.message
+        assert node.process.alive()
+    node.probe.spin_for(QUIET_S)
+    assert node.commands == []                 # nothing moved before the reset
+
+
+def test_a_start_without_the_motor_node_pauses_on_homing(start):
+    node = start(reset_reconstruction=False, home_before_scan=True)
+    response = node.call("start")
+    assert response.success and response.message == f"scan 1 started: {N} views"
+    status = node.wait_paused(1)
+    assert status.level == DiagnosticStatus.ERROR
+    assert "service home is not available (waited 1 s)" in status.message, status.message
+    node.probe.spin_for(QUIET_S)
+    assert node.commands == [] and node.process.alive()
+
+
+def test_the_first_view_is_commanded_and_the_scan_pauses_without_encoder_readings(start):
+    node = start(reset_reconstruction=False, home_before_scan=False)
+    sent_s = time.monotonic()
+    response = node.call("start")
+    assert response.success and response.message == f"scan 1 started: {N} views"
+    attempts = MOVE_RETRIES + 1
+    # Each attempt waits move_timeout_s for a reading that never comes; plus the usual margin.
+    status = node.wait_paused(1, timeout=attempts * MOVE_TIMEOUT_S + MESSAGE_TIMEOUT_S)
+    assert time.monotonic() - sent_s >= attempts * MOVE_TIMEOUT_S
+    assert status.level == DiagnosticStatus.ERROR
+    assert f"scan paused at view 1 of {N} (theta 45.00, phi 20.00 deg)" in status.message
+    assert "timeout" in status.message and "no encoder reading" in status.message, \
+        status.message
+    assert f"after {attempts} attempts" in status.message
+    assert status.values["move_retries"] == str(MOVE_RETRIES)
+    assert status.values["captured"] == "0"
+
+    node.probe.spin_for(QUIET_S)
+    # The first planned view, commanded once per attempt, exactly as planned (radians).
+    assert len(node.commands) == attempts
+    for command in node.commands:
+        assert list(command.name) == ["turntable", "carriage"]
+        assert list(command.position) == [float(v) for v in PLAN.views[0]]
+    retries = [s for s in node.statuses() if s.level == DiagnosticStatus.WARN]
+    assert retries and all("retrying" in s.message for s in retries)
