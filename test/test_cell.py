@@ -22,6 +22,7 @@ import pytest
 import yaml
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from sensor_msgs.msg import Image, JointState
+from std_msgs.msg import Header
 from std_srvs.srv import SetBool, Trigger
 
 from ros_harness import NAMESPACE, SOURCE_ROOT, RosProbe
@@ -102,6 +103,9 @@ class Recorder:
         node.create_subscription(DiagnosticArray, "diagnostics", self.diagnostics.append, 100)
         self.bad_image_pub = node.create_publisher(Image, "capture/image", qos)
         self.bad_joints_pub = node.create_publisher(JointState, "joint_states", 10)
+        self.bad_mask_pub = node.create_publisher(Image, "capture/mask", qos)
+        self.bad_frame_pub = node.create_publisher(Image, "image_raw", capture_qos(10))
+        self.bad_receipt_pub = node.create_publisher(Header, "capture/stored", qos)
         self.switches = {name: node.create_client(SetBool, f"mock/{name}")
                          for name in ("unplug", "hang")}
         self.drop_frame = node.create_client(Trigger, "mock/drop_frame")
@@ -325,10 +329,18 @@ def test_malformed_messages_are_reported_and_the_scan_goes_on(cell):
         bad.encoding = "yuv422"
         rec.bad_image_pub.publish(bad)
         rec.bad_joints_pub.publish(JointState(name=["turntable"], position=[0.1]))
+        # A stamp outside builtin_interfaces/Time's range (nanosec >= 1e9), everywhere.
+        bad = image_to_msg(np.zeros((4, 4, 3), np.uint8), stamp=(6, 0), frame_id="c")
+        bad.header.stamp.nanosec = 2_000_000_000
+        for pub in (rec.bad_image_pub, rec.bad_mask_pub, rec.bad_frame_pub):
+            pub.publish(bad)
+        rec.bad_receipt_pub.publish(bad.header)
 
     scan = _scan(cell, midway=garbage)
     status = client.wait_scan_done(scan, timeout_s=SCAN_TIMEOUT_S)
     rec.wait_status("segmentation", "yuv422")
+    rec.wait_status("segmentation", "nanosec")
+    rec.wait_status("reconstruction", "nanosec")
     _check_every_view_once(rec, status)
     assert cell["cell"].exited() == {}
 

@@ -207,7 +207,11 @@ class ReconstructionNode(Node):
     # -- inputs (executor threads) -----------------------------------------------------------
 
     def _on_mask(self, msg: Image) -> None:
-        stamp = stamp_key(msg.header.stamp)
+        try:
+            stamp = stamp_key(msg.header.stamp)
+        except ValueError as exc:
+            self._malformed("mask", None, exc)
+            return
         try:
             if msg.encoding != "mono8":
                 raise ValueError(f"mask encoding is {msg.encoding!r}, expected 'mono8'")
@@ -218,7 +222,11 @@ class ReconstructionNode(Node):
         self._add(self._pairer.add_a, stamp, (mask, msg.header.frame_id))
 
     def _on_joint_state(self, msg: JointState) -> None:
-        stamp = stamp_key(msg.header.stamp)
+        try:
+            stamp = stamp_key(msg.header.stamp)
+        except ValueError as exc:
+            self._malformed("joint state", None, exc)
+            return
         try:
             angles = angles_from_joint_state(msg)
         except ValueError as exc:
@@ -234,7 +242,12 @@ class ReconstructionNode(Node):
             self._jobs.put(("view", stamp, frame_id, mask, theta, phi))
 
     def _malformed(self, what: str, stamp, exc: Exception) -> None:
+        """Count and report a bad message; its view is given up (``stamp`` None: the stamp
+        itself is bad, so its partner, which has the same stamp, is refused too)."""
         self._count("malformed")
+        if stamp is None:
+            self._report_problem(f"malformed {what} dropped: {exc}")
+            return
         self._pairer.reject(stamp)
         self._report_problem(f"malformed {what} at stamp {_fmt(stamp)} dropped with its view: "
                              f"{exc}")

@@ -38,9 +38,9 @@ captured stay captured). ``scan/cancel`` stops the axes and pauses likewise.
 Delivery: every capture of the scan is kept until the next ``scan/start``.
 One that the reconstruction has not receipted on ``capture/stored`` within
 ``receipt_timeout_s`` is sent again (at most ``max_sends`` times in all, then
-reported as lost in transport); when the receipts' publisher comes back
-after going away (the reconstruction node restarted), every capture is sent
-again. The reconstruction stores each view once, so a view is never lost to
+reported as lost in transport); when a publisher of receipts appears that
+was not there before (the reconstruction node restarted, or started late),
+every capture is sent again. The reconstruction stores each view once, so a view is never lost to
 a restarted node and never carved twice.
 
 Diagnostics values: ``scan`` (1 for the first ``scan/start``, then 2, ...),
@@ -57,6 +57,7 @@ import math
 import queue
 import threading
 import time
+import traceback
 from collections import OrderedDict
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
@@ -173,7 +174,7 @@ class ScanNode(Node):
         self._state, self._view, self._scan = "idle", 0, 0
         self._problem = self._warning = ""
         self._counts = self._new_counts()
-        self._receivers: int | None = None    # publishers of receipts at the last tick
+        self._receivers: set[bytes] = set()   # every publisher of receipts seen (by GID)
         self._prepared = False
 
         inputs = MutuallyExclusiveCallbackGroup()
@@ -227,15 +228,25 @@ class ScanNode(Node):
         self._readings.put((theta, phi))
 
     def _on_frame(self, msg: Image) -> None:
+        try:
+            stamp = stamp_key(msg.header.stamp)
+        except ValueError as exc:
+            self._malformed(f"camera frame ignored: {exc}")
+            return
         with self._frame_arrived:
-            self._frames[stamp_key(msg.header.stamp)] = msg
+            self._frames[stamp] = msg
             while len(self._frames) > _FRAMES_KEPT:
                 self._frames.popitem(last=False)
             self._frame_arrived.notify_all()
 
     def _on_receipt(self, msg: Header) -> None:
+        try:
+            stamp = stamp_key(msg.stamp)
+        except ValueError as exc:
+            self._malformed(f"receipt ignored: {exc}")
+            return
         with self._lock:
-            self._ledger.receipt(stamp_key(msg.stamp))
+            self._ledger.receipt(stamp)
 
     def _malformed(self, text: str) -> None:
         with self._lock:
@@ -243,20 +254,22 @@ class ScanNode(Node):
         self.get_logger().error(text)
 
     def _tick(self) -> None:
-        """Resend what was not receipted; notice a restarted receiver; diagnostics."""
-        receivers = self._receipt_sub.get_publisher_count()
+        """Resend what was not receipted; notice a new receiver (a restarted reconstruction
+        node: a publisher of receipts not seen before) and resend everything; diagnostics."""
+        receivers = {bytes(info.endpoint_gid) for info in
+                     self.get_publishers_info_by_topic(self._receipt_sub.topic_name)}
         now = time.monotonic()
         with self._lock:
-            came_back = (self._receivers == 0 and receivers > 0
-                         and self._ledger.captured > 0)
-            self._receivers = receivers
+            came_back = bool(receivers - self._receivers) and self._ledger.captured > 0
+            self._receivers |= receivers
             resend = self._ledger.restart_downstream(now) if came_back else []
             more, lost = self._ledger.due(now)
             resend += more
             self._counts["resends"] += len(resend)
         if came_back:
-            self.get_logger().warning(f"the reconstruction is (back) up: sending all "
-                                      f"{len(resend)} captures of the scan again")
+            self.get_logger().warning(f"a new receiver of captures (the reconstruction "
+                                      f"restarted?): sending all {len(resend)} captures of "
+                                      "the scan again")
         elif resend:
             self.get_logger().warning(f"sending {len(resend)} unreceipted capture(s) again: "
                                       f"views {[e.view + 1 for e in resend]}")
@@ -353,6 +366,11 @@ class ScanNode(Node):
             self._set_problem(f"scan paused at view {self._view + 1} of {len(self.plan)} "
                               f"(theta {theta:.2f}, phi {phi:.2f} deg): {fault}; mend it and "
                               "call scan/resume")
+            self._set_state("paused")
+        except Exception as exc:  # noqa: BLE001 -- a bug must not leave the scan "running"
+            self.get_logger().error(traceback.format_exc())
+            self._set_problem(f"scan paused at view {self._view + 1}: internal error "
+                              f"{type(exc).__name__}: {exc}; call scan/resume")
             self._set_state("paused")
 
     def _prepare(self) -> None:

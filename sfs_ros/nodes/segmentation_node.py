@@ -184,7 +184,11 @@ class SegmentationNode(Node):
     # -- inputs ------------------------------------------------------------------------------
 
     def _on_image(self, msg: Image) -> None:
-        stamp = stamp_key(msg.header.stamp)
+        try:
+            stamp = stamp_key(msg.header.stamp)
+        except ValueError as exc:
+            self._malformed("image", None, exc)
+            return
         try:
             image = msg_to_image(msg)
             if image.dtype != np.uint8:
@@ -195,7 +199,11 @@ class SegmentationNode(Node):
         self._add(self._pairer.add_a, stamp, (msg, image))
 
     def _on_joint_state(self, msg: JointState) -> None:
-        stamp = stamp_key(msg.header.stamp)
+        try:
+            stamp = stamp_key(msg.header.stamp)
+        except ValueError as exc:
+            self._malformed("joint state", None, exc)
+            return
         try:
             angles_from_joint_state(msg)
         except ValueError as exc:
@@ -210,7 +218,12 @@ class SegmentationNode(Node):
             self._process(image_msg, image, joints)
 
     def _malformed(self, what: str, stamp, exc: Exception) -> None:
+        """Count and report a bad message; its capture is given up (``stamp`` None: the stamp
+        itself is bad, so its partner, which has the same stamp, is refused too)."""
         self._counts["malformed"] += 1
+        if stamp is None:
+            self._report_problem(f"malformed {what} dropped: {exc}")
+            return
         self._pairer.reject(stamp)
         self._report_problem(f"malformed {what} at stamp {_fmt(stamp)} dropped with its "
                              f"capture: {exc}")
