@@ -219,6 +219,31 @@ def test_stop_interrupts_a_move_from_another_thread(sim, homed):
     assert homed.move_to(0.0, 0.0, timeout_s=2.0).state == "Idle"
 
 
+def test_two_stops_at_once_both_succeed(sim, homed):
+    # A stop service call and a preempting command can stop the same move together: the
+    # first stop's soft reset clears the other's hold, which then finds the axes Idle.
+    errors = []
+
+    def move():
+        try:
+            homed.move_to(math.radians(900.0), 0.0, timeout_s=3.0)
+        except MotorError as exc:
+            errors.append(exc)
+
+    moving = threading.Thread(target=move)
+    moving.start()
+    time.sleep(0.2)
+    results = []
+    stops = [threading.Thread(target=lambda: results.append(homed.stop())) for _ in range(2)]
+    for t in stops:
+        t.start()
+    for t in stops + [moving]:
+        t.join(3.0)
+    assert [r.state for r in results] == ["Idle", "Idle"]
+    assert len(errors) == 1 and isinstance(errors[0], MotionCancelled)
+    assert sim.state == "Idle"
+
+
 def test_status_polling_from_another_thread_during_a_move(homed):
     seen, errors = [], []
     done = threading.Event()

@@ -411,13 +411,16 @@ class GrblClient:
             return self.reset(timeout_s=timeout)
         while True:
             status = self.status(timeout_s=max(deadline - time.monotonic(), 1e-3))
-            if status.state == "Alarm" or (status.state == "Hold" and status.substate == 0):
+            # Idle: at rest with an empty planner (a stop from another thread got there
+            # first, its soft reset clearing this hold): nothing left to stop.
+            if status.state in ("Alarm", "Idle") or (status.state == "Hold"
+                                                     and status.substate == 0):
                 break
             if time.monotonic() >= deadline:
                 raise MotorTimeout(f"axes did not come to a hold within {timeout:.3g} s "
                                    f"(state {status.state})")
             time.sleep(min(self.poll_interval_s, 0.05))
-        if status.state == "Alarm":
+        if status.state in ("Alarm", "Idle"):
             return status
         return self.reset(timeout_s=max(deadline - time.monotonic(), self.timeout_s))
 
