@@ -395,7 +395,8 @@ class GrblClient:
         A soft reset after a completed hold discards the rest of the motion
         while keeping the position (no alarm). Interrupts a :meth:`move_to`
         running in another thread (it raises :class:`MotionCancelled`).
-        In an alarm the axes are already stopped: nothing is sent.
+        In an alarm the axes are already stopped: nothing is sent. ``Idle`` after
+        the hold (another thread's stop finished first) is at rest too.
         """
         timeout = self._timeout(timeout_s)
         deadline = time.monotonic() + timeout
