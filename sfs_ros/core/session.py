@@ -352,8 +352,9 @@ def _clear_old_session(folder: Path) -> None:
 
 
 def write_session(folder: Path | str, images: list[tuple[str, np.ndarray]],
-                  angles: list[tuple[float, float]], calibration: RigCalibration, *,
-                  bounds_m=None, segmentation=None) -> Path:
+                  angles: list[tuple[float, float]] | None, calibration: RigCalibration, *,
+                  cameras: list[Camera] | None = None, bounds_m=None,
+                  segmentation=None) -> Path:
     """Write a scan as a session folder (replacing a previous session there).
 
     Parameters
@@ -364,10 +365,13 @@ def write_session(folder: Path | str, images: list[tuple[str, np.ndarray]],
     images : list of (str, (H, W, 3) uint8)
         ``(name, RGB image)``; names end in ``.png`` and become the file names
         under ``images/``; every image has the calibration's size.
-    angles : list of (float, float)
+    angles : list of (float, float), or None with ``cameras``
         ``(theta_rad, phi_rad)`` encoder readings per image, radians (stored
         as given; unusable ones are rejected when the session is read).
     calibration : RigCalibration
+        With ``cameras``, only its image size is used.
+    cameras : list of Camera, optional, keyword-only
+        Pinhole cameras instead of angles: a table of 3x4 projection matrices.
     bounds_m : (2, 3) array-like or None
         Carving box ``[min, max]``, metres.
     segmentation : dict, SegmentationParams or None
@@ -379,19 +383,34 @@ def write_session(folder: Path | str, images: list[tuple[str, np.ndarray]],
         ``folder``.
     """
     folder = Path(folder)
-    if len(images) != len(angles):
-        raise ValueError(f"{len(images)} images but {len(angles)} angle pairs; expected one per image")
+    if (angles is None) == (cameras is None):
+        raise ValueError("give either angles (an angles table) or cameras (a matrix table)")
+    per_view = angles if cameras is None else cameras
+    if len(images) != len(per_view):
+        what = "angle pairs" if cameras is None else "cameras"
+        raise ValueError(f"{len(images)} images but {len(per_view)} {what}; expected one per "
+                         "image")
     if not images:
         raise ValueError("a session needs at least one image")
     names = [_check_new_name(name) for name, _ in images]
     twice = sorted({n for n in names if names.count(n) > 1})
     if twice:
         raise ValueError(f"view names must be unique; repeated: {_some(twice)}")
-    rows = [_csv_line(list(ANGLE_COLUMNS))]
-    for name, pair in zip(names, angles):
-        if len(pair) != 2:
-            raise ValueError(f"angles of {name!r} must be (theta_rad, phi_rad), got {pair!r}")
-        rows.append(_csv_line([name, repr(float(pair[0])), repr(float(pair[1]))]))
+    if cameras is None:
+        rows = [_csv_line(list(ANGLE_COLUMNS))]
+        for name, pair in zip(names, angles):
+            if len(pair) != 2:
+                raise ValueError(f"angles of {name!r} must be (theta_rad, phi_rad), got "
+                                 f"{pair!r}")
+            rows.append(_csv_line([name, repr(float(pair[0])), repr(float(pair[1]))]))
+    else:
+        rows = [_csv_line(list(MATRIX_COLUMNS))]
+        for name, camera in zip(names, cameras):
+            if camera.orthographic:
+                raise ValueError(f"camera of {name!r} is orthographic; a matrix table holds "
+                                 "pinhole cameras")
+            P = camera.projection_matrix
+            rows.append(_csv_line([name] + [repr(float(v)) for v in P.ravel()]))
     document = {"format": FORMAT, "version": VERSION, "rig": _plain(calibration.to_dict())}
     if bounds_m is not None:
         document["bounds_m"] = as_bounds(bounds_m, what="bounds_m").tolist()
