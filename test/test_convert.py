@@ -11,9 +11,10 @@ from shape_msgs.msg import Mesh
 from visualization_msgs.msg import Marker
 
 from sfs_ros.core.camera import Camera
-from sfs_ros.ros.convert import (angles_from_joint_state, camera_info, cloud_to_points,
-                                 image_to_msg, joint_state, mesh_to_marker, mesh_to_shape,
-                                 msg_to_image, points_to_cloud, shape_to_mesh)
+from sfs_ros.core.rig import RigCalibration, rig_camera
+from sfs_ros.ros.convert import (angles_from_joint_state, camera_info, camera_poses,
+                                 cloud_to_points, image_to_msg, joint_state, mesh_to_marker,
+                                 mesh_to_shape, msg_to_image, points_to_cloud, shape_to_mesh)
 
 STAMP = (1712345678, 123456789)
 RNG = np.random.default_rng(7)
@@ -173,6 +174,40 @@ def test_marker_lists_three_corners_per_face():
     corners = np.array([(p.x, p.y, p.z) for p in marker.points])
     np.testing.assert_array_equal(corners, vertices[faces.ravel()])
     assert marker.pose.orientation.w == 1.0 and marker.scale.x == 1.0 and marker.color.g == 0.5
+
+
+def test_marker_colours_each_corner_with_its_vertex_colour():
+    vertices, faces = _tetrahedron()
+    rgb = np.array([[255, 0, 0], [0, 255, 0], [0, 0, 255], [255, 255, 255]], np.uint8)
+    marker = _wire(mesh_to_marker(vertices, faces, stamp=STAMP, frame_id="turntable",
+                                  vertex_colors=rgb))
+    colours = np.array([(c.r, c.g, c.b, c.a) for c in marker.colors])
+    assert len(colours) == len(marker.points) == 3 * len(faces)
+    np.testing.assert_allclose(colours[:, :3], rgb[faces.ravel()] / 255.0, atol=1e-6)  # float32
+    with pytest.raises(ValueError, match="vertex_colors"):
+        mesh_to_marker(vertices, faces, stamp=STAMP, frame_id="t", vertex_colors=rgb[:2])
+
+
+def _rotate(q, v):
+    """Vector ``v`` rotated by the unit quaternion message ``q`` (closed form)."""
+    u, w = np.array([q.x, q.y, q.z]), q.w
+    return v + 2 * w * np.cross(u, v) + 2 * np.cross(u, np.cross(u, v))
+
+
+def test_camera_pose_arrows_point_where_the_cameras_look():
+    rig = RigCalibration(width=320, height=240, projection="pinhole", fx=700.0, fy=700.0,
+                         camera_distance_m=0.6, aim_point_m=(0.0, 0.0, 0.04))
+    cameras = [rig_camera(t, p, rig) for t, p in ((0.0, 0.0), (1.0, 0.5), (2.5, 1.2))]
+    msg = _wire(camera_poses(cameras, stamp=STAMP, frame_id="turntable"))
+    assert msg.header.frame_id == "turntable" and len(msg.poses) == 3
+    for pose, camera in zip(msg.poses, cameras):
+        p = pose.position
+        np.testing.assert_allclose([p.x, p.y, p.z], camera.center, atol=1e-12)
+        # Body axes: x forward, z towards the top of the image (optical -y).
+        np.testing.assert_allclose(_rotate(pose.orientation, [1, 0, 0]), camera.forward,
+                                   atol=1e-9)
+        np.testing.assert_allclose(_rotate(pose.orientation, [0, 0, 1]), -camera.R[1],
+                                   atol=1e-9)
 
 
 def test_shape_mesh_round_trip():

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 import yaml
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from geometry_msgs.msg import PoseArray
 from sensor_msgs.msg import Image, JointState, PointCloud2
 from std_msgs.msg import Header
 from shape_msgs.msg import Mesh
@@ -77,8 +78,10 @@ class Cell:
         self.mask_pub = node.create_publisher(Image, "capture/mask", qos)
         self.joints_pub = node.create_publisher(JointState, "capture/mask_joint_state", qos)
         self.hulls, self.markers, self.shapes, self.diagnostics = [], [], [], []
-        self.receipts = []
+        self.receipts, self.poses = [], []
         subs = [node.create_subscription(PointCloud2, "hull", self.hulls.append, result_qos()),
+                node.create_subscription(PoseArray, "camera_poses", self.poses.append,
+                                         result_qos()),
                 node.create_subscription(Header, "capture/stored", self.receipts.append, qos),
                 node.create_subscription(Marker, "mesh", self.markers.append, result_qos()),
                 node.create_subscription(Mesh, "mesh_shape", self.shapes.append, result_qos()),
@@ -177,6 +180,17 @@ def test_mesh_is_latched_for_late_subscribers(scan, cell):
     cell.probe.spin_until(lambda: late, what="the mesh on a late subscription",
                           process=cell.process)
     assert len(late[0].points) == len(marker.points)
+
+
+def test_camera_poses_are_the_views_cameras(scan, cell):
+    cell.probe.spin_until(lambda: cell.poses and len(cell.poses[-1].poses) >= len(PLAN),
+                          what="camera poses of every view", process=cell.process)
+    msg = cell.poses[-1]
+    assert msg.header.frame_id == "turntable" and len(msg.poses) == len(PLAN)
+    centres = sorted(tuple(np.round([p.position.x, p.position.y, p.position.z], 9))
+                     for p in msg.poses)
+    expected = sorted(tuple(np.round(rig_camera(t, p, RIG).center, 9)) for t, p in PLAN)
+    np.testing.assert_allclose(centres, expected, atol=1e-9)
 
 
 def test_hull_cloud_lies_in_the_box(scan, cell, mug):

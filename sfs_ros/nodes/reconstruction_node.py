@@ -6,6 +6,7 @@
 | sub | ``capture/mask_joint_state`` | sensor_msgs/JointState | same stamp as its mask |
 | pub | ``capture/stored`` | std_msgs/Header | a view's stamp once stored (or rejected): its receipt |
 | pub | ``hull`` | sensor_msgs/PointCloud2 | surface voxels of the live hull, frame "turntable" |
+| pub | ``camera_poses`` | geometry_msgs/PoseArray | the cameras of this scan's views, frame "turntable" |
 | pub | ``mesh`` | visualization_msgs/Marker | TRIANGLE_LIST of the last reconstruction |
 | pub | ``mesh_shape`` | shape_msgs/Mesh | the same mesh |
 | pub | ``diagnostics`` | diagnostic_msgs/DiagnosticArray | per event and at 1 Hz |
@@ -24,7 +25,7 @@ Receipts: once a view is stored in the session folder (or rejected as
 unusable), its header goes out on ``capture/stored``. The scan node resends
 a capture that has no receipt in time (at-least-once delivery); a view that
 comes again is not carved twice: it is counted in ``repeats`` and its
-receipt sent again. ``hull``, ``mesh`` and ``mesh_shape``: reliable,
+receipt sent again. ``hull``, ``camera_poses``, ``mesh`` and ``mesh_shape``: reliable,
 transient-local, depth 1 (:func:`sfs_ros.ros.result_qos`), so a viewer
 started later gets the latest.
 
@@ -67,6 +68,7 @@ from concurrent.futures import Future
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from geometry_msgs.msg import PoseArray
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
 from sensor_msgs.msg import Image, JointState, PointCloud2
@@ -77,11 +79,13 @@ from visualization_msgs.msg import Marker
 
 from sfs_ros.cell.live import DuplicateViewError, LiveReconstruction
 from sfs_ros.core.pipeline import MESHERS
+from sfs_ros.core.rig import rig_camera
 from sfs_ros.core.views import as_bounds
 from sfs_ros.nodes.entry import run_node
 from sfs_ros.ros import capture_qos, result_qos
 from sfs_ros.ros.convert import (
     angles_from_joint_state,
+    camera_poses,
     diagnostic_array,
     header,
     mesh_to_marker,
@@ -178,6 +182,8 @@ class ReconstructionNode(Node):
         qos = capture_qos(depth)
         self._stored_pub = self.create_publisher(Header, "capture/stored", qos)
         self._hull_pub = self.create_publisher(PointCloud2, "hull", result_qos())
+        self._poses_pub = self.create_publisher(PoseArray, "camera_poses", result_qos())
+        self._cameras: list = []   # of this scan's views, for camera_poses (worker thread)
         self._marker_pub = self.create_publisher(Marker, "mesh", result_qos())
         self._shape_pub = self.create_publisher(Mesh, "mesh_shape", result_qos())
         self._diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
@@ -302,6 +308,8 @@ class ReconstructionNode(Node):
             job[1].set_result(self._reconstruct())
             return False
         self._live.reset()
+        self._cameras = []
+        self._publish_poses()
         with self._stats_lock:
             self._counts["scan_views"] = 0
             self._carve_s = 0.0
@@ -329,6 +337,8 @@ class ReconstructionNode(Node):
             self._report_problem(f"view at stamp {_fmt(stamp)} rejected: {exc}")
             return False
         self._stored_pub.publish(receipt)
+        self._cameras.append(rig_camera(theta, phi, self._live.calibration))
+        self._publish_poses()
         with self._stats_lock:
             self._carve_s += time.perf_counter() - start
             self._counts["scan_views"] = added.n_views
@@ -362,6 +372,10 @@ class ReconstructionNode(Node):
                                f"{summary['seconds']:.1f} s)")
         self._publish_diagnostics()
         return True, json.dumps(summary)
+
+    def _publish_poses(self) -> None:
+        self._poses_pub.publish(camera_poses(self._cameras, stamp=self.get_clock().now().to_msg(),
+                                             frame_id=FRAME_ID))
 
     def _publish_hull(self) -> None:
         points = self._live.hull_points(self._max_hull_points)

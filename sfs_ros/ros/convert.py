@@ -18,8 +18,9 @@ import operator
 
 import numpy as np
 from builtin_interfaces.msg import Time
+from scipy.spatial.transform import Rotation
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import Point
+from geometry_msgs.msg import Point, Pose, PoseArray, Quaternion
 from sensor_msgs.msg import CameraInfo, Image, JointState, PointCloud2, PointField
 from shape_msgs.msg import Mesh, MeshTriangle
 from std_msgs.msg import ColorRGBA, Header
@@ -31,7 +32,7 @@ from sfs_ros.ros.pairing import stamp_key
 __all__ = [
     "JOINT_NAMES", "header", "image_to_msg", "msg_to_image", "joint_state",
     "angles_from_joint_state", "camera_info", "points_to_cloud", "cloud_to_points",
-    "mesh_to_marker", "mesh_to_shape", "shape_to_mesh",
+    "mesh_to_marker", "mesh_to_shape", "shape_to_mesh", "camera_poses",
 ]
 
 #: Joint names of the cell: turntable = theta, carriage = phi.
@@ -243,11 +244,14 @@ def _points(vertices: np.ndarray) -> list[Point]:
 
 
 def mesh_to_marker(vertices, faces, *, stamp, frame_id: str,
-                   color=(0.8, 0.8, 0.8, 1.0), marker_id: int = 0, ns: str = "mesh") -> Marker:
+                   color=(0.8, 0.8, 0.8, 1.0), vertex_colors=None, marker_id: int = 0,
+                   ns: str = "mesh") -> Marker:
     """``visualization_msgs/Marker`` TRIANGLE_LIST of a mesh (3 points per face, in face order).
 
     vertices : (n, 3) float64, metres; faces : (m, 3) int vertex indices.
-    color : (r, g, b, a) floats in [0, 1].
+    color : (r, g, b, a) floats in [0, 1]: the whole mesh's colour, or
+    vertex_colors : (n, 3) uint8 RGB, optional: one colour per corner (``colors``,
+        which RViz and Foxglove interpolate across each face).
 
     One ``Point`` is built per vertex and the list repeats those objects per
     face corner (the message serialises each entry; do not mutate them):
@@ -264,9 +268,47 @@ def mesh_to_marker(vertices, faces, *, stamp, frame_id: str,
     marker.pose.orientation.w = 1.0
     marker.scale.x = marker.scale.y = marker.scale.z = 1.0
     if len(faces):
-        corners = operator.itemgetter(*faces.ravel().tolist())(_points(vertices))
+        pick = operator.itemgetter(*faces.ravel().tolist())
+        corners = pick(_points(vertices))
         marker.points = list(corners) if isinstance(corners, tuple) else [corners]
+        if vertex_colors is not None:
+            rgb = np.asarray(vertex_colors)
+            if rgb.shape != vertices.shape or rgb.dtype != np.uint8:
+                raise ValueError(f"vertex_colors must be ({len(vertices)}, 3) uint8, got "
+                                 f"{rgb.shape} {rgb.dtype}")
+            palette = [ColorRGBA(r=r / 255, g=g / 255, b=b / 255, a=rgba[3])
+                       for r, g, b in rgb.tolist()]
+            colors = pick(palette)
+            marker.colors = list(colors) if isinstance(colors, tuple) else [colors]
     return marker
+
+
+def camera_poses(cameras, *, stamp, frame_id: str) -> PoseArray:
+    """``geometry_msgs/PoseArray`` of the cameras' poses in the world (object) frame.
+
+    Body axes (REP 103 ``camera_link``): x along the viewing direction, y to
+    the image's left, z to its top, so RViz's and Foxglove's pose arrows point
+    where each camera looks (the optical frame would point them sideways).
+    """
+    msg = PoseArray(header=header(stamp=stamp, frame_id=frame_id))
+    for camera in cameras:
+        optical_to_world = camera.R.T                       # columns: x right, y down, z forward
+        body = optical_to_world @ _OPTICAL_TO_BODY
+        x, y, z, w = _quaternion(body)
+        cx, cy, cz = camera.center.tolist()
+        msg.poses.append(Pose(position=Point(x=cx, y=cy, z=cz),
+                              orientation=Quaternion(x=x, y=y, z=z, w=w)))
+    return msg
+
+
+#: Body axes in optical coordinates: x = optical z, y = -optical x, z = -optical y.
+_OPTICAL_TO_BODY = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
+
+
+def _quaternion(R: np.ndarray) -> tuple[float, float, float, float]:
+    """``(x, y, z, w)`` unit quaternion of a rotation matrix (w >= 0)."""
+    x, y, z, w = Rotation.from_matrix(R).as_quat()
+    return (x, y, z, w) if w >= 0 else (-x, -y, -z, -w)
 
 
 def mesh_to_shape(vertices, faces) -> Mesh:
