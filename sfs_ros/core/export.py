@@ -16,9 +16,11 @@ Each format is written in the axes its importers expect:
 ``units`` scales the metres we hold: ``"m"`` writes metres, ``"mm"``
 millimetres. glTF is metres by specification, so ``.glb`` only takes ``"m"``.
 
-Vertex colours (uint8 RGB/RGBA or float in [0, 1]) are kept by .ply (RGBA),
-.glb (``COLOR_0``, RGBA) and .obj (RGB only, as ``v x y z r g b``, which
-Blender's OBJ importer reads); binary STL cannot hold them.
+Vertex colours (uint8 RGB/RGBA or float in [0, 1]) are kept by .ply
+(``red green blue alpha`` uchar vertex properties), .glb (``COLOR_0``, RGBA) and
+.obj (RGB only, as ``v x y z r g b`` with r, g, b in [0, 1], the extension
+Blender's and MeshLab's OBJ importers read); binary STL cannot hold them, so
+asking for colours in an .stl is an error rather than a silent loss.
 
 Files are written atomically: to a temporary file in the same folder, then
 renamed, so a crash never leaves a partial file under the final name.
@@ -40,9 +42,9 @@ SUPPORTED_SUFFIXES = (".ply", ".obj", ".stl", ".glb")
 UNIT_SCALE = {"m": 1.0, "mm": 1000.0}
 #: Formats stored Y up (glTF by specification, OBJ by convention).
 Y_UP_SUFFIXES = (".glb", ".obj")
-#: trimesh file type for each suffix.
 #: Permissions of written files (mkstemp would leave them owner-only).
 FILE_MODE = 0o644
+#: trimesh file type for each suffix.
 _FILE_TYPE = {".ply": "ply", ".obj": "obj", ".stl": "stl", ".glb": "glb"}
 
 
@@ -59,7 +61,7 @@ def export_mesh(vertices, faces, path, *, vertex_colors=None, units: str = "m") 
         Destination ending in .ply, .obj, .stl or .glb (case-insensitive);
         its folder must exist.
     vertex_colors : (n, 3) or (n, 4) uint8, or float in [0, 1], optional
-        RGB(A) per vertex; not for .stl.
+        RGB(A) per vertex; ValueError for .stl, which cannot store them.
     units : {"m", "mm"}, keyword-only
         Length unit written to the file ("m" only for .glb).
 
@@ -104,7 +106,7 @@ def export_mesh(vertices, faces, path, *, vertex_colors=None, units: str = "m") 
     return path
 
 
-def load_mesh(path, *, units: str = "m"):
+def load_mesh(path, *, units: str = "m", with_colors: bool = False):
     """Read a mesh written by :func:`export_mesh`, back in our frame.
 
     Undoes the Y-up conversion of .glb/.obj and the unit scale. STL stores
@@ -117,12 +119,17 @@ def load_mesh(path, *, units: str = "m"):
         A .ply, .obj, .stl or .glb file.
     units : {"m", "mm"}, keyword-only
         Length unit of the file.
+    with_colors : bool, keyword-only
+        Also return the vertex colours.
 
     Returns
     -------
     vertices : (n, 3) float64
         Metres, object frame (Z up).
     faces : (m, 3) int64
+    colors : (n, 4) uint8 RGBA or None, only with ``with_colors=True``
+        None when the file has no vertex colours (always for .stl); alpha is
+        255 where the format stores none (.obj).
     """
     path = Path(path)
     suffix = _suffix(path)
@@ -136,7 +143,11 @@ def load_mesh(path, *, units: str = "m"):
         f = inverse.reshape(-1)[f]
     if suffix in Y_UP_SUFFIXES:
         v = np.column_stack((v[:, 0], -v[:, 2], v[:, 1]))
-    return v / UNIT_SCALE[units], f
+    if not with_colors:
+        return v / UNIT_SCALE[units], f
+    colors = (np.asarray(mesh.visual.vertex_colors, dtype=np.uint8)
+              if mesh.visual.kind == "vertex" else None)
+    return v / UNIT_SCALE[units], f, colors
 
 
 def _suffix(path: Path) -> str:

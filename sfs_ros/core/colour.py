@@ -1,0 +1,314 @@
+"""Per-vertex colour of a mesh from the images it was reconstructed from.
+
+A view takes part in the colour of a vertex when it *sees* the vertex:
+
+* the vertex projects into the image (in front of a pinhole camera);
+* it faces the camera: ``cos = n . d > min_cos``, with ``n`` the vertex normal
+  (area-weighted mean of the face normals) and ``d`` the unit direction from
+  the vertex to the camera centre (orthographic: against the viewing direction);
+* the mesh itself does not hide it: the mesh's depth is rendered from the camera
+  with :func:`.render.rasterize_faces` and the vertex must lie no deeper than
+  the z-buffer, interpolated bilinearly at its projection, plus a tolerance
+  (see :func:`vertex_colours`), so what the handle of a mug hides from a view
+  takes no colour from that view;
+* when masks are given, it lies inside the silhouette.
+
+The views that see a vertex are blended, each image sampled bilinearly at the
+vertex's projection, with the weight
+
+    ``w = ((cos - min_cos) / (1 - min_cos)) ** angle_power * ramp``,
+    ``ramp = clip((d_edge - 1.5) / edge_ramp_px, 0, 1)``
+
+which falls smoothly to zero at grazing angles and near edges, where an image
+mixes the object with what lies behind it and where a view entering or leaving
+the blend would show as a seam. ``d_edge`` (pixels) is the distance to the
+nearest *edge pixel*: background of the rendered mesh, a step of the z-buffer
+(a depth discontinuity), or outside the mask. The 1.5 px margin keeps the
+2 x 2 pixels read by bilinear sampling off edge pixels: a block holding an edge
+pixel interpolates to at most sqrt(2) px.
+
+Vertices that no view sees (the underside resting on the turntable, deep
+concavities) are filled from their neighbours along mesh edges: harmonic
+interpolation, each such vertex the mean of its neighbours, the seen ones fixed.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from scipy import sparse
+from scipy.sparse import csgraph
+from scipy.sparse.linalg import splu
+
+from .camera import Camera
+from .carve import validate_masks
+from .render import as_mesh_arrays, rasterize_faces
+
+__all__ = ["VertexColours", "vertex_colours", "vertex_normals"]
+
+#: A z-buffer step between neighbouring pixels of more than this many pixel
+#: footprints is a depth discontinuity (a smooth surface only steps that much
+#: when steeper than atan(4) = 76 degrees, where ``min_cos`` drops it anyway).
+DEPTH_STEP_FOOTPRINTS = 4.0
+#: Distance (pixels) to an edge pixel below which the edge ramp is zero.
+EDGE_MARGIN_PX = 1.5
+
+
+@dataclass(frozen=True)
+class VertexColours:
+    """What :func:`vertex_colours` returns.
+
+    Attributes
+    ----------
+    colours : (n, 3) uint8
+        RGB per vertex.
+    n_views : (n,) int64
+        Views blended into each vertex; 0 where the colour was filled in from
+        the neighbours.
+    n_hidden : (n,) int64
+        Views that would have been blended into each vertex but in which the
+        mesh hides it (always 0 with ``occlusion=False``).
+    stats : dict
+        JSON-ready: ``vertices``, ``views``, ``seen`` and ``filled`` vertex
+        counts, ``mean_views_per_seen_vertex``, ``occlusion`` (whether the
+        z-buffer test was on) and ``occluded_pairs`` (the sum of ``n_hidden``).
+    """
+
+    colours: np.ndarray
+    n_views: np.ndarray
+    n_hidden: np.ndarray
+    stats: dict
+
+
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(n, 3) float64 unit area-weighted vertex normals; zero where a vertex has no face.
+
+    ``vertices`` (n, 3) float64, ``faces`` (m, 3) int64 counter-clockwise seen
+    from outside, so the normals point outwards.
+    """
+    tri = vertices[faces]
+    face_n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])  # length = 2 * area
+    corners = faces.ravel()
+    normals = np.column_stack([np.bincount(corners, weights=np.repeat(face_n[:, k], 3),
+                                           minlength=len(vertices)) for k in range(3)])
+    length = np.linalg.norm(normals, axis=1, keepdims=True)
+    return np.divide(normals, length, out=np.zeros_like(normals), where=length > 0)
+
+
+def _footprint_m(camera: Camera, depth: np.ndarray) -> np.ndarray:
+    """Size of one pixel on a fronto-parallel surface at ``depth`` (metres), metres."""
+    f = min(camera.K[0, 0], camera.K[1, 1])
+    return np.full_like(depth, 1.0 / f) if camera.orthographic else depth / f
+
+
+def _bilinear(image: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """``image`` (H, W) or (H, W, C) sampled at ``(u, v)`` (k,), within [0, W-1] x [0, H-1].
+
+    Returns (k,) or (k, C) float64.
+    """
+    height, width = image.shape[:2]
+    c0 = np.minimum(u.astype(np.int64), width - 2)
+    r0 = np.minimum(v.astype(np.int64), height - 2)
+    fu, fv = u - c0, v - r0
+    if image.ndim == 3:
+        fu, fv = fu[:, None], fv[:, None]
+    top = (1 - fu) * image[r0, c0] + fu * image[r0, c0 + 1]
+    bottom = (1 - fu) * image[r0 + 1, c0] + fu * image[r0 + 1, c0 + 1]
+    return (1 - fv) * top + fv * bottom
+
+
+def _edge_distance_px(zbuf: np.ndarray | None, mask: np.ndarray | None,
+                      camera: Camera) -> np.ndarray | None:
+    """(H, W) float32 distance (pixels) of each pixel to the nearest edge pixel.
+
+    Edge pixels: background of the z-buffer ``zbuf`` (inf), either side of a
+    z-buffer step of more than :data:`DEPTH_STEP_FOOTPRINTS` footprints between
+    4-neighbours, outside ``mask``. None when there is neither.
+    """
+    if zbuf is None and mask is None:
+        return None
+    edge = np.zeros((camera.height, camera.width), dtype=bool) if mask is None else ~mask
+    if zbuf is not None:
+        edge |= ~np.isfinite(zbuf)
+        with np.errstate(invalid="ignore"):  # inf - inf between background pixels
+            for a, b in ((np.s_[:-1], np.s_[1:]), (np.s_[:, :-1], np.s_[:, 1:])):  # 4-neighbours
+                near = np.minimum(zbuf[a], zbuf[b])
+                limit = DEPTH_STEP_FOOTPRINTS * _footprint_m(camera, near)
+                jump = np.abs(zbuf[a] - zbuf[b]) > limit
+                edge[a] |= jump
+                edge[b] |= jump
+    return cv2.distanceTransform((~edge).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+
+
+def _view_of(camera: Camera, vertices: np.ndarray, normals: np.ndarray) -> tuple:
+    """How ``camera`` sees each vertex: ``u, v`` (n,) pixels (NaN behind a pinhole
+    camera), depth (n,) metres and ``cos`` (n,) of the angle between the normal
+    and the direction to the camera. One matmul for the points, one for the normals.
+    """
+    xc = vertices @ camera.R.T + camera.t                         # camera frame, metres
+    nc = normals @ camera.R.T
+    depth = xc[:, 2]
+    if camera.orthographic:
+        cos = -nc[:, 2]
+        q = np.column_stack([xc[:, :2], np.ones(len(xc))])
+    else:
+        cos = -np.einsum("ij,ij->i", nc, xc) / np.maximum(np.linalg.norm(xc, axis=1), 1e-300)
+        q = xc / np.where(depth > 0, depth, np.nan)[:, None]
+    uv = q @ camera.K[:2].T
+    return uv[:, 0], uv[:, 1], depth, cos
+
+
+def _check_image(index: int, image, camera: Camera) -> np.ndarray:
+    """``image`` as an array; ValueError unless (H, W, 3) uint8 for a camera of >= 2 x 2 px."""
+    if not isinstance(camera, Camera):
+        raise ValueError(f"camera of view {index} must be a Camera, got {type(camera).__name__}")
+    image = np.asarray(image)
+    expected = (camera.height, camera.width, 3)
+    if image.shape != expected or image.dtype != np.uint8:
+        raise ValueError(f"image of view {index} must be {expected} uint8 RGB (the camera's "
+                         f"size), got {image.dtype} {image.shape}")
+    if camera.width < 2 or camera.height < 2:
+        raise ValueError(f"view {index} is {camera.width}x{camera.height} px; bilinear "
+                         "sampling needs at least 2x2")
+    return image
+
+
+def _fill_from_neighbours(colours: np.ndarray, seen: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Colours (n, 3) float64 of the unseen vertices by harmonic interpolation along edges.
+
+    Solves ``deg(i) c_i = sum of c_j over the neighbours j`` for every unseen
+    vertex ``i``, the seen ones fixed. A connected component with no seen vertex
+    takes the mean colour of all seen vertices.
+    """
+    n = len(colours)
+    ends = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    adjacency = sparse.coo_matrix((np.ones(len(ends)), (ends[:, 0], ends[:, 1])), shape=(n, n))
+    adjacency = ((adjacency + adjacency.T) > 0).astype(np.float64).tocsr()
+    n_components, label = csgraph.connected_components(adjacency, directed=False)
+    orphan = (np.bincount(label, weights=seen, minlength=n_components) == 0)[label]
+    out = colours.copy()
+    out[orphan] = colours[seen].mean(axis=0)
+    known = seen | orphan
+    unknown = np.flatnonzero(~known)
+    if unknown.size:
+        rows = adjacency[unknown]
+        laplacian = sparse.diags(np.asarray(rows.sum(axis=1)).ravel()) - rows[:, unknown]
+        out[unknown] = splu(laplacian.tocsc()).solve(rows[:, known] @ out[known])
+    return out
+
+
+def vertex_colours(vertices, faces, images: Sequence, cameras: Sequence[Camera], *,
+                   masks: Sequence | None = None, occlusion: bool = True,
+                   angle_power: float = 2.0, min_cos: float = 0.2, edge_ramp_px: float = 3.0,
+                   depth_tolerance_px: float = 1.0) -> VertexColours:
+    """Colour every vertex of a closed mesh from the views that see it.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float64
+        Metres, object frame.
+    faces : (m, 3) int
+        Vertex indices, counter-clockwise seen from outside (outward normals).
+    images : sequence of (H, W, 3) uint8
+        RGB image of each view, the size of its camera.
+    cameras : sequence of Camera
+        Object frame -> pixels of each image.
+    masks : sequence of (H, W) bool, optional
+        Silhouette of the object in each view (True = object); a vertex takes
+        no colour from a view where it falls outside the silhouette.
+    occlusion : bool
+        Test visibility against the mesh's z-buffer (the default). False keeps
+        only the normal, image and mask tests: a baseline in which what the
+        mesh hides from a view is coloured with whatever the view shows there.
+    angle_power : float >= 0
+        Exponent ``k`` of the view-angle weight ``((cos - min_cos) / (1 - min_cos)) ** k``.
+    min_cos : float in [0, 1)
+        Views seeing the surface at ``cos <= min_cos`` (default 0.2: beyond 78
+        degrees from the normal) do not contribute.
+    edge_ramp_px : float > 0
+        Width of the ramp of the weight from 0 to 1 near edges, pixels.
+    depth_tolerance_px : float >= 0
+        A vertex at depth ``z`` (metres), seen at ``angle`` from its normal, is
+        visible when ``z <= z_buffer(u, v) + footprint * (depth_tolerance_px +
+        tan(angle))``: the z-buffer interpolated bilinearly at the projection
+        ``(u, v)`` (exact on a plane; off the edges its 2 x 2 pixels see one
+        surface), ``footprint`` the size of a pixel at depth ``z``. A faceted
+        surface bends within the pixel by up to ``tan(angle)`` footprints (its
+        depth step across one pixel); what hides the vertex lies further in front.
+
+    Returns
+    -------
+    VertexColours
+        ``colours`` (n, 3) uint8, ``n_views`` and ``n_hidden`` (n,) int64, ``stats``.
+
+    Raises
+    ------
+    ValueError
+        Bad mesh, image, mask or option; no view; or no vertex seen by any view.
+    """
+    vertices, faces = as_mesh_arrays(vertices, faces)
+    cameras = list(cameras)
+    if not cameras:
+        raise ValueError("need at least one view (image and camera) to colour a mesh")
+    if len(images) != len(cameras):
+        raise ValueError(f"got {len(cameras)} cameras but {len(images)} images; expected one "
+                         "image per camera")
+    masks = [None] * len(cameras) if masks is None else validate_masks(cameras, masks)
+    if not (math.isfinite(angle_power) and angle_power >= 0):
+        raise ValueError(f"angle_power must be a finite number >= 0, got {angle_power}")
+    if not 0.0 <= min_cos < 1.0:
+        raise ValueError(f"min_cos must be in [0, 1), got {min_cos}")
+    if not (math.isfinite(edge_ramp_px) and edge_ramp_px > 0):
+        raise ValueError(f"edge_ramp_px must be a finite number of pixels > 0, got {edge_ramp_px}")
+    if not (math.isfinite(depth_tolerance_px) and depth_tolerance_px >= 0):
+        raise ValueError(f"depth_tolerance_px must be a finite number of pixels >= 0, "
+                         f"got {depth_tolerance_px}")
+
+    images = [_check_image(i, image, c) for i, (image, c) in enumerate(zip(images, cameras))]
+    normals = vertex_normals(vertices, faces)
+    total = np.zeros((len(vertices), 3))
+    weight_sum = np.zeros(len(vertices))
+    n_views = np.zeros(len(vertices), dtype=np.int64)
+    n_hidden = np.zeros(len(vertices), dtype=np.int64)
+    for image, camera, mask in zip(images, cameras, masks):
+        u, v, z, cos = _view_of(camera, vertices, normals)
+        idx = np.flatnonzero((cos > min_cos) & (u >= 0) & (u <= camera.width - 1)
+                             & (v >= 0) & (v <= camera.height - 1))  # NaN (behind) fails
+        u, v, z, cos = u[idx], v[idx], z[idx], cos[idx]
+        w = ((cos - min_cos) / (1.0 - min_cos)) ** angle_power
+        zbuf = rasterize_faces(vertices, faces, camera)[2] if occlusion else None
+        edge_px = _edge_distance_px(zbuf, mask, camera)
+        if edge_px is not None:
+            w *= np.clip((_bilinear(edge_px, u, v) - EDGE_MARGIN_PX) / edge_ramp_px, 0.0, 1.0)
+        if zbuf is not None:
+            # w > 0 only off the edges: the 2 x 2 pixels read see one surface, all finite.
+            s = np.flatnonzero(w > 0)
+            tan = np.sqrt(1.0 - cos[s] ** 2) / cos[s]
+            tol = _footprint_m(camera, z[s]) * (depth_tolerance_px + tan)
+            hidden = s[z[s] > _bilinear(zbuf, u[s], v[s]) + tol]
+            n_hidden[idx[hidden]] += 1
+            w[hidden] = 0.0
+        keep = w > 0
+        idx, u, v, w = idx[keep], u[keep], v[keep], w[keep]
+        total[idx] += w[:, None] * _bilinear(image, u, v)
+        weight_sum[idx] += w
+        n_views[idx] += 1
+
+    seen = weight_sum > 0
+    if not seen.any():
+        raise ValueError("no vertex is seen by any view: check that the cameras look at the "
+                         "mesh (calibration, frame) and that faces are outward")
+    colours = np.zeros((len(vertices), 3))
+    colours[seen] = total[seen] / weight_sum[seen, None]
+    if not seen.all():
+        colours = _fill_from_neighbours(colours, seen, faces)
+    stats = {"vertices": int(len(vertices)), "views": len(cameras), "seen": int(seen.sum()),
+             "filled": int((~seen).sum()),
+             "mean_views_per_seen_vertex": float(n_views[seen].mean()),
+             "occlusion": bool(occlusion), "occluded_pairs": int(n_hidden.sum())}
+    return VertexColours(colours=np.clip(np.rint(colours), 0, 255).astype(np.uint8),
+                         n_views=n_views, n_hidden=n_hidden, stats=stats)
