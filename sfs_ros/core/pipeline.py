@@ -2,7 +2,7 @@
 
 Stages (each timed in the report): segmentation, bounding box, view
 consistency, carving, meshing (cloud of points + advancing front, or marching
-cubes), mesh checks, reprojection of the mesh into every view.
+cubes), mesh checks, colour (on request), reprojection of the mesh into every view.
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ from .advancing_front import advancing_front
 from .bounds import estimate_bounds
 from .carve import carve
 from .cloud import cloud_of_points
+from .colour import vertex_colours
 from .consistency import bbox_clips_object, find_inconsistent_views
 from .grid import VoxelGrid
 from .hull import drop_specks
@@ -68,6 +69,10 @@ class ReconstructionParams:
         Names of views kept out of carving and only used to evaluate the mesh.
     segmentation : SegmentationParams or None
         None: the input's stored parameters, else the defaults.
+    colour : bool
+        Colour the mesh's vertices from the images of the views used
+        (:func:`sfs_ros.core.colour.vertex_colours`: the views that see each
+        point, blended).
     """
 
     resolution: int = 192
@@ -81,6 +86,7 @@ class ReconstructionParams:
     consistency_max_missing: float = 0.10
     holdout: tuple = ()
     segmentation: SegmentationParams | None = None
+    colour: bool = False
 
     def __post_init__(self) -> None:
         if self.mesher not in MESHERS:
@@ -103,7 +109,8 @@ class Reconstruction:
     """What :func:`reconstruct` returns.
 
     vertices : (n, 3) float64, metres, object frame; faces : (m, 3) int64,
-    outward; occupancy : (nx, ny, nz) bool on ``grid``; report : JSON-ready dict.
+    outward; occupancy : (nx, ny, nz) bool on ``grid``; report : JSON-ready dict;
+    vertex_colors : (n, 3) uint8 RGB with ``colour=True``, else None.
     """
 
     vertices: np.ndarray
@@ -111,6 +118,7 @@ class Reconstruction:
     occupancy: np.ndarray
     grid: VoxelGrid
     report: dict = field(default_factory=dict)
+    vertex_colors: np.ndarray | None = None
 
 
 @contextmanager
@@ -247,6 +255,14 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
         progress("meshing", 1.0)
     with _timed(timings, "mesh_checks"):
         mesh_report = check_mesh(vertices, faces).as_dict()
+    colours = None
+    if params.colour:
+        with _timed(timings, "colour"):
+            progress("colour", 0.0)
+            colours = vertex_colours(vertices, faces,
+                                     [read_image(views[i].image_path) for i in used],
+                                     cameras, masks=used_masks)
+            progress("colour", 1.0)
 
     with _timed(timings, "evaluation"):
         used_names = {views[i].name for i in used}
@@ -279,9 +295,11 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
         "specks_removed": specks_removed,
         "mesher": {"name": params.mesher, **mesher_stats},
         "mesh": mesh_report,
+        **({"colour": colours.stats} if colours is not None else {}),
         "silhouette_iou": {"per_view": per_view, "mean_used": mean_iou("used"),
                            "mean_held_out": mean_iou("held-out")},
         "timings_s": timings,
     }
     return Reconstruction(vertices=vertices, faces=faces, occupancy=occupancy, grid=grid,
-                          report=report)
+                          report=report,
+                          vertex_colors=None if colours is None else colours.colours)
