@@ -241,8 +241,10 @@ def test_full_scan_reconstructs_the_mug_from_every_view_once(cell):
     assert Path(summary["preview_path"]).is_file()
     assert summary["views_received"] == summary["views_used"] == len(PLAN)
     assert summary["watertight"]
+    assert summary["coloured_from_views"] == len(PLAN)          # the captures reached it too
     mug = make_object("mug")
-    vertices, faces = load_mesh(path)
+    vertices, faces, colours = load_mesh(path, with_colors=True)
+    assert colours is not None and len(colours) == len(vertices)
     grid = VoxelGrid.cube(*carving_box(mug), RESOLUTION)
     assert score_against_truth(mug, vertices, faces, grid)["volume_iou"] >= VOLUME_IOU_MIN
 

@@ -17,7 +17,7 @@ from sfs_ros.core.inputs import load_views
 from sfs_ros.core.metrics import occupancy_from_contains, volume_iou
 from sfs_ros.core.objects import make_object
 from sfs_ros.core.plan import ring_plan
-from sfs_ros.core.render import rasterize_silhouette
+from sfs_ros.core.render import rasterize_silhouette, render_image
 from sfs_ros.core.rig import RigCalibration, rig_camera
 from sfs_ros.core.segment import segment
 from sfs_ros.core.synthetic import carving_box, score_against_truth
@@ -298,3 +298,29 @@ def test_bad_construction_is_refused(tmp_path, box):
         LiveReconstruction(RIG, [[0, 0, 0], [0, 1, 1]], output_dir=tmp_path)
     with pytest.raises(ValueError, match="calibration must be a RigCalibration"):
         LiveReconstruction({"width": 320}, box, output_dir=tmp_path)
+
+
+def test_final_mesh_is_coloured_from_the_captured_images(tmp_path, mug, box, masks):
+    live = LiveReconstruction(RIG, box, output_dir=tmp_path, resolution=64)
+    colours = mug.color_at(mug.mesh.vertices)
+    for n, ((theta, phi), mask) in enumerate(zip(PLAN, masks)):
+        # Unshaded (ambient 1) renders hold the true colours; no noise.
+        image = render_image(mug.mesh.vertices, mug.mesh.faces, rig_camera(theta, phi, RIG),
+                             vertex_colors=colours, ambient=1.0, noise_sigma=0.0)
+        if n % 2:                                   # the image before or after its mask
+            live.add_colour_image(n, image)
+        live.add_view(n, mask, theta, phi)
+        if not n % 2:
+            live.add_colour_image(n, image)
+    with pytest.raises(ValueError, match="expected \\(240, 320, 3\\) uint8"):
+        live.add_colour_image(0, np.zeros((10, 10, 3), np.uint8))
+    result = live.reconstruct("coloured.ply")
+    assert result["coloured_from_views"] == result["views_used"] == len(PLAN)
+    vertices, _, stored = load_mesh(result["path"], with_colors=True)
+    np.testing.assert_array_equal(stored[:, :3], live.last_colours)
+    # Against the pattern at each vertex: the hull lies within about a voxel (1.7 mm at
+    # 64^3) of the surface, where the pattern changes by up to ~9 grey levels per mm (170
+    # levels over a 60 mm sine wave), more over the hull's dome above flat parts; the
+    # unseen underside is filled from its neighbours. 5.4 measured.
+    error = np.abs(live.last_colours.astype(float) - mug.color_at(vertices)).mean()
+    assert error <= 7.0

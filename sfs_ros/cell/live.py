@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.carve import Carver
+from ..core.colour import vertex_colours
 from ..core.export import SUPPORTED_SUFFIXES, export_mesh
 from ..core.grid import VoxelGrid
 from ..core.inputs import load_views
@@ -226,7 +227,9 @@ class LiveReconstruction:
         self._session: Path | None = None
         self._carver = Carver(self.grid, max_misses=self.params.max_misses)
         self._views: dict[str, _Received] = {}
+        self._colour_images: dict[str, np.ndarray] = {}
         self._mesh: tuple[np.ndarray, np.ndarray] | None = None
+        self._colours: np.ndarray | None = None
 
     @property
     def n_views(self) -> int:
@@ -248,6 +251,11 @@ class LiveReconstruction:
         """``(vertices (n, 3) float64 metres, faces (m, 3) int64)`` of this scan's latest
         :meth:`reconstruct`, for publishing; None before one."""
         return self._mesh
+
+    @property
+    def last_colours(self) -> np.ndarray | None:
+        """(n, 3) uint8 RGB per vertex of :attr:`last_mesh`, when it was coloured; else None."""
+        return self._colours
 
     @property
     def occupancy(self) -> np.ndarray:
@@ -336,6 +344,36 @@ class LiveReconstruction:
                          n_views=len(self._views),
                          occupied_voxels=int(np.count_nonzero(self._carver.occupancy)))
 
+    def add_colour_image(self, key, rgb) -> None:
+        """Keep the captured image of view ``key`` (before or after its mask): the final
+        mesh is coloured from the images of the views it used.
+
+        rgb : (H, W, 3) uint8, the rig's size. Kept in memory for this scan (a
+        restarted node gets the captures again from the scan node's resends).
+        """
+        key = _check_key(key)
+        rgb = np.asarray(rgb)
+        expected = (self.calibration.height, self.calibration.width, 3)
+        if rgb.shape != expected or rgb.dtype != np.uint8:
+            raise ValueError(f"image of view {key!r} is {rgb.shape} {rgb.dtype}, expected "
+                             f"{expected} uint8 RGB (the rig's size)")
+        self._colour_images[key] = rgb
+
+    def _colour(self, result, view_set) -> tuple[np.ndarray | None, int]:
+        """Vertex colours from the kept images of the views ``result`` used; and how many."""
+        by_name = {received.name: key for key, received in self._views.items()}
+        cameras = {v.name: v.camera for v in view_set.views}
+        used = [(by_name[n], n) for n in result.report["views"]["used"]
+                if by_name.get(n) in self._colour_images]
+        if not used:
+            return None, 0
+        masks = {key: mask for key, mask, _, _ in self.views()}
+        colours = vertex_colours(result.vertices, result.faces,
+                                 [self._colour_images[k] for k, _ in used],
+                                 [cameras[n] for _, n in used],
+                                 masks=[masks[k] for k, _ in used])
+        return colours.colours, len(used)
+
     def hull_points(self, max_points: int = 100_000) -> np.ndarray:
         """(n, 3) float64 surface voxel centres of the live hull, metres (see
         :func:`surface_points`); empty (0, 3) until a non-empty mask has carved."""
@@ -364,7 +402,8 @@ class LiveReconstruction:
             ``views_received``, ``views_used``, ``views_rejected`` (list of
             ``{view, reason}``), ``n_vertices``, ``n_faces``, ``watertight``,
             ``volume_m3``, ``area_m2``, ``silhouette_iou_mean``,
-            ``voxel_size_m``, ``seconds``.
+            ``voxel_size_m``, ``coloured_from_views`` (how many views coloured the
+            mesh, 0 without images: see :meth:`add_colour_image`), ``seconds``.
 
         Raises
         ------
@@ -382,15 +421,19 @@ class LiveReconstruction:
         report_path = confined_path(root, report_name, suffixes=(".json",))
         preview_path = confined_path(root, report_name[:-len(".report.json")] + ".png",
                                      suffixes=(".png",))
-        result = reconstruct(load_views(self._session), self.params)
+        view_set = load_views(self._session)
+        result = reconstruct(view_set, self.params)
+        colours, coloured = (None, 0) if path.suffix.lower() == ".stl" \
+            else self._colour(result, view_set)
         path.parent.mkdir(parents=True, exist_ok=True)
-        export_mesh(result.vertices, result.faces, path)
-        self._mesh = (result.vertices, result.faces)
+        export_mesh(result.vertices, result.faces, path, vertex_colors=colours)
+        self._mesh, self._colours = (result.vertices, result.faces), colours
         report = {"output": str(path), "session": str(self._session), **result.report}
         tmp = report_path.with_name(f".{report_path.name}.tmp")
         tmp.write_text(json.dumps(report, indent=2), encoding="utf-8")
         os.replace(tmp, report_path)
-        write_png(preview_path, preview_image(result.vertices, result.faces))
+        write_png(preview_path, preview_image(result.vertices, result.faces,
+                                              vertex_colors=colours))
         mesh, views = result.report["mesh"], result.report["views"]
         mean_iou = result.report["silhouette_iou"]["mean_used"]
         return {"path": str(path), "report_path": str(report_path),
@@ -402,5 +445,5 @@ class LiveReconstruction:
                 "area_m2": mesh["area_m2"],
                 "silhouette_iou_mean": None if mean_iou is None or math.isnan(mean_iou)
                 else float(mean_iou),
-                "voxel_size_m": result.grid.voxel_size,
+                "voxel_size_m": result.grid.voxel_size, "coloured_from_views": coloured,
                 "seconds": time.perf_counter() - start}

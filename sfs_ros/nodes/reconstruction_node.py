@@ -4,6 +4,7 @@
 |---|---|---|---|
 | sub | ``capture/mask`` | sensor_msgs/Image | mono8, 0 / 255 (or 0 / 1), the rig's size |
 | sub | ``capture/mask_joint_state`` | sensor_msgs/JointState | same stamp as its mask |
+| sub | ``capture/image`` | sensor_msgs/Image | the captured images, to colour the mesh (``colour``) |
 | pub | ``capture/stored`` | std_msgs/Header | a view's stamp once stored (or rejected): its receipt |
 | pub | ``hull`` | sensor_msgs/PointCloud2 | surface voxels of the live hull, frame "turntable" |
 | pub | ``camera_poses`` | geometry_msgs/PoseArray | the cameras of this scan's views, frame "turntable" |
@@ -41,6 +42,10 @@ volume_m3, seconds, ...);
 ``success=False`` with the reason when there are no views or no mesh can be
 made. ``reset`` starts a new scan (new session folder on the next view) and
 publishes an empty hull; the last mesh stays on ``mesh`` until the next one.
+With ``colour`` the node also keeps each view's captured image (in memory,
+paired with its view by stamp, whichever comes first); the mesh is coloured
+from the images of the views it uses (:mod:`sfs_ros.core.colour`), in the
+file, the picture and the ``mesh`` marker's per-corner ``colors``.
 
 A malformed message (encoding other than mono8, sizes that do not add up,
 values other than 0/1 or 0/255, a joint state without both joints) or an
@@ -124,6 +129,8 @@ PARAMS: list[Param] = [
     Param("queue_depth", 100, "Depth of the reliable mask topics and of the buffer of unpaired "
           "halves per topic; at least the number of views of a scan.", bounds=(1, 100000),
           read_only=True),
+    Param("colour", True, "Colour the mesh from the captured images (capture/image) of the "
+          "views it uses.", read_only=True),
 ]
 
 
@@ -140,6 +147,11 @@ def _bounds(values: dict) -> np.ndarray:
 
 def _fmt(stamp) -> str:
     return f"{stamp[0]}.{stamp[1]:09d}"
+
+
+def _key(stamp) -> str:
+    """The view key of a capture stamp (also its file name in the session)."""
+    return f"{stamp[0]}_{stamp[1]:09d}"
 
 
 class ReconstructionNode(Node):
@@ -189,6 +201,9 @@ class ReconstructionNode(Node):
         self._diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
         self.create_subscription(Image, "capture/mask", self._on_mask, qos,
                                  callback_group=inputs)
+        if values["colour"]:
+            self.create_subscription(Image, "capture/image", self._on_image, qos,
+                                     callback_group=inputs)
         self.create_subscription(JointState, "capture/mask_joint_state", self._on_joint_state,
                                  qos, callback_group=inputs)
         self.create_service(Trigger, "reconstruct", self._on_reconstruct,
@@ -211,6 +226,19 @@ class ReconstructionNode(Node):
         super().destroy_node()
 
     # -- inputs (executor threads) -----------------------------------------------------------
+
+    def _on_image(self, msg: Image) -> None:
+        """A captured image, kept to colour the mesh (its view may come before or after)."""
+        try:
+            stamp = stamp_key(msg.header.stamp)
+            image = msg_to_image(msg)
+            if image.ndim != 3 or image.dtype != np.uint8:
+                raise ValueError(f"encoding {msg.encoding!r}, expected rgb8 or bgr8")
+        except ValueError as exc:
+            self._count("malformed")
+            self._report_problem(f"captured image not kept for colour: {exc}")
+            return
+        self._jobs.put(("image", stamp, image.copy()))
 
     def _on_mask(self, msg: Image) -> None:
         try:
@@ -295,7 +323,7 @@ class ReconstructionNode(Node):
             except Exception as exc:  # noqa: BLE001 -- keep serving; the caller gets the reason
                 text = f"internal error in {job[0]}: {type(exc).__name__}: {exc}"
                 self.get_logger().error(f"{text}\n{traceback.format_exc()}")
-                if job[0] != "view" and not job[1].done():
+                if job[0] in ("reconstruct", "reset") and not job[1].done():
                     job[1].set_result((False, text))
                 self._report_problem(text)
 
@@ -306,6 +334,13 @@ class ReconstructionNode(Node):
             return self._add_view(*job[1:])
         if kind == "reconstruct":
             job[1].set_result(self._reconstruct())
+            return False
+        if kind == "image":
+            try:
+                self._live.add_colour_image(_key(job[1]), job[2])
+            except ValueError as exc:
+                self._report_problem(f"captured image at stamp {_fmt(job[1])} not kept for "
+                                     f"colour: {exc}")
             return False
         self._live.reset()
         self._cameras = []
@@ -324,7 +359,7 @@ class ReconstructionNode(Node):
         receipt = header(stamp=stamp, frame_id=frame_id)
         start = time.perf_counter()
         try:
-            added = self._live.add_view(f"{stamp[0]}_{stamp[1]:09d}", mask, theta, phi)
+            added = self._live.add_view(_key(stamp), mask, theta, phi)
         except DuplicateViewError:
             self._count("repeats")
             self.get_logger().info(f"view at stamp {_fmt(stamp)} came again: already stored, "
@@ -365,7 +400,8 @@ class ReconstructionNode(Node):
         self._count("reconstructions")
         vertices, faces = self._live.last_mesh
         stamp = self.get_clock().now().to_msg()
-        self._marker_pub.publish(mesh_to_marker(vertices, faces, stamp=stamp, frame_id=FRAME_ID))
+        self._marker_pub.publish(mesh_to_marker(vertices, faces, stamp=stamp, frame_id=FRAME_ID,
+                                                vertex_colors=self._live.last_colours))
         self._shape_pub.publish(mesh_to_shape(vertices, faces))
         self.get_logger().info(f"mesh written to {summary['path']} ({summary['views_used']} "
                                f"views, {summary['n_faces']} faces, "
