@@ -74,6 +74,18 @@ def test_one_bad_mask_does_not_destroy_the_object(mug_session, mug):
     assert score_against_truth(mug, result.vertices, result.faces, result.grid)["volume_iou"] > 0.85
 
 
+def test_cli_reports_an_inconsistent_view_in_its_report(capsys, mug_session, tmp_path):
+    path = mug_session / "images" / "view_010.png"
+    image = cv2.imread(str(path))
+    image[:, : image.shape[1] // 2] = image[0, 0]  # the left half of the object is gone
+    cv2.imwrite(str(path), image)
+    code, _, err = run_cli(capsys, mug_session, "-o", tmp_path / "m.ply", "-r", "48")
+    assert code == 0, err
+    report = json.loads((tmp_path / "m.report.json").read_text())
+    assert [r["view"] for r in report["views"]["rejected"]] == ["view_010.png"]
+    assert [c["consistent"] for c in report["consistency"]].count(False) == 1
+
+
 def test_bounding_box_missing_the_object_is_an_error(mug_session):
     params = ReconstructionParams(resolution=64, bounds_m=((0.2, 0.2, 0.0), (0.3, 0.3, 0.1)))
     with pytest.raises(ValueError, match="misses part of the object"):

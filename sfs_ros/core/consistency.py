@@ -195,7 +195,8 @@ def find_inconsistent_views(grid: VoxelGrid, cameras: Sequence[Camera], masks, *
         iou = silhouette_iou(proj, mask)
         missing = float((proj & ~grown).sum()) / n_proj if n_proj else 0.0
         checks.append(ViewCheck(index=v, iou=iou, missing_fraction=missing,
-                                consistent=iou >= min_iou and missing <= max_missing_fraction))
+                                consistent=bool(iou >= min_iou
+                                                and missing <= max_missing_fraction)))
     return checks
 
 
