@@ -110,7 +110,8 @@ class Reconstruction:
 
     vertices : (n, 3) float64, metres, object frame; faces : (m, 3) int64,
     outward; occupancy : (nx, ny, nz) bool on ``grid``; report : JSON-ready dict;
-    vertex_colors : (n, 3) uint8 RGB with ``colour=True``, else None.
+    vertex_colors : (n, 3) uint8 RGB with ``colour=True``, else None;
+    masks : {view name: (H, W) bool} silhouette of every view read and segmented.
     """
 
     vertices: np.ndarray
@@ -119,6 +120,7 @@ class Reconstruction:
     grid: VoxelGrid
     report: dict = field(default_factory=dict)
     vertex_colors: np.ndarray | None = None
+    masks: dict = field(default_factory=dict)
 
 
 @contextmanager
@@ -302,4 +304,5 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
     }
     return Reconstruction(vertices=vertices, faces=faces, occupancy=occupancy, grid=grid,
                           report=report,
-                          vertex_colors=None if colours is None else colours.colours)
+                          vertex_colors=None if colours is None else colours.colours,
+                          masks={v.name: m for v, m in zip(views, masks)})
