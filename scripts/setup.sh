@@ -4,7 +4,8 @@
 # from PyPI (requirements-ros.txt; a colcon build in a ROS install uses the
 # install's packages instead). Usage: scripts/setup.sh [--test]
 #   --test  also install what the tests need (pytest; Debian's assimp-utils,
-#           an independent mesh reader the export tests open files with).
+#           an independent mesh reader the export tests open files with, and
+#           chromium, the headless browser the HTML viewer is tested in).
 # The environment goes to $SFS_VENV (default: .venv in the repository).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -12,8 +13,9 @@ venv="${SFS_VENV:-.venv}"
 
 debian=()
 python3 -c 'import ensurepip, venv' 2>/dev/null || debian+=(python3-venv)
-if [[ "${1:-}" == "--test" ]] && ! command -v assimp >/dev/null; then
-    debian+=(assimp-utils)
+if [[ "${1:-}" == "--test" ]]; then
+    command -v assimp >/dev/null || debian+=(assimp-utils)
+    command -v chromium >/dev/null || debian+=(chromium)
 fi
 if ((${#debian[@]})); then
     sudo=""
