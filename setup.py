@@ -41,6 +41,8 @@ setup(
             "sfs-cell = sfs_ros.cli.cell:main",
             "sfs-camera = sfs_ros.nodes.camera_node:main",
             "sfs-scan = sfs_ros.nodes.scan_node:main",
+            "sfs-recorder = sfs_ros.nodes.recorder_node:main",
+            "sfs-replay = sfs_ros.cli.replay:main",
             "sfs-segmentation = sfs_ros.nodes.segmentation_node:main",
             "sfs-motor = sfs_ros.nodes.motor_node:main",
             "sfs-mock-hardware = sfs_ros.nodes.mock_hardware_node:main",

@@ -129,6 +129,16 @@ def _yaml(value) -> str:
     return str(value)
 
 
+def wait(condition: Callable[[], bool], *, what: str, timeout: float = 60.0) -> None:
+    """Poll ``condition`` until true, for a probe spinning in its own thread;
+    AssertionError after ``timeout`` seconds."""
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout:.0f} s waiting for {what}")
+        time.sleep(0.05)
+
+
 class RosProbe:
     """The test process's ROS node, in a private context; call :meth:`close` at the end."""
 

@@ -32,6 +32,7 @@ REAL = [("camera", "camera_node", ["rig.yaml", "camera.yaml"]),
         ("motor", "motor_node", ["motor.yaml"])]
 REST = [("segmentation", "segmentation_node", ["segmentation.yaml"]),
         ("reconstruction", "reconstruction_node", ["rig.yaml", "reconstruction.yaml"]),
+        ("recorder", "recorder_node", ["recorder.yaml"]),
         ("scan", "scan_node", ["scan.yaml"])]
 
 
@@ -57,7 +58,11 @@ def test_cell_nodes_in_start_order_with_their_files_and_overrides(mock, tmp_path
     output = tmp_path.resolve() / "out"                    # made absolute
     hardware = [{"port_link": str(output / "ttyMOCK")}, {"port": str(output / "ttyMOCK")}]
     assert [s.overrides for s in specs] == (hardware if mock else [{}, {}]) + [
-        {}, {"output_dir": str(output)}, {"plan_file": str(config / "scan_plan.yaml")}]
+        {}, {"output_dir": str(output)}, {"output_dir": str(output)},
+        {"plan_file": str(config / "scan_plan.yaml")}]
+    recording = cell_nodes(config, "out", mock=mock, record=True)
+    assert [s.name for s in recording] == [s.name for s in specs]
+    assert recording[-2].overrides == {"output_dir": str(output), "with_scan": "true"}
 
     scan = specs[-1]
     assert scan.command("/cell1") == [

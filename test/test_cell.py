@@ -14,7 +14,6 @@ exactly once.
 import math
 import os
 import threading
-import time
 from pathlib import Path
 
 import numpy as np
@@ -25,7 +24,7 @@ from sensor_msgs.msg import Image, JointState
 from std_msgs.msg import Header
 from std_srvs.srv import SetBool, Trigger
 
-from ros_harness import NAMESPACE, SOURCE_ROOT, RosProbe
+from ros_harness import NAMESPACE, SOURCE_ROOT, RosProbe, wait
 from sfs_ros.cell.scan_plan import ScanPlan
 from sfs_ros.cli.bringup import Cell, cell_nodes
 from sfs_ros.core.export import load_mesh
@@ -74,15 +73,6 @@ def _write_config(folder: Path) -> Path:
     plan = {"rings": {"phi_deg": RINGS_DEG, "per_ring": PER_RING, "top_view": True}}
     (folder / "scan_plan.yaml").write_text(yaml.safe_dump(plan))
     return folder
-
-
-def wait(condition, *, what: str, timeout: float = 60.0) -> None:
-    """Poll ``condition`` until true (the probe spins in its own thread); AssertionError."""
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout:.0f} s waiting for {what}")
-        time.sleep(0.05)
 
 
 class Recorder:

@@ -11,7 +11,7 @@ import pytest
 import yaml
 
 from sfs_ros.nodes import (camera_node, mock_hardware_node, motor_node, reconstruction_node,
-                           scan_node, segmentation_node)
+                           recorder_node, scan_node, segmentation_node)
 from sfs_ros.ros.rig_params import RIG_PARAMS
 
 CONFIG = Path(__file__).resolve().parent.parent / "config"
@@ -20,7 +20,7 @@ RIG_NAMES = {p.name for p in RIG_PARAMS}
 # (module, its config file): the rig parameters live in rig.yaml, the rest in the node's file.
 NODES = [(camera_node, "camera.yaml"), (mock_hardware_node, "mock_hardware.yaml"),
          (motor_node, "motor.yaml"), (reconstruction_node, "reconstruction.yaml"),
-         (scan_node, "scan.yaml")]
+         (recorder_node, "recorder.yaml"), (scan_node, "scan.yaml")]
 
 
 def _values(name: str) -> dict:

@@ -8,7 +8,8 @@ node's name in front, and stops them with SIGINT, in reverse order, then
 SIGTERM and SIGKILL only for a node that ignores it (a node killed outright
 leaves Fast DDS shared-memory files behind).
 
-With ``mock=True`` the hardware is the mock hardware node (simulated
+The recorder node (:mod:`sfs_ros.nodes.recorder_node`) writes its bags to
+``OUTPUT_DIR/bags/``. With ``mock=True`` the hardware is the mock hardware node (simulated
 controller + mock camera), whose pseudo-terminal is linked at
 ``OUTPUT_DIR/ttyMOCK`` for the motor node; otherwise the camera node and the
 motor node's ``port`` from ``motor.yaml``.
@@ -67,8 +68,12 @@ class NodeSpec:
         return args
 
 
-def cell_nodes(config_dir, output_dir, *, mock: bool) -> list[NodeSpec]:
-    """The cell's node processes in start order (hardware first, reconstruction last)."""
+def cell_nodes(config_dir, output_dir, *, mock: bool, record: bool = False) -> list[NodeSpec]:
+    """The cell's node processes in start order (hardware first, the scan node last).
+
+    The recorder is always there (idle until ``record/start``); ``record``
+    makes it record every scan (``with_scan``).
+    """
     config = Path(config_dir)
     output = Path(output_dir).resolve()
 
@@ -92,6 +97,8 @@ def cell_nodes(config_dir, output_dir, *, mock: bool) -> list[NodeSpec]:
         NodeSpec("segmentation", "segmentation_node", files("segmentation.yaml")),
         NodeSpec("reconstruction", "reconstruction_node",
                  files("rig.yaml", "reconstruction.yaml"), {"output_dir": str(output)}),
+        NodeSpec("recorder", "recorder_node", files("recorder.yaml"),
+                 {"output_dir": str(output), **({"with_scan": "true"} if record else {})}),
         NodeSpec("scan", "scan_node", files("scan.yaml"),
                  {"plan_file": files("scan_plan.yaml")[0]}),
     ]

@@ -31,6 +31,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--config", type=Path, default=None,
                    help="folder of the YAML parameter files (default: the installed ones)")
     p.add_argument("--namespace", default="", help="ROS namespace of all nodes")
+    p.add_argument("--record", action="store_true",
+                   help="record every scan as a rosbag2 in OUTPUT_DIR/bags (the recorder "
+                        "also takes record/start and record/stop at any time)")
     return p
 
 
@@ -39,7 +42,7 @@ def main(argv=None) -> int:
     try:
         config = args.config or default_config_dir()
         args.output_dir.mkdir(parents=True, exist_ok=True)
-        specs = cell_nodes(config, args.output_dir, mock=args.mock)
+        specs = cell_nodes(config, args.output_dir, mock=args.mock, record=args.record)
     except (FileNotFoundError, OSError) as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2

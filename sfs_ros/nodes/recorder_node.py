@@ -1,0 +1,454 @@
+"""Recorder node: a scanning session as a rosbag2 (MCAP, or sqlite3 on request).
+
+| kind | name | type | notes |
+|---|---|---|---|
+| sub | ``capture/image``, ``capture/mask`` | sensor_msgs/Image | captures QoS |
+| sub | ``capture/joint_state``, ``capture/mask_joint_state`` | sensor_msgs/JointState | captures |
+| sub | ``capture/stored`` | std_msgs/Header | captures QoS |
+| sub | ``joint_states``, ``camera_info`` | sensor_msgs/JointState, CameraInfo | depth 10 |
+| sub | ``diagnostics`` | diagnostic_msgs/DiagnosticArray | depth 10 |
+| sub | ``hull``, ``camera_poses`` | sensor_msgs/PointCloud2, geometry_msgs/PoseArray | results |
+| sub | ``mesh``, ``mesh_shape`` | visualization_msgs/Marker, shape_msgs/Mesh | results QoS |
+| pub | ``diagnostics`` | diagnostic_msgs/DiagnosticArray | 1 Hz and at start / stop |
+| srv | ``record/start`` | std_srvs/Trigger | open a bag; JSON ``{"path", "storage"}`` |
+| srv | ``record/stop`` | std_srvs/Trigger | close it; JSON ``{"path", "messages", ...}`` |
+| cli | ``<node>/list_parameters``, ``.../get_parameters`` | rcl_interfaces | ``parameter_nodes`` |
+
+Captures QoS: reliable, volatile, keep-last ``queue_depth``
+(:func:`sfs_ros.ros.capture_qos`); results QoS: reliable, transient-local,
+depth 1 (:func:`sfs_ros.ros.result_qos`). The subscriptions exist from
+start-up (so none is still being matched when a recording starts) and take
+the messages' serialized bytes (``raw=True``), which go into the bag
+unchanged with the time they were received; a bag holds what arrived while it
+was open (results published before its start are not in it). Topics,
+types and the bag's layout: :mod:`sfs_ros.cell.bag`.
+
+Bags go to ``<output_dir>/bags/<name>/`` (``<name>.mcap`` or ``<name>.db3``
+and, once closed, ``metadata.yaml``): ``name`` is ``bag_name`` when set (a
+bag that exists already is refused), else ``bag_<UTC time>``, or
+``scan_<NNN>_<UTC time>`` for a bag started with scan NNN.
+
+Starting and stopping: ``record/start`` answers the bag's ``path`` and
+``storage``, ``record/stop`` its ``path``, ``messages``, ``bytes`` (of message
+data), ``seconds`` (recording) and ``write_s`` (spent writing), as JSON; a
+second start or a stop with nothing recording is refused with the reason. With
+``with_scan``, a new bag also opens when the scan node's diagnostics report
+a scan number not seen before in state ``starting`` (the bag being recorded,
+if any, is closed first), and recording goes on until ``record/stop``, the
+next scan's start or shutdown: each bag holds one scan from its very first
+message, and the ``reconstruct`` results that follow it.
+
+Parameters used: at every start a worker thread asks ``parameter_nodes``
+(by default reconstruction, segmentation, scan and camera) for all their
+parameters through their parameter services, within
+``parameter_timeout_s`` together, and writes them as one JSON message on
+``sfs/parameters`` (format in :mod:`sfs_ros.cell.bag`); a node that does not
+answer is named there and in a WARN. The executor never waits for them.
+
+Durability: one worker thread owns the bag; every message is flushed to the
+operating system before the next (:class:`sfs_ros.cell.bag.BagWriter`), so a
+recorder killed outright leaves a bag that reads up to its last whole
+message. ``destroy_node`` (SIGINT) writes what is queued and closes the bag.
+A write that fails (disk full) closes the bag and is an ERROR.
+
+Diagnostics values: ``recording``, ``path``, ``storage``, ``messages``,
+``bytes``, ``write_s`` (seconds spent writing this bag), ``bags`` (closed
+since start-up). Parameters: :data:`PARAMS`; ``output_dir`` is required.
+"""
+
+from __future__ import annotations
+
+import json
+import queue
+import threading
+import time
+import traceback
+from concurrent.futures import Future
+from dataclasses import asdict
+from functools import partial
+from importlib import import_module
+from pathlib import Path
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
+from rclpy.node import Node
+from rclpy.parameter import parameter_value_to_python
+from rclpy.parameter_client import AsyncParameterClient
+from rclpy.serialization import deserialize_message
+from std_srvs.srv import Trigger
+
+from sfs_ros.cell.bag import (CAPTURE, PARAMETERS_TOPIC, RESULT, STORAGES, TOPICS, BagWriter,
+                              bag_folder, parameters_message)
+from sfs_ros.nodes.entry import run_node
+from sfs_ros.nodes.segmentation_node import segmentation_params
+from sfs_ros.ros import capture_qos, result_qos
+from sfs_ros.ros.convert import diagnostic_array
+from sfs_ros.ros.params import Param, ParameterError, declare, validating_callback
+from sfs_ros.ros.rig_params import rig_calibration
+from sfs_ros.ros.services import ServiceError
+
+__all__ = ["RecorderNode", "PARAMS", "message_class", "main"]
+
+NODE_NAME = "recorder"
+
+BAG_NAME = Param("bag_name", "", "Name of the next bag's folder under <output_dir>/bags; "
+                 "empty = automatic (bag_<UTC time>, scan_<NNN>_<UTC time>).",
+                 constraints="empty, or 1-100 letters, digits, '_', '-', '.'; a bag that "
+                             "exists is refused")
+PARAMS: list[Param] = [
+    Param("output_dir", "", "Folder whose bags/ sub-folder receives the bags (created if "
+          "needed); every file the node writes stays inside it.", read_only=True,
+          constraints="required, non-empty"),
+    Param("storage", STORAGES[0], "Storage of the bags.", choices=STORAGES, read_only=True),
+    BAG_NAME,
+    Param("with_scan", False, "Also open a new bag when a scan starts (and keep recording until "
+          "record/stop, the next scan or shutdown).", read_only=True),
+    Param("parameter_nodes", ["reconstruction", "segmentation", "scan", "camera"], "Nodes "
+          "(names relative to this node's namespace) whose parameters each bag stores.",
+          read_only=True),
+    Param("parameter_timeout_s", 5.0, "Longest wait for the parameters of all parameter_nodes, "
+          "s.", bounds=(0.1, 600.0), read_only=True),
+    Param("queue_depth", 100, "Depth of the reliable capture topics; at least the number of "
+          "views of a scan.", bounds=(1, 100000), read_only=True),
+]
+
+
+def message_class(msgtype: str):
+    """The rclpy message class of ``"pkg/msg/Name"``; ValueError if it cannot be imported."""
+    package, kind, name = (msgtype.split("/") + ["", ""])[:3]
+    try:
+        return getattr(import_module(f"{package}.{kind}"), name)
+    except (ImportError, AttributeError, ValueError):
+        raise ValueError(f"message type {msgtype!r} is not installed") from None
+
+
+def _stamp() -> str:
+    return time.strftime("%Y%m%d_%H%M%S", time.gmtime())
+
+
+def session_parameters(nodes: dict) -> tuple[dict, dict]:
+    """The ``session`` and ``reconstruction`` sections (:mod:`sfs_ros.cell.bag`) of the
+    fetched ``{node: {name: value}}``; empty when the reconstruction node's are missing."""
+    values = nodes.get("reconstruction")
+    if values is None:
+        return {}, {}
+    session = {"rig": rig_calibration(values).to_dict(),
+               "bounds_m": np.reshape(values["bounds_m"], (2, 3)).tolist()}
+    if "segmentation" in nodes:
+        session["segmentation"] = asdict(segmentation_params(nodes["segmentation"]))
+    return session, {"resolution": values["resolution"], "mesher": values["mesher"]}
+
+
+class RecorderNode(Node):
+    """Records the cell's topics into rosbag2 bags on request or with each scan.
+
+    Raises :class:`ParameterError` at construction for invalid parameters.
+    ``destroy_node`` writes what is queued and closes the bag.
+    """
+
+    def __init__(self, **kwargs):
+        self._worker = None   # started last; a node refused at start-up has none to stop
+        super().__init__(NODE_NAME, **kwargs)
+        p = self._p = declare(self, PARAMS)
+        if not p["output_dir"].strip():
+            raise ParameterError("output_dir", "is required: the folder for the bags")
+        try:
+            (Path(p["output_dir"]) / "bags").mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise ParameterError("output_dir", str(exc)) from None
+        self._check_name({"bag_name": p["bag_name"]})
+        self.add_on_set_parameters_callback(
+            validating_callback(self, [BAG_NAME], self._check_name))
+
+        self._lock = threading.Lock()       # diagnostics values
+        self._status = {"recording": False, "path": "", "storage": p["storage"], "messages": 0,
+                        "bytes": 0, "write_s": 0.0, "bags": 0}
+        self._problem = self._warning = ""
+        self._last_ns = 0
+        self._scan_seen = None
+        self._jobs: queue.Queue = queue.Queue()
+        self._bag: BagWriter | None = None           # worker thread only
+        self._fetched: Future | None = None
+        self._started = 0.0
+
+        inputs = MutuallyExclusiveCallbackGroup()     # in order: strictly increasing log times
+        services = MutuallyExclusiveCallbackGroup()
+        clients = ReentrantCallbackGroup()
+        self._topics: dict[str, tuple[str, str]] = {}  # absolute name -> (type, kind)
+        for name, (msgtype, kind) in TOPICS.items():
+            if name == PARAMETERS_TOPIC:
+                continue
+            qos = capture_qos(p["queue_depth"]) if kind == CAPTURE \
+                else result_qos() if kind == RESULT else 10
+            topic = self.resolve_topic_name(name)
+            self.create_subscription(message_class(msgtype), name,
+                                     partial(self._on_message, topic), qos,
+                                     callback_group=inputs, raw=True)
+            self._topics[topic] = (msgtype, kind)
+        self._diagnostics_topic = self.resolve_topic_name("diagnostics")
+        self._parameters_topic = self.resolve_topic_name(PARAMETERS_TOPIC)
+        self._parameter_clients = {n: AsyncParameterClient(self, n, callback_group=clients)
+                                   for n in p["parameter_nodes"]}
+        self._diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
+        self.create_service(Trigger, "record/start", self._on_start, callback_group=services)
+        self.create_service(Trigger, "record/stop", self._on_stop, callback_group=services)
+        self.create_timer(1.0, self._publish_diagnostics, callback_group=inputs)
+        self._worker = threading.Thread(target=self._work, name="recorder", daemon=True)
+        self._worker.start()
+        self.get_logger().info(
+            f"recording into {Path(p['output_dir']) / 'bags'} ({p['storage']}"
+            f"{', a bag per scan' if p['with_scan'] else ''}): call record/start")
+
+    def _check_name(self, values: dict) -> None:
+        if values["bag_name"]:
+            try:
+                bag_folder(self._p["output_dir"], values["bag_name"])
+            except ValueError as exc:
+                raise ParameterError("bag_name", str(exc)) from None
+
+    def destroy_node(self) -> None:
+        """Write what is queued, close the bag, stop the worker, then destroy the node."""
+        if self._worker is not None:
+            self._jobs.put(None)
+            self._worker.join()
+        super().destroy_node()
+
+    # -- inputs (executor) -------------------------------------------------------------------
+
+    def _on_message(self, topic: str, data: bytes) -> None:
+        now = max(self.get_clock().now().nanoseconds, self._last_ns + 1)
+        self._last_ns = now
+        if self._p["with_scan"] and topic == self._diagnostics_topic:
+            self._watch_scan(data)
+        self._jobs.put(("message", topic, now, data))
+
+    def _watch_scan(self, data: bytes) -> None:
+        """Queue a new bag when the scan node reports a new scan starting."""
+        for status in deserialize_message(data, DiagnosticArray).status:
+            values = {kv.key: kv.value for kv in status.values}
+            scan = values.get("scan", "")
+            if status.name.endswith(": scan") and values.get("state") == "starting" \
+                    and scan.isdigit() and scan != self._scan_seen:
+                self._scan_seen = scan
+                self._jobs.put(("start", None, f"scan_{int(scan):03d}"))
+
+    def _on_start(self, _request, response):
+        return self._request(("start", Future(), "bag"), response)
+
+    def _on_stop(self, _request, response):
+        return self._request(("stop", Future()), response)
+
+    def _request(self, job, response):
+        self._jobs.put(job)
+        response.success, response.message = job[1].result()
+        return response
+
+    # -- worker thread -----------------------------------------------------------------------
+
+    def _work(self) -> None:
+        while True:
+            try:
+                job = self._jobs.get(timeout=0.2)
+            except queue.Empty:
+                job = ("idle",)
+            if job is None:
+                self._close()
+                return
+            try:
+                if job[0] == "message":
+                    self._write(*job[1:])
+                elif job[0] == "start":
+                    answer = self._open(job[2], rolling=job[1] is None)
+                    if job[1] is not None:
+                        job[1].set_result(answer)
+                elif job[0] == "stop":
+                    job[1].set_result(self._close() if self._bag is not None
+                                      else (False, "not recording: call record/start first"))
+                self._write_parameters()
+            except Exception as exc:  # noqa: BLE001 -- keep serving; the bag keeps what it has
+                if not isinstance(exc, OSError):
+                    self.get_logger().error(traceback.format_exc())
+                what = "write failed" if isinstance(exc, OSError) else \
+                    f"internal error {type(exc).__name__}"
+                self._report_problem(f"bag {self._status['path']}: {what}: {exc}; bag closed")
+                self._abandon()
+                if job[0] in ("start", "stop") and job[1] is not None and not job[1].done():
+                    job[1].set_result((False, f"{type(exc).__name__}: {exc}"))
+
+    def _open(self, prefix: str, *, rolling: bool) -> tuple[bool, str]:
+        if self._bag is not None:
+            if not rolling:
+                return False, (f"already recording to {self._bag.path}; call record/stop "
+                               "first")
+            self._close()
+        name = self.get_parameter("bag_name").value
+        try:
+            if name:
+                folder = bag_folder(self._p["output_dir"], name)
+            else:
+                base = f"{prefix}_{_stamp()}"
+                folder, n = bag_folder(self._p["output_dir"], base), 1
+                while folder.exists():
+                    n += 1
+                    folder = bag_folder(self._p["output_dir"], f"{base}_{n}")
+            bag = BagWriter(folder, storage=self._p["storage"])
+        except ValueError as exc:
+            text = f"cannot start recording: {exc}"
+            if name:
+                text += "; set bag_name to a new name (or empty for an automatic one)"
+            self._report_problem(text)
+            return False, text
+        for topic, (msgtype, kind) in [*self._topics.items(),
+                                       (self._parameters_topic, TOPICS[PARAMETERS_TOPIC])]:
+            bag.add_topic(topic, msgtype, kind=kind, depth=self._p["queue_depth"])
+        self._bag, self._started = bag, time.monotonic()
+        self._fetched = Future()
+        threading.Thread(target=self._fetch, args=(self._fetched,), daemon=True).start()
+        with self._lock:
+            self._status.update(recording=True, path=str(bag.path), messages=0, bytes=0,
+                                write_s=0.0)
+            self._problem = self._warning = ""
+        self.get_logger().info(f"recording to {bag.path}")
+        self._publish_diagnostics()
+        return True, json.dumps({"path": str(bag.path), "storage": bag.storage})
+
+    def _write(self, topic: str, log_ns: int, data: bytes) -> None:
+        if self._bag is None:
+            return
+        start = time.perf_counter()
+        self._bag.write(topic, log_ns, data)
+        with self._lock:
+            self._status.update(messages=self._bag.messages, bytes=self._bag.bytes,
+                                write_s=self._status["write_s"] + time.perf_counter() - start)
+
+    def _write_parameters(self, *, wait: bool = False) -> None:
+        """Write the fetched parameters once they are in (``wait``: up to the timeout)."""
+        fetched = self._fetched
+        if self._bag is None or fetched is None or not (wait or fetched.done()):
+            return
+        self._fetched = None
+        try:
+            document = fetched.result(timeout=self._p["parameter_timeout_s"] + 1.0)
+        except TimeoutError:
+            self._report_warning("the parameters did not arrive before the bag closed")
+            return
+        self._write(self._parameters_topic,
+                    max(self.get_clock().now().nanoseconds, self._last_ns + 1),
+                    parameters_message(document))
+
+    def _close(self) -> tuple[bool, str]:
+        if self._bag is None:
+            return False, "not recording"
+        self._write_parameters(wait=True)
+        bag, self._bag = self._bag, None
+        bag.close()
+        seconds = time.monotonic() - self._started
+        with self._lock:
+            self._status.update(recording=False, bags=self._status["bags"] + 1)
+            write_s = self._status["write_s"]
+        self.get_logger().info(f"bag {bag.path} closed: {bag.messages} messages, "
+                               f"{bag.bytes / 1e6:.1f} MB in {seconds:.1f} s")
+        self._publish_diagnostics()
+        return True, json.dumps({"path": str(bag.path), "messages": bag.messages,
+                                 "bytes": bag.bytes, "seconds": round(seconds, 3),
+                                 "write_s": round(write_s, 4)})
+
+    def _abandon(self) -> None:
+        """After a failed write: close what can be closed, record nothing more in this bag."""
+        bag, self._bag, self._fetched = self._bag, None, None
+        with self._lock:
+            self._status["recording"] = False
+        if bag is not None:
+            try:
+                bag.close()
+            except Exception as exc:  # noqa: BLE001 -- the file keeps its whole messages
+                self.get_logger().error(f"bag {bag.path} could not be closed: {exc}")
+
+    # -- parameters (a thread per bag) -------------------------------------------------------
+
+    def _fetch(self, result: Future) -> None:
+        deadline = time.monotonic() + self._p["parameter_timeout_s"]
+        nodes, unavailable = {}, {}
+        for name, client in self._parameter_clients.items():
+            try:
+                nodes[name] = self._parameters_of(client, deadline)
+            except ServiceError as exc:
+                unavailable[name] = str(exc)
+            except Exception as exc:  # noqa: BLE001 -- e.g. rclpy shut down meanwhile
+                unavailable[name] = f"{type(exc).__name__}: {exc}"
+        document = {"namespace": self.get_namespace(), "nodes": nodes, "unavailable": unavailable}
+        try:
+            session, reconstruction = session_parameters(nodes)
+            if session:
+                document.update(session=session, reconstruction=reconstruction)
+        except (KeyError, ValueError) as exc:
+            unavailable["reconstruction"] = f"its parameters do not make a session: {exc}"
+        if unavailable:
+            self._report_warning("parameters not stored: " + "; ".join(
+                f"{n}: {why}" for n, why in unavailable.items()))
+        result.set_result(document)
+
+    def _parameters_of(self, client: AsyncParameterClient, deadline: float) -> dict:
+        name = client.remote_node_name
+        while not client.services_are_ready():
+            self._check_running()
+            if time.monotonic() > deadline:
+                raise ServiceError(f"node {name} offers no parameter services (waited "
+                                   f"{self._p['parameter_timeout_s']:g} s): is it running?")
+            time.sleep(0.05)
+        names = list(self._answer(client.list_parameters(), name, deadline).result.names)
+        values = self._answer(client.get_parameters(names), name, deadline).values
+        return {n: parameter_value_to_python(v) for n, v in zip(names, values)}
+
+    def _answer(self, future, name: str, deadline: float):
+        answered = threading.Event()
+        future.add_done_callback(lambda _f: answered.set())
+        while not answered.wait(0.05):
+            self._check_running()
+            if time.monotonic() > deadline:
+                future.cancel()
+                raise ServiceError(f"node {name} did not answer its parameter request within "
+                                   f"{self._p['parameter_timeout_s']:g} s")
+        return future.result()
+
+    def _check_running(self) -> None:
+        if not self.context.ok():
+            raise ServiceError("the recorder shut down before it answered")
+
+    # -- diagnostics (any thread) ------------------------------------------------------------
+
+    def _report_problem(self, text: str) -> None:
+        with self._lock:
+            self._problem = text
+        self.get_logger().error(text)
+        self._publish_diagnostics()
+
+    def _report_warning(self, text: str) -> None:
+        with self._lock:
+            self._warning = text
+        self.get_logger().warning(text)
+
+    def _publish_diagnostics(self) -> None:
+        with self._lock:
+            values = dict(self._status, write_s=round(self._status["write_s"], 4))
+            problem, warning = self._problem, self._warning
+        if problem:
+            level, message = DiagnosticStatus.ERROR, problem
+        elif warning:
+            level, message = DiagnosticStatus.WARN, warning
+        else:
+            level = DiagnosticStatus.OK
+            message = f"recording to {values['path']}" if values["recording"] else "idle"
+        self._diag_pub.publish(diagnostic_array(f"{self.get_name()}: recorder", level, message,
+                                                values, stamp=self.get_clock().now().to_msg()))
+
+
+def main(args=None) -> None:
+    """Entry point ``sfs-recorder``
+    (``--ros-args --params-file config/recorder.yaml``, with ``output_dir`` set)."""
+    run_node("sfs-recorder", RecorderNode, args, threads=4)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,216 @@
+"""A mock scan recorded by the recorder node, then replayed offline into the live mesh.
+
+The mock cell is brought up as in test_cell.py (small camera, fast axes,
+64^3, a 17-view plan) with the recorder as one more node process. The scan
+runs through :class:`CellClient` while ``record/start`` .. ``record/stop``
+records it; ``sfs-reconstruct BAG`` must then give the mesh the
+reconstruction node wrote: the bag holds the masks and joint states the node
+carved and the parameters it ran with, and the offline reader feeds them to
+the same code in the same order.
+"""
+
+import json
+import os
+import struct
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from rosbags.rosbag2 import Reader
+from rosbags.typesys import Stores, get_typestore
+from std_srvs.srv import Trigger
+
+from ros_harness import NAMESPACE, SOURCE_ROOT, RosProbe, wait
+from sfs_ros.cell.bag import PARAMETERS_TOPIC, TOPICS, open_bag
+from sfs_ros.cli.bringup import Cell, cell_nodes
+from sfs_ros.core.export import load_mesh
+from sfs_ros.core.nerf import read_transforms
+from sfs_ros.core.session import read_session
+from sfs_ros.core.views import read_image
+from sfs_ros.core.objects import make_object
+from sfs_ros.core.synthetic import carving_box
+from sfs_ros.ros.cell_client import CellClient
+from sfs_ros.ros.services import call
+
+CONFIG = Path(__file__).resolve().parent.parent / "config"
+RINGS_DEG, PER_RING = [20.0, 55.0], 8                      # 17 views with the top one
+RESOLUTION = 64
+SCAN_TIMEOUT_S = 180.0
+STORE = get_typestore(Stores.ROS2_KILTED)
+OVERRIDES = {
+    "rig.yaml": {"width": 320, "height": 240, "fx": 700.0, "fy": 700.0},
+    "mock_hardware.yaml": {"max_speed_deg_s": [720.0, 360.0], "accel_deg_s2": [7200.0, 3600.0],
+                           "homing_speed_deg_s": 600.0, "seed": 7},
+    "motor.yaml": {"status_rate_hz": 20.0, "reconnect_period_s": 0.5, "move_timeout_s": 5.0},
+    "reconstruction.yaml": {"resolution": RESOLUTION, "hull_rate_hz": 1.0,
+                            "bounds_m": carving_box(make_object("mug")).ravel().tolist()},
+    "scan.yaml": {"settle_samples": 2, "stall_s": 1.5, "move_timeout_s": 4.0,
+                  "capture_timeout_s": 3.0, "receipt_timeout_s": 3.0, "home_timeout_s": 20.0},
+}
+
+
+def _write_config(folder: Path) -> Path:
+    folder.mkdir()
+    for path in CONFIG.glob("*.yaml"):
+        data = yaml.safe_load(path.read_text())
+        if path.name in OVERRIDES:
+            data["/**"]["ros__parameters"].update(OVERRIDES[path.name])
+        (folder / path.name).write_text(yaml.safe_dump(data))
+    plan = {"rings": {"phi_deg": RINGS_DEG, "per_ring": PER_RING, "top_view": True}}
+    (folder / "scan_plan.yaml").write_text(yaml.safe_dump(plan))
+    return folder
+
+
+@pytest.fixture(scope="module")
+def cell(tmp_path_factory):
+    root = tmp_path_factory.mktemp("recorded_cell")
+    config = _write_config(root / "config")
+    output = root / "output"
+    output.mkdir()
+    specs = cell_nodes(config, output, mock=True)            # the recorder among them
+    env = dict(os.environ, PYTHONPATH=str(SOURCE_ROOT))
+    log_path = root / "cell.log"
+    with open(log_path, "w") as log:
+        bringup = Cell(specs, namespace=NAMESPACE, log=log, env=env).start()
+        client = CellClient(NAMESPACE, name="recorded_cell_client")
+        probe = RosProbe("recorded_cell_probe")
+        services = {n: probe.node.create_client(Trigger, f"record/{n}") for n in ("start", "stop")}
+        threading.Thread(target=probe.executor.spin, daemon=True).start()
+        try:
+            client.wait_ready(timeout_s=90.0)
+            yield {"client": client, "services": services, "output": output, "log": log_path}
+        finally:
+            probe.close()
+            client.close()
+            codes = bringup.stop()
+    assert all(code == 0 for code in codes.values()), \
+        f"nodes did not stop cleanly: {codes}\n{log_path.read_text()[-5000:]}"
+
+
+def _record(cell, what: str) -> Trigger.Response:
+    return call(cell["services"][what], Trigger.Request(), timeout_s=60.0)
+
+
+@pytest.fixture(scope="module")
+def recorded(cell):
+    """One scan recorded from record/start to record/stop: the bag, the live summary, figures."""
+    client = cell["client"]
+    answer = _record(cell, "start")
+    assert answer.success, answer.message
+    bag_path = Path(json.loads(answer.message)["path"])
+    assert bag_path.parent == (cell["output"] / "bags").resolve()
+    started = time.monotonic()
+    scan = client.start_scan()
+    client.wait_scan_done(scan, timeout_s=SCAN_TIMEOUT_S)
+    summary = client.reconstruct()
+    scan_s = time.monotonic() - started
+    # The mesh is published as reconstruct answers; the open bag already reads (without its
+    # summary) up to its last message: wait until the mesh is in it.
+    mcap = bag_path / f"{bag_path.name}.mcap"
+    wait(lambda: open_bag(mcap).counts.get(f"{NAMESPACE}/mesh_shape"), what="the mesh in the bag")
+    answer = _record(cell, "stop")
+    assert answer.success, answer.message
+    stopped = json.loads(answer.message)
+    return {"bag": bag_path, "summary": summary, "stop": stopped, "scan_s": scan_s}
+
+
+def test_the_recorded_scan_replays_offline_into_the_live_mesh(recorded, tmp_path):
+    out = tmp_path / "offline.ply"
+    done = subprocess.run([sys.executable, "-m", "sfs_ros.cli.reconstruct", str(recorded["bag"]),
+                           "-o", str(out), "-q"], capture_output=True, text=True, cwd=SOURCE_ROOT,
+                          timeout=600)
+    assert done.returncode == 0, done.stderr
+    live_vertices, live_faces = load_mesh(recorded["summary"]["path"])
+    vertices, faces = load_mesh(out)
+    # Same views, cameras, box, grid and code: the same mesh. Both files are written by
+    # export_mesh from float64 vertices; float32 storage leaves no more than its rounding
+    # (7.5e-9 m at 0.1 m), far below a voxel (1.8 mm).
+    np.testing.assert_array_equal(faces, live_faces)
+    np.testing.assert_allclose(vertices, live_vertices, rtol=0, atol=1e-7)
+    report = json.loads(out.with_name("offline.report.json").read_text())
+    assert len(report["views"]["used"]) == recorded["summary"]["views_used"] == 17
+    assert max(report["grid"]["shape"]) == RESOLUTION              # the recorded resolution
+    size = sum(p.stat().st_size for p in recorded["bag"].iterdir())
+    stop = recorded["stop"]
+    print(f"\nbag {size / 1e6:.2f} MB, {stop['messages']} messages ({stop['bytes'] / 1e6:.2f} MB "
+          f"of data), written in {stop['write_s']:.3f} s; scan + reconstruct "
+          f"{recorded['scan_s']:.1f} s, recording {stop['seconds']:.1f} s")
+
+
+def _records(data: bytes):
+    """Top-level MCAP records ``(opcode, body)`` after the magic (the summary included)."""
+    offset = 8
+    while offset + 9 <= len(data):
+        op, length = struct.unpack_from("<BQ", data, offset)
+        yield op, data[offset + 9:offset + 9 + length]
+        offset += 9 + length
+
+
+def _string(body: bytes, at: int) -> tuple[str, int]:
+    (n,) = struct.unpack_from("<I", body, at)
+    return body[at + 4:at + 4 + n].decode(), at + 4 + n
+
+
+def test_the_bag_is_a_ros2_mcap_that_rosbags_opens(recorded):
+    with Reader(recorded["bag"]) as reader:
+        counts = {c.topic: c.msgcount for c in reader.connections}
+        types = {c.topic: c.msgtype for c in reader.connections}
+        parameters = [data for c, _, data in reader.messages()
+                      if c.topic == f"{NAMESPACE}/{PARAMETERS_TOPIC}"]
+    for name in ("capture/image", "capture/joint_state", "capture/mask",
+                 "capture/mask_joint_state", "capture/stored"):
+        assert counts[f"{NAMESPACE}/{name}"] >= 17, name           # resends may add some
+    for name in ("joint_states", "diagnostics", "camera_info", "mesh", "mesh_shape", "hull"):
+        assert counts[f"{NAMESPACE}/{name}"] >= 1, name
+    assert all(types[f"{NAMESPACE}/{n}"] == t for n, (t, _) in TOPICS.items())
+    assert len(parameters) == 1
+    document = json.loads(STORE.deserialize_cdr(parameters[0], "std_msgs/msg/String").data)
+    assert set(document["nodes"]) == {"reconstruction", "segmentation", "scan", "camera"}
+    assert document["unavailable"] == {}
+    assert document["reconstruction"]["resolution"] == RESOLUTION
+    data = (recorded["bag"] / f"{recorded['bag'].name}.mcap").read_bytes()
+    assert data[:8] == b"\x89MCAP0\r\n" and data[-8:] == b"\x89MCAP0\r\n"
+    records = list(_records(data))
+    assert records[0][0] == 0x01 and _string(records[0][1], 0)[0] == "ros2"   # header profile
+    schemas = [r for op, r in records if op == 0x03]                  # summary section
+    channels = [r for op, r in records if op == 0x04]
+    assert len(schemas) == len(set(t for t, _ in TOPICS.values()))
+    assert {_string(body, _string(body, 2)[1])[0] for body in schemas} == {"ros2msg"}
+    assert len(channels) == len(TOPICS)
+    assert {_string(body, _string(body, 4)[1])[0] for body in channels} == {"cdr"}
+
+
+def test_the_bag_exports_its_captures_for_other_tools(recorded, tmp_path):
+    out = tmp_path / "export"
+    done = subprocess.run([sys.executable, "-m", "sfs_ros.cli.export", str(recorded["bag"]),
+                           "--session", str(out / "plain"), "--nerf",
+                           str(out / "transforms.json")], capture_output=True, text=True,
+                          cwd=SOURCE_ROOT, timeout=300)
+    assert done.returncode == 0, done.stderr
+    plain = read_session(out / "plain")
+    assert len(plain.views) == 17
+    # The captured images (the mug in colour on a white backdrop), not the 0/255 masks.
+    image = read_image(plain.views[0].image_path)
+    assert len(np.unique(image)) > 16 and np.any(image[..., 0] != image[..., 2])
+    # Tagged with the encoder angles the reconstruction node stored for the same captures.
+    live = read_session(recorded["summary"]["session"])
+    assert sorted((v.theta_rad, v.phi_rad) for v in plain.views) == \
+        sorted((v.theta_rad, v.phi_rad) for v in live.views)
+    assert len(read_transforms(out / "transforms.json").views) == 17
+
+
+def test_the_bag_replays_offline_into_a_coloured_mesh(recorded, tmp_path):
+    out = tmp_path / "coloured.glb"
+    done = subprocess.run([sys.executable, "-m", "sfs_ros.cli.reconstruct", str(recorded["bag"]),
+                           "-o", str(out), "--colour", "-q"], capture_output=True, text=True,
+                          cwd=SOURCE_ROOT, timeout=600)
+    assert done.returncode == 0, done.stderr
+    vertices, faces, colours = load_mesh(out, with_colors=True)
+    live_vertices, live_faces = load_mesh(recorded["summary"]["path"])
+    np.testing.assert_array_equal(faces, live_faces)              # the live mesh, coloured
+    assert colours is not None and len(np.unique(colours[:, :3], axis=0)) > 100
