@@ -113,3 +113,15 @@ def test_angles_table_not_matching_images(capsys, mug_session, tmp_path):
     table.write_text("\n".join(lines[:-1]) + "\n")  # one image has no row
     code, _, err = run_cli(capsys, mug_session, "-o", tmp_path / "m.ply", "-q")
     assert code == 2 and "views.csv" in err and "Traceback" not in err
+
+
+def test_cli_colours_the_mesh_and_refuses_colour_in_stl(capsys, mug_session, tmp_path, mug):
+    from sfs_ros.core.export import load_mesh
+
+    code, _, err = run_cli(capsys, mug_session, "-o", tmp_path / "c.ply", "-r", "48", "--colour")
+    assert code == 0, err
+    vertices, _, colours = load_mesh(tmp_path / "c.ply", with_colors=True)
+    assert colours is not None and len(colours) == len(vertices)
+    assert json.loads((tmp_path / "c.report.json").read_text())["colour"]["views"] > 0
+    code, _, err = run_cli(capsys, mug_session, "-o", tmp_path / "c.stl", "--colour")
+    assert code == 2 and "STL has none" in err

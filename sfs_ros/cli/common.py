@@ -1,8 +1,45 @@
-"""What the command-line tools share: progress on a terminal, errors as one line."""
+"""What the command-line tools share: inputs, progress on a terminal, errors as one line."""
 
 from __future__ import annotations
 
 import sys
+from pathlib import Path
+
+from ..core.inputs import ACCEPTED_INPUTS as CORE_INPUTS
+from ..core.inputs import load_views
+from ..core.views import ViewError, ViewSet
+
+#: What :func:`load_input` reads, in words.
+ACCEPTED_INPUTS = f"{CORE_INPUTS}, or a rosbag2 recorded by sfs-recorder (folder, .mcap or .db3)"
+_BAG_SUFFIXES = (".mcap", ".db3")
+
+
+def _is_bag(path: Path) -> bool:
+    if path.is_file():
+        return path.suffix.lower() in _BAG_SUFFIXES
+    return path.is_dir() and ((path / "metadata.yaml").is_file()
+                              or any(p.suffix.lower() in _BAG_SUFFIXES for p in path.iterdir()))
+
+
+def load_input(path, *, captures: bool = False) -> tuple[ViewSet, dict]:
+    """The views at ``path`` (:func:`sfs_ros.core.inputs.load_views`, or a rosbag2 read
+    by :func:`sfs_ros.cell.bag.read_bag`: its masks as the reconstruction node carved
+    them, or with ``captures`` its captured images) and the recorded defaults of a bag
+    (``{"resolution": ..., "mesher": ...}`` as the reconstruction node had them; empty
+    for other inputs). Raises ViewError with one line."""
+    path = Path(path)
+    if not _is_bag(path):
+        return load_views(path), {}
+    try:
+        from ..cell.bag import read_bag
+    except ModuleNotFoundError as exc:
+        if (exc.name or "").split(".")[0] != "rosbags":
+            raise
+        raise ViewError(f"input {path} is a rosbag2: reading it needs the rosbags package "
+                        "(pip install rosbags)") from None
+    views = read_bag(path, captures=captures)
+    recorded = {"resolution": views.resolution, "mesher": views.mesher}
+    return views, {k: v for k, v in recorded.items() if v is not None}
 
 
 class StageProgress:

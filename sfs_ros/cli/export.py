@@ -3,7 +3,7 @@
     sfs-export INPUT [--session DIR] [--colmap DIR] [--nerf FILE]
 
 INPUT is anything ``sfs-reconstruct`` reads (a session folder, a Middlebury
-``*_par.txt``, a NeRF ``transforms*.json``). ``--session`` writes a plain
+``*_par.txt``, a NeRF ``transforms*.json``, a rosbag2 of a scan). ``--session`` writes a plain
 session folder (images + the view table), ``--colmap`` COLMAP's text model
 (``cameras.txt``, ``images.txt``, ``points3D.txt``), ``--nerf`` a
 ``transforms.json`` (:mod:`sfs_ros.core.pose_export`). With ``--session``
@@ -16,10 +16,9 @@ import argparse
 import sys
 from pathlib import Path
 
-from ..core.inputs import ACCEPTED_INPUTS, load_views
 from ..core.pose_export import export_session, write_colmap, write_nerf_transforms
 from ..core.session import IMAGES_DIR, read_session
-from .common import run_reporting_errors
+from .common import ACCEPTED_INPUTS, load_input, run_reporting_errors
 
 PROG = "sfs-export"
 
@@ -36,7 +35,7 @@ def build_parser() -> argparse.ArgumentParser:
 def run(args) -> dict:
     if not (args.session or args.colmap or args.nerf):
         raise ValueError("nothing to do: give --session, --colmap and/or --nerf")
-    views = load_views(args.input)
+    views, _ = load_input(args.input, captures=True)     # a bag: its images, not its masks
     written = {}
     image_root = None
     if args.session:

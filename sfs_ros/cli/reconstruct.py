@@ -1,9 +1,14 @@
 """``sfs-reconstruct INPUT -o OUT.{ply,obj,stl,glb}``: images with cameras in, a mesh out.
 
 INPUT is a scan session folder (``session.yaml`` + ``views.csv`` + images), a
-Middlebury ``*_par.txt`` file, or a NeRF-style ``transforms*.json``. Beside the
+Middlebury ``*_par.txt`` file, a NeRF-style ``transforms*.json``, or a rosbag2
+recorded by ``sfs-recorder`` (its folder or its .mcap / .db3 file: the
+recorded masks, rig, box, resolution and mesher, which options override). Beside the
 mesh it writes ``OUT.report.json``: per-stage timings, views used and
-rejected, per-view silhouette IoU and the mesh checks.
+rejected, per-view silhouette IoU and the mesh checks. On request it also
+writes a PNG picture of the mesh, an HTML page that shows the mesh in any
+browser, and a contact sheet of the views with their mask outlines, angles and
+silhouette IoU.
 """
 
 from __future__ import annotations
@@ -13,26 +18,31 @@ import json
 import sys
 from pathlib import Path
 
+from ..core.colour import vertex_colours
+from ..core.contact_sheet import write_contact_sheet
 from ..core.export import SUPPORTED_SUFFIXES, export_mesh
-from ..core.inputs import load_views
+from ..core.html_viewer import write_html_viewer
 from ..core.pipeline import MESHERS, ReconstructionParams, reconstruct
 from ..core.preview import preview_image, write_png
 from ..core.segment import PRESETS, SegmentationParams
-from .common import StageProgress, run_reporting_errors
+from ..core.views import ViewSet, read_image
+from .common import ACCEPTED_INPUTS, StageProgress, load_input, run_reporting_errors
 
 PROG = "sfs-reconstruct"
 
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
-    p.add_argument("input", type=Path, help="session folder, Middlebury *_par.txt or transforms*.json")
+    p.add_argument("input", type=Path, help=ACCEPTED_INPUTS)
     p.add_argument("-o", "--output", type=Path, required=True,
                    help=f"mesh file, format from the suffix: {', '.join(SUPPORTED_SUFFIXES)}")
     size = p.add_mutually_exclusive_group()
-    size.add_argument("-r", "--resolution", type=int, default=192,
-                      help="voxels along the longest side of the bounding box (default 192)")
+    size.add_argument("-r", "--resolution", type=int,
+                      help="voxels along the longest side of the bounding box (default: a "
+                           "bag's recorded one, else 192)")
     size.add_argument("--voxel-size", type=float, metavar="METRES", help="voxel edge in metres")
-    p.add_argument("-m", "--mesher", choices=MESHERS, default="marching-cubes")
+    p.add_argument("-m", "--mesher", choices=MESHERS,
+                   help="default: a bag's recorded one, else marching-cubes")
     p.add_argument("--block", type=int, default=2, metavar="M",
                    help="cloud of points: one point per MxMxM block (advancing front; default 2)")
     p.add_argument("--holdout", default="", metavar="VIEWS",
@@ -47,7 +57,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--preset", choices=sorted(PRESETS), help="segmentation preset")
     p.add_argument("--threshold", type=float, help="segmentation threshold (default automatic)")
     p.add_argument("--units", choices=("m", "mm"), default="m", help="units of the mesh file")
+    p.add_argument("--colour", action="store_true",
+                   help="colour the mesh's vertices from the images (the views that see each "
+                        "point, blended); a bag's captured images colour it")
     p.add_argument("--preview", type=Path, metavar="PNG", help="also write a PNG picture of the mesh")
+    p.add_argument("--html", type=Path, metavar="HTML",
+                   help="also write a self-contained HTML page showing the mesh (orbit, zoom)")
+    p.add_argument("--contact-sheet", type=Path, metavar="PNG",
+                   help="also write a PNG of every view with its mask outline, angles and "
+                        "silhouette IoU; bad and rejected views framed in red")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     return p
 
@@ -77,30 +95,77 @@ def _segmentation(args, stored: dict | None) -> SegmentationParams | None:
     return SegmentationParams.from_dict(values)
 
 
+def _write_contact_sheet(path: Path, view_set: ViewSet, result) -> None:
+    """Every view of ``view_set``, then those rejected while loading, with the report's
+    silhouette IoU and rejection reasons and the masks the pipeline carved with."""
+    report = result.report
+    iou = {p["view"]: p["silhouette_iou"] for p in report["silhouette_iou"]["per_view"]}
+    reason = {r["view"]: r["reason"] for r in report["views"]["rejected"]}
+    images, masks = [], []
+    for view in view_set.views:
+        try:
+            image = read_image(view.image_path,
+                               expected_size=(view.camera.width, view.camera.height))
+        except ValueError:
+            image = None
+        images.append(image)
+        masks.append(result.masks.get(view.name))
+        if view.name in reason:  # the tile names the view: shorter than the image's path
+            reason[view.name] = reason[view.name].replace(str(view.image_path), view.name)
+    names = [v.name for v in view_set.views] + [name for name, _ in view_set.rejected]
+    extra = [None] * len(view_set.rejected)
+    angles = [None if v.theta_rad is None else (v.theta_rad, v.phi_rad) for v in view_set.views]
+    write_contact_sheet(path, images + extra, masks + extra, names, angles + extra,
+                        [iou.get(n) for n in names], rejected=[reason.get(n) for n in names])
+
+
 def run(args) -> dict:
     """Run one reconstruction from parsed arguments; returns the report."""
     suffix = args.output.suffix.lower()
     if suffix not in SUPPORTED_SUFFIXES:
         raise ValueError(f"output {args.output} has an unsupported suffix {suffix!r}; "
                          f"expected one of {', '.join(SUPPORTED_SUFFIXES)}")
-    view_set = load_views(args.input)
+    if args.colour and suffix == ".stl":
+        raise ValueError("--colour needs a format that stores vertex colours (.ply, .obj, "
+                         ".glb); STL has none")
+    view_set, recorded = load_input(args.input)
+    # A bag's views are the recorded masks; its captured images colour the mesh.
+    bag_images = load_input(args.input, captures=True)[0] if args.colour and recorded else None
     params = ReconstructionParams(
-        resolution=args.resolution, voxel_size_m=args.voxel_size, mesher=args.mesher,
+        resolution=args.resolution or recorded.get("resolution", 192),
+        voxel_size_m=args.voxel_size, mesher=args.mesher or recorded.get("mesher", MESHERS[0]),
         block=args.block, bounds_m=None if args.bounds is None else (args.bounds[:3], args.bounds[3:]),
         max_misses=args.max_misses, check_consistency=not args.no_consistency_check,
         holdout=_holdout_names(args.holdout, [v.name for v in view_set.views]),
-        segmentation=_segmentation(args, view_set.segmentation))
+        segmentation=_segmentation(args, view_set.segmentation),
+        colour=args.colour and bag_images is None)
     progress = StageProgress(quiet=args.quiet)
     try:
         result = reconstruct(view_set, params, progress=progress)
     finally:
         progress.close()
+    colours = result.vertex_colors
+    if bag_images is not None:
+        colours = vertex_colours(result.vertices, result.faces,
+                                 [read_image(v.image_path) for v in bag_images.views],
+                                 [v.camera for v in bag_images.views]).colours
     args.output.parent.mkdir(parents=True, exist_ok=True)
-    export_mesh(result.vertices, result.faces, args.output, units=args.units)
+    export_mesh(result.vertices, result.faces, args.output, vertex_colors=colours,
+                units=args.units)
     report = {"output": str(args.output), "units": args.units, **result.report}
     if args.preview is not None:
-        write_png(args.preview, preview_image(result.vertices, result.faces))
+        write_png(args.preview, preview_image(result.vertices, result.faces,
+                                              vertex_colors=colours))
         report["preview"] = str(args.preview)
+    if args.html is not None:
+        args.html.parent.mkdir(parents=True, exist_ok=True)
+        write_html_viewer(args.html, result.vertices, result.faces, vertex_colors=colours,
+                          title=args.output.name)
+        report["html"] = str(args.html)
+    if args.contact_sheet is not None:
+        args.contact_sheet.parent.mkdir(parents=True, exist_ok=True)
+        _write_contact_sheet(args.contact_sheet, view_set, result)
+        report["contact_sheet"] = str(args.contact_sheet)
     report_path = args.output.with_name(args.output.stem + ".report.json")
     report_path.write_text(json.dumps(report, indent=2))
     return report
