@@ -144,6 +144,12 @@ def test_reconstruction_matches_the_mug(scan, mug, tmp_path):
     picture = cv2.imread(result["preview_path"])
     assert result["preview_path"].endswith("mug.png") and picture is not None
     assert np.count_nonzero(picture.std(axis=2) > 5) > 0.02 * picture.shape[0] * picture.shape[1]
+    # ... and so do a page for a browser and a contact sheet of the 49 views (7 x 7 tiles).
+    page = open(result["html_path"], encoding="utf-8").read()
+    assert result["html_path"].endswith("mug.html") and "<canvas" in page and "http" not in page
+    sheet = cv2.imread(result["contact_sheet_path"])
+    assert result["contact_sheet_path"].endswith("mug.views.png") and sheet is not None
+    assert 0.5 < sheet.shape[0] / sheet.shape[1] < 2.0            # a 7 x 7 grid, not a strip
     assert result["views_received"] == result["views_used"] == 49
     assert result["views_rejected"] == [] and result["watertight"]
     vertices, faces = load_mesh(result["path"])

@@ -22,7 +22,9 @@ Output folder layout::
       scan_001/            # one session folder per scan (session.yaml, views.csv, images/)
       scan_001.ply         # meshes, named by the request (default: the scan's name)
       scan_001.report.json # the pipeline's report beside each mesh
-      scan_001.png         # and a picture of the mesh
+      scan_001.png         # and a picture of the mesh,
+      scan_001.html        # a page that shows it in a browser (no network needed),
+      scan_001.views.png   # and a contact sheet of the views (mask outline, angles, IoU)
 """
 
 from __future__ import annotations
@@ -39,8 +41,10 @@ import numpy as np
 
 from ..core.carve import Carver
 from ..core.colour import vertex_colours
+from ..core.contact_sheet import write_contact_sheet
 from ..core.export import SUPPORTED_SUFFIXES, export_mesh
 from ..core.grid import VoxelGrid
+from ..core.html_viewer import write_html_viewer
 from ..core.inputs import load_views
 from ..core.pipeline import ReconstructionParams, reconstruct
 from ..core.preview import preview_image, write_png
@@ -374,6 +378,21 @@ class LiveReconstruction:
                                  masks=[masks[k] for k, _ in used])
         return colours.colours, len(used)
 
+    def _write_contact_sheet(self, path: Path, result) -> None:
+        """Every view received: its captured image (the mask where none was kept) with the
+        mask outline, the angles, its silhouette IoU and, if rejected, why."""
+        report = result.report
+        by_file = {r["view"]: r for r in report["silhouette_iou"]["per_view"]}
+        reasons = {r["view"]: r["reason"] for r in report["views"]["rejected"]}
+        keys, received = list(self._views), list(self._views.values())
+        masks = [mask for _, mask, _, _ in self.views()]
+        images = [self._colour_images[k] if k in self._colour_images else mask_to_rgb(m)
+                  for k, m in zip(keys, masks)]
+        write_contact_sheet(path, images, masks, [v.name for v in received],
+                            [(v.theta_rad, v.phi_rad) for v in received],
+                            [by_file.get(v.name, {}).get("silhouette_iou") for v in received],
+                            rejected=[reasons.get(v.name) for v in received])
+
     def hull_points(self, max_points: int = 100_000) -> np.ndarray:
         """(n, 3) float64 surface voxel centres of the live hull, metres (see
         :func:`surface_points`); empty (0, 3) until a non-empty mask has carved."""
@@ -392,13 +411,15 @@ class LiveReconstruction:
             Mesh file name inside ``output_dir`` (format from the suffix:
             .ply, .obj, .stl, .glb; see :func:`.paths.confined_path` for what
             is refused); None: ``<scan name>.ply``. The report goes beside it
-            as ``<stem>.report.json``, a picture of the mesh as ``<stem>.png``.
+            as ``<stem>.report.json``, a picture of the mesh as ``<stem>.png``, a
+            viewer as ``<stem>.html`` and a contact sheet as ``<stem>.views.png``.
             Existing files are replaced.
 
         Returns
         -------
         dict
-            JSON-ready summary: ``path``, ``report_path``, ``preview_path``, ``session``,
+            JSON-ready summary: ``path``, ``report_path``, ``preview_path``,
+            ``html_path``, ``contact_sheet_path``, ``session``,
             ``views_received``, ``views_used``, ``views_rejected`` (list of
             ``{view, reason}``), ``n_vertices``, ``n_faces``, ``watertight``,
             ``volume_m3``, ``area_m2``, ``silhouette_iou_mean``,
@@ -419,8 +440,10 @@ class LiveReconstruction:
         root = self.output_dir.resolve()
         report_name = path.relative_to(root).with_name(path.stem + ".report.json").as_posix()
         report_path = confined_path(root, report_name, suffixes=(".json",))
-        preview_path = confined_path(root, report_name[:-len(".report.json")] + ".png",
-                                     suffixes=(".png",))
+        stem = report_name[:-len(".report.json")]
+        preview_path = confined_path(root, stem + ".png", suffixes=(".png",))
+        html_path = confined_path(root, stem + ".html", suffixes=(".html",))
+        sheet_path = confined_path(root, stem + ".views.png", suffixes=(".png",))
         view_set = load_views(self._session)
         result = reconstruct(view_set, self.params)
         colours, coloured = (None, 0) if path.suffix.lower() == ".stl" \
@@ -434,10 +457,14 @@ class LiveReconstruction:
         os.replace(tmp, report_path)
         write_png(preview_path, preview_image(result.vertices, result.faces,
                                               vertex_colors=colours))
+        write_html_viewer(html_path, result.vertices, result.faces, vertex_colors=colours,
+                          title=path.name)
+        self._write_contact_sheet(sheet_path, result)
         mesh, views = result.report["mesh"], result.report["views"]
         mean_iou = result.report["silhouette_iou"]["mean_used"]
         return {"path": str(path), "report_path": str(report_path),
-                "preview_path": str(preview_path),
+                "preview_path": str(preview_path), "html_path": str(html_path),
+                "contact_sheet_path": str(sheet_path),
                 "session": str(self._session), "views_received": len(self._views),
                 "views_used": len(views["used"]), "views_rejected": views["rejected"],
                 "n_vertices": mesh["n_vertices"], "n_faces": mesh["n_faces"],
