@@ -7,10 +7,13 @@ until every view is stored, calls ``reconstruct``, stops the cell, and
 scores the mesh against the true shape of the object the mock camera
 rendered. Writes into ``--out``::
 
-    mesh.ply      the mesh (a copy of the one the reconstruction node wrote)
+    mesh.ply      the coloured mesh (a copy of the one the reconstruction node wrote)
     mesh.png      a picture of it
+    mesh.html     a page that shows it in a browser
+    views.png     a contact sheet of the views: mask outline, angles, silhouette IoU
     report.json   the reconstruct answer, the scan's figures, the score vs truth
-    cell/         the reconstruction node's output_dir: scan folders, meshes, reports
+    cell/         the nodes' output_dir: scan folders, meshes, reports, bags/ (the
+                  session recorded as a rosbag2)
     cell.log      every node's output
 """
 
@@ -24,16 +27,18 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import yaml
 
 from ..core.export import load_mesh
 from ..core.grid import VoxelGrid
 from ..core.objects import make_object
+from ..core.pipeline import ReconstructionParams, reconstruct
 from ..core.synthetic import score_against_truth
 from ..ros.cell_client import CellClient, ScanFailed
 from ..ros.services import ServiceError
 from .bringup import Cell, cell_nodes, default_config_dir
-from .common import StageProgress
+from .common import StageProgress, load_input
 
 PROG = "sfs-demo"
 
@@ -59,7 +64,7 @@ def run(args) -> dict:
         shutil.rmtree(cell_dir)                   # a demo run starts from scan_001
     cell_dir.mkdir(parents=True)
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    specs = cell_nodes(config, cell_dir, mock=True)
+    specs = cell_nodes(config, cell_dir, mock=True, record=True)
     start = time.perf_counter()
     with open(out / "cell.log", "w") as log, Cell(specs, log=log) as cell, \
             CellClient(name="sfs_demo") as client:
@@ -80,19 +85,35 @@ def run(args) -> dict:
             raise ValueError(f"{exc}" + (f" (nodes ended: {ended})" if ended else "")) from None
     mesh_path = out / f"mesh{Path(summary['path']).suffix}"
     shutil.copyfile(summary["path"], mesh_path)
-    shutil.copyfile(summary["preview_path"], out / "mesh.png")
+    for key, name in (("preview_path", "mesh.png"), ("html_path", "mesh.html"),
+                      ("contact_sheet_path", "views.png")):
+        shutil.copyfile(summary[key], out / name)
+    bags = sorted((cell_dir / "bags").glob("*/"))
     mock = _ros_parameters(config / "mock_hardware.yaml")
     own = _ros_parameters(config / "reconstruction.yaml")
     obj = make_object(mock["object"])
     vertices, faces = load_mesh(mesh_path)
     box = [own["bounds_m"][:3], own["bounds_m"][3:]]
     truth = score_against_truth(obj, vertices, faces, VoxelGrid.cube(*box, own["resolution"]))
-    report = {"mesh": str(mesh_path), "picture": str(out / "mesh.png"), "object": obj.name,
-              "views": status.count("total"), "scan_seconds": scan_s,
+    replay = _replay(bags[-1], vertices, faces) if bags else None
+    report = {"mesh": str(mesh_path), "picture": str(out / "mesh.png"),
+              "viewer": str(out / "mesh.html"), "views": str(out / "views.png"),
+              "bag": str(bags[-1]) if bags else None, "object": obj.name,
+              "n_views": status.count("total"), "scan_seconds": scan_s,
               "total_seconds": time.perf_counter() - start, "scan": status.values,
-              "reconstruct": summary, "ground_truth": truth}
+              "reconstruct": summary, "ground_truth": truth, "bag_replay": replay}
     (out / "report.json").write_text(json.dumps(report, indent=2))
     return report
+
+
+def _replay(bag: Path, vertices, faces) -> dict:
+    """The recorded session reconstructed offline, as ``sfs-reconstruct BAG`` does, against
+    the live mesh (read back from its file, float32 coordinates)."""
+    views, recorded = load_input(bag)
+    result = reconstruct(views, ReconstructionParams(**recorded))
+    same = (result.faces.shape == faces.shape and np.array_equal(result.faces, faces)
+            and np.allclose(result.vertices, vertices, rtol=0, atol=1e-7))
+    return {"bag": str(bag), "views": len(views.views), "same_mesh": bool(same)}
 
 
 def main(argv=None) -> int:
@@ -107,9 +128,16 @@ def main(argv=None) -> int:
         return 130
     summary, truth = report["reconstruct"], report["ground_truth"]
     print(f"mesh: {report['mesh']} ({summary['n_vertices']} vertices, {summary['n_faces']} "
-          f"faces, watertight={summary['watertight']}), picture: {report['picture']}")
-    print(f"scan: {report['views']} views through the nodes in {report['scan_seconds']:.1f} s; "
+          f"faces, watertight={summary['watertight']}, coloured from "
+          f"{summary['coloured_from_views']} views)")
+    print(f"picture: {report['picture']}, viewer: {report['viewer']}, views: {report['views']}, "
+          f"session bag: {report['bag']}")
+    print(f"scan: {report['n_views']} views through the nodes in {report['scan_seconds']:.1f} s; "
           f"reconstruct {summary['seconds']:.1f} s; {summary['views_used']} views used")
+    if report["bag_replay"] is not None:
+        replay = report["bag_replay"]
+        print(f"the recorded session ({replay['views']} views) reconstructed offline: "
+              f"{'the same mesh' if replay['same_mesh'] else 'a DIFFERENT mesh'}")
     print(f"against the true {report['object']}: volume IoU {truth['volume_iou']:.4f}, "
           f"Chamfer {1000 * truth['chamfer_mean_m']:.3f} mm, "
           f"Hausdorff {1000 * truth['hausdorff_m']:.3f} mm")

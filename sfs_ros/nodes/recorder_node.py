@@ -33,10 +33,12 @@ Starting and stopping: ``record/start`` answers the bag's ``path`` and
 data), ``seconds`` (recording) and ``write_s`` (spent writing), as JSON; a
 second start or a stop with nothing recording is refused with the reason. With
 ``with_scan``, a new bag also opens when the scan node's diagnostics report
-a scan number not seen before in state ``starting`` (the bag being recorded,
-if any, is closed first), and recording goes on until ``record/stop``, the
-next scan's start or shutdown: each bag holds one scan from its very first
-message, and the ``reconstruct`` results that follow it.
+a scan number not seen before in state ``starting`` or ``running`` (the bag
+being recorded, if any, is closed first), and also when a capture arrives
+while no bag is open (so no capture is missed when the scan's report comes
+late: that bag is then taken as the scan's); recording goes on until
+``record/stop``, the next scan's start or shutdown. Each bag holds one scan
+from its first capture, and the ``reconstruct`` results that follow it.
 
 Parameters used: at every start a worker thread asks ``parameter_nodes``
 (by default reconstruction, segmentation, scan and camera) for all their
@@ -167,6 +169,7 @@ class RecorderNode(Node):
         self._problem = self._warning = ""
         self._last_ns = 0
         self._scan_seen = None
+        self._bag_scan: int | None = None     # the scan the open bag holds, if known
         self._jobs: queue.Queue = queue.Queue()
         self._bag: BagWriter | None = None           # worker thread only
         self._fetched: Future | None = None
@@ -179,8 +182,10 @@ class RecorderNode(Node):
         for name, (msgtype, kind) in TOPICS.items():
             if name == PARAMETERS_TOPIC:
                 continue
+            # Deep queues everywhere: the diagnostics of six nodes come in bursts (at a
+            # scan's start above all), and a keep-last queue of 10 would drop some.
             qos = capture_qos(p["queue_depth"]) if kind == CAPTURE \
-                else result_qos() if kind == RESULT else 10
+                else result_qos() if kind == RESULT else p["queue_depth"]
             topic = self.resolve_topic_name(name)
             self.create_subscription(message_class(msgtype), name,
                                      partial(self._on_message, topic), qos,
@@ -228,13 +233,15 @@ class RecorderNode(Node):
         for status in deserialize_message(data, DiagnosticArray).status:
             values = {kv.key: kv.value for kv in status.values}
             scan = values.get("scan", "")
-            if status.name.endswith(": scan") and values.get("state") == "starting" \
-                    and scan.isdigit() and scan != self._scan_seen:
+            # "starting" is a moment (reset, homing): a report of the scan in any later
+            # state opens its bag too, if that moment was missed.
+            if status.name.endswith(": scan") and scan.isdigit() and scan != self._scan_seen \
+                    and values.get("state") in ("starting", "running"):
                 self._scan_seen = scan
-                self._jobs.put(("start", None, f"scan_{int(scan):03d}"))
+                self._jobs.put(("start", None, int(scan)))
 
     def _on_start(self, _request, response):
-        return self._request(("start", Future(), "bag"), response)
+        return self._request(("start", Future(), None), response)
 
     def _on_stop(self, _request, response):
         return self._request(("stop", Future()), response)
@@ -257,11 +264,17 @@ class RecorderNode(Node):
                 return
             try:
                 if job[0] == "message":
+                    if self._bag is None and self._p["with_scan"] and \
+                            self._topics[job[1]][1] == CAPTURE:
+                        self._open(None, rolling=True)    # a capture before its scan's report
                     self._write(*job[1:])
+                elif job[0] == "start" and job[1] is None:   # a new scan reported
+                    if self._bag is not None and self._bag_scan is None:
+                        self._bag_scan = job[2]           # the bag its first capture opened
+                    elif self._bag is None or self._bag_scan != job[2]:
+                        self._open(job[2], rolling=True)
                 elif job[0] == "start":
-                    answer = self._open(job[2], rolling=job[1] is None)
-                    if job[1] is not None:
-                        job[1].set_result(answer)
+                    job[1].set_result(self._open(None, rolling=False))
                 elif job[0] == "stop":
                     job[1].set_result(self._close() if self._bag is not None
                                       else (False, "not recording: call record/start first"))
@@ -276,7 +289,9 @@ class RecorderNode(Node):
                 if job[0] in ("start", "stop") and job[1] is not None and not job[1].done():
                     job[1].set_result((False, f"{type(exc).__name__}: {exc}"))
 
-    def _open(self, prefix: str, *, rolling: bool) -> tuple[bool, str]:
+    def _open(self, scan: int | None, *, rolling: bool) -> tuple[bool, str]:
+        """Open a bag (closing the one open when ``rolling``): ``scan_NNN_<time>`` for scan
+        NNN, ``scan_<time>`` for a scan not yet reported, ``bag_<time>`` on request."""
         if self._bag is not None:
             if not rolling:
                 return False, (f"already recording to {self._bag.path}; call record/stop "
@@ -287,6 +302,7 @@ class RecorderNode(Node):
             if name:
                 folder = bag_folder(self._p["output_dir"], name)
             else:
+                prefix = "bag" if not rolling else "scan" if scan is None else f"scan_{scan:03d}"
                 base = f"{prefix}_{_stamp()}"
                 folder, n = bag_folder(self._p["output_dir"], base), 1
                 while folder.exists():
@@ -302,7 +318,7 @@ class RecorderNode(Node):
         for topic, (msgtype, kind) in [*self._topics.items(),
                                        (self._parameters_topic, TOPICS[PARAMETERS_TOPIC])]:
             bag.add_topic(topic, msgtype, kind=kind, depth=self._p["queue_depth"])
-        self._bag, self._started = bag, time.monotonic()
+        self._bag, self._bag_scan, self._started = bag, scan, time.monotonic()
         self._fetched = Future()
         threading.Thread(target=self._fetch, args=(self._fetched,), daemon=True).start()
         with self._lock:
@@ -430,6 +446,8 @@ class RecorderNode(Node):
         self.get_logger().warning(text)
 
     def _publish_diagnostics(self) -> None:
+        if not self.context.ok():          # closing the bag after SIGINT shut rclpy down
+            return
         with self._lock:
             values = dict(self._status, write_s=round(self._status["write_s"], 4))
             problem, warning = self._problem, self._warning
