@@ -1,9 +1,9 @@
 """The whole cell as separate OS processes: a scan of the mock mug, and the faults it survives.
 
 The cell is brought up by :mod:`sfs_ros.cli.bringup` (mock hardware with
-its mock camera, motor, segmentation, reconstruction and scan nodes) in the
-test run's private namespace and domain, with a small camera and fast axes
-so a scan takes seconds. A probe records every capture the scan node
+its mock camera, motor, segmentation, reconstruction, recorder and scan
+nodes) in the test run's private namespace and domain, with a small camera
+and fast axes so a scan takes seconds (:mod:`mock_cell`). A probe records every capture the scan node
 publishes; :class:`CellClient` drives the scan as a user's program would.
 The tests share one cell and run in order: each fault test starts a new
 scan, injects its fault mid-scan, checks that it is reported, mends it,
@@ -12,33 +12,26 @@ exactly once.
 """
 
 import math
-import os
 import threading
 from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from sensor_msgs.msg import Image, JointState
 from std_msgs.msg import Header
 from std_srvs.srv import SetBool, Trigger
 
-from ros_harness import NAMESPACE, SOURCE_ROOT, RosProbe, wait
-from sfs_ros.cell.scan_plan import ScanPlan
-from sfs_ros.cli.bringup import Cell, cell_nodes
+from mock_cell import PLAN, RESOLUTION, SCAN_TIMEOUT_S, running_cell
+from ros_harness import RosProbe, wait
 from sfs_ros.core.export import load_mesh
 from sfs_ros.core.grid import VoxelGrid
 from sfs_ros.core.objects import make_object
 from sfs_ros.core.synthetic import carving_box, score_against_truth
 from sfs_ros.ros import capture_qos
-from sfs_ros.ros.cell_client import CellClient, ScanFailed
+from sfs_ros.ros.cell_client import ScanFailed
 from sfs_ros.ros.convert import image_to_msg
 
-CONFIG = Path(__file__).resolve().parent.parent / "config"
-RINGS_DEG, PER_RING = [20.0, 55.0], 8
-PLAN = ScanPlan.from_rings(RINGS_DEG, PER_RING, True)         # 17 views
-RESOLUTION = 64
 # The capture is tagged with an encoder reading of the settled axes: machine position
 # (the target to the 3 decimals of the G-code line, 0.0005 deg) plus the encoder offset
 # (0.03, -0.02 deg) plus noise of at most 0.01 deg.
@@ -47,34 +40,6 @@ ANGLE_BOUND_RAD = math.radians(0.0005 + 0.03 + 0.01) + 1e-9
 # where no view sees in (the cup, between the rings) plus half a voxel (1.8 mm) of surface
 # placement; test_reconstruction_node measures 0.955 with 29 views.
 VOLUME_IOU_MIN = 0.85
-SCAN_TIMEOUT_S = 180.0
-
-OVERRIDES = {
-    "rig.yaml": {"width": 320, "height": 240, "fx": 700.0, "fy": 700.0},
-    "mock_hardware.yaml": {"max_speed_deg_s": [720.0, 360.0], "accel_deg_s2": [7200.0, 3600.0],
-                           "homing_speed_deg_s": 600.0, "seed": 7},
-    "motor.yaml": {"status_rate_hz": 20.0, "reconnect_period_s": 0.5, "move_timeout_s": 5.0},
-    "reconstruction.yaml": {"resolution": RESOLUTION, "hull_rate_hz": 1.0,
-                            "bounds_m": carving_box(make_object("mug")).ravel().tolist()},
-    "scan.yaml": {"settle_samples": 2, "stall_s": 1.5, "move_timeout_s": 4.0, "move_retries": 1,
-                  "capture_timeout_s": 3.0, "capture_retries": 1, "receipt_timeout_s": 3.0,
-                  "home_timeout_s": 20.0},
-}
-
-
-def _write_config(folder: Path) -> Path:
-    """The repository's config with the test's small camera and fast axes."""
-    folder.mkdir()
-    for path in CONFIG.glob("*.yaml"):
-        data = yaml.safe_load(path.read_text())
-        if path.name in OVERRIDES:
-            data["/**"]["ros__parameters"].update(OVERRIDES[path.name])
-        (folder / path.name).write_text(yaml.safe_dump(data))
-    plan = {"rings": {"phi_deg": RINGS_DEG, "per_ring": PER_RING, "top_view": True}}
-    (folder / "scan_plan.yaml").write_text(yaml.safe_dump(plan))
-    return folder
-
-
 class Recorder:
     """The probe's view of the captures, the diagnostics and the fault switches.
 
@@ -137,28 +102,12 @@ class Recorder:
 
 @pytest.fixture(scope="module")
 def cell(tmp_path_factory):
-    root = tmp_path_factory.mktemp("cell")
-    config = _write_config(root / "config")
-    output = root / "output"
-    output.mkdir()
-    env = dict(os.environ, PYTHONPATH=str(SOURCE_ROOT))
-    log_path = root / "cell.log"
-    with open(log_path, "w") as log:
-        bringup = Cell(cell_nodes(config, output, mock=True), namespace=NAMESPACE, log=log,
-                       env=env).start()
-        client = CellClient(NAMESPACE, name="test_cell_client")
+    with running_cell(tmp_path_factory.mktemp("cell"), "test_cell_client") as up:
         probe = RosProbe("cell_probe")
         try:
-            client.wait_ready(timeout_s=90.0)
-            yield {"cell": bringup, "client": client, "recorder": Recorder(probe),
-                   "output": output, "log": log_path}
+            yield {**up, "recorder": Recorder(probe)}
         finally:
             probe.close()
-            client.close()
-            codes = bringup.stop()
-    assert all(code == 0 for code in codes.values()), \
-        f"nodes did not stop cleanly: {codes}\n{log_path.read_text()[-5000:]}"
-    assert not (output / "ttyMOCK").exists()
 
 
 def _stamps(messages) -> list[tuple[int, int]]:

@@ -1,7 +1,7 @@
 """A mock scan recorded by the recorder node, then replayed offline into the live mesh.
 
-The mock cell is brought up as in test_cell.py (small camera, fast axes,
-64^3, a 17-view plan) with the recorder as one more node process. The scan
+The mock cell is brought up as in test_cell.py (:mod:`mock_cell`: small
+camera, fast axes, 64^3, a 17-view plan), the recorder among its nodes. The scan
 runs through :class:`CellClient` while ``record/start`` .. ``record/stop``
 records it; ``sfs-reconstruct BAG`` must then give the mesh the
 reconstruction node wrote: the bag holds the masks and joint states the node
@@ -10,7 +10,6 @@ the same code in the same order.
 """
 
 import json
-import os
 import struct
 import subprocess
 import sys
@@ -20,76 +19,32 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
 from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_typestore
 from std_srvs.srv import Trigger
 
+from mock_cell import RESOLUTION, SCAN_TIMEOUT_S, running_cell
 from ros_harness import NAMESPACE, SOURCE_ROOT, RosProbe, wait
 from sfs_ros.cell.bag import PARAMETERS_TOPIC, TOPICS, open_bag
-from sfs_ros.cli.bringup import Cell, cell_nodes
 from sfs_ros.core.export import load_mesh
 from sfs_ros.core.nerf import read_transforms
 from sfs_ros.core.session import read_session
 from sfs_ros.core.views import read_image
-from sfs_ros.core.objects import make_object
-from sfs_ros.core.synthetic import carving_box
-from sfs_ros.ros.cell_client import CellClient
 from sfs_ros.ros.services import call
 
-CONFIG = Path(__file__).resolve().parent.parent / "config"
-RINGS_DEG, PER_RING = [20.0, 55.0], 8                      # 17 views with the top one
-RESOLUTION = 64
-SCAN_TIMEOUT_S = 180.0
 STORE = get_typestore(Stores.ROS2_KILTED)
-OVERRIDES = {
-    "rig.yaml": {"width": 320, "height": 240, "fx": 700.0, "fy": 700.0},
-    "mock_hardware.yaml": {"max_speed_deg_s": [720.0, 360.0], "accel_deg_s2": [7200.0, 3600.0],
-                           "homing_speed_deg_s": 600.0, "seed": 7},
-    "motor.yaml": {"status_rate_hz": 20.0, "reconnect_period_s": 0.5, "move_timeout_s": 5.0},
-    "reconstruction.yaml": {"resolution": RESOLUTION, "hull_rate_hz": 1.0,
-                            "bounds_m": carving_box(make_object("mug")).ravel().tolist()},
-    "scan.yaml": {"settle_samples": 2, "stall_s": 1.5, "move_timeout_s": 4.0,
-                  "capture_timeout_s": 3.0, "receipt_timeout_s": 3.0, "home_timeout_s": 20.0},
-}
-
-
-def _write_config(folder: Path) -> Path:
-    folder.mkdir()
-    for path in CONFIG.glob("*.yaml"):
-        data = yaml.safe_load(path.read_text())
-        if path.name in OVERRIDES:
-            data["/**"]["ros__parameters"].update(OVERRIDES[path.name])
-        (folder / path.name).write_text(yaml.safe_dump(data))
-    plan = {"rings": {"phi_deg": RINGS_DEG, "per_ring": PER_RING, "top_view": True}}
-    (folder / "scan_plan.yaml").write_text(yaml.safe_dump(plan))
-    return folder
 
 
 @pytest.fixture(scope="module")
 def cell(tmp_path_factory):
-    root = tmp_path_factory.mktemp("recorded_cell")
-    config = _write_config(root / "config")
-    output = root / "output"
-    output.mkdir()
-    specs = cell_nodes(config, output, mock=True)            # the recorder among them
-    env = dict(os.environ, PYTHONPATH=str(SOURCE_ROOT))
-    log_path = root / "cell.log"
-    with open(log_path, "w") as log:
-        bringup = Cell(specs, namespace=NAMESPACE, log=log, env=env).start()
-        client = CellClient(NAMESPACE, name="recorded_cell_client")
+    with running_cell(tmp_path_factory.mktemp("recorded_cell"), "recorded_cell_client") as up:
         probe = RosProbe("recorded_cell_probe")
         services = {n: probe.node.create_client(Trigger, f"record/{n}") for n in ("start", "stop")}
         threading.Thread(target=probe.executor.spin, daemon=True).start()
         try:
-            client.wait_ready(timeout_s=90.0)
-            yield {"client": client, "services": services, "output": output, "log": log_path}
+            yield {**up, "services": services}
         finally:
             probe.close()
-            client.close()
-            codes = bringup.stop()
-    assert all(code == 0 for code in codes.values()), \
-        f"nodes did not stop cleanly: {codes}\n{log_path.read_text()[-5000:]}"
 
 
 def _record(cell, what: str) -> Trigger.Response:

@@ -1,0 +1,77 @@
+"""The whole mock cell, small and fast, brought up for a test module.
+
+:func:`running_cell` writes the repository's config with a small camera, fast
+axes, a 64^3 grid and a 17-view plan, brings every node up with
+:class:`sfs_ros.cli.bringup.Cell` in the test run's namespace (see
+:mod:`ros_harness`), waits until :class:`CellClient` finds it ready, and on
+exit stops the nodes with SIGINT and checks that each exited cleanly.
+"""
+
+import os
+from contextlib import contextmanager
+from pathlib import Path
+
+import yaml
+
+from ros_harness import NAMESPACE, SOURCE_ROOT
+from sfs_ros.cell.scan_plan import ScanPlan
+from sfs_ros.cli.bringup import Cell, cell_nodes
+from sfs_ros.core.objects import make_object
+from sfs_ros.core.synthetic import carving_box
+from sfs_ros.ros.cell_client import CellClient
+
+CONFIG = Path(__file__).resolve().parent.parent / "config"
+RINGS_DEG, PER_RING = [20.0, 55.0], 8
+PLAN = ScanPlan.from_rings(RINGS_DEG, PER_RING, True)         # 17 views
+RESOLUTION = 64
+SCAN_TIMEOUT_S = 180.0
+
+#: Values that differ from the repository's config files.
+OVERRIDES = {
+    "rig.yaml": {"width": 320, "height": 240, "fx": 700.0, "fy": 700.0},
+    "mock_hardware.yaml": {"max_speed_deg_s": [720.0, 360.0], "accel_deg_s2": [7200.0, 3600.0],
+                           "homing_speed_deg_s": 600.0, "seed": 7},
+    "motor.yaml": {"status_rate_hz": 20.0, "reconnect_period_s": 0.5, "move_timeout_s": 5.0},
+    "reconstruction.yaml": {"resolution": RESOLUTION, "hull_rate_hz": 1.0,
+                            "bounds_m": carving_box(make_object("mug")).ravel().tolist()},
+    "scan.yaml": {"settle_samples": 2, "stall_s": 1.5, "move_timeout_s": 4.0, "move_retries": 1,
+                  "capture_timeout_s": 3.0, "capture_retries": 1, "receipt_timeout_s": 3.0,
+                  "home_timeout_s": 20.0},
+}
+
+
+def write_config(folder: Path) -> Path:
+    """The repository's config with :data:`OVERRIDES` and the 17-view plan."""
+    folder.mkdir()
+    for path in CONFIG.glob("*.yaml"):
+        data = yaml.safe_load(path.read_text())
+        if path.name in OVERRIDES:
+            data["/**"]["ros__parameters"].update(OVERRIDES[path.name])
+        (folder / path.name).write_text(yaml.safe_dump(data))
+    plan = {"rings": {"phi_deg": RINGS_DEG, "per_ring": PER_RING, "top_view": True}}
+    (folder / "scan_plan.yaml").write_text(yaml.safe_dump(plan))
+    return folder
+
+
+@contextmanager
+def running_cell(root: Path, client_name: str):
+    """``{"cell": Cell, "client": CellClient, "output": Path, "log": Path}`` of a cell up in
+    ``root``; the nodes are stopped (and checked to exit 0) when the block ends."""
+    config = write_config(root / "config")
+    output = root / "output"
+    output.mkdir()
+    log_path = root / "cell.log"
+    env = dict(os.environ, PYTHONPATH=str(SOURCE_ROOT))
+    with open(log_path, "w") as log:
+        cell = Cell(cell_nodes(config, output, mock=True), namespace=NAMESPACE, log=log,
+                    env=env).start()
+        client = CellClient(NAMESPACE, name=client_name)
+        try:
+            client.wait_ready(timeout_s=90.0)
+            yield {"cell": cell, "client": client, "output": output, "log": log_path}
+        finally:
+            client.close()
+            codes = cell.stop()
+    assert all(code == 0 for code in codes.values()), \
+        f"nodes did not stop cleanly: {codes}\n{log_path.read_text()[-5000:]}"
+    assert not (output / "ttyMOCK").exists()
