@@ -231,3 +231,12 @@ def test_empty_cloud_round_trips():
     msg = points_to_cloud(np.zeros((0, 3)), stamp=(1, 2), frame_id="turntable")
     assert (msg.width, msg.row_step, len(msg.data)) == (0, 0, 0)
     assert cloud_to_points(msg).shape == (0, 3)
+
+
+def test_health_is_the_worst_of_problem_and_warning():
+    from diagnostic_msgs.msg import DiagnosticStatus
+
+    from sfs_ros.ros.convert import health
+    assert health("broken", "odd", "fine") == (DiagnosticStatus.ERROR, "broken")
+    assert health("", "odd", "fine") == (DiagnosticStatus.WARN, "odd")
+    assert health("", "", "fine") == (DiagnosticStatus.OK, "fine")

@@ -72,7 +72,7 @@ import traceback
 from concurrent.futures import Future
 
 import numpy as np
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseArray
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
@@ -93,6 +93,7 @@ from sfs_ros.ros.convert import (
     camera_poses,
     diagnostic_array,
     header,
+    health,
     mesh_to_marker,
     mesh_to_shape,
     msg_to_image,
@@ -434,12 +435,7 @@ class ReconstructionNode(Node):
         with self._stats_lock:
             values = dict(self._counts, carve_s=round(self._carve_s, 4))
             problem, warning = self._problem, self._warning
-        if problem:
-            level, message = DiagnosticStatus.ERROR, problem
-        elif warning:
-            level, message = DiagnosticStatus.WARN, warning
-        else:
-            level, message = DiagnosticStatus.OK, f"{values['scan_views']} views in this scan"
+        level, message = health(problem, warning, f"{values['scan_views']} views in this scan")
         values.update(waiting_masks=self._pairer.pending("a"),
                       waiting_joint_states=self._pairer.pending("b"))
         self._diag_pub.publish(diagnostic_array(

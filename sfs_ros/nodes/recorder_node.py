@@ -72,7 +72,7 @@ from importlib import import_module
 from pathlib import Path
 
 import numpy as np
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.node import Node
 from rclpy.parameter import parameter_value_to_python
@@ -85,7 +85,7 @@ from sfs_ros.cell.bag import (CAPTURE, PARAMETERS_TOPIC, RESULT, STORAGES, TOPIC
 from sfs_ros.nodes.entry import run_node
 from sfs_ros.nodes.segmentation_node import segmentation_params
 from sfs_ros.ros import capture_qos, result_qos
-from sfs_ros.ros.convert import diagnostic_array
+from sfs_ros.ros.convert import diagnostic_array, health
 from sfs_ros.ros.params import Param, ParameterError, declare, validating_callback
 from sfs_ros.ros.rig_params import rig_calibration
 from sfs_ros.ros.services import ServiceError
@@ -451,13 +451,8 @@ class RecorderNode(Node):
         with self._lock:
             values = dict(self._status, write_s=round(self._status["write_s"], 4))
             problem, warning = self._problem, self._warning
-        if problem:
-            level, message = DiagnosticStatus.ERROR, problem
-        elif warning:
-            level, message = DiagnosticStatus.WARN, warning
-        else:
-            level = DiagnosticStatus.OK
-            message = f"recording to {values['path']}" if values["recording"] else "idle"
+        level, message = health(problem, warning, f"recording to {values['path']}"
+                                if values["recording"] else "idle")
         self._diag_pub.publish(diagnostic_array(f"{self.get_name()}: recorder", level, message,
                                                 values, stamp=self.get_clock().now().to_msg()))
 

@@ -60,7 +60,7 @@ import time
 import traceback
 from collections import OrderedDict
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.node import Node
 from sensor_msgs.msg import Image, JointState
@@ -72,7 +72,7 @@ from sfs_ros.cell.scan_plan import ScanPlan, load_plan
 from sfs_ros.cell.settle import SettleDetector
 from sfs_ros.nodes.entry import run_node
 from sfs_ros.ros import capture_qos
-from sfs_ros.ros.convert import angles_from_joint_state, diagnostic_array, joint_state
+from sfs_ros.ros.convert import angles_from_joint_state, diagnostic_array, health, joint_state
 from sfs_ros.ros.pairing import stamp_key
 from sfs_ros.ros.params import Param, ParameterError, declare
 from sfs_ros.ros.services import ServiceError, call
@@ -498,14 +498,9 @@ class ScanNode(Node):
                           total=len(self.plan), captured=self._ledger.captured,
                           receipted=self._ledger.receipted,
                           lost_in_transport=self._ledger.given_up)
-        if self._problem:
-            level, message = DiagnosticStatus.ERROR, self._problem
-        elif self._warning:
-            level, message = DiagnosticStatus.WARN, self._warning
-        else:
-            level = DiagnosticStatus.OK
-            message = (f"{values['state']}: {values['captured']} of {values['total']} views "
-                       f"captured, {values['receipted']} receipted")
+        level, message = health(self._problem, self._warning,
+                                f"{values['state']}: {values['captured']} of {values['total']} "
+                                f"views captured, {values['receipted']} receipted")
         self._diag_pub.publish(diagnostic_array(f"{self.get_name()}: scan", level, message,
                                                 values, stamp=self.get_clock().now().to_msg()))
 

@@ -40,7 +40,7 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from sensor_msgs.msg import Image, JointState
 
@@ -50,6 +50,7 @@ from sfs_ros.ros import capture_qos
 from sfs_ros.ros.convert import (
     angles_from_joint_state,
     diagnostic_array,
+    health,
     image_to_msg,
     msg_to_image,
 )
@@ -270,12 +271,7 @@ class SegmentationNode(Node):
         self._publish_diagnostics()
 
     def _publish_diagnostics(self) -> None:
-        if self._problem:
-            level, message = DiagnosticStatus.ERROR, self._problem
-        elif self._warning:
-            level, message = DiagnosticStatus.WARN, self._warning
-        else:
-            level, message = DiagnosticStatus.OK, f"{self._counts['masks']} masks"
+        level, message = health(self._problem, self._warning, f"{self._counts['masks']} masks")
         values = dict(self._counts)
         values.update(repeats=self._pairer.repeated, segment_s=round(self._segment_s, 4),
                       waiting_images=self._pairer.pending("a"),

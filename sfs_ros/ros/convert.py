@@ -32,7 +32,7 @@ from sfs_ros.ros.pairing import stamp_key
 __all__ = [
     "JOINT_NAMES", "header", "image_to_msg", "msg_to_image", "joint_state",
     "angles_from_joint_state", "camera_info", "points_to_cloud", "cloud_to_points",
-    "mesh_to_marker", "mesh_to_shape", "shape_to_mesh", "camera_poses",
+    "mesh_to_marker", "mesh_to_shape", "shape_to_mesh", "camera_poses", "health",
 ]
 
 #: Joint names of the cell: turntable = theta, carriage = phi.
@@ -327,6 +327,16 @@ def shape_to_mesh(msg: Mesh) -> tuple[np.ndarray, np.ndarray]:
     vertices = np.array([(p.x, p.y, p.z) for p in msg.vertices], dtype=np.float64).reshape(-1, 3)
     faces = np.array([t.vertex_indices for t in msg.triangles], dtype=np.int64).reshape(-1, 3)
     return vertices, faces
+
+
+def health(problem: str, warning: str, ok: str) -> tuple[bytes, str]:
+    """``(level, message)`` of a status: ERROR with ``problem`` if there is one, else WARN
+    with ``warning`` if there is one, else OK with ``ok``."""
+    if problem:
+        return DiagnosticStatus.ERROR, problem
+    if warning:
+        return DiagnosticStatus.WARN, warning
+    return DiagnosticStatus.OK, ok
 
 
 def diagnostic_array(name: str, level, message: str, values: dict, *, stamp,
