@@ -81,6 +81,9 @@ __all__ = ["ScanNode", "PARAMS", "main"]
 
 NODE_NAME = "scan"
 _FRAMES_KEPT = 16            # camera frames kept by stamp while waiting for the shutter's one
+#: A shutter call unanswered this long is sent again (a response lost in the middleware;
+#: a second frame is harmless: the first answer's frame is the one used).
+_RESEND_AFTER_S = 2.0
 
 PARAMS: list[Param] = [
     Param("plan_file", "", "YAML scan plan (format: sfs_ros/cell/scan_plan.py); empty = the "
@@ -458,7 +461,7 @@ class ScanNode(Node):
         timeout_s = self._p["capture_timeout_s"]
         try:
             answer = call(self._peers["capture"], Trigger.Request(), timeout_s=timeout_s,
-                          cancelled=self._cancel)
+                          cancelled=self._cancel, resend_after_s=_RESEND_AFTER_S)
         except ServiceError as exc:
             self._check_cancel()
             raise ValueError(str(exc)) from None

@@ -18,10 +18,16 @@ class ServiceError(RuntimeError):
     """A service was not available or did not answer in time."""
 
 
-def call(client, request, *, timeout_s: float, cancelled: threading.Event | None = None):
+def call(client, request, *, timeout_s: float, cancelled: threading.Event | None = None,
+         resend_after_s: float | None = None):
     """Call ``client`` with ``request``; the response, or :class:`ServiceError`.
 
     ``cancelled``, when set meanwhile, ends the wait early (ServiceError too).
+    ``resend_after_s``: for quick services that may safely run twice, send the
+    request again when no answer has come after this long. Fast DDS drops a
+    response when the client's reply reader is not matched yet at the server
+    (it waits 100 ms), which happens to a client just made ready on a loaded
+    machine; the first answer to come is taken.
     """
     deadline = time.monotonic() + timeout_s
     while not client.service_is_ready():
@@ -32,13 +38,29 @@ def call(client, request, *, timeout_s: float, cancelled: threading.Event | None
             raise ServiceError(f"call of {client.srv_name} cancelled")
         time.sleep(0.05)
     answered = threading.Event()
-    future = client.call_async(request)
-    future.add_done_callback(lambda _f: answered.set())
+    futures = []
+
+    def send():
+        future = client.call_async(request)
+        future.add_done_callback(lambda _f: answered.set())
+        futures.append(future)
+
+    send()
+    resend_at = None if resend_after_s is None else time.monotonic() + resend_after_s
     while not answered.wait(0.05):
-        if time.monotonic() > deadline or (cancelled is not None and cancelled.is_set()):
+        now = time.monotonic()
+        if now > deadline or (cancelled is not None and cancelled.is_set()):
+            for future in futures:
+                future.cancel()
+                client.remove_pending_request(future)
+            why = "cancelled" if now <= deadline else f"not answered within {timeout_s:g} s"
+            raise ServiceError(f"call of {client.srv_name} {why}")
+        if resend_at is not None and now > resend_at:
+            send()
+            resend_at = None
+    done = next(f for f in futures if f.done())
+    for future in futures:
+        if future is not done:
             future.cancel()
             client.remove_pending_request(future)
-            why = "cancelled" if time.monotonic() <= deadline else \
-                f"not answered within {timeout_s:g} s"
-            raise ServiceError(f"call of {client.srv_name} {why}")
-    return future.result()
+    return done.result()
