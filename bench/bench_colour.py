@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import argparse
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
@@ -42,6 +41,8 @@ from sfs_ros.core.rig import RigCalibration
 from sfs_ros.core.segment import segment
 from sfs_ros.core.session import write_session
 from sfs_ros.core.synthetic import carving_box, simulate_scan
+
+from .timing import best_of
 
 #: The cell's camera (config/rig.yaml) and, for --quick, the tests' smaller one.
 RIGS = {"640x480": RigCalibration(width=640, height=480, projection="pinhole", fx=1400.0,
@@ -101,15 +102,6 @@ def colour_errors(case: dict, images: str) -> dict:
     return out
 
 
-def _best_of(fn, repeats: int) -> float:
-    best = float("inf")
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - start)
-    return best
-
-
 def run(quick: bool = False) -> list[dict]:
     """Time the colouring of the mug mesh; colour errors go in the notes.
 
@@ -119,9 +111,9 @@ def run(quick: bool = False) -> list[dict]:
     case = mug_case(RIGS[rig_name], resolution)
     args = (case["vertices"], case["faces"], case["images"]["shaded"], case["cameras"])
     repeats = 2 if quick else 3
-    seconds = _best_of(lambda: vertex_colours(*args, masks=case["masks"]), repeats)
-    baseline = _best_of(lambda: vertex_colours(*args, masks=case["masks"], occlusion=False),
-                        repeats)
+    seconds = best_of(lambda: vertex_colours(*args, masks=case["masks"]), repeats)
+    baseline = best_of(lambda: vertex_colours(*args, masks=case["masks"], occlusion=False),
+                       repeats)
     notes = []
     for images in ("albedo", "shaded"):
         e = colour_errors(case, images)

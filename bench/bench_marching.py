@@ -7,7 +7,6 @@ shows the cost of cropping, padding, smoothing and orientation. Run: ``python -m
 
 from __future__ import annotations
 
-import time
 
 import numpy as np
 from skimage import measure
@@ -15,6 +14,8 @@ from skimage import measure
 from sfs_ros.core.grid import VoxelGrid
 from sfs_ros.core.marching import LEVEL, marching_cubes_mesh
 from sfs_ros.core.mesh_checks import check_mesh
+
+from .timing import best_of
 
 #: Torus (metres) in a 0.2 m box, axis Z: like a carved ring-shaped object.
 MAJOR_RADIUS_M = 0.06
@@ -34,15 +35,6 @@ def torus_occupancy(grid: VoxelGrid) -> np.ndarray:
     return np.abs(z - 0.05)[None, None, :] <= half_height[:, :, None]
 
 
-def _best_of(fn, repeats: int) -> float:
-    best = float("inf")
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - start)
-    return best
-
-
 def run(quick: bool = False) -> list[dict]:
     """Time marching cubes (and the mesh check) at 256^3 and, unless quick, 512^3.
 
@@ -58,15 +50,15 @@ def run(quick: bool = False) -> list[dict]:
                       for axis in range(3))
         cropped = np.pad(occ[ii[0]:ii[-1] + 1, jj[0]:jj[-1] + 1, kk[0]:kk[-1] + 1]
                          .astype(np.float32), 1)
-        baseline = _best_of(lambda: measure.marching_cubes(cropped, LEVEL), repeats)
+        baseline = best_of(lambda: measure.marching_cubes(cropped, LEVEL), repeats)
         for sigma in (0.0, 0.5):
-            seconds = _best_of(lambda: marching_cubes_mesh(occ, grid, smooth_sigma_vox=sigma),
-                               repeats)
+            seconds = best_of(lambda: marching_cubes_mesh(occ, grid, smooth_sigma_vox=sigma),
+                              repeats)
             rows.append({"name": f"marching_cubes_mesh {resolution}^3 torus sigma={sigma}",
                          "seconds": seconds, "baseline_seconds": baseline,
                          "ratio": baseline / seconds})
         vertices, faces = marching_cubes_mesh(occ, grid)
-        seconds = _best_of(lambda: check_mesh(vertices, faces), repeats)
+        seconds = best_of(lambda: check_mesh(vertices, faces), repeats)
         rows.append({"name": f"check_mesh {resolution}^3 torus ({len(faces)} faces)",
                      "seconds": seconds, "baseline_seconds": None, "ratio": None})
     return rows

@@ -12,11 +12,12 @@ Run: ``python -m bench.bench_segment`` (``--quick`` for fewer repeats).
 from __future__ import annotations
 
 import argparse
-import time
 
 import numpy as np
 
 from sfs_ros.core.segment import PRESETS, SegmentationParams, segment
+
+from .timing import best_of
 
 SIZES = ((1024, 1024), (1280, 800))  # (width, height)
 BACKDROPS = {"white": (240, 240, 235), "black": (12, 10, 14)}
@@ -46,15 +47,6 @@ def plain_threshold(image: np.ndarray, background, threshold: float) -> np.ndarr
     return diff > threshold * 255
 
 
-def _best_of(fn, repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return min(times)
-
-
 def run(quick: bool = False) -> list[dict]:
     repeats = 3 if quick else 7
     configs = [("default (auto, smooth background)", {}),
@@ -64,12 +56,12 @@ def run(quick: bool = False) -> list[dict]:
     for width, height in SIZES:
         for backdrop_name, backdrop in BACKDROPS.items():
             image = synthetic_image(width, height, backdrop)
-            baseline = _best_of(lambda: plain_threshold(image, backdrop, 0.2), repeats)
+            baseline = best_of(lambda: plain_threshold(image, backdrop, 0.2), repeats)
             for label, values in configs:
                 if backdrop_name == "white" and label.startswith("middlebury"):
                     continue  # the Middlebury presets assume a black backdrop
                 params = SegmentationParams.from_dict(values)
-                seconds = _best_of(lambda: segment(image, params), repeats)
+                seconds = best_of(lambda: segment(image, params), repeats)
                 rows.append({"name": f"segment {width}x{height} {backdrop_name}: {label}",
                              "seconds": seconds, "baseline_seconds": baseline,
                              "ratio": baseline / seconds})
