@@ -178,18 +178,25 @@ def test_slow_move_times_out(homed):
     homed.stop()
 
 
-def test_disconnect_mid_move(sim, homed):
+def _long_move_in_background(client) -> tuple[threading.Thread, list]:
+    """A 900-degree turntable move started in another thread, 0.2 s under way; the thread
+    and the list that receives the MotorError it ends with."""
     errors = []
 
     def move():
         try:
-            homed.move_to(math.radians(900.0), 0.0, timeout_s=3.0)
+            client.move_to(math.radians(900.0), 0.0, timeout_s=3.0)
         except MotorError as exc:
             errors.append(exc)
 
     worker = threading.Thread(target=move)
     worker.start()
     time.sleep(0.2)
+    return worker, errors
+
+
+def test_disconnect_mid_move(sim, homed):
+    worker, errors = _long_move_in_background(homed)
     sim.disconnect()
     worker.join(3.0)
     assert len(errors) == 1 and isinstance(errors[0], ConnectionLost)
@@ -198,17 +205,7 @@ def test_disconnect_mid_move(sim, homed):
 
 
 def test_stop_interrupts_a_move_from_another_thread(sim, homed):
-    errors = []
-
-    def move():
-        try:
-            homed.move_to(math.radians(900.0), 0.0, timeout_s=3.0)
-        except MotorError as exc:
-            errors.append(exc)
-
-    worker = threading.Thread(target=move)
-    worker.start()
-    time.sleep(0.2)
+    worker, errors = _long_move_in_background(homed)
     status = homed.stop()
     worker.join(3.0)
     assert len(errors) == 1 and isinstance(errors[0], MotionCancelled)
@@ -222,17 +219,7 @@ def test_stop_interrupts_a_move_from_another_thread(sim, homed):
 def test_two_stops_at_once_both_succeed(sim, homed):
     # A stop service call and a preempting command can stop the same move together: the
     # first stop's soft reset clears the other's hold, which then finds the axes Idle.
-    errors = []
-
-    def move():
-        try:
-            homed.move_to(math.radians(900.0), 0.0, timeout_s=3.0)
-        except MotorError as exc:
-            errors.append(exc)
-
-    moving = threading.Thread(target=move)
-    moving.start()
-    time.sleep(0.2)
+    moving, errors = _long_move_in_background(homed)
     results = []
     stops = [threading.Thread(target=lambda: results.append(homed.stop())) for _ in range(2)]
     for t in stops:
