@@ -104,3 +104,9 @@ def test_rejected_stamps_are_remembered_for_capacity_captures():
 def test_capacity_must_be_a_positive_integer(capacity):
     with pytest.raises(ValueError, match="capacity"):
         StampPairer(capacity)
+
+
+def test_stamps_read_and_key_with_nine_digit_nanoseconds():
+    from sfs_ros.ros.pairing import format_stamp, view_key
+    assert format_stamp((12, 3400)) == "12.000003400"
+    assert view_key((12, 3400)) == "12_000003400"

@@ -86,7 +86,7 @@ from ..core.rig import RigCalibration
 from ..core.segment import SegmentationParams, segment
 from ..core.session import read_session, write_session
 from ..core.views import ViewError, ViewSet
-from ..ros.pairing import stamp_key
+from ..ros.pairing import stamp_key, view_key   # keyed as the reconstruction node does
 from .live import DuplicateViewError, LiveReconstruction
 from .paths import confined_path
 
@@ -500,10 +500,6 @@ def _angles(msg) -> tuple[float, float]:
     return angles[0], angles[1]
 
 
-def _key(stamp) -> str:
-    return f"{stamp[0]}_{stamp[1]:09d}"        # as the reconstruction node keys its views
-
-
 class _Views:
     """Feeds the bag's views to a LiveReconstruction as the nodes would; notes rejections."""
 
@@ -558,7 +554,7 @@ class _Views:
             self.bad.add(stamp)
             for halves in self.waiting.values():
                 halves.pop(stamp, None)
-            self.rejected[_key(stamp)] = f"malformed {name}: {exc}"
+            self.rejected[view_key(stamp)] = f"malformed {name}: {exc}"
             return
         other = self.pair[1] if name == self.pair[0] else self.pair[0]
         partner = self.waiting[other].pop(stamp, None)
@@ -572,15 +568,15 @@ class _Views:
     def _add(self, stamp, image: np.ndarray, angles: tuple[float, float]) -> None:
         if self.captures is not None:
             rgb = image if image.ndim == 3 else np.repeat(image[:, :, None], 3, axis=2)
-            self.captures.setdefault(_key(stamp), (rgb, angles))    # a resend: kept once
+            self.captures.setdefault(view_key(stamp), (rgb, angles))    # a resend: kept once
             return
         try:
             mask = image if self.segmentation is None else segment(image, self.segmentation).mask
-            self.live.add_view(_key(stamp), mask, *angles)
+            self.live.add_view(view_key(stamp), mask, *angles)
         except DuplicateViewError:
             pass                                     # a capture sent again: stored once
         except ValueError as exc:
-            self.rejected[_key(stamp)] = str(exc)
+            self.rejected[view_key(stamp)] = str(exc)
 
     def _diagnostics(self, message: BagMessage) -> None:
         """A new scan number from the scan node: it reset the reconstruction."""
@@ -605,7 +601,7 @@ class _Views:
         """Halves still waiting for their partner are rejected views."""
         for name, other in (self.pair, self.pair[::-1]):
             for stamp in self.waiting[name]:
-                self.rejected.setdefault(_key(stamp), f"{name} without {other} of the same "
+                self.rejected.setdefault(view_key(stamp), f"{name} without {other} of the same "
                                                       "stamp in the bag")
         if self.live.n_views:
             self.scans.append((self.live.session_dir, self.live.n_views))

@@ -99,7 +99,7 @@ from sfs_ros.ros.convert import (
     msg_to_image,
     points_to_cloud,
 )
-from sfs_ros.ros.pairing import StampPairer, stamp_key
+from sfs_ros.ros.pairing import StampPairer, format_stamp, stamp_key, view_key
 from sfs_ros.ros.params import Param, ParameterError, declare
 from sfs_ros.ros.rig_params import RIG_PARAMS, rig_calibration
 
@@ -145,14 +145,6 @@ def _bounds(values: dict) -> np.ndarray:
         raise ParameterError("bounds_m", f"got {box!r}, expected [xmin, ymin, zmin, xmax, ymax, "
                              "zmax] with finite min < max") from None
 
-
-def _fmt(stamp) -> str:
-    return f"{stamp[0]}.{stamp[1]:09d}"
-
-
-def _key(stamp) -> str:
-    """The view key of a capture stamp (also its file name in the session)."""
-    return f"{stamp[0]}_{stamp[1]:09d}"
 
 
 class ReconstructionNode(Node):
@@ -284,15 +276,15 @@ class ReconstructionNode(Node):
             self._report_problem(f"malformed {what} dropped: {exc}")
             return
         self._pairer.reject(stamp)
-        self._report_problem(f"malformed {what} at stamp {_fmt(stamp)} dropped with its view: "
-                             f"{exc}")
+        self._report_problem(f"malformed {what} at stamp {format_stamp(stamp)} dropped with its "
+                             f"view: {exc}")
 
     def _given_up(self, stream: str, stamp, _item, reason: str) -> None:
         self._count("unpaired_dropped")
         what = "mask" if stream == "a" else "joint state"
         why = ("no partner arrived before the buffer filled" if reason == "evicted"
                else "its partner was malformed")
-        self._report_problem(f"{what} at stamp {_fmt(stamp)} dropped: {why}")
+        self._report_problem(f"{what} at stamp {format_stamp(stamp)} dropped: {why}")
 
     def _on_reconstruct(self, _request, response):
         return self._request("reconstruct", response)
@@ -338,9 +330,9 @@ class ReconstructionNode(Node):
             return False
         if kind == "image":
             try:
-                self._live.add_colour_image(_key(job[1]), job[2])
+                self._live.add_colour_image(view_key(job[1]), job[2])
             except ValueError as exc:
-                self._report_problem(f"captured image at stamp {_fmt(job[1])} not kept for "
+                self._report_problem(f"captured image at stamp {format_stamp(job[1])} not kept for "
                                      f"colour: {exc}")
             return False
         self._live.reset()
@@ -360,17 +352,17 @@ class ReconstructionNode(Node):
         receipt = header(stamp=stamp, frame_id=frame_id)
         start = time.perf_counter()
         try:
-            added = self._live.add_view(_key(stamp), mask, theta, phi)
+            added = self._live.add_view(view_key(stamp), mask, theta, phi)
         except DuplicateViewError:
             self._count("repeats")
-            self.get_logger().info(f"view at stamp {_fmt(stamp)} came again: already stored, "
-                                   "receipt sent again")
+            self.get_logger().info(f"view at stamp {format_stamp(stamp)} came again: already "
+                                   "stored, receipt sent again")
             self._stored_pub.publish(receipt)
             return False
         except ValueError as exc:
             self._count("rejected")
             self._stored_pub.publish(receipt)      # resending cannot make it usable
-            self._report_problem(f"view at stamp {_fmt(stamp)} rejected: {exc}")
+            self._report_problem(f"view at stamp {format_stamp(stamp)} rejected: {exc}")
             return False
         self._stored_pub.publish(receipt)
         self._cameras.append(rig_camera(theta, phi, self._live.calibration))
@@ -380,7 +372,8 @@ class ReconstructionNode(Node):
             self._counts["scan_views"] = added.n_views
             self._counts["carved" if added.carved else "empty"] += 1
             self._problem = ""
-            self._warning = "" if added.carved else f"view at stamp {_fmt(stamp)}: {added.reason}"
+            self._warning = ("" if added.carved
+                             else f"view at stamp {format_stamp(stamp)}: {added.reason}")
         if self._warning:
             self.get_logger().warning(self._warning)
         self._publish_diagnostics()

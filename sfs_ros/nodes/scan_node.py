@@ -44,10 +44,11 @@ every capture is sent again. The reconstruction stores each view once, so a view
 a restarted node and never carved twice.
 
 Diagnostics values: ``scan`` (1 for the first ``scan/start``, then 2, ...),
-``state`` (idle, starting, running, paused, cancelled, done), ``view`` (the view being taken, 1-based), ``total``, ``captured``,
-``receipted``, ``resends``, ``move_retries``, ``capture_retries``,
-``lost_in_transport``, ``malformed``, and this scan's seconds of ``motion_s``
-(command to settled) and ``shutter_s`` (shutter call to frame in hand). Parameters: :data:`PARAMS`.
+``state`` (idle, starting, running, paused, cancelled, done), ``view`` (the
+view being taken, 1-based), ``total``, ``captured``, ``receipted``,
+``resends``, ``move_retries``, ``capture_retries``, ``lost_in_transport``,
+``malformed``, and this scan's seconds of ``motion_s`` (command to settled)
+and ``shutter_s`` (shutter call to frame in hand). Parameters: :data:`PARAMS`.
 """
 
 from __future__ import annotations
@@ -73,7 +74,7 @@ from sfs_ros.cell.settle import SettleDetector
 from sfs_ros.nodes.entry import run_node
 from sfs_ros.ros import capture_qos
 from sfs_ros.ros.convert import angles_from_joint_state, diagnostic_array, health, joint_state
-from sfs_ros.ros.pairing import stamp_key
+from sfs_ros.ros.pairing import format_stamp, stamp_key
 from sfs_ros.ros.params import Param, ParameterError, declare
 from sfs_ros.ros.services import ServiceError, call
 
@@ -280,8 +281,9 @@ class ScanNode(Node):
             self._image_pub.publish(entry.payload[0])
             self._joints_pub.publish(entry.payload[1])
         for entry in lost:
-            self._set_problem(f"view {entry.view + 1}: capture at stamp {_fmt(entry.stamp)} was "
-                              f"never receipted after {entry.sends} sends (kept, not sent again)")
+            self._set_problem(f"view {entry.view + 1}: capture at stamp "
+                              f"{format_stamp(entry.stamp)} was never receipted after "
+                              f"{entry.sends} sends (kept, not sent again)")
         self._publish_diagnostics()
 
     # -- services (executor) -----------------------------------------------------------------
@@ -474,8 +476,8 @@ class ScanNode(Node):
                              "JSON with \"stamp\": [sec, nanosec]") from None
         with self._frame_arrived:
             if not self._frame_arrived.wait_for(lambda: stamp in self._frames, timeout_s):
-                raise ValueError(f"frame at stamp {_fmt(stamp)} announced by the camera but "
-                                 f"not received within {timeout_s:g} s")
+                raise ValueError(f"frame at stamp {format_stamp(stamp)} announced by the camera "
+                                 f"but not received within {timeout_s:g} s")
             frame = self._frames.pop(stamp)
         gap_s = self._p["encoder_max_gap_s"]
         deadline = time.monotonic() + gap_s
@@ -497,7 +499,8 @@ class ScanNode(Node):
     def _publish_diagnostics(self) -> None:
         with self._lock:
             values = dict(self._counts, motion_s=round(self._counts["motion_s"], 4),
-                          shutter_s=round(self._counts["shutter_s"], 4), scan=self._scan, state=self._state, view=self._view + 1,
+                          shutter_s=round(self._counts["shutter_s"], 4), scan=self._scan,
+                          state=self._state, view=self._view + 1,
                           total=len(self.plan), captured=self._ledger.captured,
                           receipted=self._ledger.receipted,
                           lost_in_transport=self._ledger.given_up)
@@ -506,10 +509,6 @@ class ScanNode(Node):
                                 f"views captured, {values['receipted']} receipted")
         self._diag_pub.publish(diagnostic_array(f"{self.get_name()}: scan", level, message,
                                                 values, stamp=self.get_clock().now().to_msg()))
-
-
-def _fmt(stamp) -> str:
-    return f"{stamp[0]}.{stamp[1]:09d}"
 
 
 def main(args=None) -> None:

@@ -54,7 +54,7 @@ from sfs_ros.ros.convert import (
     image_to_msg,
     msg_to_image,
 )
-from sfs_ros.ros.pairing import StampPairer, stamp_key
+from sfs_ros.ros.pairing import StampPairer, format_stamp, stamp_key
 from sfs_ros.ros.params import Param, ParameterError, declare, read, validating_callback
 
 __all__ = ["SegmentationNode", "PARAMS", "segmentation_params", "main"]
@@ -226,7 +226,7 @@ class SegmentationNode(Node):
             self._report_problem(f"malformed {what} dropped: {exc}")
             return
         self._pairer.reject(stamp)
-        self._report_problem(f"malformed {what} at stamp {_fmt(stamp)} dropped with its "
+        self._report_problem(f"malformed {what} at stamp {format_stamp(stamp)} dropped with its "
                              f"capture: {exc}")
 
     def _given_up(self, stream: str, stamp, _item, reason: str) -> None:
@@ -234,7 +234,7 @@ class SegmentationNode(Node):
         what = "image" if stream == "a" else "joint state"
         why = ("no partner arrived before the buffer filled" if reason == "evicted"
                else "its partner was malformed")
-        self._report_problem(f"{what} at stamp {_fmt(stamp)} dropped: {why}")
+        self._report_problem(f"{what} at stamp {format_stamp(stamp)} dropped: {why}")
 
     def _report_problem(self, text: str) -> None:
         self._problem = text
@@ -257,7 +257,7 @@ class SegmentationNode(Node):
         self._joints_pub.publish(joints)
         self._counts["masks"] += 1
         self._problem = ""
-        stamp = _fmt(stamp_key(image_msg.header.stamp))
+        stamp = format_stamp(stamp_key(image_msg.header.stamp))
         if result.empty:
             self._counts["empty"] += 1
             self._warning = f"view at stamp {stamp}: empty silhouette (all-zero mask published)"
@@ -279,10 +279,6 @@ class SegmentationNode(Node):
         self._diag_pub.publish(diagnostic_array(
             f"{self.get_name()}: segmentation", level, message, values,
             stamp=self.get_clock().now().to_msg()))
-
-
-def _fmt(stamp) -> str:
-    return f"{stamp[0]}.{stamp[1]:09d}"
 
 
 def main(args=None) -> None:

@@ -25,7 +25,7 @@ from __future__ import annotations
 from collections import OrderedDict
 from typing import Any, Callable
 
-__all__ = ["StampPairer", "stamp_key"]
+__all__ = ["StampPairer", "format_stamp", "stamp_key", "view_key"]
 
 Stamp = tuple[int, int]
 
@@ -45,6 +45,17 @@ def stamp_key(stamp) -> Stamp:
             and 0 <= nanosec < 1_000_000_000):
         raise ValueError(f"stamp must have integer sec and nanosec in [0, 1e9), got {stamp!r}")
     return int(sec), int(nanosec)
+
+
+def format_stamp(stamp: Stamp) -> str:
+    """``sec.nanosec`` of a ``(sec, nanosec)`` stamp, for messages."""
+    return f"{stamp[0]}.{stamp[1]:09d}"
+
+
+def view_key(stamp: Stamp) -> str:
+    """The key a capture's view goes by (in the reconstruction and its session files):
+    ``sec_nanosec`` of its stamp."""
+    return f"{stamp[0]}_{stamp[1]:09d}"
 
 
 class StampPairer:
