@@ -1,4 +1,4 @@
-"""Carving speed: :func:`sfs_ros.core.carve.carve` against a naive numpy baseline.
+"""Carving speed: :func:`sfs_ros.core.carving.carve.carve` against a naive numpy baseline.
 
 The object is torus-like: a ring of spheres, whose silhouette in any view is
 computed per pixel (orthographic: union of discs; pinhole: union of ray-sphere
@@ -19,9 +19,9 @@ import time
 
 import numpy as np
 
-from sfs_ros.core.carve import Carver, carve
-from sfs_ros.core.grid import VoxelGrid
-from sfs_ros.core.rig import RigCalibration, rig_camera
+from sfs_ros.core.carving.carve import Carver, carve
+from sfs_ros.core.geometry.grid import VoxelGrid
+from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
 
 RING_RADIUS_M = 0.10
 SPHERE_RADIUS_M = 0.04

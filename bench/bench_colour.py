@@ -2,7 +2,7 @@
 
 A simulated scan of the mug (three rings of 16 views and one from above) is
 written as a session, reconstructed (marching cubes), and the mesh coloured
-from the images by :func:`sfs_ros.core.colour.vertex_colours`, with the
+from the images by :func:`sfs_ros.core.meshing.colour.vertex_colours`, with the
 silhouettes of the segmentation as masks. Two sets of images of the same views:
 *albedo* (unshaded, ``ambient=1``, the mug's known colour pattern plus the
 camera's noise) and *shaded* (what the mock camera produces: Lambert shading
@@ -31,16 +31,16 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
-from sfs_ros.core.colour import vertex_colours
-from sfs_ros.core.inputs import load_views
-from sfs_ros.core.objects import make_object
+from sfs_ros.core.meshing.colour import vertex_colours
+from sfs_ros.core.exchange.inputs import load_views
+from sfs_ros.core.simulation.objects import make_object
 from sfs_ros.core.pipeline import ReconstructionParams, reconstruct
-from sfs_ros.core.plan import ring_plan
+from sfs_ros.core.simulation.plan import ring_plan
 from sfs_ros.core.render import render_image
-from sfs_ros.core.rig import RigCalibration
+from sfs_ros.core.geometry.rig import RigCalibration
 from sfs_ros.core.segment import segment
-from sfs_ros.core.session import write_session
-from sfs_ros.core.synthetic import carving_box, simulate_scan
+from sfs_ros.core.exchange.session import write_session
+from sfs_ros.core.simulation.synthetic import carving_box, simulate_scan
 
 from .timing import best_of
 

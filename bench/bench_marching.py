@@ -11,9 +11,9 @@ from __future__ import annotations
 import numpy as np
 from skimage import measure
 
-from sfs_ros.core.grid import VoxelGrid
-from sfs_ros.core.marching import LEVEL, marching_cubes_mesh
-from sfs_ros.core.mesh_checks import check_mesh
+from sfs_ros.core.geometry.grid import VoxelGrid
+from sfs_ros.core.meshing.marching import LEVEL, marching_cubes_mesh
+from sfs_ros.core.meshing.mesh_checks import check_mesh
 
 from .timing import best_of
 

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from sfs_ros.core.camera import Camera
+from sfs_ros.core.geometry.camera import Camera
 
 
 def sphere_mask(camera: Camera, centre, radius: float) -> np.ndarray:

@@ -2,12 +2,12 @@
 
 import pytest
 
-from sfs_ros.core.inputs import load_views
-from sfs_ros.core.objects import make_object
-from sfs_ros.core.plan import ring_plan
-from sfs_ros.core.rig import RigCalibration
-from sfs_ros.core.session import write_session
-from sfs_ros.core.synthetic import carving_box, simulate_scan
+from sfs_ros.core.exchange.inputs import load_views
+from sfs_ros.core.simulation.objects import make_object
+from sfs_ros.core.simulation.plan import ring_plan
+from sfs_ros.core.geometry.rig import RigCalibration
+from sfs_ros.core.exchange.session import write_session
+from sfs_ros.core.simulation.synthetic import carving_box, simulate_scan
 
 #: Small pinhole camera so the end-to-end tests stay fast: 320 x 240 px, 0.6 m away.
 TEST_RIG = RigCalibration(width=320, height=240, projection="pinhole", fx=700.0, fy=700.0,

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from sfs_ros.cli.reconstruct import main
-from sfs_ros.core.inputs import load_views
+from sfs_ros.core.exchange.inputs import load_views
 from sfs_ros.core.pipeline import ReconstructionParams, reconstruct
 
 FAST = ReconstructionParams(resolution=64)
@@ -62,7 +62,7 @@ def test_empty_silhouette_is_a_rejected_view(mug_session):
 
 
 def test_one_bad_mask_does_not_destroy_the_object(mug_session, mug):
-    from sfs_ros.core.synthetic import score_against_truth
+    from sfs_ros.core.simulation.synthetic import score_against_truth
 
     path = mug_session / "images" / "view_010.png"
     image = cv2.imread(str(path))
@@ -116,7 +116,7 @@ def test_angles_table_not_matching_images(capsys, mug_session, tmp_path):
 
 
 def test_cli_colours_the_mesh_and_refuses_colour_in_stl(capsys, mug_session, tmp_path, mug):
-    from sfs_ros.core.export import load_mesh
+    from sfs_ros.core.exchange.export import load_mesh
 
     code, _, err = run_cli(capsys, mug_session, "-o", tmp_path / "c.ply", "-r", "48", "--colour")
     assert code == 0, err

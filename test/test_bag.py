@@ -27,14 +27,14 @@ from sfs_ros.cell.bag import (PARAMETERS_TOPIC, BagWriter, TOPICS, bag_folder, o
                               parameters_message, read_bag)
 from sfs_ros.cell.live import LiveReconstruction
 from sfs_ros.cli.common import load_input
-from sfs_ros.core.inputs import load_views
+from sfs_ros.core.exchange.inputs import load_views
 from sfs_ros.core.pipeline import ReconstructionParams, reconstruct
-from sfs_ros.core.plan import ring_plan
-from sfs_ros.core.rig import rig_camera
+from sfs_ros.core.simulation.plan import ring_plan
+from sfs_ros.core.geometry.rig import rig_camera
 from sfs_ros.core.segment import SegmentationParams
-from sfs_ros.core.session import write_session
-from sfs_ros.core.synthetic import carving_box
-from sfs_ros.core.views import ViewError
+from sfs_ros.core.exchange.session import write_session
+from sfs_ros.core.simulation.synthetic import carving_box
+from sfs_ros.core.exchange.views import ViewError
 
 STORE = get_typestore(Stores.ROS2_KILTED)
 T = STORE.types

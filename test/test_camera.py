@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from sfs_ros.core.camera import Camera
+from sfs_ros.core.geometry.camera import Camera
 
 K = np.array([[800.0, 0.0, 320.0], [0.0, 820.0, 240.0], [0.0, 0.0, 1.0]])
 

@@ -1,16 +1,19 @@
 """Carving: exact agreement with a per-voxel reference, and ground-truth shapes."""
 
+import importlib
 import math
 
 import numpy as np
 import pytest
 
-from sfs_ros.core import carve as carve_module
 from analytic_masks import sphere_mask
-from sfs_ros.core.camera import Camera
-from sfs_ros.core.carve import Carver, carve, view_coefficients
-from sfs_ros.core.grid import VoxelGrid
-from sfs_ros.core.rig import RigCalibration, rig_camera
+from sfs_ros.core.geometry.camera import Camera
+from sfs_ros.core.carving.carve import Carver, carve, view_coefficients
+from sfs_ros.core.geometry.grid import VoxelGrid
+from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
+
+# The module itself (the package's ``carve`` attribute is the function of that name).
+carve_module = importlib.import_module("sfs_ros.core.carving.carve")
 
 #: Half the diagonal of a pixel: rounding a projected centre to the nearest
 #: pixel centre moves it by at most this much, pixels.

@@ -24,10 +24,10 @@ from std_srvs.srv import SetBool, Trigger
 
 from mock_cell import PLAN, RESOLUTION, SCAN_TIMEOUT_S, running_cell
 from ros_harness import RosProbe, wait
-from sfs_ros.core.export import load_mesh
-from sfs_ros.core.grid import VoxelGrid
-from sfs_ros.core.objects import make_object
-from sfs_ros.core.synthetic import carving_box, score_against_truth
+from sfs_ros.core.exchange.export import load_mesh
+from sfs_ros.core.geometry.grid import VoxelGrid
+from sfs_ros.core.simulation.objects import make_object
+from sfs_ros.core.simulation.synthetic import carving_box, score_against_truth
 from sfs_ros.ros import capture_qos
 from sfs_ros.ros.cell_client import ScanFailed
 from sfs_ros.ros.convert import image_to_msg

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from sfs_ros.core.cloud import cloud_of_points, surface_voxels
-from sfs_ros.core.grid import VoxelGrid
+from sfs_ros.core.meshing.cloud import cloud_of_points, surface_voxels
+from sfs_ros.core.geometry.grid import VoxelGrid
 
 # Normals of a voxelised sphere of radius ~12 voxels, from the smoothed occupancy, deviate from
 # the radial direction by the staircase of the voxels: about 11 degrees at most; allow 20.

@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 from analytic_masks import sphere_mask
-from sfs_ros.core.carve import carve
-from sfs_ros.core.consistency import (ViewCheck, bbox_clips_object, find_inconsistent_views,
+from sfs_ros.core.carving.carve import carve
+from sfs_ros.core.carving.consistency import (ViewCheck, bbox_clips_object, find_inconsistent_views,
                                       hull_silhouettes)
-from sfs_ros.core.grid import VoxelGrid
-from sfs_ros.core.rig import RigCalibration, rig_camera
+from sfs_ros.core.geometry.grid import VoxelGrid
+from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
 
 CENTRE, RADIUS = np.array([0.004, -0.006, 0.01]), 0.08
 GRID = VoxelGrid.cube([-0.12] * 3, [0.12] * 3, 64)

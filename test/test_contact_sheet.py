@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
-from sfs_ros.core.contact_sheet import (BACKGROUND_RGB, FRAME_RGB, OUTLINE_RGB, WARNING_RGB,
+from sfs_ros.core.pictures.contact_sheet import (BACKGROUND_RGB, FRAME_RGB, OUTLINE_RGB, WARNING_RGB,
                                         SheetLayout, contact_sheet, write_contact_sheet)
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -10,8 +10,8 @@ from sensor_msgs.msg import Image, JointState, PointCloud2, PointField
 from shape_msgs.msg import Mesh
 from visualization_msgs.msg import Marker
 
-from sfs_ros.core.camera import Camera
-from sfs_ros.core.rig import RigCalibration, rig_camera
+from sfs_ros.core.geometry.camera import Camera
+from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
 from sfs_ros.ros.convert import (angles_from_joint_state, camera_info, camera_poses,
                                  cloud_to_points, image_to_msg, joint_state, mesh_to_marker,
                                  mesh_to_shape, msg_to_image, points_to_cloud, shape_to_mesh)

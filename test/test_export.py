@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from sfs_ros.core import export as export_module
-from sfs_ros.core.export import SUPPORTED_SUFFIXES, export_mesh, load_mesh
-from sfs_ros.core.mesh_checks import check_mesh
+import sfs_ros.core.exchange.export as export_module
+from sfs_ros.core.exchange.export import SUPPORTED_SUFFIXES, export_mesh, load_mesh
+from sfs_ros.core.meshing.mesh_checks import check_mesh
 
 #: Coordinates are stored as float32 in PLY, STL and GLB (and with 8 decimals
 #: in OBJ): relative rounding 6e-8 on coordinates below 0.1 m is < 1e-8 m.

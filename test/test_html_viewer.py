@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from sfs_ros.core.html_viewer import (AMBIENT, BACKGROUND_RGB, DEFAULT_RGB, FIT, FOV_RAD,
+from sfs_ros.core.pictures.html_viewer import (AMBIENT, BACKGROUND_RGB, DEFAULT_RGB, FIT, FOV_RAD,
                                       HOME_AZIMUTH_RAD, HOME_ELEVATION_RAD, html_viewer,
                                       write_html_viewer)
 

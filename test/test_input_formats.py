@@ -13,10 +13,10 @@ import cv2
 import numpy as np
 import pytest
 
-from sfs_ros.core.inputs import load_views
+from sfs_ros.core.exchange.inputs import load_views
 from sfs_ros.core.metrics import volume_iou
 from sfs_ros.core.pipeline import ReconstructionParams, reconstruct
-from sfs_ros.core.synthetic import carving_box
+from sfs_ros.core.simulation.synthetic import carving_box
 
 
 def _write_images(folder, captures):

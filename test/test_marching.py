@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from sfs_ros.core.grid import VoxelGrid
-from sfs_ros.core.marching import LEVEL, marching_cubes_mesh
-from sfs_ros.core.mesh_checks import check_mesh
+from sfs_ros.core.geometry.grid import VoxelGrid
+from sfs_ros.core.meshing.marching import LEVEL, marching_cubes_mesh
+from sfs_ros.core.meshing.mesh_checks import check_mesh
 
 RADIUS_M = 0.031
 CENTRE_M = np.array([0.004, -0.003, 0.041])

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from sfs_ros.core.mesh_checks import check_mesh
+from sfs_ros.core.meshing.mesh_checks import check_mesh
 
 #: Float tolerance of sums over a few faces (exact arithmetic up to rounding).
 EXACT = 1e-12

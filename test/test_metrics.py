@@ -5,14 +5,14 @@ import pytest
 import trimesh
 from scipy import ndimage
 
-from sfs_ros.core.camera import Camera
-from sfs_ros.core.grid import VoxelGrid
+from sfs_ros.core.geometry.camera import Camera
+from sfs_ros.core.geometry.grid import VoxelGrid
 from sfs_ros.core.metrics import (ChamferResult, chamfer_distance, mesh_occupancy,
                                   occupancy_from_contains, reprojection_iou, silhouette_iou,
                                   volume_iou)
-from sfs_ros.core.objects import OBJECT_NAMES, make_object
+from sfs_ros.core.simulation.objects import OBJECT_NAMES, make_object
 from sfs_ros.core.render import rasterize_silhouette
-from sfs_ros.core.rig import RigCalibration, rig_camera
+from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
 
 EXACT = 1e-12
 
@@ -199,7 +199,7 @@ def test_mesh_occupancy_of_marching_cubes_mesh_is_its_occupancy():
     # Marching cubes puts vertices and vertical faces exactly on voxel-column
     # lines: the degenerate case for ray parity. The mesh surrounds exactly the
     # occupied voxel centres, so the round trip must be exact, voxel for voxel.
-    from sfs_ros.core.marching import marching_cubes_mesh
+    from sfs_ros.core.meshing.marching import marching_cubes_mesh
 
     rng = np.random.default_rng(3)
     grid = VoxelGrid([0, 0, 0], [1, 1, 1], 1 / 40)

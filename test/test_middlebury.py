@@ -6,9 +6,9 @@ import cv2
 import numpy as np
 import pytest
 
-from sfs_ros.core.inputs import load_views
-from sfs_ros.core.middlebury import read_middlebury
-from sfs_ros.core.views import ViewError
+from sfs_ros.core.exchange.inputs import load_views
+from sfs_ros.core.exchange.middlebury import read_middlebury
+from sfs_ros.core.exchange.views import ViewError
 
 WIDTH, HEIGHT = 40, 30
 K = np.array([[50.0, 0.0, 19.5], [0.0, 52.0, 14.5], [0.0, 0.0, 1.0]])

@@ -7,9 +7,9 @@ import cv2
 import numpy as np
 import pytest
 
-from sfs_ros.core.inputs import load_views
-from sfs_ros.core.nerf import read_transforms
-from sfs_ros.core.views import ViewError
+from sfs_ros.core.exchange.inputs import load_views
+from sfs_ros.core.exchange.nerf import read_transforms
+from sfs_ros.core.exchange.views import ViewError
 
 WIDTH, HEIGHT = 40, 30
 ANGLE_X = 0.7  # radians, horizontal field of view

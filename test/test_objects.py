@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from sfs_ros.core.objects import OBJECT_NAMES, make_object
+from sfs_ros.core.simulation.objects import OBJECT_NAMES, make_object
 from sfs_ros.core.render import rasterize_silhouette
-from sfs_ros.core.rig import RigCalibration, rig_camera
+from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
 
 #: Pixels per metre of a 512 px image spanning the 0.12 m object box.
 PX_PER_M_512 = 512 / 0.12

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from sfs_ros.core.pipeline import ReconstructionParams, reconstruct
-from sfs_ros.core.synthetic import score_against_truth
+from sfs_ros.core.simulation.synthetic import score_against_truth
 
 
 @pytest.fixture(scope="module")

@@ -15,13 +15,13 @@ from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker
 
 from ros_harness import NodeProcess, RosProbe
-from sfs_ros.core.export import load_mesh
-from sfs_ros.core.grid import VoxelGrid
-from sfs_ros.core.objects import make_object
-from sfs_ros.core.plan import ring_plan
+from sfs_ros.core.exchange.export import load_mesh
+from sfs_ros.core.geometry.grid import VoxelGrid
+from sfs_ros.core.simulation.objects import make_object
+from sfs_ros.core.simulation.plan import ring_plan
 from sfs_ros.core.render import rasterize_silhouette
-from sfs_ros.core.rig import RigCalibration, rig_camera
-from sfs_ros.core.synthetic import carving_box, score_against_truth
+from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
+from sfs_ros.core.simulation.synthetic import carving_box, score_against_truth
 from sfs_ros.ros import capture_qos, result_qos
 from sfs_ros.ros.convert import cloud_to_points, image_to_msg, joint_state, shape_to_mesh
 

@@ -27,9 +27,9 @@ from analytic_masks import sphere_mask
 from conftest import TEST_RIG
 from ros_harness import NAMESPACE, NodeProcess, RosProbe
 from sfs_ros.cell.bag import open_bag, read_bag
-from sfs_ros.core.plan import ring_plan
-from sfs_ros.core.rig import rig_camera
-from sfs_ros.core.views import ViewError
+from sfs_ros.core.simulation.plan import ring_plan
+from sfs_ros.core.geometry.rig import rig_camera
+from sfs_ros.core.exchange.views import ViewError
 from sfs_ros.ros import capture_qos
 from sfs_ros.ros.convert import image_to_msg, joint_state
 

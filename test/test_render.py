@@ -5,10 +5,10 @@ import math
 import numpy as np
 import pytest
 
-from sfs_ros.core.camera import Camera
-from sfs_ros.core.objects import make_object
+from sfs_ros.core.geometry.camera import Camera
+from sfs_ros.core.simulation.objects import make_object
 from sfs_ros.core.render import rasterize_faces, rasterize_silhouette, render_image
-from sfs_ros.core.rig import RigCalibration, rig_camera
+from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
 
 CENTRE = np.array([0.0, 0.0, 0.05])
 RADIUS = 0.05

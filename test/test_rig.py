@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from sfs_ros.core.rig import RigCalibration, rig_camera, rig_rotation
+from sfs_ros.core.geometry.rig import RigCalibration, rig_camera, rig_rotation
 
 DEG = math.pi / 180
 

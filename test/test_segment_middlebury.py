@@ -12,9 +12,9 @@ import cv2
 import numpy as np
 import pytest
 
-from sfs_ros.core.middlebury import read_middlebury
+from sfs_ros.core.exchange.middlebury import read_middlebury
 from sfs_ros.core.segment import PRESETS, SegmentationParams, segment
-from sfs_ros.core.views import read_image
+from sfs_ros.core.exchange.views import read_image
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "datasets" / "middlebury"
 if not DATA.is_dir():

@@ -82,10 +82,10 @@ from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness, Q
 from rosbags.rosbag2 import Reader, ReaderError, StoragePlugin, Writer, WriterError
 from rosbags.typesys import Stores, get_typestore
 
-from ..core.rig import RigCalibration
+from ..core.geometry.rig import RigCalibration
 from ..core.segment import SegmentationParams, segment
-from ..core.session import read_session, write_session
-from ..core.views import ViewError, ViewSet
+from ..core.exchange.session import read_session, write_session
+from ..core.exchange.views import ViewError, ViewSet
 from ..ros.pairing import stamp_key, view_key   # keyed as the reconstruction node does
 from .live import DuplicateViewError, LiveReconstruction
 from .paths import confined_path

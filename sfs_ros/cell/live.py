@@ -7,7 +7,7 @@ session folder as it arrives, and on request runs the full reconstruction
 
 Persistence and the final reconstruction share one path: each mask is stored
 as a black-and-white PNG (object 255, background 0) in a scan session folder
-(:mod:`sfs_ros.core.session`) whose ``session.yaml`` holds the rig
+(:mod:`sfs_ros.core.exchange.session`) whose ``session.yaml`` holds the rig
 calibration, the carving box and :data:`MASK_SEGMENTATION`, segmentation
 parameters under which :func:`sfs_ros.core.segment.segment` returns such an
 image's mask unchanged (a fixed threshold at half scale against a black
@@ -39,19 +39,19 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.carve import Carver
-from ..core.colour import vertex_colours
-from ..core.contact_sheet import write_contact_sheet
-from ..core.export import SUPPORTED_SUFFIXES, export_mesh
-from ..core.grid import VoxelGrid
-from ..core.html_viewer import write_html_viewer
-from ..core.inputs import load_views
+from ..core.carving.carve import Carver
+from ..core.meshing.colour import vertex_colours
+from ..core.pictures.contact_sheet import write_contact_sheet
+from ..core.exchange.export import SUPPORTED_SUFFIXES, export_mesh
+from ..core.geometry.grid import VoxelGrid
+from ..core.pictures.html_viewer import write_html_viewer
+from ..core.exchange.inputs import load_views
 from ..core.pipeline import ReconstructionParams, reconstruct
-from ..core.preview import preview_image, write_png
-from ..core.rig import RigCalibration, rig_camera
+from ..core.pictures.preview import preview_image, write_png
+from ..core.geometry.rig import RigCalibration, rig_camera
 from ..core.segment import SegmentationParams
-from ..core.session import append_view, write_session
-from ..core.views import as_bounds
+from ..core.exchange.session import append_view, write_session
+from ..core.exchange.views import as_bounds
 from .paths import confined_path
 
 __all__ = ["MASK_SEGMENTATION", "DuplicateViewError", "AddedView", "LiveReconstruction",

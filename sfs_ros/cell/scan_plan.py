@@ -9,7 +9,7 @@ Plan file (YAML mapping; unknown keys are an error). Either explicit views::
     reorder: true          # optional (default true): reorder to shorten the motion
     allow_duplicates: false  # optional (default false): refuse repeated viewpoints
 
-or rings of views (:func:`sfs_ros.core.plan.ring_plan`)::
+or rings of views (:func:`sfs_ros.core.simulation.plan.ring_plan`)::
 
     rings:
       phi_deg: [15, 40, 65]  # carriage elevations, degrees
@@ -44,7 +44,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from ..core.plan import ring_plan
+from ..core.simulation.plan import ring_plan
 
 __all__ = ["ScanPlan", "load_plan", "travel_deg"]
 

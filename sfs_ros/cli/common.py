@@ -5,9 +5,9 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from ..core.inputs import ACCEPTED_INPUTS as CORE_INPUTS
-from ..core.inputs import load_views
-from ..core.views import ViewError, ViewSet
+from ..core.exchange.inputs import ACCEPTED_INPUTS as CORE_INPUTS
+from ..core.exchange.inputs import load_views
+from ..core.exchange.views import ViewError, ViewSet
 
 #: What :func:`load_input` reads, in words.
 ACCEPTED_INPUTS = f"{CORE_INPUTS}, or a rosbag2 recorded by sfs-recorder (folder, .mcap or .db3)"
@@ -22,7 +22,7 @@ def _is_bag(path: Path) -> bool:
 
 
 def load_input(path, *, captures: bool = False) -> tuple[ViewSet, dict]:
-    """The views at ``path`` (:func:`sfs_ros.core.inputs.load_views`, or a rosbag2 read
+    """The views at ``path`` (:func:`sfs_ros.core.exchange.inputs.load_views`, or a rosbag2 read
     by :func:`sfs_ros.cell.bag.read_bag`: its masks as the reconstruction node carved
     them, or with ``captures`` its captured images) and the recorded defaults of a bag
     (``{"resolution": ..., "mesher": ...}`` as the reconstruction node had them; empty

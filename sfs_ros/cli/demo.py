@@ -30,11 +30,11 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from ..core.export import load_mesh
-from ..core.grid import VoxelGrid
-from ..core.objects import make_object
+from ..core.exchange.export import load_mesh
+from ..core.geometry.grid import VoxelGrid
+from ..core.simulation.objects import make_object
 from ..core.pipeline import ReconstructionParams, reconstruct
-from ..core.synthetic import score_against_truth
+from ..core.simulation.synthetic import score_against_truth
 from ..ros.cell_client import CellClient, ScanFailed
 from ..ros.services import ServiceError
 from .bringup import Cell, cell_nodes, default_config_dir

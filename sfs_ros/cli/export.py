@@ -6,7 +6,7 @@ INPUT is anything ``sfs-reconstruct`` reads (a session folder, a Middlebury
 ``*_par.txt``, a NeRF ``transforms*.json``, a rosbag2 of a scan). ``--session`` writes a plain
 session folder (images + the view table), ``--colmap`` COLMAP's text model
 (``cameras.txt``, ``images.txt``, ``points3D.txt``), ``--nerf`` a
-``transforms.json`` (:mod:`sfs_ros.core.pose_export`). With ``--session``
+``transforms.json`` (:mod:`sfs_ros.core.exchange.pose_export`). With ``--session``
 too, the COLMAP and NeRF files refer to the exported images.
 """
 
@@ -16,8 +16,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from ..core.pose_export import export_session, write_colmap, write_nerf_transforms
-from ..core.session import IMAGES_DIR, read_session
+from ..core.exchange.pose_export import export_session, write_colmap, write_nerf_transforms
+from ..core.exchange.session import IMAGES_DIR, read_session
 from .common import ACCEPTED_INPUTS, load_input, run_reporting_errors
 
 PROG = "sfs-export"

@@ -18,14 +18,14 @@ import json
 import sys
 from pathlib import Path
 
-from ..core.colour import vertex_colours
-from ..core.contact_sheet import write_contact_sheet
-from ..core.export import SUPPORTED_SUFFIXES, export_mesh
-from ..core.html_viewer import write_html_viewer
+from ..core.meshing.colour import vertex_colours
+from ..core.pictures.contact_sheet import write_contact_sheet
+from ..core.exchange.export import SUPPORTED_SUFFIXES, export_mesh
+from ..core.pictures.html_viewer import write_html_viewer
 from ..core.pipeline import MESHERS, ReconstructionParams, reconstruct
-from ..core.preview import preview_image, write_png
+from ..core.pictures.preview import preview_image, write_png
 from ..core.segment import PRESETS, SegmentationParams
-from ..core.views import ViewSet, read_image
+from ..core.exchange.views import ViewSet, read_image
 from .common import ACCEPTED_INPUTS, StageProgress, load_input, run_reporting_errors
 
 PROG = "sfs-reconstruct"

@@ -14,15 +14,15 @@ import json
 import sys
 from pathlib import Path
 
-from ..core.export import SUPPORTED_SUFFIXES, export_mesh
-from ..core.inputs import load_views
-from ..core.objects import OBJECT_NAMES, make_object
+from ..core.exchange.export import SUPPORTED_SUFFIXES, export_mesh
+from ..core.exchange.inputs import load_views
+from ..core.simulation.objects import OBJECT_NAMES, make_object
 from ..core.pipeline import MESHERS, ReconstructionParams, reconstruct
-from ..core.plan import ring_plan
-from ..core.preview import preview_image, write_png
-from ..core.rig import RigCalibration
-from ..core.session import write_session
-from ..core.synthetic import carving_box, score_against_truth, simulate_scan
+from ..core.simulation.plan import ring_plan
+from ..core.pictures.preview import preview_image, write_png
+from ..core.geometry.rig import RigCalibration
+from ..core.exchange.session import write_session
+from ..core.simulation.synthetic import carving_box, score_against_truth, simulate_scan
 from .common import StageProgress, run_reporting_errors
 from .reconstruct import summary
 

@@ -1,6 +1,60 @@
-"""The reconstruction core: pure algorithms, no ROS imports.
+"""The reconstruction core: pure algorithms, no ROS imports, usable from a notebook.
 
-Usable from a notebook or a script: cameras and the rig model, a synthetic
-renderer, segmentation, voxel carving, the cloud of points, two meshers,
-export and metrics.
+The front door names what a script needs::
+
+    from sfs_ros.core import load_views, reconstruct, ReconstructionParams, export_mesh
+    result = reconstruct(load_views("session_folder"), ReconstructionParams(resolution=192))
+    export_mesh("mesh.ply", result.vertices, result.faces)
+
+Sub-packages, each naming its public API in its ``__init__``:
+
+* :mod:`.geometry`: cameras, the rig model, the voxel grid;
+* :mod:`.carving`: voxel carving, the carving box, view consistency, specks;
+* :mod:`.meshing`: cloud of points, advancing front, marching cubes, mesh checks, colour;
+* :mod:`.exchange`: views in (session, Middlebury, NeRF), meshes and poses out;
+* :mod:`.pictures`: PNG preview, HTML viewer, contact sheet;
+* :mod:`.simulation`: known objects, scan plans, simulated scans.
+
+At the top: :mod:`.segment` (silhouettes), :mod:`.render` (z-buffer renderer),
+:mod:`.metrics` (IoU, Chamfer) and :mod:`.pipeline` (images to mesh).
+Names are imported on first use, so ``import sfs_ros.core`` costs nothing.
 """
+
+from importlib import import_module
+
+_FRONT_DOOR = {
+    "Camera": ".geometry",
+    "RigCalibration": ".geometry",
+    "rig_camera": ".geometry",
+    "VoxelGrid": ".geometry",
+    "carve": ".carving",
+    "Carver": ".carving",
+    "load_views": ".exchange",
+    "ViewSet": ".exchange",
+    "View": ".exchange",
+    "export_mesh": ".exchange",
+    "load_mesh": ".exchange",
+    "segment": ".segment",
+    "SegmentationParams": ".segment",
+    "reconstruct": ".pipeline",
+    "ReconstructionParams": ".pipeline",
+    "Reconstruction": ".pipeline",
+    "check_mesh": ".meshing",
+    "make_object": ".simulation",
+    "simulate_scan": ".simulation",
+    "ring_plan": ".simulation",
+}
+
+__all__ = sorted(_FRONT_DOOR)
+
+
+def __getattr__(name: str):
+    if name not in _FRONT_DOOR:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(import_module(_FRONT_DOOR[name], __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))

@@ -8,8 +8,8 @@ import numpy as np
 from numba import njit
 from scipy.spatial import cKDTree
 
-from .camera import Camera
-from .grid import VoxelGrid
+from .geometry.camera import Camera
+from .geometry.grid import VoxelGrid
 from .render import as_mesh_arrays, rasterize_silhouette, triangle_edges
 
 __all__ = ["ChamferResult", "volume_iou", "silhouette_iou", "reprojection_iou",

@@ -14,19 +14,19 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from .advancing_front import advancing_front
-from .bounds import estimate_bounds
-from .carve import carve
-from .cloud import cloud_of_points
-from .colour import vertex_colours
-from .consistency import bbox_clips_object, find_inconsistent_views
-from .grid import VoxelGrid
-from .hull import drop_specks
-from .marching import marching_cubes_mesh
-from .mesh_checks import check_mesh
+from .meshing.advancing_front import advancing_front
+from .carving.bounds import estimate_bounds
+from .carving.carve import carve
+from .meshing.cloud import cloud_of_points
+from .meshing.colour import vertex_colours
+from .carving.consistency import bbox_clips_object, find_inconsistent_views
+from .geometry.grid import VoxelGrid
+from .carving.hull import drop_specks
+from .meshing.marching import marching_cubes_mesh
+from .meshing.mesh_checks import check_mesh
 from .metrics import reprojection_iou
 from .segment import SegmentationParams, segment
-from .views import View, ViewSet, read_image
+from .exchange.views import View, ViewSet, read_image
 
 __all__ = ["MESHERS", "ReconstructionParams", "Reconstruction", "reconstruct"]
 
@@ -71,7 +71,7 @@ class ReconstructionParams:
         None: the input's stored parameters, else the defaults.
     colour : bool
         Colour the mesh's vertices from the images of the views used
-        (:func:`sfs_ros.core.colour.vertex_colours`: the views that see each
+        (:func:`sfs_ros.core.meshing.colour.vertex_colours`: the views that see each
         point, blended).
     """
 

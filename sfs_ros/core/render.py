@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .camera import Camera
+from .geometry.camera import Camera
 
 __all__ = ["rasterize_faces", "rasterize_silhouette", "render_image"]
 

@@ -25,9 +25,9 @@ from typing import Callable
 import cv2
 import numpy as np
 
-from sfs_ros.core.objects import SyntheticObject
+from sfs_ros.core.simulation.objects import SyntheticObject
 from sfs_ros.core.render import render_image
-from sfs_ros.core.rig import RigCalibration, rig_camera
+from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
 
 __all__ = ["FrameUnavailable", "CameraSource", "OpenCVSource", "FolderSource", "RenderedSource",
            "IMAGE_SUFFIXES"]
@@ -185,7 +185,7 @@ class RenderedSource(CameraSource):
     seed : int, optional
         Seeds the generator that draws each frame's noise seed.
 
-    Each grab is ``render_image`` as in :func:`sfs_ros.core.synthetic.simulate_scan`.
+    Each grab is ``render_image`` as in :func:`sfs_ros.core.simulation.synthetic.simulate_scan`.
     :meth:`fail_next` makes grabs fail as a camera that drops frames; it and
     :meth:`grab` may be called from different threads.
     """

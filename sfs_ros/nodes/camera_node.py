@@ -45,7 +45,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 from std_srvs.srv import Trigger
 
-from sfs_ros.core.rig import rig_camera
+from sfs_ros.core.geometry.rig import rig_camera
 from sfs_ros.hardware.cameras import CameraSource, FolderSource, FrameUnavailable, OpenCVSource
 from sfs_ros.nodes.entry import run_node
 from sfs_ros.ros import capture_qos

@@ -38,7 +38,7 @@ from rclpy.parameter import Parameter
 from std_msgs.msg import String
 from std_srvs.srv import SetBool, Trigger
 
-from sfs_ros.core.objects import OBJECT_NAMES, make_object
+from sfs_ros.core.simulation.objects import OBJECT_NAMES, make_object
 from sfs_ros.hardware.cameras import RenderedSource
 from sfs_ros.hardware.simulator import SimulatedGrbl
 from sfs_ros.nodes.camera_node import CameraNode

@@ -44,7 +44,7 @@ made. ``reset`` starts a new scan (new session folder on the next view) and
 publishes an empty hull; the last mesh stays on ``mesh`` until the next one.
 With ``colour`` the node also keeps each view's captured image (in memory,
 paired with its view by stamp, whichever comes first); the mesh is coloured
-from the images of the views it uses (:mod:`sfs_ros.core.colour`), in the
+from the images of the views it uses (:mod:`sfs_ros.core.meshing.colour`), in the
 file, the picture and the ``mesh`` marker's per-corner ``colors``.
 
 A malformed message (encoding other than mono8, sizes that do not add up,
@@ -84,8 +84,8 @@ from visualization_msgs.msg import Marker
 
 from sfs_ros.cell.live import DuplicateViewError, LiveReconstruction
 from sfs_ros.core.pipeline import MESHERS
-from sfs_ros.core.rig import rig_camera
-from sfs_ros.core.views import as_bounds
+from sfs_ros.core.geometry.rig import rig_camera
+from sfs_ros.core.exchange.views import as_bounds
 from sfs_ros.nodes.entry import run_node
 from sfs_ros.ros import capture_qos, result_qos
 from sfs_ros.ros.convert import (

@@ -26,7 +26,7 @@ from shape_msgs.msg import Mesh, MeshTriangle
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker
 
-from sfs_ros.core.camera import Camera
+from sfs_ros.core.geometry.camera import Camera
 from sfs_ros.ros.pairing import stamp_key
 
 __all__ = [

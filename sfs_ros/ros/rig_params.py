@@ -8,7 +8,7 @@ holds the values for the whole cell.
 
 from __future__ import annotations
 
-from sfs_ros.core.rig import CONVENTIONS, RigCalibration
+from sfs_ros.core.geometry.rig import CONVENTIONS, RigCalibration
 from sfs_ros.ros.params import Param, ParameterError
 
 __all__ = ["RIG_PARAMS", "rig_calibration"]

@@ -17,7 +17,7 @@ import numpy as np
 from scipy import ndimage
 from skimage import measure
 
-from .grid import VoxelGrid
+from ..geometry.grid import VoxelGrid
 
 __all__ = ["marching_cubes_mesh"]
 

@@ -27,8 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .export import _write_atomic
-from .render import as_mesh_arrays
+from ..exchange.export import _write_atomic
+from ..render import as_mesh_arrays
 
 __all__ = ["FOV_RAD", "FIT", "HOME_AZIMUTH_RAD", "HOME_ELEVATION_RAD", "AMBIENT", "BACKGROUND_RGB",
            "DEFAULT_RGB", "html_viewer", "write_html_viewer"]

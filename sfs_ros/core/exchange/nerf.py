@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .camera import Camera
+from ..geometry.camera import Camera
 from .views import IMAGE_SUFFIXES, View, ViewError, ViewSet, as_bounds, image_size, nearest_rotation
 
 __all__ = ["read_transforms"]

@@ -12,10 +12,10 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
-from .metrics import chamfer_distance, mesh_occupancy, occupancy_from_contains, volume_iou
+from ..metrics import chamfer_distance, mesh_occupancy, occupancy_from_contains, volume_iou
 from .objects import SyntheticObject
-from .render import render_image
-from .rig import RigCalibration, rig_camera
+from ..render import render_image
+from ..geometry.rig import RigCalibration, rig_camera
 
 __all__ = ["Capture", "carving_box", "simulate_scan", "score_against_truth"]
 

@@ -17,7 +17,7 @@ camera, so it hands them over:
   ``fl_x``, ``fl_y``, ``cx``, ``cy`` (pixel corners at integers: ours + 0.5),
   ``w``, ``h``, and per frame ``file_path`` with a camera-to-world
   ``transform_matrix`` in OpenGL axes (x right, y up, z backwards), as
-  :func:`sfs_ros.core.nerf.read_transforms` reads it back; plus ``bounds_m``.
+  :func:`sfs_ros.core.exchange.nerf.read_transforms` reads it back; plus ``bounds_m``.
 
 Both pose formats describe pinhole cameras; orthographic views are refused.
 World frame: the object frame (metres, Z up on the turntable axis).
@@ -32,8 +32,8 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .camera import Camera
-from .rig import RigCalibration
+from ..geometry.camera import Camera
+from ..geometry.rig import RigCalibration
 from .session import write_session
 from .views import ViewSet, read_image
 

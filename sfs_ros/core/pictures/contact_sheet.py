@@ -19,7 +19,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .export import _write_atomic
+from ..exchange.export import _write_atomic
 
 __all__ = ["OUTLINE_RGB", "WARNING_RGB", "FRAME_RGB", "BACKGROUND_RGB", "SheetLayout",
            "contact_sheet", "write_contact_sheet"]

@@ -44,9 +44,9 @@ from scipy import sparse
 from scipy.sparse import csgraph
 from scipy.sparse.linalg import splu
 
-from .camera import Camera
-from .carve import validate_masks
-from .render import as_mesh_arrays, rasterize_faces
+from ..geometry.camera import Camera
+from ..carving.carve import validate_masks
+from ..render import as_mesh_arrays, rasterize_faces
 
 __all__ = ["VertexColours", "vertex_colours", "vertex_normals"]
 

@@ -1,4 +1,4 @@
-"""numba kernels behind :mod:`sfs_ros.core.carve` (no validation here).
+"""numba kernels behind :mod:`sfs_ros.core.carving.carve` (no validation here).
 
 Every kernel decides "does voxel (i, j, k) fall into the silhouette of view v"
 with the same arithmetic, so that all paths (line path, block path, batch,

@@ -67,8 +67,8 @@ import cv2
 import numpy as np
 import yaml
 
-from .camera import Camera
-from .rig import RigCalibration, rig_camera
+from ..geometry.camera import Camera
+from ..geometry.rig import RigCalibration, rig_camera
 from .views import IMAGE_SUFFIXES, View, ViewError, ViewSet, as_bounds
 
 __all__ = ["FORMAT", "VERSION", "SESSION_FILE", "VIEWS_FILE", "IMAGES_DIR", "ANGLE_COLUMNS",

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .camera import Camera
+from ..geometry.camera import Camera
 from .views import View, ViewError, ViewSet, image_size, nearest_rotation
 
 __all__ = ["read_middlebury"]

@@ -21,10 +21,10 @@ import cv2
 import numpy as np
 from numba import njit, prange
 
-from .camera import Camera
+from ..geometry.camera import Camera
 from .carve import carve, validate_masks, view_coefficients
-from .grid import VoxelGrid
-from .metrics import silhouette_iou
+from ..geometry.grid import VoxelGrid
+from ..metrics import silhouette_iou
 
 __all__ = ["ViewCheck", "hull_silhouettes", "find_inconsistent_views", "bbox_clips_object"]
 
@@ -165,7 +165,7 @@ def find_inconsistent_views(grid: VoxelGrid, cameras: Sequence[Camera], masks, *
     min_iou, max_missing_fraction : float
         Thresholds of :attr:`ViewCheck.consistent`.
     outside_image : {"keep", "carve"}
-        As in :func:`sfs_ros.core.carve.carve`.
+        As in :func:`sfs_ros.core.carving.carve.carve`.
 
     Returns
     -------

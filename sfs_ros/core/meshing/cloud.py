@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .grid import VoxelGrid
+from ..geometry.grid import VoxelGrid
 
 __all__ = ["CloudOfPoints", "surface_voxels", "cloud_of_points"]
 

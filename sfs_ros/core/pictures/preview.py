@@ -8,8 +8,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .render import render_image
-from .rig import RigCalibration, rig_camera
+from ..render import render_image
+from ..geometry.rig import RigCalibration, rig_camera
 
 __all__ = ["PREVIEW_VIEWS_DEG", "preview_image", "write_png"]
 

@@ -30,8 +30,8 @@ import numba
 import numpy as np
 
 from . import carve_kernels as _k
-from .camera import Camera
-from .grid import VoxelGrid
+from ..geometry.camera import Camera
+from ..geometry.grid import VoxelGrid
 
 __all__ = ["OUTSIDE_IMAGE", "carve", "Carver", "validate_masks", "view_coefficients"]
 

@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .camera import Camera
+from ..geometry.camera import Camera
 from .carve import carve
-from .grid import VoxelGrid
+from ..geometry.grid import VoxelGrid
 
 __all__ = ["axes_meeting_point", "estimate_bounds"]
 

@@ -13,8 +13,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .camera import Camera
-from .rig import RigCalibration
+from ..geometry.camera import Camera
+from ..geometry.rig import RigCalibration
 
 __all__ = ["SOURCES", "IMAGE_SUFFIXES", "ViewError", "View", "ViewSet", "read_image", "image_size",
            "as_bounds", "nearest_rotation"]
