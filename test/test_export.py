@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import trimesh
 
-import sfs_ros.core.exchange.export as export_module
+import sfs_ros.core.exchange.files as files_module
 from sfs_ros.core.exchange.export import SUPPORTED_SUFFIXES, export_mesh, load_mesh
 from sfs_ros.core.meshing.mesh_checks import check_mesh
 
@@ -125,7 +125,7 @@ def test_failed_write_keeps_the_old_file_and_leaves_no_temporary(tmp_path, torus
     def crash(*args):
         raise OSError("disk full")
 
-    monkeypatch.setattr(export_module.os, "fsync", crash)
+    monkeypatch.setattr(files_module.os, "fsync", crash)
     with pytest.raises(OSError, match="disk full"):
         export_mesh(vertices * 2.0, faces, path)
     assert path.read_bytes() == before

@@ -28,22 +28,20 @@ renamed, so a crash never leaves a partial file under the final name.
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 import trimesh
 
-__all__ = ["SUPPORTED_SUFFIXES", "export_mesh", "load_mesh"]
+from .files import write_atomic
+
+__all__ = ["SUPPORTED_SUFFIXES", "export_mesh", "load_mesh", "mesh_bytes"]
 
 SUPPORTED_SUFFIXES = (".ply", ".obj", ".stl", ".glb")
 #: Metres -> file units.
 UNIT_SCALE = {"m": 1.0, "mm": 1000.0}
 #: Formats stored Y up (glTF by specification, OBJ by convention).
 Y_UP_SUFFIXES = (".glb", ".obj")
-#: Permissions of written files (mkstemp would leave them owner-only).
-FILE_MODE = 0o644
 #: trimesh file type for each suffix.
 _FILE_TYPE = {".ply": "ply", ".obj": "obj", ".stl": "stl", ".glb": "glb"}
 
@@ -71,7 +69,14 @@ def export_mesh(vertices, faces, path, *, vertex_colors=None, units: str = "m") 
         The written file.
     """
     path = Path(path)
-    suffix = _suffix(path)
+    return write_atomic(path, mesh_bytes(vertices, faces, path, vertex_colors=vertex_colors,
+                                         units=units))
+
+
+def mesh_bytes(vertices, faces, path, *, vertex_colors=None, units: str = "m") -> bytes:
+    """The bytes :func:`export_mesh` writes to ``path`` (format from its suffix; nothing is
+    written), for callers that place the file themselves; same parameters and errors."""
+    suffix = _suffix(Path(path))
     if units not in UNIT_SCALE:
         raise ValueError(f"units must be one of {sorted(UNIT_SCALE)}, got {units!r}")
     if suffix == ".glb" and units != "m":
@@ -100,10 +105,7 @@ def export_mesh(vertices, faces, path, *, vertex_colors=None, units: str = "m") 
     mesh = trimesh.Trimesh(vertices=v, faces=f.astype(np.int64), vertex_colors=colors,
                            process=False)
     data = mesh.export(file_type=_FILE_TYPE[suffix])
-    if isinstance(data, str):
-        data = data.encode("utf-8")
-    _write_atomic(path, data)
-    return path
+    return data.encode("utf-8") if isinstance(data, str) else data
 
 
 def load_mesh(path, *, units: str = "m", with_colors: bool = False):
@@ -170,18 +172,3 @@ def _colors_uint8(colors, n: int) -> np.ndarray:
             raise ValueError("float vertex_colors must lie in [0, 1]")
         return np.round(c * 255.0).astype(np.uint8)
     raise ValueError(f"vertex_colors must be uint8 or float in [0, 1], got dtype {c.dtype}")
-
-
-def _write_atomic(path: Path, data: bytes) -> None:
-    """Write ``data`` to a temporary file beside ``path``, then rename it over ``path``."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        os.fchmod(fd, FILE_MODE)
-        with os.fdopen(fd, "wb") as handle:
-            handle.write(data)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        os.unlink(tmp)
-        raise

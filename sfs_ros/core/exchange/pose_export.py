@@ -34,6 +34,7 @@ from scipy.spatial.transform import Rotation
 
 from ..geometry.camera import Camera
 from ..geometry.rig import RigCalibration
+from .files import write_atomic
 from .session import write_session
 from .views import ViewSet, read_image
 
@@ -67,9 +68,8 @@ def _png_names(view_set: ViewSet) -> list[str]:
 
 
 def _write_text(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text, encoding="utf-8")
-    os.replace(tmp, path)
+    """Write ``text`` as UTF-8, atomically."""
+    write_atomic(path, text.encode("utf-8"))
 
 
 def export_session(view_set: ViewSet, folder) -> Path:

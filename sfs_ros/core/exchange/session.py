@@ -69,6 +69,7 @@ import yaml
 
 from ..geometry.camera import Camera
 from ..geometry.rig import RigCalibration, rig_camera
+from .files import write_atomic
 from .views import IMAGE_SUFFIXES, View, ViewError, ViewSet, as_bounds
 
 __all__ = ["FORMAT", "VERSION", "SESSION_FILE", "VIEWS_FILE", "IMAGES_DIR", "ANGLE_COLUMNS",
@@ -297,12 +298,6 @@ def _plain(value):
     return value
 
 
-def _atomic_write(path: Path, data: bytes) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_bytes(data)
-    os.replace(tmp, path)
-
-
 def _check_rgb(rgb, calibration: RigCalibration, name: str) -> np.ndarray:
     rgb = np.asarray(rgb)
     if rgb.dtype != np.uint8 or rgb.ndim != 3 or rgb.shape[2] != 3:
@@ -324,7 +319,7 @@ def _write_png(path: Path, rgb: np.ndarray) -> None:
     if not ok:
         raise ValueError(f"could not encode {path} as PNG")
     path.parent.mkdir(parents=True, exist_ok=True)
-    _atomic_write(path, data.tobytes())
+    write_atomic(path, data.tobytes())
 
 
 def _csv_line(fields: list) -> str:
@@ -427,9 +422,9 @@ def write_session(folder: Path | str, images: list[tuple[str, np.ndarray]],
     (folder / IMAGES_DIR).mkdir(parents=True, exist_ok=True)
     for name, rgb in zip(names, checked):
         _write_png(folder / IMAGES_DIR / name, rgb)
-    _atomic_write(folder / VIEWS_FILE, "".join(rows).encode("utf-8"))
+    write_atomic(folder / VIEWS_FILE, "".join(rows).encode("utf-8"))
     text = yaml.safe_dump(document, sort_keys=False, default_flow_style=None)
-    _atomic_write(folder / SESSION_FILE, text.encode("utf-8"))
+    write_atomic(folder / SESSION_FILE, text.encode("utf-8"))
     return folder
 
 

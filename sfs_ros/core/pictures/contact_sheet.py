@@ -19,7 +19,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ..exchange.export import _write_atomic
+from ..exchange.files import write_atomic
 
 __all__ = ["OUTLINE_RGB", "WARNING_RGB", "FRAME_RGB", "BACKGROUND_RGB", "SheetLayout",
            "contact_sheet", "write_contact_sheet"]
@@ -286,5 +286,5 @@ def write_contact_sheet(path, images, masks, names, angles_rad, ious, **kw) -> P
         contact_sheet(images, masks, names, angles_rad, ious, **kw), cv2.COLOR_RGB2BGR))
     if not ok:
         raise OSError(f"could not encode the contact sheet {path} as PNG")
-    _write_atomic(path, data.tobytes())
+    write_atomic(path, data.tobytes())
     return path

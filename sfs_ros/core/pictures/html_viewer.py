@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..exchange.export import _write_atomic
+from ..exchange.files import write_atomic
 from ..render import as_mesh_arrays
 
 __all__ = ["FOV_RAD", "FIT", "HOME_AZIMUTH_RAD", "HOME_ELEVATION_RAD", "AMBIENT", "BACKGROUND_RGB",
@@ -278,5 +278,5 @@ def html_viewer(vertices, faces, *, vertex_colors=None, title: str = "sfs_ros me
 def write_html_viewer(path, vertices, faces, **kw) -> Path:
     """Write :func:`html_viewer` ``(vertices, faces, **kw)`` to ``path`` atomically; returns the path."""
     path = Path(path)
-    _write_atomic(path, html_viewer(vertices, faces, **kw).encode("utf-8"))
+    write_atomic(path, html_viewer(vertices, faces, **kw).encode("utf-8"))
     return path

@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 
 from ..render import render_image
+from ..exchange.files import write_atomic
 from ..geometry.rig import RigCalibration, rig_camera
 
 __all__ = ["PREVIEW_VIEWS_DEG", "preview_image", "write_png"]
@@ -43,11 +44,12 @@ def preview_image(vertices: np.ndarray, faces: np.ndarray, *, size_px: int = 360
 
 
 def write_png(path, image_rgb: np.ndarray) -> Path:
-    """Write an RGB (H, W, 3) or grey (H, W) uint8 image as PNG; returns the path."""
+    """Write an RGB (H, W, 3) or grey (H, W) uint8 image as PNG, atomically; returns the path."""
     path = Path(path)
     image = np.asarray(image_rgb)
     if image.ndim == 3:
         image = cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
-    if not cv2.imwrite(str(path), image):
-        raise OSError(f"could not write image {path}")
-    return path
+    ok, data = cv2.imencode(".png", image)
+    if not ok:
+        raise OSError(f"could not encode image {path} as PNG")
+    return write_atomic(path, data)

@@ -1,0 +1,72 @@
+"""Atomic writes: the old file or the new one, never a part, and no temporary left behind."""
+
+import os
+import stat
+
+import pytest
+
+import sfs_ros.core.exchange.files as files_module
+from sfs_ros.core.exchange.files import FILE_MODE, write_atomic, write_atomic_all
+
+
+def test_write_replaces_the_file_with_the_documented_mode(tmp_path):
+    path = tmp_path / "a.txt"
+    path.write_bytes(b"old")
+    assert write_atomic(path, b"new") == path
+    assert path.read_bytes() == b"new"
+    assert stat.S_IMODE(path.stat().st_mode) == FILE_MODE
+    assert [p.name for p in tmp_path.iterdir()] == ["a.txt"]
+
+
+@pytest.mark.parametrize("failure", [OSError("disk full"), KeyboardInterrupt(), SystemExit(3)])
+def test_a_failure_while_writing_keeps_the_old_files_and_no_temporary(tmp_path, monkeypatch,
+                                                                      failure):
+    first, second = tmp_path / "report.json", tmp_path / "mesh.ply"
+    first.write_bytes(b"old report")
+    second.write_bytes(b"old mesh")
+    calls = []
+
+    def fail_on_second(fd):
+        calls.append(fd)
+        if len(calls) == 2:        # the second file's fsync: the first is staged already
+            raise failure
+
+    monkeypatch.setattr(files_module.os, "fsync", fail_on_second)
+    with pytest.raises(type(failure)):
+        write_atomic_all([(first, b"new report"), (second, b"new mesh")])
+    assert first.read_bytes() == b"old report" and second.read_bytes() == b"old mesh"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mesh.ply", "report.json"]
+
+
+def test_a_failed_rename_removes_the_temporaries_not_yet_renamed(tmp_path, monkeypatch):
+    first, second = tmp_path / "report.json", tmp_path / "mesh.ply"
+    second.write_bytes(b"old mesh")
+    real_replace = os.replace
+
+    def replace_once(src, dst):
+        if os.fspath(dst) == os.fspath(second):
+            raise KeyboardInterrupt
+        real_replace(src, dst)
+
+    monkeypatch.setattr(files_module.os, "replace", replace_once)
+    with pytest.raises(KeyboardInterrupt):
+        write_atomic_all([(first, b"new report"), (second, b"new mesh")])
+    # Renamed in order: the report is new, the mesh still the old one, nothing else.
+    assert first.read_bytes() == b"new report" and second.read_bytes() == b"old mesh"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mesh.ply", "report.json"]
+
+
+def test_files_are_renamed_in_the_order_given(tmp_path, monkeypatch):
+    order = []
+    real_replace = os.replace
+    monkeypatch.setattr(files_module.os, "replace",
+                        lambda src, dst: (order.append(os.path.basename(dst)),
+                                          real_replace(src, dst)))
+    paths = write_atomic_all([(tmp_path / "b", b"2"), (tmp_path / "a", b"1")])
+    assert paths == [tmp_path / "b", tmp_path / "a"] and order == ["b", "a"]
+
+
+def test_a_missing_folder_is_an_error_and_writes_nothing(tmp_path):
+    with pytest.raises(FileNotFoundError):
+        write_atomic(tmp_path / "missing" / "a.txt", b"x")
+    assert list(tmp_path.iterdir()) == []
