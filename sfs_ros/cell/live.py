@@ -29,9 +29,7 @@ Output folder layout::
 
 from __future__ import annotations
 
-import json
 import math
-import os
 import re
 import time
 from dataclasses import dataclass
@@ -41,13 +39,11 @@ import numpy as np
 
 from ..core.carving.carve import Carver
 from ..core.meshing.colour import vertex_colours
-from ..core.pictures.contact_sheet import write_contact_sheet
-from ..core.exchange.export import SUPPORTED_SUFFIXES, export_mesh
+from ..core.exchange.export import SUPPORTED_SUFFIXES
 from ..core.geometry.grid import VoxelGrid
-from ..core.pictures.html_viewer import write_html_viewer
 from ..core.exchange.inputs import load_views
 from ..core.pipeline import ReconstructionParams, reconstruct
-from ..core.pictures.preview import preview_image, write_png
+from ..core.result_files import SheetViews, write_result
 from ..core.geometry.rig import RigCalibration, rig_camera
 from ..core.segment import SegmentationParams
 from ..core.exchange.session import append_view, write_session
@@ -378,20 +374,14 @@ class LiveReconstruction:
                                  masks=[masks[k] for k, _ in used])
         return colours.colours, len(used)
 
-    def _write_contact_sheet(self, path: Path, result) -> None:
-        """Every view received: its captured image (the mask where none was kept) with the
-        mask outline, the angles, its silhouette IoU and, if rejected, why."""
-        report = result.report
-        by_file = {r["view"]: r for r in report["silhouette_iou"]["per_view"]}
-        reasons = {r["view"]: r["reason"] for r in report["views"]["rejected"]}
+    def _sheet_views(self) -> SheetViews:
+        """Every view received: its captured image (the mask where none was kept) and mask."""
         keys, received = list(self._views), list(self._views.values())
         masks = [mask for _, mask, _, _ in self.views()]
         images = [self._colour_images[k] if k in self._colour_images else mask_to_rgb(m)
                   for k, m in zip(keys, masks)]
-        write_contact_sheet(path, images, masks, [v.name for v in received],
-                            [(v.theta_rad, v.phi_rad) for v in received],
-                            [by_file.get(v.name, {}).get("silhouette_iou") for v in received],
-                            rejected=[reasons.get(v.name) for v in received])
+        return SheetViews(names=[v.name for v in received], images=images, masks=masks,
+                          angles_rad=[(v.theta_rad, v.phi_rad) for v in received])
 
     def hull_points(self, max_points: int = 100_000) -> np.ndarray:
         """(n, 3) float64 surface voxel centres of the live hull, metres (see
@@ -448,18 +438,10 @@ class LiveReconstruction:
         result = reconstruct(view_set, self.params)
         colours, coloured = (None, 0) if path.suffix.lower() == ".stl" \
             else self._colour(result, view_set)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        export_mesh(result.vertices, result.faces, path, vertex_colors=colours)
+        write_result(result, path, vertex_colors=colours, report=report_path,
+                     extra={"session": str(self._session)}, preview=preview_path,
+                     html=html_path, contact_sheet=sheet_path, sheet_views=self._sheet_views())
         self._mesh, self._colours = (result.vertices, result.faces), colours
-        report = {"output": str(path), "session": str(self._session), **result.report}
-        tmp = report_path.with_name(f".{report_path.name}.tmp")
-        tmp.write_text(json.dumps(report, indent=2), encoding="utf-8")
-        os.replace(tmp, report_path)
-        write_png(preview_path, preview_image(result.vertices, result.faces,
-                                              vertex_colors=colours))
-        write_html_viewer(html_path, result.vertices, result.faces, vertex_colors=colours,
-                          title=path.name)
-        self._write_contact_sheet(sheet_path, result)
         mesh, views = result.report["mesh"], result.report["views"]
         mean_iou = result.report["silhouette_iou"]["mean_used"]
         return {"path": str(path), "report_path": str(report_path),

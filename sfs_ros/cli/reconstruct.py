@@ -14,16 +14,13 @@ silhouette IoU.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
 from ..core.meshing.colour import vertex_colours
-from ..core.pictures.contact_sheet import write_contact_sheet
-from ..core.exchange.export import SUPPORTED_SUFFIXES, export_mesh
-from ..core.pictures.html_viewer import write_html_viewer
+from ..core.exchange.export import SUPPORTED_SUFFIXES
 from ..core.pipeline import MESHERS, ReconstructionParams, reconstruct
-from ..core.pictures.preview import preview_image, write_png
+from ..core.result_files import SheetViews, write_result
 from ..core.segment import PRESETS, SegmentationParams
 from ..core.exchange.views import ViewSet, read_image
 from .common import ACCEPTED_INPUTS, StageProgress, load_input, run_reporting_errors
@@ -95,13 +92,11 @@ def _segmentation(args, stored: dict | None) -> SegmentationParams | None:
     return SegmentationParams.from_dict(values)
 
 
-def _write_contact_sheet(path: Path, view_set: ViewSet, result) -> None:
-    """Every view of ``view_set``, then those rejected while loading, with the report's
-    silhouette IoU and rejection reasons and the masks the pipeline carved with."""
-    report = result.report
-    iou = {p["view"]: p["silhouette_iou"] for p in report["silhouette_iou"]["per_view"]}
-    reason = {r["view"]: r["reason"] for r in report["views"]["rejected"]}
-    images, masks = [], []
+def _sheet_views(view_set: ViewSet, result) -> SheetViews:
+    """Every view of ``view_set``, then those rejected while loading, with the masks the
+    pipeline carved with; rejection reasons name the view rather than its image's path."""
+    reasons = {r["view"]: r["reason"] for r in result.report["views"]["rejected"]}
+    images, masks, short = [], [], {}
     for view in view_set.views:
         try:
             image = read_image(view.image_path,
@@ -110,13 +105,13 @@ def _write_contact_sheet(path: Path, view_set: ViewSet, result) -> None:
             image = None
         images.append(image)
         masks.append(result.masks.get(view.name))
-        if view.name in reason:  # the tile names the view: shorter than the image's path
-            reason[view.name] = reason[view.name].replace(str(view.image_path), view.name)
-    names = [v.name for v in view_set.views] + [name for name, _ in view_set.rejected]
+        if view.name in reasons:  # the tile names the view: shorter than the image's path
+            short[view.name] = reasons[view.name].replace(str(view.image_path), view.name)
     extra = [None] * len(view_set.rejected)
     angles = [None if v.theta_rad is None else (v.theta_rad, v.phi_rad) for v in view_set.views]
-    write_contact_sheet(path, images + extra, masks + extra, names, angles + extra,
-                        [iou.get(n) for n in names], rejected=[reason.get(n) for n in names])
+    return SheetViews(names=[v.name for v in view_set.views] + [n for n, _ in view_set.rejected],
+                      images=images + extra, masks=masks + extra, angles_rad=angles + extra,
+                      reasons=short)
 
 
 def run(args) -> dict:
@@ -149,26 +144,11 @@ def run(args) -> dict:
         colours = vertex_colours(result.vertices, result.faces,
                                  [read_image(v.image_path) for v in bag_images.views],
                                  [v.camera for v in bag_images.views]).colours
-    args.output.parent.mkdir(parents=True, exist_ok=True)
-    export_mesh(result.vertices, result.faces, args.output, vertex_colors=colours,
-                units=args.units)
-    report = {"output": str(args.output), "units": args.units, **result.report}
-    if args.preview is not None:
-        write_png(args.preview, preview_image(result.vertices, result.faces,
-                                              vertex_colors=colours))
-        report["preview"] = str(args.preview)
-    if args.html is not None:
-        args.html.parent.mkdir(parents=True, exist_ok=True)
-        write_html_viewer(args.html, result.vertices, result.faces, vertex_colors=colours,
-                          title=args.output.name)
-        report["html"] = str(args.html)
-    if args.contact_sheet is not None:
-        args.contact_sheet.parent.mkdir(parents=True, exist_ok=True)
-        _write_contact_sheet(args.contact_sheet, view_set, result)
-        report["contact_sheet"] = str(args.contact_sheet)
-    report_path = args.output.with_name(args.output.stem + ".report.json")
-    report_path.write_text(json.dumps(report, indent=2))
-    return report
+    written = write_result(
+        result, args.output, units=args.units, vertex_colors=colours, preview=args.preview,
+        html=args.html, contact_sheet=args.contact_sheet,
+        sheet_views=None if args.contact_sheet is None else _sheet_views(view_set, result))
+    return written.document
 
 
 def summary(report: dict) -> str:

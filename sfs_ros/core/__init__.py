@@ -16,7 +16,8 @@ Sub-packages, each naming its public API in its ``__init__``:
 * :mod:`.simulation`: known objects, scan plans, simulated scans.
 
 At the top: :mod:`.segment` (silhouettes), :mod:`.render` (z-buffer renderer),
-:mod:`.metrics` (IoU, Chamfer) and :mod:`.pipeline` (images to mesh).
+:mod:`.metrics` (IoU, Chamfer), :mod:`.pipeline` (images to mesh) and
+:mod:`.result_files` (a result's mesh, report and pictures).
 Names are imported on first use, so ``import sfs_ros.core`` costs nothing.
 """
 
@@ -39,6 +40,7 @@ _FRONT_DOOR = {
     "reconstruct": ".pipeline",
     "ReconstructionParams": ".pipeline",
     "Reconstruction": ".pipeline",
+    "write_result": ".result_files",
     "check_mesh": ".meshing",
     "make_object": ".simulation",
     "simulate_scan": ".simulation",

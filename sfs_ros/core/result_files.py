@@ -1,0 +1,156 @@
+"""A reconstruction's files: the mesh, its report, and on request pictures of it.
+
+:func:`write_result` writes, for a :class:`~sfs_ros.core.pipeline.Reconstruction`:
+
+* the mesh (format from the suffix: .ply, .obj, .stl, .glb; vertex colours
+  when given), and beside it ``<stem>.report.json``: ``output`` (the mesh's
+  path), ``units``, the caller's extra entries, the pipeline's report, and
+  ``preview`` / ``html`` / ``contact_sheet`` (paths of those written);
+* on request a PNG picture of the mesh, a self-contained HTML viewer, and a
+  contact sheet of the views (mask outlines, angles, silhouette IoU, reasons
+  for rejection).
+
+Every file is written atomically (:mod:`sfs_ros.core.exchange.files`). The pictures go first, the
+mesh and its report last: both are staged on disk, then the report is renamed
+into place, then the mesh. A reader that finds the new mesh therefore finds its
+report, and the report names only pictures that exist. (One that reads the report
+just between the two renames pairs it with the previous mesh; the mesh is the
+file tools watch, so it is the one that comes last.)
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .exchange.export import mesh_bytes
+from .exchange.files import write_atomic_all
+from .pictures.contact_sheet import write_contact_sheet
+from .pictures.html_viewer import write_html_viewer
+from .pictures.preview import preview_image, write_png
+
+__all__ = ["SheetViews", "WrittenResult", "report_path_for", "write_result"]
+
+REPORT_SUFFIX = ".report.json"
+
+
+@dataclass(frozen=True)
+class SheetViews:
+    """The views a contact sheet shows, in order (k views).
+
+    names : k str, the views' names as in the report; images : k of (H, W, 3)
+    uint8 RGB or None (a grey tile); masks : k of (H, W) bool or None;
+    angles_rad : k of (theta, phi) or None; reasons : {name: str}, rejection
+    reasons that replace the report's (e.g. shortened), optional.
+    """
+
+    names: list
+    images: list
+    masks: list
+    angles_rad: list
+    reasons: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        k = len(self.names)
+        if not len(self.images) == len(self.masks) == len(self.angles_rad) == k:
+            raise ValueError(f"contact sheet views need as many images, masks and angles as "
+                             f"names ({k}), got {len(self.images)}, {len(self.masks)}, "
+                             f"{len(self.angles_rad)}")
+
+
+@dataclass(frozen=True)
+class WrittenResult:
+    """What :func:`write_result` wrote: the paths (None for a file not asked for) and the
+    report document (the JSON written, as a dict)."""
+
+    mesh: Path
+    report: Path
+    preview: Path | None
+    html: Path | None
+    contact_sheet: Path | None
+    document: dict
+
+
+def report_path_for(mesh_path) -> Path:
+    """``<stem>.report.json`` beside the mesh ``mesh_path``."""
+    mesh_path = Path(mesh_path)
+    return mesh_path.with_name(mesh_path.stem + REPORT_SUFFIX)
+
+
+def write_result(result, mesh_path, *, units: str = "m", vertex_colors=None,
+                 report=None, extra: dict | None = None, preview=None, html=None,
+                 contact_sheet=None, sheet_views: SheetViews | None = None) -> WrittenResult:
+    """Write a reconstruction's mesh, its report and the pictures asked for.
+
+    Parameters
+    ----------
+    result : sfs_ros.core.pipeline.Reconstruction
+        Its ``vertices`` (n, 3) float64 metres, ``faces`` (m, 3) int and ``report``.
+    mesh_path : path-like
+        The mesh file, .ply, .obj, .stl or .glb; missing folders are created
+        (for every file written).
+    units : {"m", "mm"}, keyword-only
+        Length unit of the mesh file.
+    vertex_colors : (n, 3|4) uint8 or None
+        Colours of the mesh's vertices, also used by the preview and the viewer.
+    report : path-like or None
+        The report; None: :func:`report_path_for` of ``mesh_path``.
+    extra : dict or None
+        Entries of the report placed after ``output`` and ``units`` (JSON-ready).
+    preview, html, contact_sheet : path-like or None
+        PNG picture of the mesh, HTML viewer, contact sheet PNG; None: not written.
+    sheet_views : SheetViews or None
+        The views on the contact sheet; required with ``contact_sheet``.
+
+    Returns
+    -------
+    WrittenResult
+
+    Raises
+    ------
+    ValueError
+        A mesh path or units the mesh cannot be written with, colours an .stl
+        cannot hold, or a contact sheet without its views; nothing is written.
+    OSError
+        A file could not be written: the mesh and report stay as they were.
+    """
+    if contact_sheet is not None and sheet_views is None:
+        raise ValueError("a contact sheet needs sheet_views: the images and masks it shows")
+    mesh_path = Path(mesh_path)
+    report_path = report_path_for(mesh_path) if report is None else Path(report)
+    mesh_data = mesh_bytes(result.vertices, result.faces, mesh_path,
+                           vertex_colors=vertex_colors, units=units)
+    document = {"output": str(mesh_path), "units": units, **(extra or {}), **result.report}
+    written = {}
+    for key, path in (("preview", preview), ("html", html), ("contact_sheet", contact_sheet)):
+        if path is None:
+            continue
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        if key == "preview":
+            write_png(path, preview_image(result.vertices, result.faces,
+                                          vertex_colors=vertex_colors))
+        elif key == "html":
+            write_html_viewer(path, result.vertices, result.faces, vertex_colors=vertex_colors,
+                              title=mesh_path.name)
+        else:
+            _write_sheet(path, result.report, sheet_views)
+        written[key] = path
+        document[key] = str(path)
+    for path in (report_path, mesh_path):
+        path.parent.mkdir(parents=True, exist_ok=True)
+    write_atomic_all([(report_path, json.dumps(document, indent=2).encode("utf-8")),
+                      (mesh_path, mesh_data)])
+    return WrittenResult(mesh=mesh_path, report=report_path, preview=written.get("preview"),
+                         html=written.get("html"), contact_sheet=written.get("contact_sheet"),
+                         document=document)
+
+
+def _write_sheet(path: Path, report: dict, views: SheetViews) -> None:
+    """The contact sheet of ``views`` with the report's silhouette IoU and rejections."""
+    iou = {p["view"]: p["silhouette_iou"] for p in report["silhouette_iou"]["per_view"]}
+    reasons = {r["view"]: r["reason"] for r in report["views"]["rejected"]} | views.reasons
+    write_contact_sheet(path, views.images, views.masks, views.names, views.angles_rad,
+                        [iou.get(n) for n in views.names],
+                        rejected=[reasons.get(n) for n in views.names])
