@@ -24,7 +24,7 @@ from rclpy.duration import Duration
 from rclpy.signals import SignalHandlerOptions
 
 from ..cell.bag import CAPTURE, DEFAULT, RESULT, TOPICS, open_bag
-from ..nodes.recorder_node import message_class
+from ..ros.messages import message_class
 from ..ros import capture_qos, result_qos
 from .common import run_reporting_errors
 

@@ -68,7 +68,6 @@ import traceback
 from concurrent.futures import Future
 from dataclasses import asdict
 from functools import partial
-from importlib import import_module
 from pathlib import Path
 
 import numpy as np
@@ -83,14 +82,15 @@ from std_srvs.srv import Trigger
 from sfs_ros.cell.bag import (CAPTURE, PARAMETERS_TOPIC, RESULT, STORAGES, TOPICS, BagWriter,
                               bag_folder, parameters_message)
 from sfs_ros.nodes.entry import run_node
-from sfs_ros.nodes.segmentation_node import segmentation_params
 from sfs_ros.ros import capture_qos, result_qos
 from sfs_ros.ros.convert import diagnostic_array, health
+from sfs_ros.ros.messages import message_class
 from sfs_ros.ros.params import Param, ParameterError, declare, validating_callback
 from sfs_ros.ros.rig_params import rig_calibration
+from sfs_ros.ros.segmentation_params import segmentation_params
 from sfs_ros.ros.services import ServiceError
 
-__all__ = ["RecorderNode", "PARAMS", "message_class", "main"]
+__all__ = ["RecorderNode", "PARAMS", "main"]
 
 NODE_NAME = "recorder"
 
@@ -114,15 +114,6 @@ PARAMS: list[Param] = [
     Param("queue_depth", 100, "Depth of the reliable capture topics; at least the number of "
           "views of a scan.", bounds=(1, 100000), read_only=True),
 ]
-
-
-def message_class(msgtype: str):
-    """The rclpy message class of ``"pkg/msg/Name"``; ValueError if it cannot be imported."""
-    package, kind, name = (msgtype.split("/") + ["", ""])[:3]
-    try:
-        return getattr(import_module(f"{package}.{kind}"), name)
-    except (ImportError, AttributeError, ValueError):
-        raise ValueError(f"message type {msgtype!r} is not installed") from None
 
 
 def _stamp() -> str:
