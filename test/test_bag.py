@@ -23,8 +23,8 @@ from rosbags.typesys import Stores, get_typestore
 from analytic_masks import sphere_mask
 from conftest import TEST_RIG
 from ros_harness import SOURCE_ROOT
-from sfs_ros.cell.bag import (PARAMETERS_TOPIC, BagWriter, TOPICS, bag_folder, open_bag,
-                              parameters_message, read_bag)
+from sfs_ros.cell.bag import (PARAMETERS_TOPIC, SCAN_TOPIC, BagWriter, TOPICS, bag_folder,
+                              open_bag, parameters_message, read_bag, scan_message)
 from sfs_ros.cell.live import LiveReconstruction
 from sfs_ros.cli.common import load_input
 from sfs_ros.core.exchange.inputs import load_views
@@ -209,6 +209,27 @@ def test_the_last_of_several_scans_is_used_with_a_warning(tmp_path, views, caplo
         view_set = read_bag(tmp_path / "bag")
     assert len(view_set.views) == len(views) - 5
     assert "2 scans" in caplog.text and "5 views of the earlier" in caplog.text
+
+
+def test_scans_are_told_apart_by_the_recorders_scan_records(tmp_path, views, caplog):
+    # The same scan number again is no new scan; with records in the bag, the diagnostics'
+    # scan numbers (9 here, mid-scan) are not looked at.
+    messages = [(PARAMETERS_TOPIC, parameters_message(document())),
+                (SCAN_TOPIC, scan_message(1)), *mask_messages(views[:3]),
+                (SCAN_TOPIC, scan_message(1)), *mask_messages(views[3:5]),
+                (SCAN_TOPIC, scan_message(2)), *mask_messages(views[5:8]),
+                ("diagnostics", scan_bytes(9)), *mask_messages(views[8:])]
+    write_bag(tmp_path / "bag", messages)
+    with caplog.at_level(logging.WARNING):
+        view_set = read_bag(tmp_path / "bag")
+    assert len(view_set.views) == len(views) - 5
+    assert "2 scans" in caplog.text and "5 views of the earlier" in caplog.text
+
+
+@pytest.mark.parametrize("scan", [-1, 2 ** 32, 1.0, True, "3"])
+def test_a_scan_record_holds_an_unsigned_32_bit_number(scan):
+    with pytest.raises(ValueError, match=r"scan number must be an integer in \[0, 2\*\*32\)"):
+        scan_message(scan)
 
 
 def _views_cut_at(sizes, messages, cut: int) -> tuple[int, int]:

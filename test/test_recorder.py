@@ -230,6 +230,11 @@ def test_with_scan_a_bag_opens_at_each_new_scan(recorder_factory, probe, views):
     assert len(read_bag(first).views) == 5
     assert recorder.call("stop").success
     assert len(read_bag(next(bags.glob("scan_002_*"))).views) == len(views) - 5
+    # Each bag names its scan once, as data: the number, when first reported in the bag.
+    for scan in (1, 2):
+        bag = open_bag(next(bags.glob(f"scan_{scan:03d}_*")))
+        records = list(bag.messages([bag.topic("sfs/scan")]))
+        assert [STORE.deserialize_cdr(m.data, m.msgtype).data for m in records] == [scan]
 
 
 def test_missing_output_dir_exits_with_one_line():

@@ -21,7 +21,7 @@ start-up (so none is still being matched when a recording starts) and take
 the messages' serialized bytes (``raw=True``), which go into the bag
 unchanged with the time they were received; a bag holds what arrived while it
 was open (results published before its start are not in it). Topics,
-types and the bag's layout: :mod:`sfs_ros.cell.bag`.
+types and the bag's layout: :mod:`sfs_ros.cell.bag.layout`.
 
 Bags go to ``<output_dir>/bags/<name>/`` (``<name>.mcap`` or ``<name>.db3``
 and, once closed, ``metadata.yaml``): ``name`` is ``bag_name`` when set (a
@@ -44,11 +44,15 @@ Parameters used: at every start a worker thread asks ``parameter_nodes``
 (by default reconstruction, segmentation, scan and camera) for all their
 parameters through their parameter services, within
 ``parameter_timeout_s`` together, and writes them as one JSON message on
-``sfs/parameters`` (format in :mod:`sfs_ros.cell.bag`); a node that does not
+``sfs/parameters`` (format in :mod:`sfs_ros.cell.bag.layout`); a node that does not
 answer is named there and in a WARN. The executor never waits for them.
 
+Scans: when the scan node's diagnostics report a scan number new to the bag,
+an ``sfs/scan`` record (std_msgs/UInt32) of that number goes in just before
+them, so a reader tells the scans in a bag apart by data, not by diagnostics.
+
 Durability: one worker thread owns the bag; every message is flushed to the
-operating system before the next (:class:`sfs_ros.cell.bag.BagWriter`), so a
+operating system before the next (:class:`sfs_ros.cell.bag.writing.BagWriter`), so a
 recorder killed outright leaves a bag that reads up to its last whole
 message. ``destroy_node`` (SIGINT) writes what is queued and closes the bag.
 A write that fails (disk full) closes the bag and is an ERROR.
@@ -79,8 +83,10 @@ from rclpy.parameter_client import AsyncParameterClient
 from rclpy.serialization import deserialize_message
 from std_srvs.srv import Trigger
 
-from sfs_ros.cell.bag import (CAPTURE, PARAMETERS_TOPIC, RESULT, STORAGES, TOPICS, BagWriter,
-                              bag_folder, parameters_message)
+from sfs_ros.cell.bag import (CAPTURE, PARAMETERS_TOPIC, RECORDER_TOPICS, RESULT, SCAN_TOPIC,
+                              STORAGES, TOPICS, BagWriter, bag_folder, parameters_message,
+                              scan_message)
+from sfs_ros.cell.messages import scan_report
 from sfs_ros.nodes.entry import run_node
 from sfs_ros.ros import capture_qos, result_qos
 from sfs_ros.ros.convert import diagnostic_array, health
@@ -121,7 +127,7 @@ def _stamp() -> str:
 
 
 def session_parameters(nodes: dict) -> tuple[dict, dict]:
-    """The ``session`` and ``reconstruction`` sections (:mod:`sfs_ros.cell.bag`) of the
+    """The ``session`` and ``reconstruction`` sections (:mod:`sfs_ros.cell.bag.layout`) of the
     fetched ``{node: {name: value}}``; empty when the reconstruction node's are missing."""
     values = nodes.get("reconstruction")
     if values is None:
@@ -171,7 +177,7 @@ class RecorderNode(Node):
         clients = ReentrantCallbackGroup()
         self._topics: dict[str, tuple[str, str]] = {}  # absolute name -> (type, kind)
         for name, (msgtype, kind) in TOPICS.items():
-            if name == PARAMETERS_TOPIC:
+            if name in RECORDER_TOPICS:
                 continue
             # Deep queues everywhere: the diagnostics of six nodes come in bursts (at a
             # scan's start above all), and a keep-last queue of 10 would drop some.
@@ -184,6 +190,8 @@ class RecorderNode(Node):
             self._topics[topic] = (msgtype, kind)
         self._diagnostics_topic = self.resolve_topic_name("diagnostics")
         self._parameters_topic = self.resolve_topic_name(PARAMETERS_TOPIC)
+        self._scan_topic = self.resolve_topic_name(SCAN_TOPIC)
+        self._bag_scan_written: int | None = None    # the last sfs/scan record in the bag
         self._parameter_clients = {n: AsyncParameterClient(self, n, callback_group=clients)
                                    for n in p["parameter_nodes"]}
         self._diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
@@ -213,7 +221,8 @@ class RecorderNode(Node):
     # -- inputs (executor) -------------------------------------------------------------------
 
     def _on_message(self, topic: str, data: bytes) -> None:
-        now = max(self.get_clock().now().nanoseconds, self._last_ns + 1)
+        # 2 ns apart at least: room for an sfs/scan record just before a diagnostics message
+        now = max(self.get_clock().now().nanoseconds, self._last_ns + 2)
         self._last_ns = now
         if self._p["with_scan"] and topic == self._diagnostics_topic:
             self._watch_scan(data)
@@ -221,15 +230,13 @@ class RecorderNode(Node):
 
     def _watch_scan(self, data: bytes) -> None:
         """Queue a new bag when the scan node reports a new scan starting."""
-        for status in deserialize_message(data, DiagnosticArray).status:
-            values = {kv.key: kv.value for kv in status.values}
-            scan = values.get("scan", "")
-            # "starting" is a moment (reset, homing): a report of the scan in any later
-            # state opens its bag too, if that moment was missed.
-            if status.name.endswith(": scan") and scan.isdigit() and scan != self._scan_seen \
-                    and values.get("state") in ("starting", "running"):
-                self._scan_seen = scan
-                self._jobs.put(("start", None, int(scan)))
+        report = scan_report(deserialize_message(data, DiagnosticArray))
+        # "starting" is a moment (reset, homing): a report of the scan in any later
+        # state opens its bag too, if that moment was missed.
+        if report is not None and report[0] != self._scan_seen \
+                and report[1] in ("starting", "running"):
+            self._scan_seen = report[0]
+            self._jobs.put(("start", None, report[0]))
 
     def _on_start(self, _request, response):
         return self._request(("start", Future(), None), response)
@@ -307,9 +314,11 @@ class RecorderNode(Node):
             self._report_problem(text)
             return False, text
         for topic, (msgtype, kind) in [*self._topics.items(),
-                                       (self._parameters_topic, TOPICS[PARAMETERS_TOPIC])]:
+                                       (self._parameters_topic, TOPICS[PARAMETERS_TOPIC]),
+                                       (self._scan_topic, TOPICS[SCAN_TOPIC])]:
             bag.add_topic(topic, msgtype, kind=kind, depth=self._p["queue_depth"])
         self._bag, self._bag_scan, self._started = bag, scan, time.monotonic()
+        self._bag_scan_written = None
         self._fetched = Future()
         threading.Thread(target=self._fetch, args=(self._fetched,), daemon=True).start()
         with self._lock:
@@ -323,11 +332,22 @@ class RecorderNode(Node):
     def _write(self, topic: str, log_ns: int, data: bytes) -> None:
         if self._bag is None:
             return
+        if topic == self._diagnostics_topic:
+            self._write_scan(log_ns, data)
         start = time.perf_counter()
         self._bag.write(topic, log_ns, data)
         with self._lock:
             self._status.update(messages=self._bag.messages, bytes=self._bag.bytes,
                                 write_s=self._status["write_s"] + time.perf_counter() - start)
+
+    def _write_scan(self, log_ns: int, diagnostics: bytes) -> None:
+        """Before a diagnostics message that reports a scan new to this bag, an ``sfs/scan``
+        record of its number (one ns earlier: log times stay strictly increasing)."""
+        report = scan_report(deserialize_message(diagnostics, DiagnosticArray))
+        if report is None or report[0] == self._bag_scan_written:
+            return
+        self._bag_scan_written = report[0]
+        self._write(self._scan_topic, log_ns - 1, scan_message(report[0]))
 
     def _write_parameters(self, *, wait: bool = False) -> None:
         """Write the fetched parameters once they are in (``wait``: up to the timeout)."""

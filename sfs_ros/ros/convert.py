@@ -7,13 +7,15 @@ without copying (``np.frombuffer``: the returned arrays are views of the
 message's buffer, writable, so copy them before changing them).
 
 Stamps: a ``builtin_interfaces/Time`` message or a ``(sec, nanosec)`` pair.
+Reading images and joint states needs no ROS: :func:`msg_to_image`,
+:func:`angles_from_joint_state` and :data:`JOINT_NAMES` are
+:mod:`sfs_ros.cell.messages`' (the bag reader's too), named here as well.
 Angles in radians, points in metres.
 """
 
 from __future__ import annotations
 
 import array
-import math
 import operator
 
 import numpy as np
@@ -26,22 +28,14 @@ from shape_msgs.msg import Mesh, MeshTriangle
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker
 
+from sfs_ros.cell.messages import JOINT_NAMES, angles_from_joint_state, msg_to_image, stamp_key
 from sfs_ros.core.geometry.camera import Camera
-from sfs_ros.ros.pairing import stamp_key
 
 __all__ = [
     "JOINT_NAMES", "header", "image_to_msg", "msg_to_image", "joint_state",
     "angles_from_joint_state", "camera_info", "points_to_cloud", "cloud_to_points",
     "mesh_to_marker", "mesh_to_shape", "shape_to_mesh", "camera_poses", "health",
 ]
-
-#: Joint names of the cell: turntable = theta, carriage = phi.
-JOINT_NAMES = ("turntable", "carriage")
-
-# encoding -> (channels, dtype of one channel)
-_ENCODINGS = {"rgb8": (3, np.uint8), "bgr8": (3, np.uint8), "mono8": (1, np.uint8),
-              "mono16": (1, np.uint16)}
-
 
 def header(*, stamp, frame_id: str) -> Header:
     """``std_msgs/Header`` from a stamp (Time or (sec, nanosec)) and a frame id."""
@@ -89,65 +83,10 @@ def image_to_msg(image, *, stamp, frame_id: str, encoding: str | None = None) ->
     return msg
 
 
-def msg_to_image(msg: Image) -> np.ndarray:
-    """Array of a ``sensor_msgs/Image``: (H, W, 3) uint8 RGB for ``rgb8`` / ``bgr8``,
-    (H, W) uint8 for ``mono8``, (H, W) uint16 for ``mono16``.
-
-    A view of ``msg.data`` (no copy) except for 16-bit data in non-native
-    byte order; row padding (``step`` > row size) is skipped and ``bgr8`` is
-    returned as a channel-reversed view. Raises ``ValueError`` for other
-    encodings and for sizes that do not add up.
-    """
-    if msg.encoding not in _ENCODINGS:
-        raise ValueError(f"unsupported image encoding {msg.encoding!r}; "
-                         f"expected one of {sorted(_ENCODINGS)}")
-    channels, dtype = _ENCODINGS[msg.encoding]
-    h, w, step = int(msg.height), int(msg.width), int(msg.step)
-    row_bytes = w * channels * np.dtype(dtype).itemsize
-    if h == 0 or w == 0:
-        raise ValueError(f"image is empty ({w}x{h})")
-    if step < row_bytes:
-        raise ValueError(f"image step {step} is smaller than a row of {w} {msg.encoding} "
-                         f"pixels ({row_bytes} bytes)")
-    if len(msg.data) != h * step:
-        raise ValueError(f"image data has {len(msg.data)} bytes, expected height * step = "
-                         f"{h} * {step} = {h * step}")
-    rows = np.frombuffer(msg.data, np.uint8).reshape(h, step)[:, :row_bytes]
-    if np.dtype(dtype).itemsize > 1:
-        order = ">" if msg.is_bigendian else "<"
-        rows = np.ascontiguousarray(rows).view(np.dtype(dtype).newbyteorder(order))
-        rows = rows.astype(dtype, copy=False)
-    image = rows.reshape(h, w, channels) if channels > 1 else rows.reshape(h, w)
-    return image[:, :, ::-1] if msg.encoding == "bgr8" else image
-
-
 def joint_state(theta_rad: float, phi_rad: float, *, stamp) -> JointState:
     """``sensor_msgs/JointState`` of the cell: names ``JOINT_NAMES``, positions in radians."""
     return JointState(header=header(stamp=stamp, frame_id=""), name=list(JOINT_NAMES),
                       position=[float(theta_rad), float(phi_rad)])
-
-
-def angles_from_joint_state(msg: JointState) -> tuple[float, float]:
-    """``(theta_rad, phi_rad)`` of the joints named "turntable" and "carriage" (any order).
-
-    Raises ``ValueError`` when a joint is missing, has no position, or is not finite.
-    """
-    names = list(msg.name)
-    positions = list(msg.position)
-    angles = []
-    for joint in JOINT_NAMES:
-        if joint not in names:
-            raise ValueError(f"joint state has no joint {joint!r} (names {names}); "
-                             f"expected {list(JOINT_NAMES)}")
-        index = names.index(joint)
-        if index >= len(positions):
-            raise ValueError(f"joint state has {len(positions)} positions for {len(names)} "
-                             f"names: no position for {joint!r}")
-        value = float(positions[index])
-        if not math.isfinite(value):
-            raise ValueError(f"joint {joint!r} position is {value}, expected a finite angle")
-        angles.append(value)
-    return angles[0], angles[1]
 
 
 def camera_info(camera: Camera, *, stamp, frame_id: str) -> CameraInfo:

@@ -18,6 +18,9 @@ partner arrives, and hands out the pair when its second half comes:
   pairs must tolerate a capture twice (the reconstruction stores each once);
 * :meth:`StampPairer.reject` marks a capture bad (one half was malformed):
   its waiting half is dropped, and so is the other half when it comes.
+
+The stamp helpers (:func:`stamp_key`, :func:`format_stamp`, :func:`view_key`) are
+:mod:`sfs_ros.cell.messages`', named here as well.
 """
 
 from __future__ import annotations
@@ -25,37 +28,9 @@ from __future__ import annotations
 from collections import OrderedDict
 from typing import Any, Callable
 
+from sfs_ros.cell.messages import Stamp, format_stamp, stamp_key, view_key
+
 __all__ = ["StampPairer", "format_stamp", "stamp_key", "view_key"]
-
-Stamp = tuple[int, int]
-
-
-def stamp_key(stamp) -> Stamp:
-    """``(sec, nanosec)`` ints from a ``builtin_interfaces/Time`` (or anything with
-    ``sec`` and ``nanosec``) or from a ``(sec, nanosec)`` pair; ``ValueError`` otherwise."""
-    if hasattr(stamp, "sec") and hasattr(stamp, "nanosec"):
-        sec, nanosec = stamp.sec, stamp.nanosec
-    else:
-        try:
-            sec, nanosec = stamp
-        except (TypeError, ValueError):
-            raise ValueError(f"stamp must be a Time message or a (sec, nanosec) pair, "
-                             f"got {stamp!r}") from None
-    if not (float(sec).is_integer() and float(nanosec).is_integer()
-            and 0 <= nanosec < 1_000_000_000):
-        raise ValueError(f"stamp must have integer sec and nanosec in [0, 1e9), got {stamp!r}")
-    return int(sec), int(nanosec)
-
-
-def format_stamp(stamp: Stamp) -> str:
-    """``sec.nanosec`` of a ``(sec, nanosec)`` stamp, for messages."""
-    return f"{stamp[0]}.{stamp[1]:09d}"
-
-
-def view_key(stamp: Stamp) -> str:
-    """The key a capture's view goes by (in the reconstruction and its session files):
-    ``sec_nanosec`` of its stamp."""
-    return f"{stamp[0]}_{stamp[1]:09d}"
 
 
 class StampPairer:

@@ -1,0 +1,126 @@
+"""The fields of the cell's messages as numpy arrays and numbers, without ROS.
+
+Decoders for messages however they were deserialized: rclpy's classes, or the
+``rosbags`` package's when a bag is read without ROS. They read fields only
+(``msg.encoding``, ``msg.name``, ...), so :mod:`sfs_ros.ros.convert` and the bag
+reader (:mod:`sfs_ros.cell.bag`) share them.
+
+Stamps: a ``builtin_interfaces/Time`` (anything with ``sec`` and ``nanosec``)
+or a ``(sec, nanosec)`` pair. Angles in radians.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+__all__ = ["JOINT_NAMES", "IMAGE_ENCODINGS", "stamp_key", "format_stamp", "view_key",
+           "msg_to_image", "angles_from_joint_state", "scan_report"]
+
+#: Joint names of the cell: turntable = theta, carriage = phi.
+JOINT_NAMES = ("turntable", "carriage")
+
+#: Image encoding -> (channels, dtype of one channel).
+IMAGE_ENCODINGS = {"rgb8": (3, np.uint8), "bgr8": (3, np.uint8), "mono8": (1, np.uint8),
+                   "mono16": (1, np.uint16)}
+
+Stamp = tuple[int, int]
+
+
+def stamp_key(stamp) -> Stamp:
+    """``(sec, nanosec)`` ints from a ``builtin_interfaces/Time`` (or anything with
+    ``sec`` and ``nanosec``) or from a ``(sec, nanosec)`` pair; ``ValueError`` otherwise."""
+    if hasattr(stamp, "sec") and hasattr(stamp, "nanosec"):
+        sec, nanosec = stamp.sec, stamp.nanosec
+    else:
+        try:
+            sec, nanosec = stamp
+        except (TypeError, ValueError):
+            raise ValueError(f"stamp must be a Time message or a (sec, nanosec) pair, "
+                             f"got {stamp!r}") from None
+    if not (float(sec).is_integer() and float(nanosec).is_integer()
+            and 0 <= nanosec < 1_000_000_000):
+        raise ValueError(f"stamp must have integer sec and nanosec in [0, 1e9), got {stamp!r}")
+    return int(sec), int(nanosec)
+
+
+def format_stamp(stamp: Stamp) -> str:
+    """``sec.nanosec`` of a ``(sec, nanosec)`` stamp, for messages."""
+    return f"{stamp[0]}.{stamp[1]:09d}"
+
+
+def view_key(stamp: Stamp) -> str:
+    """The key a capture's view goes by (in the reconstruction and its session files):
+    ``sec_nanosec`` of its stamp."""
+    return f"{stamp[0]}_{stamp[1]:09d}"
+
+
+def msg_to_image(msg) -> np.ndarray:
+    """Array of a ``sensor_msgs/Image``: (H, W, 3) uint8 RGB for ``rgb8`` / ``bgr8``,
+    (H, W) uint8 for ``mono8``, (H, W) uint16 for ``mono16``.
+
+    A view of ``msg.data`` (no copy) except for 16-bit data in non-native
+    byte order; row padding (``step`` > row size) is skipped and ``bgr8`` is
+    returned as a channel-reversed view. Raises ``ValueError`` for other
+    encodings and for sizes that do not add up.
+    """
+    if msg.encoding not in IMAGE_ENCODINGS:
+        raise ValueError(f"unsupported image encoding {msg.encoding!r}; "
+                         f"expected one of {sorted(IMAGE_ENCODINGS)}")
+    channels, dtype = IMAGE_ENCODINGS[msg.encoding]
+    h, w, step = int(msg.height), int(msg.width), int(msg.step)
+    row_bytes = w * channels * np.dtype(dtype).itemsize
+    if h == 0 or w == 0:
+        raise ValueError(f"image is empty ({w}x{h})")
+    if step < row_bytes:
+        raise ValueError(f"image step {step} is smaller than a row of {w} {msg.encoding} "
+                         f"pixels ({row_bytes} bytes)")
+    if len(msg.data) != h * step:
+        raise ValueError(f"image data has {len(msg.data)} bytes, expected height * step = "
+                         f"{h} * {step} = {h * step}")
+    rows = np.frombuffer(msg.data, np.uint8).reshape(h, step)[:, :row_bytes]
+    if np.dtype(dtype).itemsize > 1:
+        order = ">" if msg.is_bigendian else "<"
+        rows = np.ascontiguousarray(rows).view(np.dtype(dtype).newbyteorder(order))
+        rows = rows.astype(dtype, copy=False)
+    image = rows.reshape(h, w, channels) if channels > 1 else rows.reshape(h, w)
+    return image[:, :, ::-1] if msg.encoding == "bgr8" else image
+
+
+def angles_from_joint_state(msg) -> tuple[float, float]:
+    """``(theta_rad, phi_rad)`` of the joints named "turntable" and "carriage" (any order)
+    of a ``sensor_msgs/JointState``.
+
+    Raises ``ValueError`` when a joint is missing, has no position, or is not finite.
+    """
+    names = list(msg.name)
+    positions = list(msg.position)
+    angles = []
+    for joint in JOINT_NAMES:
+        if joint not in names:
+            raise ValueError(f"joint state has no joint {joint!r} (names {names}); "
+                             f"expected {list(JOINT_NAMES)}")
+        index = names.index(joint)
+        if index >= len(positions):
+            raise ValueError(f"joint state has {len(positions)} positions for {len(names)} "
+                             f"names: no position for {joint!r}")
+        value = float(positions[index])
+        if not math.isfinite(value):
+            raise ValueError(f"joint {joint!r} position is {value}, expected a finite angle")
+        angles.append(value)
+    return angles[0], angles[1]
+
+
+def scan_report(array) -> tuple[int, str] | None:
+    """``(scan number, state)`` the scan node reports in a ``diagnostic_msgs/DiagnosticArray``
+    (its status named ``<node>: scan`` with the values ``scan`` and ``state``); None when
+    the array holds no such status or its scan is not a number."""
+    for status in array.status:
+        if not status.name.endswith(": scan"):
+            continue
+        values = {kv.key: kv.value for kv in status.values}
+        scan = values.get("scan", "")
+        if scan.isdigit():
+            return int(scan), values.get("state", "")
+    return None
