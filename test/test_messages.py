@@ -1,0 +1,66 @@
+"""Message fields decoded without ROS: the same answers from rosbags' messages as rclpy's."""
+
+import numpy as np
+import pytest
+from rosbags.typesys import Stores, get_typestore
+
+from sfs_ros.cell.messages import angles_from_joint_state, msg_to_image, scan_report
+
+STORE = get_typestore(Stores.ROS2_KILTED)
+T = STORE.types
+
+
+def _round_trip(msg, msgtype: str):
+    """``msg`` as a bag reader gets it: serialized to CDR, then deserialized by rosbags."""
+    return STORE.deserialize_cdr(bytes(STORE.serialize_cdr(msg, msgtype)), msgtype)
+
+
+def _header():
+    return T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=1, nanosec=2),
+                                    frame_id="")
+
+
+def test_a_padded_bgr8_image_from_rosbags_is_rgb_without_its_padding():
+    rgb = np.arange(2 * 3 * 3, dtype=np.uint8).reshape(2, 3, 3)
+    rows = np.zeros((2, 12), np.uint8)                      # 9 bytes of pixels + 3 of padding
+    rows[:, :9] = rgb[:, :, ::-1].reshape(2, 9)
+    msg = _round_trip(T["sensor_msgs/msg/Image"](header=_header(), height=2, width=3,
+                                                 encoding="bgr8", is_bigendian=0, step=12,
+                                                 data=rows.reshape(-1)), "sensor_msgs/msg/Image")
+    np.testing.assert_array_equal(msg_to_image(msg), rgb)
+
+
+def test_a_big_endian_mono16_image_from_rosbags_reads_its_values():
+    values = np.array([[1, 256], [65535, 4660]], dtype=">u2")
+    msg = _round_trip(T["sensor_msgs/msg/Image"](header=_header(), height=2, width=2,
+                                                 encoding="mono16", is_bigendian=1, step=4,
+                                                 data=values.view(np.uint8).reshape(-1)),
+                      "sensor_msgs/msg/Image")
+    np.testing.assert_array_equal(msg_to_image(msg), values.astype(np.uint16))
+
+
+def test_joint_angles_from_rosbags_are_found_by_name():
+    msg = _round_trip(T["sensor_msgs/msg/JointState"](
+        header=_header(), name=["carriage", "turntable"], position=np.array([0.5, -1.25]),
+        velocity=np.zeros(0), effort=np.zeros(0)), "sensor_msgs/msg/JointState")
+    assert angles_from_joint_state(msg) == (-1.25, 0.5)
+
+
+def _diagnostics(*statuses):
+    return _round_trip(T["diagnostic_msgs/msg/DiagnosticArray"](header=_header(), status=[
+        T["diagnostic_msgs/msg/DiagnosticStatus"](
+            level=0, name=name, message="", hardware_id="",
+            values=[T["diagnostic_msgs/msg/KeyValue"](key=k, value=v) for k, v in values])
+        for name, values in statuses]), "diagnostic_msgs/msg/DiagnosticArray")
+
+
+@pytest.mark.parametrize("statuses, expected", [
+    ([("/cell/scan: scan", [("state", "running"), ("scan", "12")])], (12, "running")),
+    ([("/cell/motor: motor", [("scan", "3")]), ("/cell/scan: scan", [("scan", "4")])], (4, "")),
+    ([("/cell/motor: motor", [("scan", "3")])], None),          # not the scan node's status
+    ([("/cell/scan: scan", [("scan", "")])], None),             # no number
+    ([("/cell/scan: scan", [("state", "idle")])], None),
+    ([], None),
+])
+def test_the_scan_nodes_report_is_found_in_a_diagnostics_array(statuses, expected):
+    assert scan_report(_diagnostics(*statuses)) == expected
