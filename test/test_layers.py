@@ -53,6 +53,10 @@ def is_ros(module: str) -> bool:
             or top.endswith(("_msgs", "_srvs", "_interfaces")))
 
 
+def is_upper_layer(module: str) -> bool:
+    return any(module == layer or module.startswith(f"{layer}.") for layer in UPPER_LAYERS)
+
+
 MODULES = sorted(PACKAGE.rglob("*.py"))
 
 
@@ -69,7 +73,7 @@ def test_lower_layers_import_no_ros_and_no_upper_layer(layer):
         if not name.startswith(f"sfs_ros.{layer}"):
             continue
         for module in sorted(imported_modules(path)):
-            if is_ros(module) or any(module == u or module.startswith(f"{u}.") for u in UPPER_LAYERS):
+            if is_ros(module) or is_upper_layer(module):
                 offences.append(f"{name} imports {module}")
     assert offences == []
 

@@ -10,12 +10,12 @@
   contact sheet of the views (mask outlines, angles, silhouette IoU, reasons
   for rejection).
 
-Every file is written atomically (:mod:`sfs_ros.core.exchange.files`). The pictures go first, the
-mesh and its report last: both are staged on disk, then the report is renamed
-into place, then the mesh. A reader that finds the new mesh therefore finds its
-report, and the report names only pictures that exist. (One that reads the report
-just between the two renames pairs it with the previous mesh; the mesh is the
-file tools watch, so it is the one that comes last.)
+Every file is written atomically (:mod:`sfs_ros.core.exchange.files`). The
+pictures go first, the mesh and its report last: both are staged on disk, then
+the report is renamed into place, then the mesh. A reader that finds the new
+mesh therefore finds its report, and the report names only pictures that exist.
+(One that reads the report just between the two renames pairs it with the
+previous mesh; the mesh is the file tools watch, so it is the one that comes last.)
 """
 
 from __future__ import annotations
