@@ -32,14 +32,12 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-from .camera import Camera
+from .camera import MAX_IMAGE_SIDE_PX, Camera
 
 __all__ = ["CONVENTIONS", "RigCalibration", "rig_rotation", "rig_camera"]
 
 CONVENTIONS = ("physical", "paper")
 
-#: Largest image side a rig may declare, pixels.
-MAX_IMAGE_SIDE_PX = 65535
 #: Focal length (pinhole, pixels) or scale (orthographic, pixels per metre) accepted.
 _FOCAL_RANGE = (1e-3, 1e9)
 #: Camera distance accepted, metres (|aim point| is bounded by the upper end too).
