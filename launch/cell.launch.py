@@ -14,6 +14,9 @@ from launch.actions import DeclareLaunchArgument
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
+#: Seconds before a node that ended by itself is started again.
+RESPAWN_DELAY_S = 2.0
+
 
 def generate_launch_description():
     config = os.path.join(get_package_share_directory('sfs_ros'), 'config')
@@ -25,23 +28,24 @@ def generate_launch_description():
         DeclareLaunchArgument('namespace', default_value='',
                               description='ROS namespace of all nodes'),
         Node(package='sfs_ros', executable='sfs-camera', name='camera', namespace=namespace,
-             output='screen',
+             output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
              parameters=[os.path.join(config, 'rig.yaml'), os.path.join(config, 'camera.yaml')]),
         Node(package='sfs_ros', executable='sfs-motor', name='motor', namespace=namespace,
-             output='screen', parameters=[os.path.join(config, 'motor.yaml')]),
+             output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
+             parameters=[os.path.join(config, 'motor.yaml')]),
         Node(package='sfs_ros', executable='sfs-segmentation', name='segmentation',
-             namespace=namespace, output='screen',
+             namespace=namespace, output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
              parameters=[os.path.join(config, 'segmentation.yaml')]),
         Node(package='sfs_ros', executable='sfs-reconstruction', name='reconstruction',
-             namespace=namespace, output='screen',
+             namespace=namespace, output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
              parameters=[os.path.join(config, 'rig.yaml'),
                          os.path.join(config, 'reconstruction.yaml'),
                          {'output_dir': output_dir}]),
         Node(package='sfs_ros', executable='sfs-recorder', name='recorder',
-             namespace=namespace, output='screen',
+             namespace=namespace, output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
              parameters=[os.path.join(config, 'recorder.yaml'), {'output_dir': output_dir}]),
         Node(package='sfs_ros', executable='sfs-scan', name='scan', namespace=namespace,
-             output='screen',
+             output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
              parameters=[os.path.join(config, 'scan.yaml'),
                          {'plan_file': os.path.join(config, 'scan_plan.yaml')}]),
     ])

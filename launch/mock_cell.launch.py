@@ -15,6 +15,9 @@ from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
 from launch_ros.actions import Node
 
+#: Seconds before a node that ended by itself is started again.
+RESPAWN_DELAY_S = 2.0
+
 
 def make_output_dir(context):
     """The link is made in the output folder as the mock starts: create the folder first."""
@@ -35,25 +38,25 @@ def generate_launch_description():
         OpaqueFunction(function=make_output_dir),
         # One process, two nodes (mock_hardware and camera): no name, which would rename both.
         Node(package='sfs_ros', executable='sfs-mock-hardware', namespace=namespace,
-             output='screen',
+             output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
              parameters=[os.path.join(config, 'rig.yaml'), os.path.join(config, 'camera.yaml'),
                          os.path.join(config, 'mock_hardware.yaml'), {'port_link': port}]),
         Node(package='sfs_ros', executable='sfs-motor', name='motor', namespace=namespace,
-             output='screen',
+             output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
              parameters=[os.path.join(config, 'motor.yaml'), {'port': port}]),
         Node(package='sfs_ros', executable='sfs-segmentation', name='segmentation',
-             namespace=namespace, output='screen',
+             namespace=namespace, output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
              parameters=[os.path.join(config, 'segmentation.yaml')]),
         Node(package='sfs_ros', executable='sfs-reconstruction', name='reconstruction',
-             namespace=namespace, output='screen',
+             namespace=namespace, output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
              parameters=[os.path.join(config, 'rig.yaml'),
                          os.path.join(config, 'reconstruction.yaml'),
                          {'output_dir': output_dir}]),
         Node(package='sfs_ros', executable='sfs-recorder', name='recorder',
-             namespace=namespace, output='screen',
+             namespace=namespace, output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
              parameters=[os.path.join(config, 'recorder.yaml'), {'output_dir': output_dir}]),
         Node(package='sfs_ros', executable='sfs-scan', name='scan', namespace=namespace,
-             output='screen',
+             output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
              parameters=[os.path.join(config, 'scan.yaml'),
                          {'plan_file': os.path.join(config, 'scan_plan.yaml')}]),
     ])

@@ -243,16 +243,27 @@ def test_sfs_cell_brings_up_the_mock_cell_and_stops_it_on_sigint(start_cell):
     assert not link.is_symlink() and not link.exists()
 
 
-def test_sfs_cell_stops_when_a_node_ends_by_itself(start_cell):
+def test_sfs_cell_restarts_a_node_that_is_killed(start_cell):
     mock_cell = start_cell("node_ends")
     mock_cell.wait_up()
-    [segmentation] = [pid for pid, args in mock_cell.nodes().items()
-                      if "sfs_ros.nodes.segmentation_node" in args]
-    os.kill(segmentation, signal.SIGINT)
 
-    assert mock_cell.wait_exit() == 1, mock_cell.output()
+    def segmentation_pids() -> list[int]:
+        return [pid for pid, args in mock_cell.nodes().items()
+                if "sfs_ros.nodes.segmentation_node" in args]
+
+    [killed] = segmentation_pids()
+    os.kill(killed, signal.SIGKILL)
+    deadline = time.monotonic() + CELL_UP_TIMEOUT_S  # bounds a hang only
+    while segmentation_pids() in ([], [killed]):
+        assert time.monotonic() < deadline and mock_cell.process.poll() is None, \
+            mock_cell.output()
+        time.sleep(0.1)
     lines = [line for line in mock_cell.output().splitlines() if line.startswith("sfs-cell:")]
-    assert any("ended by themselves" in line and "'segmentation'" in line for line in lines), \
-        lines
+    assert any("node segmentation ended by itself (exit status -9); restarting it" in line
+               for line in lines), lines
+    assert len(mock_cell.nodes()) == len(MockCell.NODES)
+
+    mock_cell.process.send_signal(signal.SIGINT)
+    assert mock_cell.wait_exit() == 0, mock_cell.output()
     assert mock_cell.nodes() == {}, mock_cell.output()
     assert not (mock_cell.output_dir / "ttyMOCK").is_symlink()

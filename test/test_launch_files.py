@@ -116,6 +116,8 @@ def test_launch_file_starts_the_nodes_of_cell_nodes(filename, mock, namespace, s
 
     for spec, node in zip(specs, launch.nodes()):
         assert node["package"] == "sfs_ros"
+        # Supervised as by sfs-cell: a node that ends by itself is started again.
+        assert node["respawn"] is True and node["respawn_delay"] > 0
         assert node["namespace"] == (namespace or "")       # sfs-cell --namespace, default root
         # A name is only a no-op remap to the node's own name; none for a composed process.
         if spec.module in COMPOSED:

@@ -24,8 +24,9 @@ def _same_projection(a: Camera, b: Camera) -> None:
     np.testing.assert_allclose(a.project(POINTS), b.project(POINTS), atol=PIXEL_TOL)
 
 
-def test_nerf_transforms_read_back_to_the_same_cameras(mug_views, tmp_path):
-    path = write_nerf_transforms(mug_views, tmp_path / "nerf" / "transforms.json")
+def test_nerf_transforms_read_back_to_the_same_cameras(mug_session):
+    mug_views = read_session(mug_session)
+    path = write_nerf_transforms(mug_views, mug_session / "transforms.json")
     data = json.loads(path.read_text())
     assert len(data["frames"]) == len(mug_views.views)
     # OpenGL camera axes: the camera's -z (third column negated) looks at the object.

@@ -22,10 +22,12 @@ import signal
 import subprocess
 import sys
 import threading
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-__all__ = ["NodeSpec", "Cell", "cell_nodes", "default_config_dir", "wait_until_signal"]
+__all__ = ["NodeSpec", "Cell", "RestartPolicy", "cell_nodes", "default_config_dir",
+           "wait_until_signal"]
 
 #: Seconds a node gets to stop after SIGINT (then SIGTERM, then SIGKILL).
 STOP_GRACE_S = 10.0
@@ -181,22 +183,72 @@ class Cell:
         self.stop()
 
 
-def wait_until_signal(cell: Cell) -> int:
-    """Until SIGINT/SIGTERM or a node ends by itself; then stop the cell. Exit status."""
-    stopping = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stopping.set())
-    status = 0
+@dataclass
+class RestartPolicy:
+    """When a node that ended by itself is started again: exponential back-off, and a
+    crash loop gives up.
+
+    The n-th restart within ``window_s`` waits ``min(first_delay_s * 2**(n-1),
+    max_delay_s)`` seconds; more than ``max_restarts`` restarts within
+    ``window_s`` is a crash loop (None: give up).
+    """
+
+    first_delay_s: float = 0.5
+    max_delay_s: float = 30.0
+    max_restarts: int = 5
+    window_s: float = 120.0
+    _restarts: dict[str, list[float]] = field(default_factory=dict)
+
+    def delay(self, name: str, now_s: float) -> float | None:
+        """Seconds to wait before restarting ``name`` (which just ended at ``now_s``), or None."""
+        recent = [t for t in self._restarts.get(name, []) if now_s - t < self.window_s]
+        if len(recent) >= self.max_restarts:
+            return None
+        self._restarts[name] = recent + [now_s]
+        return min(self.first_delay_s * 2 ** len(recent), self.max_delay_s)
+
+
+def _supervise(cell: Cell, stopping: threading.Event, policy: RestartPolicy, log) -> int:
+    """Restart nodes that end by themselves until ``stopping`` is set; 1 after a crash loop."""
+    pending: dict[str, float] = {}  # name -> monotonic time of the restart
     while not stopping.wait(0.2):
-        ended = cell.exited()
-        if ended:
-            print(f"sfs-cell: node(s) ended by themselves: {ended}; stopping the cell",
-                  file=sys.stderr)
-            status = 1
-            break
+        now = time.monotonic()
+        for name, code in cell.exited().items():
+            if name in pending:
+                continue
+            wait = policy.delay(name, now)
+            if wait is None:
+                print(f"sfs-cell: node {name} ended {policy.max_restarts} times within "
+                      f"{policy.window_s:.0f} s (last exit status {code}); stopping the cell",
+                      file=log, flush=True)
+                return 1
+            print(f"sfs-cell: node {name} ended by itself (exit status {code}); restarting it "
+                  f"in {wait:.1f} s", file=log, flush=True)
+            pending[name] = now + wait
+        for name, when in list(pending.items()):
+            if now >= when:
+                cell.start_node(name)
+                del pending[name]
+    return 0
+
+
+def wait_until_signal(cell: Cell, *, policy: RestartPolicy | None = None,
+                      stopping: threading.Event | None = None, log=sys.stderr) -> int:
+    """Supervise the cell until SIGINT/SIGTERM (or ``stopping``); then stop it. Exit status.
+
+    A node that ends by itself is started again after a back-off
+    (:class:`RestartPolicy`); a restarted segmentation or reconstruction node
+    gets every capture without a receipt again (the scan node resends them). A
+    crash loop stops the cell with status 1.
+    """
+    stopping = stopping or threading.Event()
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, lambda *_: stopping.set())
+    status = _supervise(cell, stopping, policy or RestartPolicy(), log)
     codes = cell.stop()
     unclean = {n: c for n, c in codes.items() if c not in (0, -signal.SIGINT)}
     if unclean and not status:
-        print(f"sfs-cell: node(s) did not stop cleanly: {unclean}", file=sys.stderr)
+        print(f"sfs-cell: node(s) did not stop cleanly: {unclean}", file=log)
         status = 1
     return status

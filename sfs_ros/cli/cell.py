@@ -7,8 +7,9 @@ The nodes read the YAML files of ``--config`` (default: the installed
 ``share/sfs_ros/config``); files and meshes go to ``--output-dir``. Then,
 from another terminal or a program: ``scan/start``, and ``reconstruct``
 once the scan is done (see the README). Ctrl-C (SIGINT) or SIGTERM stops
-the nodes, the last started first; a node that ends by itself stops the
-cell with exit status 1.
+the nodes, the last started first. A node that ends by itself is started
+again after a back-off (0.5 s, doubling up to 30 s); one that ends five times
+within two minutes stops the cell with exit status 1.
 """
 
 from __future__ import annotations

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import os
+import signal
 import sys
+import threading
 from pathlib import Path
 
 from ..core.exchange.inputs import ACCEPTED_INPUTS as CORE_INPUTS
@@ -42,6 +45,41 @@ def load_input(path, *, captures: bool = False) -> tuple[ViewSet, dict]:
     return views, {k: v for k, v in recorded.items() if v is not None}
 
 
+def input_files(path: Path, view_set: ViewSet) -> list[Path]:
+    """Every file an input consists of: the input itself (a file, or every file in its
+    folder) and the images its views read."""
+    path = Path(path)
+    files = [p for p in path.rglob("*") if p.is_file()] if path.is_dir() else [path]
+    return files + [v.image_path for v in view_set.views]
+
+
+def check_outputs(outputs: dict[str, Path], inputs: list[Path]) -> None:
+    """Refuse outputs that would overwrite an input file or each other.
+
+    ``outputs`` maps a name (an option, e.g. ``"--html"``) to a file or, for
+    names ending in ``/``, a folder to be written (None: not written); a folder
+    clashes with every input file inside it. Paths are compared with links
+    resolved.
+    """
+    real_inputs = {Path(os.path.realpath(p)) for p in inputs}
+    seen: dict[Path, str] = {}
+    for name, path in outputs.items():
+        if path is None:
+            continue
+        real = Path(os.path.realpath(path))
+        if real in seen:
+            raise ValueError(f"{name} {path} is the same file as {seen[real]}; give each output "
+                             "its own path")
+        seen[real] = name
+        if name.endswith("/"):
+            inside = sorted(p for p in real_inputs if real == p or real in p.parents)
+            if inside:
+                raise ValueError(f"{name.rstrip('/')} {path} holds the input file {inside[0]}; "
+                                 "write to a folder apart from the input")
+        elif real in real_inputs:
+            raise ValueError(f"{name} {path} is an input file; outputs never overwrite the input")
+
+
 class StageProgress:
     """Callable ``(stage, fraction)`` printing progress to ``stream`` (stderr)."""
 
@@ -71,16 +109,55 @@ class StageProgress:
         self.stage = None
 
 
+#: Longest error line printed, characters.
+_MAX_ERROR_CHARS = 400
+
+
+class Terminated(BaseException):
+    """SIGTERM arrived: unwind like Ctrl-C, so temporary files are removed on the way out."""
+
+
+def _on_sigterm(signum, frame):
+    raise Terminated()
+
+
+def one_line(text, limit: int = _MAX_ERROR_CHARS) -> str:
+    """``text`` as one printable line: control characters escaped, cut to ``limit``."""
+    text = " ".join(str(text).split("\n"))
+    if not text.isprintable():
+        text = text.encode("unicode_escape").decode("ascii")
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
 def run_reporting_errors(prog: str, run, args):
     """``(0, run(args))``, or ``(status, None)`` after printing one line on stderr.
 
-    Bad input (``ValueError``, ``OSError``) exits with status 2, Ctrl-C with 130.
+    Bad input (``ValueError``, ``OSError``) and a result that cannot be made
+    (``MemoryError``, ``RecursionError``) exit with status 2; any other
+    exception is an internal error, reported as one line with its type, also
+    status 2 (never a traceback). Ctrl-C exits with 130, SIGTERM with 143, both
+    after the writers' ``finally`` clauses have removed their temporary files.
     """
+    previous = signal.signal(signal.SIGTERM, _on_sigterm) \
+        if threading.current_thread() is threading.main_thread() else None
     try:
         return 0, run(args)
     except (ValueError, OSError) as err:
-        print(f"{prog}: error: {err}", file=sys.stderr)
+        print(f"{prog}: error: {one_line(err)}", file=sys.stderr)
+    except MemoryError:
+        print(f"{prog}: error: not enough memory for this input and these options (lower "
+              "the resolution or --max-memory)", file=sys.stderr)
+    except RecursionError:
+        print(f"{prog}: error: the input nests too deeply to be read", file=sys.stderr)
     except KeyboardInterrupt:
         print(f"{prog}: interrupted", file=sys.stderr)
         return 130, None
+    except Terminated:
+        print(f"{prog}: terminated", file=sys.stderr)
+        return 143, None
+    except Exception as err:  # noqa: BLE001 - the promise is one line, never a traceback
+        print(f"{prog}: internal error: {type(err).__name__}: {one_line(err)}", file=sys.stderr)
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
     return 2, None

@@ -18,7 +18,7 @@ from pathlib import Path
 
 from ..core.exchange.pose_export import export_session, write_colmap, write_nerf_transforms
 from ..core.exchange.session import IMAGES_DIR, read_session
-from .common import ACCEPTED_INPUTS, load_input, run_reporting_errors
+from .common import ACCEPTED_INPUTS, check_outputs, input_files, load_input, run_reporting_errors
 
 PROG = "sfs-export"
 
@@ -36,6 +36,8 @@ def run(args) -> dict:
     if not (args.session or args.colmap or args.nerf):
         raise ValueError("nothing to do: give --session, --colmap and/or --nerf")
     views, _ = load_input(args.input, captures=True)     # a bag: its images, not its masks
+    check_outputs({"--session/": args.session, "--colmap/": args.colmap, "--nerf": args.nerf},
+                  input_files(args.input, views))
     written = {}
     image_root = None
     if args.session:

@@ -20,10 +20,11 @@ from pathlib import Path
 from ..core.meshing.colour import vertex_colours
 from ..core.exchange.export import SUPPORTED_SUFFIXES
 from ..core.pipeline import MESHERS, ReconstructionParams, reconstruct
-from ..core.result_files import SheetViews, write_result
+from ..core.result_files import SheetViews, report_path_for, write_result
 from ..core.segment import PRESETS, SegmentationParams
 from ..core.exchange.views import ViewSet, read_image
-from .common import ACCEPTED_INPUTS, StageProgress, load_input, run_reporting_errors
+from .common import (ACCEPTED_INPUTS, StageProgress, check_outputs, input_files, load_input,
+                     one_line, run_reporting_errors)
 
 PROG = "sfs-reconstruct"
 
@@ -124,10 +125,13 @@ def run(args) -> dict:
         raise ValueError("--colour needs a format that stores vertex colours (.ply, .obj, "
                          ".glb); STL has none")
     view_set, recorded = load_input(args.input)
+    check_outputs({"-o": args.output, "report": report_path_for(args.output),
+                   "--preview": args.preview, "--html": args.html,
+                   "--contact-sheet": args.contact_sheet}, input_files(args.input, view_set))
     # A bag's views are the recorded masks; its captured images colour the mesh.
     bag_images = load_input(args.input, captures=True)[0] if args.colour and recorded else None
     params = ReconstructionParams(
-        resolution=args.resolution or recorded.get("resolution", 192),
+        resolution=recorded.get("resolution", 192) if args.resolution is None else args.resolution,
         voxel_size_m=args.voxel_size, mesher=args.mesher or recorded.get("mesher", MESHERS[0]),
         block=args.block, bounds_m=None if args.bounds is None else (args.bounds[:3], args.bounds[3:]),
         max_misses=args.max_misses, check_consistency=not args.no_consistency_check,
@@ -159,7 +163,7 @@ def summary(report: dict) -> str:
              f"views: {len(views['used'])} used, {len(views['held_out'])} held out, "
              f"{len(views['rejected'])} rejected"]
     for r in views["rejected"]:
-        lines.append(f"  rejected {r['view']}: {r['reason']}")
+        lines.append(f"  rejected {one_line(r['view'], 80)}: {one_line(r['reason'])}")
     lines.append(f"silhouette IoU: mean {iou['mean_used']:.4f} over used views"
                  + (f", {iou['mean_held_out']:.4f} over held-out views"
                     if iou["mean_held_out"] is not None else ""))
@@ -168,10 +172,11 @@ def summary(report: dict) -> str:
 
 
 def main(argv=None) -> int:
-    status, report = run_reporting_errors(PROG, run, build_parser().parse_args(argv))
+    status, text = run_reporting_errors(PROG, lambda args: summary(run(args)),
+                                        build_parser().parse_args(argv))
     if status:
         return status
-    print(summary(report))
+    print(text)
     return 0
 
 

@@ -11,11 +11,13 @@ bounding boxes are given only in prose (README), so none is loaded.
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
 
 from ..geometry.camera import Camera
+from .limits import brief, confined_path, read_text
 from .views import View, ViewError, ViewSet, image_size, nearest_rotation
 
 __all__ = ["read_middlebury"]
@@ -40,17 +42,15 @@ def read_middlebury(par_file: Path | str) -> ViewSet:
         lines, duplicate or missing images, or images of different sizes.
     """
     par_file = Path(par_file)
-    if not par_file.is_file():
-        raise ViewError(f"Middlebury camera file {par_file} does not exist")
     lines = [(n, line.split()) for n, line in
-             enumerate(par_file.read_text(encoding="utf-8", errors="replace").splitlines(), 1)
+             enumerate(read_text(par_file, "Middlebury camera file").splitlines(), 1)
              if line.strip()]
     if not lines:
         raise ViewError(f"{par_file} is empty; expected a view count and one line per view")
     count_line, count_fields = lines[0]
-    if len(count_fields) != 1 or not count_fields[0].isdigit():
+    if len(count_fields) != 1 or re.fullmatch(r"[0-9]{1,9}", count_fields[0]) is None:
         raise ViewError(f"{par_file} line {count_line}: expected the number of views, "
-                        f"got {' '.join(count_fields)!r}")
+                        f"got {brief(' '.join(count_fields))}")
     count, rows = int(count_fields[0]), lines[1:]
     if count != len(rows):
         raise ViewError(f"{par_file} declares {count} views but has {len(rows)} view lines")
@@ -65,13 +65,13 @@ def read_middlebury(par_file: Path | str) -> ViewSet:
                             "(name, K 3x3, R 3x3, t 3, row by row)")
         name = fields[0]
         if name in seen:
-            raise ViewError(f"{where}: image {name!r} is listed twice (first on line {seen[name]})")
+            raise ViewError(f"{where}: image {brief(name)} is listed twice (first on line {seen[name]})")
         seen[name] = line
         try:
             values = np.array([float(v) for v in fields[1:]])
         except ValueError:
             bad = next(v for v in fields[1:] if not _is_number(v))
-            raise ViewError(f"{where}: {bad!r} is not a number") from None
+            raise ViewError(f"{where}: {brief(bad)} is not a number") from None
         if not np.all(np.isfinite(values)):
             raise ViewError(f"{where}: camera parameters contain NaN or infinity")
         parsed.append((where, name, values))
@@ -79,7 +79,7 @@ def read_middlebury(par_file: Path | str) -> ViewSet:
     size, first = None, None
     views = []
     for where, name, values in parsed:
-        path = par_file.parent / name
+        path = confined_path(par_file.parent, name, f"{where}: image")
         if not path.is_file():
             raise ViewError(f"{where}: image {path} does not exist")
         this_size = image_size(path)

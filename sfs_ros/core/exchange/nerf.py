@@ -25,7 +25,6 @@ frame's value winning):
 
 from __future__ import annotations
 
-import json
 import math
 import os
 from pathlib import Path
@@ -33,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from ..geometry.camera import Camera
+from .limits import brief, confined_path, load_json
 from .views import IMAGE_SUFFIXES, View, ViewError, ViewSet, as_bounds, image_size, nearest_rotation
 
 __all__ = ["read_transforms"]
@@ -50,7 +50,7 @@ def _number(levels: list[dict], key: str, where: str) -> float | None:
             except (TypeError, ValueError):
                 value = math.nan
             if not math.isfinite(value):
-                raise ViewError(f"{where}: {key} must be a finite number, got {level[key]!r}")
+                raise ViewError(f"{where}: {key} must be a finite number, got {brief(level[key])}")
             return value
     return None
 
@@ -70,14 +70,14 @@ def _focal(levels: list[dict], pixels_key: str, angle_key: str, size: int, where
 
 def _image_path(json_dir: Path, file_path, where: str) -> Path:
     if not isinstance(file_path, str) or not file_path:
-        raise ViewError(f"{where}: file_path must be a non-empty string, got {file_path!r}")
-    base = json_dir / file_path
+        raise ViewError(f"{where}: file_path must be a non-empty string, got {brief(file_path)}")
+    base = confined_path(json_dir, file_path, f"{where}: file_path")
     if base.is_file():
         return base
     for suffix in IMAGE_SUFFIXES:
         candidate = base.with_name(base.name + suffix)
         if candidate.is_file():
-            return candidate
+            return confined_path(json_dir, f"{file_path}{suffix}", f"{where}: file_path")
     raise ViewError(f"{where}: image {base} does not exist (also tried the extensions "
                     f"{', '.join(IMAGE_SUFFIXES)})")
 
@@ -118,14 +118,7 @@ def read_transforms(json_path: Path | str) -> ViewSet:
         pose that is not rigid.
     """
     json_path = Path(json_path)
-    if not json_path.is_file():
-        raise ViewError(f"transforms file {json_path} does not exist")
-    try:
-        data = json.loads(json_path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as err:
-        raise ViewError(f"{json_path} is not valid JSON (line {err.lineno}: {err.msg})") from None
-    except UnicodeDecodeError:
-        raise ViewError(f"{json_path} is not a UTF-8 text file") from None
+    data = load_json(json_path, "transforms file")
     if not isinstance(data, dict) or not isinstance(data.get("frames"), list) or not data["frames"]:
         raise ViewError(f"{json_path}: expected a JSON object with a non-empty 'frames' list")
 

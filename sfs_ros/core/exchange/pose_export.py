@@ -138,6 +138,10 @@ def write_nerf_transforms(view_set: ViewSet, path, *, image_root=None) -> Path:
     image_root : path-like, optional
         Folder the image paths are made relative to (default: the images'
         own places, relative to the json file's folder).
+
+    The images must lie inside the json file's folder: NeRF tools, and
+    :func:`~sfs_ros.core.exchange.nerf.read_transforms`, read a ``file_path``
+    only from there (no ``..``, no absolute paths). ValueError otherwise.
     """
     cameras = _pinhole(view_set)
     path = Path(path)
@@ -149,8 +153,14 @@ def write_nerf_transforms(view_set: ViewSet, path, *, image_root=None) -> Path:
         c2w[:3, :3] = camera.R.T @ _CV_TO_GL
         c2w[:3, 3] = camera.center
         image = view.image_path if root is None else root / view.name
+        relative = Path(os.path.relpath(image, path.parent)).as_posix()
+        if relative.startswith("../") or os.path.isabs(relative):
+            raise ValueError(f"image {image} of view {view.name} is outside {path.parent}: NeRF "
+                             "readers take images only from inside the transforms file's "
+                             "folder; write it beside the images (e.g. sfs-export --session DIR "
+                             "--nerf DIR/transforms.json)")
         K = camera.K
-        frames.append({"file_path": Path(os.path.relpath(image, path.parent)).as_posix(),
+        frames.append({"file_path": relative,
                        "fl_x": K[0, 0], "fl_y": K[1, 1], "cx": K[0, 2] + 0.5,
                        "cy": K[1, 2] + 0.5, "w": camera.width, "h": camera.height,
                        "transform_matrix": c2w.tolist()})

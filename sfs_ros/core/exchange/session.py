@@ -70,6 +70,7 @@ import yaml
 from ..geometry.camera import Camera
 from ..geometry.rig import RigCalibration, rig_camera
 from .files import write_atomic
+from .limits import brief, confined_path, load_yaml, printable, read_text
 from .views import IMAGE_SUFFIXES, View, ViewError, ViewSet, as_bounds
 
 __all__ = ["FORMAT", "VERSION", "SESSION_FILE", "VIEWS_FILE", "IMAGES_DIR", "ANGLE_COLUMNS",
@@ -87,44 +88,34 @@ _YAML_KEYS = ("format", "version", "rig", "bounds_m", "segmentation")
 
 # ---------------------------------------------------------------- reading
 
-def _read_text(path: Path) -> str:
-    try:
-        return path.read_text(encoding="utf-8-sig")  # tolerate a byte-order mark
-    except UnicodeDecodeError:
-        raise ViewError(f"{path} is not a UTF-8 text file") from None
-
-
 def _read_yaml(folder: Path) -> dict:
     path = folder / SESSION_FILE
     if not path.is_file():
         raise ViewError(f"{folder} is not a session folder: {SESSION_FILE} is missing")
-    try:
-        data = yaml.safe_load(_read_text(path))
-    except yaml.YAMLError as err:
-        where = getattr(err, "problem_mark", None)
-        line = f" (line {where.line + 1})" if where is not None else ""
-        raise ViewError(f"{path} is not valid YAML{line}") from None
+    data = load_yaml(path, "session file")
     if not isinstance(data, dict):
         raise ViewError(f"{path} must be a YAML mapping with keys {list(_YAML_KEYS)}")
     unknown = sorted(set(map(str, data)) - set(_YAML_KEYS))
     if unknown:
-        raise ViewError(f"{path}: unknown keys {unknown}; expected some of {list(_YAML_KEYS)}")
+        raise ViewError(f"{path}: unknown keys {brief(unknown)}; expected some of "
+                        f"{list(_YAML_KEYS)}")
     if data.get("format") != FORMAT:
-        raise ViewError(f"{path}: format is {data.get('format')!r}, expected {FORMAT!r}")
-    if data.get("version") != VERSION:
-        raise ViewError(f"{path}: version {data.get('version')!r} is not supported, "
-                        f"expected {VERSION}")
+        raise ViewError(f"{path}: format is {brief(data.get('format'))}, expected {FORMAT!r}")
+    version = data.get("version")
+    if type(version) is not int or version != VERSION:
+        raise ViewError(f"{path}: version {brief(version)} is not supported, expected {VERSION}")
     return data
 
 
 def _rig(data: dict, path: Path) -> RigCalibration:
     rig = data.get("rig")
     if not isinstance(rig, dict):
-        raise ViewError(f"{path}: 'rig' must be a mapping of rig calibration fields, got {rig!r}")
+        raise ViewError(f"{path}: 'rig' must be a mapping of rig calibration fields, got "
+                        f"{brief(rig)}")
     try:
         return RigCalibration.from_dict(rig)
     except (ValueError, TypeError) as err:
-        raise ViewError(f"{path}: rig: {err}") from None
+        raise ViewError(f"{path}: rig: {str(err)[:200]}") from None
 
 
 def _bounds(data: dict, path: Path) -> np.ndarray | None:
@@ -137,15 +128,15 @@ def _segmentation(data: dict, path: Path) -> dict | None:
     seg = data.get("segmentation")
     if seg is not None and not isinstance(seg, dict):
         raise ViewError(f"{path}: segmentation must be a mapping of segmentation parameters, "
-                        f"got {seg!r}")
+                        f"got {brief(seg)}")
     return seg
 
 
 def _check_image_name(name: str, where: str) -> str:
     parts = PurePosixPath(name).parts
     if not name or "\\" in name or name.startswith("/") or ".." in parts or name.startswith("."):
-        raise ViewError(f"{where}: image {name!r} must be a relative path inside {IMAGES_DIR}/ "
-                        "(using '/', no '..')")
+        raise ViewError(f"{where}: image {brief(name)} must be a relative path inside "
+                        f"{IMAGES_DIR}/ (using '/', no '..')")
     return name
 
 
@@ -154,19 +145,22 @@ def _read_table(folder: Path) -> tuple[tuple[str, ...], list[tuple[int, list[str
     path = folder / VIEWS_FILE
     if not path.is_file():
         raise ViewError(f"{folder} is not a session folder: {VIEWS_FILE} is missing")
-    reader = csv.reader(io.StringIO(_read_text(path), newline=""))
+    reader = csv.reader(io.StringIO(read_text(path, "views table"), newline=""))
     header = None
     rows = []
-    for fields in reader:
-        fields = [f.strip() for f in fields]
-        if not any(fields):
-            continue
-        if header is None:
-            header = tuple(fields)
-        else:
-            rows.append((reader.line_num, fields))
+    try:
+        for fields in reader:
+            fields = [f.strip() for f in fields]
+            if not any(fields):
+                continue
+            if header is None:
+                header = tuple(fields)
+            else:
+                rows.append((reader.line_num, fields))
+    except csv.Error as err:
+        raise ViewError(f"{path} line {reader.line_num}: not a CSV table ({err})") from None
     if header not in (ANGLE_COLUMNS, MATRIX_COLUMNS):
-        raise ViewError(f"{path}: header {','.join(header or ())!r} is neither "
+        raise ViewError(f"{path}: header {brief(','.join(header or ()))} is neither "
                         f"{','.join(ANGLE_COLUMNS)!r} nor {','.join(MATRIX_COLUMNS[:3])},...,p34")
     return header, rows
 
@@ -177,7 +171,7 @@ def _numbers(fields: list[str], header: tuple[str, ...], where: str) -> np.ndarr
         try:
             values.append(float(text))
         except ValueError:
-            raise ViewError(f"{where}: {column} {text!r} is not a number") from None
+            raise ViewError(f"{where}: {column} {brief(text)} is not a number") from None
     return np.array(values)
 
 
@@ -245,11 +239,11 @@ def read_session(folder: Path | str) -> ViewSet:
                             f"({','.join(header[:3])}{',...' if len(header) > 3 else ''})")
         name = _check_image_name(fields[0], where)
         if name in first_line:
-            raise ViewError(f"{where}: image {name!r} is listed twice (first on line "
+            raise ViewError(f"{where}: image {brief(name)} is listed twice (first on line "
                             f"{first_line[name]})")
         first_line[name] = line
         values = _numbers(fields, header, where)
-        path = folder / IMAGES_DIR / name
+        path = confined_path(folder, f"{IMAGES_DIR}/{name}", f"{where}: image")
         if not path.is_file():
             missing.append(name)
         if header == ANGLE_COLUMNS:
@@ -281,7 +275,7 @@ def read_session(folder: Path | str) -> ViewSet:
 
 
 def _some(names: list[str], limit: int = 5) -> str:
-    shown = ", ".join(names[:limit])
+    shown = ", ".join(printable(n) for n in names[:limit])
     return shown + (f" and {len(names) - limit} more" if len(names) > limit else "")
 
 

@@ -15,6 +15,8 @@ import numpy as np
 
 from ..geometry.camera import Camera
 from ..geometry.rig import RigCalibration
+from .errors import ViewError
+from .limits import image_header
 
 __all__ = ["SOURCES", "IMAGE_SUFFIXES", "ViewError", "View", "ViewSet", "read_image", "image_size",
            "as_bounds", "nearest_rotation"]
@@ -28,10 +30,6 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp", ".p
 #: Decode as 8-bit, 3-channel BGR; keep the sensor's pixel grid (no EXIF rotation),
 #: since calibrations refer to it.
 _IMREAD_FLAGS = cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION
-
-
-class ViewError(ValueError):
-    """An input that cannot be read as views; the message is one line naming the file."""
 
 
 @dataclass(frozen=True)
@@ -92,16 +90,21 @@ class ViewSet:
             self.bounds_m = as_bounds(self.bounds_m, what="bounding box")
 
 
-def _decode(path: Path, flags: int) -> np.ndarray:
-    """Decode an image file with cv2 (works for any path encoding); ViewError if impossible."""
+def _decode(path: Path, flags: int, expected_size: tuple[int, int] | None = None) -> np.ndarray:
+    """Decode an image file with cv2 (works for any path encoding); ViewError if impossible.
+
+    The header is checked first (file size, pixel count, ``expected_size``
+    (width, height) when given), so a file that declares a huge or wrong size
+    is refused before anything is decoded.
+    """
     path = Path(path)
-    if not path.exists():
-        raise ViewError(f"image {path} does not exist")
-    if not path.is_file():
-        raise ViewError(f"image {path} is not a file")
+    width, height = image_header(path)
+    if expected_size is not None and (width, height) != tuple(int(v) for v in expected_size):
+        raise ViewError(f"image {path} is {width}x{height} pixels, expected "
+                        f"{int(expected_size[0])}x{int(expected_size[1])} (the camera's size)")
     data = np.fromfile(path, dtype=np.uint8)
     image = cv2.imdecode(data, flags) if data.size else None
-    if image is None:
+    if image is None or image.shape[:2] != (height, width):
         raise ViewError(f"image {path} is not a readable image (empty, corrupt or an "
                         f"unsupported format; expected e.g. {', '.join(IMAGE_SUFFIXES[:4])})")
     return image
@@ -132,18 +135,13 @@ def read_image(path: Path | str, *, expected_size: tuple[int, int] | None = None
     ViewError
         Missing file, a file that is not a readable image, or the wrong size.
     """
-    bgr = _decode(Path(path), _IMREAD_FLAGS)
-    height, width = bgr.shape[:2]
-    if expected_size is not None and (width, height) != tuple(int(v) for v in expected_size):
-        raise ViewError(f"image {path} is {width}x{height} pixels, expected "
-                        f"{int(expected_size[0])}x{int(expected_size[1])} (the camera's size)")
+    bgr = _decode(Path(path), _IMREAD_FLAGS, expected_size)
     return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
 
 
 def image_size(path: Path | str) -> tuple[int, int]:
-    """``(width, height)`` of an image file, pixels; ViewError if it cannot be read."""
-    height, width = _decode(Path(path), cv2.IMREAD_UNCHANGED | cv2.IMREAD_IGNORE_ORIENTATION).shape[:2]
-    return int(width), int(height)
+    """``(width, height)`` of an image file from its header, pixels; ViewError if it cannot be read."""
+    return image_header(Path(path))
 
 
 def as_bounds(value, *, what: str) -> np.ndarray:

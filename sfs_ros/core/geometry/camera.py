@@ -25,7 +25,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Camera"]
+__all__ = ["Camera", "MAX_IMAGE_SIDE_PX", "MAX_INTRINSIC", "MAX_TRANSLATION_M"]
+
+#: Largest image side a camera may have, pixels.
+MAX_IMAGE_SIDE_PX = 65535
+#: Largest magnitude of an intrinsic value (focal length, principal point, skew), pixels.
+MAX_INTRINSIC = 1e9
+#: Largest camera translation, metres: further than any cell or data set puts a camera.
+MAX_TRANSLATION_M = 1e6
 
 
 @dataclass(frozen=True, eq=False)
@@ -68,8 +75,12 @@ class Camera:
                 "camera R is not a rotation (expected orthonormal with det +1)")
         if K[0, 0] <= 0 or K[1, 1] <= 0:
             raise ValueError(f"camera focal lengths must be > 0, got fx={K[0, 0]}, fy={K[1, 1]}")
-        if int(self.width) <= 0 or int(self.height) <= 0:
-            raise ValueError(f"image size must be positive, got {self.width}x{self.height}")
+        if np.abs(K).max() > MAX_INTRINSIC or np.abs(t).max() > MAX_TRANSLATION_M:
+            raise ValueError(f"camera intrinsics beyond {MAX_INTRINSIC:g} pixels or translation "
+                             f"beyond {MAX_TRANSLATION_M:g} m: not a real camera")
+        if not (0 < int(self.width) <= MAX_IMAGE_SIDE_PX and 0 < int(self.height) <= MAX_IMAGE_SIDE_PX):
+            raise ValueError(f"image size must be 1..{MAX_IMAGE_SIDE_PX} pixels a side, got "
+                             f"{self.width}x{self.height}")
         for name, value in (("K", K), ("R", R), ("t", t)):
             value.setflags(write=False)
             object.__setattr__(self, name, value)

@@ -32,11 +32,21 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-from .camera import Camera
+from .camera import MAX_IMAGE_SIDE_PX, Camera
 
 __all__ = ["CONVENTIONS", "RigCalibration", "rig_rotation", "rig_camera"]
 
 CONVENTIONS = ("physical", "paper")
+
+#: Focal length (pinhole, pixels) or scale (orthographic, pixels per metre) accepted.
+_FOCAL_RANGE = (1e-3, 1e9)
+#: Camera distance accepted, metres (|aim point| is bounded by the upper end too).
+_DISTANCE_RANGE_M = (1e-4, 1e4)
+
+
+def _brief(value, limit: int = 60) -> str:
+    text = repr(value)
+    return text if len(text) <= limit else text[:limit - 3] + "..."
 
 
 @dataclass(frozen=True)
@@ -79,31 +89,44 @@ class RigCalibration:
     def __post_init__(self) -> None:
         if self.projection not in ("orthographic", "pinhole"):
             raise ValueError(
-                f"rig projection must be 'orthographic' or 'pinhole', got {self.projection!r}")
+                f"rig projection must be 'orthographic' or 'pinhole', got {_brief(self.projection)}")
         if self.convention not in CONVENTIONS:
-            raise ValueError(f"rig convention must be one of {CONVENTIONS}, got {self.convention!r}")
-        if int(self.width) <= 0 or int(self.height) <= 0:
-            raise ValueError(f"rig image size must be positive, got {self.width}x{self.height}")
-        numbers = [self.fx, self.fy, self.camera_distance_m, self.theta_zero_rad,
-                   self.phi_zero_rad, *self.aim_point_m]
-        numbers += [v for v in (self.cx, self.cy) if v is not None]
-        if not all(math.isfinite(float(v)) for v in numbers):
-            raise ValueError("rig calibration contains NaN or infinity")
-        if self.fx <= 0 or self.fy <= 0:
-            raise ValueError(f"rig fx, fy must be > 0, got {self.fx}, {self.fy}")
-        if self.camera_distance_m <= 0:
-            raise ValueError(f"rig camera_distance_m must be > 0, got {self.camera_distance_m}")
-        if len(self.aim_point_m) != 3:
-            raise ValueError(f"rig aim_point_m must have 3 values, got {len(self.aim_point_m)}")
+            raise ValueError(f"rig convention must be one of {CONVENTIONS}, got "
+                             f"{_brief(self.convention)}")
+        for name in ("width", "height"):
+            value = getattr(self, name)
+            if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) \
+                    or not 0 < value <= MAX_IMAGE_SIDE_PX:
+                raise ValueError(f"rig {name} must be a whole number of pixels in "
+                                 f"1..{MAX_IMAGE_SIDE_PX}, got {_brief(value)}")
+        if not isinstance(self.aim_point_m, (tuple, list, np.ndarray)) or len(self.aim_point_m) != 3:
+            raise ValueError(f"rig aim_point_m must be 3 numbers (x, y, z metres), got "
+                             f"{_brief(self.aim_point_m)}")
+        for name, value, low, high in (
+                ("fx", self.fx, *_FOCAL_RANGE), ("fy", self.fy, *_FOCAL_RANGE),
+                ("cx", self.cx, -MAX_IMAGE_SIDE_PX, 2 * MAX_IMAGE_SIDE_PX),
+                ("cy", self.cy, -MAX_IMAGE_SIDE_PX, 2 * MAX_IMAGE_SIDE_PX),
+                ("camera_distance_m", self.camera_distance_m, *_DISTANCE_RANGE_M),
+                ("theta_zero_rad", self.theta_zero_rad, -2 * math.pi, 2 * math.pi),
+                ("phi_zero_rad", self.phi_zero_rad, -2 * math.pi, 2 * math.pi),
+                *((f"aim_point_m[{i}]", v, -_DISTANCE_RANGE_M[1], _DISTANCE_RANGE_M[1])
+                  for i, v in enumerate(self.aim_point_m))):
+            if value is None and name in ("cx", "cy"):
+                continue
+            if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.number)) \
+                    or not math.isfinite(value) or not low <= value <= high:
+                raise ValueError(f"rig {name} must be a finite number in [{low:g}, {high:g}], "
+                                 f"got {_brief(value)}")
         object.__setattr__(self, "aim_point_m", tuple(float(v) for v in self.aim_point_m))
 
     @classmethod
     def from_dict(cls, values: dict) -> "RigCalibration":
         """Build from a mapping (e.g. parsed YAML); unknown keys are an error."""
         known = {f.name for f in fields(cls)}
-        unknown = sorted(set(values) - known)
+        unknown = sorted(map(str, set(values) - known))
         if unknown:
-            raise ValueError(f"unknown rig calibration keys {unknown}; expected some of {sorted(known)}")
+            raise ValueError(f"unknown rig calibration keys {_brief(unknown)}; expected some of "
+                             f"{sorted(known)}")
         return cls(**values)
 
     def to_dict(self) -> dict:
