@@ -43,10 +43,10 @@ def test_a_failed_rename_removes_the_temporaries_not_yet_renamed(tmp_path, monke
     second.write_bytes(b"old mesh")
     real_replace = os.replace
 
-    def replace_once(src, dst):
-        if os.fspath(dst) == os.fspath(second):
+    def replace_once(src, dst, **dir_fds):
+        if os.path.basename(dst) == second.name:
             raise KeyboardInterrupt
-        real_replace(src, dst)
+        real_replace(src, dst, **dir_fds)
 
     monkeypatch.setattr(files_module.os, "replace", replace_once)
     with pytest.raises(KeyboardInterrupt):
@@ -60,8 +60,8 @@ def test_files_are_renamed_in_the_order_given(tmp_path, monkeypatch):
     order = []
     real_replace = os.replace
     monkeypatch.setattr(files_module.os, "replace",
-                        lambda src, dst: (order.append(os.path.basename(dst)),
-                                          real_replace(src, dst)))
+                        lambda src, dst, **dir_fds: (order.append(os.path.basename(dst)),
+                                                     real_replace(src, dst, **dir_fds)))
     paths = write_atomic_all([(tmp_path / "b", b"2"), (tmp_path / "a", b"1")])
     assert paths == [tmp_path / "b", tmp_path / "a"] and order == ["b", "a"]
 
@@ -70,3 +70,21 @@ def test_a_missing_folder_is_an_error_and_writes_nothing(tmp_path):
     with pytest.raises(FileNotFoundError):
         write_atomic(tmp_path / "missing" / "a.txt", b"x")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_within_creates_folders_and_never_follows_a_link_below_it(tmp_path):
+    root, elsewhere = tmp_path / "out", tmp_path / "elsewhere"
+    root.mkdir()
+    elsewhere.mkdir()
+    assert write_atomic(root / "a" / "b" / "m.ply", b"mesh", within=root).read_bytes() == b"mesh"
+    # A folder swapped for a link after the path was checked: refused, nothing written there.
+    (root / "c").symlink_to(elsewhere, target_is_directory=True)
+    with pytest.raises(OSError):
+        write_atomic(root / "c" / "m.ply", b"mesh", within=root)
+    assert list(elsewhere.iterdir()) == []
+    # A link as the file itself is replaced, not written through.
+    (root / "d.ply").symlink_to(elsewhere / "target.ply")
+    write_atomic(root / "d.ply", b"mesh", within=root)
+    assert not (root / "d.ply").is_symlink() and not (elsewhere / "target.ply").exists()
+    with pytest.raises(ValueError, match="not inside the output folder"):
+        write_atomic(tmp_path / "x.ply", b"mesh", within=root)

@@ -69,8 +69,8 @@ def test_the_report_is_renamed_into_place_before_the_mesh(tmp_path, result, monk
     order = []
     real_replace = os.replace
     monkeypatch.setattr(files_module.os, "replace",
-                        lambda src, dst: (order.append(os.path.basename(dst)),
-                                          real_replace(src, dst)))
+                        lambda src, dst, **dir_fds: (order.append(os.path.basename(dst)),
+                                                     real_replace(src, dst, **dir_fds)))
     write_result(result, tmp_path / "m.ply", preview=tmp_path / "m.png")
     assert order == ["m.png", "m.report.json", "m.ply"]
 

@@ -440,7 +440,8 @@ class LiveReconstruction:
             else self._colour(result, view_set)
         write_result(result, path, vertex_colors=colours, report=report_path,
                      extra={"session": str(self._session)}, preview=preview_path,
-                     html=html_path, contact_sheet=sheet_path, sheet_views=self._sheet_views())
+                     html=html_path, contact_sheet=sheet_path, sheet_views=self._sheet_views(),
+                     within=root)
         self._mesh, self._colours = (result.vertices, result.faces), colours
         mesh, views = result.report["mesh"], result.report["views"]
         mean_iou = result.report["silhouette_iou"]["mean_used"]

@@ -10,12 +10,14 @@
   contact sheet of the views (mask outlines, angles, silhouette IoU, reasons
   for rejection).
 
-Every file is written atomically (:mod:`sfs_ros.core.exchange.files`). The
-pictures go first, the mesh and its report last: both are staged on disk, then
-the report is renamed into place, then the mesh. A reader that finds the new
-mesh therefore finds its report, and the report names only pictures that exist.
-(One that reads the report just between the two renames pairs it with the
-previous mesh; the mesh is the file tools watch, so it is the one that comes last.)
+Every file is written atomically, all in one batch
+(:func:`sfs_ros.core.exchange.files.write_atomic_all`): all are staged on disk
+first, then renamed into place in the order pictures, report, mesh. A reader
+that finds the new mesh therefore finds its report, and the report names only
+pictures that exist; a failure or an interruption before the renames changes
+nothing. (One that reads the report just between the last two renames pairs it
+with the previous mesh; the mesh is the file tools watch, so it comes last.)
+With ``within``, no symbolic link below that folder is followed while writing.
 """
 
 from __future__ import annotations
@@ -26,9 +28,9 @@ from pathlib import Path
 
 from .exchange.export import mesh_bytes
 from .exchange.files import write_atomic_all
-from .pictures.contact_sheet import write_contact_sheet
-from .pictures.html_viewer import write_html_viewer
-from .pictures.preview import preview_image, write_png
+from .pictures.contact_sheet import contact_sheet
+from .pictures.html_viewer import html_viewer
+from .pictures.preview import png_bytes, preview_image
 
 __all__ = ["SheetViews", "WrittenResult", "report_path_for", "write_result"]
 
@@ -80,7 +82,8 @@ def report_path_for(mesh_path) -> Path:
 
 def write_result(result, mesh_path, *, units: str = "m", vertex_colors=None,
                  report=None, extra: dict | None = None, preview=None, html=None,
-                 contact_sheet=None, sheet_views: SheetViews | None = None) -> WrittenResult:
+                 contact_sheet=None, sheet_views: SheetViews | None = None,
+                 within=None) -> WrittenResult:
     """Write a reconstruction's mesh, its report and the pictures asked for.
 
     Parameters
@@ -102,6 +105,9 @@ def write_result(result, mesh_path, *, units: str = "m", vertex_colors=None,
         PNG picture of the mesh, HTML viewer, contact sheet PNG; None: not written.
     sheet_views : SheetViews or None
         The views on the contact sheet; required with ``contact_sheet``.
+    within : path-like or None
+        A folder every file must lie in, written without following links below
+        it (:func:`~sfs_ros.core.exchange.files.write_atomic_all`).
 
     Returns
     -------
@@ -122,35 +128,35 @@ def write_result(result, mesh_path, *, units: str = "m", vertex_colors=None,
     mesh_data = mesh_bytes(result.vertices, result.faces, mesh_path,
                            vertex_colors=vertex_colors, units=units)
     document = {"output": str(mesh_path), "units": units, **(extra or {}), **result.report}
-    written = {}
-    for key, path in (("preview", preview), ("html", html), ("contact_sheet", contact_sheet)):
-        if path is None:
-            continue
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        if key == "preview":
-            write_png(path, preview_image(result.vertices, result.faces,
-                                          vertex_colors=vertex_colors))
-        elif key == "html":
-            write_html_viewer(path, result.vertices, result.faces, vertex_colors=vertex_colors,
-                              title=mesh_path.name)
-        else:
-            _write_sheet(path, result.report, sheet_views)
-        written[key] = path
-        document[key] = str(path)
-    for path in (report_path, mesh_path):
-        path.parent.mkdir(parents=True, exist_ok=True)
-    write_atomic_all([(report_path, json.dumps(document, indent=2).encode("utf-8")),
-                      (mesh_path, mesh_data)])
-    return WrittenResult(mesh=mesh_path, report=report_path, preview=written.get("preview"),
-                         html=written.get("html"), contact_sheet=written.get("contact_sheet"),
+    pictures = {}
+    if preview is not None:
+        pictures["preview"] = (Path(preview), png_bytes(preview_image(
+            result.vertices, result.faces, vertex_colors=vertex_colors)))
+    if html is not None:
+        pictures["html"] = (Path(html), html_viewer(
+            result.vertices, result.faces, vertex_colors=vertex_colors,
+            title=mesh_path.name).encode("utf-8"))
+    if contact_sheet is not None:
+        pictures["contact_sheet"] = (Path(contact_sheet),
+                                     png_bytes(_sheet(result.report, sheet_views)))
+    document.update({key: str(path) for key, (path, _) in pictures.items()})
+    files = [*pictures.values(), (report_path, json.dumps(document, indent=2).encode("utf-8")),
+             (mesh_path, mesh_data)]
+    if within is None:
+        for path, _ in files:
+            path.parent.mkdir(parents=True, exist_ok=True)
+    write_atomic_all(files, within=within)
+    return WrittenResult(mesh=mesh_path, report=report_path,
+                         preview=pictures.get("preview", (None,))[0],
+                         html=pictures.get("html", (None,))[0],
+                         contact_sheet=pictures.get("contact_sheet", (None,))[0],
                          document=document)
 
 
-def _write_sheet(path: Path, report: dict, views: SheetViews) -> None:
+def _sheet(report: dict, views: SheetViews):
     """The contact sheet of ``views`` with the report's silhouette IoU and rejections."""
     iou = {p["view"]: p["silhouette_iou"] for p in report["silhouette_iou"]["per_view"]}
     reasons = {r["view"]: r["reason"] for r in report["views"]["rejected"]} | views.reasons
-    write_contact_sheet(path, views.images, views.masks, views.names, views.angles_rad,
-                        [iou.get(n) for n in views.names],
-                        rejected=[reasons.get(n) for n in views.names])
+    return contact_sheet(views.images, views.masks, views.names, views.angles_rad,
+                         [iou.get(n) for n in views.names],
+                         rejected=[reasons.get(n) for n in views.names])

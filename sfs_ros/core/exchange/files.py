@@ -4,13 +4,18 @@ Each file is written to a temporary beside it (same folder, so the rename stays
 on one file system), flushed and fsynced, then renamed over the final name
 with ``os.replace``. On any failure, KeyboardInterrupt and SystemExit included,
 the temporaries not yet renamed are removed and the old files stay as they were.
+
+With ``within`` (a folder every path must lie in), the folders below it are
+opened one by one without following symbolic links (``O_NOFOLLOW``) and the
+files are created and renamed relative to those open folders: a folder swapped
+for a link after the paths were checked cannot send a write elsewhere.
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
-import tempfile
+import secrets
 from pathlib import Path
 
 __all__ = ["FILE_MODE", "write_atomic", "write_atomic_all"]
@@ -19,20 +24,25 @@ __all__ = ["FILE_MODE", "write_atomic", "write_atomic_all"]
 FILE_MODE = 0o644
 
 
-def write_atomic(path, data: bytes) -> Path:
-    """Write ``data`` to ``path`` atomically (its folder must exist); returns the path."""
-    return write_atomic_all([(path, data)])[0]
+def write_atomic(path, data: bytes, *, within=None) -> Path:
+    """Write ``data`` to ``path`` atomically (its folder must exist, unless ``within`` is
+    given: see :func:`write_atomic_all`); returns the path."""
+    return write_atomic_all([(path, data)], within=within)[0]
 
 
-def write_atomic_all(files) -> list[Path]:
+def write_atomic_all(files, *, within=None) -> list[Path]:
     """Write several files, each atomically, renaming them only once all are on disk.
 
     Parameters
     ----------
     files : iterable of (path-like, bytes-like)
-        Destinations (their folders must exist) and contents. They are renamed
-        into place in this order, so a reader that finds the last one new finds
-        the earlier ones new too.
+        Destinations and contents. They are renamed into place in this order,
+        so a reader that finds the last one new finds the earlier ones new too.
+    within : path-like or None, keyword-only
+        None: each destination's folder must exist. A folder: every destination
+        must lie inside it; missing sub-folders are created, and no symbolic
+        link below it is followed (``ValueError`` for a path outside it,
+        ``OSError`` if a link is met on the way).
 
     Returns
     -------
@@ -40,30 +50,65 @@ def write_atomic_all(files) -> list[Path]:
         The written paths, in order.
     """
     files = [(Path(path), data) for path, data in files]
-    staged: list[tuple[str, Path]] = []
-    try:
-        for path, data in files:
-            staged.append((_stage(path, data), path))
-        while staged:
-            os.replace(*staged[0])
-            staged.pop(0)
-    finally:
-        for tmp, _ in staged:       # (one may be renamed already if interrupted just then)
-            with contextlib.suppress(FileNotFoundError):
-                os.unlink(tmp)
+    with contextlib.ExitStack() as folders:
+        targets = [(_folder_fd(path, within, folders), path.name, data) for path, data in files]
+        staged: list[tuple[int, str, str]] = []    # (folder fd, temporary, final name)
+        try:
+            for fd, name, data in targets:
+                staged.append((fd, _stage(fd, name, data), name))
+            while staged:
+                fd, tmp, name = staged[0]
+                os.replace(tmp, name, src_dir_fd=fd, dst_dir_fd=fd)
+                staged.pop(0)
+        finally:
+            for fd, tmp, _ in staged:   # (one may be renamed already if interrupted just then)
+                with contextlib.suppress(FileNotFoundError):
+                    os.unlink(tmp, dir_fd=fd)
     return [path for path, _ in files]
 
 
-def _stage(path: Path, data) -> str:
-    """Write ``data`` to a new temporary file beside ``path``; returns its name."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+def _folder_fd(path: Path, within, folders: contextlib.ExitStack) -> int:
+    """An open descriptor of ``path``'s folder (closed with ``folders``)."""
+    def opened(fd: int) -> int:
+        folders.callback(os.close, fd)
+        return fd
+
+    if within is None:
+        return opened(os.open(path.parent, os.O_RDONLY | os.O_DIRECTORY))
+    root = Path(within)
     try:
-        os.fchmod(fd, FILE_MODE)
+        parts = path.parent.relative_to(root).parts
+    except ValueError:
+        raise ValueError(f"{path} is not inside the output folder {root}") from None
+    if ".." in parts:
+        raise ValueError(f"{path} leaves the output folder {root} through '..'")
+    fd = opened(os.open(root, os.O_RDONLY | os.O_DIRECTORY))
+    for part in parts:
+        with contextlib.suppress(FileExistsError):
+            os.mkdir(part, dir_fd=fd)
+        fd = opened(os.open(part, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW, dir_fd=fd))
+    return fd
+
+
+def _stage(folder_fd: int, name: str, data) -> str:
+    """Write ``data`` to a new temporary file beside ``name`` in the open folder; its name."""
+    for _ in range(100):
+        tmp = f".{name}.{secrets.token_hex(4)}.tmp"
+        try:
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, FILE_MODE,
+                         dir_fd=folder_fd)
+            break
+        except FileExistsError:
+            continue
+    else:
+        raise FileExistsError(f"no free temporary name beside {name}")
+    try:
+        os.fchmod(fd, FILE_MODE)    # whatever the umask
         with os.fdopen(fd, "wb") as handle:
             handle.write(data)
             handle.flush()
             os.fsync(handle.fileno())
     except BaseException:
-        os.unlink(tmp)
+        os.unlink(tmp, dir_fd=folder_fd)
         raise
     return tmp

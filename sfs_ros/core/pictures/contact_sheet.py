@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 
 from ..exchange.files import write_atomic
+from .preview import png_bytes
 
 __all__ = ["OUTLINE_RGB", "WARNING_RGB", "FRAME_RGB", "BACKGROUND_RGB", "SheetLayout",
            "contact_sheet", "write_contact_sheet"]
@@ -281,10 +282,5 @@ def contact_sheet(images, masks, names, angles_rad, ious, *, rejected=None, colu
 
 def write_contact_sheet(path, images, masks, names, angles_rad, ious, **kw) -> Path:
     """Write :func:`contact_sheet` as a PNG to ``path`` atomically; returns the path."""
-    path = Path(path)
-    ok, data = cv2.imencode(".png", cv2.cvtColor(
-        contact_sheet(images, masks, names, angles_rad, ious, **kw), cv2.COLOR_RGB2BGR))
-    if not ok:
-        raise OSError(f"could not encode the contact sheet {path} as PNG")
-    write_atomic(path, data.tobytes())
-    return path
+    return write_atomic(Path(path), png_bytes(contact_sheet(images, masks, names, angles_rad,
+                                                            ious, **kw)))

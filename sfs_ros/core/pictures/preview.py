@@ -12,7 +12,7 @@ from ..render import render_image
 from ..exchange.files import write_atomic
 from ..geometry.rig import RigCalibration, rig_camera
 
-__all__ = ["PREVIEW_VIEWS_DEG", "preview_image", "write_png"]
+__all__ = ["PREVIEW_VIEWS_DEG", "png_bytes", "preview_image", "write_png"]
 
 #: (theta, phi) in degrees of the preview panels: three around, one from above.
 PREVIEW_VIEWS_DEG = ((30.0, 20.0), (150.0, 20.0), (270.0, 20.0), (0.0, 89.0))
@@ -43,13 +43,17 @@ def preview_image(vertices: np.ndarray, faces: np.ndarray, *, size_px: int = 360
     return np.hstack(panels)
 
 
-def write_png(path, image_rgb: np.ndarray) -> Path:
-    """Write an RGB (H, W, 3) or grey (H, W) uint8 image as PNG, atomically; returns the path."""
-    path = Path(path)
+def png_bytes(image_rgb: np.ndarray) -> bytes:
+    """An RGB (H, W, 3) or grey (H, W) uint8 image encoded as PNG."""
     image = np.asarray(image_rgb)
     if image.ndim == 3:
         image = cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
     ok, data = cv2.imencode(".png", image)
     if not ok:
-        raise OSError(f"could not encode image {path} as PNG")
-    return write_atomic(path, data)
+        raise OSError(f"could not encode a {image.shape} {image.dtype} image as PNG")
+    return data.tobytes()
+
+
+def write_png(path, image_rgb: np.ndarray) -> Path:
+    """Write an RGB (H, W, 3) or grey (H, W) uint8 image as PNG, atomically; returns the path."""
+    return write_atomic(Path(path), png_bytes(image_rgb))
