@@ -262,6 +262,20 @@ def test_a_bag_cut_anywhere_keeps_every_whole_view_before_the_cut(tmp_path, view
         assert all("capture/mask_joint_state" in why for _, why in view_set.rejected)
 
 
+def test_a_bag_cut_inside_its_closing_summary_reads_every_view(tmp_path, views, caplog):
+    sizes, messages = _scan_bag(tmp_path / "bag", views)
+    data = (tmp_path / "bag" / "bag.mcap").read_bytes()
+    whole = read_bag(tmp_path / "bag")
+    # Every message is on disk by sizes[-1]; what follows is the data end and the summary.
+    for n, cut in enumerate(sorted({sizes[-1] + 40, (sizes[-1] + len(data)) // 2,
+                                    len(data) - 9})):
+        cut_file = tmp_path / f"summary_cut_{n}.mcap"
+        cut_file.write_bytes(data[:cut])
+        with caplog.at_level(logging.WARNING):
+            view_set = read_bag(cut_file)
+        assert [v.name for v in view_set.views] == [v.name for v in whole.views], cut
+
+
 _KILLED_WRITER = """
 import os, signal, sys
 sys.path.insert(0, {test_dir!r})

@@ -133,11 +133,13 @@ def open_bag(path) -> Bag:
     else:
         return Bag(path, files[0], topics, counts, reader=target)
     records = McapRecords(files[0])
-    if not records.problem:
-        raise ViewError(f"cannot read bag {path}: {error}")
     if records.profile != "ros2":
         raise ViewError(f"{files[0]} has MCAP profile {records.profile!r}, expected 'ros2'")
-    _log.warning(f"bag {path}: {records.problem}")
+    # Whole data but an unreadable summary or metadata.yaml (cut inside it, or damaged):
+    # the records hold every message, so read those, as for a file cut earlier.
+    problem = records.problem or (f"it cannot be read as a closed bag ({error}); the "
+                                  f"records of {files[0].name} are whole and read instead")
+    _log.warning(f"bag {path}: {problem}")
     counts: dict[str, int] = {}
     for channel_id, _, _ in records.messages:
         topic = records.channels.get(channel_id, ("",))[0]

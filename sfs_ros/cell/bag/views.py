@@ -96,9 +96,13 @@ class _Views:
 
     def __init__(self, bag: Bag, document: dict, pair: tuple[str, str], folder: Path, *,
                  captures: bool = False):
-        session, recon = document["session"], document["reconstruction"]
-        nodes = document.get("nodes", {})
         try:
+            session, recon = document["session"], document["reconstruction"]
+            nodes = document.get("nodes", {})
+            scan = nodes.get("scan", {})
+            self.resets = scan.get("reset_reconstruction", True)
+            if not isinstance(self.resets, bool):
+                raise TypeError(f"scan reset_reconstruction is {self.resets!r}, not a bool")
             calibration = RigCalibration.from_dict(session["rig"])
             self.segmentation = None
             if pair[0] == "capture/image" and not captures:
@@ -107,13 +111,13 @@ class _Views:
             self.live = LiveReconstruction(calibration, session["bounds_m"], output_dir=folder,
                                            resolution=recon["resolution"],
                                            mesher=recon["mesher"])
-        except (KeyError, TypeError, ValueError) as exc:
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+            # Recorded parameters of the wrong shape (not mappings where mappings belong).
             raise ViewError(f"bag {bag.path}: the recorded parameters cannot be used: "
-                            f"{type(exc).__name__}: {exc}") from None
+                            f"{type(exc).__name__}: {str(exc)[:200]}") from None
         if self.segmentation is not None and session.get("segmentation") is None:
             _log.warning(f"bag {bag.path}: no recorded segmentation parameters; segmenting the "
                          "captures with the defaults")
-        self.resets = nodes.get("scan", {}).get("reset_reconstruction", True)
         self.pair = pair
         self.waiting: dict[str, dict] = {pair[0]: {}, pair[1]: {}}   # stamp -> half
         self.bad: set = set()                                         # stamps given up
