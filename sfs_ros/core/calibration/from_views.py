@@ -43,8 +43,8 @@ def calibrate_views(views: ViewSet, board: BoardSpec, *, min_corners: int = 8,
         else:
             detections.append((view.name, view.theta_rad, view.phi_rad, found))
     if not detections:
+        name, reason = rejected[len(views.rejected)]
         raise ValueError(f"the board ({board.squares_x}x{board.squares_y} squares, "
                          f"{board.dictionary}) was found in none of the {len(views.views)} "
-                         f"images (first: {rejected[-1][0]}: {rejected[-1][1]}); check the "
-                         "board definition")
+                         f"images (first: {name}: {reason}); check the board definition")
     return calibrate_rig(detections, board, rig, rejected=rejected, **options)

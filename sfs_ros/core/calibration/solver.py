@@ -61,7 +61,7 @@ class RigFit:
     Attributes
     ----------
     rig : RigCalibration
-        The calibrated rig (``convention="physical"``, pinhole).
+        The calibrated rig (pinhole, ``physical``, ``axis_tilt_x_rad = 0``).
     board : BoardPose
         The board's pose on the turntable.
     rms_px : float
@@ -259,7 +259,9 @@ def calibrate_rig(detections: list[tuple[str, float, float, Detection]], board: 
 
     check_count()
     points = board.object_points
-    nominal = replace(nominal, axis_tilt_x_rad=0.0)
+    # The start in the solver's gauge (a tilt about lab X is a carriage zero, see .model).
+    nominal = replace(nominal, axis_tilt_x_rad=0.0,
+                      phi_zero_rad=nominal.phi_zero_rad - nominal.axis_tilt_x_rad)
     free = np.array([p != "k3" or radial_terms == 3 for p in PARAMETERS])
     template = _start(views, points, nominal, radial_terms)
     x = _solve(template[free], free, template, nominal, views, points, "soft_l1").x

@@ -31,10 +31,12 @@ Kinematic chain (``physical`` convention), object point ``X`` -> camera point::
 5. the lens maps the camera point to pixels through ``K`` and the OpenCV
    ``plumb_bob`` distortion ``(k1, k2, p1, p2, k3)`` (:mod:`.camera`).
 
-A tilt of the turntable axis about lab X cannot be told apart from the carriage
-encoder zero (``T(phi) Rx(a) = T(phi + a)``), and an offset of the camera on its
-carriage from the C-arm centre, radius and encoder zero: a calibration from
-images fixes the first at zero and has no field for the second.
+Two things images cannot tell apart from others: a tilt of the turntable axis
+about lab X is a change of the carriage zero (``T(phi) Rx(a) = T(phi + a)``), so
+a calibration holds ``axis_tilt_x_rad`` at 0; an offset of the camera on its
+carriage is a shift of the C-arm centre (across the arc), the carriage zero
+with a mounting pitch (along it) or the radius (along the view), so the rig has
+no field for it (:mod:`sfs_ros.core.calibration.model`).
 
 Conventions
 -----------

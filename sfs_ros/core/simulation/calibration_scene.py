@@ -31,22 +31,22 @@ __all__ = ["BoardScene", "nominal_rig", "wrong_rig", "true_board_pose", "render_
 DEG = math.pi / 180
 _BACKDROP = 90           # grey level around the board
 _MARGIN_M = 0.01         # white margin of the printed board, metres
-_PIXELS_PER_M = 8000.0   # resolution of the board's picture (2.5 x finer than the samples)
+_PIXELS_PER_M = 8000.0   # resolution of the board's picture (>= 2 x finer than the samples)
 
 
 def nominal_rig() -> RigCalibration:
-    """The rig as measured by hand: 640 x 480, ideal lens and axes, 0.6 m radius."""
-    return RigCalibration(width=640, height=480, projection="pinhole", fx=1400.0, fy=1400.0,
-                          camera_distance_m=0.6, aim_point_m=(0.0, 0.0, 0.08))
+    """The rig as measured by hand: 640 x 480, a 45 degree lens, ideal axes, 0.35 m radius."""
+    return RigCalibration(width=640, height=480, projection="pinhole", fx=800.0, fy=800.0,
+                          camera_distance_m=0.35, aim_point_m=(0.0, 0.0, 0.08))
 
 
 def wrong_rig() -> RigCalibration:
     """The true rig: the nominal one with every error the calibration must find."""
     return RigCalibration(
-        width=640, height=480, projection="pinhole", fx=1412.0, fy=1417.0, cx=324.5, cy=236.0,
-        camera_distance_m=0.588, aim_point_m=(0.0, 0.0, 0.08),
+        width=640, height=480, projection="pinhole", fx=806.0, fy=809.0, cx=324.5, cy=236.0,
+        camera_distance_m=0.343, aim_point_m=(0.0, 0.0, 0.08),
         theta_zero_rad=1.7 * DEG, phi_zero_rad=-1.2 * DEG,
-        distortion=(-0.24, 0.11, 0.0012, -0.0008, 0.0),
+        distortion=(-0.18, 0.08, 0.0012, -0.0008, 0.0),
         axis_point_m=(0.0031, -0.0024), axis_tilt_x_rad=0.4 * DEG, axis_tilt_y_rad=-0.6 * DEG,
         mount_rotation_rad=(0.6 * DEG, -0.8 * DEG, 0.5 * DEG))
 
@@ -131,7 +131,7 @@ class BoardScene:
     pose: BoardPose
 
 
-def board_scene(*, thetas_deg=(-60, -40, -20, 0, 20, 40, 60), phis_deg=(0, 20, 40),
+def board_scene(*, thetas_deg=(-60, -40, -20, 0, 20, 40, 60), phis_deg=(0, 20, 40, 60),
                 board: BoardSpec | None = None, seed: int = 0) -> BoardScene:
     """Photographs of the board through :func:`wrong_rig` at every (theta, phi) pair, degrees
     (true axis angles)."""
