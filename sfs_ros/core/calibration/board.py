@@ -79,8 +79,8 @@ class BoardSpec:
         margin_px + y * pixels_per_m - 0.5)`` (integer values at pixel centres).
         """
         width_m, height_m = self.size_m
-        size = (int(round(width_m * pixels_per_m)) + 2 * margin_px,
-                int(round(height_m * pixels_per_m)) + 2 * margin_px)
+        size = (round(width_m * pixels_per_m) + 2 * margin_px,
+                round(height_m * pixels_per_m) + 2 * margin_px)
         return self.cv_board.generateImage(size, marginSize=margin_px, borderBits=1)
 
 

@@ -271,9 +271,9 @@ def calibrate_rig(detections: list[tuple[str, float, float, Detection]], board: 
         worst = int(np.argmax(rms))
         if rms[worst] <= max_view_rms_px:
             break
-        rejected.append((views[worst].name, f"reprojection error {rms[worst]:.2f} px RMS after "
-                         f"the fit exceeds {max_view_rms_px} px (wrong angles or a moved "
-                         "board?)"))
+        reason = (f"reprojection error {rms[worst]:.2f} px RMS after the fit exceeds "
+                  f"{max_view_rms_px} px (wrong angles or a moved board?)")
+        rejected.append((views[worst].name, reason))
         del views[worst]
         check_count()
         x = result.x

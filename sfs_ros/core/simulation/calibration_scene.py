@@ -85,7 +85,7 @@ def render_board(board: BoardSpec, pose: BoardPose, camera: Camera, *, supersamp
 
 
 def _picture(board: BoardSpec) -> np.ndarray:
-    return board.image(_PIXELS_PER_M, margin_px=int(round(_MARGIN_M * _PIXELS_PER_M)))
+    return board.image(_PIXELS_PER_M, margin_px=round(_MARGIN_M * _PIXELS_PER_M))
 
 
 def _render(picture: np.ndarray, rays: np.ndarray, pose: BoardPose, camera: Camera,
