@@ -196,3 +196,13 @@ def test_too_few_views_after_rejection_name_the_rejected(scene):
 def test_bad_board_definitions_are_refused(spec, message):
     with pytest.raises(ValueError, match=message):
         BoardSpec(**spec)
+
+
+def test_views_at_one_turntable_angle_cannot_place_the_axis():
+    # Without turning the table, moving the axis is moving the board: a rank-deficient fit
+    # must say so instead of returning a wandering axis.
+    scene = board_scene(thetas_deg=(0,), phis_deg=(0, 10, 20, 30, 40, 50, 60))
+    detections = [(f"v{i}", *angles, detect_board(image, scene.board)[0])
+                  for i, (image, angles) in enumerate(zip(scene.images, scene.angles))]
+    with pytest.raises(ValueError, match="cannot tell .*axis_.*: spread the turntable"):
+        calibrate_rig(detections, scene.board, nominal_rig())
