@@ -2,9 +2,11 @@
 
 import math
 
+import cv2
 import numpy as np
 import pytest
 
+from sfs_ros.core.geometry.camera import Camera
 from sfs_ros.core.geometry.rig import RigCalibration, rig_camera, rig_rotation
 
 DEG = math.pi / 180
@@ -157,7 +159,6 @@ def test_mount_rotation_turns_the_camera_in_place():
 
 
 def test_distortion_projects_as_opencv():
-    import cv2
     calib = RigCalibration(**REAL, distortion=(-0.2, 0.1, 0.001, -0.002, 0.01),
                            mount_rotation_rad=(0.01, 0.0, -0.01))
     cam = rig_camera(0.2, 0.5, calib)
@@ -185,3 +186,11 @@ def test_real_rig_fields_round_trip():
     calib = RigCalibration(**REAL, distortion=(-0.2, 0.1, 0.0, 0.0, 0.0), axis_point_m=(1e-3, 0),
                            axis_tilt_y_rad=0.01, mount_rotation_rad=(0.0, 0.01, 0.0))
     assert RigCalibration.from_dict(calib.to_dict()) == calib
+
+
+def test_camera_distortion_is_checked():
+    with pytest.raises(ValueError, match="5 finite values"):
+        Camera(K=np.eye(3), R=np.eye(3), t=np.zeros(3), width=4, height=4, distortion=(0.1, 0.2))
+    with pytest.raises(ValueError, match="orthographic camera cannot carry lens distortion"):
+        Camera(K=np.eye(3), R=np.eye(3), t=np.zeros(3), width=4, height=4, orthographic=True,
+               distortion=(0.1, 0, 0, 0, 0))

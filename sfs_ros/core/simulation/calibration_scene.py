@@ -25,13 +25,13 @@ from ..calibration.model import BoardPose
 from ..geometry.camera import Camera
 from ..geometry.rig import RigCalibration, rig_camera
 
-__all__ = ["BoardScene", "nominal_rig", "wrong_rig", "true_board_pose", "render_board",
-           "board_scene"]
+__all__ = ["BoardScene", "board_scene", "nominal_rig", "true_board_pose", "wrong_rig"]
 
 DEG = math.pi / 180
 _BACKDROP = 90           # grey level around the board
 _MARGIN_M = 0.01         # white margin of the printed board, metres
 _PIXELS_PER_M = 8000.0   # resolution of the board's picture (>= 2 x finer than the samples)
+_SUPERSAMPLE = 2         # samples per pixel along each axis
 
 
 def nominal_rig() -> RigCalibration:
@@ -52,7 +52,7 @@ def wrong_rig() -> RigCalibration:
 
 
 def true_board_pose(board: BoardSpec) -> BoardPose:
-    """The board standing on the plate, centred near the axis, leaning back 25 degrees."""
+    """The board standing on the plate beside the axis, leaning back 25 degrees."""
     pose = BoardPose(tilt_x_rad=-25 * DEG, tilt_y_rad=1.5 * DEG, offset_m=(0.0, 0.0, 0.0))
     width_m, height_m = board.size_m
     # Its centre 35 mm right of and 2 mm in front of the axis (so it swings across the
@@ -74,22 +74,14 @@ def _sample_rays(camera: Camera, supersample: int) -> np.ndarray:
     return np.concatenate([xy, np.ones(xy.shape[:2] + (1,))], axis=-1)
 
 
-def render_board(board: BoardSpec, pose: BoardPose, camera: Camera, *, supersample: int = 2,
-                 noise: float = 2.0, rng: np.random.Generator | None = None) -> np.ndarray:
-    """(H, W, 3) uint8 RGB image of the board at ``pose`` through ``camera`` and its lens.
-
-    ``noise`` is the standard deviation of added Gaussian noise, grey levels.
-    """
-    rng = np.random.default_rng(0) if rng is None else rng
-    return _render(_picture(board), _sample_rays(camera, supersample), pose, camera, noise, rng)
-
-
 def _picture(board: BoardSpec) -> np.ndarray:
     return board.image(_PIXELS_PER_M, margin_px=round(_MARGIN_M * _PIXELS_PER_M))
 
 
 def _render(picture: np.ndarray, rays: np.ndarray, pose: BoardPose, camera: Camera,
             noise: float, rng: np.random.Generator) -> np.ndarray:
+    """(H, W, 3) uint8 RGB image of the board's ``picture`` at ``pose`` seen along ``rays``
+    (:func:`_sample_rays` of ``camera``), with Gaussian noise of ``noise`` grey levels."""
     to_cam = camera.R @ pose.rotation                        # board -> camera rotation
     origin = camera.R @ np.asarray(pose.offset_m) + camera.t  # board origin, camera frame
     normal = to_cam[:, 2]
@@ -132,19 +124,20 @@ class BoardScene:
 
 
 def board_scene(*, thetas_deg=(-60, -40, -20, 0, 20, 40, 60), phis_deg=(0, 20, 40, 60),
-                board: BoardSpec | None = None, seed: int = 0) -> BoardScene:
+                board: BoardSpec | None = None, noise: float = 2.0,
+                seed: int = 0) -> BoardScene:
     """Photographs of the board through :func:`wrong_rig` at every (theta, phi) pair, degrees
-    (true axis angles)."""
+    (true axis angles), with Gaussian noise of ``noise`` grey levels (generator ``seed``)."""
     board = BoardSpec() if board is None else board
     rig, pose = wrong_rig(), true_board_pose(board)
     rng = np.random.default_rng(seed)
     picture = _picture(board)
-    rays = _sample_rays(rig_camera(0.0, 0.0, rig), 2)   # the lens is the same in every view
+    rays = _sample_rays(rig_camera(0.0, 0.0, rig), _SUPERSAMPLE)   # one lens for every view
     images, angles = [], []
     for phi in phis_deg:
         for theta in thetas_deg:
             reading = (theta * DEG + rig.theta_zero_rad, phi * DEG + rig.phi_zero_rad)
             camera = rig_camera(*reading, rig)
-            images.append(_render(picture, rays, pose, camera, 2.0, rng))
+            images.append(_render(picture, rays, pose, camera, noise, rng))
             angles.append(reading)
     return BoardScene(images=images, angles=angles, rig=rig, board=board, pose=pose)
