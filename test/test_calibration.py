@@ -206,3 +206,18 @@ def test_views_at_one_turntable_angle_cannot_place_the_axis():
                   for i, (image, angles) in enumerate(zip(scene.images, scene.angles))]
     with pytest.raises(ValueError, match="cannot tell .*axis_.*: spread the turntable"):
         calibrate_rig(detections, scene.board, nominal_rig())
+
+
+def test_three_radial_terms_fit_k3_and_report_it(scene):
+    # Half the views (phi 0 and 40 degrees) keep this second fit short.
+    views = [i for i, (_, phi) in enumerate(scene.angles)
+             if round((phi - scene.rig.phi_zero_rad) / DEG) in (0, 40)]
+    detections = [(f"v{i}", *scene.angles[i], detect_board(scene.images[i], scene.board)[0])
+                  for i in views]
+    fit = calibrate_rig(detections, scene.board, nominal_rig(), radial_terms=3)
+    assert "k3" in fit.uncertainty and "k3" not in fit.fixed
+    assert fit.rms_px < RMS_PX and not fit.rejected
+    assert fit.rig.fx == pytest.approx(canonical(scene.rig, scene.pose)[0].fx,
+                                       rel=INTRINSICS_REL)
+    # The true lens has k3 = 0; a free k3 must find it within its stated uncertainty.
+    assert abs(fit.rig.distortion[4]) < 4 * fit.uncertainty["k3"]

@@ -42,7 +42,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("input", type=Path, help="session folder of board photographs with angles")
     p.add_argument("-o", "--output", type=Path, required=True, metavar="OUTDIR",
                    help="folder for rig.yaml, camera_info.yaml and calibration_report.yaml")
-    p.add_argument("--board", type=_squares, default=(board.squares_x, board.squares_y),
+    p.add_argument("--board", type=_squares, default=f"{board.squares_x}x{board.squares_y}",
                    metavar="XxY", help="chessboard squares, columns x rows (default %(default)s)")
     p.add_argument("--square-m", type=float, default=board.square_m,
                    help="square side, metres (default %(default)s)")

@@ -28,7 +28,7 @@ import cv2
 import numpy as np
 from scipy.optimize import least_squares
 
-from ..geometry.rig import RigCalibration, rig_camera
+from ..geometry.rig import RigCalibration, rig_camera, rotation_from_vector
 from .board import BoardSpec, Detection
 from .model import STANDING, BoardPose, euler_zyx
 
@@ -139,7 +139,7 @@ def _start(views: list[_View], points: np.ndarray, nominal: RigCalibration,
     img = [v.detection.pixels.astype(np.float32) for v in views]
     _, K, D, rvecs, tvecs = cv2.calibrateCamera(obj, img, size, nominal.K.copy(), None,
                                                 flags=flags | cv2.CALIB_USE_INTRINSIC_GUESS)
-    rig = replace(nominal, fx=K[0, 0], fy=K[1, 1], cx=K[0, 2], cy=K[1, 2], convention="physical")
+    rig = replace(nominal, fx=K[0, 0], fy=K[1, 1], cx=K[0, 2], cy=K[1, 2])
     rotations, offsets = [], []
     for view, rvec, tvec in zip(views, rvecs, tvecs):
         cam = rig_camera(view.theta_rad, view.phi_rad, rig)
@@ -150,9 +150,7 @@ def _start(views: list[_View], points: np.ndarray, nominal: RigCalibration,
     rotation = u @ vt
     yaw, tilt_y, tilt_x = euler_zyx(rotation @ STANDING.T)
     # A board yaw is a turntable zero: move it there (module docstring of .model).
-    offset = np.median(offsets, axis=0)
-    offset = np.array([[math.cos(yaw), math.sin(yaw), 0.0], [-math.sin(yaw), math.cos(yaw), 0.0],
-                       [0.0, 0.0, 1.0]]) @ offset
+    offset = rotation_from_vector([0.0, 0.0, -yaw]) @ np.median(offsets, axis=0)
     d = D.ravel()
     return np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2], d[0], d[1], d[2], d[3],
                      d[4] if radial_terms == 3 else 0.0,
