@@ -39,6 +39,7 @@ setup(
             "sfs-demo = sfs_ros.cli.demo:main",
             "sfs-simulate = sfs_ros.cli.simulate:main",
             "sfs-export = sfs_ros.cli.export:main",
+            "sfs-calibrate = sfs_ros.cli.calibrate:main",
             "sfs-cell = sfs_ros.cli.cell:main",
             "sfs-camera = sfs_ros.nodes.camera_node:main",
             "sfs-scan = sfs_ros.nodes.scan_node:main",

@@ -122,6 +122,15 @@ def test_pinhole_camera_info_projects_like_the_camera():
     points = np.array([[0.01, -0.02, 0.5], [-0.05, 0.03, 0.8]])   # camera frame = world here
     h = np.c_[points, np.ones(2)] @ P.T
     np.testing.assert_allclose(h[:, :2] / h[:, 2:], camera.project(points), atol=1e-9)
+    assert list(info.d) == [0.0] * 5
+
+
+def test_camera_info_carries_the_lens_distortion():
+    D = (-0.2, 0.05, 0.001, -0.002, 0.0)
+    camera = Camera(K=np.diag([700.0, 700.0, 1.0]), R=np.eye(3), t=np.zeros(3), width=320,
+                    height=240, distortion=D)
+    info = _wire(camera_info(camera, stamp=STAMP, frame_id="c"))
+    assert info.distortion_model == "plumb_bob" and list(info.d) == list(D)
 
 
 def test_orthographic_camera_info_is_affine():

@@ -2,9 +2,11 @@
 
 import math
 
+import cv2
 import numpy as np
 import pytest
 
+from sfs_ros.core.geometry.camera import Camera
 from sfs_ros.core.geometry.rig import RigCalibration, rig_camera, rig_rotation
 
 DEG = math.pi / 180
@@ -113,3 +115,82 @@ def test_calibration_round_trips_and_refuses_unknown_keys():
         RigCalibration.from_dict({"focal": 3})
     with pytest.raises(ValueError, match="projection"):
         RigCalibration(projection="fisheye")
+
+
+# ---------------------------------------------------------------- the real rig's chain
+
+REAL = dict(projection="pinhole", width=640, height=480, fx=1400.0, fy=1400.0,
+            aim_point_m=(0.0, 0.0, 0.08), camera_distance_m=0.6)
+
+
+def test_default_rig_camera_is_bit_for_bit_the_ideal_formula():
+    calib = RigCalibration(**REAL)
+    for theta, phi in [(0.3, 0.4), (-2.0, 1.2), (5.0, -0.3)]:
+        cam = rig_camera(theta, phi, calib)
+        tilt = rig_rotation(0.0, phi)
+        assert np.array_equal(cam.R, rig_rotation(theta, phi))
+        assert np.array_equal(cam.t, np.array([0.0, 0.0, 0.6]) - tilt @ np.array([0, 0, 0.08]))
+        assert not np.any(cam.distortion)
+
+
+def test_offset_tilted_axis_is_fixed_while_the_turntable_turns():
+    calib = RigCalibration(**REAL, axis_point_m=(0.003, -0.002), axis_tilt_x_rad=0.01,
+                           axis_tilt_y_rad=-0.02)
+    axis = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.1]])      # two points on the object's Z axis
+    seen = [rig_camera(theta, 0.3, calib).to_camera_frame(axis) for theta in (0.0, 1.0, 2.5)]
+    for other in seen[1:]:
+        np.testing.assert_allclose(other, seen[0], atol=1e-15)
+    # Back in the lab frame: the object origin is the axis point, in the plane z = 0, and the
+    # axis direction is Rx(0.01) Ry(-0.02) e_z.
+    lab_to_cam = rig_rotation(0.0, 0.3)
+    origin_lab = lab_to_cam.T @ (seen[0][0] - [0.0, 0.0, 0.6]) + [0.0, 0.0, 0.08]
+    np.testing.assert_allclose(origin_lab, [0.003, -0.002, 0.0], atol=1e-15)
+    up = lab_to_cam.T @ (seen[0][1] - seen[0][0]) / 0.1
+    np.testing.assert_allclose(up, [math.sin(-0.02), -math.sin(0.01) * math.cos(-0.02),
+                                    math.cos(0.01) * math.cos(-0.02)], atol=1e-14)
+
+
+def test_mount_rotation_turns_the_camera_in_place():
+    calib = RigCalibration(**REAL)
+    turned = RigCalibration(**REAL, mount_rotation_rad=(0.01, -0.02, 0.03))
+    ideal, real = rig_camera(0.4, 0.7, calib), rig_camera(0.4, 0.7, turned)
+    np.testing.assert_allclose(real.center, ideal.center, atol=1e-15)
+    assert np.degrees(np.arccos(np.clip(ideal.forward @ real.forward, -1, 1))) > 1.0
+
+
+def test_distortion_projects_as_opencv():
+    calib = RigCalibration(**REAL, distortion=(-0.2, 0.1, 0.001, -0.002, 0.01),
+                           mount_rotation_rad=(0.01, 0.0, -0.01))
+    cam = rig_camera(0.2, 0.5, calib)
+    points = np.random.default_rng(1).uniform(-0.1, 0.1, size=(30, 3))
+    expected = cv2.projectPoints(points, cv2.Rodrigues(cam.R)[0], cam.t, cam.K,
+                                 cam.distortion)[0].reshape(-1, 2)
+    # Both evaluate the same polynomial in float64: rounding only.
+    np.testing.assert_allclose(cam.project_distorted(points), expected, atol=1e-9)
+    assert np.abs(cam.project(points) - expected).max() > 0.5   # the ideal pinhole differs
+
+
+@pytest.mark.parametrize("values, message", [
+    (dict(distortion=(0.1, 0.0)), "distortion must be 5 numbers"),
+    (dict(axis_point_m=(0.0, 0.0, 0.0)), "axis_point_m must be 2 numbers"),
+    (dict(projection="orthographic", distortion=(0.1, 0, 0, 0, 0)), "needs the pinhole"),
+    (dict(convention="paper", axis_tilt_y_rad=0.01), "need the 'physical' convention"),
+    (dict(mount_rotation_rad=(0.0, float("nan"), 0.0)), r"mount_rotation_rad\[1\] must be a finite"),
+])
+def test_real_rig_fields_are_checked(values, message):
+    with pytest.raises(ValueError, match=message):
+        RigCalibration(**{**REAL, **values})
+
+
+def test_real_rig_fields_round_trip():
+    calib = RigCalibration(**REAL, distortion=(-0.2, 0.1, 0.0, 0.0, 0.0), axis_point_m=(1e-3, 0),
+                           axis_tilt_y_rad=0.01, mount_rotation_rad=(0.0, 0.01, 0.0))
+    assert RigCalibration.from_dict(calib.to_dict()) == calib
+
+
+def test_camera_distortion_is_checked():
+    with pytest.raises(ValueError, match="5 finite values"):
+        Camera(K=np.eye(3), R=np.eye(3), t=np.zeros(3), width=4, height=4, distortion=(0.1, 0.2))
+    with pytest.raises(ValueError, match="orthographic camera cannot carry lens distortion"):
+        Camera(K=np.eye(3), R=np.eye(3), t=np.zeros(3), width=4, height=4, orthographic=True,
+               distortion=(0.1, 0, 0, 0, 0))

@@ -93,7 +93,7 @@ def camera_info(camera: Camera, *, stamp, frame_id: str) -> CameraInfo:
     """``sensor_msgs/CameraInfo`` of a core :class:`Camera` (its intrinsics only).
 
     ``frame_id`` names the camera's optical frame; the pose ``R``, ``t``
-    belongs in tf, not here. No distortion (``plumb_bob``, D = 0), R = I.
+    belongs in tf, not here. ``plumb_bob`` with the camera's distortion, R = I.
 
     * pinhole: ``K`` = camera.K, ``P = [K | 0]`` (the standard monocular form);
     * orthographic (not a model CameraInfo knows): ``K`` = camera.K with
@@ -111,7 +111,8 @@ def camera_info(camera: Camera, *, stamp, frame_id: str) -> CameraInfo:
     else:
         P = np.hstack([K, np.zeros((3, 1))])
     return CameraInfo(header=header(stamp=stamp, frame_id=frame_id), height=camera.height,
-                      width=camera.width, distortion_model="plumb_bob", d=[0.0] * 5,
+                      width=camera.width, distortion_model="plumb_bob",
+                      d=[float(v) for v in camera.distortion],
                       k=K.ravel(), r=np.eye(3).ravel(), p=P.ravel())
 
 

@@ -38,22 +38,37 @@ RIG_PARAMS: list[Param] = [
           "radians.", read_only=True),
     Param("convention", _RIG.convention, "Angle convention of the rig.", choices=CONVENTIONS,
           read_only=True),
+    Param("distortion", list(_RIG.distortion), "Lens distortion [k1, k2, p1, p2, k3] "
+          "(OpenCV plumb_bob), pinhole only.", read_only=True, constraints="five values"),
+    Param("axis_point_m", list(_RIG.axis_point_m), "Where the turntable axis crosses the lab "
+          "plane z = 0, [x, y], metres.", read_only=True, constraints="two values"),
+    Param("axis_tilt_x_rad", _RIG.axis_tilt_x_rad, "Tilt of the turntable axis about lab X, "
+          "radians.", bounds=(-0.5, 0.5), read_only=True),
+    Param("axis_tilt_y_rad", _RIG.axis_tilt_y_rad, "Tilt of the turntable axis about lab Y, "
+          "radians.", bounds=(-0.5, 0.5), read_only=True),
+    Param("mount_rotation_rad", list(_RIG.mount_rotation_rad), "Rotation vector of the camera "
+          "on its carriage, radians.", read_only=True, constraints="three values"),
 ]
 
 
 def rig_calibration(values: dict) -> RigCalibration:
     """:class:`RigCalibration` from the values of :data:`RIG_PARAMS`; :class:`ParameterError`."""
-    aim = values["aim_point_m"]
-    if len(aim) != 3:
-        raise ParameterError("aim_point_m", f"got {aim!r}, expected three values [x, y, z]")
+    for name, size in (("aim_point_m", 3), ("distortion", 5), ("axis_point_m", 2),
+                       ("mount_rotation_rad", 3)):
+        if len(values[name]) != size:
+            raise ParameterError(name, f"got {values[name]!r}, expected {size} values")
     try:
         return RigCalibration(
             width=values["width"], height=values["height"], projection=values["projection"],
             fx=values["fx"], fy=values["fy"],
             cx=None if values["cx"] < 0 else values["cx"],
             cy=None if values["cy"] < 0 else values["cy"],
-            camera_distance_m=values["camera_distance_m"], aim_point_m=tuple(aim),
+            camera_distance_m=values["camera_distance_m"],
+            aim_point_m=tuple(values["aim_point_m"]),
             theta_zero_rad=values["theta_zero_rad"], phi_zero_rad=values["phi_zero_rad"],
-            convention=values["convention"])
+            convention=values["convention"], distortion=tuple(values["distortion"]),
+            axis_point_m=tuple(values["axis_point_m"]),
+            axis_tilt_x_rad=values["axis_tilt_x_rad"], axis_tilt_y_rad=values["axis_tilt_y_rad"],
+            mount_rotation_rad=tuple(values["mount_rotation_rad"]))
     except ValueError as exc:
         raise ParameterError("calibration", str(exc)) from None

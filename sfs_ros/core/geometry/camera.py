@@ -17,6 +17,12 @@ Projection:
 * orthographic: ``u = fx * xc + s * yc + cx``, ``v = fy * yc + cy``
 
 (``s`` = ``K[0, 1]``, the skew, zero for most cameras.)
+
+Lens distortion: a pinhole camera may carry OpenCV ``plumb_bob`` coefficients
+``distortion = (k1, k2, p1, p2, k3)``. :meth:`Camera.project` and
+:attr:`Camera.projection_matrix` stay the ideal (undistorted) pinhole;
+:meth:`Camera.project_distorted` gives the pixels the lens really forms
+(:func:`distort_normalized` between the division by depth and ``K``).
 """
 
 from __future__ import annotations
@@ -25,7 +31,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Camera", "MAX_IMAGE_SIDE_PX", "MAX_INTRINSIC", "MAX_TRANSLATION_M"]
+__all__ = ["Camera", "distort_normalized", "MAX_IMAGE_SIDE_PX", "MAX_INTRINSIC",
+           "MAX_TRANSLATION_M"]
 
 #: Largest image side a camera may have, pixels.
 MAX_IMAGE_SIDE_PX = 65535
@@ -51,6 +58,8 @@ class Camera:
         Image size in pixels.
     orthographic : bool
         True for the orthographic (parallel) projection, False for pinhole.
+    distortion : (5,) float64, optional
+        Lens distortion ``(k1, k2, p1, p2, k3)`` (pinhole only); zeros by default.
     """
 
     K: np.ndarray
@@ -59,8 +68,15 @@ class Camera:
     width: int
     height: int
     orthographic: bool = False
+    distortion: np.ndarray | None = None
 
     def __post_init__(self) -> None:
+        D = np.zeros(5) if self.distortion is None else np.array(self.distortion, np.float64)
+        if D.shape != (5,) or not np.all(np.isfinite(D)):
+            raise ValueError(f"camera distortion must be 5 finite values (k1, k2, p1, p2, k3), "
+                             f"got {self.distortion!r}")
+        if self.orthographic and np.any(D):
+            raise ValueError("an orthographic camera cannot carry lens distortion")
         K = np.array(self.K, dtype=np.float64)
         R = np.array(self.R, dtype=np.float64)
         t = np.array(self.t, dtype=np.float64).reshape(-1)
@@ -81,7 +97,7 @@ class Camera:
         if not (0 < int(self.width) <= MAX_IMAGE_SIDE_PX and 0 < int(self.height) <= MAX_IMAGE_SIDE_PX):
             raise ValueError(f"image size must be 1..{MAX_IMAGE_SIDE_PX} pixels a side, got "
                              f"{self.width}x{self.height}")
-        for name, value in (("K", K), ("R", R), ("t", t)):
+        for name, value in (("K", K), ("R", R), ("t", t), ("distortion", D)):
             value.setflags(write=False)
             object.__setattr__(self, name, value)
         object.__setattr__(self, "width", int(self.width))
@@ -159,3 +175,42 @@ class Camera:
             uv = h[:, :2] / h[:, 2:3]
         uv[h[:, 2] <= 0] = np.nan
         return uv
+
+    def project_distorted(self, points: np.ndarray) -> np.ndarray:
+        """World points (n, 3), metres -> pixels (n, 2) through the lens distortion.
+
+        Equal to :meth:`project` for a camera without distortion; points at or
+        behind the camera plane map to NaN.
+        """
+        if self.orthographic or not np.any(self.distortion):
+            return self.project(points)
+        xc = self.to_camera_frame(points)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            xy = xc[:, :2] / xc[:, 2:3]
+        xy[xc[:, 2] <= 0] = np.nan
+        xy = distort_normalized(xy, self.distortion)
+        return xy @ self.K[:2, :2].T + self.K[:2, 2]
+
+
+def distort_normalized(xy: np.ndarray, distortion) -> np.ndarray:
+    """Apply OpenCV ``plumb_bob`` distortion to normalised image points.
+
+    Parameters
+    ----------
+    xy : (n, 2) float64
+        Ideal normalised coordinates ``(x / z, y / z)`` in the camera frame.
+    distortion : (5,) float
+        ``(k1, k2, p1, p2, k3)``.
+
+    Returns
+    -------
+    (n, 2) float64
+        Distorted normalised coordinates (multiply by ``K`` for pixels).
+    """
+    k1, k2, p1, p2, k3 = np.asarray(distortion, dtype=np.float64)
+    x, y = xy[:, 0], xy[:, 1]
+    r2 = x * x + y * y
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+    return np.stack([xd, yd], axis=1)

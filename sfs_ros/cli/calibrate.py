@@ -1,0 +1,101 @@
+"""``sfs-calibrate``: calibrate the cell from photographs of a ChArUco board on the turntable.
+
+    sfs-calibrate INPUT -o OUTDIR [--board 7x5] [--square-m 0.03] [--marker-m 0.022]
+                  [--dictionary DICT_5X5_100] [--radial-terms 2] [--max-view-rms-px 1.0]
+
+INPUT is a session folder (``session.yaml`` + ``views.csv`` with
+``image,theta_rad,phi_rad`` + ``images/``) of the board standing on the
+plate, photographed at a spread of turntable and carriage angles; its ``rig``
+is the hand-measured start. OUTDIR receives ``rig.yaml`` (the cell's rig
+parameters, for ``--params-file``), ``camera_info.yaml`` (ROS
+camera_calibration_parsers format) and ``calibration_report.yaml`` (RMS and
+per-view residuals, uncertainties, rejected views, fixed parameters).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+
+import yaml
+
+from ..core.calibration import BoardSpec, calibrate_views, write_camera_info, write_rig_yaml
+from ..core.exchange.session import read_session
+from .common import run_reporting_errors
+
+PROG = "sfs-calibrate"
+
+
+def _squares(text: str) -> tuple[int, int]:
+    try:
+        x, y = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not COLUMNSxROWS, e.g. 7x5") from None
+    return x, y
+
+
+def build_parser() -> argparse.ArgumentParser:
+    board = BoardSpec()
+    p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
+    p.add_argument("input", type=Path, help="session folder of board photographs with angles")
+    p.add_argument("-o", "--output", type=Path, required=True, metavar="OUTDIR",
+                   help="folder for rig.yaml, camera_info.yaml and calibration_report.yaml")
+    p.add_argument("--board", type=_squares, default=f"{board.squares_x}x{board.squares_y}",
+                   metavar="XxY", help="chessboard squares, columns x rows (default %(default)s)")
+    p.add_argument("--square-m", type=float, default=board.square_m,
+                   help="square side, metres (default %(default)s)")
+    p.add_argument("--marker-m", type=float, default=board.marker_m,
+                   help="marker side, metres (default %(default)s)")
+    p.add_argument("--dictionary", default=board.dictionary,
+                   help="ArUco dictionary (default %(default)s)")
+    p.add_argument("--radial-terms", type=int, choices=(2, 3), default=2,
+                   help="radial distortion terms: 2 holds k3 at 0 (default), 3 fits it")
+    p.add_argument("--max-view-rms-px", type=float, default=1.0,
+                   help="reject a view whose corners miss by more than this RMS, pixels "
+                        "(default %(default)s)")
+    p.add_argument("--camera-name", default="camera", help="camera_name in camera_info.yaml")
+    return p
+
+
+def run(args) -> dict:
+    board = BoardSpec(*args.board, square_m=args.square_m, marker_m=args.marker_m,
+                      dictionary=args.dictionary)
+    fit = calibrate_views(read_session(args.input), board, radial_terms=args.radial_terms,
+                          max_view_rms_px=args.max_view_rms_px)
+    header = (f"Calibrated by {PROG} from {args.input.name}: {len(fit.view_rms_px)} views, "
+              f"{fit.corners} corners, RMS {fit.rms_px:.3f} px")
+    write_rig_yaml(fit.rig, args.output / "rig.yaml", header=header)
+    write_camera_info(fit.rig, args.output / "camera_info.yaml", camera_name=args.camera_name,
+                      header=header)
+    report = {"rms_px": fit.rms_px, "corners": fit.corners, "view_rms_px": fit.view_rms_px,
+              "rejected": {name: reason for name, reason in fit.rejected},
+              "uncertainty": fit.uncertainty, "fixed": fit.fixed,
+              "board_pose": {"tilt_x_rad": float(fit.board.tilt_x_rad),
+                             "tilt_y_rad": float(fit.board.tilt_y_rad),
+                             "offset_m": [float(v) for v in fit.board.offset_m]}}
+    (args.output / "calibration_report.yaml").write_text(
+        yaml.safe_dump(report, sort_keys=False, width=100), encoding="utf-8")
+    return {"fit": fit, "output": args.output}
+
+
+def main(argv=None) -> int:
+    status, result = run_reporting_errors(PROG, run, build_parser().parse_args(argv))
+    if status:
+        return status
+    fit, rig = result["fit"], result["fit"].rig
+    print(f"{len(fit.view_rms_px)} views, {fit.corners} corners: RMS {fit.rms_px:.3f} px; "
+          f"f = ({rig.fx:.1f}, {rig.fy:.1f}) px, k1 {rig.distortion[0]:.4f}, "
+          f"axis at ({1000 * rig.axis_point_m[0]:.2f}, {1000 * rig.axis_point_m[1]:.2f}) mm "
+          f"tilted {math.degrees(rig.axis_tilt_y_rad):.3f} deg, zeros theta "
+          f"{math.degrees(rig.theta_zero_rad):.3f} deg, phi {math.degrees(rig.phi_zero_rad):.3f} "
+          f"deg")
+    for name, reason in fit.rejected:
+        print(f"rejected {name}: {reason}")
+    print(f"wrote {result['output']}/rig.yaml, camera_info.yaml, calibration_report.yaml")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,133 @@
+"""ChArUco calibration board: its definition, its picture and finding it in images.
+
+Board frame (OpenCV's): origin at the board's top-left outer corner, x along
+the ``squares_x`` columns, y along the ``squares_y`` rows (down in the
+board's picture), z into the board, metres. Chessboard corner ``i`` (the id
+the detector reports) sits at ``object_points[i]``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+__all__ = ["BoardSpec", "Detection", "detect_board"]
+
+
+@dataclass(frozen=True)
+class BoardSpec:
+    """A ChArUco board.
+
+    Attributes
+    ----------
+    squares_x, squares_y : int
+        Chessboard squares along x and y (at least 3 each).
+    square_m : float
+        Side of a chessboard square, metres.
+    marker_m : float
+        Side of an ArUco marker, metres (smaller than ``square_m``).
+    dictionary : str
+        OpenCV predefined dictionary name, e.g. ``"DICT_5X5_100"``.
+    """
+
+    squares_x: int = 7
+    squares_y: int = 5
+    square_m: float = 0.03
+    marker_m: float = 0.022
+    dictionary: str = "DICT_5X5_100"
+
+    def __post_init__(self) -> None:
+        if int(self.squares_x) < 3 or int(self.squares_y) < 3:
+            raise ValueError(f"board needs at least 3x3 squares, got "
+                             f"{self.squares_x}x{self.squares_y}")
+        if not (0 < self.marker_m < self.square_m):
+            raise ValueError(f"board needs 0 < marker_m < square_m, got marker_m={self.marker_m}, "
+                             f"square_m={self.square_m} (metres)")
+        if not self.dictionary.startswith("DICT_") or not hasattr(cv2.aruco, self.dictionary):
+            raise ValueError(f"unknown ArUco dictionary {self.dictionary!r}; expected an OpenCV "
+                             "name such as 'DICT_5X5_100'")
+        markers = (int(self.squares_x) * int(self.squares_y)) // 2
+        size = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.dictionary)) \
+            .bytesList.shape[0]
+        if markers > size:
+            raise ValueError(f"a {self.squares_x}x{self.squares_y} board needs {markers} markers, "
+                             f"dictionary {self.dictionary} holds {size}")
+
+    @property
+    def cv_board(self) -> cv2.aruco.CharucoBoard:
+        """The OpenCV board object."""
+        dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.dictionary))
+        return cv2.aruco.CharucoBoard((int(self.squares_x), int(self.squares_y)),
+                                      float(self.square_m), float(self.marker_m), dictionary)
+
+    @property
+    def object_points(self) -> np.ndarray:
+        """(n, 3) float64 chessboard corners in the board frame, metres, indexed by id."""
+        return np.asarray(self.cv_board.getChessboardCorners(), dtype=np.float64).reshape(-1, 3)
+
+    @property
+    def size_m(self) -> tuple[float, float]:
+        """Board width and height (the squares, without a margin), metres."""
+        return self.squares_x * self.square_m, self.squares_y * self.square_m
+
+    def image(self, pixels_per_m: float, *, margin_px: int = 0) -> np.ndarray:
+        """(H, W) uint8 picture of the board at ``pixels_per_m``, with a white margin.
+
+        The board point ``(x, y)`` (metres) is at pixel ``(margin_px + x * pixels_per_m - 0.5,
+        margin_px + y * pixels_per_m - 0.5)`` (integer values at pixel centres).
+        """
+        width_m, height_m = self.size_m
+        size = (round(width_m * pixels_per_m) + 2 * margin_px,
+                round(height_m * pixels_per_m) + 2 * margin_px)
+        return self.cv_board.generateImage(size, marginSize=margin_px, borderBits=1)
+
+
+@dataclass(frozen=True)
+class Detection:
+    """The board corners found in one image.
+
+    Attributes
+    ----------
+    ids : (n,) int64
+        Chessboard corner ids (rows of :attr:`BoardSpec.object_points`).
+    pixels : (n, 2) float64
+        Their sub-pixel positions ``(u, v)``, pixels (integer values at pixel centres).
+    """
+
+    ids: np.ndarray
+    pixels: np.ndarray
+
+
+def detect_board(image: np.ndarray, board: BoardSpec, *,
+                 min_corners: int = 8) -> tuple[Detection | None, str]:
+    """Find the ChArUco corners of ``board`` in ``image``.
+
+    Parameters
+    ----------
+    image : (H, W) or (H, W, 3) uint8
+        Grey or RGB image.
+    board : BoardSpec
+    min_corners : int, keyword-only
+        Fewer corners than this make the view unusable.
+
+    Returns
+    -------
+    (Detection, "") or (None, reason)
+        The reason says why the view cannot be used (no marker, too few corners).
+    """
+    image = np.asarray(image)
+    if image.dtype != np.uint8 or image.ndim not in (2, 3):
+        raise ValueError(f"board image must be (H, W) or (H, W, 3) uint8, got {image.shape} "
+                         f"{image.dtype}")
+    grey = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image.ndim == 3 else image
+    corners, ids, markers, _ = cv2.aruco.CharucoDetector(board.cv_board).detectBoard(grey)
+    if markers is None or len(markers) == 0:
+        return None, f"no marker of the {board.dictionary} board found"
+    found = 0 if ids is None else len(ids)
+    if found < min_corners:
+        return None, (f"only {found} board corners found from {len(markers)} markers "
+                      f"(need {min_corners})")
+    return Detection(ids=ids.reshape(-1).astype(np.int64),
+                     pixels=corners.reshape(-1, 2).astype(np.float64)), ""

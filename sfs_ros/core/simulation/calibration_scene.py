@@ -1,0 +1,143 @@
+"""A ChArUco board on the turntable, photographed through a rig that is not the one on paper.
+
+The *true* rig (:func:`wrong_rig`) has a tilted, off-centre turntable axis,
+encoder zero offsets, lens distortion and a camera turned on its carriage; the
+*nominal* rig (:func:`nominal_rig`) is what a hand measurement would say. The
+images are rendered through the true rig, the encoder angles are the true
+angles plus the true zeros: a calibration must recover the true rig from them.
+
+Rendering: every output pixel is supersampled, each sample undistorted to a
+ray (the inverse of the true lens), the ray met with the board plane, and the
+board's picture sampled there (``cv2.remap``); samples missing the printed
+face see a grey backdrop. Mild Gaussian noise is added.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from ..calibration.board import BoardSpec
+from ..calibration.model import BoardPose
+from ..geometry.camera import Camera
+from ..geometry.rig import RigCalibration, rig_camera
+
+__all__ = ["BoardScene", "board_scene", "nominal_rig", "true_board_pose", "wrong_rig"]
+
+DEG = math.pi / 180
+_BACKDROP = 90           # grey level around the board
+_MARGIN_M = 0.01         # white margin of the printed board, metres
+_PIXELS_PER_M = 8000.0   # resolution of the board's picture (>= 2 x finer than the samples)
+_SUPERSAMPLE = 2         # samples per pixel along each axis
+
+
+def nominal_rig() -> RigCalibration:
+    """The rig as measured by hand: 640 x 480, a 45 degree lens, ideal axes, 0.35 m radius."""
+    return RigCalibration(width=640, height=480, projection="pinhole", fx=800.0, fy=800.0,
+                          camera_distance_m=0.35, aim_point_m=(0.0, 0.0, 0.08))
+
+
+def wrong_rig() -> RigCalibration:
+    """The true rig: the nominal one with every error the calibration must find."""
+    return RigCalibration(
+        width=640, height=480, projection="pinhole", fx=806.0, fy=809.0, cx=324.5, cy=236.0,
+        camera_distance_m=0.343, aim_point_m=(0.0, 0.0, 0.08),
+        theta_zero_rad=1.7 * DEG, phi_zero_rad=-1.2 * DEG,
+        distortion=(-0.18, 0.08, 0.0012, -0.0008, 0.0),
+        axis_point_m=(0.0031, -0.0024), axis_tilt_x_rad=0.4 * DEG, axis_tilt_y_rad=-0.6 * DEG,
+        mount_rotation_rad=(0.6 * DEG, -0.8 * DEG, 0.5 * DEG))
+
+
+def true_board_pose(board: BoardSpec) -> BoardPose:
+    """The board standing on the plate beside the axis, leaning back 25 degrees."""
+    pose = BoardPose(tilt_x_rad=-25 * DEG, tilt_y_rad=1.5 * DEG, offset_m=(0.0, 0.0, 0.0))
+    width_m, height_m = board.size_m
+    # Its centre 35 mm right of and 2 mm in front of the axis (so it swings across the
+    # image as the turntable turns), its lower edge 12 mm above the plate.
+    centre = np.array([0.035, -0.002, 0.012 + 0.5 * height_m * math.cos(25 * DEG)])
+    offset = centre - pose.rotation @ np.array([width_m / 2, height_m / 2, 0.0])
+    return BoardPose(pose.tilt_x_rad, pose.tilt_y_rad, tuple(float(v) for v in offset))
+
+
+def _sample_rays(camera: Camera, supersample: int) -> np.ndarray:
+    """(h * s, w * s, 3) float64 rays (x, y, 1), camera frame, of the sub-pixel samples."""
+    s = supersample
+    u = (np.arange(camera.width * s) + 0.5) / s - 0.5
+    v = (np.arange(camera.height * s) + 0.5) / s - 0.5
+    uv = np.stack(np.meshgrid(u, v), axis=-1).reshape(-1, 1, 2)
+    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 1e-12)
+    xy = cv2.undistortPointsIter(uv, camera.K, camera.distortion, None, None, criteria)
+    xy = xy.reshape(camera.height * s, camera.width * s, 2)
+    return np.concatenate([xy, np.ones(xy.shape[:2] + (1,))], axis=-1)
+
+
+def _picture(board: BoardSpec) -> np.ndarray:
+    return board.image(_PIXELS_PER_M, margin_px=round(_MARGIN_M * _PIXELS_PER_M))
+
+
+def _render(picture: np.ndarray, rays: np.ndarray, pose: BoardPose, camera: Camera,
+            noise: float, rng: np.random.Generator) -> np.ndarray:
+    """(H, W, 3) uint8 RGB image of the board's ``picture`` at ``pose`` seen along ``rays``
+    (:func:`_sample_rays` of ``camera``), with Gaussian noise of ``noise`` grey levels."""
+    to_cam = camera.R @ pose.rotation                        # board -> camera rotation
+    origin = camera.R @ np.asarray(pose.offset_m) + camera.t  # board origin, camera frame
+    normal = to_cam[:, 2]
+    facing = rays @ normal
+    with np.errstate(divide="ignore", invalid="ignore"):
+        depth = (origin @ normal) / facing
+    board_xy = (rays * depth[..., None] - origin) @ to_cam[:, :2]   # on the board, metres
+    pix = (board_xy + _MARGIN_M) * _PIXELS_PER_M - 0.5
+    pix[~((facing > 0) & (depth > 0))] = -1e6                 # the back or behind the camera
+    grey = cv2.remap(picture, pix[..., 0].astype(np.float32), pix[..., 1].astype(np.float32),
+                     cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=_BACKDROP)
+    grey = cv2.resize(grey.astype(np.float32), (camera.width, camera.height),
+                      interpolation=cv2.INTER_AREA)
+    grey = grey + rng.normal(0.0, noise, grey.shape)
+    grey = np.clip(np.rint(grey), 0, 255).astype(np.uint8)
+    return np.repeat(grey[..., None], 3, axis=2)
+
+
+@dataclass(frozen=True)
+class BoardScene:
+    """Board photographs with their encoder readings, and the truth they were made with.
+
+    Attributes
+    ----------
+    images : list of (H, W, 3) uint8
+    angles : list of (float, float)
+        Encoder readings ``(theta_rad, phi_rad)`` per image (true angles plus the true zeros).
+    rig : RigCalibration
+        The true rig.
+    board : BoardSpec
+    pose : BoardPose
+        The true pose of the board on the turntable.
+    """
+
+    images: list
+    angles: list
+    rig: RigCalibration
+    board: BoardSpec
+    pose: BoardPose
+
+
+def board_scene(*, thetas_deg=(-60, -40, -20, 0, 20, 40, 60), phis_deg=(0, 20, 40, 60),
+                board: BoardSpec | None = None, noise: float = 2.0,
+                seed: int = 0) -> BoardScene:
+    """Photographs of the board through :func:`wrong_rig` at every (theta, phi) pair, degrees
+    (true axis angles), with Gaussian noise of ``noise`` grey levels (generator ``seed``)."""
+    board = BoardSpec() if board is None else board
+    rig, pose = wrong_rig(), true_board_pose(board)
+    rng = np.random.default_rng(seed)
+    picture = _picture(board)
+    rays = _sample_rays(rig_camera(0.0, 0.0, rig), _SUPERSAMPLE)   # one lens for every view
+    images, angles = [], []
+    for phi in phis_deg:
+        for theta in thetas_deg:
+            reading = (theta * DEG + rig.theta_zero_rad, phi * DEG + rig.phi_zero_rad)
+            camera = rig_camera(*reading, rig)
+            images.append(_render(picture, rays, pose, camera, noise, rng))
+            angles.append(reading)
+    return BoardScene(images=images, angles=angles, rig=rig, board=board, pose=pose)
