@@ -7,6 +7,11 @@ off the voxel staircase), and contoured at the level 0.5 (see ``LEVEL``): on
 unsmoothed data the surface passes half-way between an occupied and an empty
 voxel centre, i.e. on the voxel faces. Faces are returned counter-clockwise seen from
 outside (positive signed volume).
+
+:func:`hull_marching_cubes_mesh` contours the signed distance to the visual
+hull instead (:class:`.hull_distance.HullDistance`, sampled on the voxel
+centres near the carved surface) at level 0: its vertices lie on the hull
+surface to a fraction of a voxel, with no voxel staircase to smooth away.
 """
 
 from __future__ import annotations
@@ -18,8 +23,9 @@ from scipy import ndimage
 from skimage import measure
 
 from ..geometry.grid import VoxelGrid
+from .hull_distance import HullDistance
 
-__all__ = ["marching_cubes_mesh"]
+__all__ = ["hull_marching_cubes_mesh", "marching_cubes_mesh"]
 
 #: Iso-level between empty (0) and occupied (1) voxels: just below 0.5. At
 #: exactly 0.5, Lewiner's ambiguity tests tie on 0/1 data (a cube face whose
@@ -87,9 +93,53 @@ def marching_cubes_mesh(occupancy, grid: VoxelGrid, *, smooth_sigma_vox: float =
                 f"smoothing with sigma {sigma} voxels removes the whole object "
                 f"(occupied box {(hi - lo).tolist()} voxels); use a smaller smooth_sigma_vox")
 
-    # Vertices come back as float32 voxel indices of the padded crop; scale in float64.
-    verts, faces, _, _ = measure.marching_cubes(volume, LEVEL, allow_degenerate=False)
-    vertices = grid.origin + (verts.astype(np.float64) + (lo - pad)) * grid.voxel_size
+    return _contour(volume, LEVEL, lo - pad, grid)
+
+
+def hull_marching_cubes_mesh(occupancy, grid: VoxelGrid, hull: HullDistance, *,
+                             band_voxels: int = 2):
+    """Closed, outward-oriented triangle mesh of the visual hull at sub-voxel precision.
+
+    Parameters
+    ----------
+    occupancy : (nx, ny, nz) bool
+        The hull carved on ``grid`` from the views behind ``hull``; it says where
+        the surface is to a voxel (the distance is only computed near it).
+    grid : VoxelGrid
+    hull : HullDistance
+        Signed distance to the hull of the same views (and carving box).
+    band_voxels : int, keyword-only
+        Half-width of the band around the carved surface where the distance is
+        computed (see :meth:`HullDistance.grid_band`).
+
+    Returns
+    -------
+    vertices : (n, 3) float64
+        Metres, object frame, on the zero level of the distance (linearly
+        interpolated between voxel centres).
+    faces : (m, 3) int64
+        Vertex indices, counter-clockwise seen from outside.
+
+    Raises
+    ------
+    ValueError
+        If the occupancy is not a bool array of the grid's shape or is empty.
+    """
+    volume, corner = hull.grid_band(occupancy, grid, band_voxels=band_voxels)
+    # A sample exactly on the level makes Lewiner's ambiguity tests tie (see
+    # LEVEL); moving it outward by 1e-6 voxel breaks the tie.
+    volume[volume == 0.0] = np.float32(1e-6)
+    # The distance is positive outside: contour its negation so that, as for the
+    # occupancy, larger means more inside.
+    np.negative(volume, out=volume)
+    return _contour(volume, 0.0, corner, grid)
+
+
+def _contour(volume: np.ndarray, level: float, corner: np.ndarray, grid: VoxelGrid):
+    """Marching cubes of ``volume`` (larger = inside) whose ``[0, 0, 0]`` is grid index ``corner``."""
+    # Vertices come back as float32 voxel indices of the volume; scale in float64.
+    verts, faces, _, _ = measure.marching_cubes(volume, level, allow_degenerate=False)
+    vertices = grid.origin + (verts.astype(np.float64) + corner) * grid.voxel_size
     faces = faces.astype(np.int64)
     if _signed_volume(vertices, faces) < 0:
         faces = faces[:, ::-1].copy()

@@ -1,0 +1,332 @@
+"""Signed distance to the visual hull, for meshing below the voxel scale.
+
+Carving decides each voxel by one pixel per view, so a surface made from the
+0/1 occupancy can only sit on voxel faces: flat faces at an angle to the grid
+come out as terraces, curved ones as ridges. The silhouettes themselves know
+the surface to a fraction of a pixel, and this module asks them.
+
+Per view, the mask's signed distance transform (pixels, positive outside) is
+sampled bilinearly at a point's projection and turned into metres by the
+pixel size at the point's depth (pinhole: ``depth / f``; orthographic:
+``1 / f``). A point is inside the hull only if it is inside every silhouette,
+so the hull's value is the largest of the views' values (with ``max_misses = k``,
+like the carver, the (k+1)-th largest: k views may disagree). Its zero level is
+the hull surface; near it the value approximates the distance to the surface
+(exactly for a surface seen edge-on by the deciding view, which is where a
+visual hull's surface lies).
+
+The mask's boundary is taken half-way between a foreground and a background
+pixel centre, the boundary of the carver's pixel test (nearest pixel centre):
+each pixel gets ``-(distance to the nearest background pixel centre - 1/2)``
+inside and ``+(distance to the nearest foreground pixel centre - 1/2)``
+outside. Bilinear sampling puts the zero exactly on pixel edges along a
+straight row or column and cuts the corners of a pixel staircase, so a
+slanted silhouette edge gives a straight, not stepped, surface.
+
+A view on which a point projects outside the image (or behind a pinhole
+camera) knows nothing about it, as for the carver (``outside_image="keep"``);
+the carving box bounds the hull too (its signed distance joins the views').
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Sequence
+
+import cv2
+import numpy as np
+from numba import njit, prange
+from scipy import ndimage
+
+from ..carving.carve import validate_masks
+from ..geometry.camera import Camera
+from ..geometry.grid import VoxelGrid
+
+__all__ = ["HullDistance"]
+
+#: Pixels kept around each silhouette's bounding box in the stored distance
+#: image; beyond them a lower bound of the outside distance is used (see
+#: ``_silhouette_distance``), which changes nothing near the zero level.
+CROP_MARGIN_PX = 8
+#: Distances are clipped to this many pixels (a mask filling its whole crop
+#: has no boundary, and OpenCV then reports ~1.8e19).
+MAX_DISTANCE_PX = 1.0e6
+#: Samples along each direction in :meth:`HullDistance.project` (both sides
+#: of the point) before bisection, and bisection steps.
+_SEARCH_STEPS = 8
+_BISECTIONS = 20
+
+
+def _silhouette_distance(mask: np.ndarray) -> tuple[np.ndarray, int, int]:
+    """Signed distance image of one mask, cropped around the foreground.
+
+    Parameters
+    ----------
+    mask : (H, W) bool
+
+    Returns
+    -------
+    distance : (h, w) float32
+        Pixels, positive outside the silhouette, zero half-way between a
+        foreground and a background pixel centre; covers the foreground's
+        bounding box grown by ``CROP_MARGIN_PX`` (clipped to the image).
+    u0, v0 : int
+        Column and row of the crop's first pixel in the image.
+    """
+    rows = np.flatnonzero(mask.any(axis=1))
+    cols = np.flatnonzero(mask.any(axis=0))
+    if rows.size == 0:
+        raise ValueError("a mask is empty: an empty silhouette bounds no hull "
+                         "(reject the view before meshing)")
+    v0 = max(0, int(rows[0]) - CROP_MARGIN_PX)
+    v1 = min(mask.shape[0], int(rows[-1]) + 1 + CROP_MARGIN_PX)
+    u0 = max(0, int(cols[0]) - CROP_MARGIN_PX)
+    u1 = min(mask.shape[1], int(cols[-1]) + 1 + CROP_MARGIN_PX)
+    crop = np.ascontiguousarray(mask[v0:v1, u0:u1]).view(np.uint8)
+    # OpenCV measures to the nearest zero pixel; pixels beyond the image are not
+    # zero, so a silhouette cut by the image border has no boundary there.
+    inside = cv2.distanceTransform(crop, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    outside = cv2.distanceTransform(1 - crop, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    distance = np.where(crop.astype(bool), 0.5 - inside, outside - 0.5)
+    return np.clip(distance, -MAX_DISTANCE_PX, MAX_DISTANCE_PX).astype(np.float32), u0, v0
+
+
+@njit(cache=True)
+def _sample(images, offset, width, height, u0, v0, margin, u, v):
+    """Bilinear value (pixels) of one cropped distance image at image point ``(u, v)``."""
+    x = u - u0
+    y = v - v0
+    # Outside the crop: the distance to the crop's outer pixel centres plus
+    # ``margin`` (the distance from them to the silhouette's bounding box,
+    # whose edges lie half a pixel beyond its outer pixel centres) bounds the
+    # distance to the silhouette from below.
+    dx = max(0.0, -x, x - (width - 1))
+    dy = max(0.0, -y, y - (height - 1))
+    if dx > 0.0 or dy > 0.0:
+        return margin + math.sqrt(dx * dx + dy * dy)
+    i = min(int(x), width - 2) if width > 1 else 0
+    j = min(int(y), height - 2) if height > 1 else 0
+    fx = x - i if width > 1 else 0.0
+    fy = y - j if height > 1 else 0.0
+    i1 = i + 1 if width > 1 else i
+    j1 = j + 1 if height > 1 else j
+    a = images[offset + j * width + i]
+    b = images[offset + j * width + i1]
+    c = images[offset + j1 * width + i]
+    d = images[offset + j1 * width + i1]
+    return (a * (1.0 - fx) + b * fx) * (1.0 - fy) + (c * (1.0 - fx) + d * fx) * fy
+
+
+@njit(parallel=True, cache=True)
+def _hull_distance_kernel(points, proj, orthographic, metres_per_px, image_size, crops, images,
+                          margin, box_lo, box_hi, top, out):
+    """``out[i]``: signed distance (metres) of ``points[i]`` to the hull (see the module doc).
+
+    ``top`` (n, rank) float64 is scratch: per point, the ``rank`` largest view values.
+    """
+    n_views = proj.shape[0]
+    rank = top.shape[1]
+    for p in prange(points.shape[0]):
+        x, y, z = points[p, 0], points[p, 1], points[p, 2]
+        top[p, :] = -np.inf  # descending
+        for view in range(n_views):
+            hu = proj[view, 0, 0] * x + proj[view, 0, 1] * y + proj[view, 0, 2] * z + proj[view, 0, 3]
+            hv = proj[view, 1, 0] * x + proj[view, 1, 1] * y + proj[view, 1, 2] * z + proj[view, 1, 3]
+            scale = metres_per_px[view]
+            if not orthographic[view]:
+                depth = proj[view, 2, 0] * x + proj[view, 2, 1] * y + proj[view, 2, 2] * z \
+                    + proj[view, 2, 3]
+                if depth <= 0.0:
+                    continue
+                hu /= depth
+                hv /= depth
+                scale *= depth
+            # The carver's pixel is floor(u + 1/2): inside the image for u in [-1/2, W - 1/2).
+            if not (-0.5 <= hu < image_size[view, 0] - 0.5 and -0.5 <= hv < image_size[view, 1] - 0.5):
+                continue
+            # Within the outer half pixel, the edge pixel's value holds.
+            hu = min(max(hu, 0.0), image_size[view, 0] - 1.0)
+            hv = min(max(hv, 0.0), image_size[view, 1] - 1.0)
+            value = scale * _sample(images, crops[view, 0], crops[view, 1], crops[view, 2],
+                                    crops[view, 3], crops[view, 4], margin, hu, hv)
+            if value > top[p, rank - 1]:
+                slot = rank - 1
+                while slot > 0 and top[p, slot - 1] < value:
+                    top[p, slot] = top[p, slot - 1]
+                    slot -= 1
+                top[p, slot] = value
+        box = max(box_lo[0] - x, x - box_hi[0], box_lo[1] - y, y - box_hi[1],
+                  box_lo[2] - z, z - box_hi[2])
+        out[p] = max(top[p, rank - 1], box)
+
+
+class HullDistance:
+    """Signed distance to the visual hull of calibrated silhouettes (metres, positive outside).
+
+    Parameters
+    ----------
+    cameras : sequence of Camera
+        The views that carved the hull.
+    masks : sequence of (H, W) bool
+        Their silhouettes, one per camera, each of its camera's image size.
+    max_misses : int, keyword-only
+        As for the carver: a point is inside when at most this many views see
+        it outside their silhouette (the value is the (k+1)-th largest view value;
+        with as many misses allowed as there are views, only the box bounds the hull).
+    bounds_m : (2, 3) array-like or None, keyword-only
+        The carving box ``[min, max]``, metres; the hull is cut by it. None: no box.
+
+    Memory: one float32 distance image per view, cropped to the silhouette's
+    bounding box plus ``CROP_MARGIN_PX``.
+    """
+
+    def __init__(self, cameras: Sequence[Camera], masks, *, max_misses: int = 0,
+                 bounds_m=None):
+        cameras = list(cameras)
+        if not cameras:
+            raise ValueError("need at least one camera and mask to define a hull")
+        masks = validate_masks(cameras, masks)
+        if isinstance(max_misses, bool) or not isinstance(max_misses, (int, np.integer)) \
+                or max_misses < 0:
+            raise ValueError(f"max_misses must be an integer >= 0, got {max_misses!r}")
+        if bounds_m is None:
+            box = np.array([[-np.inf] * 3, [np.inf] * 3])
+        else:
+            box = np.asarray(bounds_m, dtype=np.float64)
+            if box.shape != (2, 3) or np.any(np.isnan(box)) or np.any(box[1] <= box[0]):
+                raise ValueError(f"bounds_m must be [[xmin, ymin, zmin], [xmax, ymax, zmax]] "
+                                 f"with min < max, got {box.tolist()}")
+        images, crops, offset = [], [], 0
+        for index, mask in enumerate(masks):
+            try:
+                distance, u0, v0 = _silhouette_distance(mask)
+            except ValueError as err:
+                raise ValueError(f"view {index}: {err}") from None
+            images.append(distance.ravel())
+            crops.append((offset, distance.shape[1], distance.shape[0], u0, v0))
+            offset += distance.size
+        self._images = np.concatenate(images)
+        self._crops = np.array(crops, dtype=np.int64)
+        self._proj = np.stack([c.projection_matrix for c in cameras])
+        self._orthographic = np.array([c.orthographic for c in cameras])
+        # Distance images assume square pixels: the mean focal length converts them.
+        self._metres_per_px = np.array([1.0 / math.sqrt(c.K[0, 0] * c.K[1, 1]) for c in cameras])
+        self._image_size = np.array([(c.width, c.height) for c in cameras], dtype=np.float64)
+        self._box = box
+        self._rank = int(max_misses) + 1
+
+    def __call__(self, points) -> np.ndarray:
+        """Signed distances of ``points`` (n, 3) float64, metres -> (n,) float64, metres.
+
+        Negative inside the hull; ``-inf`` where no view sees the point and no
+        box bounds it.
+        """
+        pts = np.ascontiguousarray(points, dtype=np.float64)
+        if pts.ndim != 2 or pts.shape[1] != 3:
+            raise ValueError(f"points must be an (n, 3) array, got shape {pts.shape}")
+        if not np.all(np.isfinite(pts)):
+            raise ValueError("points must be finite")
+        out = np.empty(len(pts))
+        _hull_distance_kernel(pts, self._proj, self._orthographic, self._metres_per_px,
+                              self._image_size, self._crops, self._images,
+                              CROP_MARGIN_PX - 0.5, self._box[0], self._box[1],
+                              np.empty((len(pts), self._rank)), out)
+        return out
+
+    def grid_band(self, occupancy, grid: VoxelGrid, *, band_voxels: int = 2):
+        """The distance on the voxel centres near the surface of a carved occupancy.
+
+        Parameters
+        ----------
+        occupancy : (nx, ny, nz) bool
+            The hull carved on ``grid`` from the same views.
+        grid : VoxelGrid
+        band_voxels : int, keyword-only
+            Voxels within this many steps (6-neighbour) of the occupancy's
+            boundary, on either side, get the distance computed; the others
+            get ``-(band_voxels + 1)`` voxels inside and ``+(band_voxels + 1)``
+            outside. The hull surface stays within a voxel of the carved one
+            (both come from the same pixel test), so 2 is ample.
+
+        Returns
+        -------
+        volume : (mx, my, mz) float32
+            Signed distance in voxels (positive outside) on the occupied
+            bounding box grown by ``band_voxels + 1`` voxels on every side (so
+            the zero level is closed).
+        corner : (3,) int64
+            Grid index of ``volume[0, 0, 0]`` (may be negative).
+        """
+        occ = np.asarray(occupancy)
+        if occ.ndim != 3 or tuple(occ.shape) != tuple(grid.shape) or occ.dtype != np.bool_:
+            raise ValueError(f"occupancy must be a bool array of the grid's shape {grid.shape}, "
+                             f"got {occ.dtype} {occ.shape}")
+        band = int(band_voxels)
+        if band < 1:
+            raise ValueError(f"band_voxels must be >= 1, got {band_voxels}")
+        where = np.argwhere(occ)
+        if where.size == 0:
+            raise ValueError("occupancy is empty: no voxel is occupied, there is no surface to mesh")
+        pad = band + 1
+        corner = where.min(axis=0) - pad
+        hi = where.max(axis=0) + 1 + pad
+        crop = np.zeros(tuple(hi - corner), dtype=bool)
+        lo_in = np.maximum(corner, 0)
+        hi_in = np.minimum(hi, grid.shape)
+        crop[tuple(slice(a - c, b - c) for a, b, c in zip(lo_in, hi_in, corner))] = \
+            occ[tuple(slice(a, b) for a, b in zip(lo_in, hi_in))]
+        near = ndimage.binary_dilation(crop, iterations=band) & \
+            ~ndimage.binary_erosion(crop, iterations=band, border_value=0)
+        volume = np.where(crop, np.float32(-pad), np.float32(pad))
+        ijk = np.argwhere(near)
+        values = self(grid.index_to_world(ijk + corner)) / grid.voxel_size
+        volume[near] = np.clip(values, -pad, pad)
+        return volume, corner
+
+    def project(self, points, directions, *, reach_m: float) -> tuple[np.ndarray, np.ndarray]:
+        """Move points along lines to the hull surface (the zero level).
+
+        Parameters
+        ----------
+        points : (n, 3) float64
+            Points near the surface, metres.
+        directions : (n, 3) float64
+            Outward directions of the lines (e.g. normals); need not be unit.
+        reach_m : float, keyword-only
+            Largest move, metres, either way along the line.
+
+        Returns
+        -------
+        moved : (n, 3) float64
+            For each point, the crossing from inside to outside nearest to it
+            on ``point + t * unit(direction)``, ``|t| <= reach_m``, to 1e-6 of
+            ``reach_m``; the point itself where the line has no crossing there.
+        found : (n,) bool
+            Which points were moved.
+        """
+        pts = np.asarray(points, dtype=np.float64)
+        dirs = np.asarray(directions, dtype=np.float64)
+        if pts.ndim != 2 or pts.shape[1] != 3 or dirs.shape != pts.shape:
+            raise ValueError(f"points and directions must be (n, 3) arrays of the same shape, "
+                             f"got {pts.shape} and {dirs.shape}")
+        length = np.linalg.norm(dirs, axis=1, keepdims=True)
+        if not np.all(np.isfinite(dirs)) or np.any(length == 0):
+            raise ValueError("directions must be finite and non-zero")
+        if not (math.isfinite(reach_m) and reach_m > 0):
+            raise ValueError(f"reach_m must be a finite distance > 0 metres, got {reach_m}")
+        unit = dirs / length
+        steps = np.linspace(-reach_m, reach_m, 2 * _SEARCH_STEPS + 1)
+        values = np.stack([self(pts + t * unit) for t in steps], axis=1)
+        # Inside -> outside crossings between samples j and j + 1; the one nearest t = 0.
+        crossing = (values[:, :-1] <= 0) & (values[:, 1:] > 0)
+        found = crossing.any(axis=1)
+        middle = 0.5 * (steps[:-1] + steps[1:])
+        pick = np.argmin(np.where(crossing, np.abs(middle), np.inf), axis=1)
+        lo, hi = steps[pick], steps[pick + 1]
+        for _ in range(_BISECTIONS):
+            mid = 0.5 * (lo + hi)
+            outside = self(pts + mid[:, None] * unit) > 0
+            lo = np.where(outside, lo, mid)
+            hi = np.where(outside, mid, hi)
+        t = np.where(found, 0.5 * (lo + hi), 0.0)
+        return pts + t[:, None] * unit, found
