@@ -97,7 +97,7 @@ def marching_cubes_mesh(occupancy, grid: VoxelGrid, *, smooth_sigma_vox: float =
 
 
 def hull_marching_cubes_mesh(occupancy, grid: VoxelGrid, hull: HullDistance, *,
-                             band_voxels: int = 2):
+                             band_voxels: int = 1):
     """Closed, outward-oriented triangle mesh of the visual hull at sub-voxel precision.
 
     Parameters
