@@ -138,7 +138,11 @@ def test_bad_input_is_refused():
         hull.project(np.zeros((1, 3)), np.zeros((1, 3)), reach_m=0.01)
     grid = VoxelGrid.cube([-0.01] * 3, [0.01] * 3, 8)
     with pytest.raises(ValueError, match="occupancy is empty"):
-        hull.grid_band(np.zeros(grid.shape, bool), grid)
+        hull_marching_cubes_mesh(np.zeros(grid.shape, bool), grid, hull)
+    with pytest.raises(ValueError, match="does not match the grid shape"):
+        hull_marching_cubes_mesh(np.ones((4, 4, 4), bool), grid, hull)
+    with pytest.raises(ValueError, match="band_voxels must be an integer >= 1"):
+        hull_marching_cubes_mesh(np.ones(grid.shape, bool), grid, hull, band_voxels=0)
 
 
 # ---- a sphere seen from all around ----------------------------------------------------

@@ -20,8 +20,9 @@ pixel centre, the boundary of the carver's pixel test (nearest pixel centre):
 each pixel gets ``-(distance to the nearest background pixel centre - 1/2)``
 inside and ``+(distance to the nearest foreground pixel centre - 1/2)``
 outside. Bilinear sampling puts the zero exactly on pixel edges along a
-straight row or column and cuts the corners of a pixel staircase, so a
-slanted silhouette edge gives a straight, not stepped, surface.
+straight row or column and cuts the corners of a pixel staircase (a 45-degree
+edge comes out straight); an edge at a shallow angle to the pixel rows keeps
+its half-pixel steps, which is all a binary mask tells of it.
 
 A view on which a point projects outside the image (or behind a pinhole
 camera) knows nothing about it, as for the carver (``outside_image="keep"``);
@@ -36,11 +37,9 @@ from typing import Sequence
 import cv2
 import numpy as np
 from numba import njit, prange
-from scipy import ndimage
 
 from ..carving.carve import validate_masks
 from ..geometry.camera import Camera
-from ..geometry.grid import VoxelGrid
 
 __all__ = ["HullDistance"]
 
@@ -233,60 +232,6 @@ class HullDistance:
                               CROP_MARGIN_PX - 0.5, self._box[0], self._box[1],
                               np.empty((len(pts), self._rank)), out)
         return out
-
-    def grid_band(self, occupancy, grid: VoxelGrid, *, band_voxels: int = 1):
-        """The distance on the voxel centres near the surface of a carved occupancy.
-
-        Parameters
-        ----------
-        occupancy : (nx, ny, nz) bool
-            The hull carved on ``grid`` from the same views.
-        grid : VoxelGrid
-        band_voxels : int, keyword-only
-            Voxels within this many steps (26-neighbour) of the occupancy's
-            boundary, on either side, get the distance computed; the others
-            get ``-(band_voxels + 1)`` voxels inside and ``+(band_voxels + 1)``
-            outside. With 1, every corner of every grid cube that the carved
-            surface crosses is computed; the hull surface lies within a
-            fraction of a voxel of the carved one (both come from the same
-            pixel test), so that suffices (a wider band gave the same mesh of
-            a sphere to 1e-7 voxel).
-
-        Returns
-        -------
-        volume : (mx, my, mz) float32
-            Signed distance in voxels (positive outside) on the occupied
-            bounding box grown by ``band_voxels + 1`` voxels on every side (so
-            the zero level is closed).
-        corner : (3,) int64
-            Grid index of ``volume[0, 0, 0]`` (may be negative).
-        """
-        occ = np.asarray(occupancy)
-        if occ.ndim != 3 or tuple(occ.shape) != tuple(grid.shape) or occ.dtype != np.bool_:
-            raise ValueError(f"occupancy must be a bool array of the grid's shape {grid.shape}, "
-                             f"got {occ.dtype} {occ.shape}")
-        band = int(band_voxels)
-        if band < 1:
-            raise ValueError(f"band_voxels must be >= 1, got {band_voxels}")
-        where = np.argwhere(occ)
-        if where.size == 0:
-            raise ValueError("occupancy is empty: no voxel is occupied, there is no surface to mesh")
-        pad = band + 1
-        corner = where.min(axis=0) - pad
-        hi = where.max(axis=0) + 1 + pad
-        crop = np.zeros(tuple(hi - corner), dtype=bool)
-        lo_in = np.maximum(corner, 0)
-        hi_in = np.minimum(hi, grid.shape)
-        crop[tuple(slice(a - c, b - c) for a, b, c in zip(lo_in, hi_in, corner))] = \
-            occ[tuple(slice(a, b) for a, b in zip(lo_in, hi_in))]
-        cube = np.ones((3, 3, 3), dtype=bool)
-        near = ndimage.binary_dilation(crop, cube, iterations=band) & \
-            ~ndimage.binary_erosion(crop, cube, iterations=band, border_value=0)
-        volume = np.where(crop, np.float32(-pad), np.float32(pad))
-        ijk = np.argwhere(near)
-        values = self(grid.index_to_world(ijk + corner)) / grid.voxel_size
-        volume[near] = np.clip(values, -pad, pad)
-        return volume, corner
 
     def project(self, points, directions, *, reach_m: float) -> tuple[np.ndarray, np.ndarray]:
         """Move points along lines to the hull surface (the zero level).

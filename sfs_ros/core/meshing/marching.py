@@ -69,16 +69,11 @@ def marching_cubes_mesh(occupancy, grid: VoxelGrid, *, smooth_sigma_vox: float =
         occupied voxel, if ``smooth_sigma_vox`` is negative or not finite, or
         if smoothing removes the whole object.
     """
-    occ = np.asarray(occupancy)
-    if occ.ndim != 3:
-        raise ValueError(f"occupancy must be a 3-D (nx, ny, nz) array, got shape {occ.shape}")
-    if tuple(occ.shape) != tuple(grid.shape):
-        raise ValueError(f"occupancy shape {occ.shape} does not match the grid shape {grid.shape}")
+    occ = _check_occupancy(occupancy, grid)
     sigma = float(smooth_sigma_vox)
     if not (math.isfinite(sigma) and sigma >= 0):
         raise ValueError(
             f"smooth_sigma_vox must be a finite number >= 0 voxels, got {smooth_sigma_vox}")
-    occ = occ.astype(bool, copy=False)
 
     lo, hi = _occupied_bounds(occ)
     # Empty border wide enough that the smoothed values on it are exactly 0.
@@ -109,8 +104,14 @@ def hull_marching_cubes_mesh(occupancy, grid: VoxelGrid, hull: HullDistance, *,
     hull : HullDistance
         Signed distance to the hull of the same views (and carving box).
     band_voxels : int, keyword-only
-        Half-width of the band around the carved surface where the distance is
-        computed (see :meth:`HullDistance.grid_band`).
+        Voxels within this many steps (26-neighbour) of the occupancy's
+        boundary, on either side, get the distance computed; the others get
+        ``-(band_voxels + 1)`` voxels inside and ``+(band_voxels + 1)``
+        outside. With 1, every corner of every grid cube that the carved
+        surface crosses is computed; the hull surface lies within a fraction
+        of a voxel of the carved one (both come from the same pixel test), so
+        that suffices (on a sphere seen from 60 views, bands of 1, 2 and 3
+        voxels gave the same errors to 0.1 micrometre).
 
     Returns
     -------
@@ -123,16 +124,43 @@ def hull_marching_cubes_mesh(occupancy, grid: VoxelGrid, hull: HullDistance, *,
     Raises
     ------
     ValueError
-        If the occupancy is not a bool array of the grid's shape or is empty.
+        If the occupancy is not a 3-D array of the grid's shape, if it has no
+        occupied voxel, or if ``band_voxels`` is below 1.
     """
-    volume, corner = hull.grid_band(occupancy, grid, band_voxels=band_voxels)
-    # A sample exactly on the level makes Lewiner's ambiguity tests tie (see
-    # LEVEL); moving it outward by 1e-6 voxel breaks the tie.
-    volume[volume == 0.0] = np.float32(1e-6)
-    # The distance is positive outside: contour its negation so that, as for the
+    occ = _check_occupancy(occupancy, grid)
+    if isinstance(band_voxels, bool) or not isinstance(band_voxels, (int, np.integer)) \
+            or band_voxels < 1:
+        raise ValueError(f"band_voxels must be an integer >= 1, got {band_voxels!r}")
+    band = int(band_voxels)
+    lo, hi = _occupied_bounds(occ)
+    # An empty border one voxel wider than the band: its outer layer stays
+    # outside (the level set is closed even where the object touches the grid box).
+    pad = band + 1
+    crop = np.pad(occ[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]], pad)
+    cube = np.ones((3, 3, 3), dtype=bool)
+    near = (ndimage.binary_dilation(crop, cube, iterations=band)
+            & ~ndimage.binary_erosion(crop, cube, iterations=band, border_value=0))
+    # Signed distance in voxels, positive outside; negated below, as for the
     # occupancy, larger means more inside.
+    volume = np.where(crop, np.float32(-pad), np.float32(pad))
+    corner = lo - pad
+    distance = hull(grid.index_to_world(np.argwhere(near) + corner)) / grid.voxel_size
+    volume[near] = np.clip(distance, -pad, pad)
+    # A sample exactly on the level makes Lewiner's ambiguity tests tie (see
+    # LEVEL); counting it as just outside (by 1e-6 voxel) breaks the tie.
+    volume[volume == 0.0] = np.float32(1e-6)
     np.negative(volume, out=volume)
     return _contour(volume, 0.0, corner, grid)
+
+
+def _check_occupancy(occupancy, grid: VoxelGrid) -> np.ndarray:
+    """(nx, ny, nz) bool occupancy of the grid's shape; ValueError otherwise."""
+    occ = np.asarray(occupancy)
+    if occ.ndim != 3:
+        raise ValueError(f"occupancy must be a 3-D (nx, ny, nz) array, got shape {occ.shape}")
+    if tuple(occ.shape) != tuple(grid.shape):
+        raise ValueError(f"occupancy shape {occ.shape} does not match the grid shape {grid.shape}")
+    return occ.astype(bool, copy=False)
 
 
 def _contour(volume: np.ndarray, level: float, corner: np.ndarray, grid: VoxelGrid):
