@@ -50,9 +50,10 @@ CROP_MARGIN_PX = 8
 #: Distances are clipped to this many pixels (a mask filling its whole crop
 #: has no boundary, and OpenCV then reports ~1.8e19).
 MAX_DISTANCE_PX = 1.0e6
-#: Samples along each direction in :meth:`HullDistance.project` (both sides
-#: of the point) before bisection, and bisection steps.
-_SEARCH_STEPS = 8
+#: Samples along each line in :meth:`HullDistance.project`, each side of the
+#: point, that find the crossing; then bisections that place it. (Regula falsi
+#: needs as many: the bilinear, max-of-views distance has kinks.)
+_SEARCH_STEPS = 4
 _BISECTIONS = 20
 
 
@@ -249,8 +250,10 @@ class HullDistance:
         -------
         moved : (n, 3) float64
             For each point, the crossing from inside to outside nearest to it
-            on ``point + t * unit(direction)``, ``|t| <= reach_m``, to 1e-6 of
-            ``reach_m``; the point itself where the line has no crossing there.
+            on ``point + t * unit(direction)``, ``|t| <= reach_m``, found
+            between samples ``reach_m / 4`` apart and placed by bisection to
+            within 1e-6 of ``reach_m``; the point itself where the line has no
+            crossing there.
         found : (n,) bool
             Which points were moved.
         """
