@@ -61,6 +61,10 @@ def test_top_face_is_flat_and_at_its_true_height(cylinder_scans, mesher):
     assert math.isclose(voxel, 0.00125)
     mesh = result.report["mesh"]
     assert mesh["watertight"] and mesh["outward"] and mesh["n_components"] == 1
+    if mesher == "advancing-front":
+        # Every point of the cloud found the hull surface within its reach.
+        stats = result.report["mesher"]
+        assert stats["cloud_points_on_hull"] == stats["cloud_points"]
     top = top_face(result.vertices, voxel)
     # Marching cubes puts about one vertex per voxel on the 45 mm inner disc of
     # 1.25 mm voxels (~1000), the cloud of points one per 2 x 2 block (~250).
