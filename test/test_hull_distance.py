@@ -37,7 +37,7 @@ def looking_along(direction, *, orthographic, scale, width, height, distance_m=0
 
 
 def half_plane(camera, last_column):
-    """(H, W) bool mask holding the columns ``0..last_column``: its edge is at u = last_column + 1/2."""
+    """(H, W) bool mask of the columns ``0..last_column``: its edge is at u = last_column + 1/2."""
     mask = np.zeros((camera.height, camera.width), bool)
     mask[:, :last_column + 1] = True
     return mask

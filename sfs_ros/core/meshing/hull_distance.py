@@ -45,14 +45,14 @@ __all__ = ["HullDistance"]
 
 #: Pixels kept around each silhouette's bounding box in the stored distance
 #: image; beyond them a lower bound of the outside distance is used (see
-#: ``_silhouette_distance``), which changes nothing near the zero level.
+#: ``_sample``), which changes nothing near the zero level.
 CROP_MARGIN_PX = 8
 #: Distances are clipped to this many pixels (a mask filling its whole crop
 #: has no boundary, and OpenCV then reports ~1.8e19).
 MAX_DISTANCE_PX = 1.0e6
 #: Samples along each line in :meth:`HullDistance.project`, each side of the
-#: point, that find the crossing; then bisections that place it. (Regula falsi
-#: needs as many: the bilinear, max-of-views distance has kinks.)
+#: point, that find the crossing; then bisections that place it (the bilinear,
+#: max-of-views distance has kinks, where regula falsi is no faster).
 _SEARCH_STEPS = 4
 _BISECTIONS = 20
 
@@ -131,23 +131,24 @@ def _hull_distance_kernel(points, proj, orthographic, metres_per_px, image_size,
         x, y, z = points[p, 0], points[p, 1], points[p, 2]
         top[p, :] = -np.inf  # descending
         for view in range(n_views):
-            hu = proj[view, 0, 0] * x + proj[view, 0, 1] * y + proj[view, 0, 2] * z + proj[view, 0, 3]
-            hv = proj[view, 1, 0] * x + proj[view, 1, 1] * y + proj[view, 1, 2] * z + proj[view, 1, 3]
+            P = proj[view]
+            hu = P[0, 0] * x + P[0, 1] * y + P[0, 2] * z + P[0, 3]
+            hv = P[1, 0] * x + P[1, 1] * y + P[1, 2] * z + P[1, 3]
             scale = metres_per_px[view]
             if not orthographic[view]:
-                depth = proj[view, 2, 0] * x + proj[view, 2, 1] * y + proj[view, 2, 2] * z \
-                    + proj[view, 2, 3]
+                depth = P[2, 0] * x + P[2, 1] * y + P[2, 2] * z + P[2, 3]
                 if depth <= 0.0:
                     continue
                 hu /= depth
                 hv /= depth
                 scale *= depth
+            width, height = image_size[view, 0], image_size[view, 1]
             # The carver's pixel is floor(u + 1/2): inside the image for u in [-1/2, W - 1/2).
-            if not (-0.5 <= hu < image_size[view, 0] - 0.5 and -0.5 <= hv < image_size[view, 1] - 0.5):
+            if not (-0.5 <= hu < width - 0.5 and -0.5 <= hv < height - 0.5):
                 continue
             # Within the outer half pixel, the edge pixel's value holds.
-            hu = min(max(hu, 0.0), image_size[view, 0] - 1.0)
-            hv = min(max(hv, 0.0), image_size[view, 1] - 1.0)
+            hu = min(max(hu, 0.0), width - 1.0)
+            hv = min(max(hv, 0.0), height - 1.0)
             value = scale * _sample(images, crops[view, 0], crops[view, 1], crops[view, 2],
                                     crops[view, 3], crops[view, 4], margin, hu, hv)
             if value > top[p, rank - 1]:

@@ -164,7 +164,7 @@ def _check_occupancy(occupancy, grid: VoxelGrid) -> np.ndarray:
 
 
 def _contour(volume: np.ndarray, level: float, corner: np.ndarray, grid: VoxelGrid):
-    """Marching cubes of ``volume`` (larger = inside) whose ``[0, 0, 0]`` is grid index ``corner``."""
+    """Mesh of ``volume`` (larger = inside) at ``level``; its ``[0, 0, 0]`` is voxel ``corner``."""
     # Vertices come back as float32 voxel indices of the volume; scale in float64.
     verts, faces, _, _ = measure.marching_cubes(volume, level, allow_degenerate=False)
     vertices = grid.origin + (verts.astype(np.float64) + corner) * grid.voxel_size
