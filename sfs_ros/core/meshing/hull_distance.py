@@ -118,48 +118,90 @@ def _sample(images, offset, width, height, u0, v0, margin, u, v):
     return (a * (1.0 - fx) + b * fx) * (1.0 - fy) + (c * (1.0 - fx) + d * fx) * fy
 
 
-@njit(parallel=True, cache=True)
-def _hull_distance_kernel(points, proj, orthographic, metres_per_px, image_size, crops, images,
-                          margin, box_lo, box_hi, top, out):
-    """``out[i]``: signed distance (metres) of ``points[i]`` to the hull (see the module doc).
+@njit(cache=True)
+def _distance_at(hull, x, y, z, top):
+    """Signed distance (metres) of the point ``(x, y, z)`` to the hull (see the module doc).
 
-    ``top`` (n, rank) float64 is scratch: per point, the ``rank`` largest view values.
+    ``hull`` is :attr:`HullDistance._kernel_data`; ``top`` (rank,) float64 is
+    scratch for the ``rank`` largest view values.
     """
-    n_views = proj.shape[0]
-    rank = top.shape[1]
+    proj, orthographic, metres_per_px, image_size, crops, images, margin, box_lo, box_hi = hull
+    rank = top.shape[0]
+    top[:] = -np.inf  # descending
+    for view in range(proj.shape[0]):
+        P = proj[view]
+        hu = P[0, 0] * x + P[0, 1] * y + P[0, 2] * z + P[0, 3]
+        hv = P[1, 0] * x + P[1, 1] * y + P[1, 2] * z + P[1, 3]
+        scale = metres_per_px[view]
+        if not orthographic[view]:
+            depth = P[2, 0] * x + P[2, 1] * y + P[2, 2] * z + P[2, 3]
+            if depth <= 0.0:
+                continue
+            hu /= depth
+            hv /= depth
+            scale *= depth
+        width, height = image_size[view, 0], image_size[view, 1]
+        # The carver's pixel is floor(u + 1/2): inside the image for u in [-1/2, W - 1/2).
+        if not (-0.5 <= hu < width - 0.5 and -0.5 <= hv < height - 0.5):
+            continue
+        # Within the outer half pixel, the edge pixel's value holds.
+        hu = min(max(hu, 0.0), width - 1.0)
+        hv = min(max(hv, 0.0), height - 1.0)
+        value = scale * _sample(images, crops[view, 0], crops[view, 1], crops[view, 2],
+                                crops[view, 3], crops[view, 4], margin, hu, hv)
+        if value > top[rank - 1]:
+            slot = rank - 1
+            while slot > 0 and top[slot - 1] < value:
+                top[slot] = top[slot - 1]
+                slot -= 1
+            top[slot] = value
+    box = max(box_lo[0] - x, x - box_hi[0], box_lo[1] - y, y - box_hi[1],
+              box_lo[2] - z, z - box_hi[2])
+    return max(top[rank - 1], box)
+
+
+@njit(parallel=True, cache=True)
+def _distance_kernel(hull, points, top, out):
+    """``out[p]``: signed distance (metres) of ``points[p]``; ``top`` (n, rank) scratch."""
+    for p in prange(points.shape[0]):
+        out[p] = _distance_at(hull, points[p, 0], points[p, 1], points[p, 2], top[p])
+
+
+@njit(parallel=True, cache=True)
+def _project_kernel(hull, points, unit, steps, bisections, top, moved, found):
+    """Move ``points[p]`` along ``unit[p]`` to the inside -> outside crossing nearest it.
+
+    The crossing is looked for between consecutive ``steps`` (metres along the
+    line, ascending) and placed by ``bisections`` halvings; ``found[p]`` tells
+    whether there was one (else ``moved[p]`` is the point itself).
+    """
     for p in prange(points.shape[0]):
         x, y, z = points[p, 0], points[p, 1], points[p, 2]
-        top[p, :] = -np.inf  # descending
-        for view in range(n_views):
-            P = proj[view]
-            hu = P[0, 0] * x + P[0, 1] * y + P[0, 2] * z + P[0, 3]
-            hv = P[1, 0] * x + P[1, 1] * y + P[1, 2] * z + P[1, 3]
-            scale = metres_per_px[view]
-            if not orthographic[view]:
-                depth = P[2, 0] * x + P[2, 1] * y + P[2, 2] * z + P[2, 3]
-                if depth <= 0.0:
-                    continue
-                hu /= depth
-                hv /= depth
-                scale *= depth
-            width, height = image_size[view, 0], image_size[view, 1]
-            # The carver's pixel is floor(u + 1/2): inside the image for u in [-1/2, W - 1/2).
-            if not (-0.5 <= hu < width - 0.5 and -0.5 <= hv < height - 0.5):
-                continue
-            # Within the outer half pixel, the edge pixel's value holds.
-            hu = min(max(hu, 0.0), width - 1.0)
-            hv = min(max(hv, 0.0), height - 1.0)
-            value = scale * _sample(images, crops[view, 0], crops[view, 1], crops[view, 2],
-                                    crops[view, 3], crops[view, 4], margin, hu, hv)
-            if value > top[p, rank - 1]:
-                slot = rank - 1
-                while slot > 0 and top[p, slot - 1] < value:
-                    top[p, slot] = top[p, slot - 1]
-                    slot -= 1
-                top[p, slot] = value
-        box = max(box_lo[0] - x, x - box_hi[0], box_lo[1] - y, y - box_hi[1],
-                  box_lo[2] - z, z - box_hi[2])
-        out[p] = max(top[p, rank - 1], box)
+        ux, uy, uz = unit[p, 0], unit[p, 1], unit[p, 2]
+        pick = -1
+        previous = _distance_at(hull, x + steps[0] * ux, y + steps[0] * uy, z + steps[0] * uz,
+                                top[p])
+        for j in range(1, steps.shape[0]):
+            t = steps[j]
+            current = _distance_at(hull, x + t * ux, y + t * uy, z + t * uz, top[p])
+            if previous <= 0.0 < current and (
+                    pick < 0 or abs(steps[j - 1] + t) < abs(steps[pick] + steps[pick + 1])):
+                pick = j - 1
+            previous = current
+        found[p] = pick >= 0
+        t = 0.0
+        if pick >= 0:
+            lo, hi = steps[pick], steps[pick + 1]
+            for _ in range(bisections):
+                mid = 0.5 * (lo + hi)
+                if _distance_at(hull, x + mid * ux, y + mid * uy, z + mid * uz, top[p]) > 0.0:
+                    hi = mid
+                else:
+                    lo = mid
+            t = 0.5 * (lo + hi)
+        moved[p, 0] = x + t * ux
+        moved[p, 1] = y + t * uy
+        moved[p, 2] = z + t * uz
 
 
 class HullDistance:
@@ -207,15 +249,20 @@ class HullDistance:
             images.append(distance.ravel())
             crops.append((offset, distance.shape[1], distance.shape[0], u0, v0))
             offset += distance.size
-        self._images = np.concatenate(images)
-        self._crops = np.array(crops, dtype=np.int64)
-        self._proj = np.stack([c.projection_matrix for c in cameras])
-        self._orthographic = np.array([c.orthographic for c in cameras])
-        # Distance images assume square pixels: the mean focal length converts them.
-        self._metres_per_px = np.array([1.0 / math.sqrt(c.K[0, 0] * c.K[1, 1]) for c in cameras])
-        self._image_size = np.array([(c.width, c.height) for c in cameras], dtype=np.float64)
-        self._box = box
         self._rank = int(max_misses) + 1
+        # What the kernels read (see ``_distance_at``). Distance images assume
+        # square pixels: the mean focal length converts them to metres.
+        self._kernel_data = (
+            np.stack([c.projection_matrix for c in cameras]),
+            np.array([c.orthographic for c in cameras]),
+            np.array([1.0 / math.sqrt(c.K[0, 0] * c.K[1, 1]) for c in cameras]),
+            np.array([(c.width, c.height) for c in cameras], dtype=np.float64),
+            np.array(crops, dtype=np.int64),
+            np.concatenate(images),
+            float(CROP_MARGIN_PX) - 0.5,
+            np.ascontiguousarray(box[0]),
+            np.ascontiguousarray(box[1]),
+        )
 
     def __call__(self, points) -> np.ndarray:
         """Signed distances of ``points`` (n, 3) float64, metres -> (n,) float64, metres.
@@ -229,10 +276,7 @@ class HullDistance:
         if not np.all(np.isfinite(pts)):
             raise ValueError("points must be finite")
         out = np.empty(len(pts))
-        _hull_distance_kernel(pts, self._proj, self._orthographic, self._metres_per_px,
-                              self._image_size, self._crops, self._images,
-                              CROP_MARGIN_PX - 0.5, self._box[0], self._box[1],
-                              np.empty((len(pts), self._rank)), out)
+        _distance_kernel(self._kernel_data, pts, np.empty((len(pts), self._rank)), out)
         return out
 
     def project(self, points, directions, *, reach_m: float) -> tuple[np.ndarray, np.ndarray]:
@@ -268,19 +312,10 @@ class HullDistance:
             raise ValueError("directions must be finite and non-zero")
         if not (math.isfinite(reach_m) and reach_m > 0):
             raise ValueError(f"reach_m must be a finite distance > 0 metres, got {reach_m}")
-        unit = dirs / length
-        steps = np.linspace(-reach_m, reach_m, 2 * _SEARCH_STEPS + 1)
-        values = np.stack([self(pts + t * unit) for t in steps], axis=1)
-        # Inside -> outside crossings between samples j and j + 1; the one nearest t = 0.
-        crossing = (values[:, :-1] <= 0) & (values[:, 1:] > 0)
-        found = crossing.any(axis=1)
-        middle = 0.5 * (steps[:-1] + steps[1:])
-        pick = np.argmin(np.where(crossing, np.abs(middle), np.inf), axis=1)
-        lo, hi = steps[pick], steps[pick + 1]
-        for _ in range(_BISECTIONS):
-            mid = 0.5 * (lo + hi)
-            outside = self(pts + mid[:, None] * unit) > 0
-            lo = np.where(outside, lo, mid)
-            hi = np.where(outside, mid, hi)
-        t = np.where(found, 0.5 * (lo + hi), 0.0)
-        return pts + t[:, None] * unit, found
+        unit = np.ascontiguousarray(dirs / length)
+        moved = np.empty_like(unit)
+        found = np.empty(len(unit), dtype=bool)
+        _project_kernel(self._kernel_data, np.ascontiguousarray(pts), unit,
+                        np.linspace(-reach_m, reach_m, 2 * _SEARCH_STEPS + 1), _BISECTIONS,
+                        np.empty((len(unit), self._rank)), moved, found)
+        return moved, found
