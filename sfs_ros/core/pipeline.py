@@ -22,7 +22,8 @@ from .meshing.colour import vertex_colours
 from .carving.consistency import bbox_clips_object, find_inconsistent_views
 from .geometry.grid import VoxelGrid
 from .carving.hull import drop_specks
-from .meshing.marching import marching_cubes_mesh
+from .meshing.hull_distance import HullDistance
+from .meshing.marching import hull_marching_cubes_mesh
 from .meshing.mesh_checks import check_mesh
 from .metrics import reprojection_iou
 from .segment import SegmentationParams, segment
@@ -161,13 +162,20 @@ def _grid(params: ReconstructionParams, bounds: np.ndarray) -> VoxelGrid:
     return VoxelGrid.cube(bounds[0], bounds[1], params.resolution)
 
 
-def _mesh(occupancy: np.ndarray, grid: VoxelGrid, params: ReconstructionParams) -> tuple:
+def _mesh(occupancy: np.ndarray, grid: VoxelGrid, params: ReconstructionParams, cameras,
+          masks) -> tuple:
+    """Mesh the carved hull on the hull surface of the views that carved it (sub-voxel)."""
+    hull = HullDistance(cameras, masks, max_misses=params.max_misses,
+                        bounds_m=(grid.bounds_min, grid.bounds_max))
     if params.mesher == "marching-cubes":
-        vertices, faces = marching_cubes_mesh(occupancy, grid)
+        vertices, faces = hull_marching_cubes_mesh(occupancy, grid, hull)
         return vertices, faces, {}
     cloud = cloud_of_points(occupancy, grid, block=params.block)
-    result = advancing_front(cloud.points, cloud.normals)
-    return cloud.points, result.faces, {**result.stats, "cloud_points": int(len(cloud.points))}
+    # Surface voxel centres lie up to a voxel inside the hull surface: move them onto it.
+    points, on_hull = hull.project(cloud.points, cloud.normals, reach_m=2.0 * grid.voxel_size)
+    result = advancing_front(points, cloud.normals)
+    return points, result.faces, {**result.stats, "cloud_points": int(len(points)),
+                                  "cloud_points_on_hull": int(on_hull.sum())}
 
 
 def reconstruct(view_set: ViewSet, params: ReconstructionParams = ReconstructionParams(), *,
@@ -253,7 +261,7 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
 
     with _timed(timings, "meshing"):
         progress("meshing", 0.0)
-        vertices, faces, mesher_stats = _mesh(occupancy, grid, params)
+        vertices, faces, mesher_stats = _mesh(occupancy, grid, params, cameras, used_masks)
         progress("meshing", 1.0)
     with _timed(timings, "mesh_checks"):
         mesh_report = check_mesh(vertices, faces).as_dict()

@@ -7,6 +7,11 @@ off the voxel staircase), and contoured at the level 0.5 (see ``LEVEL``): on
 unsmoothed data the surface passes half-way between an occupied and an empty
 voxel centre, i.e. on the voxel faces. Faces are returned counter-clockwise seen from
 outside (positive signed volume).
+
+:func:`hull_marching_cubes_mesh` contours the signed distance to the visual
+hull instead (:class:`.hull_distance.HullDistance`, sampled on the voxel
+centres near the carved surface) at level 0: its vertices lie on the hull
+surface to a fraction of a voxel, with no voxel staircase to smooth away.
 """
 
 from __future__ import annotations
@@ -18,8 +23,9 @@ from scipy import ndimage
 from skimage import measure
 
 from ..geometry.grid import VoxelGrid
+from .hull_distance import HullDistance
 
-__all__ = ["marching_cubes_mesh"]
+__all__ = ["hull_marching_cubes_mesh", "marching_cubes_mesh"]
 
 #: Iso-level between empty (0) and occupied (1) voxels: just below 0.5. At
 #: exactly 0.5, Lewiner's ambiguity tests tie on 0/1 data (a cube face whose
@@ -63,16 +69,11 @@ def marching_cubes_mesh(occupancy, grid: VoxelGrid, *, smooth_sigma_vox: float =
         occupied voxel, if ``smooth_sigma_vox`` is negative or not finite, or
         if smoothing removes the whole object.
     """
-    occ = np.asarray(occupancy)
-    if occ.ndim != 3:
-        raise ValueError(f"occupancy must be a 3-D (nx, ny, nz) array, got shape {occ.shape}")
-    if tuple(occ.shape) != tuple(grid.shape):
-        raise ValueError(f"occupancy shape {occ.shape} does not match the grid shape {grid.shape}")
+    occ = _check_occupancy(occupancy, grid)
     sigma = float(smooth_sigma_vox)
     if not (math.isfinite(sigma) and sigma >= 0):
         raise ValueError(
             f"smooth_sigma_vox must be a finite number >= 0 voxels, got {smooth_sigma_vox}")
-    occ = occ.astype(bool, copy=False)
 
     lo, hi = _occupied_bounds(occ)
     # Empty border wide enough that the smoothed values on it are exactly 0.
@@ -87,9 +88,86 @@ def marching_cubes_mesh(occupancy, grid: VoxelGrid, *, smooth_sigma_vox: float =
                 f"smoothing with sigma {sigma} voxels removes the whole object "
                 f"(occupied box {(hi - lo).tolist()} voxels); use a smaller smooth_sigma_vox")
 
-    # Vertices come back as float32 voxel indices of the padded crop; scale in float64.
-    verts, faces, _, _ = measure.marching_cubes(volume, LEVEL, allow_degenerate=False)
-    vertices = grid.origin + (verts.astype(np.float64) + (lo - pad)) * grid.voxel_size
+    return _contour(volume, LEVEL, lo - pad, grid)
+
+
+def hull_marching_cubes_mesh(occupancy, grid: VoxelGrid, hull: HullDistance, *,
+                             band_voxels: int = 1):
+    """Closed, outward-oriented triangle mesh of the visual hull at sub-voxel precision.
+
+    Parameters
+    ----------
+    occupancy : (nx, ny, nz) bool
+        The hull carved on ``grid`` from the views behind ``hull``; it says where
+        the surface is to a voxel (the distance is only computed near it).
+    grid : VoxelGrid
+    hull : HullDistance
+        Signed distance to the hull of the same views (and carving box).
+    band_voxels : int, keyword-only
+        Voxels within this many steps (26-neighbour) of the occupancy's
+        boundary, on either side, get the distance computed; the others get
+        ``-(band_voxels + 1)`` voxels inside and ``+(band_voxels + 1)``
+        outside. With 1, every corner of every grid cube that the carved
+        surface crosses is computed; the hull surface lies within a fraction
+        of a voxel of the carved one (both come from the same pixel test), so
+        that suffices (on a sphere seen from 60 views, bands of 1, 2 and 3
+        voxels gave the same errors to 0.1 micrometre).
+
+    Returns
+    -------
+    vertices : (n, 3) float64
+        Metres, object frame, on the zero level of the distance (linearly
+        interpolated between voxel centres).
+    faces : (m, 3) int64
+        Vertex indices, counter-clockwise seen from outside.
+
+    Raises
+    ------
+    ValueError
+        If the occupancy is not a 3-D array of the grid's shape, if it has no
+        occupied voxel, or if ``band_voxels`` is below 1.
+    """
+    occ = _check_occupancy(occupancy, grid)
+    if isinstance(band_voxels, bool) or not isinstance(band_voxels, (int, np.integer)) \
+            or band_voxels < 1:
+        raise ValueError(f"band_voxels must be an integer >= 1, got {band_voxels!r}")
+    band = int(band_voxels)
+    lo, hi = _occupied_bounds(occ)
+    # An empty border one voxel wider than the band: its outer layer stays
+    # outside (the level set is closed even where the object touches the grid box).
+    pad = band + 1
+    crop = np.pad(occ[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]], pad)
+    cube = np.ones((3, 3, 3), dtype=bool)
+    near = (ndimage.binary_dilation(crop, cube, iterations=band)
+            & ~ndimage.binary_erosion(crop, cube, iterations=band, border_value=0))
+    # Signed distance in voxels, positive outside; negated below, as for the
+    # occupancy, larger means more inside.
+    volume = np.where(crop, np.float32(-pad), np.float32(pad))
+    corner = lo - pad
+    distance = hull(grid.index_to_world(np.argwhere(near) + corner)) / grid.voxel_size
+    volume[near] = np.clip(distance, -pad, pad)
+    # A sample exactly on the level makes Lewiner's ambiguity tests tie (see
+    # LEVEL); counting it as just outside (by 1e-6 voxel) breaks the tie.
+    volume[volume == 0.0] = np.float32(1e-6)
+    np.negative(volume, out=volume)
+    return _contour(volume, 0.0, corner, grid)
+
+
+def _check_occupancy(occupancy, grid: VoxelGrid) -> np.ndarray:
+    """(nx, ny, nz) bool occupancy of the grid's shape; ValueError otherwise."""
+    occ = np.asarray(occupancy)
+    if occ.ndim != 3:
+        raise ValueError(f"occupancy must be a 3-D (nx, ny, nz) array, got shape {occ.shape}")
+    if tuple(occ.shape) != tuple(grid.shape):
+        raise ValueError(f"occupancy shape {occ.shape} does not match the grid shape {grid.shape}")
+    return occ.astype(bool, copy=False)
+
+
+def _contour(volume: np.ndarray, level: float, corner: np.ndarray, grid: VoxelGrid):
+    """Mesh of ``volume`` (larger = inside) at ``level``; its ``[0, 0, 0]`` is voxel ``corner``."""
+    # Vertices come back as float32 voxel indices of the volume; scale in float64.
+    verts, faces, _, _ = measure.marching_cubes(volume, level, allow_degenerate=False)
+    vertices = grid.origin + (verts.astype(np.float64) + corner) * grid.voxel_size
     faces = faces.astype(np.int64)
     if _signed_volume(vertices, faces) < 0:
         faces = faces[:, ::-1].copy()

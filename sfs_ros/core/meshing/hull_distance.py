@@ -1,0 +1,321 @@
+"""Signed distance to the visual hull, for meshing below the voxel scale.
+
+Carving decides each voxel by one pixel per view, so a surface made from the
+0/1 occupancy can only sit on voxel faces: flat faces at an angle to the grid
+come out as terraces, curved ones as ridges. The silhouettes themselves know
+the surface to a fraction of a pixel, and this module asks them.
+
+Per view, the mask's signed distance transform (pixels, positive outside) is
+sampled bilinearly at a point's projection and turned into metres by the
+pixel size at the point's depth (pinhole: ``depth / f``; orthographic:
+``1 / f``). A point is inside the hull only if it is inside every silhouette,
+so the hull's value is the largest of the views' values (with ``max_misses = k``,
+like the carver, the (k+1)-th largest: k views may disagree). Its zero level is
+the hull surface; near it the value approximates the distance to the surface
+(exactly for a surface seen edge-on by the deciding view, which is where a
+visual hull's surface lies).
+
+The mask's boundary is taken half-way between a foreground and a background
+pixel centre, the boundary of the carver's pixel test (nearest pixel centre):
+each pixel gets ``-(distance to the nearest background pixel centre - 1/2)``
+inside and ``+(distance to the nearest foreground pixel centre - 1/2)``
+outside. Bilinear sampling puts the zero exactly on pixel edges along a
+straight row or column and cuts the corners of a pixel staircase (a 45-degree
+edge comes out straight); an edge at a shallow angle to the pixel rows keeps
+its half-pixel steps, which is all a binary mask tells of it.
+
+A view on which a point projects outside the image (or behind a pinhole
+camera) knows nothing about it, as for the carver (``outside_image="keep"``);
+the carving box bounds the hull too (its signed distance joins the views').
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Sequence
+
+import cv2
+import numpy as np
+from numba import njit, prange
+
+from ..carving.carve import validate_masks
+from ..geometry.camera import Camera
+
+__all__ = ["HullDistance"]
+
+#: Pixels kept around each silhouette's bounding box in the stored distance
+#: image; beyond them a lower bound of the outside distance is used (see
+#: ``_sample``), which changes nothing near the zero level.
+CROP_MARGIN_PX = 8
+#: Distances are clipped to this many pixels (a mask filling its whole crop
+#: has no boundary, and OpenCV then reports ~1.8e19).
+MAX_DISTANCE_PX = 1.0e6
+#: Samples along each line in :meth:`HullDistance.project`, each side of the
+#: point, that find the crossing; then bisections that place it (the bilinear,
+#: max-of-views distance has kinks, where regula falsi is no faster).
+_SEARCH_STEPS = 4
+_BISECTIONS = 20
+
+
+def _silhouette_distance(mask: np.ndarray) -> tuple[np.ndarray, int, int]:
+    """Signed distance image of one mask, cropped around the foreground.
+
+    Parameters
+    ----------
+    mask : (H, W) bool
+
+    Returns
+    -------
+    distance : (h, w) float32
+        Pixels, positive outside the silhouette, zero half-way between a
+        foreground and a background pixel centre; covers the foreground's
+        bounding box grown by ``CROP_MARGIN_PX`` (clipped to the image).
+    u0, v0 : int
+        Column and row of the crop's first pixel in the image.
+    """
+    rows = np.flatnonzero(mask.any(axis=1))
+    cols = np.flatnonzero(mask.any(axis=0))
+    if rows.size == 0:
+        raise ValueError("a mask is empty: an empty silhouette bounds no hull "
+                         "(reject the view before meshing)")
+    v0 = max(0, int(rows[0]) - CROP_MARGIN_PX)
+    v1 = min(mask.shape[0], int(rows[-1]) + 1 + CROP_MARGIN_PX)
+    u0 = max(0, int(cols[0]) - CROP_MARGIN_PX)
+    u1 = min(mask.shape[1], int(cols[-1]) + 1 + CROP_MARGIN_PX)
+    # At least 2 x 2 pixels, so that bilinear sampling always has four.
+    crop = np.pad(mask[v0:v1, u0:u1], ((0, max(0, 2 - (v1 - v0))), (0, max(0, 2 - (u1 - u0)))),
+                  mode="edge").view(np.uint8)
+    # OpenCV measures to the nearest zero pixel; pixels beyond the image are not
+    # zero, so a silhouette cut by the image border has no boundary there.
+    inside = cv2.distanceTransform(crop, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    outside = cv2.distanceTransform(1 - crop, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    distance = np.where(crop.astype(bool), 0.5 - inside, outside - 0.5)
+    return np.clip(distance, -MAX_DISTANCE_PX, MAX_DISTANCE_PX).astype(np.float32), u0, v0
+
+
+@njit(cache=True)
+def _sample(images, offset, width, height, u0, v0, margin, u, v):
+    """Bilinear value (pixels) of one cropped distance image at image point ``(u, v)``."""
+    x = u - u0
+    y = v - v0
+    # Outside the crop: the distance to the crop's outer pixel centres plus
+    # ``margin`` (the distance from them to the silhouette's bounding box,
+    # whose edges lie half a pixel beyond its outer pixel centres) bounds the
+    # distance to the silhouette from below.
+    if x < 0.0 or y < 0.0 or x > width - 1 or y > height - 1:
+        dx = max(0.0, -x, x - (width - 1))
+        dy = max(0.0, -y, y - (height - 1))
+        return margin + math.sqrt(dx * dx + dy * dy)
+    i = min(int(x), width - 2)
+    j = min(int(y), height - 2)
+    fx = x - i
+    fy = y - j
+    k = offset + j * width + i
+    a = images[k]
+    b = images[k + 1]
+    c = images[k + width]
+    d = images[k + width + 1]
+    return (a * (1.0 - fx) + b * fx) * (1.0 - fy) + (c * (1.0 - fx) + d * fx) * fy
+
+
+@njit(cache=True)
+def _distance_at(hull, x, y, z, top):
+    """Signed distance (metres) of the point ``(x, y, z)`` to the hull (see the module doc).
+
+    ``hull`` is :attr:`HullDistance._kernel_data`; ``top`` (rank,) float64 is
+    scratch for the ``rank`` largest view values.
+    """
+    proj, orthographic, metres_per_px, image_size, crops, images, margin, box_lo, box_hi = hull
+    rank = top.shape[0]
+    top[:] = -np.inf  # descending
+    for view in range(proj.shape[0]):
+        P = proj[view]
+        hu = P[0, 0] * x + P[0, 1] * y + P[0, 2] * z + P[0, 3]
+        hv = P[1, 0] * x + P[1, 1] * y + P[1, 2] * z + P[1, 3]
+        scale = metres_per_px[view]
+        if not orthographic[view]:
+            depth = P[2, 0] * x + P[2, 1] * y + P[2, 2] * z + P[2, 3]
+            if depth <= 0.0:
+                continue
+            hu /= depth
+            hv /= depth
+            scale *= depth
+        width, height = image_size[view, 0], image_size[view, 1]
+        # The carver's pixel is floor(u + 1/2): inside the image for u in [-1/2, W - 1/2).
+        if not (-0.5 <= hu < width - 0.5 and -0.5 <= hv < height - 0.5):
+            continue
+        # Within the outer half pixel, the edge pixel's value holds.
+        hu = min(max(hu, 0.0), width - 1.0)
+        hv = min(max(hv, 0.0), height - 1.0)
+        value = scale * _sample(images, crops[view, 0], crops[view, 1], crops[view, 2],
+                                crops[view, 3], crops[view, 4], margin, hu, hv)
+        if value > top[rank - 1]:
+            slot = rank - 1
+            while slot > 0 and top[slot - 1] < value:
+                top[slot] = top[slot - 1]
+                slot -= 1
+            top[slot] = value
+    box = max(box_lo[0] - x, x - box_hi[0], box_lo[1] - y, y - box_hi[1],
+              box_lo[2] - z, z - box_hi[2])
+    return max(top[rank - 1], box)
+
+
+@njit(parallel=True, cache=True)
+def _distance_kernel(hull, points, top, out):
+    """``out[p]``: signed distance (metres) of ``points[p]``; ``top`` (n, rank) scratch."""
+    for p in prange(points.shape[0]):
+        out[p] = _distance_at(hull, points[p, 0], points[p, 1], points[p, 2], top[p])
+
+
+@njit(parallel=True, cache=True)
+def _project_kernel(hull, points, unit, steps, bisections, top, moved, found):
+    """Move ``points[p]`` along ``unit[p]`` to the inside -> outside crossing nearest it.
+
+    The crossing is looked for between consecutive ``steps`` (metres along the
+    line, ascending) and placed by ``bisections`` halvings; ``found[p]`` tells
+    whether there was one (else ``moved[p]`` is the point itself).
+    """
+    for p in prange(points.shape[0]):
+        x, y, z = points[p, 0], points[p, 1], points[p, 2]
+        ux, uy, uz = unit[p, 0], unit[p, 1], unit[p, 2]
+        pick = -1
+        previous = _distance_at(hull, x + steps[0] * ux, y + steps[0] * uy, z + steps[0] * uz,
+                                top[p])
+        for j in range(1, steps.shape[0]):
+            t = steps[j]
+            current = _distance_at(hull, x + t * ux, y + t * uy, z + t * uz, top[p])
+            if previous <= 0.0 < current and (
+                    pick < 0 or abs(steps[j - 1] + t) < abs(steps[pick] + steps[pick + 1])):
+                pick = j - 1
+            previous = current
+        found[p] = pick >= 0
+        t = 0.0
+        if pick >= 0:
+            lo, hi = steps[pick], steps[pick + 1]
+            for _ in range(bisections):
+                mid = 0.5 * (lo + hi)
+                if _distance_at(hull, x + mid * ux, y + mid * uy, z + mid * uz, top[p]) > 0.0:
+                    hi = mid
+                else:
+                    lo = mid
+            t = 0.5 * (lo + hi)
+        moved[p, 0] = x + t * ux
+        moved[p, 1] = y + t * uy
+        moved[p, 2] = z + t * uz
+
+
+class HullDistance:
+    """Signed distance to the visual hull of calibrated silhouettes (metres, positive outside).
+
+    Parameters
+    ----------
+    cameras : sequence of Camera
+        The views that carved the hull.
+    masks : sequence of (H, W) bool
+        Their silhouettes, one per camera, each of its camera's image size.
+    max_misses : int, keyword-only
+        As for the carver: a point is inside when at most this many views see
+        it outside their silhouette (the value is the (k+1)-th largest view value;
+        with as many misses allowed as there are views, only the box bounds the hull).
+    bounds_m : (2, 3) array-like or None, keyword-only
+        The carving box ``[min, max]``, metres; the hull is cut by it. None: no box.
+
+    Memory: one float32 distance image per view, cropped to the silhouette's
+    bounding box plus ``CROP_MARGIN_PX``.
+    """
+
+    def __init__(self, cameras: Sequence[Camera], masks, *, max_misses: int = 0,
+                 bounds_m=None):
+        cameras = list(cameras)
+        if not cameras:
+            raise ValueError("need at least one camera and mask to define a hull")
+        masks = validate_masks(cameras, masks)
+        if isinstance(max_misses, bool) or not isinstance(max_misses, (int, np.integer)) \
+                or max_misses < 0:
+            raise ValueError(f"max_misses must be an integer >= 0, got {max_misses!r}")
+        if bounds_m is None:
+            box = np.array([[-np.inf] * 3, [np.inf] * 3])
+        else:
+            box = np.asarray(bounds_m, dtype=np.float64)
+            if box.shape != (2, 3) or np.any(np.isnan(box)) or np.any(box[1] <= box[0]):
+                raise ValueError(f"bounds_m must be [[xmin, ymin, zmin], [xmax, ymax, zmax]] "
+                                 f"with min < max, got {box.tolist()}")
+        images, crops, offset = [], [], 0
+        for index, mask in enumerate(masks):
+            try:
+                distance, u0, v0 = _silhouette_distance(mask)
+            except ValueError as err:
+                raise ValueError(f"view {index}: {err}") from None
+            images.append(distance.ravel())
+            crops.append((offset, distance.shape[1], distance.shape[0], u0, v0))
+            offset += distance.size
+        self._rank = int(max_misses) + 1
+        # What the kernels read (see ``_distance_at``). Distance images assume
+        # square pixels: the mean focal length converts them to metres.
+        self._kernel_data = (
+            np.stack([c.projection_matrix for c in cameras]),
+            np.array([c.orthographic for c in cameras]),
+            np.array([1.0 / math.sqrt(c.K[0, 0] * c.K[1, 1]) for c in cameras]),
+            np.array([(c.width, c.height) for c in cameras], dtype=np.float64),
+            np.array(crops, dtype=np.int64),
+            np.concatenate(images),
+            float(CROP_MARGIN_PX) - 0.5,
+            np.ascontiguousarray(box[0]),
+            np.ascontiguousarray(box[1]),
+        )
+
+    def __call__(self, points) -> np.ndarray:
+        """Signed distances of ``points`` (n, 3) float64, metres -> (n,) float64, metres.
+
+        Negative inside the hull; ``-inf`` where no view sees the point and no
+        box bounds it.
+        """
+        pts = np.ascontiguousarray(points, dtype=np.float64)
+        if pts.ndim != 2 or pts.shape[1] != 3:
+            raise ValueError(f"points must be an (n, 3) array, got shape {pts.shape}")
+        if not np.all(np.isfinite(pts)):
+            raise ValueError("points must be finite")
+        out = np.empty(len(pts))
+        _distance_kernel(self._kernel_data, pts, np.empty((len(pts), self._rank)), out)
+        return out
+
+    def project(self, points, directions, *, reach_m: float) -> tuple[np.ndarray, np.ndarray]:
+        """Move points along lines to the hull surface (the zero level).
+
+        Parameters
+        ----------
+        points : (n, 3) float64
+            Points near the surface, metres.
+        directions : (n, 3) float64
+            Outward directions of the lines (e.g. normals); need not be unit.
+        reach_m : float, keyword-only
+            Largest move, metres, either way along the line.
+
+        Returns
+        -------
+        moved : (n, 3) float64
+            For each point, the crossing from inside to outside nearest to it
+            on ``point + t * unit(direction)``, ``|t| <= reach_m``, found
+            between samples ``reach_m / 4`` apart and placed by bisection to
+            within 1e-6 of ``reach_m``; the point itself where the line has no
+            crossing there.
+        found : (n,) bool
+            Which points were moved.
+        """
+        pts = np.asarray(points, dtype=np.float64)
+        dirs = np.asarray(directions, dtype=np.float64)
+        if pts.ndim != 2 or pts.shape[1] != 3 or dirs.shape != pts.shape:
+            raise ValueError(f"points and directions must be (n, 3) arrays of the same shape, "
+                             f"got {pts.shape} and {dirs.shape}")
+        length = np.linalg.norm(dirs, axis=1, keepdims=True)
+        if not np.all(np.isfinite(dirs)) or np.any(length == 0):
+            raise ValueError("directions must be finite and non-zero")
+        if not (math.isfinite(reach_m) and reach_m > 0):
+            raise ValueError(f"reach_m must be a finite distance > 0 metres, got {reach_m}")
+        unit = np.ascontiguousarray(dirs / length)
+        moved = np.empty_like(unit)
+        found = np.empty(len(unit), dtype=bool)
+        _project_kernel(self._kernel_data, np.ascontiguousarray(pts), unit,
+                        np.linspace(-reach_m, reach_m, 2 * _SEARCH_STEPS + 1), _BISECTIONS,
+                        np.empty((len(unit), self._rank)), moved, found)
+        return moved, found
