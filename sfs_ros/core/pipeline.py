@@ -1,7 +1,7 @@
 """The whole reconstruction: tagged images in, a checked mesh and a report out.
 
-Stages (each timed in the report): segmentation, bounding box, view
-consistency, carving, meshing (cloud of points + advancing front, or marching
+Stages (each timed in the report): segmentation, bounding box, fusion of
+the silhouettes, carving, meshing (cloud of points + advancing front, or marching
 cubes), mesh checks, colour (on request), reprojection of the mesh into every view.
 """
 
@@ -19,7 +19,8 @@ from .carving.bounds import estimate_bounds
 from .carving.carve import carve
 from .meshing.cloud import cloud_of_points
 from .meshing.colour import vertex_colours
-from .carving.consistency import bbox_clips_object, find_inconsistent_views
+from .carving.consistency import bbox_clips_object
+from .carving.fusion import fuse_silhouettes
 from .geometry.grid import VoxelGrid
 from .carving.hull import drop_specks
 from .meshing.marching import marching_cubes_mesh
@@ -54,17 +55,16 @@ class ReconstructionParams:
     block : int
         M of the paper's cloud of points (M x M x M sub-blocks), advancing front only.
     max_misses : int
-        A voxel survives if at most this many views see it outside their silhouette.
+        A voxel survives if at most this many views see it outside their
+        silhouette (after the fusion repaired the masks).
     check_consistency : bool
-        Detect and drop views whose silhouette disagrees with the others.
-    consistency_min_iou, consistency_max_missing : float
-        A view is dropped as inconsistent when its mask and the projection of
-        the tolerant hull (each voxel may be missed by one view) have IoU below
-        ``consistency_min_iou`` or when more than ``consistency_max_missing`` of
-        that projection lies outside the mask. Good views of real photographs
-        on a 16-view ring reach 5 % missing (Middlebury dino); a mask with half
-        the object erased, 45 %. Damage below ~10 % of a silhouette goes
-        undetected (and shaves correspondingly little).
+        Fuse the silhouettes (:func:`sfs_ros.core.carving.fusion.fuse_silhouettes`):
+        where the hull the other views agree on lies deep outside one view's
+        mask, that view is overruled there (its mask is filled); a view that
+        disagrees as a whole is dropped. Every decision is in the report.
+    consistency_min_iou : float
+        A view is dropped as a whole when its mask and the projection of the
+        hull the others agree on have IoU below this.
     holdout : tuple of str
         Names of views kept out of carving and only used to evaluate the mesh.
     segmentation : SegmentationParams or None
@@ -83,7 +83,6 @@ class ReconstructionParams:
     max_misses: int = 0
     check_consistency: bool = True
     consistency_min_iou: float = 0.75
-    consistency_max_missing: float = 0.10
     holdout: tuple = ()
     segmentation: SegmentationParams | None = None
     colour: bool = False
@@ -99,9 +98,9 @@ class ReconstructionParams:
             raise ValueError(f"block (M) must be >= 1 voxel, got {self.block}")
         if int(self.max_misses) < 0:
             raise ValueError(f"max_misses must be >= 0, got {self.max_misses}")
-        for name in ("consistency_min_iou", "consistency_max_missing"):
-            if not 0.0 <= getattr(self, name) <= 1.0:
-                raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)}")
+        if not 0.0 <= self.consistency_min_iou <= 1.0:
+            raise ValueError(f"consistency_min_iou must be in [0, 1], "
+                             f"got {self.consistency_min_iou}")
 
 
 @dataclass
@@ -216,30 +215,32 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
                 f"the bounding box {bounds.round(4).tolist()} m misses part of the object in "
                 f"{len(clipped)} of {len(cameras)} views; enlarge it")
 
-    consistency = []
-    with _timed(timings, "consistency"):
-        if params.check_consistency and len(cameras) >= 4:
-            progress("consistency", 0.0)
-            # Detecting a bad view needs the hull's shape, not its detail: a coarse grid.
-            check_grid = VoxelGrid.cube(bounds[0], bounds[1], min(max(grid.shape), 96))
-            checks = find_inconsistent_views(check_grid, cameras, used_masks,
-                                             max_misses=max(1, params.max_misses),
-                                             min_iou=params.consistency_min_iou,
-                                             max_missing_fraction=params.consistency_max_missing)
-            for c in checks:
-                name = views[used[c.index]].name
-                consistency.append({"view": name, "iou": c.iou,
-                                    "missing_fraction": c.missing_fraction,
-                                    "consistent": c.consistent})
-                if not c.consistent:
-                    rejected.append({"view": name,
-                                     "reason": f"silhouette inconsistent with the other views "
-                                               f"(IoU {c.iou:.3f} with the tolerant hull, "
-                                               f"{100 * c.missing_fraction:.1f}% of it missing)"})
-            bad = {c.index for c in checks if not c.consistent}
-            used = [u for n, u in enumerate(used) if n not in bad]
+    consistency, fusion_report = [], None
+    with _timed(timings, "fusion"):
+        if params.check_consistency and len(cameras) >= 3:
+            progress("fusion", 0.0)
+            fusion = fuse_silhouettes(grid, cameras, used_masks,
+                                      min_iou=params.consistency_min_iou)
+            for verdict in fusion.verdicts:
+                name = views[used[verdict.index]].name
+                consistency.append({"view": name, "iou": verdict.iou,
+                                    "missing_fraction": verdict.missing_fraction,
+                                    "consistent": not verdict.dropped,
+                                    "overruled_pixels": verdict.overruled_pixels,
+                                    "overruled_depth_px": verdict.overruled_depth_px,
+                                    "depth_threshold_px": verdict.depth_threshold_px,
+                                    "reason": verdict.reason})
+                if verdict.dropped:
+                    rejected.append({"view": name, "reason": verdict.reason})
+            fusion_report = {
+                "reference_misses": fusion.reference_misses,
+                "neighbour_angle_deg": float(np.degrees(fusion.neighbour_angle_rad)),
+                "overruled": [c["view"] for c in consistency
+                              if c["consistent"] and c["overruled_pixels"]]}
+            used_masks = [fusion.masks[n] for n in fusion.kept]
+            used = [used[n] for n in fusion.kept]
             cameras = [views[i].camera for i in used]
-            used_masks = [masks[i] for i in used]
+            progress("fusion", 1.0)
 
     with _timed(timings, "carving"):
         progress("carving", 0.0)
@@ -293,6 +294,7 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
         "views": {"used": [views[i].name for i in used], "held_out": list(params.holdout),
                   "rejected": rejected, "clipped_by_bounds": clipped},
         "consistency": consistency,
+        "fusion": fusion_report,
         "occupied_voxels": int(occupancy.sum()),
         "specks_removed": specks_removed,
         "mesher": {"name": params.mesher, **mesher_stats},
