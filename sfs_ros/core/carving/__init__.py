@@ -6,6 +6,7 @@ from .consistency import ViewCheck, bbox_clips_object, find_inconsistent_views, 
 from .fusion import Fusion, ViewVerdict, fuse_silhouettes
 from .hull import drop_specks
 
-__all__ = ["OUTSIDE_IMAGE", "Carver", "Fusion", "ViewCheck", "ViewVerdict", "axes_meeting_point", "bbox_clips_object",
-           "carve", "drop_specks", "estimate_bounds", "find_inconsistent_views", "fuse_silhouettes",
-           "hull_silhouettes", "validate_masks", "view_coefficients"]
+__all__ = ["OUTSIDE_IMAGE", "Carver", "Fusion", "ViewCheck", "ViewVerdict", "axes_meeting_point",
+           "bbox_clips_object", "carve", "drop_specks", "estimate_bounds",
+           "find_inconsistent_views", "fuse_silhouettes", "hull_silhouettes", "validate_masks",
+           "view_coefficients"]
