@@ -22,6 +22,7 @@ from ..core.meshing.colour import vertex_colours
 from ..core.pictures.contact_sheet import write_contact_sheet
 from ..core.exchange.export import SUPPORTED_SUFFIXES, export_mesh
 from ..core.pictures.html_viewer import write_html_viewer
+from ..core.carving.resolution import parse_memory
 from ..core.pipeline import MESHERS, ReconstructionParams, reconstruct
 from ..core.pictures.preview import preview_image, write_png
 from ..core.segment import PRESETS, SegmentationParams
@@ -39,8 +40,13 @@ def build_parser() -> argparse.ArgumentParser:
     size = p.add_mutually_exclusive_group()
     size.add_argument("-r", "--resolution", type=int,
                       help="voxels along the longest side of the bounding box (default: a "
-                           "bag's recorded one, else 192)")
+                           "bag's recorded one, else the finest pixel footprint at the object, "
+                           "within --max-memory)")
     size.add_argument("--voxel-size", type=float, metavar="METRES", help="voxel edge in metres")
+    p.add_argument("--max-memory", metavar="SIZE",
+                   help="working memory the voxel grid may take, e.g. 2G or 512M (default: a "
+                        "quarter of the machine's memory); a finer grid is coarsened, a given "
+                        "resolution that needs more is refused")
     p.add_argument("-m", "--mesher", choices=MESHERS,
                    help="default: a bag's recorded one, else marching-cubes")
     p.add_argument("--block", type=int, default=2, metavar="M",
@@ -132,8 +138,8 @@ def run(args) -> dict:
     # A bag's views are the recorded masks; its captured images colour the mesh.
     bag_images = load_input(args.input, captures=True)[0] if args.colour and recorded else None
     params = ReconstructionParams(
-        resolution=args.resolution or recorded.get("resolution", 192),
-        voxel_size_m=args.voxel_size, mesher=args.mesher or recorded.get("mesher", MESHERS[0]),
+        resolution=args.resolution or recorded.get("resolution"),
+        voxel_size_m=args.voxel_size, max_memory_bytes=None if args.max_memory is None else parse_memory(args.max_memory), mesher=args.mesher or recorded.get("mesher", MESHERS[0]),
         block=args.block, bounds_m=None if args.bounds is None else (args.bounds[:3], args.bounds[3:]),
         max_misses=args.max_misses, check_consistency=not args.no_consistency_check,
         holdout=_holdout_names(args.holdout, [v.name for v in view_set.views]),

@@ -15,12 +15,13 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from .meshing.advancing_front import advancing_front
-from .carving.bounds import estimate_bounds
+from .carving.bounds import estimate_bounds, refine_bounds
 from .carving.carve import carve
 from .meshing.cloud import cloud_of_points
 from .meshing.colour import vertex_colours
 from .carving.consistency import bbox_clips_object
-from .carving.fusion import fuse_silhouettes
+from .carving.fusion import fuse_silhouettes, reference_misses
+from .carving.resolution import choose_voxel_size, default_memory_budget
 from .geometry.grid import VoxelGrid
 from .carving.hull import drop_specks
 from .meshing.marching import marching_cubes_mesh
@@ -43,13 +44,21 @@ class ReconstructionParams:
 
     Attributes
     ----------
-    resolution : int
+    resolution : int or None
         Voxels along the longest side of the bounding box (ignored when
-        ``voxel_size_m`` is set).
+        ``voxel_size_m`` is set). None: the voxel is the finest pixel footprint
+        at the box centre over the views, coarsened only to fit
+        ``max_memory_bytes`` (:func:`sfs_ros.core.carving.resolution.choose_voxel_size`).
     voxel_size_m : float or None
         Voxel edge, metres.
+    max_memory_bytes : int or None
+        Working memory the grid may take, bytes; None: a quarter of the
+        machine's memory. A given resolution or voxel size that needs more is
+        refused before anything is allocated.
     bounds_m : (2, 3) sequence or None
-        Carving box ``[min, max]``, metres; else the input's, else estimated.
+        Carving box ``[min, max]``, metres; else the input's, else estimated
+        from the silhouettes. The input's and the estimated box are then
+        shrunk to a tolerant carve's hull plus a margin.
     mesher : str
         ``"marching-cubes"`` or ``"advancing-front"``.
     block : int
@@ -62,9 +71,9 @@ class ReconstructionParams:
         where the hull the other views agree on lies deep outside one view's
         mask, that view is overruled there (its mask is filled); a view that
         disagrees as a whole is dropped. Every decision is in the report.
-    consistency_min_iou : float
-        A view is dropped as a whole when its mask and the projection of the
-        hull the others agree on have IoU below this.
+    consistency_max_missing : float
+        A view is dropped as a whole when more than this fraction of the
+        projection of the hull the others agree on is missing from its mask.
     holdout : tuple of str
         Names of views kept out of carving and only used to evaluate the mesh.
     segmentation : SegmentationParams or None
@@ -75,14 +84,15 @@ class ReconstructionParams:
         point, blended).
     """
 
-    resolution: int = 192
+    resolution: int | None = None
     voxel_size_m: float | None = None
+    max_memory_bytes: int | None = None
     bounds_m: tuple | None = None
     mesher: str = "marching-cubes"
     block: int = 2
     max_misses: int = 0
     check_consistency: bool = True
-    consistency_min_iou: float = 0.75
+    consistency_max_missing: float = 0.35
     holdout: tuple = ()
     segmentation: SegmentationParams | None = None
     colour: bool = False
@@ -90,17 +100,19 @@ class ReconstructionParams:
     def __post_init__(self) -> None:
         if self.mesher not in MESHERS:
             raise ValueError(f"mesher must be one of {MESHERS}, got {self.mesher!r}")
-        if self.voxel_size_m is None and not 8 <= int(self.resolution) <= 1024:
+        if self.resolution is not None and not 8 <= int(self.resolution) <= 1024:
             raise ValueError(f"resolution must be 8..1024 voxels, got {self.resolution}")
         if self.voxel_size_m is not None and not self.voxel_size_m > 0:
             raise ValueError(f"voxel size must be > 0 metres, got {self.voxel_size_m}")
+        if self.max_memory_bytes is not None and not int(self.max_memory_bytes) > 0:
+            raise ValueError(f"max_memory_bytes must be > 0, got {self.max_memory_bytes}")
         if int(self.block) < 1:
             raise ValueError(f"block (M) must be >= 1 voxel, got {self.block}")
         if int(self.max_misses) < 0:
             raise ValueError(f"max_misses must be >= 0, got {self.max_misses}")
-        if not 0.0 <= self.consistency_min_iou <= 1.0:
-            raise ValueError(f"consistency_min_iou must be in [0, 1], "
-                             f"got {self.consistency_min_iou}")
+        if not 0.0 <= self.consistency_max_missing <= 1.0:
+            raise ValueError(f"consistency_max_missing must be in [0, 1], "
+                             f"got {self.consistency_max_missing}")
 
 
 @dataclass
@@ -154,12 +166,6 @@ def _segment_views(views: list[View], params: SegmentationParams, progress: Prog
     return kept, masks
 
 
-def _grid(params: ReconstructionParams, bounds: np.ndarray) -> VoxelGrid:
-    if params.voxel_size_m is not None:
-        return VoxelGrid(bounds[0], bounds[1], params.voxel_size_m)
-    return VoxelGrid.cube(bounds[0], bounds[1], params.resolution)
-
-
 def _mesh(occupancy: np.ndarray, grid: VoxelGrid, params: ReconstructionParams) -> tuple:
     if params.mesher == "marching-cubes":
         vertices, faces = marching_cubes_mesh(occupancy, grid)
@@ -208,19 +214,31 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
         if bounds.shape != (2, 3) or not np.all(np.isfinite(bounds)) or np.any(bounds[1] <= bounds[0]):
             raise ValueError(f"bounding box must be [[xmin, ymin, zmin], [xmax, ymax, zmax]] "
                              f"with min < max, got {bounds.tolist()}")
-        grid = _grid(params, bounds)
-        clipped = [views[used[i]].name for i in bbox_clips_object(grid, cameras, used_masks)]
-        if 2 * len(clipped) > len(cameras):
+        clipped = [views[used[i]].name
+                   for i in bbox_clips_object(VoxelGrid.cube(bounds[0], bounds[1], 2), cameras,
+                                              used_masks)]
+        # An estimated box holds all the views agree on: foreground outside it
+        # is clutter the other views carve away, not object the box misses.
+        if bounds_source != "estimated" and 2 * len(clipped) > len(cameras):
             raise ValueError(
                 f"the bounding box {bounds.round(4).tolist()} m misses part of the object in "
                 f"{len(clipped)} of {len(cameras)} views; enlarge it")
+        refined = bounds_source != "given" and len(cameras) >= 3
+        if refined:
+            bounds = refine_bounds(cameras, used_masks, bounds,
+                                   max_misses=reference_misses(len(cameras)))
+        choice = choose_voxel_size(bounds, cameras, resolution=params.resolution,
+                                   voxel_size_m=params.voxel_size_m,
+                                   max_memory_bytes=params.max_memory_bytes
+                                   or default_memory_budget())
+        grid = VoxelGrid(bounds[0], bounds[1], choice.voxel_size_m)
 
     consistency, fusion_report = [], None
     with _timed(timings, "fusion"):
         if params.check_consistency and len(cameras) >= 3:
             progress("fusion", 0.0)
             fusion = fuse_silhouettes(grid, cameras, used_masks,
-                                      min_iou=params.consistency_min_iou)
+                                      max_missing=params.consistency_max_missing)
             for verdict in fusion.verdicts:
                 name = views[used[verdict.index]].name
                 consistency.append({"view": name, "iou": verdict.iou,
@@ -290,7 +308,12 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
         },
         "grid": {"shape": list(grid.shape), "voxel_size_m": grid.voxel_size,
                  "bounds_m": [grid.bounds_min.tolist(), grid.bounds_max.tolist()],
-                 "bounds_source": bounds_source},
+                 "bounds_source": bounds_source, "bounds_refined": refined,
+                 "resolution_source": choice.source, "resolution_reason": choice.reason,
+                 "pixel_footprint_m": {"finest": choice.footprint_m,
+                                       "median": choice.footprint_median_m},
+                 "memory_bytes": choice.memory_bytes,
+                 "max_memory_bytes": choice.max_memory_bytes},
         "views": {"used": [views[i].name for i in used], "held_out": list(params.holdout),
                   "rejected": rejected, "clipped_by_bounds": clipped},
         "consistency": consistency,

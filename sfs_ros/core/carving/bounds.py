@@ -3,7 +3,8 @@
 The cameras of a turntable scan all look at the object. The box is found in
 two steps: the region every camera can see around the point nearest to all
 optical axes, then a coarse carve inside it whose occupied voxels (grown by
-a margin) give the box.
+a margin) give the box. :func:`refine_bounds` then shrinks a box to a finer
+carve's hull plus a margin.
 """
 
 from __future__ import annotations
@@ -13,8 +14,9 @@ import numpy as np
 from ..geometry.camera import Camera
 from .carve import carve
 from ..geometry.grid import VoxelGrid
+from .hull import drop_specks
 
-__all__ = ["axes_meeting_point", "estimate_bounds"]
+__all__ = ["axes_meeting_point", "estimate_bounds", "refine_bounds"]
 
 
 def axes_meeting_point(cameras: list[Camera]) -> np.ndarray:
@@ -90,3 +92,33 @@ def estimate_bounds(cameras: list[Camera], masks: list[np.ndarray], *,
         raise ValueError("cannot estimate a bounding box: the object is out of frame in most views")
     pad = (0.5 + margin_voxels) * grid.voxel_size
     return np.stack([points.min(axis=0) - pad, points.max(axis=0) + pad])
+
+
+def refine_bounds(cameras: list[Camera], masks: list[np.ndarray], bounds_m, *,
+                  resolution: int = 128, max_misses: int = 0,
+                  margin_voxels: float = 2.0) -> np.ndarray:
+    """(2, 3) box of the hull carved inside ``bounds_m`` (2, 3), grown by a margin, metres.
+
+    Carves a ``resolution`` grid over ``bounds_m`` with ``max_misses`` tolerated
+    misses per voxel (so that one bad mask cannot shrink the box), keeps the
+    voxels inside the image in at least half the views (as
+    :func:`estimate_bounds`: what most views cannot see is no evidence), drops specks
+    (:func:`~.hull.drop_specks`), and grows the box of what is left by
+    ``margin_voxels`` of that grid's voxels (a finer carve can occupy voxels
+    whose coarse cell's centre was outside: half a voxel; the rest is room for
+    the surface). The result never leaves ``bounds_m``; ``bounds_m`` itself is
+    returned when nothing survives.
+    """
+    bounds = np.asarray(bounds_m, dtype=np.float64)
+    grid = VoxelGrid.cube(bounds[0], bounds[1], resolution)
+    occupancy = carve(grid, cameras, masks, max_misses=max_misses)
+    occupancy &= carve(grid, cameras, [np.ones(m.shape, bool) for m in masks],
+                       max_misses=len(cameras) // 2, outside_image="carve")
+    occupancy, _ = drop_specks(occupancy)
+    ijk = np.argwhere(occupancy)
+    if len(ijk) == 0:
+        return bounds
+    pad = (0.5 + margin_voxels) * grid.voxel_size
+    lo = grid.index_to_world(ijk.min(axis=0))[0] - pad
+    hi = grid.index_to_world(ijk.max(axis=0))[0] + pad
+    return np.stack([np.maximum(lo, bounds[0]), np.minimum(hi, bounds[1])])

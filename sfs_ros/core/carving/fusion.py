@@ -21,9 +21,10 @@ where a view is outvoted:
    doing its job (sharpening the hull) and are left alone. With few views (16
    on a ring) the facets are deep and only a gross error is outvoted: every
    view is precious there;
-4. a view whose mask agrees with the reference hull's projection with IoU below
-   ``min_iou`` is wrong as a whole (wrong calibration, another object) and is
-   dropped.
+4. a view missing more than ``max_missing`` of the reference hull's projection
+   is wrong as a whole (wrong calibration, another object, most of the object
+   lost) and is dropped. Extra foreground (background clutter) carves nothing
+   and is no reason to drop a view.
 
 The hull is then carved from the repaired masks with no tolerance, so every view
 still carves everywhere it is not overruled, and batch and incremental carving
@@ -79,7 +80,7 @@ class ViewVerdict:
     overruled_depth_px : float
         Largest distance of an overruled pixel from the view's own mask, pixels.
     dropped : bool
-        The view disagrees as a whole (``iou < min_iou``) and is not used.
+        The view disagrees as a whole (``missing_fraction > max_missing``) and is not used.
     reason : str or None
         Why the view was overruled or dropped, None when it was neither.
     """
@@ -165,7 +166,7 @@ def _deepest_cut_px(mask: np.ndarray, projection: np.ndarray) -> float:
 
 
 def fuse_silhouettes(grid: VoxelGrid, cameras: Sequence[Camera], masks, *,
-                     min_iou: float = 0.75) -> Fusion:
+                     max_missing: float = 0.35) -> Fusion:
     """Decide per view and pixel where a view's mask is outvoted by the others.
 
     Parameters
@@ -175,17 +176,18 @@ def fuse_silhouettes(grid: VoxelGrid, cameras: Sequence[Camera], masks, *,
         its projection).
     cameras : sequence of n >= 3 Camera
     masks : sequence of n (H, W) bool (or 0/1)
-    min_iou : float
-        A view whose mask has a lower IoU with the reference hull's projection
-        is dropped as a whole.
+    max_missing : float
+        A view missing a larger fraction of the reference hull's projection
+        (beyond the voxel footprint) is dropped as a whole; below, its deep
+        disagreements are overruled.
 
     Returns
     -------
     Fusion
         Repaired masks and one verdict per view, in order.
     """
-    if not 0.0 <= min_iou <= 1.0:
-        raise ValueError(f"min_iou must lie in [0, 1], got {min_iou}")
+    if not 0.0 <= max_missing <= 1.0:
+        raise ValueError(f"max_missing must lie in [0, 1], got {max_missing}")
     cameras = list(cameras)
     masks = validate_masks(cameras, masks)
     n = len(cameras)
@@ -221,12 +223,12 @@ def fuse_silhouettes(grid: VoxelGrid, cameras: Sequence[Camera], masks, *,
                 disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
                 fill = outside & (cv2.dilate(deep.view(np.uint8), disk) > 0)
                 depth = float(dist[fill].max())
-        dropped = iou < min_iou
+        dropped = missing > max_missing
         n_fill = 0 if dropped else int(np.count_nonzero(fill))
         if dropped:
-            reason = (f"silhouette inconsistent with the other views as a whole (IoU {iou:.3f} "
-                      f"with the hull they agree on, below {min_iou}; "
-                      f"{100 * missing:.1f}% of that hull missing)")
+            reason = (f"silhouette inconsistent with the other views as a whole: "
+                      f"{100 * missing:.1f}% of the hull they agree on is missing from it "
+                      f"(more than {100 * max_missing:.0f}%; IoU {iou:.3f})")
         elif n_fill:
             reason = (f"overruled on {n_fill} px: the hull all but {k} of the other {n - 1} "
                       f"views agree on lies up to {depth:.1f} px outside this mask, deeper "
