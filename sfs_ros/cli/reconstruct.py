@@ -139,7 +139,9 @@ def run(args) -> dict:
     bag_images = load_input(args.input, captures=True)[0] if args.colour and recorded else None
     params = ReconstructionParams(
         resolution=args.resolution or recorded.get("resolution"),
-        voxel_size_m=args.voxel_size, max_memory_bytes=None if args.max_memory is None else parse_memory(args.max_memory), mesher=args.mesher or recorded.get("mesher", MESHERS[0]),
+        voxel_size_m=args.voxel_size,
+        max_memory_bytes=None if args.max_memory is None else parse_memory(args.max_memory),
+        mesher=args.mesher or recorded.get("mesher", MESHERS[0]),
         block=args.block, bounds_m=None if args.bounds is None else (args.bounds[:3], args.bounds[3:]),
         max_misses=args.max_misses, check_consistency=not args.no_consistency_check,
         holdout=_holdout_names(args.holdout, [v.name for v in view_set.views]),
@@ -186,8 +188,9 @@ def summary(report: dict) -> str:
              f"{len(views['rejected'])} rejected"]
     for r in views["rejected"]:
         lines.append(f"  rejected {r['view']}: {r['reason']}")
-    lines.append(f"silhouette IoU: mean {iou['mean_used']:.4f} over used views"
-                 + (f", {iou['mean_held_out']:.4f} over held-out views"
+    lines.append(f"agreement with its own masks (not accuracy): silhouette IoU "
+                 f"{iou['mean_used']:.4f} over the views carved with"
+                 + (f"; leave-one-out: {iou['mean_held_out']:.4f} over held-out views"
                     if iou["mean_held_out"] is not None else ""))
     lines.append("time: " + ", ".join(f"{k} {v:.2f} s" for k, v in report["timings_s"].items()))
     return "\n".join(lines)

@@ -26,13 +26,21 @@ from .geometry.grid import VoxelGrid
 from .carving.hull import drop_specks
 from .meshing.marching import marching_cubes_mesh
 from .meshing.mesh_checks import check_mesh
-from .metrics import reprojection_iou
+from .metrics import reprojection_ious
 from .segment import SegmentationParams, segment
 from .exchange.views import View, ViewSet, read_image
 
 __all__ = ["MESHERS", "ReconstructionParams", "Reconstruction", "reconstruct"]
 
 MESHERS = ("marching-cubes", "advancing-front")
+
+#: What the report's silhouette IoU is, written into every report beside it.
+SILHOUETTE_IOU_MEANING = (
+    "IoU of the mesh's silhouette, drawn into each view, with the mask this reconstruction "
+    "made from that view's image. For 'used' views it is agreement with the masks that "
+    "carved the mesh (high by construction, not a measure of accuracy); for 'held-out' views "
+    "(not carved with) it is a leave-one-out prediction; 'rejected' views show how far off "
+    "their masks were. Accuracy needs references the reconstruction did not make.")
 
 #: Progress callback: (stage name, fraction of the stage done in [0, 1]).
 Progress = Callable[[str, float], None]
@@ -286,14 +294,14 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
             progress("colour", 1.0)
 
     with _timed(timings, "evaluation"):
+        progress("evaluation", 0.0)
         used_names = {views[i].name for i in used}
-        per_view = []
-        for n, (view, mask) in enumerate(zip(views, masks)):
-            progress("evaluation", n / len(views))
-            role = ("used" if view.name in used_names
-                    else "held-out" if view.name in params.holdout else "rejected")
-            per_view.append({"view": view.name, "role": role,
-                             "silhouette_iou": reprojection_iou(vertices, faces, view.camera, mask)})
+        ious = reprojection_ious(vertices, faces, [v.camera for v in views], masks,
+                                 closed=mesh_report["watertight"] and mesh_report["outward"])
+        per_view = [{"view": view.name,
+                     "role": ("used" if view.name in used_names
+                              else "held-out" if view.name in params.holdout else "rejected"),
+                     "silhouette_iou": float(iou)} for view, iou in zip(views, ious)]
         progress("evaluation", 1.0)
 
     def mean_iou(role: str) -> float | None:
@@ -323,8 +331,8 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
         "mesher": {"name": params.mesher, **mesher_stats},
         "mesh": mesh_report,
         **({"colour": colours.stats} if colours is not None else {}),
-        "silhouette_iou": {"per_view": per_view, "mean_used": mean_iou("used"),
-                           "mean_held_out": mean_iou("held-out")},
+        "silhouette_iou": {"meaning": SILHOUETTE_IOU_MEANING, "per_view": per_view,
+                           "mean_used": mean_iou("used"), "mean_held_out": mean_iou("held-out")},
         "timings_s": timings,
     }
     return Reconstruction(vertices=vertices, faces=faces, occupancy=occupancy, grid=grid,
