@@ -16,7 +16,7 @@ import numpy as np
 
 from .meshing.advancing_front import advancing_front
 from .carving.bounds import estimate_bounds, refine_bounds
-from .carving.carve import carve
+from .carving.carve import PreparedMasks, carve
 from .meshing.cloud import cloud_of_points
 from .meshing.colour import vertex_colours
 from .carving.consistency import bbox_clips_object
@@ -213,18 +213,20 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
     used_masks = [masks[i] for i in used]
 
     with _timed(timings, "bounds"):
+        # The masks' carving tables, built once for every carve of these views.
+        prepared = PreparedMasks(cameras, used_masks)
         if params.bounds_m is not None:
             bounds, bounds_source = np.asarray(params.bounds_m, dtype=np.float64), "given"
         elif view_set.bounds_m is not None:
             bounds, bounds_source = np.asarray(view_set.bounds_m, dtype=np.float64), "input"
         else:
-            bounds, bounds_source = estimate_bounds(cameras, used_masks), "estimated"
+            bounds, bounds_source = estimate_bounds(cameras, prepared), "estimated"
         if bounds.shape != (2, 3) or not np.all(np.isfinite(bounds)) or np.any(bounds[1] <= bounds[0]):
             raise ValueError(f"bounding box must be [[xmin, ymin, zmin], [xmax, ymax, zmax]] "
                              f"with min < max, got {bounds.tolist()}")
         clipped = [views[used[i]].name
                    for i in bbox_clips_object(VoxelGrid.cube(bounds[0], bounds[1], 2), cameras,
-                                              used_masks)]
+                                              prepared)]
         # An estimated box holds all the views agree on: foreground outside it
         # is clutter the other views carve away, not object the box misses.
         if bounds_source != "estimated" and 2 * len(clipped) > len(cameras):
@@ -233,7 +235,7 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
                 f"{len(clipped)} of {len(cameras)} views; enlarge it")
         refined = bounds_source != "given" and len(cameras) >= 3
         if refined:
-            bounds = refine_bounds(cameras, used_masks, bounds,
+            bounds = refine_bounds(cameras, prepared, bounds,
                                    max_misses=reference_misses(len(cameras)))
         choice = choose_voxel_size(bounds, cameras, resolution=params.resolution,
                                    voxel_size_m=params.voxel_size_m,
@@ -245,7 +247,12 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
     with _timed(timings, "fusion"):
         if params.check_consistency and len(cameras) >= 3:
             progress("fusion", 0.0)
-            fusion = fuse_silhouettes(grid, cameras, used_masks,
+            # The reference hull needs the shape, not the finest detail: voxels
+            # twice the carving grid's (the fill follows its projection, a
+            # footprint wider only where a view is overruled).
+            reference = (VoxelGrid(bounds[0], bounds[1], 2 * grid.voxel_size)
+                         if max(grid.shape) >= 128 else grid)
+            fusion = fuse_silhouettes(reference, cameras, prepared,
                                       max_missing=params.consistency_max_missing)
             for verdict in fusion.verdicts:
                 name = views[used[verdict.index]].name
@@ -263,14 +270,16 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
                 "neighbour_angle_deg": float(np.degrees(fusion.neighbour_angle_rad)),
                 "overruled": [c["view"] for c in consistency
                               if c["consistent"] and c["overruled_pixels"]]}
-            used_masks = [fusion.masks[n] for n in fusion.kept]
-            used = [used[n] for n in fusion.kept]
-            cameras = [views[i].camera for i in used]
+            if fusion_report["overruled"] or len(fusion.kept) < len(used):
+                used_masks = [fusion.masks[n] for n in fusion.kept]
+                used = [used[n] for n in fusion.kept]
+                cameras = [views[i].camera for i in used]
+                prepared = PreparedMasks(cameras, used_masks)
             progress("fusion", 1.0)
 
     with _timed(timings, "carving"):
         progress("carving", 0.0)
-        occupancy = carve(grid, cameras, used_masks, max_misses=params.max_misses)
+        occupancy = carve(grid, cameras, prepared, max_misses=params.max_misses)
         progress("carving", 1.0)
         occupancy, specks_removed = drop_specks(occupancy)
     if not occupancy.any():

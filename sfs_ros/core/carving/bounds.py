@@ -16,7 +16,8 @@ from .carve import carve
 from ..geometry.grid import VoxelGrid
 from .hull import drop_specks
 
-__all__ = ["axes_meeting_point", "estimate_bounds", "refine_bounds"]
+__all__ = ["axes_meeting_point", "box_in_frame", "estimate_bounds", "refine_bounds",
+           "seen_by"]
 
 
 def axes_meeting_point(cameras: list[Camera]) -> np.ndarray:
@@ -112,8 +113,7 @@ def refine_bounds(cameras: list[Camera], masks: list[np.ndarray], bounds_m, *,
     bounds = np.asarray(bounds_m, dtype=np.float64)
     grid = VoxelGrid.cube(bounds[0], bounds[1], resolution)
     occupancy = carve(grid, cameras, masks, max_misses=max_misses)
-    occupancy &= carve(grid, cameras, [np.ones(m.shape, bool) for m in masks],
-                       max_misses=len(cameras) // 2, outside_image="carve")
+    occupancy &= seen_by(grid, cameras, len(cameras) - len(cameras) // 2)
     occupancy, _ = drop_specks(occupancy)
     ijk = np.argwhere(occupancy)
     if len(ijk) == 0:
@@ -122,3 +122,30 @@ def refine_bounds(cameras: list[Camera], masks: list[np.ndarray], bounds_m, *,
     lo = grid.index_to_world(ijk.min(axis=0))[0] - pad
     hi = grid.index_to_world(ijk.max(axis=0))[0] + pad
     return np.stack([np.maximum(lo, bounds[0]), np.minimum(hi, bounds[1])])
+
+
+def box_in_frame(cameras: list[Camera], bounds_m) -> bool:
+    """Whether the whole box ``bounds_m`` (2, 3), metres, lies in front of every camera
+    and projects inside its image (a box in front of a camera projects into the
+    convex hull of its corners' projections)."""
+    lo, hi = np.asarray(bounds_m, dtype=np.float64)
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                        for z in (lo[2], hi[2])])
+    for cam in cameras:
+        if not cam.orthographic and np.any(cam.depth(corners) <= 0):
+            return False
+        uv = cam.project(corners)
+        if not (np.all(uv > -0.5) and np.all(uv[:, 0] < cam.width - 0.5)
+                and np.all(uv[:, 1] < cam.height - 0.5)):
+            return False
+    return True
+
+
+def seen_by(grid: VoxelGrid, cameras: list[Camera], n_views: int) -> np.ndarray:
+    """(nx, ny, nz) bool: voxels whose centre lands inside the image of at least
+    ``n_views`` of ``cameras`` (all of them, at no cost, when the grid's box is in
+    every frame)."""
+    if box_in_frame(cameras, [grid.bounds_min, grid.bounds_max]):
+        return np.ones(grid.shape, dtype=bool)
+    return carve(grid, cameras, [np.ones((c.height, c.width), bool) for c in cameras],
+                 max_misses=len(cameras) - int(n_views), outside_image="carve")

@@ -44,7 +44,8 @@ import numpy as np
 from ..geometry.camera import Camera
 from ..geometry.grid import VoxelGrid
 from ..metrics import silhouette_iou
-from .carve import carve, validate_masks
+from .bounds import seen_by
+from .carve import PreparedMasks, carve
 from .consistency import hull_silhouettes
 
 __all__ = ["ViewVerdict", "Fusion", "reference_misses", "neighbour_angle_rad",
@@ -152,9 +153,21 @@ def facet_depth_px(radius_px: float, angle_rad: float, misses: int) -> float:
     return float(radius_px * (1.0 / math.cos(half_gap) - 1.0))
 
 
-def _distance_to_mask(mask: np.ndarray) -> np.ndarray:
-    """(H, W) float32: distance of every pixel to the nearest pixel of ``mask``, pixels."""
-    return cv2.distanceTransform((~mask).view(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+def _distance_to_mask(mask: np.ndarray, projection: np.ndarray) -> np.ndarray:
+    """(H, W) float32: distance to the nearest pixel of ``mask``, pixels, over the
+    bounding box of ``mask | projection`` (+inf elsewhere; the mask lies inside
+    the box, so the distances there are those of the whole image). 5 x 5
+    chamfer metric: within 2 % of the Euclidean distance."""
+    out = np.full(mask.shape, np.inf, np.float32)
+    either = mask | projection
+    rows = np.flatnonzero(either.any(axis=1))
+    if len(rows) == 0 or not mask.any():
+        return out
+    cols = np.flatnonzero(either.any(axis=0))
+    box = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))
+    out[box] = cv2.distanceTransform(np.ascontiguousarray(~mask[box]).view(np.uint8),
+                                     cv2.DIST_L2, cv2.DIST_MASK_5)
+    return out
 
 
 def _deepest_cut_px(mask: np.ndarray, projection: np.ndarray) -> float:
@@ -162,7 +175,7 @@ def _deepest_cut_px(mask: np.ndarray, projection: np.ndarray) -> float:
     outside = projection & ~mask
     if not outside.any():
         return 0.0
-    return float(_distance_to_mask(mask)[outside].max())
+    return float(_distance_to_mask(mask, projection)[outside].max())
 
 
 def fuse_silhouettes(grid: VoxelGrid, cameras: Sequence[Camera], masks, *,
@@ -175,7 +188,7 @@ def fuse_silhouettes(grid: VoxelGrid, cameras: Sequence[Camera], masks, *,
         Grid of the reference hull (the carving grid: overruled pixels follow
         its projection).
     cameras : sequence of n >= 3 Camera
-    masks : sequence of n (H, W) bool (or 0/1)
+    masks : sequence of n (H, W) bool (or 0/1), or PreparedMasks
     max_missing : float
         A view missing a larger fraction of the reference hull's projection
         (beyond the voxel footprint) is dropped as a whole; below, its deep
@@ -189,15 +202,15 @@ def fuse_silhouettes(grid: VoxelGrid, cameras: Sequence[Camera], masks, *,
     if not 0.0 <= max_missing <= 1.0:
         raise ValueError(f"max_missing must lie in [0, 1], got {max_missing}")
     cameras = list(cameras)
-    masks = validate_masks(cameras, masks)
+    prepared = masks if isinstance(masks, PreparedMasks) else PreparedMasks(cameras, masks)
+    masks = prepared.masks
     n = len(cameras)
     k = reference_misses(n)
     angle = neighbour_angle_rad(cameras)
-    hull = carve(grid, cameras, masks, max_misses=k)
+    hull = carve(grid, cameras, prepared, max_misses=k)
     # A voxel inside the image of at most k views is never carved by the
     # tolerant hull, whatever the masks say: it is no evidence, leave it out.
-    hull &= carve(grid, cameras, [np.ones(m.shape, bool) for m in masks],
-                  max_misses=n - k - 1, outside_image="carve")
+    hull &= seen_by(grid, cameras, k + 1)
     projections, half_px = hull_silhouettes(grid, hull, cameras)
     # How deep each view cuts into the reference hull, relative to its size.
     radius_px = np.array([math.sqrt(np.count_nonzero(p) / math.pi) for p in projections])
@@ -214,7 +227,7 @@ def fuse_silhouettes(grid: VoxelGrid, cameras: Sequence[Camera], masks, *,
         depth = 0.0
         if cut_px[v] > floor_px:
             outside = proj & ~mask
-            dist = _distance_to_mask(mask)
+            dist = _distance_to_mask(mask, proj)
             missing = float(np.count_nonzero(outside & (dist > floor_px))) / max(1, n_proj)
             deep = outside & (dist > threshold)
             if deep.any():
