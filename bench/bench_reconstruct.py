@@ -15,6 +15,8 @@ Run: ``python -m bench.bench_reconstruct`` (``--quick``: 40 views of 400 x 400).
 from __future__ import annotations
 
 import argparse
+import contextlib
+import io
 import json
 import tempfile
 from pathlib import Path
@@ -68,7 +70,13 @@ def run(quick: bool = False) -> list[dict]:
         decode = best_of(lambda: [cv2.imread(str(p)) for p in images], 3)
         out = Path(tmp) / "mesh.ply"
         argv = [str(session), "-o", str(out), "-q"]
-        seconds = best_of(lambda: reconstruct_main(argv), 2)
+
+        def reconstruct_quietly():
+            with contextlib.redirect_stdout(io.StringIO()):
+                if reconstruct_main(argv) != 0:
+                    raise RuntimeError(f"sfs-reconstruct failed on {session}")
+
+        seconds = best_of(reconstruct_quietly, 2)
         report = json.loads(out.with_name("mesh.report.json").read_text())
         ious = exact_silhouette_iou(session, obj, out)
     stages = ", ".join(f"{k} {v:.2f}" for k, v in report["timings_s"].items())

@@ -70,13 +70,25 @@ def _coverage_overlap(vertices, faces, P, heights, widths, masks, moff, front_on
         H = heights[v]
         W = widths[v]
         h = np.empty((vertices.shape[0], 3))
+        uv = np.empty((vertices.shape[0], 2))
         for i in range(vertices.shape[0]):
             for r in range(3):
                 h[i, r] = (P[v, r, 0] * vertices[i, 0] + P[v, r, 1] * vertices[i, 1]
                            + P[v, r, 2] * vertices[i, 2] + P[v, r, 3])
+            uv[i, 0] = h[i, 0] / h[i, 2]
+            uv[i, 1] = h[i, 1] / h[i, 2]
         cover = np.zeros(H * W, np.uint8)
         coef = np.empty((3, 4))
         for f in range(faces.shape[0]):
+            a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
+            if h[a, 2] > 0.0 and h[b, 2] > 0.0 and h[c, 2] > 0.0:
+                # most faces of a fine mesh hold no pixel centre: the box of
+                # render._pixel_box, from the projections computed once per vertex
+                if (np.ceil(min(uv[a, 0], uv[b, 0], uv[c, 0]) - 1e-6)
+                        > np.floor(max(uv[a, 0], uv[b, 0], uv[c, 0]) + 1e-6)
+                        or np.ceil(min(uv[a, 1], uv[b, 1], uv[c, 1]) - 1e-6)
+                        > np.floor(max(uv[a, 1], uv[b, 1], uv[c, 1]) + 1e-6)):
+                    continue
             orientation = triangle_edges(h, faces, f, coef)
             if orientation == 0.0 or (front_only and orientation != _FRONT):
                 continue

@@ -243,15 +243,18 @@ def bbox_clips_object(grid: VoxelGrid, cameras: Sequence[Camera], masks, *,
         centre = hull.mean(axis=0)
         normal *= np.sign(np.sum((hull - centre) * normal, axis=1))[:, None]
         offset = np.sum(hull * normal, axis=1)
-        points = cv2.findNonZero(mask.view(np.uint8))
-        if points is None:
-            continue
         # The distance beyond an edge is largest at a corner of the foreground's
-        # convex hull: when none of those is out, no foreground pixel is.
-        corners_px = cv2.convexHull(points)[:, 0, :].astype(np.float64)
-        if not np.any(corners_px @ normal.T - offset > tolerance_px):
+        # convex hull, which is a corner of its outer contours: when none of
+        # those is out, no foreground pixel is.
+        contours, _ = cv2.findContours(mask.view(np.uint8), cv2.RETR_EXTERNAL,
+                                       cv2.CHAIN_APPROX_SIMPLE)
+        if not contours:
             continue
-        dist = points[:, 0, :].astype(np.float64) @ normal.T - offset
+        outline = np.concatenate(contours)[:, 0, :].astype(np.float64)
+        if not np.any(outline @ normal.T - offset > tolerance_px):
+            continue
+        rows, cols = np.nonzero(mask)
+        dist = np.stack([cols, rows], axis=1).astype(np.float64) @ normal.T - offset
         if int(np.sum(dist.max(axis=1) > tolerance_px)) >= int(min_pixels):
             clipped.append(v)
     return clipped
