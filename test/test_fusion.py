@@ -97,3 +97,23 @@ def test_reference_tolerance_and_view_spacing():
     assert facet_depth_px(10.0, math.pi / 2, 1) == pytest.approx(10.0)
     # 16 views: corner at r / cos(22.5 deg).
     assert facet_depth_px(10.0, math.pi / 8, 1) == pytest.approx(10 / math.cos(math.pi / 8) - 10)
+
+
+def test_most_views_wrong_is_an_error_not_a_worse_mesh(mug_views):
+    from dataclasses import replace
+
+    from sfs_ros.core.exchange.views import ViewSet
+    from sfs_ros.core.pipeline import ReconstructionParams, reconstruct
+
+    # Two views in three with a calibration that does not belong to their
+    # images: the camera moved 2.5 cm sideways (the mug's body is 8 cm across).
+    views = []
+    for n, view in enumerate(mug_views.views):
+        if n % 3:
+            cam = view.camera
+            view = replace(view, camera=replace(cam, t=cam.t + np.array([0.025, 0.0, 0.0])))
+        views.append(view)
+    broken = ViewSet(views=views, source=mug_views.source)  # box estimated from the views
+    # (the input's box would already be refused: it misses the object in the moved views)
+    with pytest.raises(ValueError, match="do not agree on one object.*calibration"):
+        reconstruct(broken, ReconstructionParams(resolution=64))
