@@ -29,11 +29,10 @@ from sfs_ros.cli.reconstruct import main as reconstruct_main
 from sfs_ros.core.exchange.inputs import load_views
 from sfs_ros.core.exchange.session import write_session
 from sfs_ros.core.geometry.rig import RigCalibration
-from sfs_ros.core.metrics import silhouette_iou
-from sfs_ros.core.render import rasterize_silhouette
+from sfs_ros.core.metrics import reprojection_ious
 from sfs_ros.core.simulation.objects import make_object
 from sfs_ros.core.simulation.plan import ring_plan
-from sfs_ros.core.simulation.synthetic import simulate_scan
+from sfs_ros.core.simulation.synthetic import exact_silhouettes, simulate_scan
 
 from .timing import best_of
 
@@ -51,15 +50,11 @@ def write_scan(folder: Path, *, size_px: int, per_ring: int) -> tuple[Path, obje
     return session, obj
 
 
-def exact_silhouette_iou(session: Path, obj, mesh_path: Path) -> list[float]:
+def exact_silhouette_iou(session: Path, obj, mesh_path: Path) -> np.ndarray:
     """Per view, IoU of the mesh's silhouette with the true mesh's exact silhouette."""
     mesh = trimesh.load(mesh_path, force="mesh", process=False)
-    ious = []
-    for view in load_views(session).views:
-        truth = rasterize_silhouette(obj.mesh.vertices, obj.mesh.faces, view.camera)
-        ious.append(silhouette_iou(rasterize_silhouette(mesh.vertices, mesh.faces, view.camera),
-                                   truth))
-    return ious
+    cameras = [view.camera for view in load_views(session).views]
+    return reprojection_ious(mesh.vertices, mesh.faces, cameras, exact_silhouettes(obj, cameras))
 
 
 def run(quick: bool = False) -> list[dict]:

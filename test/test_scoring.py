@@ -6,7 +6,8 @@ import pytest
 
 from sfs_ros.core.metrics import reprojection_iou, reprojection_ious
 from sfs_ros.core.render import rasterize_silhouette
-from sfs_ros.core.simulation.synthetic import score_against_truth, true_visual_hull
+from sfs_ros.core.simulation.synthetic import (exact_silhouettes, score_against_truth,
+                                                true_visual_hull)
 from sfs_ros.core.geometry.grid import VoxelGrid
 
 
@@ -42,6 +43,6 @@ def test_the_true_mesh_scores_perfectly_and_its_hull_contains_it(mug, scored):
     # of ~1 mm along the longest side, its surface lies within a few voxels of
     # the mug's outside.
     assert 0.0 < score["chamfer_to_true_hull_m"] < 0.005
-    hull_v, _ = true_visual_hull(mug, cameras, grid)
+    hull_v, _ = true_visual_hull(cameras, exact_silhouettes(mug, cameras), grid)
     assert np.all(hull_v.min(axis=0) <= mug.mesh.vertices.min(axis=0) + grid.voxel_size)
     assert np.all(hull_v.max(axis=0) >= mug.mesh.vertices.max(axis=0) - grid.voxel_size)

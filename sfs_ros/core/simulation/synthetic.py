@@ -22,7 +22,8 @@ from .objects import SyntheticObject
 from ..render import rasterize_silhouette, render_image
 from ..geometry.rig import RigCalibration, rig_camera
 
-__all__ = ["Capture", "carving_box", "simulate_scan", "score_against_truth", "true_visual_hull"]
+__all__ = ["Capture", "carving_box", "exact_silhouettes", "simulate_scan", "score_against_truth",
+           "true_visual_hull"]
 
 
 @dataclass(frozen=True)
@@ -73,19 +74,22 @@ def simulate_scan(obj: SyntheticObject, calibration: RigCalibration, plan: np.nd
     return captures
 
 
-def true_visual_hull(obj: SyntheticObject, cameras, grid: VoxelGrid, *,
+def exact_silhouettes(obj: SyntheticObject, cameras) -> list[np.ndarray]:
+    """The renderer's exact silhouette of ``obj`` in each camera: (H, W) bool each."""
+    return [rasterize_silhouette(obj.mesh.vertices, obj.mesh.faces, c) for c in cameras]
+
+
+def true_visual_hull(cameras, silhouettes, grid: VoxelGrid, *,
                      refine: int = 2) -> tuple[np.ndarray, np.ndarray]:
-    """The best any shape-from-silhouette can do from ``cameras``: the hull carved
-    from the renderer's exact silhouettes of ``obj`` on a grid ``refine`` times
-    finer than ``grid`` (at most 512 voxels along its longest side), meshed.
+    """The best any shape from silhouette can do from ``cameras``: the hull carved from
+    the exact ``silhouettes`` (:func:`exact_silhouettes`) on a grid ``refine`` times
+    finer than ``grid`` over its box (at most 512 voxels along its longest side), meshed.
 
     Returns vertices (n, 3) float64, metres, and faces (m, 3) int64.
     """
-    cameras = list(cameras)
-    exact = [rasterize_silhouette(obj.mesh.vertices, obj.mesh.faces, c) for c in cameras]
     n = min(512, int(refine) * max(grid.shape))
     fine = VoxelGrid.cube(grid.bounds_min, grid.bounds_max, n)
-    occupancy, _ = drop_specks(carve(fine, cameras, exact))
+    occupancy, _ = drop_specks(carve(fine, list(cameras), silhouettes))
     return marching_cubes_mesh(occupancy, fine)
 
 
@@ -108,9 +112,9 @@ def score_against_truth(obj: SyntheticObject, vertices: np.ndarray, faces: np.nd
              "hausdorff_m": chamfer.hausdorff, "true_volume_m3": obj.volume_m3}
     if cameras is not None:
         cameras = list(cameras)
-        exact = [rasterize_silhouette(obj.mesh.vertices, obj.mesh.faces, c) for c in cameras]
+        exact = exact_silhouettes(obj, cameras)
         ious = reprojection_ious(vertices, faces, cameras, exact)
-        hull_v, hull_f = true_visual_hull(obj, cameras, grid)
+        hull_v, hull_f = true_visual_hull(cameras, exact, grid)
         hull_points = trimesh.Trimesh(hull_v, hull_f, process=False).sample(n_samples,
                                                                             seed=seed)
         to_hull = chamfer_distance(mesh_points, hull_points)
