@@ -65,7 +65,8 @@ def test_a_bitten_mask_is_outvoted_and_the_hull_keeps_the_true_volume(projection
 
 
 @pytest.mark.parametrize("projection, phis, n_theta",
-                         SCANS + [("pinhole", (20,), 16)], ids=["pinhole-24", "ortho-48", "ring-16"])
+                         SCANS + [("pinhole", (20,), 16)],
+                         ids=["pinhole-24", "ortho-48", "ring-16"])
 def test_exact_masks_are_never_overruled(projection, phis, n_theta):
     cams, masks = scan(projection, phis, n_theta)
     fusion = fuse_silhouettes(GRID, cams, masks)

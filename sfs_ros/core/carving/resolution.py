@@ -122,7 +122,8 @@ def default_memory_budget() -> int:
 
 
 def grid_shape(bounds_m, voxel_size_m: float) -> tuple:
-    """Shape of the grid of ``voxel_size_m`` voxels over ``bounds_m`` (2, 3), as VoxelGrid makes it."""
+    """Shape of the grid of ``voxel_size_m`` voxels over ``bounds_m`` (2, 3), as
+    :class:`~..geometry.grid.VoxelGrid` makes it."""
     extent = np.asarray(bounds_m, dtype=np.float64)[1] - np.asarray(bounds_m, dtype=np.float64)[0]
     return tuple(int(n) for n in np.maximum(1, np.ceil(extent / voxel_size_m - 1e-9)))
 
