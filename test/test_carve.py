@@ -8,7 +8,7 @@ import pytest
 
 from analytic_masks import sphere_mask
 from sfs_ros.core.geometry.camera import Camera
-from sfs_ros.core.carving.carve import Carver, carve, view_coefficients
+from sfs_ros.core.carving.carve import Carver, PreparedMasks, carve, view_coefficients
 from sfs_ros.core.geometry.grid import VoxelGrid
 from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
 
@@ -89,6 +89,22 @@ def test_matches_naive_reference(name, max_misses, outside_image):
     assert got.dtype == bool and got.shape == SMALL_GRID.shape
     assert 0 < want.sum() < want.size  # neither trivially empty nor full
     np.testing.assert_array_equal(got, want)
+
+
+@pytest.mark.parametrize("name", ["orthographic-physical", "pinhole"])
+def test_prepared_masks_carve_every_grid_as_the_masks_do(name):
+    make, _ = CAMERA_SETS[name]
+    cams = make()
+    masks = [sphere_mask(c, SPHERE_C, SPHERE_R) for c in cams]
+    prepared = PreparedMasks(cams, masks)
+    # Reused over grids and options (line path and block path): bit for bit the same.
+    coarse = VoxelGrid([-0.19, -0.17, -0.16], [0.2, 0.18, 0.21], 0.02)
+    for grid in (SMALL_GRID, coarse):
+        for max_misses in (0, 1):
+            np.testing.assert_array_equal(carve(grid, cams, prepared, max_misses=max_misses),
+                                          carve(grid, cams, masks, max_misses=max_misses))
+    with pytest.raises(ValueError, match="other cameras"):
+        carve(SMALL_GRID, cams[:-1], prepared)
 
 
 def test_outside_image_matters_on_this_grid():

@@ -66,8 +66,10 @@ def write_matrix_session(folder, captures, cameras, bounds, rig):
 
 
 @pytest.fixture(scope="module")
-def angle_session_result(mug_views):
-    return reconstruct(mug_views, ReconstructionParams(resolution=64, check_consistency=False))
+def angle_session_result(mug, mug_views):
+    # The box given, as for the other formats (an input's box would be refined).
+    return reconstruct(mug_views, ReconstructionParams(
+        resolution=64, check_consistency=False, bounds_m=tuple(map(tuple, carving_box(mug)))))
 
 
 @pytest.mark.parametrize("form", ["middlebury", "nerf", "matrix-session"])

@@ -68,3 +68,43 @@ def test_colour_follows_the_objects_pattern(mug, mug_views):
     error = np.abs(chroma(result.vertex_colors) - truth).max(axis=1).mean()
     uniform = np.abs(truth.mean(axis=0) - truth).max(axis=1).mean()
     assert error <= 0.04 and error < 0.5 * uniform
+
+
+def bite_the_object(path, *, radius_fraction=0.35):
+    """Paint background over a disk centred on the right edge of the object in the
+    image at ``path`` (a shadow or a hand taken for background in one view)."""
+    import cv2
+
+    image = cv2.imread(str(path))
+    background = image[0, 0].copy()
+    rows, cols = np.nonzero(np.abs(image.astype(int) - background).max(axis=2) > 40)
+    width = cols.max() - cols.min()
+    centre = (int(cols.max()), int(rows.mean()))
+    cv2.circle(image, centre, int(radius_fraction * width), background.tolist(), -1)
+    cv2.imwrite(str(path), image)
+
+
+def test_a_bitten_view_is_overruled_and_the_mug_keeps_its_volume(mug, mug_session):
+    from sfs_ros.core.exchange.inputs import load_views
+
+    params = ReconstructionParams(resolution=96)
+    intact = reconstruct(load_views(mug_session), params)
+    bite_the_object(mug_session / "images" / "view_010.png")
+    fused = reconstruct(load_views(mug_session), params)
+    naive = reconstruct(load_views(mug_session),
+                        ReconstructionParams(resolution=96, check_consistency=False))
+    iou = {name: score_against_truth(mug, r.vertices, r.faces, r.grid)["volume_iou"]
+           for name, r in (("intact", intact), ("fused", fused), ("naive", naive))}
+    # Trusting the bitten mask carves a chunk of the body away from every view.
+    assert iou["naive"] < iou["intact"] - 0.03
+    # The fusion outvotes it: within 0.5 % of the intact scan's IoU (the fill
+    # follows the coarser reference hull's projection around the bite).
+    assert iou["fused"] >= iou["intact"] - 0.005
+    report = fused.report
+    assert report["fusion"]["overruled"] == ["view_010.png"]
+    entry = next(c for c in report["consistency"] if c["view"] == "view_010.png")
+    assert entry["consistent"] and entry["overruled_pixels"] > 0
+    assert "overruled" in entry["reason"]
+    assert "view_010.png" in report["views"]["used"]
+    assert all(c["overruled_pixels"] == 0 and c["reason"] is None
+               for c in report["consistency"] if c["view"] != "view_010.png")

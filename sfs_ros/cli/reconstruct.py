@@ -18,6 +18,7 @@ import sys
 from pathlib import Path
 
 from ..core.meshing.colour import vertex_colours
+from ..core.carving.resolution import parse_memory
 from ..core.exchange.export import SUPPORTED_SUFFIXES
 from ..core.pipeline import MESHERS, ReconstructionParams, reconstruct
 from ..core.result_files import SheetViews, report_path_for, write_result
@@ -37,8 +38,13 @@ def build_parser() -> argparse.ArgumentParser:
     size = p.add_mutually_exclusive_group()
     size.add_argument("-r", "--resolution", type=int,
                       help="voxels along the longest side of the bounding box (default: a "
-                           "bag's recorded one, else 192)")
+                           "bag's recorded one, else the finest pixel footprint at the object, "
+                           "within --max-memory)")
     size.add_argument("--voxel-size", type=float, metavar="METRES", help="voxel edge in metres")
+    p.add_argument("--max-memory", metavar="SIZE",
+                   help="working memory the voxel grid may take, e.g. 2G or 512M (default: a "
+                        "quarter of the machine's memory); a finer grid is coarsened, a given "
+                        "resolution that needs more is refused")
     p.add_argument("-m", "--mesher", choices=MESHERS,
                    help="default: a bag's recorded one, else marching-cubes")
     p.add_argument("--block", type=int, default=2, metavar="M",
@@ -131,8 +137,10 @@ def run(args) -> dict:
     # A bag's views are the recorded masks; its captured images colour the mesh.
     bag_images = load_input(args.input, captures=True)[0] if args.colour and recorded else None
     params = ReconstructionParams(
-        resolution=recorded.get("resolution", 192) if args.resolution is None else args.resolution,
-        voxel_size_m=args.voxel_size, mesher=args.mesher or recorded.get("mesher", MESHERS[0]),
+        resolution=recorded.get("resolution") if args.resolution is None else args.resolution,
+        voxel_size_m=args.voxel_size,
+        max_memory_bytes=None if args.max_memory is None else parse_memory(args.max_memory),
+        mesher=args.mesher or recorded.get("mesher", MESHERS[0]),
         block=args.block, bounds_m=None if args.bounds is None else (args.bounds[:3], args.bounds[3:]),
         max_misses=args.max_misses, check_consistency=not args.no_consistency_check,
         holdout=_holdout_names(args.holdout, [v.name for v in view_set.views]),
@@ -164,8 +172,9 @@ def summary(report: dict) -> str:
              f"{len(views['rejected'])} rejected"]
     for r in views["rejected"]:
         lines.append(f"  rejected {one_line(r['view'], 80)}: {one_line(r['reason'])}")
-    lines.append(f"silhouette IoU: mean {iou['mean_used']:.4f} over used views"
-                 + (f", {iou['mean_held_out']:.4f} over held-out views"
+    lines.append(f"agreement with its own masks (not accuracy): silhouette IoU "
+                 f"{iou['mean_used']:.4f} over the views carved with"
+                 + (f"; leave-one-out: {iou['mean_held_out']:.4f} over held-out views"
                     if iou["mean_held_out"] is not None else ""))
     lines.append("time: " + ", ".join(f"{k} {v:.2f} s" for k, v in report["timings_s"].items()))
     return "\n".join(lines)

@@ -59,8 +59,9 @@ def run(args) -> dict:
     write_session(session, [(c.name, c.image) for c in captures],
                   [(c.theta_rad, c.phi_rad) for c in captures], DEMO_RIG,
                   bounds_m=carving_box(obj))
+    views = load_views(session)
     try:
-        result = reconstruct(load_views(session),
+        result = reconstruct(views,
                              ReconstructionParams(resolution=args.resolution, mesher=args.mesher),
                              progress=progress)
     finally:
@@ -69,7 +70,8 @@ def run(args) -> dict:
     picture = write_png(args.out / "mesh.png", preview_image(result.vertices, result.faces))
     report = {"output": str(mesh_path), "preview": str(picture), "session": str(session),
               "object": args.object, **result.report,
-              "ground_truth": score_against_truth(obj, result.vertices, result.faces, result.grid)}
+              "ground_truth": score_against_truth(obj, result.vertices, result.faces, result.grid,
+                                                  cameras=[v.camera for v in views.views])}
     (args.out / "report.json").write_text(json.dumps(report, indent=2))
     return report
 
@@ -82,7 +84,10 @@ def main(argv=None) -> int:
     truth = report["ground_truth"]
     print(f"against the true {report['object']}: volume IoU {truth['volume_iou']:.4f}, "
           f"Chamfer {1000 * truth['chamfer_mean_m']:.3f} mm, "
-          f"Hausdorff {1000 * truth['hausdorff_m']:.3f} mm")
+          f"Hausdorff {1000 * truth['hausdorff_m']:.3f} mm; silhouette IoU against the exact "
+          f"silhouettes {truth['exact_silhouette_iou']['mean']:.4f} (worst view "
+          f"{truth['exact_silhouette_iou']['min']:.4f}); Chamfer to the true visual hull "
+          f"{1000 * truth['chamfer_to_true_hull_m']:.3f} mm")
     print(f"picture: {report['preview']}")
     return 0
 

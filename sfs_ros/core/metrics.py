@@ -5,14 +5,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 from scipy.spatial import cKDTree
 
 from .geometry.camera import Camera
 from .geometry.grid import VoxelGrid
-from .render import as_mesh_arrays, rasterize_silhouette, triangle_edges
+from .render import _pixel_box, as_mesh_arrays, rasterize_silhouette, triangle_edges
 
 __all__ = ["ChamferResult", "volume_iou", "silhouette_iou", "reprojection_iou",
+           "reprojection_ious",
            "occupancy_from_contains", "mesh_occupancy", "chamfer_distance"]
 
 
@@ -55,6 +56,100 @@ def reprojection_iou(vertices, faces, camera: Camera, mask: np.ndarray) -> float
             f"mask shape {mask.shape} does not match the camera image "
             f"({camera.height}, {camera.width})")
     return silhouette_iou(rasterize_silhouette(vertices, faces, camera), mask)
+
+
+#: Orientation (sign of det(h_a, h_b, h_c), see :mod:`.render`) of the faces of
+#: an outward mesh that face the camera.
+_FRONT = -1.0
+
+
+@njit(parallel=True, cache=True)
+def _coverage_overlap(vertices, faces, P, heights, widths, masks, moff, front_only, out):
+    """Per view v: out[v] = (pixels covered by the mesh and in the mask, in either)."""
+    for v in prange(P.shape[0]):
+        H = heights[v]
+        W = widths[v]
+        h = np.empty((vertices.shape[0], 3))
+        uv = np.empty((vertices.shape[0], 2))
+        for i in range(vertices.shape[0]):
+            for r in range(3):
+                h[i, r] = (P[v, r, 0] * vertices[i, 0] + P[v, r, 1] * vertices[i, 1]
+                           + P[v, r, 2] * vertices[i, 2] + P[v, r, 3])
+            uv[i, 0] = h[i, 0] / h[i, 2]
+            uv[i, 1] = h[i, 1] / h[i, 2]
+        cover = np.zeros(H * W, np.uint8)
+        coef = np.empty((3, 4))
+        for f in range(faces.shape[0]):
+            a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
+            if h[a, 2] > 0.0 and h[b, 2] > 0.0 and h[c, 2] > 0.0:
+                # most faces of a fine mesh hold no pixel centre: the box of
+                # render._pixel_box, from the projections computed once per vertex
+                if (np.ceil(min(uv[a, 0], uv[b, 0], uv[c, 0]) - 1e-6)
+                        > np.floor(max(uv[a, 0], uv[b, 0], uv[c, 0]) + 1e-6)
+                        or np.ceil(min(uv[a, 1], uv[b, 1], uv[c, 1]) - 1e-6)
+                        > np.floor(max(uv[a, 1], uv[b, 1], uv[c, 1]) + 1e-6)):
+                    continue
+            orientation = triangle_edges(h, faces, f, coef)
+            if orientation == 0.0 or (front_only and orientation != _FRONT):
+                continue
+            c0, c1, r0, r1 = _pixel_box(h, faces, f, W, H)
+            for row in range(r0, r1 + 1):
+                y = float(row)
+                for col in range(c0, c1 + 1):
+                    x = float(col)
+                    e0 = coef[0, 0] * x + coef[0, 1] * y + coef[0, 2]
+                    e1 = coef[1, 0] * x + coef[1, 1] * y + coef[1, 2]
+                    e2 = coef[2, 0] * x + coef[2, 1] * y + coef[2, 2]
+                    if e0 < 0.0 or e1 < 0.0 or e2 < 0.0:
+                        continue
+                    if ((e0 == 0.0 and coef[0, 3] == 0.0) or (e1 == 0.0 and coef[1, 3] == 0.0)
+                            or (e2 == 0.0 and coef[2, 3] == 0.0)):
+                        continue
+                    if e0 + e1 + e2 <= 0.0:
+                        continue
+                    cover[row * W + col] = 1
+        both = 0
+        either = 0
+        for k in range(H * W):
+            m = masks[moff[v] + k]
+            both += cover[k] & m
+            either += cover[k] | m
+        out[v, 0] = both
+        out[v, 1] = either
+
+
+def reprojection_ious(vertices, faces, cameras, masks, *, closed: bool = False) -> np.ndarray:
+    """(n,) float64: per camera, IoU of the mesh's silhouette with its (H, W) bool mask.
+
+    The same pixel-centre coverage as :func:`reprojection_iou`, for all views
+    at once (one parallel pass, no image kept). ``closed=True`` promises a
+    closed, outward-oriented mesh: only the faces turned towards the camera
+    are drawn (every ray into a closed surface enters through one), half the
+    work. vertices : (n, 3) float64, metres; faces : (m, 3) int.
+    """
+    vertices, faces = as_mesh_arrays(vertices, faces)
+    cameras = list(cameras)
+    if len(masks) != len(cameras):
+        raise ValueError(f"got {len(cameras)} cameras but {len(masks)} masks; expected one "
+                         "mask per camera")
+    for n, (cam, mask) in enumerate(zip(cameras, masks)):
+        if np.shape(mask) != (cam.height, cam.width) or np.asarray(mask).dtype != bool:
+            raise ValueError(f"mask {n} must be a ({cam.height}, {cam.width}) bool array like "
+                             f"its camera's image, got {np.shape(mask)} "
+                             f"{np.asarray(mask).dtype}")
+    heights = np.array([c.height for c in cameras], np.int64)
+    widths = np.array([c.width for c in cameras], np.int64)
+    moff = np.zeros(len(cameras), np.int64)
+    moff[1:] = np.cumsum(heights * widths)[:-1]
+    flat = np.concatenate([np.asarray(m).ravel() for m in masks]).view(np.uint8)
+    P = np.ascontiguousarray([c.projection_matrix for c in cameras], dtype=np.float64)
+    counts = np.zeros((len(cameras), 2), np.int64)
+    if len(faces):
+        _coverage_overlap(vertices, faces, P, heights, widths, flat, moff, bool(closed), counts)
+    else:
+        counts[:, 1] = [np.count_nonzero(m) for m in masks]
+    union = np.maximum(counts[:, 1], 1)
+    return np.where(counts[:, 1] == 0, 1.0, counts[:, 0] / union)
 
 
 def occupancy_from_contains(contains_fn, grid: VoxelGrid, *, chunk_voxels: int = 1 << 20) -> np.ndarray:

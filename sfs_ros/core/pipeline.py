@@ -1,7 +1,7 @@
 """The whole reconstruction: tagged images in, a checked mesh and a report out.
 
-Stages (each timed in the report): segmentation, bounding box, view
-consistency, carving, meshing (cloud of points + advancing front, or marching
+Stages (each timed in the report): segmentation, bounding box, fusion of
+the silhouettes, carving, meshing (cloud of points + advancing front, or marching
 cubes), mesh checks, colour (on request), reprojection of the mesh into every view.
 """
 
@@ -15,23 +15,33 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from .meshing.advancing_front import advancing_front
-from .carving.bounds import estimate_bounds
-from .carving.carve import carve
+from .carving.bounds import estimate_bounds, refine_bounds
+from .carving.carve import PreparedMasks, carve
 from .meshing.cloud import cloud_of_points
 from .meshing.colour import vertex_colours
-from .carving.consistency import bbox_clips_object, find_inconsistent_views
+from .carving.consistency import bbox_clips_object
+from .carving.fusion import fuse_silhouettes, reference_misses
+from .carving.resolution import choose_voxel_size, default_memory_budget
 from .geometry.grid import VoxelGrid
 from .carving.hull import drop_specks
 from .meshing.hull_distance import HullDistance
 from .meshing.marching import hull_marching_cubes_mesh
 from .meshing.mesh_checks import check_mesh
-from .metrics import reprojection_iou
+from .metrics import reprojection_ious
 from .segment import SegmentationParams, segment
 from .exchange.views import View, ViewSet, read_image
 
 __all__ = ["MESHERS", "ReconstructionParams", "Reconstruction", "reconstruct"]
 
 MESHERS = ("marching-cubes", "advancing-front")
+
+#: What the report's silhouette IoU is, written into every report beside it.
+SILHOUETTE_IOU_MEANING = (
+    "IoU of the mesh's silhouette, drawn into each view, with the mask this reconstruction "
+    "made from that view's image. For 'used' views it is agreement with the masks that "
+    "carved the mesh (high by construction, not a measure of accuracy); for 'held-out' views "
+    "(not carved with) it is a leave-one-out prediction; 'rejected' views show how far off "
+    "their masks were. Accuracy needs references the reconstruction did not make.")
 
 #: Progress callback: (stage name, fraction of the stage done in [0, 1]).
 Progress = Callable[[str, float], None]
@@ -43,29 +53,36 @@ class ReconstructionParams:
 
     Attributes
     ----------
-    resolution : int
+    resolution : int or None
         Voxels along the longest side of the bounding box (ignored when
-        ``voxel_size_m`` is set).
+        ``voxel_size_m`` is set). None: the voxel is the finest pixel footprint
+        at the box centre over the views, coarsened only to fit
+        ``max_memory_bytes`` (:func:`sfs_ros.core.carving.resolution.choose_voxel_size`).
     voxel_size_m : float or None
         Voxel edge, metres.
+    max_memory_bytes : int or None
+        Working memory the grid may take, bytes; None: a quarter of the
+        machine's memory. A given resolution or voxel size that needs more is
+        refused before anything is allocated.
     bounds_m : (2, 3) sequence or None
-        Carving box ``[min, max]``, metres; else the input's, else estimated.
+        Carving box ``[min, max]``, metres; else the input's, else estimated
+        from the silhouettes. The input's and the estimated box are then
+        shrunk to a tolerant carve's hull plus a margin.
     mesher : str
         ``"marching-cubes"`` or ``"advancing-front"``.
     block : int
         M of the paper's cloud of points (M x M x M sub-blocks), advancing front only.
     max_misses : int
-        A voxel survives if at most this many views see it outside their silhouette.
+        A voxel survives if at most this many views see it outside their
+        silhouette (after the fusion repaired the masks).
     check_consistency : bool
-        Detect and drop views whose silhouette disagrees with the others.
-    consistency_min_iou, consistency_max_missing : float
-        A view is dropped as inconsistent when its mask and the projection of
-        the tolerant hull (each voxel may be missed by one view) have IoU below
-        ``consistency_min_iou`` or when more than ``consistency_max_missing`` of
-        that projection lies outside the mask. Good views of real photographs
-        on a 16-view ring reach 5 % missing (Middlebury dino); a mask with half
-        the object erased, 45 %. Damage below ~10 % of a silhouette goes
-        undetected (and shaves correspondingly little).
+        Fuse the silhouettes (:func:`sfs_ros.core.carving.fusion.fuse_silhouettes`):
+        where the hull the other views agree on lies deep outside one view's
+        mask, that view is overruled there (its mask is filled); a view that
+        disagrees as a whole is dropped. Every decision is in the report.
+    consistency_max_missing : float
+        A view is dropped as a whole when more than this fraction of the
+        projection of the hull the others agree on is missing from its mask.
     holdout : tuple of str
         Names of views kept out of carving and only used to evaluate the mesh.
     segmentation : SegmentationParams or None
@@ -76,15 +93,15 @@ class ReconstructionParams:
         point, blended).
     """
 
-    resolution: int = 192
+    resolution: int | None = None
     voxel_size_m: float | None = None
+    max_memory_bytes: int | None = None
     bounds_m: tuple | None = None
     mesher: str = "marching-cubes"
     block: int = 2
     max_misses: int = 0
     check_consistency: bool = True
-    consistency_min_iou: float = 0.75
-    consistency_max_missing: float = 0.10
+    consistency_max_missing: float = 0.35
     holdout: tuple = ()
     segmentation: SegmentationParams | None = None
     colour: bool = False
@@ -92,17 +109,19 @@ class ReconstructionParams:
     def __post_init__(self) -> None:
         if self.mesher not in MESHERS:
             raise ValueError(f"mesher must be one of {MESHERS}, got {self.mesher!r}")
-        if self.voxel_size_m is None and not 8 <= int(self.resolution) <= 1024:
+        if self.resolution is not None and not 8 <= int(self.resolution) <= 1024:
             raise ValueError(f"resolution must be 8..1024 voxels, got {self.resolution}")
         if self.voxel_size_m is not None and not self.voxel_size_m > 0:
             raise ValueError(f"voxel size must be > 0 metres, got {self.voxel_size_m}")
+        if self.max_memory_bytes is not None and not int(self.max_memory_bytes) > 0:
+            raise ValueError(f"max_memory_bytes must be > 0, got {self.max_memory_bytes}")
         if int(self.block) < 1:
             raise ValueError(f"block (M) must be >= 1 voxel, got {self.block}")
         if int(self.max_misses) < 0:
             raise ValueError(f"max_misses must be >= 0, got {self.max_misses}")
-        for name in ("consistency_min_iou", "consistency_max_missing"):
-            if not 0.0 <= getattr(self, name) <= 1.0:
-                raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)}")
+        if not 0.0 <= self.consistency_max_missing <= 1.0:
+            raise ValueError(f"consistency_max_missing must be in [0, 1], "
+                             f"got {self.consistency_max_missing}")
 
 
 @dataclass
@@ -156,10 +175,14 @@ def _segment_views(views: list[View], params: SegmentationParams, progress: Prog
     return kept, masks
 
 
-def _grid(params: ReconstructionParams, bounds: np.ndarray) -> VoxelGrid:
-    if params.voxel_size_m is not None:
-        return VoxelGrid(bounds[0], bounds[1], params.voxel_size_m)
-    return VoxelGrid.cube(bounds[0], bounds[1], params.resolution)
+def _some(names: list[str], limit: int = 3) -> str:
+    return ", ".join(names[:limit]) + (f" and {len(names) - limit} more"
+                                       if len(names) > limit else "")
+
+
+def _fills_frame(mask: np.ndarray) -> bool:
+    """Whether the silhouette touches two opposite sides of its image."""
+    return bool((mask[:, 0].any() and mask[:, -1].any()) or (mask[0].any() and mask[-1].any()))
 
 
 def _mesh(occupancy: np.ndarray, grid: VoxelGrid, params: ReconstructionParams, cameras,
@@ -208,50 +231,93 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
     used_masks = [masks[i] for i in used]
 
     with _timed(timings, "bounds"):
+        # The masks' carving tables, built once for every carve of these views.
+        prepared = PreparedMasks(cameras, used_masks)
         if params.bounds_m is not None:
             bounds, bounds_source = np.asarray(params.bounds_m, dtype=np.float64), "given"
         elif view_set.bounds_m is not None:
             bounds, bounds_source = np.asarray(view_set.bounds_m, dtype=np.float64), "input"
         else:
-            bounds, bounds_source = estimate_bounds(cameras, used_masks), "estimated"
+            bounds, bounds_source = estimate_bounds(cameras, prepared), "estimated"
         if bounds.shape != (2, 3) or not np.all(np.isfinite(bounds)) or np.any(bounds[1] <= bounds[0]):
             raise ValueError(f"bounding box must be [[xmin, ymin, zmin], [xmax, ymax, zmax]] "
                              f"with min < max, got {bounds.tolist()}")
-        grid = _grid(params, bounds)
-        clipped = [views[used[i]].name for i in bbox_clips_object(grid, cameras, used_masks)]
-        if 2 * len(clipped) > len(cameras):
+        clipped = [views[used[i]].name
+                   for i in bbox_clips_object(VoxelGrid.cube(bounds[0], bounds[1], 2), cameras,
+                                              prepared)]
+        # An estimated box holds all the views agree on: foreground outside it
+        # is clutter the other views carve away, not object the box misses.
+        if (bounds_source == "given" and clipped) or \
+                (bounds_source == "input" and 2 * len(clipped) > len(cameras)):
             raise ValueError(
-                f"the bounding box {bounds.round(4).tolist()} m misses part of the object in "
-                f"{len(clipped)} of {len(cameras)} views; enlarge it")
+                f"the {bounds_source} bounding box {bounds.round(4).tolist()} m misses part of "
+                f"the object in {len(clipped)} of {len(cameras)} views ({_some(clipped)}); "
+                "enlarge it")
+        framed = [views[used[i]].name for i, m in enumerate(used_masks) if _fills_frame(m)]
+        if len(framed) == len(cameras):
+            raise ValueError(
+                f"the object is cut by the frame on two opposite sides in every view "
+                f"({len(framed)}): the hull would be bounded by the frames, not the object; "
+                "move the camera back or use a wider lens")
+        if params.max_misses >= len(cameras):
+            raise ValueError(
+                f"max_misses {params.max_misses} lets every one of the {len(cameras)} views "
+                f"miss a voxel, so nothing would be carved; expected fewer than {len(cameras)}")
+        refined = bounds_source != "given" and len(cameras) >= 3
+        if refined:
+            bounds = refine_bounds(cameras, prepared, bounds,
+                                   max_misses=reference_misses(len(cameras)))
+        choice = choose_voxel_size(bounds, cameras, resolution=params.resolution,
+                                   voxel_size_m=params.voxel_size_m,
+                                   max_memory_bytes=params.max_memory_bytes
+                                   or default_memory_budget())
+        grid = VoxelGrid(bounds[0], bounds[1], choice.voxel_size_m)
 
-    consistency = []
-    with _timed(timings, "consistency"):
-        if params.check_consistency and len(cameras) >= 4:
-            progress("consistency", 0.0)
-            # Detecting a bad view needs the hull's shape, not its detail: a coarse grid.
-            check_grid = VoxelGrid.cube(bounds[0], bounds[1], min(max(grid.shape), 96))
-            checks = find_inconsistent_views(check_grid, cameras, used_masks,
-                                             max_misses=max(1, params.max_misses),
-                                             min_iou=params.consistency_min_iou,
-                                             max_missing_fraction=params.consistency_max_missing)
-            for c in checks:
-                name = views[used[c.index]].name
-                consistency.append({"view": name, "iou": c.iou,
-                                    "missing_fraction": c.missing_fraction,
-                                    "consistent": c.consistent})
-                if not c.consistent:
-                    rejected.append({"view": name,
-                                     "reason": f"silhouette inconsistent with the other views "
-                                               f"(IoU {c.iou:.3f} with the tolerant hull, "
-                                               f"{100 * c.missing_fraction:.1f}% of it missing)"})
-            bad = {c.index for c in checks if not c.consistent}
-            used = [u for n, u in enumerate(used) if n not in bad]
-            cameras = [views[i].camera for i in used]
-            used_masks = [masks[i] for i in used]
+    consistency, fusion_report = [], None
+    with _timed(timings, "fusion"):
+        if params.check_consistency and len(cameras) >= 3:
+            progress("fusion", 0.0)
+            # The reference hull needs the shape, not the finest detail: voxels
+            # twice the carving grid's (the fill follows its projection, a
+            # footprint wider only where a view is overruled).
+            reference = (VoxelGrid(bounds[0], bounds[1], 2 * grid.voxel_size)
+                         if max(grid.shape) >= 128 else grid)
+            fusion = fuse_silhouettes(reference, cameras, prepared,
+                                      max_missing=params.consistency_max_missing)
+            for verdict in fusion.verdicts:
+                name = views[used[verdict.index]].name
+                consistency.append({"view": name, "iou": verdict.iou,
+                                    "missing_fraction": verdict.missing_fraction,
+                                    "consistent": not verdict.dropped,
+                                    "overruled_pixels": verdict.overruled_pixels,
+                                    "overruled_depth_px": verdict.overruled_depth_px,
+                                    "depth_threshold_px": verdict.depth_threshold_px,
+                                    "reason": verdict.reason})
+                if verdict.dropped:
+                    rejected.append({"view": name, "reason": verdict.reason})
+            fusion_report = {
+                "reference_misses": fusion.reference_misses,
+                "neighbour_angle_deg": float(np.degrees(fusion.neighbour_angle_rad)),
+                "overruled": [c["view"] for c in consistency
+                              if c["consistent"] and c["overruled_pixels"]]}
+            if fusion_report["overruled"] or len(fusion.kept) < len(used):
+                used_masks = [fusion.masks[n] for n in fusion.kept]
+                used = [used[n] for n in fusion.kept]
+                cameras = [views[i].camera for i in used]
+                prepared = PreparedMasks(cameras, used_masks)
+            progress("fusion", 1.0)
+
+    if not used:
+        raise ValueError(f"no usable view: all {len(rejected)} views were rejected "
+                         f"(first: {rejected[0]['view']}: {rejected[0]['reason']})")
+    if params.max_misses >= len(cameras):
+        raise ValueError(
+            f"max_misses {params.max_misses} lets every one of the {len(cameras)} views left "
+            f"miss a voxel, so nothing would be carved; expected fewer than {len(cameras)}")
 
     with _timed(timings, "carving"):
         progress("carving", 0.0)
-        occupancy = carve(grid, cameras, used_masks, max_misses=params.max_misses)
+        occupancy = carve(grid, cameras, prepared, max_misses=params.max_misses)
         progress("carving", 1.0)
         occupancy, specks_removed = drop_specks(occupancy)
     if not occupancy.any():
@@ -275,14 +341,14 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
             progress("colour", 1.0)
 
     with _timed(timings, "evaluation"):
+        progress("evaluation", 0.0)
         used_names = {views[i].name for i in used}
-        per_view = []
-        for n, (view, mask) in enumerate(zip(views, masks)):
-            progress("evaluation", n / len(views))
-            role = ("used" if view.name in used_names
-                    else "held-out" if view.name in params.holdout else "rejected")
-            per_view.append({"view": view.name, "role": role,
-                             "silhouette_iou": reprojection_iou(vertices, faces, view.camera, mask)})
+        ious = reprojection_ious(vertices, faces, [v.camera for v in views], masks,
+                                 closed=mesh_report["watertight"] and mesh_report["outward"])
+        per_view = [{"view": view.name,
+                     "role": ("used" if view.name in used_names
+                              else "held-out" if view.name in params.holdout else "rejected"),
+                     "silhouette_iou": float(iou)} for view, iou in zip(views, ious)]
         progress("evaluation", 1.0)
 
     def mean_iou(role: str) -> float | None:
@@ -297,17 +363,23 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
         },
         "grid": {"shape": list(grid.shape), "voxel_size_m": grid.voxel_size,
                  "bounds_m": [grid.bounds_min.tolist(), grid.bounds_max.tolist()],
-                 "bounds_source": bounds_source},
+                 "bounds_source": bounds_source, "bounds_refined": refined,
+                 "resolution_source": choice.source, "resolution_reason": choice.reason,
+                 "pixel_footprint_m": {"finest": choice.footprint_m,
+                                       "median": choice.footprint_median_m},
+                 "memory_bytes": choice.memory_bytes,
+                 "max_memory_bytes": choice.max_memory_bytes},
         "views": {"used": [views[i].name for i in used], "held_out": list(params.holdout),
                   "rejected": rejected, "clipped_by_bounds": clipped},
         "consistency": consistency,
+        "fusion": fusion_report,
         "occupied_voxels": int(occupancy.sum()),
         "specks_removed": specks_removed,
         "mesher": {"name": params.mesher, **mesher_stats},
         "mesh": mesh_report,
         **({"colour": colours.stats} if colours is not None else {}),
-        "silhouette_iou": {"per_view": per_view, "mean_used": mean_iou("used"),
-                           "mean_held_out": mean_iou("held-out")},
+        "silhouette_iou": {"meaning": SILHOUETTE_IOU_MEANING, "per_view": per_view,
+                           "mean_used": mean_iou("used"), "mean_held_out": mean_iou("held-out")},
         "timings_s": timings,
     }
     return Reconstruction(vertices=vertices, faces=faces, occupancy=occupancy, grid=grid,

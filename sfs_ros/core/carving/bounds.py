@@ -3,7 +3,8 @@
 The cameras of a turntable scan all look at the object. The box is found in
 two steps: the region every camera can see around the point nearest to all
 optical axes, then a coarse carve inside it whose occupied voxels (grown by
-a margin) give the box.
+a margin) give the box. :func:`refine_bounds` then shrinks a box to a finer
+carve's hull plus a margin.
 """
 
 from __future__ import annotations
@@ -13,8 +14,10 @@ import numpy as np
 from ..geometry.camera import Camera
 from .carve import carve
 from ..geometry.grid import VoxelGrid
+from .hull import drop_specks
 
-__all__ = ["axes_meeting_point", "estimate_bounds"]
+__all__ = ["axes_meeting_point", "box_in_frame", "estimate_bounds", "refine_bounds",
+           "seen_by"]
 
 
 def axes_meeting_point(cameras: list[Camera]) -> np.ndarray:
@@ -90,3 +93,59 @@ def estimate_bounds(cameras: list[Camera], masks: list[np.ndarray], *,
         raise ValueError("cannot estimate a bounding box: the object is out of frame in most views")
     pad = (0.5 + margin_voxels) * grid.voxel_size
     return np.stack([points.min(axis=0) - pad, points.max(axis=0) + pad])
+
+
+def refine_bounds(cameras: list[Camera], masks: list[np.ndarray], bounds_m, *,
+                  resolution: int = 128, max_misses: int = 0,
+                  margin_voxels: float = 2.0) -> np.ndarray:
+    """(2, 3) box of the hull carved inside ``bounds_m`` (2, 3), grown by a margin, metres.
+
+    Carves a ``resolution`` grid over ``bounds_m`` with ``max_misses`` tolerated
+    misses per voxel (so that one bad mask cannot shrink the box), keeps the
+    voxels inside the image in at least half the views (as
+    :func:`estimate_bounds`: what most views cannot see is no evidence), drops specks
+    (:func:`~.hull.drop_specks`), and grows the box of what is left by
+    ``margin_voxels`` of that grid's voxels (a finer carve can occupy voxels
+    whose coarse cell's centre was outside: half a voxel; the rest is room for
+    the surface). The result never leaves ``bounds_m``; ``bounds_m`` itself is
+    returned when nothing survives.
+    """
+    bounds = np.asarray(bounds_m, dtype=np.float64)
+    grid = VoxelGrid.cube(bounds[0], bounds[1], resolution)
+    occupancy = carve(grid, cameras, masks, max_misses=max_misses)
+    occupancy &= seen_by(grid, cameras, len(cameras) - len(cameras) // 2)
+    occupancy, _ = drop_specks(occupancy)
+    ijk = np.argwhere(occupancy)
+    if len(ijk) == 0:
+        return bounds
+    pad = (0.5 + margin_voxels) * grid.voxel_size
+    lo = grid.index_to_world(ijk.min(axis=0))[0] - pad
+    hi = grid.index_to_world(ijk.max(axis=0))[0] + pad
+    return np.stack([np.maximum(lo, bounds[0]), np.minimum(hi, bounds[1])])
+
+
+def box_in_frame(cameras: list[Camera], bounds_m) -> bool:
+    """Whether the whole box ``bounds_m`` (2, 3), metres, lies in front of every camera
+    and projects inside its image (a box in front of a camera projects into the
+    convex hull of its corners' projections)."""
+    lo, hi = np.asarray(bounds_m, dtype=np.float64)
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                        for z in (lo[2], hi[2])])
+    for cam in cameras:
+        if not cam.orthographic and np.any(cam.depth(corners) <= 0):
+            return False
+        uv = cam.project(corners)
+        if not (np.all(uv > -0.5) and np.all(uv[:, 0] < cam.width - 0.5)
+                and np.all(uv[:, 1] < cam.height - 0.5)):
+            return False
+    return True
+
+
+def seen_by(grid: VoxelGrid, cameras: list[Camera], n_views: int) -> np.ndarray:
+    """(nx, ny, nz) bool: voxels whose centre lands inside the image of at least
+    ``n_views`` of ``cameras`` (all of them, at no cost, when the grid's box is in
+    every frame)."""
+    if box_in_frame(cameras, [grid.bounds_min, grid.bounds_max]):
+        return np.ones(grid.shape, dtype=bool)
+    return carve(grid, cameras, [np.ones((c.height, c.width), bool) for c in cameras],
+                 max_misses=len(cameras) - int(n_views), outside_image="carve")

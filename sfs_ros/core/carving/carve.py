@@ -33,7 +33,8 @@ from . import carve_kernels as _k
 from ..geometry.camera import Camera
 from ..geometry.grid import VoxelGrid
 
-__all__ = ["OUTSIDE_IMAGE", "carve", "Carver", "validate_masks", "view_coefficients"]
+__all__ = ["OUTSIDE_IMAGE", "PreparedMasks", "carve", "Carver", "validate_masks",
+           "view_coefficients"]
 
 OUTSIDE_IMAGE = ("keep", "carve")
 
@@ -75,6 +76,8 @@ def _check_mask(index: int, mask, camera) -> np.ndarray:
 
 def validate_masks(cameras, masks) -> list:
     """Masks as (H, W) bool arrays, one per camera; ValueError naming the bad view."""
+    if isinstance(masks, PreparedMasks):
+        masks = masks.masks
     cameras = list(cameras)
     if len(masks) != len(cameras):
         raise ValueError(f"got {len(cameras)} cameras but {len(masks)} masks; expected one mask "
@@ -167,6 +170,39 @@ def _flat_views(cameras, masks):
     return ortho, flat, moff, integ, ioff, heights, widths
 
 
+class PreparedMasks:
+    """Masks checked once, with the tables carving builds from them kept for the next carve.
+
+    Carving many grids with the same views (a coarse box, a reference hull,
+    the final hull) otherwise rebuilds the summed-area tables or run lists of
+    every mask each time. Pass an instance as ``masks`` to :func:`carve`.
+
+    Parameters
+    ----------
+    cameras : sequence of n Camera
+    masks : sequence of n (H, W) bool (or 0/1)
+    """
+
+    def __init__(self, cameras: Sequence[Camera], masks):
+        self.cameras = list(cameras)
+        self.masks = validate_masks(self.cameras, masks)
+        self._blocks = None
+        self._runs = {}
+
+    def block_tables(self):
+        """The block path's flat masks and summed-area tables (see ``_flat_views``)."""
+        if self._blocks is None:
+            self._blocks = _flat_views(self.cameras, self.masks)
+        return self._blocks
+
+    def run_lists(self, by_row: np.ndarray):
+        """The line path's foreground runs per mask column (row where ``by_row``)."""
+        key = by_row.tobytes()
+        if key not in self._runs:
+            self._runs[key] = _runs(np.stack(self.masks), by_row)
+        return self._runs[key]
+
+
 def carve(grid: VoxelGrid, cameras: Sequence[Camera], masks, *, max_misses: int = 0,
           outside_image: str = "keep") -> np.ndarray:
     """Visual hull of the silhouettes ``masks`` seen by ``cameras``.
@@ -176,7 +212,7 @@ def carve(grid: VoxelGrid, cameras: Sequence[Camera], masks, *, max_misses: int 
     grid : VoxelGrid
         Voxels to test.
     cameras : sequence of n Camera
-    masks : sequence of n (H, W) bool (or 0/1) arrays, or one (n, H, W) array
+    masks : sequence of n (H, W) bool (or 0/1) arrays, one (n, H, W) array, or PreparedMasks
         ``masks[v]`` has the shape ``(cameras[v].height, cameras[v].width)``.
     max_misses : int
         A voxel survives when at most this many views miss it.
@@ -190,7 +226,15 @@ def carve(grid: VoxelGrid, cameras: Sequence[Camera], masks, *, max_misses: int 
     """
     max_misses = _check_options(max_misses, outside_image)
     cameras = list(cameras)
-    masks = validate_masks(cameras, masks)
+    if isinstance(masks, PreparedMasks):
+        if len(masks.cameras) != len(cameras) or any(
+                a is not b for a, b in zip(masks.cameras, cameras)):
+            raise ValueError("the prepared masks belong to other cameras; prepare them with "
+                             "these")
+        prepared = masks
+    else:
+        prepared = PreparedMasks(cameras, masks)
+    masks = prepared.masks
     if max_misses >= len(cameras):
         return np.ones(grid.shape, dtype=bool)
     keep = outside_image == "keep"
@@ -201,13 +245,13 @@ def carve(grid: VoxelGrid, cameras: Sequence[Camera], masks, *, max_misses: int 
     with numba.parallel_chunksize(1):
         if line is not None:
             axis, by_row = line
-            offsets, run_lo, run_hi, L = _runs(np.stack(masks), by_row)
+            offsets, run_lo, run_hi, L = prepared.run_lists(by_row)
             H, W = masks[0].shape
             _k.carve_lines(coef, by_row, order, offsets, run_lo, run_hi, L, H, W, axis, keep,
                            max_misses, _LINE_CHUNK, 0 if max_misses == 0 else 1, out,
                            np.zeros((1, 1, 1), np.uint8))
         else:
-            ortho, flat, moff, integ, ioff, heights, widths = _flat_views(cameras, masks)
+            ortho, flat, moff, integ, ioff, heights, widths = prepared.block_tables()
             _k.carve_blocks(coef, ortho, flat, moff, integ, ioff, heights, widths, order, keep,
                             max_misses, _TOP_BLOCK, _LEAF_BLOCK, out)
     return out

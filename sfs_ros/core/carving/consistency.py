@@ -235,8 +235,6 @@ def bbox_clips_object(grid: VoxelGrid, cameras: Sequence[Camera], masks, *,
         if not cam.orthographic and np.any(cam.depth(corners) <= 0):
             continue
         hull = cv2.convexHull(cam.project(corners).astype(np.float32))[:, 0, :].astype(np.float64)
-        rows, cols = np.nonzero(mask)
-        pts = np.stack([cols, rows], axis=1).astype(np.float64)
         # Signed distance to each edge's line, positive outside (the hull's
         # orientation fixes the sign); outside the box = beyond any edge.
         edge = np.roll(hull, -1, axis=0) - hull
@@ -244,7 +242,19 @@ def bbox_clips_object(grid: VoxelGrid, cameras: Sequence[Camera], masks, *,
         normal /= np.linalg.norm(normal, axis=1, keepdims=True)
         centre = hull.mean(axis=0)
         normal *= np.sign(np.sum((hull - centre) * normal, axis=1))[:, None]
-        dist = pts @ normal.T - np.sum(hull * normal, axis=1)
+        offset = np.sum(hull * normal, axis=1)
+        # The distance beyond an edge is largest at a corner of the foreground's
+        # convex hull, which is a corner of its outer contours: when none of
+        # those is out, no foreground pixel is.
+        contours, _ = cv2.findContours(mask.view(np.uint8), cv2.RETR_EXTERNAL,
+                                       cv2.CHAIN_APPROX_SIMPLE)
+        if not contours:
+            continue
+        outline = np.concatenate(contours)[:, 0, :].astype(np.float64)
+        if not np.any(outline @ normal.T - offset > tolerance_px):
+            continue
+        rows, cols = np.nonzero(mask)
+        dist = np.stack([cols, rows], axis=1).astype(np.float64) @ normal.T - offset
         if int(np.sum(dist.max(axis=1) > tolerance_px)) >= int(min_pixels):
             clipped.append(v)
     return clipped

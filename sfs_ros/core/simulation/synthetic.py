@@ -12,12 +12,18 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
-from ..metrics import chamfer_distance, mesh_occupancy, occupancy_from_contains, volume_iou
+from ..carving.carve import carve
+from ..carving.hull import drop_specks
+from ..geometry.grid import VoxelGrid
+from ..meshing.marching import marching_cubes_mesh
+from ..metrics import (chamfer_distance, mesh_occupancy, occupancy_from_contains,
+                       reprojection_ious, volume_iou)
 from .objects import SyntheticObject
-from ..render import render_image
+from ..render import rasterize_silhouette, render_image
 from ..geometry.rig import RigCalibration, rig_camera
 
-__all__ = ["Capture", "carving_box", "simulate_scan", "score_against_truth"]
+__all__ = ["Capture", "carving_box", "exact_silhouettes", "simulate_scan", "score_against_truth",
+           "true_visual_hull"]
 
 
 @dataclass(frozen=True)
@@ -68,16 +74,53 @@ def simulate_scan(obj: SyntheticObject, calibration: RigCalibration, plan: np.nd
     return captures
 
 
+def exact_silhouettes(obj: SyntheticObject, cameras) -> list[np.ndarray]:
+    """The renderer's exact silhouette of ``obj`` in each camera: (H, W) bool each."""
+    return [rasterize_silhouette(obj.mesh.vertices, obj.mesh.faces, c) for c in cameras]
+
+
+def true_visual_hull(cameras, silhouettes, grid: VoxelGrid, *,
+                     refine: int = 2) -> tuple[np.ndarray, np.ndarray]:
+    """The best any shape from silhouette can do from ``cameras``: the hull carved from
+    the exact ``silhouettes`` (:func:`exact_silhouettes`) on a grid ``refine`` times
+    finer than ``grid`` over its box (at most 512 voxels along its longest side), meshed.
+
+    Returns vertices (n, 3) float64, metres, and faces (m, 3) int64.
+    """
+    n = min(512, int(refine) * max(grid.shape))
+    fine = VoxelGrid.cube(grid.bounds_min, grid.bounds_max, n)
+    occupancy, _ = drop_specks(carve(fine, list(cameras), silhouettes))
+    return marching_cubes_mesh(occupancy, fine)
+
+
 def score_against_truth(obj: SyntheticObject, vertices: np.ndarray, faces: np.ndarray,
-                        grid, *, n_samples: int = 20000, seed: int = 0) -> dict:
-    """Volume IoU and Chamfer distance of a closed mesh against ``obj``.
+                        grid, *, cameras=None, n_samples: int = 20000, seed: int = 0) -> dict:
+    """Accuracy of a closed mesh against the truth ``obj``, which the reconstruction never saw.
 
     Volume IoU is evaluated at the centres of ``grid``; Chamfer distances
-    (metres) between ``n_samples`` points on each surface.
+    (metres) between ``n_samples`` points on each surface. With ``cameras``
+    (the views of the scan) also, per view, the IoU of the mesh's silhouette
+    with the renderer's exact silhouette of ``obj``, and the Chamfer distance
+    to the true visual hull (:func:`true_visual_hull`): what the views allow,
+    separating the reconstruction's own error from the views' limit.
     """
     truth = occupancy_from_contains(obj.contains, grid)
     iou = volume_iou(mesh_occupancy(vertices, faces, grid), truth)
     mesh_points = trimesh.Trimesh(vertices, faces, process=False).sample(n_samples, seed=seed)
     chamfer = chamfer_distance(mesh_points, obj.sample_surface(n_samples, seed=seed))
-    return {"volume_iou": float(iou), "chamfer_mean_m": chamfer.mean,
-            "hausdorff_m": chamfer.hausdorff, "true_volume_m3": obj.volume_m3}
+    score = {"volume_iou": float(iou), "chamfer_mean_m": chamfer.mean,
+             "hausdorff_m": chamfer.hausdorff, "true_volume_m3": obj.volume_m3}
+    if cameras is not None:
+        cameras = list(cameras)
+        exact = exact_silhouettes(obj, cameras)
+        ious = reprojection_ious(vertices, faces, cameras, exact)
+        hull_v, hull_f = true_visual_hull(cameras, exact, grid)
+        hull_points = trimesh.Trimesh(hull_v, hull_f, process=False).sample(n_samples,
+                                                                            seed=seed)
+        to_hull = chamfer_distance(mesh_points, hull_points)
+        score.update({"exact_silhouette_iou": {"per_view": [float(x) for x in ious],
+                                               "mean": float(np.mean(ious)),
+                                               "min": float(np.min(ious))},
+                      "chamfer_to_true_hull_m": to_hull.mean,
+                      "hausdorff_to_true_hull_m": to_hull.hausdorff})
+    return score

@@ -1,0 +1,182 @@
+"""The voxel size from the data: no larger than a pixel at the object, within a memory budget.
+
+A voxel larger than the footprint of a pixel at the object throws away what the
+cameras resolved; a smaller one adds no information to a visual hull (the
+silhouettes are only known to a pixel). The footprint of view ``v`` at the
+centre ``c`` of the carving box is ``depth_v(c) / f_v`` metres for a pinhole
+camera and ``1 / f_v`` for an orthographic one (``f_v`` the smaller of the focal
+lengths, pixels). The default voxel is the *finest* footprint over the views,
+so every view's pixels are resolved; it is enlarged only when the grid would
+not fit the memory budget.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from ..geometry.camera import Camera
+from ..geometry.grid import MAX_VOXELS
+
+__all__ = ["BYTES_PER_VOXEL", "ResolutionChoice", "pixel_footprints_m", "parse_memory",
+           "default_memory_budget", "grid_shape", "choose_voxel_size"]
+
+#: Peak working memory of a reconstruction per voxel of its grid, bytes: the
+#: occupancy and the carving's working grids (four bool arrays), the labels of
+#: the speck removal (int32) and the meshing volume (float32), with room for a
+#: float32 distance field.
+BYTES_PER_VOXEL = 16
+#: Share of the machine's physical memory a reconstruction may use by default.
+DEFAULT_MEMORY_SHARE = 0.25
+
+_UNITS = {"": 1, "K": 1 << 10, "M": 1 << 20, "G": 1 << 30, "T": 1 << 40}
+
+
+@dataclass(frozen=True)
+class ResolutionChoice:
+    """How the voxel size was chosen.
+
+    Attributes
+    ----------
+    voxel_size_m : float
+        Voxel edge, metres.
+    shape : tuple of 3 int
+        Grid shape over the box.
+    footprint_m : float
+        Finest pixel footprint at the box centre over the views, metres.
+    footprint_median_m : float
+        Median over the views of the same, metres.
+    source : str
+        ``"footprint"`` (voxel = finest footprint), ``"memory"`` (footprint
+        enlarged to fit ``max_memory_bytes``), ``"resolution"`` or
+        ``"voxel-size"`` (given by the caller).
+    memory_bytes : int
+        Working memory the grid needs (``BYTES_PER_VOXEL`` per voxel).
+    max_memory_bytes : int
+        The budget it had to fit.
+    """
+
+    voxel_size_m: float
+    shape: tuple
+    footprint_m: float
+    footprint_median_m: float
+    source: str
+    memory_bytes: int
+    max_memory_bytes: int
+
+    @property
+    def reason(self) -> str:
+        """One sentence: why this voxel size."""
+        mm = self.voxel_size_m * 1e3
+        if self.source == "footprint":
+            return (f"{mm:.4g} mm: the finest pixel footprint at the box centre over the views "
+                    f"(median {self.footprint_median_m * 1e3:.4g} mm)")
+        if self.source == "memory":
+            return (f"{mm:.4g} mm: the finest pixel footprint ({self.footprint_m * 1e3:.4g} mm) "
+                    f"coarsened to fit {self.max_memory_bytes / (1 << 30):.2f} GiB")
+        return f"{mm:.4g} mm: from the given {self.source}"
+
+
+def pixel_footprints_m(cameras: Sequence[Camera], point) -> np.ndarray:
+    """(n,) float64: side of one pixel of each camera at the world ``point`` (3,), metres.
+
+    Raises ``ValueError`` when the point lies behind a pinhole camera.
+    """
+    point = np.asarray(point, dtype=np.float64).reshape(1, 3)
+    out = np.empty(len(cameras))
+    for n, cam in enumerate(cameras):
+        focal_px = min(cam.K[0, 0], cam.K[1, 1])
+        if cam.orthographic:
+            out[n] = 1.0 / focal_px
+            continue
+        depth = float(cam.depth(point)[0])
+        if not depth > 0:
+            raise ValueError(f"the box centre {point[0].round(4).tolist()} m lies behind camera "
+                             f"{n}: cannot size the voxels from its pixels")
+        out[n] = depth / focal_px
+    return out
+
+
+def parse_memory(text: str) -> int:
+    """Bytes in a size like ``"2G"``, ``"512M"``, ``"1.5GiB"``, ``"800MB"`` or ``"1000000"``.
+
+    Suffixes K, M, G, T are powers of 1024 (with or without ``B`` / ``iB``).
+    """
+    match = re.fullmatch(r"\s*([0-9]*\.?[0-9]+)\s*([KMGT]?)(?:I?B)?\s*", str(text).upper())
+    if match is None:
+        raise ValueError(f"memory size {text!r} not understood; expected a number with an "
+                         "optional K, M, G or T suffix, e.g. 2G or 512M")
+    value = float(match.group(1)) * _UNITS[match.group(2)]
+    if value < 1 << 20:
+        raise ValueError(f"memory size {text!r} is below 1 MiB; expected e.g. 2G or 512M")
+    return int(value)
+
+
+def default_memory_budget() -> int:
+    """A quarter of the machine's physical memory, bytes."""
+    return int(DEFAULT_MEMORY_SHARE * os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+
+
+def grid_shape(bounds_m, voxel_size_m: float) -> tuple:
+    """Shape of the grid of ``voxel_size_m`` voxels over ``bounds_m`` (2, 3), as
+    :class:`~..geometry.grid.VoxelGrid` makes it."""
+    extent = np.asarray(bounds_m, dtype=np.float64)[1] - np.asarray(bounds_m, dtype=np.float64)[0]
+    return tuple(int(n) for n in np.maximum(1, np.ceil(extent / voxel_size_m - 1e-9)))
+
+
+def _fits(shape, max_memory_bytes: int) -> bool:
+    voxels = int(np.prod(shape))
+    return voxels <= MAX_VOXELS and voxels * BYTES_PER_VOXEL <= max_memory_bytes
+
+
+def _describe(shape) -> str:
+    voxels = int(np.prod(shape))
+    return (f"grid {tuple(shape)} = {voxels / 1e6:.0f} M voxels needs "
+            f"{voxels * BYTES_PER_VOXEL / (1 << 30):.2f} GiB")
+
+
+def choose_voxel_size(bounds_m, cameras: Sequence[Camera], *, max_memory_bytes: int,
+                      resolution: int | None = None,
+                      voxel_size_m: float | None = None) -> ResolutionChoice:
+    """The voxel size for carving ``bounds_m`` (2, 3), metres, seen by ``cameras``.
+
+    ``voxel_size_m`` or ``resolution`` (voxels along the box's longest side)
+    override the footprint; a grid they ask for that does not fit
+    ``max_memory_bytes`` (or more than ``MAX_VOXELS`` voxels) is refused with a
+    ``ValueError`` giving the memory it would need, before anything is
+    allocated. The footprint's grid is instead coarsened until it fits.
+    """
+    bounds = np.asarray(bounds_m, dtype=np.float64)
+    if int(max_memory_bytes) <= 0:
+        raise ValueError(f"max_memory_bytes must be > 0, got {max_memory_bytes}")
+    footprints = pixel_footprints_m(cameras, bounds.mean(axis=0))
+    finest, median = float(footprints.min()), float(np.median(footprints))
+    extent = float(np.max(bounds[1] - bounds[0]))
+    if voxel_size_m is not None:
+        size, source = float(voxel_size_m), "voxel-size"
+    elif resolution is not None:
+        size, source = extent / int(resolution), "resolution"
+    else:
+        size, source = finest, "footprint"
+    shape = grid_shape(bounds, size)
+    if not _fits(shape, max_memory_bytes):
+        if source != "footprint":
+            raise ValueError(
+                f"the {source} asked for ({size * 1e3:.4g} mm voxels) is more than this "
+                f"reconstruction may use: {_describe(shape)}, the budget is "
+                f"{max_memory_bytes / (1 << 30):.2f} GiB (raise it with --max-memory, or "
+                f"choose a coarser resolution)")
+        limit = min(MAX_VOXELS, max_memory_bytes // BYTES_PER_VOXEL)
+        volume = float(np.prod(bounds[1] - bounds[0]))
+        size = (volume / limit) ** (1.0 / 3.0)
+        while not _fits(grid_shape(bounds, size), max_memory_bytes):  # whole-voxel rounding
+            size *= 1.01
+        shape, source = grid_shape(bounds, size), "memory"
+    return ResolutionChoice(voxel_size_m=size, shape=shape, footprint_m=finest,
+                            footprint_median_m=median, source=source,
+                            memory_bytes=int(np.prod(shape)) * BYTES_PER_VOXEL,
+                            max_memory_bytes=int(max_memory_bytes))

@@ -1,0 +1,95 @@
+"""The voxel size from the cameras and the memory budget, and the refined carving box."""
+
+import math
+
+import numpy as np
+import pytest
+
+from analytic_masks import sphere_mask
+from sfs_ros.core.carving.bounds import refine_bounds
+from sfs_ros.core.carving.resolution import (BYTES_PER_VOXEL, choose_voxel_size, grid_shape,
+                                             parse_memory, pixel_footprints_m)
+from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
+
+DISTANCE_M, FX = 0.6, 1200.0
+RIG = RigCalibration(width=320, height=240, projection="pinhole", fx=FX, fy=FX + 100.0,
+                     camera_distance_m=DISTANCE_M, aim_point_m=(0.0, 0.0, 0.0))
+BOX = np.array([[-0.05, -0.04, -0.03], [0.05, 0.04, 0.03]])  # centred on the aim point
+GIB = 1 << 30
+
+
+def ring(calibration=RIG, n=8, phi_deg=30.0):
+    return [rig_camera(t, math.radians(phi_deg), calibration)
+            for t in np.linspace(0, 2 * np.pi, n, endpoint=False)]
+
+
+def test_footprint_is_depth_over_focal_length():
+    # Every camera looks at the box centre from DISTANCE_M: one pixel there is
+    # DISTANCE_M / fx metres (the smaller focal length: the coarser direction).
+    assert pixel_footprints_m(ring(), BOX.mean(axis=0)) == pytest.approx(DISTANCE_M / FX)
+    ortho = RigCalibration(width=320, height=240, projection="orthographic", fx=FX, fy=FX,
+                           camera_distance_m=DISTANCE_M)
+    assert pixel_footprints_m(ring(ortho), BOX.mean(axis=0)) == pytest.approx(1 / FX)
+
+
+def test_default_voxel_is_the_finest_footprint():
+    near = RigCalibration(width=320, height=240, projection="pinhole", fx=FX, fy=FX,
+                          camera_distance_m=0.4, aim_point_m=(0.0, 0.0, 0.0))
+    cameras = ring() + ring(near, n=2)
+    choice = choose_voxel_size(BOX, cameras, max_memory_bytes=GIB)
+    assert choice.source == "footprint"
+    assert choice.voxel_size_m == pytest.approx(0.4 / FX)  # the nearer views' pixels
+    assert choice.footprint_median_m == pytest.approx(DISTANCE_M / FX)
+    assert choice.shape == grid_shape(BOX, 0.4 / FX)
+    assert choice.memory_bytes == np.prod(choice.shape) * BYTES_PER_VOXEL
+    assert "finest pixel footprint" in choice.reason
+
+
+def test_memory_budget_coarsens_the_footprint():
+    budget = 8 << 20  # 8 MiB: 512 Ki voxels at 16 bytes each
+    choice = choose_voxel_size(BOX, ring(), max_memory_bytes=budget)
+    assert choice.source == "memory"
+    assert choice.memory_bytes <= budget
+    # Within the 1 % steps of the search, the grid fills the budget: the voxel
+    # is the cube root of box volume / voxels allowed, up to whole-voxel rounding.
+    ideal = (np.prod(BOX[1] - BOX[0]) / (budget // BYTES_PER_VOXEL)) ** (1 / 3)
+    assert ideal <= choice.voxel_size_m <= 1.1 * ideal
+    assert "coarsened" in choice.reason
+
+
+def test_a_given_resolution_the_budget_cannot_hold_is_refused_with_the_figure():
+    with pytest.raises(ValueError, match=r"needs 1\.00 GiB.*budget is 0\.50 GiB"):
+        # 1024 x 1024 x 1024 voxels of a cube at 16 bytes: 16 GiB; a 1024 x 512 x 128 box: 1 GiB
+        choose_voxel_size([[0, 0, 0], [1.024, 0.512, 0.128]], ring(), resolution=1024,
+                          max_memory_bytes=GIB // 2)
+    choice = choose_voxel_size(BOX, ring(), resolution=100, max_memory_bytes=GIB)
+    assert choice.source == "resolution" and max(choice.shape) == 100
+    choice = choose_voxel_size(BOX, ring(), voxel_size_m=0.002, max_memory_bytes=GIB)
+    assert choice.source == "voxel-size" and choice.shape == (50, 40, 30)
+
+
+@pytest.mark.parametrize("text, expected", [("2G", 2 * GIB), ("512M", 512 << 20),
+                                            ("1.5GiB", int(1.5 * GIB)), ("800mb", 800 << 20),
+                                            ("3000000", 3000000)])
+def test_memory_sizes_are_parsed(text, expected):
+    assert parse_memory(text) == expected
+
+
+@pytest.mark.parametrize("text", ["2X", "", "-1G", "12K"])
+def test_bad_memory_sizes_are_refused(text):
+    with pytest.raises(ValueError, match="memory size"):
+        parse_memory(text)
+
+
+def test_refined_box_holds_the_sphere_tightly():
+    centre, radius = np.array([0.01, -0.005, 0.0]), 0.03
+    cameras = [rig_camera(t, math.radians(p), RIG) for p in (0, 40, 80)
+               for t in np.linspace(0, 2 * np.pi, 8, endpoint=False)]
+    masks = [sphere_mask(c, centre, radius) for c in cameras]
+    loose = np.array([[-0.1, -0.1, -0.1], [0.1, 0.1, 0.1]])
+    box = refine_bounds(cameras, masks, loose, resolution=100, margin_voxels=2.0)
+    # The sphere's box grown by at most the margin (2.5 voxels of 2 mm) plus
+    # the hull's excess over the sphere (24 views: under 10 % of the radius).
+    assert np.all(box[0] <= centre - radius) and np.all(box[1] >= centre + radius)
+    assert np.all(box[0] >= centre - radius - 0.005 - 0.1 * radius)
+    assert np.all(box[1] <= centre + radius + 0.005 + 0.1 * radius)
