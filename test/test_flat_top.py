@@ -45,7 +45,11 @@ def cylinder_scans(tmp_path_factory):
     write_session(folder, [(c.name, c.image) for c in captures],
                   [(c.theta_rad, c.phi_rad) for c in captures], rig, bounds_m=carving_box(obj))
     views = load_views(folder)
-    return {mesher: reconstruct(views, ReconstructionParams(resolution=RESOLUTION, mesher=mesher))
+    # The box given, so that it is carved as is (an input box would be refined to the
+    # hull) and the voxel grid sits where the docstring of TOP_M says.
+    box = tuple(map(tuple, carving_box(obj)))
+    return {mesher: reconstruct(views, ReconstructionParams(resolution=RESOLUTION, mesher=mesher,
+                                                            bounds_m=box))
             for mesher in ("marching-cubes", "advancing-front")}, views
 
 
