@@ -1,0 +1,87 @@
+"""Backdrop model from the image border: what the object is *not*.
+
+A real backdrop is rarely one colour: a black or white sweep, a turntable
+plate reaching the frame, a dark cloth hanging in from one side. Each of
+these covers a good share of the image border, while an object touching the
+frame covers little of it (the Middlebury dino, partly out of frame, covers
+at most 6 % of its border band). So the backdrop is modelled as the colour
+clusters (k-means) of the border band that each hold at least a given share
+of it, every cluster with its mean and covariance. How far a pixel is from
+the backdrop is its smallest Mahalanobis distance to a cluster, where the
+cluster's colour may also be darkened (a cast shadow darkens a surface but
+keeps its hue).
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+__all__ = ["BackdropModel", "fit_backdrop", "border_band"]
+
+#: Noise floor of every cluster's standard deviation, grey levels (0..255): a
+#: perfectly flat backdrop must not make the slightest noise look like object.
+_SIGMA_FLOOR = 4.0
+_CLUSTERS = 4
+
+
+class BackdropModel:
+    """Colour clusters of the backdrop.
+
+    means : (k, 3) float32, RGB 0..255
+    inverse_covariances : (k, 3, 3) float32, of the cluster colours (noise floor added)
+    """
+
+    def __init__(self, means: np.ndarray, inverse_covariances: np.ndarray):
+        self.means = np.asarray(means, np.float32).reshape(-1, 3)
+        self.inverse_covariances = np.asarray(inverse_covariances, np.float32).reshape(-1, 3, 3)
+
+    def distance(self, rgb: np.ndarray) -> np.ndarray:
+        """(H, W) float32: smallest Mahalanobis distance of each pixel of ``rgb``
+        ((H, W, 3) uint8) to a backdrop cluster, in standard deviations."""
+        pixels = rgb.reshape(-1, 3).astype(np.float32)
+        best = np.full(len(pixels), np.inf, np.float32)
+        for mean, inverse in zip(self.means, self.inverse_covariances):
+            residual = pixels - mean
+            np.minimum(best, np.sqrt(np.einsum("ij,jk,ik->i", residual, inverse, residual)),
+                       out=best)
+        return best.reshape(rgb.shape[:2])
+
+
+def border_band(height: int, width: int, border_fraction: float) -> np.ndarray:
+    """(H, W) bool: the band along the image edges, ``border_fraction`` of the smaller
+    side wide (at least 2 pixels)."""
+    b = max(2, int(round(border_fraction * min(height, width))))
+    band = np.zeros((height, width), bool)
+    band[:b] = band[-b:] = True
+    band[:, :b] = band[:, -b:] = True
+    return band
+
+
+def fit_backdrop(rgb: np.ndarray, *, border_fraction: float = 0.02,
+                 min_share: float = 0.15) -> BackdropModel:
+    """Fit the backdrop clusters to the border band of ``rgb`` ((H, W, 3) uint8).
+
+    The most populous cluster is always kept (it is the backdrop); others only
+    with at least ``min_share`` of the band's pixels. Deterministic (fixed
+    k-means seed).
+    """
+    if not 0 < min_share <= 1:
+        raise ValueError(f"min_share must be in (0, 1], got {min_share}")
+    h, w = rgb.shape[:2]
+    pixels = rgb[border_band(h, w, border_fraction)].astype(np.float32)
+    k = min(_CLUSTERS, len(np.unique(pixels[:: max(1, len(pixels) // 2000)], axis=0)))
+    cv2.setRNGSeed(0)
+    criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 20, 0.5)
+    _, labels, _ = cv2.kmeans(pixels, k, None, criteria, 2, cv2.KMEANS_PP_CENTERS)
+    labels = labels.ravel()
+    counts = np.bincount(labels, minlength=k)
+    means, inverses = [], []
+    for j in np.argsort(-counts):
+        if means and counts[j] < min_share * len(pixels):
+            break
+        members = pixels[labels == j]
+        covariance = np.cov(members.T) if len(members) > 1 else np.zeros((3, 3))
+        means.append(members.mean(axis=0))
+        inverses.append(np.linalg.inv(covariance + _SIGMA_FLOOR ** 2 * np.eye(3)))
+    return BackdropModel(np.array(means), np.array(inverses))
