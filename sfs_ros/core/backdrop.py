@@ -4,9 +4,9 @@ A real backdrop is rarely one colour: a black or white sweep, a turntable
 plate reaching the frame, a dark cloth hanging in from one side. Each of
 these covers a good share of the image border, while an object touching the
 frame covers little of it (the Middlebury dino, partly out of frame, covers
-at most 6 % of its border band). So the backdrop is modelled as the colour
-clusters (k-means) of the border band that each hold at least a given share
-of it, every cluster with its mean and covariance. How far a pixel is from
+at most 6 % of its border band). So the backdrop is modelled as the largest
+colour clusters (k-means) of the border band that together hold most of it
+(90 %), every cluster with its mean and covariance. How far a pixel is from
 the backdrop is its smallest Mahalanobis distance to a cluster, where the
 cluster's colour may also be darkened (a cast shadow darkens a surface but
 keeps its hue).
@@ -22,7 +22,7 @@ __all__ = ["BackdropModel", "fit_backdrop", "border_band"]
 #: Noise floor of every cluster's standard deviation, grey levels (0..255): a
 #: perfectly flat backdrop must not make the slightest noise look like object.
 _SIGMA_FLOOR = 4.0
-_CLUSTERS = 4
+_CLUSTERS = 6
 
 
 class BackdropModel:
@@ -59,15 +59,15 @@ def border_band(height: int, width: int, border_fraction: float) -> np.ndarray:
 
 
 def fit_backdrop(rgb: np.ndarray, *, border_fraction: float = 0.02,
-                 min_share: float = 0.15) -> BackdropModel:
+                 cover: float = 0.9) -> BackdropModel:
     """Fit the backdrop clusters to the border band of ``rgb`` ((H, W, 3) uint8).
 
-    The most populous cluster is always kept (it is the backdrop); others only
-    with at least ``min_share`` of the band's pixels. Deterministic (fixed
-    k-means seed).
+    Clusters are kept largest first until they hold ``cover`` of the band's
+    pixels: an object touching the frame, holding less than ``1 - cover`` of
+    the band, stays out of the backdrop. Deterministic (fixed k-means seed).
     """
-    if not 0 < min_share <= 1:
-        raise ValueError(f"min_share must be in (0, 1], got {min_share}")
+    if not 0 < cover <= 1:
+        raise ValueError(f"cover must be in (0, 1], got {cover}")
     h, w = rgb.shape[:2]
     pixels = rgb[border_band(h, w, border_fraction)].astype(np.float32)
     k = min(_CLUSTERS, len(np.unique(pixels[:: max(1, len(pixels) // 2000)], axis=0)))
@@ -76,10 +76,11 @@ def fit_backdrop(rgb: np.ndarray, *, border_fraction: float = 0.02,
     _, labels, _ = cv2.kmeans(pixels, k, None, criteria, 2, cv2.KMEANS_PP_CENTERS)
     labels = labels.ravel()
     counts = np.bincount(labels, minlength=k)
-    means, inverses = [], []
+    means, inverses, held = [], [], 0
     for j in np.argsort(-counts):
-        if means and counts[j] < min_share * len(pixels):
+        if held >= cover * len(pixels):
             break
+        held += counts[j]
         members = pixels[labels == j]
         covariance = np.cov(members.T) if len(members) > 1 else np.zeros((3, 3))
         means.append(members.mean(axis=0))
