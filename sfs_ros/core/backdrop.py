@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+from numba import njit
 
 __all__ = ["BackdropModel", "fit_backdrop", "border_band"]
 
@@ -23,6 +24,7 @@ __all__ = ["BackdropModel", "fit_backdrop", "border_band"]
 #: perfectly flat backdrop must not make the slightest noise look like object.
 _SIGMA_FLOOR = 4.0
 _CLUSTERS = 6
+_SAMPLES = 4000  # border pixels clustered, at most (about)
 
 
 class BackdropModel:
@@ -37,15 +39,30 @@ class BackdropModel:
         self.inverse_covariances = np.asarray(inverse_covariances, np.float32).reshape(-1, 3, 3)
 
     def distance(self, rgb: np.ndarray) -> np.ndarray:
-        """(H, W) float32: smallest Mahalanobis distance of each pixel of ``rgb``
-        ((H, W, 3) uint8) to a backdrop cluster, in standard deviations."""
-        pixels = rgb.reshape(-1, 3).astype(np.float32)
-        best = np.full(len(pixels), np.inf, np.float32)
-        for mean, inverse in zip(self.means, self.inverse_covariances):
-            residual = pixels - mean
-            np.minimum(best, np.sqrt(np.einsum("ij,jk,ik->i", residual, inverse, residual)),
-                       out=best)
-        return best.reshape(rgb.shape[:2])
+        """Smallest Mahalanobis distance of each colour of ``rgb`` ((..., 3) uint8, e.g.
+        an (H, W, 3) image or (n, 3) pixels) to a backdrop cluster: (...) float32, in
+        standard deviations."""
+        pixels = np.ascontiguousarray(rgb).reshape(-1, 3)
+        out = np.empty(len(pixels), np.float32)
+        _min_mahalanobis(pixels, self.means, self.inverse_covariances, out)
+        return out.reshape(rgb.shape[:-1])
+
+
+@njit(cache=True)
+def _min_mahalanobis(pixels, means, inverses, out):
+    """``out[i]`` = min over clusters k of sqrt(r^T inverses[k] r), r = pixels[i] - means[k]."""
+    for i in range(pixels.shape[0]):
+        best = np.inf
+        for k in range(means.shape[0]):
+            r0 = pixels[i, 0] - means[k, 0]
+            r1 = pixels[i, 1] - means[k, 1]
+            r2 = pixels[i, 2] - means[k, 2]
+            m = inverses[k]
+            q = (r0 * (m[0, 0] * r0 + m[0, 1] * r1 + m[0, 2] * r2)
+                 + r1 * (m[1, 0] * r0 + m[1, 1] * r1 + m[1, 2] * r2)
+                 + r2 * (m[2, 0] * r0 + m[2, 1] * r1 + m[2, 2] * r2))
+            best = min(best, q)
+        out[i] = np.sqrt(max(best, 0.0))
 
 
 def border_band(height: int, width: int, border_fraction: float) -> np.ndarray:
@@ -70,10 +87,11 @@ def fit_backdrop(rgb: np.ndarray, *, border_fraction: float = 0.02,
         raise ValueError(f"cover must be in (0, 1], got {cover}")
     h, w = rgb.shape[:2]
     pixels = rgb[border_band(h, w, border_fraction)].astype(np.float32)
-    k = min(_CLUSTERS, len(np.unique(pixels[:: max(1, len(pixels) // 2000)], axis=0)))
+    pixels = pixels[:: max(1, len(pixels) // _SAMPLES)]  # an even subsample along the border
+    k = min(_CLUSTERS, len(np.unique(pixels, axis=0)))
     cv2.setRNGSeed(0)
     criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 20, 0.5)
-    _, labels, _ = cv2.kmeans(pixels, k, None, criteria, 2, cv2.KMEANS_PP_CENTERS)
+    _, labels, _ = cv2.kmeans(pixels, k, None, criteria, 1, cv2.KMEANS_PP_CENTERS)
     labels = labels.ravel()
     counts = np.bincount(labels, minlength=k)
     means, inverses, held = [], [], 0

@@ -657,9 +657,9 @@ def _graph_cut_mask(rgb: np.ndarray, params: SegmentationParams) -> tuple[np.nda
     """Graph-cut method up to the closing: (mask (H, W) uint8, backdrop colour (3,), object_sigma)."""
     h, w = rgb.shape[:2]
     backdrop = fit_backdrop(rgb, border_fraction=params.border_fraction)
-    distance = backdrop.distance(rgb)
     scale = min(1.0, float(np.sqrt(_WORK_PIXELS / (h * w))))
     size = (max(8, round(w * scale)), max(8, round(h * scale)))
+    distance = backdrop.distance(rgb)
     small = cv2.resize(rgb, size, interpolation=cv2.INTER_AREA)
     small_distance = cv2.resize(distance, size, interpolation=cv2.INTER_AREA)
     labels = np.where(small_distance > params.object_sigma, cv2.GC_PR_FGD,
@@ -676,9 +676,10 @@ def _graph_cut_mask(rgb: np.ndarray, params: SegmentationParams) -> tuple[np.nda
     opening = max(1, round(0.015 * np.hypot(*size)))
     sure = cv2.morphologyEx(framed[components], cv2.MORPH_OPEN, _disk(opening))
     labels[sure > 0] = cv2.GC_BGD
+    background = backdrop.means[0].astype(np.float64)
     if np.count_nonzero(labels == cv2.GC_PR_FGD) == 0:
-        return np.zeros((h, w), np.uint8), backdrop.means[0].astype(np.float64), params.object_sigma
-    if np.count_nonzero((labels == cv2.GC_BGD) | (labels == cv2.GC_PR_BGD)) > 0:
+        return np.zeros((h, w), np.uint8), background, params.object_sigma
+    if np.count_nonzero((labels == cv2.GC_BGD) | (labels == cv2.GC_PR_BGD)):
         cv2.grabCut(small, labels, None, np.zeros((1, 65)), np.zeros((1, 65)),
                     _GRABCUT_ITERATIONS, cv2.GC_INIT_WITH_MASK)
     chosen = ((labels == cv2.GC_FGD) | (labels == cv2.GC_PR_FGD)).astype(np.float32)
@@ -689,7 +690,7 @@ def _graph_cut_mask(rgb: np.ndarray, params: SegmentationParams) -> tuple[np.nda
     band = (cv2.dilate(mask, square) > 0) & (cv2.erode(mask, square) == 0)
     mask[band] = distance[band] > _EDGE_SIGMA
     radius = int(round(params.close_fraction * np.sqrt(np.count_nonzero(mask))))
-    return _close(mask, radius), backdrop.means[0].astype(np.float64), params.object_sigma
+    return _close(mask, radius), background, params.object_sigma
 
 
 def segment(image, params: SegmentationParams = SegmentationParams()) -> Segmentation:
