@@ -266,6 +266,10 @@ def test_from_dict():
     params = SegmentationParams.from_dict({"background": [10, 20, 30], "threshold": 0.2,
                                            "threshold_range": [0.1, 0.3]})
     assert params.background == (10, 20, 30) and params.threshold_range == (0.1, 0.3)
+    assert params.method == "threshold"  # threshold options without a method keep their meaning
+    assert SegmentationParams.from_dict({"dilate_px": 1}).method == "graph-cut"
+    assert SegmentationParams.from_dict({"method": "graph-cut", "threshold": 0.2}).method \
+        == "graph-cut"
     with pytest.raises(ValueError, match="unknown segmentation parameter.*'thresh'"):
         SegmentationParams.from_dict({"thresh": 0.2})
     with pytest.raises(ValueError, match="dict"):
