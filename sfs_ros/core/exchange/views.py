@@ -146,12 +146,10 @@ def read_image(path: Path | str, *, expected_size: tuple[int, int] | None = None
         image = (image >> 8).astype(np.uint8)
     elif image.dtype != np.uint8:  # e.g. float TIFF: OpenCV's own conversion to 8-bit colour
         image = _decode(Path(path), cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION)
-    if image.ndim == 2:
-        return np.repeat(image[:, :, None], 3, axis=2)
+    if image.ndim == 2 or image.shape[2] == 1:
+        return np.repeat(image.reshape(height, width, 1), 3, axis=2)
     if image.shape[2] == 4:
         return cv2.cvtColor(image, cv2.COLOR_BGRA2RGBA if keep_alpha else cv2.COLOR_BGRA2RGB)
-    if image.shape[2] == 1:
-        return np.repeat(image, 3, axis=2)
     return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
 
 
