@@ -130,9 +130,10 @@ def simulate_hostile_scan(obj: SyntheticObject, calibration: RigCalibration, pla
     out_of_frame_every : int >= 0
         Every k-th view (k > 0) has ``out_fraction`` of the object's width out
         of the frame on the right; 0 = never.
+    out_fraction : float in (0, 1)
     stripe_period_m : float > 0
         Period of the dark dashes along Z on the object (rings broken into
-        six arcs; about a sixth of each period is near-black).
+        three arcs; about a sixth of each period is near-black).
     noise_sigma : float >= 0
         Gaussian noise, grey levels.
     seed : int
@@ -148,6 +149,8 @@ def simulate_hostile_scan(obj: SyntheticObject, calibration: RigCalibration, pla
     if isinstance(out_of_frame_every, bool) or not isinstance(out_of_frame_every, int) \
             or out_of_frame_every < 0:
         raise ValueError(f"out_of_frame_every must be an integer >= 0, got {out_of_frame_every!r}")
+    if not 0 < out_fraction < 1:
+        raise ValueError(f"out_fraction must be in (0, 1), got {out_fraction}")
     if not stripe_period_m > 0:
         raise ValueError(f"stripe_period_m must be > 0, got {stripe_period_m}")
     plan = np.asarray(plan, dtype=np.float64).reshape(-1, 2)
@@ -187,7 +190,7 @@ def simulate_hostile_scan(obj: SyntheticObject, calibration: RigCalibration, pla
         covered, cloth = _cloth(h, w, rng)
         behind = covered & (face_id < 0)
         image[behind] = cloth[behind]
-        # Dark stripes and specular highlights on the object.
+        # Dark dashes and specular highlights on the object.
         pixels = np.flatnonzero(on_object)
         points, nrm = _surface_points_normals(vertices, faces, normals, face_id, bary, pixels)
         azimuth = np.arctan2(points[:, 1], points[:, 0])
@@ -197,7 +200,7 @@ def simulate_hostile_scan(obj: SyntheticObject, calibration: RigCalibration, pla
         view /= np.linalg.norm(view, axis=1, keepdims=True)
         half = view + light
         half /= np.linalg.norm(half, axis=1, keepdims=True)
-        specular = 300.0 * np.clip(np.einsum("kc,kc->k", nrm, half), 0.0, 1.0) ** 80
+        specular = 300.0 * np.clip((nrm * half).sum(axis=1), 0.0, 1.0) ** 80
         flat = image.reshape(-1, 3)
         flat[pixels] = np.where(stripes[:, None], 0.1 * flat[pixels], flat[pixels])
         flat[pixels] += specular[:, None].astype(np.float32)
