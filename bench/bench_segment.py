@@ -1,10 +1,12 @@
-"""Segmentation speed per ~1 MP image (1024x1024 and 1280x800).
+"""Segmentation speed per image (800x800, as NeRF synthetic views, 1024x1024 and 1280x800).
 
 The image: a shaded object with a hole on a backdrop with a gentle gradient,
 vignetting, noise and specks (white and black backdrops). Baseline: a plain
 fixed threshold on the largest channel difference to a known background (one
 numpy expression, no estimation, morphology or connectivity test), measured
 in the same run. Ratio = baseline / ours (below 1: ours does more work).
+The default (graph cut) is also timed against decoding the same image from a
+PNG file in memory, the work every view costs anyway.
 
 Run: ``python -m bench.bench_segment`` (``--quick`` for fewer repeats).
 """
@@ -13,13 +15,14 @@ from __future__ import annotations
 
 import argparse
 
+import cv2
 import numpy as np
 
 from sfs_ros.core.segment import PRESETS, SegmentationParams, segment
 
 from .timing import best_of
 
-SIZES = ((1024, 1024), (1280, 800))  # (width, height)
+SIZES = ((800, 800), (1024, 1024), (1280, 800))  # (width, height)
 BACKDROPS = {"white": (240, 240, 235), "black": (12, 10, 14)}
 
 
@@ -49,7 +52,8 @@ def plain_threshold(image: np.ndarray, background, threshold: float) -> np.ndarr
 
 def run(quick: bool = False) -> list[dict]:
     repeats = 3 if quick else 7
-    configs = [("default (auto, smooth background)", {}),
+    configs = [("default (graph cut)", {}),
+               ("threshold method", {"method": "threshold"}),
                ("middlebury-dino preset", PRESETS["middlebury-dino"]),
                ("middlebury-temple preset", PRESETS["middlebury-temple"])]
     rows = []
@@ -57,6 +61,11 @@ def run(quick: bool = False) -> list[dict]:
         for backdrop_name, backdrop in BACKDROPS.items():
             image = synthetic_image(width, height, backdrop)
             baseline = best_of(lambda: plain_threshold(image, backdrop, 0.2), repeats)
+            png = cv2.imencode(".png", image)[1]
+            decode = best_of(lambda: cv2.imdecode(png, cv2.IMREAD_UNCHANGED), repeats)
+            seconds = best_of(lambda: segment(image), repeats)
+            rows.append({"name": f"segment {width}x{height} {backdrop_name}: default vs PNG decode",
+                         "seconds": seconds, "baseline_seconds": decode, "ratio": decode / seconds})
             for label, values in configs:
                 if backdrop_name == "white" and label.startswith("middlebury"):
                     continue  # the Middlebury presets assume a black backdrop

@@ -1,4 +1,9 @@
-"""Segmentation on synthetic captures with a known ground-truth silhouette."""
+"""Segmentation on synthetic captures with a known ground-truth silhouette.
+
+Most tests here check the threshold method's own steps (background field,
+hysteresis, connectivity test, holes); the default graph cut is scored on the
+hostile cell in ``test_segment_scene.py``.
+"""
 
 import numpy as np
 import pytest
@@ -86,7 +91,7 @@ def within_band(mask, truth, band=BAND_PX):
 def test_mask_matches_truth(background, object_rgb, shade, model):
     image, _, _ = render(background, object_rgb=object_rgb, shade=shade)
     _, filled_truth = ground_truth()
-    params = SegmentationParams(background_model=model, fill_holes_max_fraction=FILL_FRACTION,
+    params = SegmentationParams(method="threshold", background_model=model, fill_holes_max_fraction=FILL_FRACTION,
                                 dilate_px=0)
     result = segment(image, params)
     assert isinstance(result, Segmentation)
@@ -105,7 +110,7 @@ def test_mask_matches_truth(background, object_rgb, shade, model):
 @pytest.mark.parametrize("background", [(245, 245, 240), (12, 10, 14)])
 def test_background_estimate(background):
     image, field, _ = render(background)
-    smooth = segment(image, SegmentationParams(background_model="smooth"))
+    smooth = segment(image, SegmentationParams(method="threshold", background_model="smooth"))
     # The smooth model reports the mean of its field: the mean of the true field.
     np.testing.assert_allclose(smooth.background_rgb, field.reshape(-1, 3).mean(axis=0),
                                atol=BACKGROUND_TOL)
@@ -125,8 +130,8 @@ def test_smooth_background_absorbs_strong_vignetting():
                          gradient=60.0)
     _, filled_truth = ground_truth()
     params = dict(fill_holes_max_fraction=FILL_FRACTION, dilate_px=0)
-    smooth = segment(image, SegmentationParams(background_model="smooth", **params))
-    constant = segment(image, SegmentationParams(background_model="constant", **params))
+    smooth = segment(image, SegmentationParams(method="threshold", background_model="smooth", **params))
+    constant = segment(image, SegmentationParams(method="threshold", background_model="constant", **params))
     assert iou(smooth.mask, filled_truth) > IOU_MIN
     assert within_band(smooth.mask, filled_truth) == (0, 0)
     assert iou(constant.mask, filled_truth) < 0.9
@@ -136,7 +141,7 @@ def test_background_estimate_survives_object_on_the_border():
     # The object covers a third of the top edge: the border mode ignores it.
     image, _, _ = render((245, 245, 240), centre=(150.0, 40.0), gradient=0.0, specks=False)
     np.testing.assert_allclose(estimate_background(image), (245, 245, 240), atol=BACKGROUND_TOL)
-    result = segment(image, SegmentationParams(dilate_px=0))
+    result = segment(image, SegmentationParams(method="threshold", dilate_px=0))
     truth, _ = ground_truth(centre=(150.0, 40.0))
     assert result.touches_border
     assert iou(result.mask, truth) > IOU_MIN
@@ -146,11 +151,11 @@ def test_white_and_black_hints_and_given_colour():
     image, _, _ = render((245, 245, 240), gradient=0.0)
     np.testing.assert_allclose(estimate_background(image, background="white"), (245, 245, 240),
                                atol=BACKGROUND_TOL)
-    given = segment(image, SegmentationParams(background=(245, 245, 240)))
+    given = segment(image, SegmentationParams(method="threshold", background=(245, 245, 240)))
     np.testing.assert_array_equal(given.background_rgb, (245, 245, 240))
     # Told "black", a white-backdrop image has no dark border pixels: black is assumed
     # and the whole frame is "object" touching the border.
-    black = segment(image, SegmentationParams(background="black", background_model="constant"))
+    black = segment(image, SegmentationParams(method="threshold", background="black", background_model="constant"))
     assert black.touches_border and black.foreground_fraction > 0.9
 
 
@@ -162,10 +167,10 @@ def test_hysteresis_keeps_shadows_connected_to_the_object_only():
     image[80:160, 60:120] = 40     # shadowed part of the object
     image[80:160, 120:220] = 200   # lit part
     image[20:50, 250:300] = 40     # dim patch elsewhere
-    strong_only = segment(image, SegmentationParams(threshold=0.3, weak_ratio=1.0, dilate_px=0))
-    hysteresis = segment(image, SegmentationParams(threshold=0.3, weak_ratio=0.3, grow_px=None,
+    strong_only = segment(image, SegmentationParams(method="threshold", threshold=0.3, weak_ratio=1.0, dilate_px=0))
+    hysteresis = segment(image, SegmentationParams(method="threshold", threshold=0.3, weak_ratio=0.3, grow_px=None,
                                                    dilate_px=0))
-    limited = segment(image, SegmentationParams(threshold=0.3, weak_ratio=0.3, grow_px=10,
+    limited = segment(image, SegmentationParams(method="threshold", threshold=0.3, weak_ratio=0.3, grow_px=10,
                                                 dilate_px=0))
     assert strong_only.mask[80:160, 60:120].sum() == 0
     # (Interiors: the opening rounds the corners of the rectangles.)
@@ -180,9 +185,9 @@ def test_keep_largest_only_and_min_blob_fraction():
     image[40:140, 40:140] = 30     # 10 000 px
     image[160:200, 200:240] = 30   # 1 600 px: 16 % of the largest
     params = dict(dilate_px=0, open_px=0, background_model="constant")
-    both = segment(image, SegmentationParams(min_blob_fraction=0.1, **params))
-    largest = segment(image, SegmentationParams(keep_largest_only=True, **params))
-    strict = segment(image, SegmentationParams(min_blob_fraction=0.2, **params))
+    both = segment(image, SegmentationParams(method="threshold", min_blob_fraction=0.1, **params))
+    largest = segment(image, SegmentationParams(method="threshold", keep_largest_only=True, **params))
+    strict = segment(image, SegmentationParams(method="threshold", min_blob_fraction=0.2, **params))
     assert both.mask.sum() == 11600 and both.n_blobs_removed == 0
     assert largest.mask.sum() == 10000 and largest.n_blobs_removed == 1
     assert strict.mask.sum() == 10000 and strict.n_blobs_removed == 1
@@ -191,7 +196,7 @@ def test_keep_largest_only_and_min_blob_fraction():
 def test_dilation_is_conservative():
     image, _, _ = render((12, 10, 14), object_rgb=(220, 215, 200))
     _, filled_truth = ground_truth()
-    mask = segment(image, SegmentationParams(dilate_px=2, fill_holes_max_fraction=FILL_FRACTION)).mask
+    mask = segment(image, SegmentationParams(method="threshold", dilate_px=2, fill_holes_max_fraction=FILL_FRACTION)).mask
     assert mask[filled_truth].all()   # one-sided: the truth is inside the dilated mask
     extra, _ = within_band(mask, filled_truth, band=3)
     assert extra == 0
@@ -217,7 +222,7 @@ def test_no_object_is_empty_not_an_error(image):
 @pytest.mark.parametrize("image, words", [
     (np.zeros((H, W, 3), np.float32), "dtype float32"),
     (np.zeros((H, W, 3), np.uint16), "dtype uint16"),
-    (np.zeros((H, W, 4), np.uint8), "shape (240, 320, 4)"),
+    (np.zeros((H, W, 2), np.uint8), "shape (240, 320, 2)"),
     (np.zeros((H * W,), np.uint8), "shape (76800,)"),
     (np.zeros((4, 4), np.uint8), "at least 8x8"),
 ])
@@ -246,6 +251,11 @@ def test_bad_images_are_rejected(image, words):
     ({"min_area_fraction": 1.0}, "min_area_fraction"),
     ({"border_fraction": 0.5}, "border_fraction"),
     ({"keep_largest_only": "yes"}, "keep_largest_only"),
+    ({"method": "otsu"}, "method"),
+    ({"object_sigma": 0.0}, "object_sigma"),
+    ({"close_fraction": 0.5}, "close_fraction"),
+    ({"ignore_alpha": 1}, "ignore_alpha"),
+    ({"alpha_threshold": 255}, "alpha_threshold"),
 ])
 def test_bad_params_are_rejected(values, words):
     with pytest.raises(ValueError, match=words):
@@ -256,6 +266,10 @@ def test_from_dict():
     params = SegmentationParams.from_dict({"background": [10, 20, 30], "threshold": 0.2,
                                            "threshold_range": [0.1, 0.3]})
     assert params.background == (10, 20, 30) and params.threshold_range == (0.1, 0.3)
+    assert params.method == "threshold"  # threshold options without a method keep their meaning
+    assert SegmentationParams.from_dict({"dilate_px": 1}).method == "graph-cut"
+    assert SegmentationParams.from_dict({"method": "graph-cut", "threshold": 0.2}).method \
+        == "graph-cut"
     with pytest.raises(ValueError, match="unknown segmentation parameter.*'thresh'"):
         SegmentationParams.from_dict({"thresh": 0.2})
     with pytest.raises(ValueError, match="dict"):

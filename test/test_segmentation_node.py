@@ -21,8 +21,8 @@ from sfs_ros.ros.convert import image_to_msg, joint_state, msg_to_image
 
 MODULE = "sfs_ros.nodes.segmentation_node"
 # What the params file sets, and the same as core parameters (for the expected masks).
-NODE_PARAMS = {"background": "white", "close_px": 3, "queue_depth": 30}
-CORE_PARAMS = SegmentationParams(background="white", close_px=3)
+NODE_PARAMS = {"method": "threshold", "background": "white", "close_px": 3, "queue_depth": 30}
+CORE_PARAMS = SegmentationParams(method="threshold", background="white", close_px=3)
 RIG = RigCalibration(width=320, height=240, projection="pinhole", fx=700.0, fy=700.0,
                      camera_distance_m=0.6, aim_point_m=(0.0, 0.0, 0.04))
 PLAN = ring_plan([20.0, 60.0], 4)          # 8 views

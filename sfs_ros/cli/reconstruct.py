@@ -59,7 +59,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-consistency-check", action="store_true",
                    help="do not detect and drop views inconsistent with the others")
     p.add_argument("--preset", choices=sorted(PRESETS), help="segmentation preset")
-    p.add_argument("--threshold", type=float, help="segmentation threshold (default automatic)")
+    p.add_argument("--threshold", type=float,
+                   help="segment by this colour-distance threshold (the threshold method; "
+                        "default: the graph cut, no threshold needed)")
+    p.add_argument("--ignore-alpha", action="store_true",
+                   help="segment the colours of images with an alpha channel (default: alpha is "
+                        "the silhouette)")
     p.add_argument("--units", choices=("m", "mm"), default="m", help="units of the mesh file")
     p.add_argument("--colour", action="store_true",
                    help="colour the mesh's vertices from the images (the views that see each "
@@ -91,11 +96,13 @@ def _holdout_names(spec: str, names: list[str]) -> tuple[str, ...]:
 
 
 def _segmentation(args, stored: dict | None) -> SegmentationParams | None:
-    if args.preset is None and args.threshold is None:
+    if args.preset is None and args.threshold is None and not args.ignore_alpha:
         return None
     values = dict(PRESETS[args.preset]) if args.preset else dict(stored or {})
     if args.threshold is not None:
-        values["threshold"] = args.threshold
+        values.update(method="threshold", threshold=args.threshold)
+    if args.ignore_alpha:
+        values["ignore_alpha"] = True
     return SegmentationParams.from_dict(values)
 
 

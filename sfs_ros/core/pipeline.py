@@ -160,7 +160,7 @@ def _segment_views(views: list[View], params: SegmentationParams, progress: Prog
     for n, view in enumerate(views):
         progress("segmentation", n / max(1, len(views)))
         try:
-            image = read_image(view.image_path,
+            image = read_image(view.image_path, keep_alpha=not params.ignore_alpha,
                                expected_size=(view.camera.width, view.camera.height))
         except ValueError as err:
             rejected.append({"view": view.name, "reason": str(err)})

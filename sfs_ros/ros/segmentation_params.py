@@ -18,6 +18,9 @@ def segmentation_param_list(defaults: SegmentationParams) -> list[Param]:
     d = defaults
     bg = d.background if isinstance(d.background, str) else ",".join(map(str, d.background))
     return [
+        Param("method", d.method, "graph-cut (backdrop model from the image border + GrabCut, "
+              "needs no preset) or threshold (the parameters below).",
+              choices=("graph-cut", "threshold")),
         Param("background", bg, "Background colour: auto (most common border colour), white, "
               "black (most common bright / dark border colour) or 'r,g,b' (0..255, used as given).",
               constraints="auto, white, black or three integers 0..255 'r,g,b'"),

@@ -27,9 +27,9 @@ SOURCES = ("session", "middlebury", "nerf")
 #: File name endings (lower case) treated as images when a folder is searched.
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp", ".ppm", ".pgm")
 
-#: Decode as 8-bit, 3-channel BGR; keep the sensor's pixel grid (no EXIF rotation),
-#: since calibrations refer to it.
-_IMREAD_FLAGS = cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION
+#: Decode as stored (any depth, with alpha); keep the sensor's pixel grid (no EXIF
+#: rotation), since calibrations refer to it.
+_IMREAD_FLAGS = cv2.IMREAD_UNCHANGED | cv2.IMREAD_IGNORE_ORIENTATION
 
 
 @dataclass(frozen=True)
@@ -110,13 +110,16 @@ def _decode(path: Path, flags: int, expected_size: tuple[int, int] | None = None
     return image
 
 
-def read_image(path: Path | str, *, expected_size: tuple[int, int] | None = None) -> np.ndarray:
-    """Read an image file as RGB.
+def read_image(path: Path | str, *, expected_size: tuple[int, int] | None = None,
+               keep_alpha: bool = False) -> np.ndarray:
+    """Read an image file as RGB (or RGBA when it has alpha and ``keep_alpha``).
 
     16-bit images are scaled to 8 bits (divided by 256), grey images are
-    repeated into three channels and an alpha channel is dropped (the colour
-    under transparent pixels is kept as stored). EXIF orientation is ignored:
-    the pixels are those of the sensor, which the calibration refers to.
+    repeated into three channels. An alpha channel is kept as a fourth
+    channel when ``keep_alpha`` (segmentation takes it as the silhouette),
+    otherwise dropped (the colour under transparent pixels is kept as
+    stored). EXIF orientation is ignored: the pixels are those of the
+    sensor, which the calibration refers to.
 
     Parameters
     ----------
@@ -124,19 +127,31 @@ def read_image(path: Path | str, *, expected_size: tuple[int, int] | None = None
         The image file.
     expected_size : (width, height) int or None
         Raise unless the image has this size, pixels (the camera's).
+    keep_alpha : bool
+        Return (H, W, 4) RGBA for an image with an alpha channel.
 
     Returns
     -------
-    (H, W, 3) uint8
-        RGB image.
+    (H, W, 3) or (H, W, 4) uint8
+        RGB image, or RGBA (``keep_alpha`` and an alpha channel in the file).
 
     Raises
     ------
     ViewError
         Missing file, a file that is not a readable image, or the wrong size.
     """
-    bgr = _decode(Path(path), _IMREAD_FLAGS, expected_size)
-    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+    image = _decode(Path(path), _IMREAD_FLAGS, expected_size)
+    height, width = image.shape[:2]
+    if image.dtype == np.uint16:
+        image = (image >> 8).astype(np.uint8)
+    elif image.dtype != np.uint8:  # e.g. float TIFF: OpenCV's own conversion to 8-bit colour
+        image = _decode(Path(path), cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION,
+                        expected_size)
+    if image.ndim == 2 or image.shape[2] == 1:
+        return np.repeat(image.reshape(height, width, 1), 3, axis=2)
+    if image.shape[2] == 4:
+        return cv2.cvtColor(image, cv2.COLOR_BGRA2RGBA if keep_alpha else cv2.COLOR_BGRA2RGB)
+    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
 
 
 def image_size(path: Path | str) -> tuple[int, int]:
