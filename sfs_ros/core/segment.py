@@ -45,7 +45,9 @@ background) are segmented by their alpha: object where alpha >
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, fields
+from numbers import Real
 
 import cv2
 import numpy as np
@@ -72,6 +74,14 @@ _WORK_PIXELS = 40_000
 _GRABCUT_ITERATIONS = 4
 _SURE_SIGMA = 3.0
 _EDGE_SIGMA = 1.5
+
+
+#: Largest radius or distance in pixels a parameter may give (morphology kernels grow with it).
+MAX_RADIUS_PX = 10000
+_REAL_FIELDS = ("object_sigma", "close_fraction", "threshold", "weak_ratio", "chroma_weight",
+                "min_blob_fraction", "fill_holes_max_fraction", "min_area_fraction",
+                "border_fraction")
+_PIXEL_FIELDS = ("alpha_threshold", "grow_px", "open_px", "close_px", "dilate_px")
 
 
 @dataclass(frozen=True)
@@ -163,6 +173,24 @@ class SegmentationParams:
     border_fraction: float = 0.02
 
     def __post_init__(self) -> None:
+        # Types first, so that a wrong one is named here and never reaches the arithmetic.
+        for name in _REAL_FIELDS:
+            value = getattr(self, name)
+            if value is None and name == "threshold":
+                continue
+            if isinstance(value, (bool, np.bool_)) or not isinstance(value, Real) \
+                    or not math.isfinite(value):
+                raise ValueError(f"{name} must be a finite number, got {value!r:.60}")
+        for name in _PIXEL_FIELDS:
+            value = getattr(self, name)
+            if value is None and name == "grow_px":
+                continue
+            _check_int(name, value, 0)
+            if value > MAX_RADIUS_PX:
+                raise ValueError(f"{name} must be at most {MAX_RADIUS_PX} pixels, got {value}")
+        for name in ("ignore_alpha", "keep_largest_only"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise ValueError(f"{name} must be true or false, got {getattr(self, name)!r:.60}")
         if self.method not in _METHODS:
             raise ValueError(f"method must be one of {_METHODS}, got {self.method!r}")
         if not (np.isfinite(self.object_sigma) and self.object_sigma > 0):
