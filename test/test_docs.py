@@ -120,7 +120,15 @@ def is_synopsis(argv) -> bool:
 
 
 def parser_of(module_name: str):
-    module = importlib.import_module(module_name)
+    try:
+        module = importlib.import_module(module_name)
+    except ModuleNotFoundError as error:
+        # sfs-demo and sfs-replay import rclpy: without ROS 2's Python packages
+        # (scripts/setup.sh installs them) their parsers cannot be built.
+        if (error.name or "").split(".")[0] in ("rclpy", "rosidl_runtime_py") or \
+                (error.name or "").endswith(("_msgs", "_srvs")):
+            pytest.skip(f"{module_name} needs ROS 2's Python packages ({error.name})")
+        raise
     build = getattr(module, "build_parser", None)
     return build() if build else None
 
