@@ -9,6 +9,10 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 repo="$PWD"
+[[ -x "${SFS_VENV:-.venv}/bin/python" ]] || {
+    echo "error: no environment at ${SFS_VENV:-.venv}: run scripts/setup.sh first" >&2
+    exit 1
+}
 venv="$(cd "${SFS_VENV:-.venv}" && pwd)"
 python="$venv/bin/python"
 [[ -x "$venv/bin/colcon" ]] || "$python" -m pip install -q colcon-common-extensions
