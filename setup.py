@@ -26,7 +26,7 @@ setup(
         "scipy>=1.11.4",
         "scikit-image>=0.22.0",
         "numba>=0.59.1",
-        "trimesh>=4.0.0",
+        "trimesh>=5.0.0",
         "pyyaml>=6.0.1",
         "pyserial>=3.5",
         "pillow>=10.2.0",
