@@ -68,7 +68,7 @@ def rpy_from_matrix(R) -> tuple[float, float, float]:
 def _number(value: float) -> str:
     """Shortest text that reads back as the same float (``repr``), without ``-0``."""
     value = float(value)
-    return repr(value + 0.0) if value != 0.0 else "0"
+    return repr(value) if value != 0.0 else "0"
 
 
 def _origin(xyz, R) -> str:
