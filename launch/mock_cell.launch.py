@@ -4,10 +4,13 @@
 
 The same nodes, params files and overrides as ``sfs-cell --mock -o OUTPUT_DIR``
 (``sfs_ros.cli.bringup.cell_nodes(..., mock=True)``): the motor node opens
-the simulated controller through the link ``OUTPUT_DIR/ttyMOCK``.
+the simulated controller through the link ``OUTPUT_DIR/ttyMOCK``. Plus
+robot_state_publisher (the TF of ``urdf/sfs_cell.urdf``; it is not on PyPI, so
+``sfs-cell`` has no TF).
 """
 
 import os
+from pathlib import Path
 
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
@@ -26,7 +29,9 @@ def make_output_dir(context):
 
 
 def generate_launch_description():
-    config = os.path.join(get_package_share_directory('sfs_ros'), 'config')
+    share = get_package_share_directory('sfs_ros')
+    config = os.path.join(share, 'config')
+    robot_description = Path(os.path.join(share, 'urdf', 'sfs_cell.urdf')).read_text()
     output_dir = LaunchConfiguration('output_dir')
     namespace = LaunchConfiguration('namespace')
     port = PathJoinSubstitution([output_dir, 'ttyMOCK'])
@@ -59,4 +64,10 @@ def generate_launch_description():
              output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
              parameters=[os.path.join(config, 'scan.yaml'),
                          {'plan_file': os.path.join(config, 'scan_plan.yaml')}]),
+        # TF of the cell (base_link, turntable, carriage, camera_optical) from the motor
+        # node's joint_states; the URDF is made from config/rig.yaml's defaults.
+        Node(package='robot_state_publisher', executable='robot_state_publisher',
+             name='robot_state_publisher', namespace=namespace, output='screen',
+             respawn=True, respawn_delay=RESPAWN_DELAY_S,
+             parameters=[{'robot_description': robot_description}]),
     ])

@@ -4,10 +4,12 @@
 ``ast`` and their ``Node(...)`` actions evaluated here for the few
 constructs they use (strings, lists, dicts, names assigned in the file,
 ``os.path.join``, ``PathJoinSubstitution``, ``LaunchConfiguration``,
-``get_package_share_directory``); anything else fails the test, naming the
-line, rather than being skipped. The package share folder is a temporary
-copy of the repository's ``config/*.yaml``, so the comparison with
-``cell_nodes`` is of full paths and values.
+``get_package_share_directory``, ``Path(...).read_text()``); anything else fails
+the test, naming the line, rather than being skipped. The package share folder
+is a temporary copy of the repository's ``config/*.yaml`` and ``urdf/``, so the
+comparison with ``cell_nodes`` is of full paths and values. Besides the nodes of
+``cell_nodes``, each file starts robot_state_publisher (the cell's TF), which
+``sfs-cell`` cannot (not on PyPI).
 """
 
 import ast
@@ -15,10 +17,12 @@ import importlib
 import os
 import re
 import shutil
+import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import pytest
 
+from sfs_ros.cell.messages import JOINT_NAMES
 from sfs_ros.cli.bringup import cell_nodes
 
 REPO = Path(__file__).resolve().parents[1]
@@ -63,8 +67,13 @@ class LaunchFile:
     def keywords(self, call: ast.Call) -> dict:
         return {k.arg: self.value(k.value) for k in call.keywords}
 
-    def nodes(self) -> list[dict]:
-        return [self.keywords(call) for call in self.calls("Node")]
+    def nodes(self, package: str = "sfs_ros") -> list[dict]:
+        """Keywords of the ``Node`` actions of ``package``."""
+        nodes = [self.keywords(call) for call in self.calls("Node")]
+        return [n for n in nodes if n["package"] == package]
+
+    def packages(self) -> list[str]:
+        return [self.keywords(call)["package"] for call in self.calls("Node")]
 
     def value(self, expr: ast.expr):
         if isinstance(expr, ast.Constant):
@@ -75,6 +84,12 @@ class LaunchFile:
             return [self.value(e) for e in expr.elts]
         if isinstance(expr, ast.Dict):
             return {self.value(k): self.value(v) for k, v in zip(expr.keys, expr.values)}
+        if isinstance(expr, ast.Call) and not expr.keywords and not expr.args \
+                and isinstance(expr.func, ast.Attribute) and expr.func.attr == "read_text":
+            receiver = expr.func.value
+            if isinstance(receiver, ast.Call) and ast.unparse(receiver.func) == "Path" \
+                    and len(receiver.args) == 1 and not receiver.keywords:
+                return Path(self.value(receiver.args[0])).read_text()
         if isinstance(expr, ast.Call) and not expr.keywords:
             function, args = ast.unparse(expr.func), [self.value(a) for a in expr.args]
             if function == "os.path.join":
@@ -91,11 +106,13 @@ class LaunchFile:
 
 @pytest.fixture()
 def share(tmp_path):
-    """A package share folder ``.../share/sfs_ros`` with copies of the repository's config."""
+    """A package share folder ``.../share/sfs_ros`` with copies of the repository's config
+    and URDF."""
     folder = tmp_path / "share" / "sfs_ros"
     (folder / "config").mkdir(parents=True)
     for path in (REPO / "config").glob("*.yaml"):
         shutil.copy(path, folder / "config")
+    shutil.copytree(REPO / "urdf", folder / "urdf")
     return folder
 
 
@@ -149,3 +166,38 @@ def test_every_executable_is_a_console_script(share):
                             share=share)
         for node in launch.nodes():
             assert node["executable"] in scripts, (filename, node["executable"])
+
+
+@pytest.mark.parametrize("filename", LAUNCH_FILES)
+@pytest.mark.parametrize("namespace", [None, "/cell1"])
+def test_robot_state_publisher_gets_the_installed_urdf(filename, namespace, share):
+    arguments = {"output_dir": "out"} | ({} if namespace is None else {"namespace": namespace})
+    launch = LaunchFile(REPO / "launch" / filename, arguments=arguments, share=share)
+    # The cell's nodes first, then robot_state_publisher, once.
+    assert launch.packages()[-1] == "robot_state_publisher"
+    assert launch.packages().count("robot_state_publisher") == 1
+    assert set(launch.packages()) == {"sfs_ros", "robot_state_publisher"}
+    (node,) = launch.nodes("robot_state_publisher")
+    assert node["executable"] == "robot_state_publisher"
+    # In the cell's namespace, so its relative joint_states is the motor node's.
+    assert node["namespace"] == (namespace or "")
+    assert node["respawn"] is True and node["respawn_delay"] > 0
+    (parameters,) = node["parameters"]
+    assert set(parameters) == {"robot_description"}
+    description = parameters["robot_description"]
+    assert description == (share / "urdf" / "sfs_cell.urdf").read_text()
+    # The description's moving joints are the ones the motor node publishes.
+    joints = ET.fromstring(description).findall("joint")
+    assert {j.get("name") for j in joints if j.get("type") != "fixed"} == set(JOINT_NAMES)
+
+
+def test_installed_share_folders_are_the_ones_the_launch_files_read():
+    """setup.py installs launch/, config/ and urdf/ under share/sfs_ros, where
+    get_package_share_directory finds them (checked for real by scripts/colcon_check.sh)."""
+    tree = ast.parse((REPO / "setup.py").read_text())
+    data_files = next(ast.unparse(k.value) for n in ast.walk(tree) if isinstance(n, ast.Call)
+                      and isinstance(n.func, ast.Name) and n.func.id == "setup"
+                      for k in n.keywords if k.arg == "data_files")
+    for folder, pattern in (("launch", "launch/*.launch.py"), ("config", "config/*.yaml"),
+                            ("urdf", "urdf/*.urdf")):
+        assert f"'share/' + package_name + '/{folder}', glob('{pattern}')" in data_files, folder

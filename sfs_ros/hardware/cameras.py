@@ -93,12 +93,15 @@ class OpenCVSource(CameraSource):
         self.flush_frames = int(flush_frames)
         self.name = f"camera {device!r}"
         # OpenCV logs its own warning for a device it cannot open: the ValueError says it.
-        level = cv2.utils.logging.getLogLevel()
-        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+        # (OpenCV 4.6's wheels, Ubuntu 24.04's version, have no cv2.utils.logging but
+        # cv2.getLogLevel/setLogLevel; 2 = LOG_LEVEL_ERROR in both.)
+        log = getattr(cv2.utils, "logging", cv2)
+        level = log.getLogLevel()
+        log.setLogLevel(2)
         try:
             self._capture = cv2.VideoCapture(int(device) if device.isdigit() else device)
         finally:
-            cv2.utils.logging.setLogLevel(level)
+            log.setLogLevel(level)
         if not self._capture.isOpened():
             self._capture.release()
             raise ValueError(f"cannot open camera {device!r}: expected a camera index ('0'), "

@@ -247,7 +247,8 @@ _OPTICAL_TO_BODY = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]
 
 def _quaternion(R: np.ndarray) -> tuple[float, float, float, float]:
     """``(x, y, z, w)`` unit quaternion of a rotation matrix (w >= 0)."""
-    x, y, z, w = Rotation.from_matrix(R).as_quat()
+    # A writable copy: SciPy 1.11 (Ubuntu 24.04's) refuses read-only arrays.
+    x, y, z, w = Rotation.from_matrix(np.array(R, dtype=np.float64)).as_quat()
     return (x, y, z, w) if w >= 0 else (-x, -y, -z, -w)
 
 

@@ -39,6 +39,9 @@ class BoardSpec:
     dictionary: str = "DICT_5X5_100"
 
     def __post_init__(self) -> None:
+        if not hasattr(getattr(cv2, "aruco", None), "CharucoDetector"):
+            raise ValueError(f"ChArUco calibration needs OpenCV 4.7 or later (its ChArUco "
+                             f"detector); this is OpenCV {cv2.__version__}")
         if int(self.squares_x) < 3 or int(self.squares_y) < 3:
             raise ValueError(f"board needs at least 3x3 squares, got "
                              f"{self.squares_x}x{self.squares_y}")

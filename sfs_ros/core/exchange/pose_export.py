@@ -115,7 +115,8 @@ def write_colmap(view_set: ViewSet, folder, *, points=None) -> Path:
             intrinsics[key] = len(intrinsics) + 1
             camera_lines.append(f"{intrinsics[key]} PINHOLE {key[0]} {key[1]} "
                                 + " ".join(repr(float(v)) for v in key[2:]))
-        qx, qy, qz, qw = Rotation.from_matrix(camera.R).as_quat()
+        # A writable copy: SciPy 1.11 (Ubuntu 24.04's) refuses the camera's read-only R.
+        qx, qy, qz, qw = Rotation.from_matrix(np.array(camera.R)).as_quat()
         values = [qw, qx, qy, qz, *camera.t]
         image_lines.append(f"{n} " + " ".join(repr(float(v)) for v in values)
                            + f" {intrinsics[key]} {view.name}\n\n")   # no 2-D points
