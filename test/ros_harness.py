@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import Callable
 
 import sfs_ros
+from waiting import wait  # noqa: F401  (for a probe spinning in its own thread)
 
 #: Seconds to wait for a process to come up / for a message.
 STARTUP_TIMEOUT_S = 20.0
@@ -127,16 +128,6 @@ def _yaml(value) -> str:
     if isinstance(value, (list, tuple)):
         return "[" + ", ".join(_yaml(v) for v in value) + "]"
     return str(value)
-
-
-def wait(condition: Callable[[], bool], *, what: str, timeout: float = 60.0) -> None:
-    """Poll ``condition`` until true, for a probe spinning in its own thread;
-    AssertionError after ``timeout`` seconds."""
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout:.0f} s waiting for {what}")
-        time.sleep(0.05)
 
 
 class RosProbe:
