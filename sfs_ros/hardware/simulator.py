@@ -732,6 +732,7 @@ class SimulatedGrbl:
         if m.stall_mode == "run" and m.stall_axis is not None and m.frozen_s is None \
                 and s >= m.stall_fraction * m.length:
             m.frozen_s = s = m.stall_fraction * m.length
+            done = False                     # even when first looked at after the whole move
         self._set_path_position(m, s)
         if m.hold_t0 is not None and now - m.hold_t0 >= m.hold_v / m.accel:
             self._hold_complete = True
