@@ -22,6 +22,7 @@ from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
 from sfs_ros.core.segment import segment
 from sfs_ros.core.simulation.synthetic import carving_box, score_against_truth
 from sfs_ros.core.exchange.views import read_image
+from tolerances import CHAMFER_MEAN_VOXELS, HULL_REPROJECTION_IOU_MIN
 
 #: Small pinhole camera, 0.6 m away, so the end-to-end tests stay fast.
 RIG = RigCalibration(width=320, height=240, projection="pinhole", fx=700.0, fy=700.0,
