@@ -71,8 +71,10 @@ def test_object_touching_the_box_is_closed():
     h = grid.voxel_size
     # The iso-level sits LEVEL_SHIFT below 0.5, moving the surface outward by
     # LEVEL_SHIFT voxel (1e-12 m of rounding on top).
-    np.testing.assert_allclose(vertices.min(axis=0), grid.bounds_min - LEVEL_SHIFT * h, atol=ROUND_OFF)
-    np.testing.assert_allclose(vertices.max(axis=0), grid.bounds_max + LEVEL_SHIFT * h, atol=ROUND_OFF)
+    np.testing.assert_allclose(vertices.min(axis=0), grid.bounds_min - LEVEL_SHIFT * h,
+                               atol=ROUND_OFF)
+    np.testing.assert_allclose(vertices.max(axis=0), grid.bounds_max + LEVEL_SHIFT * h,
+                               atol=ROUND_OFF)
     # Edges and corners of the box are chamfered (a 45-degree cut of half a
     # voxel), so the volume is below the box's and above the box shrunk by
     # one voxel.

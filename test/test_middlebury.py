@@ -51,7 +51,8 @@ def test_cameras_are_k_r_t(tmp_path):
         assert view.theta_rad is None and view.phi_rad is None
         h = (K @ (points @ R.T + t).T).T
         # Same arithmetic up to float64 rounding.
-        assert np.allclose(view.camera.project(points), h[:, :2] / h[:, 2:], atol=PIXEL_ROUND_OFF_PX)
+        assert np.allclose(view.camera.project(points), h[:, :2] / h[:, 2:],
+                           atol=PIXEL_ROUND_OFF_PX)
 
 
 def test_load_views_takes_the_file_or_its_folder(tmp_path):

@@ -64,7 +64,8 @@ def test_orthographic_sphere(sphere):
     assert_sandwiched(mask, camera, r_in)
     # area pi r^2 fx^2 up to the pixel-boundary band and the faceting
     R, R_in = RADIUS * 3000.0, r_in * 3000.0
-    assert math.pi * (R_in - HALF_PIXEL_DIAGONAL_PX) ** 2 <= mask.sum() <= math.pi * (R + HALF_PIXEL_DIAGONAL_PX) ** 2
+    assert math.pi * (R_in - HALF_PIXEL_DIAGONAL_PX) ** 2 <= mask.sum() \
+        <= math.pi * (R + HALF_PIXEL_DIAGONAL_PX) ** 2
 
 
 def test_pinhole_sphere_on_axis(sphere):
@@ -83,7 +84,8 @@ def test_pinhole_sphere_on_axis(sphere):
     R, R_in = image_radius(RADIUS), image_radius(r_in)
     assert np.all(mask[rho > R * (1 + ROUND)] == 0)
     assert np.all(mask[rho < R_in * (1 - ROUND)])
-    assert math.pi * (R_in - HALF_PIXEL_DIAGONAL_PX) ** 2 <= mask.sum() <= math.pi * (R + HALF_PIXEL_DIAGONAL_PX) ** 2
+    assert math.pi * (R_in - HALF_PIXEL_DIAGONAL_PX) ** 2 <= mask.sum() \
+        <= math.pi * (R + HALF_PIXEL_DIAGONAL_PX) ** 2
 
 
 def test_pinhole_sphere_off_axis(sphere):

@@ -75,7 +75,8 @@ def test_aim_point_projects_to_principal_point(projection):
                            aim_point_m=(0.0, 0.0, 0.04), width=640, height=480)
     for theta, phi in [(0, 0), (1.0, 0.3), (4.0, 1.2), (2.0, math.pi / 2)]:
         cam = rig_camera(theta, phi, calib)
-        np.testing.assert_allclose(cam.project([[0, 0, 0.04]])[0], [319.5, 239.5], atol=PIXEL_ROUND_OFF_PX)
+        np.testing.assert_allclose(cam.project([[0, 0, 0.04]])[0], [319.5, 239.5],
+                                   atol=PIXEL_ROUND_OFF_PX)
         if projection == "pinhole":
             assert np.linalg.norm(cam.center - [0, 0, 0.04]) == pytest.approx(0.6)
             # Camera above the plate for positive elevation.

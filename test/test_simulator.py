@@ -8,7 +8,7 @@ import serial
 
 from sfs_ros.hardware import grbl
 from sfs_ros.hardware.simulator import SimulatedGrbl, move_duration_s
-from tolerances import HANG_MARGIN_S
+from tolerances import HANG_S
 from waiting import wait
 
 BANNER = b"\r\nGrbl 1.1h ['$' for help]\r\n"
@@ -18,7 +18,7 @@ FAST = dict(max_speed_deg_s=(900.0, 900.0), accel_deg_s2=(18000.0, 18000.0),
             homing_speed_deg_s=900.0)
 
 
-def read_until(port, terminator: bytes, timeout_s: float = HANG_MARGIN_S) -> bytes:
+def read_until(port, terminator: bytes, timeout_s: float = HANG_S) -> bytes:
     """Bytes up to and including ``terminator`` (all that came, if it never came within
     ``timeout_s``: a wait for silence passes a short one, any other only bounds a hang)."""
     deadline = time.monotonic() + timeout_s
@@ -29,7 +29,7 @@ def read_until(port, terminator: bytes, timeout_s: float = HANG_MARGIN_S) -> byt
 
 
 def exchange(port, data: bytes, terminator: bytes = b"\r\n",
-             timeout_s: float = HANG_MARGIN_S) -> bytes:
+             timeout_s: float = HANG_S) -> bytes:
     port.write(data)
     return read_until(port, terminator, timeout_s)
 
@@ -38,7 +38,7 @@ def report(port) -> grbl.StatusReport:
     return grbl.parse_status_report(exchange(port, b"?").decode())
 
 
-def wait_state(port, state: str, timeout_s: float = 30.0) -> grbl.StatusReport:
+def wait_state(port, state: str, timeout_s: float = HANG_S) -> grbl.StatusReport:
     """Query until the controller reports ``state``; the deadline only bounds a hang."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
@@ -176,7 +176,7 @@ def test_move_duration_follows_the_trapezoid(sim, idle_port):
     t0 = time.monotonic()
     exchange(idle_port, b"G0 X450\n")
     wait(lambda: sim.true_position_deg()[0] >= 450.0, what="arrival at 450 deg",
-         timeout=expected + HANG_MARGIN_S, interval_s=0.002)
+         timeout=expected + HANG_S, interval_s=0.002)
     assert time.monotonic() - t0 >= expected - 0.004
 
 
