@@ -12,7 +12,7 @@ from sfs_ros.hardware.driver import (CommandRejected, ConnectionLost, GrblClient
                                      MotorAlarm, MotorError, MotorStalled, MotorTimeout, Status)
 from sfs_ros.hardware.simulator import SimulatedGrbl, move_duration_s
 from tolerances import (ENCODER_NOISE_DEG, ENCODER_OFFSET_DEG, HANG_S, PRINT_ROUNDING_DEG,
-                        READBACK_TOL_RAD)
+                        READBACK_TOL_RAD, ROUND_OFF)
 from waiting import wait
 
 #: Fast axes so that tests run quickly: 900 deg/s, 18000 deg/s^2 (0.05 s to full speed).
@@ -57,7 +57,7 @@ def test_move_bytes_and_arrival(sim, homed):
     assert status.theta_rad == pytest.approx(math.pi / 2, abs=READBACK_TOL_RAD[0])
     assert status.phi_rad == pytest.approx(math.pi / 4, abs=READBACK_TOL_RAD[1])
     # The truth is the target itself (float round-off only).
-    assert sim.true_position_rad() == pytest.approx((math.pi / 2, math.pi / 4), abs=1e-12)
+    assert sim.true_position_rad() == pytest.approx((math.pi / 2, math.pi / 4), abs=ROUND_OFF)
 
 
 def test_status_sends_one_byte_and_parses_the_encoder(sim, homed):

@@ -20,7 +20,7 @@ from sfs_ros.hardware.simulator import SimulatedGrbl
 from sfs_ros.ros import result_qos
 from sfs_ros.ros.convert import joint_state
 from tolerances import (ENCODER_NOISE_DEG, ENCODER_OFFSET_DEG, PRINT_ROUNDING_DEG,
-                        READBACK_TOL_RAD)
+                        READBACK_TOL_RAD, ROUND_OFF)
 
 MODULE = "sfs_ros.nodes.motor_node"
 # Targets go on the wire in degrees with 3 decimals: GRBL's step counters end within
@@ -126,7 +126,7 @@ def test_home_then_move_converges(cell, simulator):
     assert list(last.name) == ["turntable", "carriage"]
     assert last.header.stamp.sec > 0         # stamped now, not the command's stamp
     np.testing.assert_allclose(simulator.true_position_rad(), [1.2, 0.6],
-                               atol=math.radians(PRINT_ROUNDING_DEG) + 1e-12)
+                               atol=math.radians(PRINT_ROUNDING_DEG) + ROUND_OFF)
 
 
 def test_bad_commands_are_refused(cell, simulator):

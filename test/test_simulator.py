@@ -8,7 +8,7 @@ import serial
 
 from sfs_ros.hardware import grbl
 from sfs_ros.hardware.simulator import SimulatedGrbl, move_duration_s
-from tolerances import HANG_S
+from tolerances import HANG_S, ROUND_OFF
 from waiting import wait
 
 BANNER = b"\r\nGrbl 1.1h ['$' for help]\r\n"
@@ -89,7 +89,7 @@ def test_unlock_then_move_and_true_position(sim, idle_port):
     assert r.mpos == pytest.approx((90.03, 44.98, 0.0), abs=1e-9)
     # The true angles are the target: no offset, no noise (only float round-off).
     assert sim.true_position_deg() == pytest.approx((90.0, 45.0), abs=1e-9)
-    assert sim.true_position_rad() == pytest.approx((math.pi / 2, math.pi / 4), abs=1e-12)
+    assert sim.true_position_rad() == pytest.approx((math.pi / 2, math.pi / 4), abs=ROUND_OFF)
 
 
 @pytest.mark.parametrize("line, answer", [
