@@ -24,7 +24,6 @@ from std_srvs.srv import SetBool, Trigger
 
 from mock_cell import PLAN, RESOLUTION, SCAN_TIMEOUT_S, running_cell
 from ros_harness import MESSAGE_TIMEOUT_S, RosProbe, wait
-from tolerances import MUG_IOU_SPARSE_MIN, READBACK_TOL_RAD
 from sfs_ros.core.exchange.export import load_mesh
 from sfs_ros.core.geometry.grid import VoxelGrid
 from sfs_ros.core.simulation.objects import make_object
@@ -32,6 +31,7 @@ from sfs_ros.core.simulation.synthetic import carving_box, score_against_truth
 from sfs_ros.ros import capture_qos
 from sfs_ros.ros.cell_client import ScanFailed
 from sfs_ros.ros.convert import image_to_msg
+from tolerances import MUG_IOU_SPARSE_MIN, READBACK_TOL_RAD
 
 
 class Recorder:
@@ -206,7 +206,7 @@ def _fault_pauses_then_resumes(cell, switch: str, *, paused: str, motor_says: st
             client.wait_scan_done(scan, timeout_s=SCAN_TIMEOUT_S)
         rec.wait_status("motor", motor_says)
     finally:
-        rec.set(switch, False)               # mended whatever happened: the next test's cell
+        rec.set(switch, False)          # even when this test failed: the next one's cell works
     rec.wait_encoders()                                         # the motor node is back
     assert client.call("scan/resume").success
     status = client.wait_scan_done(scan, timeout_s=SCAN_TIMEOUT_S)
