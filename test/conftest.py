@@ -1,4 +1,8 @@
-"""Shared fixtures: a simulated scan of a known object, written as a session folder."""
+"""Shared fixtures (a simulated scan of a known object, written as a session folder; ROS
+nodes started for a test and stopped cleanly) and the ``ros`` marker, put automatically
+on every test of a module that uses ROS 2 (see :func:`uses_ros`)."""
+
+import inspect
 
 import pytest
 
@@ -8,6 +12,7 @@ from sfs_ros.core.simulation.plan import ring_plan
 from sfs_ros.core.geometry.rig import RigCalibration
 from sfs_ros.core.exchange.session import write_session
 from sfs_ros.core.simulation.synthetic import carving_box, simulate_scan
+from ros_harness import leftovers_stopped, node_starter
 
 #: Small pinhole camera so the end-to-end tests stay fast: 320 x 240 px, 0.6 m away.
 TEST_RIG = RigCalibration(width=320, height=240, projection="pinhole", fx=700.0, fy=700.0,
@@ -45,3 +50,56 @@ def mug_views(tmp_path_factory, mug, mug_captures):
     """The mug scan loaded as a ViewSet (shared: do not modify its files)."""
     return load_views(write_mug_session(tmp_path_factory.mktemp("scan") / "session", mug,
                                        mug_captures))
+
+
+@pytest.fixture()
+def start_node():
+    """``start_node(NodeClass, *args)``: a node under test (:class:`ros_harness.NodeUnderTest`)
+    for one test; it must exit with 0 on SIGINT, without a traceback, when the test ends."""
+    yield from node_starter()
+
+
+@pytest.fixture(scope="module")
+def start_node_for_module():
+    """The same for a node the tests of a module share, stopped when the module ends."""
+    yield from node_starter()
+
+
+@pytest.fixture(autouse=True)
+def no_node_outlives_its_test():
+    """Whatever a test started and lost (it failed before stopping a node), stopped after it;
+    nodes of module fixtures, started before, are left running."""
+    with leftovers_stopped():
+        yield
+
+
+#: Where a module's names come from when it uses ROS 2: rclpy, the node harness and the
+#: mock cell (which start node processes), and sfs_ros's ROS layers; message and service
+#: packages are recognised by their names (``*_msgs``, ``*_srvs``, ``*_interfaces``).
+ROS_MODULES = ("rclpy", "ros_harness", "mock_cell", "sfs_ros.ros", "sfs_ros.nodes")
+
+
+def uses_ros(module) -> bool:
+    """Whether a test module imports anything from ROS 2 or the ROS layers."""
+    for value in vars(module).values():
+        origin = value.__name__ if inspect.ismodule(value) else getattr(value, "__module__", None)
+        if not isinstance(origin, str) or origin == "builtins":
+            continue
+        package = origin.partition(".")[0]
+        if package.endswith(("_msgs", "_srvs", "_interfaces")) or any(
+                origin == name or origin.startswith(name + ".") for name in ROS_MODULES):
+            return True
+    return False
+
+
+def pytest_collection_modifyitems(config, items):
+    """Mark every test of a module that uses ROS 2 with ``ros`` (``-m "not ros"`` skips them)."""
+    verdicts = {}
+    for item in items:
+        module = getattr(item, "module", None)
+        if module is None:
+            continue
+        if module.__name__ not in verdicts:
+            verdicts[module.__name__] = uses_ros(module)
+        if verdicts[module.__name__]:
+            item.add_marker(pytest.mark.ros)

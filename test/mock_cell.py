@@ -67,7 +67,7 @@ def running_cell(root: Path, client_name: str):
                     env=env).start()
         client = CellClient(NAMESPACE, name=client_name)
         try:
-            client.wait_ready(timeout_s=90.0)
+            client.wait_ready(timeout_s=SCAN_TIMEOUT_S)     # six nodes' start-up, loaded
             yield {"cell": cell, "client": client, "output": output, "log": log_path}
         finally:
             client.close()

@@ -17,24 +17,33 @@
 * :class:`RosProbe` is the test side: an rclpy node in its own context with
   helpers to spin until a condition holds (timeouts generous for a loaded
   2-core machine: node start-up including imports takes several seconds).
+* :class:`NodeUnderTest` is one node process with its probe; the test files
+  subclass it with their topics and services, and the ``start_node`` /
+  ``start_node_for_module`` fixtures of ``conftest.py`` start them and stop
+  them at the end, checking that each exited cleanly on SIGINT.
 """
 
 from __future__ import annotations
 
+import atexit
 import os
 import signal
 import subprocess
 import sys
 import tempfile
 import time
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Callable
 
 import sfs_ros
+from waiting import wait  # noqa: F401  (for a probe spinning in its own thread)
 
-#: Seconds to wait for a process to come up / for a message.
-STARTUP_TIMEOUT_S = 20.0
-MESSAGE_TIMEOUT_S = 20.0
+#: Seconds to wait for a process to come up / for a message. Deadlines that only bound a
+#: hang: under a load of ~20 on 2 cores, a node's start-up alone (imports: rclpy, numpy,
+#: OpenCV, numba) has taken over 20 s.
+STARTUP_TIMEOUT_S = 120.0
+MESSAGE_TIMEOUT_S = 120.0
 
 DOMAIN_ID = 1 + os.getpid() % 101
 os.environ["ROS_DOMAIN_ID"] = str(DOMAIN_ID)
@@ -72,6 +81,7 @@ class NodeProcess:
                                                           env.get("PYTHONPATH")]))
         self.process = subprocess.Popen(args, stdin=subprocess.DEVNULL, stdout=self._log,
                                         stderr=subprocess.STDOUT, env=env, cwd=SOURCE_ROOT)
+        _STARTED.append(self)
 
     def alive(self) -> bool:
         return self.process.poll() is None
@@ -121,22 +131,38 @@ class NodeProcess:
         Path(self._log.name).unlink(missing_ok=True)
 
 
+#: Every node process this test run started, so that none outlives the test that lost it.
+_STARTED: list[NodeProcess] = []
+
+
+def stop_leftovers(first: int = 0) -> None:
+    """Stop (SIGINT first) and clean up every still running node process among those
+    started from the ``first``-th on: a node whose test failed before stopping it would
+    otherwise go on publishing into the next tests' namespace."""
+    for process in _STARTED[first:]:
+        if process.alive():
+            process.cleanup()
+
+
+atexit.register(stop_leftovers)
+
+
+@contextmanager
+def leftovers_stopped():
+    """On leaving the block, stop every node process started in it that is still running."""
+    first = len(_STARTED)
+    try:
+        yield
+    finally:
+        stop_leftovers(first)
+
+
 def _yaml(value) -> str:
     if isinstance(value, bool):
         return "true" if value else "false"
     if isinstance(value, (list, tuple)):
         return "[" + ", ".join(_yaml(v) for v in value) + "]"
     return str(value)
-
-
-def wait(condition: Callable[[], bool], *, what: str, timeout: float = 60.0) -> None:
-    """Poll ``condition`` until true, for a probe spinning in its own thread;
-    AssertionError after ``timeout`` seconds."""
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout:.0f} s waiting for {what}")
-        time.sleep(0.05)
 
 
 class RosProbe:
@@ -186,3 +212,47 @@ class RosProbe:
         self.executor.shutdown()
         self.node.destroy_node()
         self.context.try_shutdown()
+
+
+class NodeUnderTest:
+    """A node process and the test's probe; subclasses add the probe's publishers,
+    subscriptions and clients, and wait until the node is up.
+
+    module : str, the node module (see :class:`NodeProcess`)
+    params_file, parameters : passed to :class:`NodeProcess`
+    """
+
+    def __init__(self, module: str, *, params_file=None, parameters: dict | None = None,
+                 probe_name: str = "test_probe"):
+        self.process = NodeProcess(module, params_file=params_file, parameters=parameters)
+        self.probe = RosProbe(probe_name)
+
+    def close(self) -> tuple[int, str]:
+        """Close the probe and stop the node (SIGINT first); its exit code and output."""
+        self.probe.close()
+        return self.process.stop_and_read()
+
+
+def node_starter():
+    """Generator behind the ``start_node`` fixtures: yields ``start(make, *args, **kwargs)``,
+    which returns ``make(*args, **kwargs)`` (a :class:`NodeUnderTest` that waits until its
+    node is up); afterwards closes every node started, and fails naming each that did not
+    exit with 0 on SIGINT or wrote a traceback. A node whose start failed is stopped too."""
+    nodes = []
+
+    def start(make, *args, **kwargs):
+        first = len(_STARTED)
+        try:
+            nodes.append(make(*args, **kwargs))
+        except BaseException:
+            stop_leftovers(first)
+            raise
+        return nodes[-1]
+
+    yield start
+    failures = []
+    for node in nodes:
+        code, output = node.close()
+        if code != 0 or "Traceback" in output:
+            failures.append(f"{node.process.module} exited with code {code} on SIGINT:\n{output}")
+    assert not failures, "\n".join(failures)

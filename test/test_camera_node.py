@@ -1,5 +1,6 @@
 """The camera node: a separate OS process serving real PNG files; in-process with a mock camera."""
 
+import functools
 import json
 
 import cv2
@@ -12,7 +13,7 @@ from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image
 from std_srvs.srv import Trigger
 
-from ros_harness import NAMESPACE, NodeProcess, RosProbe
+from ros_harness import NAMESPACE, NodeProcess, NodeUnderTest, RosProbe
 from sfs_ros.core.simulation.objects import make_object
 from sfs_ros.core.render import render_image
 from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
@@ -20,12 +21,12 @@ from sfs_ros.hardware.cameras import RenderedSource
 from sfs_ros.nodes.camera_node import CameraNode
 from sfs_ros.ros import capture_qos
 from sfs_ros.ros.convert import msg_to_image
+from tolerances import QUIET_S
 
 MODULE = "sfs_ros.nodes.camera_node"
 #: A small rig, as the node reads it from the params file (cx, cy: the image centre).
 RIG_PARAMS = {"projection": "pinhole", "width": 64, "height": 48, "fx": 100.0, "fy": 100.0}
 RIG = RigCalibration(**RIG_PARAMS)
-QUIET_S = 1.0   # after the expected messages, listen this long for extras
 STREAM_HZ = 10.0
 
 
@@ -54,12 +55,11 @@ def _ns(stamp) -> int:
     return stamp[0] * 1_000_000_000 + stamp[1]
 
 
-class Cell:
+class Cell(NodeUnderTest):
     """The node process plus the probe's subscriptions and ``capture`` client."""
 
     def __init__(self, params_file):
-        self.process = NodeProcess(MODULE, params_file=params_file)
-        self.probe = RosProbe()
+        super().__init__(MODULE, params_file=params_file)
         node = self.probe.node
         self.images, self.infos, self.viewer, self.diagnostics = [], [], [], []
         subs = [node.create_subscription(Image, "image_raw", self.images.append, capture_qos(10)),
@@ -92,24 +92,11 @@ class Cell:
         self.viewer.clear()
         self.diagnostics.clear()
 
-    def close(self) -> tuple[int, str]:
-        self.probe.close()
-        return self.process.stop_and_read()
-
 
 @pytest.fixture()
-def start():
-    """``start(params_file)`` -> a running :class:`Cell`; each must exit with 0 on SIGINT."""
-    cells = []
-
-    def start_cell(params_file) -> Cell:
-        cells.append(Cell(params_file))
-        return cells[-1]
-
-    yield start_cell
-    for cell in cells:
-        code, output = cell.close()
-        assert code == 0, f"node did not exit cleanly on SIGINT (code {code}):\n{output}"
+def start(start_node):
+    """``start(params_file)`` -> a running :class:`Cell`, stopped cleanly after the test."""
+    return functools.partial(start_node, Cell)
 
 
 def capture_one(cell: Cell, expected_rgb: np.ndarray, frame: int) -> None:

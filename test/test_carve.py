@@ -11,13 +11,10 @@ from sfs_ros.core.geometry.camera import Camera
 from sfs_ros.core.carving.carve import Carver, PreparedMasks, carve, view_coefficients
 from sfs_ros.core.geometry.grid import VoxelGrid
 from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
+from tolerances import HALF_PIXEL_DIAGONAL_PX
 
 # The module itself (the package's ``carve`` attribute is the function of that name).
 carve_module = importlib.import_module("sfs_ros.core.carving.carve")
-
-#: Half the diagonal of a pixel: rounding a projected centre to the nearest
-#: pixel centre moves it by at most this much, pixels.
-HALF_PIXEL_DIAGONAL = math.sqrt(2.0) / 2.0
 
 
 def naive_carve(grid, cameras, masks, max_misses=0, keep=True):
@@ -154,7 +151,7 @@ def test_sphere_hull_brackets_the_sphere():
     # Outside: a kept centre is within radius + half a pixel diagonal of the
     # axis of every view; the horizontal ring has a view within half a theta
     # step of perpendicular to any direction, so |x| cos(step / 2) <= that.
-    outer = (radius + HALF_PIXEL_DIAGONAL * pixel_m) / math.cos(math.pi / n_theta)
+    outer = (radius + HALF_PIXEL_DIAGONAL_PX * pixel_m) / math.cos(math.pi / n_theta)
     assert not np.any(occ[dist > outer])
     assert np.sum(occ) < np.sum(dist <= outer)
 

@@ -5,6 +5,7 @@ import pytest
 
 from sfs_ros.core.meshing.cloud import cloud_of_points, surface_voxels
 from sfs_ros.core.geometry.grid import VoxelGrid
+from tolerances import ROUND_OFF
 
 # Normals of a voxelised sphere of radius ~12 voxels, from the smoothed occupancy, deviate from
 # the radial direction by the staircase of the voxels: about 11 degrees at most; allow 20.
@@ -75,7 +76,7 @@ def test_one_point_per_block_nearest_to_the_block_centre(block):
 def test_normals_are_unit_and_outward_on_a_sphere():
     occ, grid = _sphere()
     cloud = cloud_of_points(occ, grid, block=2)
-    np.testing.assert_allclose(np.linalg.norm(cloud.normals, axis=1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(cloud.normals, axis=1), 1.0, atol=ROUND_OFF)
     radial = cloud.points / np.linalg.norm(cloud.points, axis=1, keepdims=True)
     cosine = np.einsum("ij,ij->i", cloud.normals, radial)
     assert np.all(cosine > NORMAL_COS_TOL)
@@ -89,7 +90,7 @@ def test_normals_on_box_faces_are_the_face_normals():
     # A voxel in the middle of the top face (away from edges by more than the 3-sigma kernel).
     top = np.flatnonzero(np.all(cloud.voxels == (10, 10, 13), axis=1))
     assert len(top) == 1
-    np.testing.assert_allclose(cloud.normals[top[0]], (0.0, 0.0, 1.0), atol=1e-12)
+    np.testing.assert_allclose(cloud.normals[top[0]], (0.0, 0.0, 1.0), atol=ROUND_OFF)
 
 
 def test_thin_sheet_gets_a_unit_normal():
@@ -98,7 +99,7 @@ def test_thin_sheet_gets_a_unit_normal():
     occ[:, :, 5] = True
     cloud = cloud_of_points(occ, grid, block=1)
     assert np.all(np.isfinite(cloud.normals))
-    np.testing.assert_allclose(np.linalg.norm(cloud.normals, axis=1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(cloud.normals, axis=1), 1.0, atol=ROUND_OFF)
 
 
 def test_bad_inputs_are_rejected():

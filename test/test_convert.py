@@ -15,6 +15,7 @@ from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
 from sfs_ros.ros.convert import (angles_from_joint_state, camera_info, camera_poses,
                                  cloud_to_points, image_to_msg, joint_state, mesh_to_marker,
                                  mesh_to_shape, msg_to_image, points_to_cloud, shape_to_mesh)
+from tolerances import PIXEL_ROUND_OFF_PX, ROUND_OFF
 
 STAMP = (1712345678, 123456789)
 RNG = np.random.default_rng(7)
@@ -121,7 +122,7 @@ def test_pinhole_camera_info_projects_like_the_camera():
     P = np.reshape(info.p, (3, 4))
     points = np.array([[0.01, -0.02, 0.5], [-0.05, 0.03, 0.8]])   # camera frame = world here
     h = np.c_[points, np.ones(2)] @ P.T
-    np.testing.assert_allclose(h[:, :2] / h[:, 2:], camera.project(points), atol=1e-9)
+    np.testing.assert_allclose(h[:, :2] / h[:, 2:], camera.project(points), atol=PIXEL_ROUND_OFF_PX)
     assert list(info.d) == [0.0] * 5
 
 
@@ -140,7 +141,7 @@ def test_orthographic_camera_info_is_affine():
     np.testing.assert_array_equal(P[2], [0, 0, 0, 1])
     points = RNG.normal(0, 0.05, (4, 3))
     h = np.c_[points, np.ones(4)] @ P.T
-    np.testing.assert_allclose(h[:, :2], camera.project(points), atol=1e-9)
+    np.testing.assert_allclose(h[:, :2], camera.project(points), atol=PIXEL_ROUND_OFF_PX)
 
 
 def test_cloud_round_trip_in_float32():
@@ -211,7 +212,7 @@ def test_camera_pose_arrows_point_where_the_cameras_look():
     assert msg.header.frame_id == "turntable" and len(msg.poses) == 3
     for pose, camera in zip(msg.poses, cameras):
         p = pose.position
-        np.testing.assert_allclose([p.x, p.y, p.z], camera.center, atol=1e-12)
+        np.testing.assert_allclose([p.x, p.y, p.z], camera.center, atol=ROUND_OFF)
         # Body axes: x forward, z towards the top of the image (optical -y).
         np.testing.assert_allclose(_rotate(pose.orientation, [1, 0, 0]), camera.forward,
                                    atol=1e-9)

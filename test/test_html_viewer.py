@@ -13,7 +13,6 @@ import shutil
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import cv2
@@ -222,14 +221,13 @@ def test_drag_orbits_wheel_zooms_double_click_resets(tmp_path, parts, reset):
     assert np.abs(found - expected).max() < CENTROID_TOLERANCE_PX, (found, expected)
 
 
-def test_200k_faces_draw_in_seconds_without_webgl(tmp_path):
+def test_200k_faces_draw_without_webgl(tmp_path):
+    # (About 2.6 s on a 2-core machine, start-up included: a figure, not a bar; the
+    # screenshot's own deadline only bounds a hang.)
     torus = trimesh.creation.torus(0.05, 0.02, major_sections=400, minor_sections=250)
     assert len(torus.faces) == 200_000
     page = write_html_viewer(tmp_path / "torus.html", torus.vertices, torus.faces)
-    start = time.monotonic()
     image = screenshot(page, "Canvas 2D")
-    # About 2.6 s measured on a 2-core machine, start-up included; generous for a busy one.
-    assert time.monotonic() - start < 20.0
     # The ring's outer radius, 0.07 m, is the bounding sphere's: its width on screen is
     # that of the sphere's disc, FIT of the window, less 1 % as the ring's widest points
     # are hardly nearer the eye than the centre; anti-aliasing adds a pixel each side.

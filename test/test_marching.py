@@ -6,6 +6,7 @@ import pytest
 from sfs_ros.core.geometry.grid import VoxelGrid
 from sfs_ros.core.meshing.marching import LEVEL, marching_cubes_mesh
 from sfs_ros.core.meshing.mesh_checks import check_mesh
+from tolerances import ROUND_OFF
 
 RADIUS_M = 0.031
 CENTRE_M = np.array([0.004, -0.003, 0.041])
@@ -70,8 +71,10 @@ def test_object_touching_the_box_is_closed():
     h = grid.voxel_size
     # The iso-level sits LEVEL_SHIFT below 0.5, moving the surface outward by
     # LEVEL_SHIFT voxel (1e-12 m of rounding on top).
-    np.testing.assert_allclose(vertices.min(axis=0), grid.bounds_min - LEVEL_SHIFT * h, atol=1e-12)
-    np.testing.assert_allclose(vertices.max(axis=0), grid.bounds_max + LEVEL_SHIFT * h, atol=1e-12)
+    np.testing.assert_allclose(vertices.min(axis=0), grid.bounds_min - LEVEL_SHIFT * h,
+                               atol=ROUND_OFF)
+    np.testing.assert_allclose(vertices.max(axis=0), grid.bounds_max + LEVEL_SHIFT * h,
+                               atol=ROUND_OFF)
     # Edges and corners of the box are chamfered (a 45-degree cut of half a
     # voxel), so the volume is below the box's and above the box shrunk by
     # one voxel.
@@ -90,7 +93,7 @@ def test_half_sphere_cut_by_the_floor_is_closed():
     assert report.genus == 0
     # The cut is closed by a flat cap on the bottom voxel faces, z = 0.
     # (Moved out by LEVEL_SHIFT voxel, see marching.LEVEL.)
-    assert vertices[:, 2].min() == pytest.approx(-LEVEL_SHIFT * grid.voxel_size, abs=1e-12)
+    assert vertices[:, 2].min() == pytest.approx(-LEVEL_SHIFT * grid.voxel_size, abs=ROUND_OFF)
 
 
 @pytest.mark.parametrize("sigma", [0.0, 0.5])

@@ -7,9 +7,7 @@ import pytest
 import trimesh
 
 from sfs_ros.core.meshing.mesh_checks import check_mesh
-
-#: Float tolerance of sums over a few faces (exact arithmetic up to rounding).
-EXACT = 1e-12
+from tolerances import ROUND_OFF
 
 #: Unit cube corners, index = x + 2 y + 4 z.
 CUBE_VERTICES = np.array([[x, y, z] for z in (0, 1) for y in (0, 1) for x in (0, 1)], dtype=float)
@@ -32,9 +30,9 @@ def test_tetrahedron():
     assert r.watertight and r.edge_manifold and r.vertex_manifold and r.consistently_oriented
     assert r.outward is True
     assert (r.n_boundary_loops, r.n_components, r.euler_characteristic, r.genus) == (0, 1, 2, 0)
-    assert r.volume_m3 == pytest.approx(1.0 / 6.0, abs=EXACT)
+    assert r.volume_m3 == pytest.approx(1.0 / 6.0, abs=ROUND_OFF)
     # Three right triangles of area 1/2 and an equilateral one of side sqrt(2).
-    assert r.area_m2 == pytest.approx(1.5 + np.sqrt(3.0) / 2.0, abs=EXACT)
+    assert r.area_m2 == pytest.approx(1.5 + np.sqrt(3.0) / 2.0, abs=ROUND_OFF)
     assert (r.degenerate_faces, r.duplicate_faces) == (0, 0)
 
 
@@ -42,15 +40,15 @@ def test_cube():
     r = check_mesh(CUBE_VERTICES, CUBE_FACES)
     assert r.watertight and r.vertex_manifold and r.consistently_oriented and r.outward is True
     assert (r.euler_characteristic, r.genus, r.n_components) == (2, 0, 1)
-    assert r.volume_m3 == pytest.approx(1.0, abs=EXACT)
-    assert r.area_m2 == pytest.approx(6.0, abs=EXACT)
+    assert r.volume_m3 == pytest.approx(1.0, abs=ROUND_OFF)
+    assert r.area_m2 == pytest.approx(6.0, abs=ROUND_OFF)
 
 
 def test_inside_out_cube_is_not_outward():
     r = check_mesh(CUBE_VERTICES, CUBE_FACES[:, ::-1])
     assert r.watertight and r.consistently_oriented
     assert r.outward is False
-    assert r.volume_m3 == pytest.approx(-1.0, abs=EXACT)
+    assert r.volume_m3 == pytest.approx(-1.0, abs=ROUND_OFF)
 
 
 def test_cube_with_one_side_removed_has_one_hole():
@@ -87,7 +85,7 @@ def test_two_cubes_sharing_a_vertex_are_not_vertex_manifold():
     assert not r.vertex_manifold
     assert r.n_components == 1  # joined through the shared vertex
     assert r.genus is None
-    assert r.volume_m3 == pytest.approx(2.0, abs=EXACT)
+    assert r.volume_m3 == pytest.approx(2.0, abs=ROUND_OFF)
 
 
 def test_two_separate_cubes():
@@ -128,8 +126,8 @@ def test_torus_genus_one_and_agrees_with_trimesh():
     assert r.watertight and r.vertex_manifold and r.consistently_oriented and r.outward is True
     assert (r.euler_characteristic, r.genus, r.n_components) == (0, 1, 1)
     assert r.euler_characteristic == mesh.euler_number
-    assert r.volume_m3 == pytest.approx(mesh.volume, rel=1e-12)
-    assert r.area_m2 == pytest.approx(mesh.area, rel=1e-12)
+    assert r.volume_m3 == pytest.approx(mesh.volume, rel=ROUND_OFF)
+    assert r.area_m2 == pytest.approx(mesh.area, rel=ROUND_OFF)
     # The polygonal torus is inscribed in the smooth one, 2 pi^2 R r^2: below it.
     assert r.volume_m3 < 2.0 * np.pi ** 2 * 0.05 * 0.012 ** 2
 

@@ -13,8 +13,7 @@ from sfs_ros.core.metrics import (ChamferResult, chamfer_distance, mesh_occupanc
 from sfs_ros.core.simulation.objects import OBJECT_NAMES, make_object
 from sfs_ros.core.render import rasterize_silhouette
 from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
-
-EXACT = 1e-12
+from tolerances import ROUND_OFF
 
 
 def test_volume_iou():
@@ -22,7 +21,7 @@ def test_volume_iou():
     b = np.zeros((4, 4, 4), bool)
     a[:2] = True
     b[1:3] = True
-    assert volume_iou(a, b) == pytest.approx(1 / 3, abs=EXACT)  # 16 shared of 48
+    assert volume_iou(a, b) == pytest.approx(1 / 3, abs=ROUND_OFF)  # 16 shared of 48
     assert volume_iou(a, a) == 1.0
     assert volume_iou(a, ~a) == 0.0
     assert volume_iou(np.zeros((2, 2, 2), bool), np.zeros((2, 2, 2), bool)) == 1.0
@@ -37,7 +36,7 @@ def test_silhouette_iou():
     b = np.zeros((10, 10), bool)
     a[2:6, 2:6] = True   # 16 px
     b[4:8, 2:6] = True   # 16 px, 8 shared
-    assert silhouette_iou(a, b) == pytest.approx(8 / 24, abs=EXACT)
+    assert silhouette_iou(a, b) == pytest.approx(8 / 24, abs=ROUND_OFF)
     assert silhouette_iou(b, a) == silhouette_iou(a, b)
     assert silhouette_iou(np.zeros((3, 3), bool), np.zeros((3, 3), bool)) == 1.0  # both empty
     assert silhouette_iou(a, np.zeros((10, 10), bool)) == 0.0
@@ -172,7 +171,7 @@ def test_chamfer_identical_and_shifted():
     shift = np.array([0.001, -0.002, 0.002])  # |shift| = 3 mm < 5 mm
     moved = chamfer_distance(a, a + shift)
     for value in (moved.a_to_b_mean, moved.b_to_a_mean, moved.mean, moved.hausdorff):
-        assert value == pytest.approx(0.003, abs=EXACT)
+        assert value == pytest.approx(0.003, abs=ROUND_OFF)
 
 
 def test_chamfer_asymmetric():
@@ -180,9 +179,9 @@ def test_chamfer_asymmetric():
     b = np.vstack([a, [[0.02, 0.05, 0]]])  # one extra point 0.05 m from its nearest in a
     r = chamfer_distance(a, b)
     assert r.a_to_b_mean == 0.0
-    assert r.b_to_a_mean == pytest.approx(0.05 / 4, abs=EXACT)
-    assert r.mean == pytest.approx(0.05 / 8, abs=EXACT)
-    assert r.hausdorff == pytest.approx(0.05, abs=EXACT)
+    assert r.b_to_a_mean == pytest.approx(0.05 / 4, abs=ROUND_OFF)
+    assert r.mean == pytest.approx(0.05 / 8, abs=ROUND_OFF)
+    assert r.hausdorff == pytest.approx(0.05, abs=ROUND_OFF)
     with pytest.raises(ValueError, match="points_b must be a non-empty"):
         chamfer_distance(a, np.zeros((0, 3)))
     with pytest.raises(ValueError, match="points_a"):

@@ -9,6 +9,7 @@ import pytest
 from sfs_ros.core.exchange.inputs import load_views
 from sfs_ros.core.exchange.middlebury import read_middlebury
 from sfs_ros.core.exchange.views import ViewError
+from tolerances import PIXEL_ROUND_OFF_PX
 
 WIDTH, HEIGHT = 40, 30
 K = np.array([[50.0, 0.0, 19.5], [0.0, 52.0, 14.5], [0.0, 0.0, 1.0]])
@@ -50,7 +51,8 @@ def test_cameras_are_k_r_t(tmp_path):
         assert view.theta_rad is None and view.phi_rad is None
         h = (K @ (points @ R.T + t).T).T
         # Same arithmetic up to float64 rounding.
-        assert np.allclose(view.camera.project(points), h[:, :2] / h[:, 2:], atol=1e-9)
+        assert np.allclose(view.camera.project(points), h[:, :2] / h[:, 2:],
+                           atol=PIXEL_ROUND_OFF_PX)
 
 
 def test_load_views_takes_the_file_or_its_folder(tmp_path):

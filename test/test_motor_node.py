@@ -14,41 +14,38 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from ros_harness import NodeProcess, RosProbe
+from ros_harness import NodeProcess, NodeUnderTest, RosProbe
 from sfs_ros.hardware.driver import GrblClient
 from sfs_ros.hardware.simulator import SimulatedGrbl
 from sfs_ros.ros import result_qos
 from sfs_ros.ros.convert import joint_state
+from tolerances import (ENCODER_NOISE_DEG, ENCODER_OFFSET_DEG, PRINT_ROUNDING_DEG,
+                        READBACK_TOL_RAD, ROUND_OFF)
 
 MODULE = "sfs_ros.nodes.motor_node"
-OFFSET_DEG = (0.03, -0.02)
-NOISE_DEG = (0.01, 0.01)
-# Targets go on the wire in degrees with 3 decimals: GRBL's step counters end
-# within ROUND_DEG of the target. The read-back adds the encoder offset and
-# noise of at most NOISE_DEG: |joint_states - target| <= round + |offset| + noise.
-ROUND_DEG = 0.0005
-BOUND_RAD = np.radians(ROUND_DEG + np.abs(OFFSET_DEG) + NOISE_DEG) + 1e-12
+# Targets go on the wire in degrees with 3 decimals: GRBL's step counters end within
+# PRINT_ROUNDING_DEG of the target; joint_states, the encoder's read-back, within
+# READBACK_TOL_RAD.
 SPEED_DEG_S = (720.0, 360.0)      # fast axes keep the test short
 
 
 @pytest.fixture(scope="module")
 def simulator():
     sim = SimulatedGrbl(max_speed_deg_s=SPEED_DEG_S, accel_deg_s2=(3600.0, 1800.0),
-                        homing_speed_deg_s=600.0, encoder_offset_deg=OFFSET_DEG,
-                        encoder_noise_deg=NOISE_DEG, power_up_true_deg=(30.0, 10.0),
+                        homing_speed_deg_s=600.0, encoder_offset_deg=ENCODER_OFFSET_DEG,
+                        encoder_noise_deg=ENCODER_NOISE_DEG, power_up_true_deg=(30.0, 10.0),
                         start_locked=True, seed=1).start()
     yield sim
     sim.close()
 
 
-class Cell:
+class Cell(NodeUnderTest):
     """The node process plus the probe's publisher, service clients and recorders."""
 
     def __init__(self, port: str):
-        self.process = NodeProcess(MODULE, parameters={
+        super().__init__(MODULE, parameters={
             "port": port, "status_rate_hz": 20.0, "reconnect_period_s": 0.5,
             "move_timeout_s": 10.0, "home_timeout_s": 5.0})
-        self.probe = RosProbe()
         node = self.probe.node
         self.command_pub = node.create_publisher(JointState, "joint_command", 10)
         self.joints, self.diagnostics = [], []
@@ -87,7 +84,7 @@ class Cell:
 
     def wait_at(self, theta: float, phi: float) -> None:
         target = np.array([theta, phi])
-        self.probe.spin_until(lambda: np.all(np.abs(self.position() - target) <= BOUND_RAD),
+        self.probe.spin_until(lambda: np.all(np.abs(self.position() - target) <= READBACK_TOL_RAD),
                               what=f"joint_states at {target}", process=self.process)
 
     def errors(self) -> list[str]:
@@ -99,6 +96,10 @@ class Cell:
                               what=f"an ERROR diagnostic with {text!r}", process=self.process)
 
 
+def _ns(stamp) -> int:
+    return stamp.sec * 1_000_000_000 + stamp.nanosec
+
+
 @pytest.fixture(scope="module")
 def device(simulator, tmp_path_factory):
     """A stable device name (like a udev symlink) pointing at the simulator's pty."""
@@ -108,12 +109,8 @@ def device(simulator, tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def cell(device):
-    cell = Cell(str(device))
-    yield cell
-    cell.probe.close()
-    code, output = cell.process.stop_and_read()
-    assert code == 0, f"node did not exit cleanly on SIGINT (code {code}):\n{output}"
+def cell(start_node_for_module, device):
+    return start_node_for_module(Cell, str(device))
 
 
 def test_home_then_move_converges(cell, simulator):
@@ -124,12 +121,12 @@ def test_home_then_move_converges(cell, simulator):
     cell.command(1.2, 0.6)
     cell.wait_at(1.2, 0.6)
     cell.probe.spin_for(0.3)                 # and it stays there
-    assert np.all(np.abs(cell.position() - [1.2, 0.6]) <= BOUND_RAD)
+    assert np.all(np.abs(cell.position() - [1.2, 0.6]) <= READBACK_TOL_RAD)
     last = cell.joints[-1]
     assert list(last.name) == ["turntable", "carriage"]
     assert last.header.stamp.sec > 0         # stamped now, not the command's stamp
     np.testing.assert_allclose(simulator.true_position_rad(), [1.2, 0.6],
-                               atol=math.radians(ROUND_DEG) + 1e-12)
+                               atol=math.radians(PRINT_ROUNDING_DEG) + ROUND_OFF)
 
 
 def test_bad_commands_are_refused(cell, simulator):
@@ -203,20 +200,26 @@ def test_lost_connection_is_reported_and_the_port_reopened(cell, simulator, devi
     cell.diagnostics.clear()
     simulator.disconnect()
     cell.wait_error("connection lost")
+    reported_ns = min(_ns(a.header.stamp) for a in cell.diagnostics
+                      if any("connection lost" in s.message for s in a.status))
     cell.joints.clear()
     cell.probe.spin_for(1.0)                 # several reconnect attempts (every 0.5 s)
     assert cell.process.alive()
-    assert not cell.joints                   # no position while disconnected
+    # No position while disconnected: nothing stamped after the loss was reported (one
+    # published before it may arrive after it: the topics are not ordered with each other).
+    assert all(_ns(j.header.stamp) <= reported_ns for j in cell.joints)
     answer = cell.call(cell.home_client)
     assert not answer.success and "not connected" in answer.message
     # The controller comes back (cable plugged in again): same device name, new pty.
     with SimulatedGrbl(max_speed_deg_s=SPEED_DEG_S, homing_speed_deg_s=600.0,
-                       encoder_offset_deg=OFFSET_DEG, encoder_noise_deg=NOISE_DEG,
+                       encoder_offset_deg=ENCODER_OFFSET_DEG,
+                       encoder_noise_deg=ENCODER_NOISE_DEG,
                        seed=2) as replugged:
         device.unlink()
         device.symlink_to(replugged.port)
-        cell.probe.spin_until(lambda: cell.joints, what="joint_states after reconnecting",
-                              process=cell.process)
+        cell.probe.spin_until(lambda: any(_ns(j.header.stamp) > reported_ns
+                                          for j in cell.joints),
+                              what="joint_states after reconnecting", process=cell.process)
         answer = cell.call(cell.home_client)
         assert answer.success, answer.message
         cell.command(0.7, 0.1)
@@ -247,8 +250,8 @@ def test_mock_hardware_publishes_a_usable_port_and_stops_cleanly():
             assert client.status().state == "Alarm"        # start_locked: home first
             assert client.home(timeout_s=5.0).state == "Idle"
             final = client.move_to(0.5, 0.25, timeout_s=5.0)
-        assert abs(final.theta_rad - 0.5) <= BOUND_RAD[0]
-        assert abs(final.phi_rad - 0.25) <= BOUND_RAD[1]
+        assert abs(final.theta_rad - 0.5) <= READBACK_TOL_RAD[0]
+        assert abs(final.phi_rad - 0.25) <= READBACK_TOL_RAD[1]
     finally:
         probe.close()
         code, output = process.stop_and_read()

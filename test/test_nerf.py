@@ -10,6 +10,7 @@ import pytest
 from sfs_ros.core.exchange.inputs import load_views
 from sfs_ros.core.exchange.nerf import read_transforms
 from sfs_ros.core.exchange.views import ViewError
+from tolerances import PIXEL_ROUND_OFF_PX, ROUND_OFF
 
 WIDTH, HEIGHT = 40, 30
 ANGLE_X = 0.7  # radians, horizontal field of view
@@ -54,16 +55,18 @@ def test_nerf_synthetic_style(tmp_path):
         assert view.image_path == tmp_path / "train" / f"r_{n}.png"
         assert (camera.width, camera.height) == (WIDTH, HEIGHT)  # read from the first image
         assert np.allclose(camera.K, [[fx, 0, 19.5], [0, fx, 14.5], [0, 0, 1]])
-        assert np.allclose(camera.center, position, atol=1e-12)
+        assert np.allclose(camera.center, position, atol=ROUND_OFF)
         # The origin is on the optical axis: the image centre (pixel-centre coordinates).
-        assert np.allclose(camera.project(np.zeros((1, 3))), [[19.5, 14.5]], atol=1e-9)
+        assert np.allclose(camera.project(np.zeros((1, 3))), [[19.5, 14.5]],
+                           atol=PIXEL_ROUND_OFF_PX)
         # A point h above the origin, seen from distance d at elevation e, sits
         # fy * h cos(e) / (d - h sin(e)) pixels above the centre, on the same column.
         h, d = 0.3, np.linalg.norm(position)
         e = math.asin(position[2] / d)
         u, v = camera.project(np.array([[0.0, 0.0, h]]))[0]
-        assert abs(u - 19.5) < 1e-9
-        assert v == pytest.approx(14.5 - fx * h * math.cos(e) / (d - h * math.sin(e)), abs=1e-9)
+        assert abs(u - 19.5) < PIXEL_ROUND_OFF_PX
+        assert v == pytest.approx(14.5 - fx * h * math.cos(e) / (d - h * math.sin(e)),
+                                  abs=PIXEL_ROUND_OFF_PX)
         assert v < 14.5
         assert camera.depth(np.zeros((1, 3)))[0] == pytest.approx(np.linalg.norm(position))
 

@@ -9,14 +9,13 @@ import trimesh
 from sfs_ros.core.simulation.objects import OBJECT_NAMES, make_object
 from sfs_ros.core.render import rasterize_silhouette
 from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
+from tolerances import ROUND_OFF
 
 #: Pixels per metre of a 512 px image spanning the 0.12 m object box.
 PX_PER_M_512 = 512 / 0.12
 #: Monte Carlo tolerance in binomial standard errors. The seeds are fixed, so the
 #: tests are deterministic; a correct volume fails 5 sigma for ~1e-6 of seeds.
 MC_SIGMAS = 5.0
-#: Rounding of float64 surface evaluations, metres.
-ROUNDING_M = 1e-12
 
 
 @pytest.fixture(scope="module")
@@ -34,11 +33,11 @@ def test_names_and_unknown_name():
 def test_rests_on_plate_inside_box(objects, name):
     obj = objects[name]
     lo, hi = obj.bounds
-    assert lo[2] == pytest.approx(0.0, abs=ROUNDING_M)
+    assert lo[2] == pytest.approx(0.0, abs=ROUND_OFF)
     assert np.all(np.abs(lo[:2]) <= 0.06) and np.all(hi[:2] <= 0.06) and hi[2] <= 0.12
     # Mesh vertices and surface samples are on the true surface, so inside the bounds ...
     for pts in (obj.mesh.vertices, obj.sample_surface(20000, seed=0)):
-        assert np.all(pts >= lo - ROUNDING_M) and np.all(pts <= hi + ROUNDING_M)
+        assert np.all(pts >= lo - ROUND_OFF) and np.all(pts <= hi + ROUND_OFF)
     # ... and the bounds are tight: samples come within 2 mm of every face of the box
     # (at least ~100 of the 20000 samples fall in each 2 mm slab, see the shapes).
     samples = obj.sample_surface(20000, seed=0)
@@ -57,9 +56,10 @@ def test_volume_matches_monte_carlo(objects, name):
 
 
 def test_closed_form_volumes(objects):
-    assert objects["sphere"].volume_m3 == pytest.approx(4 / 3 * math.pi * 0.05 ** 3, rel=1e-12)
+    assert objects["sphere"].volume_m3 == pytest.approx(4 / 3 * math.pi * 0.05 ** 3,
+                                                        rel=ROUND_OFF)
     assert objects["torus"].volume_m3 == pytest.approx(2 * math.pi ** 2 * 0.04 * 0.015 ** 2,
-                                                       rel=1e-12)
+                                                       rel=ROUND_OFF)
 
 
 def test_mug_handle_volume(objects):
@@ -122,8 +122,8 @@ def test_surface_samples_on_outer_surface(objects, name):
     assert samples.shape == (20000, 3)
     distances = np.array([part.signed_distance(samples) for part in obj.parts])
     # on some part's surface, and inside no part: on the union's boundary
-    assert np.all(np.min(np.abs(distances), axis=0) < ROUNDING_M)
-    assert np.all(distances > -ROUNDING_M)
+    assert np.all(np.min(np.abs(distances), axis=0) < ROUND_OFF)
+    assert np.all(distances > -ROUND_OFF)
     np.testing.assert_array_equal(samples, obj.sample_surface(20000, seed=5))
     assert obj.sample_surface(0, seed=5).shape == (0, 3)
 

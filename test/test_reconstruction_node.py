@@ -14,7 +14,7 @@ from shape_msgs.msg import Mesh
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker
 
-from ros_harness import NodeProcess, RosProbe
+from ros_harness import NodeProcess, NodeUnderTest
 from sfs_ros.core.exchange.export import load_mesh
 from sfs_ros.core.geometry.grid import VoxelGrid
 from sfs_ros.core.simulation.objects import make_object
@@ -24,19 +24,13 @@ from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
 from sfs_ros.core.simulation.synthetic import carving_box, score_against_truth
 from sfs_ros.ros import capture_qos, result_qos
 from sfs_ros.ros.convert import cloud_to_points, image_to_msg, joint_state, shape_to_mesh
+from tolerances import MUG_IOU_29_VIEWS_MIN, QUIET_S
 
 MODULE = "sfs_ros.nodes.reconstruction_node"
 RIG = RigCalibration(width=320, height=240, projection="pinhole", fx=700.0, fy=700.0,
                      camera_distance_m=0.6, aim_point_m=(0.0, 0.0, 0.04))
 PLAN = ring_plan([20.0, 55.0], 14, top_view=True)        # 29 views
 RESOLUTION = 64
-# Exact silhouettes: the reconstruction is the visual hull of 29 views, which
-# contains the mug up to half a pixel at the silhouette rims and adds volume
-# only where no view sees the concavities (inside of the cup, between the rings;
-# test_live measures 0.962 with 49 views at 96^3), plus up to half a voxel
-# (1.7 mm here) of marching-cubes placement on the surface. 0.955 measured.
-VOLUME_IOU_MIN = 0.92
-QUIET_S = 1.0
 
 
 @pytest.fixture(scope="module")
@@ -68,12 +62,11 @@ def masks(mug):
             for t, p in PLAN]
 
 
-class Cell:
+class Cell(NodeUnderTest):
     """The node process plus the probe's publishers, recorders and service clients."""
 
     def __init__(self, params_file):
-        self.process = NodeProcess(MODULE, params_file=params_file)
-        self.probe = RosProbe()
+        super().__init__(MODULE, params_file=params_file)
         node, qos = self.probe.node, capture_qos(100)
         self.mask_pub = node.create_publisher(Image, "capture/mask", qos)
         self.joints_pub = node.create_publisher(JointState, "capture/mask_joint_state", qos)
@@ -126,12 +119,8 @@ class Cell:
 
 
 @pytest.fixture(scope="module")
-def cell(params_file):
-    cell = Cell(params_file)
-    yield cell
-    cell.probe.close()
-    code, output = cell.process.stop_and_read()
-    assert code == 0, f"node did not exit cleanly on SIGINT (code {code}):\n{output}"
+def cell(start_node_for_module, params_file):
+    return start_node_for_module(Cell, params_file)
 
 
 def _stamp(i):
@@ -162,7 +151,7 @@ def test_reconstruct_writes_the_mug_inside_output_dir(scan, mug, out_dir):
     assert summary["seconds"] > 0 and summary["volume_m3"] > 0
     vertices, faces = load_mesh(path)
     grid = VoxelGrid.cube(*carving_box(mug), RESOLUTION)
-    assert score_against_truth(mug, vertices, faces, grid)["volume_iou"] >= VOLUME_IOU_MIN
+    assert score_against_truth(mug, vertices, faces, grid)["volume_iou"] >= MUG_IOU_29_VIEWS_MIN
 
 
 def test_mesh_is_latched_for_late_subscribers(scan, cell):

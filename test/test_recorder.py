@@ -25,7 +25,7 @@ from std_srvs.srv import Trigger
 
 from analytic_masks import sphere_mask
 from conftest import TEST_RIG
-from ros_harness import NAMESPACE, NodeProcess, RosProbe
+from ros_harness import NAMESPACE, NodeProcess, NodeUnderTest, RosProbe
 from sfs_ros.cell.bag import open_bag, read_bag
 from sfs_ros.core.simulation.plan import ring_plan
 from sfs_ros.core.geometry.rig import rig_camera
@@ -53,7 +53,7 @@ def views():
 
 
 @pytest.fixture(scope="module")
-def probe(tmp_path_factory):
+def probe(tmp_path_factory, start_node_for_module):
     """The probe, with a reconstruction node running (whose parameters every bag stores)."""
     params = {"projection": TEST_RIG.projection, "width": TEST_RIG.width,
               "height": TEST_RIG.height, "fx": TEST_RIG.fx, "fy": TEST_RIG.fy,
@@ -62,16 +62,15 @@ def probe(tmp_path_factory):
               "output_dir": str(tmp_path_factory.mktemp("reconstruction")), "hull_rate_hz": 0.0}
     path = tmp_path_factory.mktemp("params") / "reconstruction.yaml"
     path.write_text(yaml.safe_dump({"/**": {"ros__parameters": params}}))
-    reconstruction = NodeProcess("sfs_ros.nodes.reconstruction_node", params_file=path)
-    probe = RosProbe("recorder_probe")
+    reconstruction = start_node_for_module(NodeUnderTest, "sfs_ros.nodes.reconstruction_node",
+                                           params_file=path, probe_name="recorder_probe")
+    probe = reconstruction.probe
     qos = capture_qos(100)
     probe.masks = probe.node.create_publisher(Image, "capture/mask", qos)
     probe.joints = probe.node.create_publisher(JointState, "capture/mask_joint_state", qos)
     probe.diagnostics = probe.node.create_publisher(DiagnosticArray, "diagnostics", 10)
-    probe.wait_connected([probe.masks, probe.joints], process=reconstruction)
-    yield probe
-    probe.close()
-    assert reconstruction.stop() == 0
+    probe.wait_connected([probe.masks, probe.joints], process=reconstruction.process)
+    return probe
 
 
 class Recorder:

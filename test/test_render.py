@@ -9,15 +9,15 @@ from sfs_ros.core.geometry.camera import Camera
 from sfs_ros.core.simulation.objects import make_object
 from sfs_ros.core.render import rasterize_faces, rasterize_silhouette, render_image
 from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
+from tolerances import HALF_PIXEL_DIAGONAL_PX, ROUND_OFF
 
 CENTRE = np.array([0.0, 0.0, 0.05])
 RADIUS = 0.05
 #: Relative slack on radii for float rounding of pixel centres lying on a circle.
 ROUND = 1e-9
-#: Half the diagonal of a pixel: every pixel square whose centre is inside a disc of
-#: radius R lies inside the disc of radius R + HALF_DIAG, and every point of the disc
-#: of radius R - HALF_DIAG lies in such a square, which bounds centre counts by areas.
-HALF_DIAG = math.sqrt(2) / 2
+# Every pixel square whose centre is inside a disc of radius R lies inside the disc of
+# radius R + HALF_PIXEL_DIAGONAL_PX, and every point of the disc of radius
+# R - HALF_PIXEL_DIAGONAL_PX lies in such a square, which bounds centre counts by areas.
 
 
 @pytest.fixture(scope="module")
@@ -64,7 +64,8 @@ def test_orthographic_sphere(sphere):
     assert_sandwiched(mask, camera, r_in)
     # area pi r^2 fx^2 up to the pixel-boundary band and the faceting
     R, R_in = RADIUS * 3000.0, r_in * 3000.0
-    assert math.pi * (R_in - HALF_DIAG) ** 2 <= mask.sum() <= math.pi * (R + HALF_DIAG) ** 2
+    assert math.pi * (R_in - HALF_PIXEL_DIAGONAL_PX) ** 2 <= mask.sum() \
+        <= math.pi * (R + HALF_PIXEL_DIAGONAL_PX) ** 2
 
 
 def test_pinhole_sphere_on_axis(sphere):
@@ -83,7 +84,8 @@ def test_pinhole_sphere_on_axis(sphere):
     R, R_in = image_radius(RADIUS), image_radius(r_in)
     assert np.all(mask[rho > R * (1 + ROUND)] == 0)
     assert np.all(mask[rho < R_in * (1 - ROUND)])
-    assert math.pi * (R_in - HALF_DIAG) ** 2 <= mask.sum() <= math.pi * (R + HALF_DIAG) ** 2
+    assert math.pi * (R_in - HALF_PIXEL_DIAGONAL_PX) ** 2 <= mask.sum() \
+        <= math.pi * (R + HALF_PIXEL_DIAGONAL_PX) ** 2
 
 
 def test_pinhole_sphere_off_axis(sphere):
@@ -118,7 +120,7 @@ def test_pinhole_triangles_behind_camera():
     truth = v >= 36.5
     np.testing.assert_array_equal(face_index >= 0, truth)
     # perspective-correct depth interpolation
-    np.testing.assert_allclose(depth[truth], 0.1 * f / (v[truth] - 31.5), rtol=1e-12)
+    np.testing.assert_allclose(depth[truth], 0.1 * f / (v[truth] - 31.5), rtol=ROUND_OFF)
     behind, faces = straddling_floor(-2.0, -1.0)
     assert not rasterize_silhouette(behind, faces, camera).any()
 

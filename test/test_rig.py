@@ -8,6 +8,7 @@ import pytest
 
 from sfs_ros.core.geometry.camera import Camera
 from sfs_ros.core.geometry.rig import RigCalibration, rig_camera, rig_rotation
+from tolerances import PIXEL_ROUND_OFF_PX, ROUND_OFF
 
 DEG = math.pi / 180
 
@@ -24,19 +25,19 @@ def test_physical_constant_phi_sweeps_a_latitude_circle():
     for theta in np.arange(0, 360, 10) * DEG:
         forward = rig_rotation(theta, phi, "physical")[2]
         # The camera looks down at elevation phi whatever the turntable does.
-        assert forward[2] == pytest.approx(-math.sin(phi), abs=1e-12)
+        assert forward[2] == pytest.approx(-math.sin(phi), abs=ROUND_OFF)
 
 
 def test_paper_constant_phi_sweeps_a_great_circle_through_x():
     for phi in (10 * DEG, 35 * DEG, 80 * DEG):
         d = view_axis(rig_rotation(90 * DEG, phi, "paper"))
-        np.testing.assert_allclose(np.abs(d), [1, 0, 0], atol=1e-12)
+        np.testing.assert_allclose(np.abs(d), [1, 0, 0], atol=ROUND_OFF)
         # Closed form of the paper's viewing direction.
         theta = 20 * DEG
         expected = np.array([math.sin(theta), math.cos(theta) * math.cos(phi),
                              math.cos(theta) * math.sin(phi)])
         np.testing.assert_allclose(view_axis(rig_rotation(theta, phi, "paper")),
-                                   view_axis(np.vstack([np.eye(3)[:2], expected])), atol=1e-12)
+                                   view_axis(np.vstack([np.eye(3)[:2], expected])), atol=ROUND_OFF)
 
 
 def test_paper_matrix_rows_are_printed_matrix():
@@ -44,7 +45,7 @@ def test_paper_matrix_rows_are_printed_matrix():
     R = rig_rotation(theta, phi, "paper")
     ct, st, cp, sp = math.cos(theta), math.sin(theta), math.cos(phi), math.sin(phi)
     np.testing.assert_allclose(R[:2], [[ct, -st * cp, -st * sp], [0, sp, -cp]], atol=1e-15)
-    np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(R @ R.T, np.eye(3), atol=ROUND_OFF)
 
 
 @pytest.mark.parametrize("convention, expected_distinct", [("paper", 18), ("physical", 36)])
@@ -62,7 +63,7 @@ def test_paper_opposite_turntable_angles_mirror_the_image():
     centre = np.array([calib.K[0, 2], calib.K[1, 2]])
     a = rig_camera(0.3, 0.6, calib).project(points) - centre
     b = rig_camera(0.3 + math.pi, 0.6, calib).project(points) - centre
-    np.testing.assert_allclose(b, a * [-1, 1], atol=1e-9)
+    np.testing.assert_allclose(b, a * [-1, 1], atol=PIXEL_ROUND_OFF_PX)
     # The physical rig sees another side of the object at theta + pi.
     phys = RigCalibration()
     a = rig_camera(0.3, 0.6, phys).project(points) - centre
@@ -76,7 +77,8 @@ def test_aim_point_projects_to_principal_point(projection):
                            aim_point_m=(0.0, 0.0, 0.04), width=640, height=480)
     for theta, phi in [(0, 0), (1.0, 0.3), (4.0, 1.2), (2.0, math.pi / 2)]:
         cam = rig_camera(theta, phi, calib)
-        np.testing.assert_allclose(cam.project([[0, 0, 0.04]])[0], [319.5, 239.5], atol=1e-9)
+        np.testing.assert_allclose(cam.project([[0, 0, 0.04]])[0], [319.5, 239.5],
+                                   atol=PIXEL_ROUND_OFF_PX)
         if projection == "pinhole":
             assert np.linalg.norm(cam.center - [0, 0, 0.04]) == pytest.approx(0.6)
             # Camera above the plate for positive elevation.
@@ -88,7 +90,7 @@ def test_turntable_axis_is_fixed_and_up_is_up():
     for theta in np.linspace(0, 2 * math.pi, 7):
         cam = rig_camera(theta, 0.5, calib)
         low, high = cam.project([[0, 0, 0.0], [0, 0, 0.05]])
-        np.testing.assert_allclose(low, [255.5, 255.5], atol=1e-9)
+        np.testing.assert_allclose(low, [255.5, 255.5], atol=PIXEL_ROUND_OFF_PX)
         assert high[0] == pytest.approx(255.5) and high[1] < low[1]  # higher z is higher in the image
 
 
@@ -97,7 +99,7 @@ def test_encoder_zero_offsets_are_removed():
     plain = RigCalibration()
     a = rig_camera(1.0 + 0.2, 0.5 - 0.1, zeroed)
     b = rig_camera(1.0, 0.5, plain)
-    np.testing.assert_allclose(a.projection_matrix, b.projection_matrix, atol=1e-12)
+    np.testing.assert_allclose(a.projection_matrix, b.projection_matrix, atol=ROUND_OFF)
 
 
 @pytest.mark.parametrize("theta, phi, message", [

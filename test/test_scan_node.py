@@ -5,6 +5,7 @@ No other node of the cell runs here (the whole cell is tested with ``sfs-cell``)
 the probe calls the scan services and watches ``diagnostics`` and ``joint_command``.
 """
 
+import functools
 import time
 
 import pytest
@@ -12,8 +13,9 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
-from ros_harness import MESSAGE_TIMEOUT_S, NodeProcess, RosProbe
+from ros_harness import MESSAGE_TIMEOUT_S, NodeProcess, NodeUnderTest
 from sfs_ros.cell.scan_plan import ScanPlan
+from tolerances import QUIET_S
 
 MODULE = "sfs_ros.nodes.scan_node"
 #: A small ring plan: the ring listed second (20 deg) is staggered by half a step and taken
@@ -27,7 +29,6 @@ MOVE_TIMEOUT_S = 1.0
 MOVE_RETRIES = 2
 FAST = {**RINGS, "service_timeout_s": SERVICE_TIMEOUT_S, "home_timeout_s": SERVICE_TIMEOUT_S,
         "move_timeout_s": MOVE_TIMEOUT_S, "move_retries": MOVE_RETRIES, "queue_depth": 20}
-QUIET_S = 1.0   # after the expected messages, listen this long for extras
 
 
 class ScanStatus:
@@ -38,12 +39,11 @@ class ScanStatus:
         self.values = {kv.key: kv.value for kv in status.values}
 
 
-class ScanNodeUnderTest:
+class ScanNodeUnderTest(NodeUnderTest):
     """The node process, the probe's ``scan/*`` clients and its recorders."""
 
-    def __init__(self, parameters: dict):
-        self.process = NodeProcess(MODULE, parameters={**FAST, **parameters})
-        self.probe = RosProbe()
+    def __init__(self, **parameters):
+        super().__init__(MODULE, parameters={**FAST, **parameters})
         node = self.probe.node
         self.diagnostics, self.commands = [], []
         subs = [node.create_subscription(DiagnosticArray, "diagnostics",
@@ -74,25 +74,11 @@ class ScanNodeUnderTest:
                               process=self.process)
         return paused()[0]
 
-    def close(self) -> tuple[int, str]:
-        self.probe.close()
-        return self.process.stop_and_read()
-
 
 @pytest.fixture()
-def start():
-    """``start(**parameters)`` -> a running node; each must exit with 0 on SIGINT."""
-    nodes = []
-
-    def start_node(**parameters) -> ScanNodeUnderTest:
-        nodes.append(ScanNodeUnderTest(parameters))
-        return nodes[-1]
-
-    yield start_node
-    for node in nodes:
-        code, output = node.close()
-        assert code == 0, f"node did not exit cleanly on SIGINT (code {code}):\n{output}"
-        assert "Traceback" not in output, output
+def start(start_node):
+    """``start(**parameters)`` -> a running node, stopped cleanly after the test."""
+    return functools.partial(start_node, ScanNodeUnderTest)
 
 
 @pytest.mark.parametrize("plan_text, parameters, name, words", [

@@ -8,7 +8,7 @@ from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from sensor_msgs.msg import Image, JointState
 
-from ros_harness import NodeProcess, RosProbe
+from ros_harness import NodeProcess, NodeUnderTest
 from sfs_ros.core.metrics import silhouette_iou
 from sfs_ros.core.simulation.objects import make_object
 from sfs_ros.core.simulation.plan import ring_plan
@@ -18,6 +18,7 @@ from sfs_ros.core.segment import SegmentationParams, segment
 from sfs_ros.core.simulation.synthetic import simulate_scan
 from sfs_ros.ros import capture_qos
 from sfs_ros.ros.convert import image_to_msg, joint_state, msg_to_image
+from tolerances import QUIET_S
 
 MODULE = "sfs_ros.nodes.segmentation_node"
 # What the params file sets, and the same as core parameters (for the expected masks).
@@ -31,7 +32,6 @@ PLAN = ring_plan([20.0, 60.0], 4)          # 8 views
 # wrong: at most half the outline gives IoU >= 1 - 200 / 8 000 = 0.975
 # against the true silhouette (measured: 0.998-1.0).
 IOU_MIN = 0.975
-QUIET_S = 1.0   # after the expected messages, listen this long for extras
 
 
 @pytest.fixture(scope="module")
@@ -50,12 +50,11 @@ def mug_scan():
     return captures, truths
 
 
-class Cell:
+class Cell(NodeUnderTest):
     """The node process plus the probe's publishers and recorders."""
 
     def __init__(self, params_file):
-        self.process = NodeProcess(MODULE, params_file=params_file)
-        self.probe = RosProbe()
+        super().__init__(MODULE, params_file=params_file)
         node, qos = self.probe.node, capture_qos(100)
         self.image_pub = node.create_publisher(Image, "capture/image", qos)
         self.joints_pub = node.create_publisher(JointState, "capture/joint_state", qos)
@@ -80,12 +79,8 @@ class Cell:
 
 
 @pytest.fixture(scope="module")
-def cell(params_file):
-    cell = Cell(params_file)
-    yield cell
-    cell.probe.close()
-    code, output = cell.process.stop_and_read()
-    assert code == 0, f"node did not exit cleanly on SIGINT (code {code}):\n{output}"
+def cell(start_node_for_module, params_file):
+    return start_node_for_module(Cell, params_file)
 
 
 def _stamp(msg):

@@ -37,7 +37,7 @@ word is accepted and reported without noise, as GRBL's third axis.
 
 Faults (attributes of :attr:`SimulatedGrbl.faults`, methods on the simulator)
 ---------------------------------------------------------------------------
-stall, no answer, disconnect, limit switch hit, homing failure, garbage and
+stall, no answer, disconnect, limit switch hit, homing failure or held open, garbage and
 fragmented output; see :class:`Faults`, :meth:`SimulatedGrbl.disconnect`,
 :meth:`SimulatedGrbl.trigger_limit` and :meth:`SimulatedGrbl.inject_output`.
 """
@@ -90,6 +90,10 @@ class Faults:
         of its path (``ALARM:1``, immediate halt).
     homing_fails : bool
         ``$H`` searches, then fails with ``ALARM:9`` (switch not found).
+    homing_hold : bool
+        Homing does not end while this is set: the axes wait at the switches
+        in state ``Home`` until it is cleared (holds the cycle open for as
+        long as a test needs, whatever the machine's load).
     garbage : bytes
         Inserted before every message the controller sends (line noise, e.g.
         ``b"\\xff\\x00#&\\r\\n"`` as a line of its own, or a bare prefix).
@@ -103,6 +107,7 @@ class Faults:
     stall_mode: str = "idle"
     limit_at_fraction: float | None = None
     homing_fails: bool = False
+    homing_hold: bool = False
     garbage: bytes = b""
     fragment_output: bool = False
 
@@ -708,7 +713,7 @@ class SimulatedGrbl:
 
     def _update(self, now: float) -> None:
         if self._homing is not None:
-            if now - self._homing[0] >= self._homing[1]:
+            if now - self._homing[0] >= self._homing[1] and not self.faults.homing_hold:
                 self._finish_homing(now)
             return
         if self._dwell_until is not None and now >= self._dwell_until:
@@ -727,6 +732,7 @@ class SimulatedGrbl:
         if m.stall_mode == "run" and m.stall_axis is not None and m.frozen_s is None \
                 and s >= m.stall_fraction * m.length:
             m.frozen_s = s = m.stall_fraction * m.length
+            done = False                     # even when first looked at after the whole move
         self._set_path_position(m, s)
         if m.hold_t0 is not None and now - m.hold_t0 >= m.hold_v / m.accel:
             self._hold_complete = True
