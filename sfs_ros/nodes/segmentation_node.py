@@ -227,13 +227,14 @@ class SegmentationNode(Node):
         self._joints_pub.publish(joints)
         self._counts["masks"] += 1
         self._problem = ""
+        at = format_stamp(stamp)
         if result.empty:
             self._counts["empty"] += 1
-            self._warning = f"view at stamp {format_stamp(stamp)}: empty silhouette (all-zero mask published)"
+            self._warning = f"view at stamp {at}: empty silhouette (all-zero mask published)"
             self.get_logger().warning(self._warning)
         elif result.touches_border:
             self._counts["touching_border"] += 1
-            self._warning = f"view at stamp {format_stamp(stamp)}: silhouette touches the image border"
+            self._warning = f"view at stamp {at}: silhouette touches the image border"
             self.get_logger().warning(self._warning)
         else:
             self._warning = ""

@@ -107,8 +107,8 @@ class PairedInput:
         """Give up the capture at ``stamp`` because its ``what`` (e.g. "image") is malformed
         (``exc`` says how): its halves are dropped, waiting or to come."""
         self.pairer.reject(stamp)
-        self._on_problem("malformed", f"malformed {what} at stamp {format_stamp(stamp)} dropped with its "
-                                      f"{self._unit}: {exc}")
+        self._on_problem("malformed", f"malformed {what} at stamp {format_stamp(stamp)} "
+                                      f"dropped with its {self._unit}: {exc}")
 
     def _given_up(self, stream: str, stamp: Stamp, _item, reason: str) -> None:
         why = ("no partner arrived before the buffer filled" if reason == "evicted"
