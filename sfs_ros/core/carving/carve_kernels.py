@@ -28,6 +28,22 @@ from numba import njit, prange
 
 _NJIT = dict(cache=True, error_model="numpy")
 
+# Modes of :func:`carve_lines`.
+LINES_INTERSECT = 0   #: batch, no miss allowed: survivor intervals intersected view by view
+LINES_COUNT = 1       #: batch: misses counted per voxel (difference array)
+LINES_ADD_VIEW = 2    #: incremental: one view's misses added to saturating counters
+
+# Kinds of :func:`block_rect`.
+RECT_IN_FRONT = 0     #: the rectangle is valid
+RECT_BEHIND = 1       #: the whole box is behind the camera
+RECT_STRADDLES = 2    #: the box straddles the camera plane
+
+# Verdicts of a block against one view (:func:`rect_status`, :func:`count_status`).
+BLOCK_HIT = 0         #: every voxel of the block falls into the silhouette
+BLOCK_MISS = 1        #: no voxel does
+BLOCK_UNDECIDED = 2   #: some may: split the block, or test voxel by voxel
+BLOCK_COUNT = 3       #: count the rectangle's foreground pixels, then :func:`count_status`
+
 # ---------------------------------------------------------------------------
 # shared per-voxel arithmetic
 
@@ -77,9 +93,10 @@ def _corner(cv, r, i0, i1, j0, j1, k0, k1, want_max):
 def block_rect(cv, ortho, i0, i1, j0, j1, k0, k1):
     """Pixel rectangle holding every voxel of the box [i0..i1]x[j0..j1]x[k0..k1].
 
-    Returns ``(kind, c0, c1, r0, r1)``: kind 0 with the inclusive column and
-    row ranges (floats, may lie outside the image); kind 1: the whole box is
-    behind the camera; kind 2: the box straddles the camera plane.
+    Returns ``(kind, c0, c1, r0, r1)``: kind :data:`RECT_IN_FRONT` with the
+    inclusive column and row ranges (floats, may lie outside the image);
+    :data:`RECT_BEHIND`: the whole box is behind the camera;
+    :data:`RECT_STRADDLES`: the box straddles the camera plane.
     """
     if ortho:
         umin = _corner(cv, 0, i0, i1, j0, j1, k0, k1, False)
@@ -88,9 +105,9 @@ def block_rect(cv, ortho, i0, i1, j0, j1, k0, k1):
         vmax = _corner(cv, 1, i0, i1, j0, j1, k0, k1, True)
     else:
         if not _corner(cv, 2, i0, i1, j0, j1, k0, k1, True) > 0.0:
-            return 1, 0.0, 0.0, 0.0, 0.0
+            return RECT_BEHIND, 0.0, 0.0, 0.0, 0.0
         if not _corner(cv, 2, i0, i1, j0, j1, k0, k1, False) > 0.0:
-            return 2, 0.0, 0.0, 0.0, 0.0
+            return RECT_STRADDLES, 0.0, 0.0, 0.0, 0.0
         # The projection of a box in front of the camera is the convex hull of
         # its projected corners; widen a hair for the rounding of the division.
         umin = np.inf
@@ -112,25 +129,29 @@ def block_rect(cv, ortho, i0, i1, j0, j1, k0, k1):
         umax += 1e-7 * (1.0 + abs(umax))
         vmin -= 1e-7 * (1.0 + abs(vmin))
         vmax += 1e-7 * (1.0 + abs(vmax))
-    return (0, np.floor(umin + 0.5), np.floor(umax + 0.5), np.floor(vmin + 0.5),
+    return (RECT_IN_FRONT, np.floor(umin + 0.5), np.floor(umax + 0.5), np.floor(vmin + 0.5),
             np.floor(vmax + 0.5))
 
 
 @njit(**_NJIT)
 def rect_status(kind, c0, c1, r0, r1, W, H, keep):
-    """0: all voxels hit, 1: all miss, 2: undecided, 3: count the foreground
-    pixels of the rectangle clipped to the image and call :func:`count_status`."""
-    if kind == 1:
-        return 0 if keep else 1
-    if kind == 2:
-        return 2
+    """The verdict on a block from its :func:`block_rect`: :data:`BLOCK_HIT`,
+    :data:`BLOCK_MISS`, :data:`BLOCK_UNDECIDED`, or :data:`BLOCK_COUNT`: count the
+    foreground pixels of the rectangle clipped to the image and call
+    :func:`count_status`."""
+    if kind == RECT_BEHIND:
+        return BLOCK_HIT if keep else BLOCK_MISS
+    if kind == RECT_STRADDLES:
+        return BLOCK_UNDECIDED
     if not (c1 >= 0.0 and c0 < W and r1 >= 0.0 and r0 < H):
-        return 0 if keep else 1  # entirely outside the image (NaN: never here)
-    return 3
+        return BLOCK_HIT if keep else BLOCK_MISS  # entirely outside the image (NaN: never)
+    return BLOCK_COUNT
 
 
 @njit(**_NJIT)
 def count_status(count, c0, c1, r0, r1, W, H, keep):
+    """The verdict on a block whose rectangle holds ``count`` foreground pixels:
+    :data:`BLOCK_HIT`, :data:`BLOCK_MISS` or :data:`BLOCK_UNDECIDED`."""
     a0 = max(c0, 0.0)
     a1 = min(c1, W - 1.0)
     b0 = max(r0, 0.0)
@@ -139,15 +160,15 @@ def count_status(count, c0, c1, r0, r1, W, H, keep):
     inside = c0 >= 0.0 and c1 < W and r0 >= 0.0 and r1 < H
     if keep:
         if count == area:
-            return 0
+            return BLOCK_HIT
         if count == 0 and inside:
-            return 1
+            return BLOCK_MISS
     else:
         if count == 0:
-            return 1
+            return BLOCK_MISS
         if count == area and inside:
-            return 0
-    return 2
+            return BLOCK_HIT
+    return BLOCK_UNDECIDED
 
 
 @njit(**_NJIT)
@@ -230,14 +251,14 @@ def carve_blocks(coef, ortho, masks, moff, integ, ioff, heights, widths, order, 
                 kind, c0, c1, r0, r1 = block_rect(view_tuple(coef, v), ortho[v], i0, i1, j0,
                                                   j1, k0, k1)
                 st = rect_status(kind, c0, c1, r0, r1, W, H, keep)
-                if st == 3:
+                if st == BLOCK_COUNT:
                     st = count_status(_rect_count(integ, ioff[v], c0, c1, r0, r1, W, H),
                                       c0, c1, r0, r1, W, H, keep)
-                if st == 1:
+                if st == BLOCK_MISS:
                     misses += 1
                     if misses > max_misses:
                         break
-                elif st == 2:
+                elif st == BLOCK_UNDECIDED:
                     lists[lev, n_open] = v
                     n_open += 1
             if misses > max_misses:
@@ -320,17 +341,17 @@ def carve_blocks_one(coef, ortho, masks, integ, W, H, keep, cap, top, leaf, aliv
             k1 = min(k0 + size, nz) - 1
             kind, c0, c1, r0, r1 = block_rect(cv, is_ortho, i0, i1, j0, j1, k0, k1)
             st = rect_status(kind, c0, c1, r0, r1, W, H, keep)
-            if st == 3:
+            if st == BLOCK_COUNT:
                 st = count_status(_rect_count(integ, 0, c0, c1, r0, r1, W, H), c0, c1, r0,
                                   r1, W, H, keep)
-            if st == 0:
+            if st == BLOCK_HIT:
                 continue
-            if st == 1 or size <= leaf:
+            if st == BLOCK_MISS or size <= leaf:
                 for i in range(i0, i1 + 1):
                     for j in range(j0, j1 + 1):
                         for k in range(k0, k1 + 1):
                             if misses[i, j, k] < cap:
-                                if st == 2:
+                                if st == BLOCK_UNDECIDED:
                                     pix = voxel_pixel(cv, i, j, k, W, H)
                                     if (keep if pix < 0 else masks[pix] != 0):
                                         continue
@@ -455,13 +476,16 @@ def carve_lines(coef, by_row, order, offsets, run_lo, run_hi, L, H, W, axis, kee
                 chunk, mode, out, misses):
     """Carve along the grid lines of ``axis``.
 
-    mode 0: batch, ``max_misses == 0``: intervals of survivors intersected view
-    by view, written to ``out`` (nx, ny, nz) bool, zero on entry;
-    mode 1: batch, misses counted per voxel (difference array), into ``out``;
-    mode 2: incremental, one view (``order == [0]``): ``misses`` (nx, ny, nz)
-    incremented, saturating at ``max_misses + 1``, where the view misses.
+    mode :data:`LINES_INTERSECT`: batch, ``max_misses == 0``: intervals of
+    survivors intersected view by view, written to ``out`` (nx, ny, nz) bool,
+    zero on entry;
+    mode :data:`LINES_COUNT`: batch, misses counted per voxel (difference
+    array), into ``out``;
+    mode :data:`LINES_ADD_VIEW`: incremental, one view (``order == [0]``):
+    ``misses`` (nx, ny, nz) incremented, saturating at ``max_misses + 1``,
+    where the view misses.
     """
-    shape = misses.shape if mode == 2 else out.shape
+    shape = misses.shape if mode == LINES_ADD_VIEW else out.shape
     nl = shape[axis]
     n0 = shape[0] if axis != 0 else shape[1]
     n1 = shape[2] if axis != 2 else shape[1]
@@ -483,8 +507,8 @@ def carve_lines(coef, by_row, order, offsets, run_lo, run_hi, L, H, W, axis, kee
             cur_hi[0, 0] = nl
             for tv in range(n_views):
                 v = order[tv]
-                lo = cur_lo[w, 0] if mode == 0 else 0
-                hi = cur_hi[w, n_cur - 1] if mode == 0 else nl
+                lo = cur_lo[w, 0] if mode == LINES_INTERSECT else 0
+                hi = cur_hi[w, n_cur - 1] if mode == LINES_INTERSECT else nl
                 # -- allowed intervals [al_lo, al_hi) of t in [lo, hi), ascending
                 if by_row[v]:
                     r_fix, r_along, n_fix, n_along = 1, 0, H, W
@@ -577,7 +601,7 @@ def carve_lines(coef, by_row, order, offsets, run_lo, run_hi, L, H, W, axis, kee
                                 al_hi[n_al] = hi
                                 n_al += 1
                 # -- use them
-                if mode == 0:
+                if mode == LINES_INTERSECT:
                     if n_al == 1 and al_lo[0] == lo and al_hi[0] == hi:
                         continue
                     a = 0
@@ -602,7 +626,7 @@ def carve_lines(coef, by_row, order, offsets, run_lo, run_hi, L, H, W, axis, kee
                     prev = 0
                     for a in range(n_al + 1):
                         end = al_lo[a] if a < n_al else nl
-                        if mode == 1:
+                        if mode == LINES_COUNT:
                             count[prev] += 1
                             count[end] -= 1
                         else:
@@ -617,9 +641,9 @@ def carve_lines(coef, by_row, order, offsets, run_lo, run_hi, L, H, W, axis, kee
                                     misses[t, p, q] += 1
                         if a < n_al:
                             prev = al_hi[a]
-            if mode == 2:
+            if mode == LINES_ADD_VIEW:
                 continue
-            if mode == 1:
+            if mode == LINES_COUNT:
                 # survivors: prefix sum of the difference array <= max_misses
                 run = 0
                 n_cur = 0
