@@ -255,17 +255,10 @@ class RecorderNode(Node):
         return response
 
     def _submit(self, name: str, job, *args, **kwargs) -> Future:
-        """Queue ``job(*args, **kwargs)`` for the worker, then the parameters if they are in."""
-        return self._worker.submit(partial(self._then_parameters, job, *args, **kwargs),
-                                   name=name)
+        """Queue ``job(*args, **kwargs)`` for the worker; its future."""
+        return self._worker.submit(partial(job, *args, **kwargs), name=name)
 
     # -- worker thread -----------------------------------------------------------------------
-
-    def _then_parameters(self, job, *args, **kwargs):
-        """Run ``job``, then write the fetched parameters if they have arrived; its answer."""
-        answer = job(*args, **kwargs)
-        self._write_parameters()
-        return answer
 
     def _job_failed(self, _name: str, exc: Exception) -> None:
         """A job failed (disk full, a bug): report it and close the bag; keep serving."""
