@@ -27,6 +27,9 @@ import numpy as np
 from numba import njit, prange
 
 _NJIT = dict(cache=True, error_model="numpy")
+#: Helpers of the line path inlined into :func:`carve_lines` (numba IR inlining: no call,
+#: no reference counting of their array arguments).
+_INLINE = dict(_NJIT, inline="always")
 
 # Modes of :func:`carve_lines`.
 LINES_INTERSECT = 0   #: batch, no miss allowed: survivor intervals intersected view by view
@@ -471,6 +474,190 @@ def _first_at_most(A, s, inv_s, B1, B2, target, lo, hi):
     return t
 
 
+@njit(**_INLINE)
+def _allowed_rising(A, s, B1, B2, first, last, run_lo, run_hi, n_along, lo, hi, keep, al_lo,
+                    al_hi):
+    """Allowed intervals of a line whose pixel rises along it (s > 0): runs
+    ``first..last`` of its image line, ascending; how many."""
+    n_al = 0
+    inv = 1.0 / s
+    x_lo = _pix_at(A, s, B1, B2, lo)
+    x_hi = _pix_at(A, s, B1, B2, hi - 1)
+    if keep and x_lo < 0.0:
+        t1 = _first_at_least(A, s, inv, B1, B2, 0.0, lo, hi)
+        if lo < t1:
+            al_lo[n_al] = lo
+            al_hi[n_al] = t1
+            n_al += 1
+    for idx in range(first, last):
+        a = run_lo[idx]
+        b = run_hi[idx]
+        if b < x_lo:
+            continue
+        if a > x_hi:
+            break
+        t0 = lo if a <= x_lo else _first_at_least(A, s, inv, B1, B2, a, lo, hi)
+        t1 = hi if b >= x_hi else _first_at_least(A, s, inv, B1, B2, b + 1.0, lo, hi)
+        if t0 < t1:
+            al_lo[n_al] = t0
+            al_hi[n_al] = t1
+            n_al += 1
+    if keep and x_hi >= n_along:
+        t0 = _first_at_least(A, s, inv, B1, B2, n_along, lo, hi)
+        if t0 < hi:
+            al_lo[n_al] = t0
+            al_hi[n_al] = hi
+            n_al += 1
+    return n_al
+
+
+@njit(**_INLINE)
+def _allowed_falling(A, s, B1, B2, first, last, run_lo, run_hi, n_along, lo, hi, keep, al_lo,
+                     al_hi):
+    """Allowed intervals of a line whose pixel falls along it (s < 0): runs
+    ``first..last`` of its image line taken backwards; how many."""
+    n_al = 0
+    inv = 1.0 / s
+    x_hi = _pix_at(A, s, B1, B2, lo)
+    x_lo = _pix_at(A, s, B1, B2, hi - 1)
+    if keep and x_hi >= n_along:
+        t1 = _first_at_most(A, s, inv, B1, B2, n_along - 1.0, lo, hi)
+        if lo < t1:
+            al_lo[n_al] = lo
+            al_hi[n_al] = t1
+            n_al += 1
+    for idx in range(last - 1, first - 1, -1):
+        a = run_lo[idx]
+        b = run_hi[idx]
+        if a > x_hi:
+            continue
+        if b < x_lo:
+            break
+        t0 = lo if b >= x_hi else _first_at_most(A, s, inv, B1, B2, b, lo, hi)
+        t1 = hi if a <= x_lo else _first_at_most(A, s, inv, B1, B2, a - 1.0, lo, hi)
+        if t0 < t1:
+            al_lo[n_al] = t0
+            al_hi[n_al] = t1
+            n_al += 1
+    if keep and x_lo < 0.0:
+        t0 = _first_at_most(A, s, inv, B1, B2, -1.0, lo, hi)
+        if t0 < hi:
+            al_lo[n_al] = t0
+            al_hi[n_al] = hi
+            n_al += 1
+    return n_al
+
+
+@njit(**_INLINE)
+def _allowed(coef, v, by_row, offsets, run_lo, run_hi, L, H, W, axis, p, q, lo, hi, keep,
+             al_lo, al_hi):
+    """Intervals ``[al_lo, al_hi)`` of t in [lo, hi), ascending, where the voxels of line
+    (p, q) fall into the silhouette of view v (or outside its image, with ``keep``); how
+    many."""
+    if by_row[v]:
+        r_fix, r_along, n_fix, n_along = 1, 0, H, W
+    else:
+        r_fix, r_along, n_fix, n_along = 0, 1, W, H
+    A, s, B1, B2 = _terms(coef[v, r_fix, 0], coef[v, r_fix, 1], coef[v, r_fix, 2],
+                          coef[v, r_fix, 3], axis, p, q)
+    f = _pix_at(A, s, B1, B2, 0)
+    if not (f >= 0.0 and f < n_fix):
+        if keep:
+            al_lo[0] = lo
+            al_hi[0] = hi
+            return 1
+        return 0
+    first = offsets[v * L + int(f)]
+    last = offsets[v * L + int(f) + 1]
+    A, s, B1, B2 = _terms(coef[v, r_along, 0], coef[v, r_along, 1], coef[v, r_along, 2],
+                          coef[v, r_along, 3], axis, p, q)
+    if s > 0.0:
+        return _allowed_rising(A, s, B1, B2, first, last, run_lo, run_hi, n_along, lo, hi,
+                               keep, al_lo, al_hi)
+    if s < 0.0:
+        return _allowed_falling(A, s, B1, B2, first, last, run_lo, run_hi, n_along, lo, hi,
+                                keep, al_lo, al_hi)
+    x = _pix_at(A, s, B1, B2, lo)
+    hit = keep and not (x >= 0.0 and x < n_along)
+    for idx in range(first, last):
+        if run_lo[idx] <= x and x <= run_hi[idx]:
+            hit = True
+    if hit:
+        al_lo[0] = lo
+        al_hi[0] = hi
+        return 1
+    return 0
+
+
+@njit(**_INLINE)
+def _intersect(cur_lo, cur_hi, w, n_cur, al_lo, al_hi, n_al):
+    """Intersect the intervals in row ``w`` of ``cur_lo``/``cur_hi`` with the allowed
+    ones into row ``1 - w``; how many."""
+    a = 0
+    b = 0
+    n_new = 0
+    while a < n_cur and b < n_al:
+        s0 = max(cur_lo[w, a], al_lo[b])
+        e0 = min(cur_hi[w, a], al_hi[b])
+        if s0 < e0:
+            cur_lo[1 - w, n_new] = s0
+            cur_hi[1 - w, n_new] = e0
+            n_new += 1
+        if cur_hi[w, a] < al_hi[b]:
+            a += 1
+        else:
+            b += 1
+    return n_new
+
+
+@njit(**_INLINE)
+def _add_misses(misses, axis, p, q, start, end, cap):
+    """Count a miss for voxels t in [start, end) of line (p, q), saturating at ``cap``."""
+    for t in range(start, end):
+        if axis == 2:
+            if misses[p, q, t] < cap:
+                misses[p, q, t] += 1
+        elif axis == 1:
+            if misses[p, t, q] < cap:
+                misses[p, t, q] += 1
+        elif misses[t, p, q] < cap:
+            misses[t, p, q] += 1
+
+
+@njit(**_INLINE)
+def _survivors(count, nl, max_misses, cur_lo, cur_hi, w):
+    """Intervals (row ``w`` of ``cur_lo``/``cur_hi``) where the prefix sum of the
+    difference array ``count`` is at most ``max_misses``; how many. Clears ``count``."""
+    run = 0
+    n_cur = 0
+    start = -1
+    for t in range(nl + 1):
+        if t < nl:
+            run += count[t]
+            count[t] = 0
+        ok = t < nl and run <= max_misses
+        if ok and start < 0:
+            start = t
+        elif not ok and start >= 0:
+            cur_lo[w, n_cur] = start
+            cur_hi[w, n_cur] = t
+            n_cur += 1
+            start = -1
+    count[nl] = 0
+    return n_cur
+
+
+@njit(**_INLINE)
+def _fill_line(out, axis, p, q, start, end):
+    """Set voxels t in [start, end) of line (p, q)."""
+    if axis == 2:
+        out[p, q, start:end] = True
+    elif axis == 1:
+        out[p, start:end, q] = True
+    else:
+        out[start:end, p, q] = True
+
+
 @njit(parallel=True, **_NJIT)
 def carve_lines(coef, by_row, order, offsets, run_lo, run_hi, L, H, W, axis, keep, max_misses,
                 chunk, mode, out, misses):
@@ -509,120 +696,17 @@ def carve_lines(coef, by_row, order, offsets, run_lo, run_hi, L, H, W, axis, kee
                 v = order[tv]
                 lo = cur_lo[w, 0] if mode == LINES_INTERSECT else 0
                 hi = cur_hi[w, n_cur - 1] if mode == LINES_INTERSECT else nl
-                # -- allowed intervals [al_lo, al_hi) of t in [lo, hi), ascending
-                if by_row[v]:
-                    r_fix, r_along, n_fix, n_along = 1, 0, H, W
-                else:
-                    r_fix, r_along, n_fix, n_along = 0, 1, W, H
-                A, s, B1, B2 = _terms(coef[v, r_fix, 0], coef[v, r_fix, 1], coef[v, r_fix, 2],
-                                      coef[v, r_fix, 3], axis, p, q)
-                f = _pix_at(A, s, B1, B2, 0)
-                n_al = 0
-                if not (f >= 0.0 and f < n_fix):
-                    if keep:
-                        al_lo[0] = lo
-                        al_hi[0] = hi
-                        n_al = 1
-                else:
-                    first = offsets[v * L + int(f)]
-                    last = offsets[v * L + int(f) + 1]
-                    A, s, B1, B2 = _terms(coef[v, r_along, 0], coef[v, r_along, 1],
-                                          coef[v, r_along, 2], coef[v, r_along, 3], axis, p, q)
-                    if s == 0.0:
-                        x = _pix_at(A, s, B1, B2, lo)
-                        hit = keep and not (x >= 0.0 and x < n_along)
-                        for idx in range(first, last):
-                            if run_lo[idx] <= x and x <= run_hi[idx]:
-                                hit = True
-                        if hit:
-                            al_lo[0] = lo
-                            al_hi[0] = hi
-                            n_al = 1
-                    elif s > 0.0:
-                        inv = 1.0 / s
-                        x_lo = _pix_at(A, s, B1, B2, lo)
-                        x_hi = _pix_at(A, s, B1, B2, hi - 1)
-                        if keep and x_lo < 0.0:
-                            t1 = _first_at_least(A, s, inv, B1, B2, 0.0, lo, hi)
-                            if lo < t1:
-                                al_lo[n_al] = lo
-                                al_hi[n_al] = t1
-                                n_al += 1
-                        for idx in range(first, last):
-                            a = run_lo[idx]
-                            b = run_hi[idx]
-                            if b < x_lo:
-                                continue
-                            if a > x_hi:
-                                break
-                            t0 = lo if a <= x_lo else _first_at_least(A, s, inv, B1, B2, a,
-                                                                      lo, hi)
-                            t1 = hi if b >= x_hi else _first_at_least(A, s, inv, B1, B2,
-                                                                      b + 1.0, lo, hi)
-                            if t0 < t1:
-                                al_lo[n_al] = t0
-                                al_hi[n_al] = t1
-                                n_al += 1
-                        if keep and x_hi >= n_along:
-                            t0 = _first_at_least(A, s, inv, B1, B2, n_along, lo, hi)
-                            if t0 < hi:
-                                al_lo[n_al] = t0
-                                al_hi[n_al] = hi
-                                n_al += 1
-                    else:
-                        inv = 1.0 / s
-                        x_hi = _pix_at(A, s, B1, B2, lo)
-                        x_lo = _pix_at(A, s, B1, B2, hi - 1)
-                        if keep and x_hi >= n_along:
-                            t1 = _first_at_most(A, s, inv, B1, B2, n_along - 1.0, lo, hi)
-                            if lo < t1:
-                                al_lo[n_al] = lo
-                                al_hi[n_al] = t1
-                                n_al += 1
-                        for idx in range(last - 1, first - 1, -1):
-                            a = run_lo[idx]
-                            b = run_hi[idx]
-                            if a > x_hi:
-                                continue
-                            if b < x_lo:
-                                break
-                            t0 = lo if b >= x_hi else _first_at_most(A, s, inv, B1, B2, b,
-                                                                     lo, hi)
-                            t1 = hi if a <= x_lo else _first_at_most(A, s, inv, B1, B2,
-                                                                     a - 1.0, lo, hi)
-                            if t0 < t1:
-                                al_lo[n_al] = t0
-                                al_hi[n_al] = t1
-                                n_al += 1
-                        if keep and x_lo < 0.0:
-                            t0 = _first_at_most(A, s, inv, B1, B2, -1.0, lo, hi)
-                            if t0 < hi:
-                                al_lo[n_al] = t0
-                                al_hi[n_al] = hi
-                                n_al += 1
-                # -- use them
+                n_al = _allowed(coef, v, by_row, offsets, run_lo, run_hi, L, H, W, axis, p, q,
+                                lo, hi, keep, al_lo, al_hi)
                 if mode == LINES_INTERSECT:
                     if n_al == 1 and al_lo[0] == lo and al_hi[0] == hi:
                         continue
-                    a = 0
-                    b = 0
-                    n_new = 0
-                    while a < n_cur and b < n_al:
-                        s0 = max(cur_lo[w, a], al_lo[b])
-                        e0 = min(cur_hi[w, a], al_hi[b])
-                        if s0 < e0:
-                            cur_lo[1 - w, n_new] = s0
-                            cur_hi[1 - w, n_new] = e0
-                            n_new += 1
-                        if cur_hi[w, a] < al_hi[b]:
-                            a += 1
-                        else:
-                            b += 1
+                    n_cur = _intersect(cur_lo, cur_hi, w, n_cur, al_lo, al_hi, n_al)
                     w = 1 - w
-                    n_cur = n_new
                     if n_cur == 0:
                         break
                 else:
+                    # the gaps between allowed intervals are misses
                     prev = 0
                     for a in range(n_al + 1):
                         end = al_lo[a] if a < n_al else nl
@@ -630,41 +714,12 @@ def carve_lines(coef, by_row, order, offsets, run_lo, run_hi, L, H, W, axis, kee
                             count[prev] += 1
                             count[end] -= 1
                         else:
-                            for t in range(prev, end):
-                                if axis == 2:
-                                    if misses[p, q, t] < cap:
-                                        misses[p, q, t] += 1
-                                elif axis == 1:
-                                    if misses[p, t, q] < cap:
-                                        misses[p, t, q] += 1
-                                elif misses[t, p, q] < cap:
-                                    misses[t, p, q] += 1
+                            _add_misses(misses, axis, p, q, prev, end, cap)
                         if a < n_al:
                             prev = al_hi[a]
             if mode == LINES_ADD_VIEW:
                 continue
             if mode == LINES_COUNT:
-                # survivors: prefix sum of the difference array <= max_misses
-                run = 0
-                n_cur = 0
-                start = -1
-                for t in range(nl + 1):
-                    if t < nl:
-                        run += count[t]
-                        count[t] = 0
-                    ok = t < nl and run <= max_misses
-                    if ok and start < 0:
-                        start = t
-                    elif not ok and start >= 0:
-                        cur_lo[w, n_cur] = start
-                        cur_hi[w, n_cur] = t
-                        n_cur += 1
-                        start = -1
-                count[nl] = 0
+                n_cur = _survivors(count, nl, max_misses, cur_lo, cur_hi, w)
             for a in range(n_cur):
-                if axis == 2:
-                    out[p, q, cur_lo[w, a]:cur_hi[w, a]] = True
-                elif axis == 1:
-                    out[p, cur_lo[w, a]:cur_hi[w, a], q] = True
-                else:
-                    out[cur_lo[w, a]:cur_hi[w, a], p, q] = True
+                _fill_line(out, axis, p, q, cur_lo[w, a], cur_hi[w, a])
