@@ -153,3 +153,13 @@ def test_a_job_must_be_callable():
         worker.submit(("start", None, 3))
     worker.stop()
     assert worker.join(WAIT_S)
+
+
+def test_the_worker_is_idle_once_a_job_is_answered():
+    worker = _worker()
+    for run in (lambda: "fine", lambda: 1 / 0):
+        future = worker.submit(run, name="move")
+        future.exception(WAIT_S)
+        assert worker.current is None     # no stale "move" for a caller that saw the answer
+    worker.stop()
+    assert worker.join(WAIT_S)

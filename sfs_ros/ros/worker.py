@@ -157,15 +157,24 @@ class Worker:
                     return
                 job = self._jobs.popleft()
                 self._current = job.name
+            if not job.future.set_running_or_notify_cancel():
+                self._idle()
+                continue
             try:
-                if job.future.set_running_or_notify_cancel():
-                    job.future.set_result(job.run())
+                answer = job.run()
             except Exception as exc:  # noqa: BLE001 -- a job's fault must not end the thread
+                self._idle()
                 job.future.set_exception(exc)
                 try:
                     self._on_error(job.name, exc)
                 except Exception:  # noqa: BLE001 -- nor may the report of it
                     traceback.print_exc()
-            finally:
-                with self._cv:
-                    self._current = None
+            else:
+                self._idle()
+                job.future.set_result(answer)
+
+    def _idle(self) -> None:
+        """No job runs: cleared before a job's future is answered, so whoever sees the
+        answer sees the worker idle (or on a later job)."""
+        with self._cv:
+            self._current = None
