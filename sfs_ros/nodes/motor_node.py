@@ -44,6 +44,8 @@ from __future__ import annotations
 
 import math
 import threading
+from concurrent.futures import Future
+from functools import partial
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
@@ -62,6 +64,7 @@ from sfs_ros.hardware.driver import (
 from sfs_ros.nodes.entry import run_node
 from sfs_ros.ros.convert import angles_from_joint_state, diagnostic_array, joint_state
 from sfs_ros.ros.params import Param, ParameterError, declare, validating_callback
+from sfs_ros.ros.worker import Hold, JobCancelled, Worker
 
 __all__ = ["MotorNode", "PARAMS", "main"]
 
@@ -90,16 +93,6 @@ def _validate(values: dict) -> None:
                              f"port, e.g. /dev/ttyACM0")
 
 
-class _Job:
-    """A move or a homing cycle for the worker; ``done`` is set with ``error`` (None = ok)."""
-
-    def __init__(self, kind: str, target: tuple[float, float] | None = None):
-        self.kind = kind
-        self.target = target
-        self.done = threading.Event()
-        self.error: str | None = None
-
-
 class MotorNode(Node):
     """Drives the cell's two axes through :class:`GrblClient`.
 
@@ -126,12 +119,8 @@ class MotorNode(Node):
         self._alarm: str = ""
         self._home_on_start = bool(self._p["home_on_start"])
 
-        self._cv = threading.Condition()
-        self._pending: _Job | None = None
-        self._running: _Job | None = None
-        self._interrupting = 0             # stops under way: the worker waits for them
-        self._closing = False
-        self._worker = threading.Thread(target=self._work, name="motor-worker", daemon=True)
+        # Moves and homing, one at a time; a hold while the axes are being stopped.
+        self._worker = Worker("motor-worker", on_error=self._job_failed)
 
         self._joints_pub = self.create_publisher(JointState, "joint_states", 10)
         self._diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
@@ -144,7 +133,6 @@ class MotorNode(Node):
         self.create_timer(1.0 / self._p["status_rate_hz"], self._poll, callback_group=polling)
         self.create_timer(self._p["reconnect_period_s"], self._reconnect, callback_group=polling)
         self.create_timer(1.0, self._publish_diagnostics, callback_group=reentrant)
-        self._worker.start()
         self._reconnect()
         self.get_logger().info(f"motor controller on {self._p['port']}, joint_states at "
                                f"{self._p['status_rate_hz']} Hz")
@@ -168,7 +156,7 @@ class MotorNode(Node):
         self.get_logger().info(f"connected to the motor controller on {self._p['port']}")
         if self._home_on_start:            # the first connection only
             self._home_on_start = False
-            self._submit(_Job("home"))
+            self._submit("home", self._home)
         self._publish_diagnostics()
 
     def _lost(self, exc: Exception) -> None:
@@ -232,26 +220,22 @@ class MotorNode(Node):
             self._refused += 1
             self._report_fault(f"joint_command refused: {exc}")
             return
-        preempt = self._submit(_Job("move", target))
-        if preempt:
-            self._interrupt()
+        self._submit("move", partial(self._move, *target))
 
     def _on_home(self, _request, response):
-        job = _Job("home")
-        if self._submit(job):
-            self._interrupt()
-        job.done.wait()
-        response.success = job.error is None
-        response.message = job.error or f"homed; state {self._state}"
+        try:
+            error = self._submit("home", self._home).result()
+        except JobCancelled as exc:       # superseded, stopped, shutting down
+            error = str(exc)
+        except Exception as exc:  # noqa: BLE001 -- a bug in the job, already reported
+            error = f"home failed: internal error {type(exc).__name__}: {exc}"
+        response.success = error is None
+        response.message = error or f"homed; state {self._state}"
         return response
 
     def _on_stop(self, _request, response):
-        with self._cv:
-            if self._pending is not None:
-                self._pending.error = "cancelled by stop"
-                self._pending.done.set()
-            self._pending = None
-            self._interrupting += 1
+        hold = self._worker.hold()
+        self._worker.cancel_pending("cancelled by stop")
         client = self._client
         try:
             if client is None:
@@ -271,28 +255,27 @@ class MotorNode(Node):
             response.success, response.message = False, str(exc)
             return response
         finally:
-            self._interrupted()
+            hold.release()
         response.success = True
         response.message = (f"stopped at theta={status.theta_rad:.4f} rad, "
                             f"phi={status.phi_rad:.4f} rad (state {status.state})")
         self.get_logger().info(response.message)
         return response
 
-    def _submit(self, job: _Job) -> bool:
-        """Queue ``job`` (replacing a waiting one); True if a running move should be stopped."""
-        with self._cv:
-            if self._pending is not None:
-                self._pending.error = "superseded by a later request"
-                self._pending.done.set()
-            self._pending = job
-            self._cv.notify_all()
-            preempt = self._running is not None and self._running.kind == "move"
-            self._interrupting += preempt
-            return preempt
+    def _submit(self, kind: str, job) -> Future:
+        """Queue ``job`` (a move or homing, answering its error or None) in place of a waiting
+        one, stopping a running move first; its future."""
+        hold = self._worker.hold()         # nothing starts until the preemption is decided
+        self._worker.cancel_pending("superseded by a later request")
+        future = self._worker.submit(job, name=kind)
+        if self._worker.current == "move":
+            self._interrupt(hold)
+        else:
+            hold.release()
+        return future
 
-    def _interrupt(self) -> None:
-        """Stop the axes; the worker starts no job until this has finished (callers count
-        themselves in ``_interrupting`` first, under the condition's lock)."""
+    def _interrupt(self, hold: Hold) -> None:
+        """Stop the axes, then release ``hold`` (the worker starts no job until then)."""
         client = self._client
         try:
             if client is not None:
@@ -302,54 +285,37 @@ class MotorNode(Node):
         except MotorError as exc:          # alarm, timeout: the running job reports it
             self.get_logger().warning(f"could not stop the running move: {exc}")
         finally:
-            self._interrupted()
+            hold.release()
 
-    def _interrupted(self) -> None:
-        with self._cv:
-            self._interrupting -= 1
-            self._cv.notify_all()
+    # -- worker jobs: the error text, or None when done -------------------------------------
 
-    # -- worker ----------------------------------------------------------------------------
+    def _move(self, theta: float, phi: float) -> str | None:
+        def move(client: GrblClient) -> None:
+            self.get_logger().info(f"moving to theta={theta:.4f} rad, phi={phi:.4f} rad")
+            client.move_to(theta, phi, timeout_s=self._param("move_timeout_s"))
+        return self._drive("move", move)
 
-    def _work(self) -> None:
-        while True:
-            with self._cv:
-                while (self._pending is None or self._interrupting) and not self._closing:
-                    self._cv.wait()
-                if self._closing:
-                    if self._pending is not None:
-                        self._pending.error = "node shutting down"
-                        self._pending.done.set()
-                    return
-                job, self._pending = self._pending, None
-                self._running = job
+    def _home(self) -> str | None:
+        def home(client: GrblClient) -> None:
+            self.get_logger().info("homing")
             try:
-                job.error = self._run(job)
-            finally:
-                with self._cv:
-                    self._running = None
-                job.done.set()
+                client.status()
+            except MotorAlarm as exc:
+                if exc.critical:
+                    self.get_logger().info("soft reset to clear the alarm before homing")
+                    client.reset()
+            client.home(timeout_s=self._param("home_timeout_s"))
+        return self._drive("home", home)
 
-    def _run(self, job: _Job) -> str | None:
+    def _drive(self, kind: str, motion) -> str | None:
+        """Run ``motion(client)``; the error text (reported as a fault), or None."""
         client = self._client
         if client is None:
-            error = f"{job.kind} refused: not connected ({self._connection_error})"
+            error = f"{kind} refused: not connected ({self._connection_error})"
             self._report_fault(error)
             return error
         try:
-            if job.kind == "move":
-                theta, phi = job.target
-                self.get_logger().info(f"moving to theta={theta:.4f} rad, phi={phi:.4f} rad")
-                client.move_to(theta, phi, timeout_s=self._param("move_timeout_s"))
-            else:
-                self.get_logger().info("homing")
-                try:
-                    client.status()
-                except MotorAlarm as exc:
-                    if exc.critical:
-                        self.get_logger().info("soft reset to clear the alarm before homing")
-                        client.reset()
-                client.home(timeout_s=self._param("home_timeout_s"))
+            motion(client)
         except MotionCancelled as exc:
             self.get_logger().info(str(exc))
             return str(exc)
@@ -358,19 +324,20 @@ class MotorNode(Node):
             return str(exc)
         except MotorTimeout as exc:
             self._report_fault(str(exc))
-            if job.kind == "move":         # the axes may still be moving
-                with self._cv:
-                    self._interrupting += 1
-                self._interrupt()
+            if kind == "move":             # the axes may still be moving
+                self._interrupt(self._worker.hold())
             return str(exc)
         except MotorError as exc:
             self._report_fault(str(exc))
             return str(exc)
         self._fault = ""
         self._alarm = ""
-        self.get_logger().info(f"{job.kind} done")
+        self.get_logger().info(f"{kind} done")
         self._publish_diagnostics()
         return None
+
+    def _job_failed(self, kind: str, exc: Exception) -> None:
+        self._report_fault(f"{kind} failed: internal error {type(exc).__name__}: {exc}")
 
     def _param(self, name: str):
         return self.get_parameter(name).value
@@ -394,13 +361,12 @@ class MotorNode(Node):
             level, message = DiagnosticStatus.ERROR, self._fault
         else:
             level, message = DiagnosticStatus.OK, f"state {self._state}"
-        running = self._running
         values = {
             "port": self._p["port"], "connected": client is not None, "state": self._state,
             "alarm": self._alarm, "last_fault": self._fault, "faults": self._faults,
             "refused_commands": self._refused,
             "noise_lines": client.noise_lines if client is not None else "",
-            "job": running.kind if running is not None else "",
+            "job": self._worker.current or "",
         }
         if self._position is not None:
             values.update(theta_rad=f"{self._position[0]:.6f}",
@@ -410,14 +376,10 @@ class MotorNode(Node):
             stamp=self.get_clock().now().to_msg(), hardware_id=self._p["port"]))
 
     def destroy_node(self) -> None:
-        with self._cv:
-            self._closing = True
-            self._cv.notify_all()
-            busy = self._running is not None
-            self._interrupting += busy
-        if busy:
-            self._interrupt()
-        self._worker.join(timeout=5.0)
+        self._worker.stop(cancel_reason="node shutting down")
+        if self._worker.current is not None:
+            self._interrupt(self._worker.hold())
+        self._worker.join(timeout_s=5.0)
         with self._client_lock:
             client, self._client = self._client, None
         if client is not None:

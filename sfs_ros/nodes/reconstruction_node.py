@@ -65,11 +65,10 @@ Parameters: see :data:`PARAMS` (all read-only: they define the scan);
 from __future__ import annotations
 
 import json
-import queue
 import threading
 import time
 import traceback
-from concurrent.futures import Future
+from functools import partial
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
@@ -99,9 +98,11 @@ from sfs_ros.ros.convert import (
     msg_to_image,
     points_to_cloud,
 )
-from sfs_ros.ros.pairing import StampPairer, format_stamp, stamp_key, view_key
+from sfs_ros.ros.paired_input import PairedInput, Stream
+from sfs_ros.ros.pairing import format_stamp, stamp_key, view_key
 from sfs_ros.ros.params import Param, ParameterError, declare
 from sfs_ros.ros.rig_params import RIG_PARAMS, rig_calibration
+from sfs_ros.ros.worker import Worker
 
 __all__ = ["ReconstructionNode", "PARAMS", "main"]
 
@@ -133,6 +134,18 @@ PARAMS: list[Param] = [
     Param("colour", True, "Colour the mesh from the captured images (capture/image) of the "
           "views it uses.", read_only=True),
 ]
+
+
+def _decode_mask(msg: Image) -> tuple[np.ndarray, str]:
+    """A mono8 mask (a copy) and its frame id; ValueError for another encoding or a bad
+    layout."""
+    if msg.encoding != "mono8":
+        raise ValueError(f"mask encoding is {msg.encoding!r}, expected 'mono8'")
+    return msg_to_image(msg).copy(), msg.header.frame_id
+
+
+def _internal_error(job: str, exc: Exception) -> str:
+    return f"internal error in {job}: {type(exc).__name__}: {exc}"
 
 
 def _bounds(values: dict) -> np.ndarray:
@@ -183,7 +196,6 @@ class ReconstructionNode(Node):
 
         inputs = MutuallyExclusiveCallbackGroup()     # pairer, timers
         services = MutuallyExclusiveCallbackGroup()   # one request at a time, waits on the worker
-        self._pairer = StampPairer(depth, on_evict=self._given_up)
         qos = capture_qos(depth)
         self._stored_pub = self.create_publisher(Header, "capture/stored", qos)
         self._hull_pub = self.create_publisher(PointCloud2, "hull", result_qos())
@@ -192,21 +204,23 @@ class ReconstructionNode(Node):
         self._marker_pub = self.create_publisher(Marker, "mesh", result_qos())
         self._shape_pub = self.create_publisher(Mesh, "mesh_shape", result_qos())
         self._diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
-        self.create_subscription(Image, "capture/mask", self._on_mask, qos,
-                                 callback_group=inputs)
+        self._input = PairedInput(
+            self, Stream(Image, "capture/mask", "mask", _decode_mask),
+            Stream(JointState, "capture/mask_joint_state", "joint state",
+                   angles_from_joint_state),
+            depth, qos, unit="view", on_pair=self._on_view, on_problem=self._dropped,
+            callback_group=inputs)
         if values["colour"]:
             self.create_subscription(Image, "capture/image", self._on_image, qos,
                                      callback_group=inputs)
-        self.create_subscription(JointState, "capture/mask_joint_state", self._on_joint_state,
-                                 qos, callback_group=inputs)
         self.create_service(Trigger, "reconstruct", self._on_reconstruct,
                             callback_group=services)
         self.create_service(Trigger, "reset", self._on_reset, callback_group=services)
         self.create_timer(1.0, self._publish_diagnostics, callback_group=inputs)
 
-        self._jobs: queue.Queue = queue.Queue()
-        self._worker = threading.Thread(target=self._work, name="reconstruction", daemon=True)
-        self._worker.start()
+        self._last_hull = -float("inf")   # worker thread: when the hull was last published
+        self._hull_dirty = False           # worker thread: carved since then
+        self._worker = Worker("reconstruction", on_error=self._job_failed)
         self.get_logger().info(
             f"reconstructing into {self._live.output_dir} (box {self._live.bounds_m.tolist()}, "
             f"resolution {values['resolution']}, {values['mesher']}, queue depth {depth})")
@@ -214,7 +228,7 @@ class ReconstructionNode(Node):
     def destroy_node(self) -> None:
         """Finish the queued work, stop the worker thread, then destroy the node."""
         if self._worker is not None:
-            self._jobs.put(None)
+            self._worker.stop()
             self._worker.join()
         super().destroy_node()
 
@@ -231,110 +245,66 @@ class ReconstructionNode(Node):
             self._count("malformed")
             self._report_problem(f"captured image not kept for colour: {exc}")
             return
-        self._jobs.put(("image", stamp, image.copy()))
+        self._submit("image", self._add_colour_image, stamp, image.copy())
 
-    def _on_mask(self, msg: Image) -> None:
-        try:
-            stamp = stamp_key(msg.header.stamp)
-        except ValueError as exc:
-            self._malformed("mask", None, exc)
-            return
-        try:
-            if msg.encoding != "mono8":
-                raise ValueError(f"mask encoding is {msg.encoding!r}, expected 'mono8'")
-            mask = msg_to_image(msg).copy()
-        except ValueError as exc:
-            self._malformed("mask", stamp, exc)
-            return
-        self._add(self._pairer.add_a, stamp, (mask, msg.header.frame_id))
+    def _on_view(self, stamp, mask_and_frame: tuple[np.ndarray, str],
+                 angles: tuple[float, float]) -> None:
+        (mask, frame_id), (theta, phi) = mask_and_frame, angles
+        self._count("views_received")
+        self._submit("view", self._add_view, stamp, frame_id, mask, theta, phi)
 
-    def _on_joint_state(self, msg: JointState) -> None:
-        try:
-            stamp = stamp_key(msg.header.stamp)
-        except ValueError as exc:
-            self._malformed("joint state", None, exc)
-            return
-        try:
-            angles = angles_from_joint_state(msg)
-        except ValueError as exc:
-            self._malformed("joint state", stamp, exc)
-            return
-        self._add(self._pairer.add_b, stamp, angles)
-
-    def _add(self, add, stamp, item) -> None:
-        pair = add(stamp, item)
-        if pair is not None:
-            (mask, frame_id), (theta, phi) = pair
-            self._count("views_received")
-            self._jobs.put(("view", stamp, frame_id, mask, theta, phi))
-
-    def _malformed(self, what: str, stamp, exc: Exception) -> None:
-        """Count and report a bad message; its view is given up (``stamp`` None: the stamp
-        itself is bad, so its partner, which has the same stamp, is refused too)."""
-        self._count("malformed")
-        if stamp is None:
-            self._report_problem(f"malformed {what} dropped: {exc}")
-            return
-        self._pairer.reject(stamp)
-        self._report_problem(f"malformed {what} at stamp {format_stamp(stamp)} dropped with its "
-                             f"view: {exc}")
-
-    def _given_up(self, stream: str, stamp, _item, reason: str) -> None:
-        self._count("unpaired_dropped")
-        what = "mask" if stream == "a" else "joint state"
-        why = ("no partner arrived before the buffer filled" if reason == "evicted"
-               else "its partner was malformed")
-        self._report_problem(f"{what} at stamp {format_stamp(stamp)} dropped: {why}")
+    def _dropped(self, kind: str, text: str) -> None:
+        """A message of a view was dropped: ``kind`` is its counter."""
+        self._count(kind)
+        self._report_problem(text)
 
     def _on_reconstruct(self, _request, response):
-        return self._request("reconstruct", response)
+        return self._request("reconstruct", self._reconstruct, response)
 
     def _on_reset(self, _request, response):
-        return self._request("reset", response)
+        return self._request("reset", self._reset, response)
 
-    def _request(self, kind: str, response):
-        done: Future = Future()
-        self._jobs.put((kind, done))
-        response.success, response.message = done.result()
+    def _request(self, name: str, job, response):
+        """Run ``job`` (which answers ``(success, message)``) in the worker and answer with it."""
+        try:
+            response.success, response.message = self._submit(name, job).result()
+        except Exception as exc:  # noqa: BLE001 -- the worker reported it; the caller gets it
+            response.success, response.message = False, _internal_error(name, exc)
         return response
+
+    def _submit(self, name: str, job, *args):
+        """Queue ``job(*args)`` for the worker, followed by the hull's publication when it is
+        due; its future."""
+        return self._worker.submit(partial(self._then_hull, job, *args), name=name)
 
     # -- worker thread -----------------------------------------------------------------------
 
-    def _work(self) -> None:
-        last_hull = -float("inf")
-        dirty = False
-        while True:
-            job = self._jobs.get()
-            if job is None:
-                return
-            try:
-                dirty |= self._do(job)
-                now = time.monotonic()
-                if dirty and (self._jobs.empty() or now - last_hull >= self._hull_period):
-                    self._publish_hull()
-                    last_hull, dirty = now, False
-            except Exception as exc:  # noqa: BLE001 -- keep serving; the caller gets the reason
-                text = f"internal error in {job[0]}: {type(exc).__name__}: {exc}"
-                self.get_logger().error(f"{text}\n{traceback.format_exc()}")
-                if job[0] in ("reconstruct", "reset") and not job[1].done():
-                    job[1].set_result((False, text))
-                self._report_problem(text)
+    def _then_hull(self, job, *args):
+        """Run ``job``; then publish the hull if a job changed it and no job waits or the
+        period is over. ``job``'s answer."""
+        answer = job(*args)
+        now = time.monotonic()
+        if self._hull_dirty and (self._worker.pending() == 0
+                                 or now - self._last_hull >= self._hull_period):
+            self._publish_hull()
+            self._last_hull, self._hull_dirty = now, False
+        return answer
 
-    def _do(self, job) -> bool:
-        """Run one job; whether the hull changed."""
-        kind = job[0]
-        if kind == "view":
-            return self._add_view(*job[1:])
-        if kind == "reconstruct":
-            job[1].set_result(self._reconstruct())
-            return False
-        if kind == "image":
-            try:
-                self._live.add_colour_image(view_key(job[1]), job[2])
-            except ValueError as exc:
-                self._report_problem(f"captured image at stamp {format_stamp(job[1])} not kept for "
-                                     f"colour: {exc}")
-            return False
+    def _job_failed(self, name: str, exc: Exception) -> None:
+        text = _internal_error(name, exc)
+        self.get_logger().error(f"{text}\n{''.join(traceback.format_exception(exc))}")
+        self._report_problem(text)
+
+    def _add_colour_image(self, stamp, image) -> None:
+        """Keep a captured image to colour the mesh."""
+        try:
+            self._live.add_colour_image(view_key(stamp), image)
+        except ValueError as exc:
+            self._report_problem(f"captured image at stamp {format_stamp(stamp)} not kept for "
+                                 f"colour: {exc}")
+
+    def _reset(self) -> tuple[bool, str]:
+        """Start a new scan; publishes an empty hull."""
         self._live.reset()
         self._cameras = []
         self._publish_poses()
@@ -343,12 +313,11 @@ class ReconstructionNode(Node):
             self._carve_s = 0.0
             self._problem = self._warning = ""
         self.get_logger().info("reset: the next view starts a new scan")
-        job[1].set_result((True, "new scan: no views yet"))
-        return True
+        self._hull_dirty = True
+        return True, "new scan: no views yet"
 
-    def _add_view(self, stamp, frame_id: str, mask, theta: float, phi: float) -> bool:
-        """Give one view to the live reconstruction and send its receipt; whether the hull
-        changed."""
+    def _add_view(self, stamp, frame_id: str, mask, theta: float, phi: float) -> None:
+        """Give one view to the live reconstruction and send its receipt."""
         receipt = header(stamp=stamp, frame_id=frame_id)
         start = time.perf_counter()
         try:
@@ -358,12 +327,13 @@ class ReconstructionNode(Node):
             self.get_logger().info(f"view at stamp {format_stamp(stamp)} came again: already "
                                    "stored, receipt sent again")
             self._stored_pub.publish(receipt)
-            return False
+            return
         except ValueError as exc:
             self._count("rejected")
             self._stored_pub.publish(receipt)      # resending cannot make it usable
             self._report_problem(f"view at stamp {format_stamp(stamp)} rejected: {exc}")
-            return False
+            return
+        self._hull_dirty |= added.carved
         self._stored_pub.publish(receipt)
         self._cameras.append(rig_camera(theta, phi, self._live.calibration))
         self._publish_poses()
@@ -377,7 +347,6 @@ class ReconstructionNode(Node):
         if self._warning:
             self.get_logger().warning(self._warning)
         self._publish_diagnostics()
-        return added.carved
 
     def _reconstruct(self) -> tuple[bool, str]:
         try:
@@ -429,8 +398,8 @@ class ReconstructionNode(Node):
             values = dict(self._counts, carve_s=round(self._carve_s, 4))
             problem, warning = self._problem, self._warning
         level, message = health(problem, warning, f"{values['scan_views']} views in this scan")
-        values.update(waiting_masks=self._pairer.pending("a"),
-                      waiting_joint_states=self._pairer.pending("b"))
+        values.update(waiting_masks=self._input.pending("first"),
+                      waiting_joint_states=self._input.pending("second"))
         self._diag_pub.publish(diagnostic_array(
             f"{self.get_name()}: reconstruction", level, message, values,
             stamp=self.get_clock().now().to_msg()))

@@ -65,7 +65,6 @@ since start-up). Parameters: :data:`PARAMS`; ``output_dir`` is required.
 from __future__ import annotations
 
 import json
-import queue
 import threading
 import time
 import traceback
@@ -95,6 +94,7 @@ from sfs_ros.ros.params import Param, ParameterError, declare, validating_callba
 from sfs_ros.ros.rig_params import rig_calibration
 from sfs_ros.ros.segmentation_params import segmentation_params
 from sfs_ros.ros.services import ServiceError
+from sfs_ros.ros.worker import Worker
 
 __all__ = ["RecorderNode", "PARAMS", "main"]
 
@@ -167,7 +167,6 @@ class RecorderNode(Node):
         self._last_ns = 0
         self._scan_seen = None
         self._bag_scan: int | None = None     # the scan the open bag holds, if known
-        self._jobs: queue.Queue = queue.Queue()
         self._bag: BagWriter | None = None           # worker thread only
         self._fetched: Future | None = None
         self._started = 0.0
@@ -198,8 +197,7 @@ class RecorderNode(Node):
         self.create_service(Trigger, "record/start", self._on_start, callback_group=services)
         self.create_service(Trigger, "record/stop", self._on_stop, callback_group=services)
         self.create_timer(1.0, self._publish_diagnostics, callback_group=inputs)
-        self._worker = threading.Thread(target=self._work, name="recorder", daemon=True)
-        self._worker.start()
+        self._worker = Worker("recorder", on_error=self._job_failed)
         self.get_logger().info(
             f"recording into {Path(p['output_dir']) / 'bags'} ({p['storage']}"
             f"{', a bag per scan' if p['with_scan'] else ''}): call record/start")
@@ -214,7 +212,8 @@ class RecorderNode(Node):
     def destroy_node(self) -> None:
         """Write what is queued, close the bag, stop the worker, then destroy the node."""
         if self._worker is not None:
-            self._jobs.put(None)
+            self._worker.submit(self._close, name="close")
+            self._worker.stop()
             self._worker.join()
         super().destroy_node()
 
@@ -226,7 +225,7 @@ class RecorderNode(Node):
         self._last_ns = now
         if self._p["with_scan"] and topic == self._diagnostics_topic:
             self._watch_scan(data)
-        self._jobs.put(("message", topic, now, data))
+        self._submit("message", self._record, topic, now, data)
 
     def _watch_scan(self, data: bytes) -> None:
         """Queue a new bag when the scan node reports a new scan starting."""
@@ -236,56 +235,55 @@ class RecorderNode(Node):
         if report is not None and report[0] != self._scan_seen \
                 and report[1] in ("starting", "running"):
             self._scan_seen = report[0]
-            self._jobs.put(("start", None, report[0]))
+            self._submit("scan", self._scan_started, report[0])
 
     def _on_start(self, _request, response):
-        return self._request(("start", Future(), None), response)
+        return self._request(self._submit("start", self._open, None, rolling=False), response)
 
     def _on_stop(self, _request, response):
-        return self._request(("stop", Future()), response)
+        return self._request(self._submit("stop", self._stop), response)
 
-    def _request(self, job, response):
-        self._jobs.put(job)
-        response.success, response.message = job[1].result()
+    @staticmethod
+    def _request(answer: Future, response):
+        """Answer a service with the ``(success, message)`` of a worker job."""
+        try:
+            response.success, response.message = answer.result()
+        except Exception as exc:  # noqa: BLE001 -- the worker reported it and closed the bag
+            response.success, response.message = False, f"{type(exc).__name__}: {exc}"
         return response
+
+    def _submit(self, name: str, job, *args, **kwargs) -> Future:
+        """Queue ``job(*args, **kwargs)`` for the worker; its future."""
+        return self._worker.submit(partial(job, *args, **kwargs), name=name)
 
     # -- worker thread -----------------------------------------------------------------------
 
-    def _work(self) -> None:
-        while True:
-            try:
-                job = self._jobs.get(timeout=0.2)
-            except queue.Empty:
-                job = ("idle",)
-            if job is None:
-                self._close()
-                return
-            try:
-                if job[0] == "message":
-                    if self._bag is None and self._p["with_scan"] and \
-                            self._topics[job[1]][1] == CAPTURE:
-                        self._open(None, rolling=True)    # a capture before its scan's report
-                    self._write(*job[1:])
-                elif job[0] == "start" and job[1] is None:   # a new scan reported
-                    if self._bag is not None and self._bag_scan is None:
-                        self._bag_scan = job[2]           # the bag its first capture opened
-                    elif self._bag is None or self._bag_scan != job[2]:
-                        self._open(job[2], rolling=True)
-                elif job[0] == "start":
-                    job[1].set_result(self._open(None, rolling=False))
-                elif job[0] == "stop":
-                    job[1].set_result(self._close() if self._bag is not None
-                                      else (False, "not recording: call record/start first"))
-                self._write_parameters()
-            except Exception as exc:  # noqa: BLE001 -- keep serving; the bag keeps what it has
-                if not isinstance(exc, OSError):
-                    self.get_logger().error(traceback.format_exc())
-                what = "write failed" if isinstance(exc, OSError) else \
-                    f"internal error {type(exc).__name__}"
-                self._report_problem(f"bag {self._status['path']}: {what}: {exc}; bag closed")
-                self._abandon()
-                if job[0] in ("start", "stop") and job[1] is not None and not job[1].done():
-                    job[1].set_result((False, f"{type(exc).__name__}: {exc}"))
+    def _job_failed(self, _name: str, exc: Exception) -> None:
+        """A job failed (disk full, a bug): report it and close the bag; keep serving."""
+        if not isinstance(exc, OSError):
+            self.get_logger().error("".join(traceback.format_exception(exc)))
+        what = "write failed" if isinstance(exc, OSError) else \
+            f"internal error {type(exc).__name__}"
+        self._report_problem(f"bag {self._status['path']}: {what}: {exc}; bag closed")
+        self._abandon()
+
+    def _record(self, topic: str, log_ns: int, data: bytes) -> None:
+        """Write a received message (with ``with_scan``, a capture opens a bag if none is)."""
+        if self._bag is None and self._p["with_scan"] and self._topics[topic][1] == CAPTURE:
+            self._open(None, rolling=True)    # a capture before its scan's report
+        self._write(topic, log_ns, data)
+
+    def _scan_started(self, scan: int) -> None:
+        """The scan node reported scan ``scan``: the bag its first capture opened is that
+        scan's, else a new bag opens."""
+        if self._bag is not None and self._bag_scan is None:
+            self._bag_scan = scan
+        elif self._bag is None or self._bag_scan != scan:
+            self._open(scan, rolling=True)
+
+    def _stop(self) -> tuple[bool, str]:
+        return self._close() if self._bag is not None \
+            else (False, "not recording: call record/start first")
 
     def _open(self, scan: int | None, *, rolling: bool) -> tuple[bool, str]:
         """Open a bag (closing the one open when ``rolling``): ``scan_NNN_<time>`` for scan
@@ -415,6 +413,7 @@ class RecorderNode(Node):
             self._report_warning("parameters not stored: " + "; ".join(
                 f"{n}: {why}" for n, why in unavailable.items()))
         result.set_result(document)
+        self._worker.submit(self._write_parameters, name="parameters")
 
     def _parameters_of(self, client: AsyncParameterClient, deadline: float) -> dict:
         name = client.remote_node_name

@@ -28,6 +28,9 @@ frame) and ``capture/joint_state`` (that reading) share the frame's stamp.
 ``scan/start`` first resets the reconstruction and homes the axes (each can
 be switched off).
 
+The sequencing is :class:`sfs_ros.cell.scan_sequence.ScanSequence` (tested
+without processes); this node connects its ports to topics and services.
+
 Faults: a move that does not settle (timeout, stall, no encoder readings) is
 commanded again up to ``move_retries`` times, a missing frame retaken up to
 ``capture_retries`` times; each retry is a WARN. When the retries are used
@@ -55,11 +58,7 @@ from __future__ import annotations
 
 import json
 import math
-import queue
 import threading
-import time
-import traceback
-from collections import OrderedDict
 
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
@@ -68,20 +67,19 @@ from sensor_msgs.msg import Image, JointState
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
-from sfs_ros.cell.capture_ledger import CaptureLedger, EncoderHistory
+from sfs_ros.cell.capture_ledger import EncoderReading
 from sfs_ros.cell.scan_plan import ScanPlan, load_plan
-from sfs_ros.cell.settle import SettleDetector
+from sfs_ros.cell.scan_sequence import MonotonicClock, ScanSequence, ScanSettings, StepFailed
 from sfs_ros.nodes.entry import run_node
 from sfs_ros.ros import capture_qos
 from sfs_ros.ros.convert import angles_from_joint_state, diagnostic_array, health, joint_state
-from sfs_ros.ros.pairing import format_stamp, stamp_key
+from sfs_ros.ros.pairing import stamp_key
 from sfs_ros.ros.params import Param, ParameterError, declare
 from sfs_ros.ros.services import ServiceError, call
 
 __all__ = ["ScanNode", "PARAMS", "main"]
 
 NODE_NAME = "scan"
-_FRAMES_KEPT = 16            # camera frames kept by stamp while waiting for the shutter's one
 #: A shutter call unanswered this long is sent again (a response lost in the middleware;
 #: a second frame is harmless: the first answer's frame is the one used).
 _RESEND_AFTER_S = 2.0
@@ -141,12 +139,78 @@ def scan_plan(values: dict) -> ScanPlan:
         raise ParameterError("rings_phi_deg", str(exc)) from None
 
 
-class _Cancelled(Exception):
-    """scan/cancel was called."""
+def scan_settings(values: dict) -> ScanSettings:
+    """The sequence's settings from the node's parameter values."""
+    steps = [("reset", values["reset_reconstruction"], values["service_timeout_s"]),
+             ("home", values["home_before_scan"], values["home_timeout_s"])]
+    return ScanSettings(
+        settle_tolerance_rad=math.radians(values["settle_tolerance_deg"]),
+        settle_samples=values["settle_samples"], move_timeout_s=values["move_timeout_s"],
+        stall_s=values["stall_s"], move_retries=values["move_retries"],
+        capture_timeout_s=values["capture_timeout_s"],
+        capture_retries=values["capture_retries"],
+        encoder_max_gap_s=values["encoder_max_gap_s"],
+        receipt_timeout_s=values["receipt_timeout_s"], max_sends=values["max_sends"],
+        prepare=tuple((name, timeout_s) for name, wanted, timeout_s in steps if wanted))
 
 
-class _Fault(Exception):
-    """The scan cannot go on (retries used up); the text says why."""
+class _RosPorts(MonotonicClock):
+    """The sequence's ports on the node's topics and services (called from its threads)."""
+
+    def __init__(self, node: "ScanNode"):
+        self._node = node
+
+    def command_move(self, theta_rad: float, phi_rad: float) -> None:
+        node = self._node
+        node.command_pub.publish(joint_state(theta_rad, phi_rad,
+                                             stamp=node.get_clock().now().to_msg()))
+
+    def stop_axes(self) -> None:
+        self._node.peers["stop"].call_async(Trigger.Request())   # nobody waits for it
+
+    def prepare(self, step: str, *, timeout_s: float, cancelled: threading.Event) -> None:
+        try:
+            answer = call(self._node.peers[step], Trigger.Request(), timeout_s=timeout_s,
+                          cancelled=cancelled)
+        except ServiceError as exc:
+            raise StepFailed(str(exc)) from None
+        if not answer.success:
+            raise StepFailed(f"{step} failed: {answer.message}")
+
+    def shutter(self, *, timeout_s: float, cancelled: threading.Event):
+        try:
+            answer = call(self._node.peers["capture"], Trigger.Request(), timeout_s=timeout_s,
+                          cancelled=cancelled, resend_after_s=_RESEND_AFTER_S)
+        except ServiceError as exc:
+            raise StepFailed(str(exc)) from None
+        if not answer.success:
+            raise StepFailed(f"the camera took no frame: {answer.message}")
+        try:
+            return stamp_key(tuple(json.loads(answer.message)["stamp"]))
+        except (ValueError, KeyError, TypeError):
+            raise StepFailed(f"the camera's answer {answer.message!r} has no stamp; expected "
+                             "JSON with \"stamp\": [sec, nanosec]") from None
+
+    def make_capture(self, frame: Image, stamp, reading: EncoderReading):
+        return frame, joint_state(reading.theta_rad, reading.phi_rad, stamp=stamp)
+
+    def send(self, capture) -> None:
+        frame, joints = capture
+        self._node.image_pub.publish(frame)
+        self._node.joints_pub.publish(joints)
+
+    def log(self, level: str, text: str) -> None:
+        logger = self._node.get_logger()
+        # One call site per severity: rclpy refuses a site whose severity changes.
+        if level == "error":
+            logger.error(text)
+        elif level == "warning":
+            logger.warning(text)
+        else:
+            logger.info(text)
+
+    def changed(self) -> None:
+        self._node.publish_diagnostics()
 
 
 class ScanNode(Node):
@@ -168,26 +232,16 @@ class ScanNode(Node):
             super().destroy_node()
             raise ParameterError("queue_depth", f"got {self._p['queue_depth']}, expected at "
                                  f"least the {len(self.plan)} views of the plan")
-        self._lock = threading.Lock()        # ledger, counters, state
-        self._cancel = threading.Event()
-        self._frame_arrived = threading.Condition(self._lock)
-        self._readings: queue.Queue = queue.Queue()
-        self._history = EncoderHistory()
-        self._frames: OrderedDict = OrderedDict()
-        self._ledger = self._new_ledger()
-        self._state, self._view, self._scan = "idle", 0, 0
-        self._problem = self._warning = ""
-        self._counts = self._new_counts()
+        self._sequence = ScanSequence(self.plan.views, _RosPorts(self), scan_settings(self._p))
         self._receivers: set[bytes] = set()   # every publisher of receipts seen (by GID)
-        self._prepared = False
 
         inputs = MutuallyExclusiveCallbackGroup()
         services = MutuallyExclusiveCallbackGroup()
         clients = ReentrantCallbackGroup()
         qos = capture_qos(self._p["queue_depth"])
-        self._command_pub = self.create_publisher(JointState, "joint_command", 10)
-        self._image_pub = self.create_publisher(Image, "capture/image", qos)
-        self._joints_pub = self.create_publisher(JointState, "capture/joint_state", qos)
+        self.command_pub = self.create_publisher(JointState, "joint_command", 10)
+        self.image_pub = self.create_publisher(Image, "capture/image", qos)
+        self.joints_pub = self.create_publisher(JointState, "capture/joint_state", qos)
         self._diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
         self.create_subscription(JointState, "joint_states", self._on_joint_state, 10,
                                  callback_group=inputs)
@@ -195,8 +249,8 @@ class ScanNode(Node):
                                  callback_group=inputs)
         self._receipt_sub = self.create_subscription(Header, "capture/stored", self._on_receipt,
                                                      qos, callback_group=inputs)
-        self._peers = {name: self.create_client(Trigger, name, callback_group=clients)
-                         for name in ("home", "stop", "capture", "reset")}
+        self.peers = {name: self.create_client(Trigger, name, callback_group=clients)
+                      for name in ("home", "stop", "capture", "reset")}
         for name, handler in (("start", self._on_start), ("cancel", self._on_cancel),
                               ("resume", self._on_resume)):
             self.create_service(Trigger, f"scan/{name}", handler, callback_group=services)
@@ -206,17 +260,9 @@ class ScanNode(Node):
                                f"turntable and {carriage:.0f} deg of carriage travel); "
                                "call scan/start")
 
-    @staticmethod
-    def _new_counts() -> dict:
-        return {"resends": 0, "move_retries": 0, "capture_retries": 0, "malformed": 0,
-                "motion_s": 0.0, "shutter_s": 0.0}
-
-    def _new_ledger(self) -> CaptureLedger:
-        return CaptureLedger(self._p["receipt_timeout_s"], self._p["max_sends"])
-
     def destroy_node(self) -> None:
-        self._cancel.set()
         if self._worker is not None:
+            self._sequence.cancel(stop_axes=False)
             self._worker.join(timeout=10.0)
         super().destroy_node()
 
@@ -225,11 +271,9 @@ class ScanNode(Node):
     def _on_joint_state(self, msg: JointState) -> None:
         try:
             theta, phi = angles_from_joint_state(msg)
-            self._history.add(stamp_key(msg.header.stamp), theta, phi)
+            self._sequence.encoder_reading(stamp_key(msg.header.stamp), theta, phi)
         except ValueError as exc:
             self._malformed(f"joint state ignored: {exc}")
-            return
-        self._readings.put((theta, phi))
 
     def _on_frame(self, msg: Image) -> None:
         try:
@@ -237,11 +281,7 @@ class ScanNode(Node):
         except ValueError as exc:
             self._malformed(f"camera frame ignored: {exc}")
             return
-        with self._frame_arrived:
-            self._frames[stamp] = msg
-            while len(self._frames) > _FRAMES_KEPT:
-                self._frames.popitem(last=False)
-            self._frame_arrived.notify_all()
+        self._sequence.frame(stamp, msg)
 
     def _on_receipt(self, msg: Header) -> None:
         try:
@@ -249,266 +289,51 @@ class ScanNode(Node):
         except ValueError as exc:
             self._malformed(f"receipt ignored: {exc}")
             return
-        with self._lock:
-            self._ledger.receipt(stamp)
+        self._sequence.receipt(stamp)
 
     def _malformed(self, text: str) -> None:
-        with self._lock:
-            self._counts["malformed"] += 1
+        self._sequence.count_malformed()
         self.get_logger().error(text)
 
     def _tick(self) -> None:
-        """Resend what was not receipted; notice a new receiver (a restarted reconstruction
-        node: a publisher of receipts not seen before) and resend everything; diagnostics."""
-        receivers = {bytes(info.endpoint_gid) for info in
-                     self.get_publishers_info_by_topic(self._receipt_sub.topic_name)}
-        now = time.monotonic()
-        with self._lock:
-            came_back = bool(receivers - self._receivers) and self._ledger.captured > 0
-            self._receivers |= receivers
-            resend = self._ledger.restart_downstream(now) if came_back else []
-            more, lost = self._ledger.due(now)
-            resend += more
-            self._counts["resends"] += len(resend)
-        if came_back:
-            self.get_logger().warning(f"a new receiver of captures (the reconstruction "
-                                      f"restarted?): sending all {len(resend)} captures of "
-                                      "the scan again")
-        elif resend:
-            self.get_logger().warning(f"sending {len(resend)} unreceipted capture(s) again: "
-                                      f"views {[e.view + 1 for e in resend]}")
-        for entry in resend:
-            self._image_pub.publish(entry.payload[0])
-            self._joints_pub.publish(entry.payload[1])
-        for entry in lost:
-            self._set_problem(f"view {entry.view + 1}: capture at stamp "
-                              f"{format_stamp(entry.stamp)} was never receipted after "
-                              f"{entry.sends} sends (kept, not sent again)")
-        self._publish_diagnostics()
+        """Delivery (resends; a publisher of receipts not seen before is a restarted
+        reconstruction node: everything is sent again), then diagnostics."""
+        self._sequence.tick({bytes(info.endpoint_gid) for info in
+                             self.get_publishers_info_by_topic(self._receipt_sub.topic_name)})
+        self.publish_diagnostics()
 
     # -- services (executor) -----------------------------------------------------------------
 
-    def _running(self) -> bool:
-        return self._worker is not None and self._worker.is_alive()
-
     def _on_start(self, _request, response):
-        if self._running():
-            response.success = False
-            response.message = f"a scan is running (view {self._view + 1} of {len(self.plan)}); " \
-                               "call scan/cancel first"
-            return response
-        with self._lock:
-            self._ledger = self._new_ledger()
-            self._counts = self._new_counts()
-            self._problem = self._warning = ""
-        self._prepared = False
-        self._view = 0
-        self._scan += 1
-        self._launch()
-        response.success = True
-        response.message = f"scan {self._scan} started: {len(self.plan)} views"
+        response.success, response.message = self._sequence.start()
+        if response.success:
+            self._launch()
         return response
 
     def _on_resume(self, _request, response):
-        response.success = False
-        if self._running():
-            response.message = "the scan is running"
-        elif self._state == "idle":
-            response.message = "no scan to resume: call scan/start"
-        elif self._ledger.captured == len(self.plan):
-            response.message = f"all {len(self.plan)} views are captured: nothing to resume"
-        else:
-            with self._lock:
-                self._problem = self._warning = ""
+        response.success, response.message = self._sequence.resume()
+        if response.success:
             self._launch()
-            response.success = True
-            response.message = (f"resuming: {len(self.plan) - self._ledger.captured} of "
-                                f"{len(self.plan)} views to go")
         return response
 
     def _on_cancel(self, _request, response):
-        if not self._running():
-            response.success = False
-            response.message = f"no scan is running (state {self._state})"
-            return response
-        self._cancel.set()
-        self._peers["stop"].call_async(Trigger.Request())   # the worker does not wait for it
-        self._worker.join(timeout=self._p["service_timeout_s"])
-        response.success = True
-        response.message = (f"cancelled at view {self._view + 1} of {len(self.plan)}, "
-                            f"{self._ledger.captured} captured; scan/resume goes on")
+        response.success, response.message = self._sequence.cancel()
+        if response.success:
+            self._worker.join(timeout=self._p["service_timeout_s"])
         return response
 
     def _launch(self) -> None:
-        self._cancel.clear()
-        self._set_state("running" if self._prepared else "starting")
-        self._worker = threading.Thread(target=self._run, name="scan", daemon=True)
+        self._worker = threading.Thread(target=self._sequence.run, name="scan", daemon=True)
         self._worker.start()
 
-    # -- the scan (worker thread) ------------------------------------------------------------
+    # -- diagnostics (any thread) ------------------------------------------------------------
 
-    def _run(self) -> None:
-        try:
-            if not self._prepared:
-                self._prepare()
-                self._prepared = True
-            self._set_state("running")
-            for view in range(len(self.plan)):
-                if view in self._ledger.views():
-                    continue
-                self._view = view
-                self._warning = ""
-                self._publish_diagnostics()
-                self._move(view)
-                self._capture(view)
-            self._set_state("done")
-            self.get_logger().info(f"scan done: {len(self.plan)} views captured")
-        except _Cancelled:
-            self._set_state("cancelled")
-            self.get_logger().info(f"scan cancelled at view {self._view + 1}")
-        except _Fault as fault:
-            theta, phi = (math.degrees(v) for v in self.plan.views[self._view])
-            self._set_problem(f"scan paused at view {self._view + 1} of {len(self.plan)} "
-                              f"(theta {theta:.2f}, phi {phi:.2f} deg): {fault}; mend it and "
-                              "call scan/resume")
-            self._set_state("paused")
-        except Exception as exc:  # noqa: BLE001 -- a bug must not leave the scan "running"
-            self.get_logger().error(traceback.format_exc())
-            self._set_problem(f"scan paused at view {self._view + 1}: internal error "
-                              f"{type(exc).__name__}: {exc}; call scan/resume")
-            self._set_state("paused")
-
-    def _prepare(self) -> None:
-        """Reset the reconstruction and home the axes, as the parameters ask."""
-        steps = [("reset", self._p["reset_reconstruction"], self._p["service_timeout_s"]),
-                 ("home", self._p["home_before_scan"], self._p["home_timeout_s"])]
-        for name, wanted, timeout_s in steps:
-            if not wanted:
-                continue
-            try:
-                answer = call(self._peers[name], Trigger.Request(), timeout_s=timeout_s,
-                              cancelled=self._cancel)
-            except ServiceError as exc:
-                self._check_cancel()
-                raise _Fault(str(exc)) from None
-            if not answer.success:
-                raise _Fault(f"{name} failed: {answer.message}")
-
-    def _check_cancel(self) -> None:
-        if self._cancel.is_set():
-            raise _Cancelled()
-
-    def _retry(self, counter: str, attempt: int, retries: int, text: str) -> None:
-        if attempt < retries:
-            with self._lock:
-                self._counts[counter] += 1
-            self._warning = f"view {self._view + 1}: {text}; retrying"
-            self.get_logger().warning(self._warning)
-            self._publish_diagnostics()
-
-    def _move(self, view: int) -> None:
-        theta, phi = (float(v) for v in self.plan.views[view])
-        p = self._p
-        reason = ""
-        for attempt in range(p["move_retries"] + 1):
-            while not self._readings.empty():            # readings of before this command
-                self._readings.get_nowait()
-            detector = SettleDetector(math.radians(p["settle_tolerance_deg"]),
-                                      p["settle_samples"], p["move_timeout_s"],
-                                      stall_s=p["stall_s"])
-            detector.start(time.monotonic(), theta, phi)
-            self._command_pub.publish(joint_state(theta, phi,
-                                                  stamp=self.get_clock().now().to_msg()))
-            state = detector.poll(time.monotonic())
-            while not state.done:
-                self._check_cancel()
-                try:
-                    reading = self._readings.get(timeout=0.1)
-                except queue.Empty:
-                    state = detector.poll(time.monotonic())
-                else:
-                    state = detector.update(time.monotonic(), *reading)
-            with self._lock:
-                self._counts["motion_s"] += state.elapsed_s
-            if state.settled:
-                return
-            reason = f"move {state.reason}"
-            self._retry("move_retries", attempt, p["move_retries"], reason)
-        raise _Fault(f"{reason} (after {p['move_retries'] + 1} attempts)")
-
-    def _capture(self, view: int) -> None:
-        p = self._p
-        reason = ""
-        for attempt in range(p["capture_retries"] + 1):
-            self._check_cancel()
-            start = time.monotonic()
-            try:
-                frame, reading = self._shoot()
-            except ValueError as exc:
-                reason = str(exc)
-                self._retry("capture_retries", attempt, p["capture_retries"], reason)
-                continue
-            stamp = stamp_key(frame.header.stamp)
-            joints = joint_state(reading.theta_rad, reading.phi_rad, stamp=stamp)
-            with self._lock:
-                self._counts["shutter_s"] += time.monotonic() - start
-                self._ledger.add(view, stamp, (frame, joints), time.monotonic())
-            self._image_pub.publish(frame)
-            self._joints_pub.publish(joints)
-            return
-        raise _Fault(f"no frame: {reason} (after {p['capture_retries'] + 1} attempts)")
-
-    def _shoot(self):
-        """Release the shutter; ``(frame, encoder reading)``, or ValueError saying why not."""
-        timeout_s = self._p["capture_timeout_s"]
-        try:
-            answer = call(self._peers["capture"], Trigger.Request(), timeout_s=timeout_s,
-                          cancelled=self._cancel, resend_after_s=_RESEND_AFTER_S)
-        except ServiceError as exc:
-            self._check_cancel()
-            raise ValueError(str(exc)) from None
-        if not answer.success:
-            raise ValueError(f"the camera took no frame: {answer.message}")
-        try:
-            stamp = stamp_key(tuple(json.loads(answer.message)["stamp"]))
-        except (ValueError, KeyError, TypeError):
-            raise ValueError(f"the camera's answer {answer.message!r} has no stamp; expected "
-                             "JSON with \"stamp\": [sec, nanosec]") from None
-        with self._frame_arrived:
-            if not self._frame_arrived.wait_for(lambda: stamp in self._frames, timeout_s):
-                raise ValueError(f"frame at stamp {format_stamp(stamp)} announced by the camera "
-                                 f"but not received within {timeout_s:g} s")
-            frame = self._frames.pop(stamp)
-        gap_s = self._p["encoder_max_gap_s"]
-        deadline = time.monotonic() + gap_s
-        while not self._history.has_after(stamp) and time.monotonic() < deadline:
-            time.sleep(0.01)                   # the first reading after the shutter, if near
-        return frame, self._history.nearest(stamp, max_gap_s=gap_s)
-
-    # -- state and diagnostics (any thread) ---------------------------------------------------
-
-    def _set_state(self, state: str) -> None:
-        self._state = state
-        self._publish_diagnostics()
-
-    def _set_problem(self, text: str) -> None:
-        self._problem = text
-        self.get_logger().error(text)
-        self._publish_diagnostics()
-
-    def _publish_diagnostics(self) -> None:
-        with self._lock:
-            values = dict(self._counts, motion_s=round(self._counts["motion_s"], 4),
-                          shutter_s=round(self._counts["shutter_s"], 4), scan=self._scan,
-                          state=self._state, view=self._view + 1,
-                          total=len(self.plan), captured=self._ledger.captured,
-                          receipted=self._ledger.receipted,
-                          lost_in_transport=self._ledger.given_up)
-        level, message = health(self._problem, self._warning,
-                                f"{values['state']}: {values['captured']} of {values['total']} "
-                                f"views captured, {values['receipted']} receipted")
+    def publish_diagnostics(self) -> None:
+        status = self._sequence.status()
+        level, message = health(status.problem, status.warning, status.summary)
         self._diag_pub.publish(diagnostic_array(f"{self.get_name()}: scan", level, message,
-                                                values, stamp=self.get_clock().now().to_msg()))
+                                                status.values,
+                                                stamp=self.get_clock().now().to_msg()))
 
 
 def main(args=None) -> None:

@@ -54,7 +54,8 @@ from sfs_ros.ros.convert import (
     image_to_msg,
     msg_to_image,
 )
-from sfs_ros.ros.pairing import StampPairer, format_stamp, stamp_key
+from sfs_ros.ros.paired_input import PairedInput, Stream
+from sfs_ros.ros.pairing import format_stamp
 from sfs_ros.ros.params import Param, declare, read, validating_callback
 from sfs_ros.ros.segmentation_params import segmentation_param_list, segmentation_params
 
@@ -72,6 +73,20 @@ QUEUE_DEPTH = Param("queue_depth", 100, "Depth of the reliable capture topics an
 
 #: The node's parameters with the core defaults (``preset`` changes the defaults).
 PARAMS: list[Param] = [PRESET, QUEUE_DEPTH, *segmentation_param_list(SegmentationParams())]
+
+
+def _decode_image(msg: Image) -> tuple[Image, np.ndarray]:
+    """The message and its 8-bit pixels; ValueError for another depth or a bad layout."""
+    image = msg_to_image(msg)
+    if image.dtype != np.uint8:
+        raise ValueError(f"image encoding {msg.encoding!r} is not 8-bit")
+    return msg, image
+
+
+def _checked_joint_state(msg: JointState) -> JointState:
+    """The message itself, once it has both joints with finite positions (ValueError)."""
+    angles_from_joint_state(msg)
+    return msg
 
 
 class SegmentationNode(Node):
@@ -97,13 +112,14 @@ class SegmentationNode(Node):
         self._segment_s = 0.0   # time spent segmenting, for the benchmark
         self._problem = ""  # the last malformed / dropped input, "" after a good capture
         self._warning = ""  # about the last mask (empty, touches border)
-        self._pairer = StampPairer(depth, on_evict=self._given_up)
         qos = capture_qos(depth)
         self._mask_pub = self.create_publisher(Image, "capture/mask", qos)
         self._joints_pub = self.create_publisher(JointState, "capture/mask_joint_state", qos)
         self._diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
-        self.create_subscription(Image, "capture/image", self._on_image, qos)
-        self.create_subscription(JointState, "capture/joint_state", self._on_joint_state, qos)
+        self._input = PairedInput(
+            self, Stream(Image, "capture/image", "image", _decode_image),
+            Stream(JointState, "capture/joint_state", "joint state", _checked_joint_state),
+            depth, qos, unit="capture", on_pair=self._process, on_problem=self._dropped)
         self.create_timer(1.0, self._publish_diagnostics)
         self.get_logger().info(f"segmenting with {self._seg} (preset {preset or 'none'}, "
                                f"queue depth {depth})")
@@ -114,57 +130,10 @@ class SegmentationNode(Node):
 
     # -- inputs ------------------------------------------------------------------------------
 
-    def _on_image(self, msg: Image) -> None:
-        try:
-            stamp = stamp_key(msg.header.stamp)
-        except ValueError as exc:
-            self._malformed("image", None, exc)
-            return
-        try:
-            image = msg_to_image(msg)
-            if image.dtype != np.uint8:
-                raise ValueError(f"image encoding {msg.encoding!r} is not 8-bit")
-        except ValueError as exc:
-            self._malformed("image", stamp, exc)
-            return
-        self._add(self._pairer.add_a, stamp, (msg, image))
-
-    def _on_joint_state(self, msg: JointState) -> None:
-        try:
-            stamp = stamp_key(msg.header.stamp)
-        except ValueError as exc:
-            self._malformed("joint state", None, exc)
-            return
-        try:
-            angles_from_joint_state(msg)
-        except ValueError as exc:
-            self._malformed("joint state", stamp, exc)
-            return
-        self._add(self._pairer.add_b, stamp, msg)
-
-    def _add(self, add, stamp, item) -> None:
-        pair = add(stamp, item)
-        if pair is not None:
-            (image_msg, image), joints = pair
-            self._process(image_msg, image, joints)
-
-    def _malformed(self, what: str, stamp, exc: Exception) -> None:
-        """Count and report a bad message; its capture is given up (``stamp`` None: the stamp
-        itself is bad, so its partner, which has the same stamp, is refused too)."""
-        self._counts["malformed"] += 1
-        if stamp is None:
-            self._report_problem(f"malformed {what} dropped: {exc}")
-            return
-        self._pairer.reject(stamp)
-        self._report_problem(f"malformed {what} at stamp {format_stamp(stamp)} dropped with its "
-                             f"capture: {exc}")
-
-    def _given_up(self, stream: str, stamp, _item, reason: str) -> None:
-        self._counts["unpaired_dropped"] += 1
-        what = "image" if stream == "a" else "joint state"
-        why = ("no partner arrived before the buffer filled" if reason == "evicted"
-               else "its partner was malformed")
-        self._report_problem(f"{what} at stamp {format_stamp(stamp)} dropped: {why}")
+    def _dropped(self, kind: str, text: str) -> None:
+        """A message of a capture was dropped: ``kind`` is its counter."""
+        self._counts[kind] += 1
+        self._report_problem(text)
 
     def _report_problem(self, text: str) -> None:
         self._problem = text
@@ -173,12 +142,13 @@ class SegmentationNode(Node):
 
     # -- output ------------------------------------------------------------------------------
 
-    def _process(self, image_msg: Image, image: np.ndarray, joints: JointState) -> None:
+    def _process(self, stamp, decoded: tuple[Image, np.ndarray], joints: JointState) -> None:
+        image_msg, image = decoded
         start = time.perf_counter()
         try:
             result = segment(image, self._seg)
         except ValueError as exc:  # e.g. an image smaller than the core accepts
-            self._malformed("image", stamp_key(image_msg.header.stamp), exc)
+            self._input.malformed(stamp, "image", exc)
             return
         self._segment_s += time.perf_counter() - start
         mask_msg = image_to_msg(result.mask, stamp=image_msg.header.stamp,
@@ -187,14 +157,14 @@ class SegmentationNode(Node):
         self._joints_pub.publish(joints)
         self._counts["masks"] += 1
         self._problem = ""
-        stamp = format_stamp(stamp_key(image_msg.header.stamp))
+        at = format_stamp(stamp)
         if result.empty:
             self._counts["empty"] += 1
-            self._warning = f"view at stamp {stamp}: empty silhouette (all-zero mask published)"
+            self._warning = f"view at stamp {at}: empty silhouette (all-zero mask published)"
             self.get_logger().warning(self._warning)
         elif result.touches_border:
             self._counts["touching_border"] += 1
-            self._warning = f"view at stamp {stamp}: silhouette touches the image border"
+            self._warning = f"view at stamp {at}: silhouette touches the image border"
             self.get_logger().warning(self._warning)
         else:
             self._warning = ""
@@ -203,9 +173,9 @@ class SegmentationNode(Node):
     def _publish_diagnostics(self) -> None:
         level, message = health(self._problem, self._warning, f"{self._counts['masks']} masks")
         values = dict(self._counts)
-        values.update(repeats=self._pairer.repeated, segment_s=round(self._segment_s, 4),
-                      waiting_images=self._pairer.pending("a"),
-                      waiting_joint_states=self._pairer.pending("b"))
+        values.update(repeats=self._input.pairer.repeated, segment_s=round(self._segment_s, 4),
+                      waiting_images=self._input.pending("first"),
+                      waiting_joint_states=self._input.pending("second"))
         self._diag_pub.publish(diagnostic_array(
             f"{self.get_name()}: segmentation", level, message, values,
             stamp=self.get_clock().now().to_msg()))

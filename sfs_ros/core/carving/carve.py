@@ -248,7 +248,8 @@ def carve(grid: VoxelGrid, cameras: Sequence[Camera], masks, *, max_misses: int 
             offsets, run_lo, run_hi, L = prepared.run_lists(by_row)
             H, W = masks[0].shape
             _k.carve_lines(coef, by_row, order, offsets, run_lo, run_hi, L, H, W, axis, keep,
-                           max_misses, _LINE_CHUNK, 0 if max_misses == 0 else 1, out,
+                           max_misses, _LINE_CHUNK,
+                           _k.LINES_INTERSECT if max_misses == 0 else _k.LINES_COUNT, out,
                            np.zeros((1, 1, 1), np.uint8))
         else:
             ortho, flat, moff, integ, ioff, heights, widths = prepared.block_tables()
@@ -308,7 +309,8 @@ class Carver:
                 offsets, run_lo, run_hi, L = _runs(mask[None], by_row)
                 H, W = mask.shape
                 _k.carve_lines(coef, by_row, np.zeros(1, np.int64), offsets, run_lo, run_hi, L,
-                               H, W, axis, keep, self.max_misses, _LINE_CHUNK, 2,
+                               H, W, axis, keep, self.max_misses, _LINE_CHUNK,
+                               _k.LINES_ADD_VIEW,
                                np.zeros((1, 1, 1), bool), self._misses)
             else:
                 ortho, flat, _, integ, _, heights, widths = _flat_views([camera], [mask])

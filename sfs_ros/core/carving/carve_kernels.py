@@ -27,6 +27,25 @@ import numpy as np
 from numba import njit, prange
 
 _NJIT = dict(cache=True, error_model="numpy")
+#: Helpers of the line path inlined into :func:`carve_lines` (numba IR inlining: no call,
+#: no reference counting of their array arguments).
+_INLINE = dict(_NJIT, inline="always")
+
+# Modes of :func:`carve_lines`.
+LINES_INTERSECT = 0   #: batch, no miss allowed: survivor intervals intersected view by view
+LINES_COUNT = 1       #: batch: misses counted per voxel (difference array)
+LINES_ADD_VIEW = 2    #: incremental: one view's misses added to saturating counters
+
+# Kinds of :func:`block_rect`.
+RECT_IN_FRONT = 0     #: the rectangle is valid
+RECT_BEHIND = 1       #: the whole box is behind the camera
+RECT_STRADDLES = 2    #: the box straddles the camera plane
+
+# Verdicts of a block against one view (:func:`rect_status`, :func:`count_status`).
+BLOCK_HIT = 0         #: every voxel of the block falls into the silhouette
+BLOCK_MISS = 1        #: no voxel does
+BLOCK_UNDECIDED = 2   #: some may: split the block, or test voxel by voxel
+BLOCK_COUNT = 3       #: count the rectangle's foreground pixels, then :func:`count_status`
 
 # ---------------------------------------------------------------------------
 # shared per-voxel arithmetic
@@ -77,9 +96,10 @@ def _corner(cv, r, i0, i1, j0, j1, k0, k1, want_max):
 def block_rect(cv, ortho, i0, i1, j0, j1, k0, k1):
     """Pixel rectangle holding every voxel of the box [i0..i1]x[j0..j1]x[k0..k1].
 
-    Returns ``(kind, c0, c1, r0, r1)``: kind 0 with the inclusive column and
-    row ranges (floats, may lie outside the image); kind 1: the whole box is
-    behind the camera; kind 2: the box straddles the camera plane.
+    Returns ``(kind, c0, c1, r0, r1)``: kind :data:`RECT_IN_FRONT` with the
+    inclusive column and row ranges (floats, may lie outside the image);
+    :data:`RECT_BEHIND`: the whole box is behind the camera;
+    :data:`RECT_STRADDLES`: the box straddles the camera plane.
     """
     if ortho:
         umin = _corner(cv, 0, i0, i1, j0, j1, k0, k1, False)
@@ -88,9 +108,9 @@ def block_rect(cv, ortho, i0, i1, j0, j1, k0, k1):
         vmax = _corner(cv, 1, i0, i1, j0, j1, k0, k1, True)
     else:
         if not _corner(cv, 2, i0, i1, j0, j1, k0, k1, True) > 0.0:
-            return 1, 0.0, 0.0, 0.0, 0.0
+            return RECT_BEHIND, 0.0, 0.0, 0.0, 0.0
         if not _corner(cv, 2, i0, i1, j0, j1, k0, k1, False) > 0.0:
-            return 2, 0.0, 0.0, 0.0, 0.0
+            return RECT_STRADDLES, 0.0, 0.0, 0.0, 0.0
         # The projection of a box in front of the camera is the convex hull of
         # its projected corners; widen a hair for the rounding of the division.
         umin = np.inf
@@ -112,25 +132,29 @@ def block_rect(cv, ortho, i0, i1, j0, j1, k0, k1):
         umax += 1e-7 * (1.0 + abs(umax))
         vmin -= 1e-7 * (1.0 + abs(vmin))
         vmax += 1e-7 * (1.0 + abs(vmax))
-    return (0, np.floor(umin + 0.5), np.floor(umax + 0.5), np.floor(vmin + 0.5),
+    return (RECT_IN_FRONT, np.floor(umin + 0.5), np.floor(umax + 0.5), np.floor(vmin + 0.5),
             np.floor(vmax + 0.5))
 
 
 @njit(**_NJIT)
 def rect_status(kind, c0, c1, r0, r1, W, H, keep):
-    """0: all voxels hit, 1: all miss, 2: undecided, 3: count the foreground
-    pixels of the rectangle clipped to the image and call :func:`count_status`."""
-    if kind == 1:
-        return 0 if keep else 1
-    if kind == 2:
-        return 2
+    """The verdict on a block from its :func:`block_rect`: :data:`BLOCK_HIT`,
+    :data:`BLOCK_MISS`, :data:`BLOCK_UNDECIDED`, or :data:`BLOCK_COUNT`: count the
+    foreground pixels of the rectangle clipped to the image and call
+    :func:`count_status`."""
+    if kind == RECT_BEHIND:
+        return BLOCK_HIT if keep else BLOCK_MISS
+    if kind == RECT_STRADDLES:
+        return BLOCK_UNDECIDED
     if not (c1 >= 0.0 and c0 < W and r1 >= 0.0 and r0 < H):
-        return 0 if keep else 1  # entirely outside the image (NaN: never here)
-    return 3
+        return BLOCK_HIT if keep else BLOCK_MISS  # entirely outside the image (NaN: never)
+    return BLOCK_COUNT
 
 
 @njit(**_NJIT)
 def count_status(count, c0, c1, r0, r1, W, H, keep):
+    """The verdict on a block whose rectangle holds ``count`` foreground pixels:
+    :data:`BLOCK_HIT`, :data:`BLOCK_MISS` or :data:`BLOCK_UNDECIDED`."""
     a0 = max(c0, 0.0)
     a1 = min(c1, W - 1.0)
     b0 = max(r0, 0.0)
@@ -139,15 +163,15 @@ def count_status(count, c0, c1, r0, r1, W, H, keep):
     inside = c0 >= 0.0 and c1 < W and r0 >= 0.0 and r1 < H
     if keep:
         if count == area:
-            return 0
+            return BLOCK_HIT
         if count == 0 and inside:
-            return 1
+            return BLOCK_MISS
     else:
         if count == 0:
-            return 1
+            return BLOCK_MISS
         if count == area and inside:
-            return 0
-    return 2
+            return BLOCK_HIT
+    return BLOCK_UNDECIDED
 
 
 @njit(**_NJIT)
@@ -230,14 +254,14 @@ def carve_blocks(coef, ortho, masks, moff, integ, ioff, heights, widths, order, 
                 kind, c0, c1, r0, r1 = block_rect(view_tuple(coef, v), ortho[v], i0, i1, j0,
                                                   j1, k0, k1)
                 st = rect_status(kind, c0, c1, r0, r1, W, H, keep)
-                if st == 3:
+                if st == BLOCK_COUNT:
                     st = count_status(_rect_count(integ, ioff[v], c0, c1, r0, r1, W, H),
                                       c0, c1, r0, r1, W, H, keep)
-                if st == 1:
+                if st == BLOCK_MISS:
                     misses += 1
                     if misses > max_misses:
                         break
-                elif st == 2:
+                elif st == BLOCK_UNDECIDED:
                     lists[lev, n_open] = v
                     n_open += 1
             if misses > max_misses:
@@ -320,17 +344,17 @@ def carve_blocks_one(coef, ortho, masks, integ, W, H, keep, cap, top, leaf, aliv
             k1 = min(k0 + size, nz) - 1
             kind, c0, c1, r0, r1 = block_rect(cv, is_ortho, i0, i1, j0, j1, k0, k1)
             st = rect_status(kind, c0, c1, r0, r1, W, H, keep)
-            if st == 3:
+            if st == BLOCK_COUNT:
                 st = count_status(_rect_count(integ, 0, c0, c1, r0, r1, W, H), c0, c1, r0,
                                   r1, W, H, keep)
-            if st == 0:
+            if st == BLOCK_HIT:
                 continue
-            if st == 1 or size <= leaf:
+            if st == BLOCK_MISS or size <= leaf:
                 for i in range(i0, i1 + 1):
                     for j in range(j0, j1 + 1):
                         for k in range(k0, k1 + 1):
                             if misses[i, j, k] < cap:
-                                if st == 2:
+                                if st == BLOCK_UNDECIDED:
                                     pix = voxel_pixel(cv, i, j, k, W, H)
                                     if (keep if pix < 0 else masks[pix] != 0):
                                         continue
@@ -450,18 +474,205 @@ def _first_at_most(A, s, inv_s, B1, B2, target, lo, hi):
     return t
 
 
+@njit(**_INLINE)
+def _allowed_rising(A, s, B1, B2, first, last, run_lo, run_hi, n_along, lo, hi, keep, al_lo,
+                    al_hi):
+    """Allowed intervals of a line whose pixel rises along it (s > 0): runs
+    ``first..last`` of its image line, ascending; how many."""
+    n_al = 0
+    inv = 1.0 / s
+    x_lo = _pix_at(A, s, B1, B2, lo)
+    x_hi = _pix_at(A, s, B1, B2, hi - 1)
+    if keep and x_lo < 0.0:
+        t1 = _first_at_least(A, s, inv, B1, B2, 0.0, lo, hi)
+        if lo < t1:
+            al_lo[n_al] = lo
+            al_hi[n_al] = t1
+            n_al += 1
+    for idx in range(first, last):
+        a = run_lo[idx]
+        b = run_hi[idx]
+        if b < x_lo:
+            continue
+        if a > x_hi:
+            break
+        t0 = lo if a <= x_lo else _first_at_least(A, s, inv, B1, B2, a, lo, hi)
+        t1 = hi if b >= x_hi else _first_at_least(A, s, inv, B1, B2, b + 1.0, lo, hi)
+        if t0 < t1:
+            al_lo[n_al] = t0
+            al_hi[n_al] = t1
+            n_al += 1
+    if keep and x_hi >= n_along:
+        t0 = _first_at_least(A, s, inv, B1, B2, n_along, lo, hi)
+        if t0 < hi:
+            al_lo[n_al] = t0
+            al_hi[n_al] = hi
+            n_al += 1
+    return n_al
+
+
+@njit(**_INLINE)
+def _allowed_falling(A, s, B1, B2, first, last, run_lo, run_hi, n_along, lo, hi, keep, al_lo,
+                     al_hi):
+    """Allowed intervals of a line whose pixel falls along it (s < 0): runs
+    ``first..last`` of its image line taken backwards; how many."""
+    n_al = 0
+    inv = 1.0 / s
+    x_hi = _pix_at(A, s, B1, B2, lo)
+    x_lo = _pix_at(A, s, B1, B2, hi - 1)
+    if keep and x_hi >= n_along:
+        t1 = _first_at_most(A, s, inv, B1, B2, n_along - 1.0, lo, hi)
+        if lo < t1:
+            al_lo[n_al] = lo
+            al_hi[n_al] = t1
+            n_al += 1
+    for idx in range(last - 1, first - 1, -1):
+        a = run_lo[idx]
+        b = run_hi[idx]
+        if a > x_hi:
+            continue
+        if b < x_lo:
+            break
+        t0 = lo if b >= x_hi else _first_at_most(A, s, inv, B1, B2, b, lo, hi)
+        t1 = hi if a <= x_lo else _first_at_most(A, s, inv, B1, B2, a - 1.0, lo, hi)
+        if t0 < t1:
+            al_lo[n_al] = t0
+            al_hi[n_al] = t1
+            n_al += 1
+    if keep and x_lo < 0.0:
+        t0 = _first_at_most(A, s, inv, B1, B2, -1.0, lo, hi)
+        if t0 < hi:
+            al_lo[n_al] = t0
+            al_hi[n_al] = hi
+            n_al += 1
+    return n_al
+
+
+@njit(**_INLINE)
+def _allowed(coef, v, by_row, offsets, run_lo, run_hi, L, H, W, axis, p, q, lo, hi, keep,
+             al_lo, al_hi):
+    """Intervals ``[al_lo, al_hi)`` of t in [lo, hi), ascending, where the voxels of line
+    (p, q) fall into the silhouette of view v (or outside its image, with ``keep``); how
+    many."""
+    if by_row[v]:
+        r_fix, r_along, n_fix, n_along = 1, 0, H, W
+    else:
+        r_fix, r_along, n_fix, n_along = 0, 1, W, H
+    A, s, B1, B2 = _terms(coef[v, r_fix, 0], coef[v, r_fix, 1], coef[v, r_fix, 2],
+                          coef[v, r_fix, 3], axis, p, q)
+    f = _pix_at(A, s, B1, B2, 0)
+    if not (f >= 0.0 and f < n_fix):
+        if keep:
+            al_lo[0] = lo
+            al_hi[0] = hi
+            return 1
+        return 0
+    first = offsets[v * L + int(f)]
+    last = offsets[v * L + int(f) + 1]
+    A, s, B1, B2 = _terms(coef[v, r_along, 0], coef[v, r_along, 1], coef[v, r_along, 2],
+                          coef[v, r_along, 3], axis, p, q)
+    if s > 0.0:
+        return _allowed_rising(A, s, B1, B2, first, last, run_lo, run_hi, n_along, lo, hi,
+                               keep, al_lo, al_hi)
+    if s < 0.0:
+        return _allowed_falling(A, s, B1, B2, first, last, run_lo, run_hi, n_along, lo, hi,
+                                keep, al_lo, al_hi)
+    x = _pix_at(A, s, B1, B2, lo)
+    hit = keep and not (x >= 0.0 and x < n_along)
+    for idx in range(first, last):
+        if run_lo[idx] <= x and x <= run_hi[idx]:
+            hit = True
+    if hit:
+        al_lo[0] = lo
+        al_hi[0] = hi
+        return 1
+    return 0
+
+
+@njit(**_INLINE)
+def _intersect(cur_lo, cur_hi, w, n_cur, al_lo, al_hi, n_al):
+    """Intersect the intervals in row ``w`` of ``cur_lo``/``cur_hi`` with the allowed
+    ones into row ``1 - w``; how many."""
+    a = 0
+    b = 0
+    n_new = 0
+    while a < n_cur and b < n_al:
+        s0 = max(cur_lo[w, a], al_lo[b])
+        e0 = min(cur_hi[w, a], al_hi[b])
+        if s0 < e0:
+            cur_lo[1 - w, n_new] = s0
+            cur_hi[1 - w, n_new] = e0
+            n_new += 1
+        if cur_hi[w, a] < al_hi[b]:
+            a += 1
+        else:
+            b += 1
+    return n_new
+
+
+@njit(**_INLINE)
+def _add_misses(misses, axis, p, q, start, end, cap):
+    """Count a miss for voxels t in [start, end) of line (p, q), saturating at ``cap``."""
+    for t in range(start, end):
+        if axis == 2:
+            if misses[p, q, t] < cap:
+                misses[p, q, t] += 1
+        elif axis == 1:
+            if misses[p, t, q] < cap:
+                misses[p, t, q] += 1
+        elif misses[t, p, q] < cap:
+            misses[t, p, q] += 1
+
+
+@njit(**_INLINE)
+def _survivors(count, nl, max_misses, cur_lo, cur_hi, w):
+    """Intervals (row ``w`` of ``cur_lo``/``cur_hi``) where the prefix sum of the
+    difference array ``count`` is at most ``max_misses``; how many. Clears ``count``."""
+    run = 0
+    n_cur = 0
+    start = -1
+    for t in range(nl + 1):
+        if t < nl:
+            run += count[t]
+            count[t] = 0
+        ok = t < nl and run <= max_misses
+        if ok and start < 0:
+            start = t
+        elif not ok and start >= 0:
+            cur_lo[w, n_cur] = start
+            cur_hi[w, n_cur] = t
+            n_cur += 1
+            start = -1
+    count[nl] = 0
+    return n_cur
+
+
+@njit(**_INLINE)
+def _fill_line(out, axis, p, q, start, end):
+    """Set voxels t in [start, end) of line (p, q)."""
+    if axis == 2:
+        out[p, q, start:end] = True
+    elif axis == 1:
+        out[p, start:end, q] = True
+    else:
+        out[start:end, p, q] = True
+
+
 @njit(parallel=True, **_NJIT)
 def carve_lines(coef, by_row, order, offsets, run_lo, run_hi, L, H, W, axis, keep, max_misses,
                 chunk, mode, out, misses):
     """Carve along the grid lines of ``axis``.
 
-    mode 0: batch, ``max_misses == 0``: intervals of survivors intersected view
-    by view, written to ``out`` (nx, ny, nz) bool, zero on entry;
-    mode 1: batch, misses counted per voxel (difference array), into ``out``;
-    mode 2: incremental, one view (``order == [0]``): ``misses`` (nx, ny, nz)
-    incremented, saturating at ``max_misses + 1``, where the view misses.
+    mode :data:`LINES_INTERSECT`: batch, ``max_misses == 0``: intervals of
+    survivors intersected view by view, written to ``out`` (nx, ny, nz) bool,
+    zero on entry;
+    mode :data:`LINES_COUNT`: batch, misses counted per voxel (difference
+    array), into ``out``;
+    mode :data:`LINES_ADD_VIEW`: incremental, one view (``order == [0]``):
+    ``misses`` (nx, ny, nz) incremented, saturating at ``max_misses + 1``,
+    where the view misses.
     """
-    shape = misses.shape if mode == 2 else out.shape
+    shape = misses.shape if mode == LINES_ADD_VIEW else out.shape
     nl = shape[axis]
     n0 = shape[0] if axis != 0 else shape[1]
     n1 = shape[2] if axis != 2 else shape[1]
@@ -483,164 +694,32 @@ def carve_lines(coef, by_row, order, offsets, run_lo, run_hi, L, H, W, axis, kee
             cur_hi[0, 0] = nl
             for tv in range(n_views):
                 v = order[tv]
-                lo = cur_lo[w, 0] if mode == 0 else 0
-                hi = cur_hi[w, n_cur - 1] if mode == 0 else nl
-                # -- allowed intervals [al_lo, al_hi) of t in [lo, hi), ascending
-                if by_row[v]:
-                    r_fix, r_along, n_fix, n_along = 1, 0, H, W
-                else:
-                    r_fix, r_along, n_fix, n_along = 0, 1, W, H
-                A, s, B1, B2 = _terms(coef[v, r_fix, 0], coef[v, r_fix, 1], coef[v, r_fix, 2],
-                                      coef[v, r_fix, 3], axis, p, q)
-                f = _pix_at(A, s, B1, B2, 0)
-                n_al = 0
-                if not (f >= 0.0 and f < n_fix):
-                    if keep:
-                        al_lo[0] = lo
-                        al_hi[0] = hi
-                        n_al = 1
-                else:
-                    first = offsets[v * L + int(f)]
-                    last = offsets[v * L + int(f) + 1]
-                    A, s, B1, B2 = _terms(coef[v, r_along, 0], coef[v, r_along, 1],
-                                          coef[v, r_along, 2], coef[v, r_along, 3], axis, p, q)
-                    if s == 0.0:
-                        x = _pix_at(A, s, B1, B2, lo)
-                        hit = keep and not (x >= 0.0 and x < n_along)
-                        for idx in range(first, last):
-                            if run_lo[idx] <= x and x <= run_hi[idx]:
-                                hit = True
-                        if hit:
-                            al_lo[0] = lo
-                            al_hi[0] = hi
-                            n_al = 1
-                    elif s > 0.0:
-                        inv = 1.0 / s
-                        x_lo = _pix_at(A, s, B1, B2, lo)
-                        x_hi = _pix_at(A, s, B1, B2, hi - 1)
-                        if keep and x_lo < 0.0:
-                            t1 = _first_at_least(A, s, inv, B1, B2, 0.0, lo, hi)
-                            if lo < t1:
-                                al_lo[n_al] = lo
-                                al_hi[n_al] = t1
-                                n_al += 1
-                        for idx in range(first, last):
-                            a = run_lo[idx]
-                            b = run_hi[idx]
-                            if b < x_lo:
-                                continue
-                            if a > x_hi:
-                                break
-                            t0 = lo if a <= x_lo else _first_at_least(A, s, inv, B1, B2, a,
-                                                                      lo, hi)
-                            t1 = hi if b >= x_hi else _first_at_least(A, s, inv, B1, B2,
-                                                                      b + 1.0, lo, hi)
-                            if t0 < t1:
-                                al_lo[n_al] = t0
-                                al_hi[n_al] = t1
-                                n_al += 1
-                        if keep and x_hi >= n_along:
-                            t0 = _first_at_least(A, s, inv, B1, B2, n_along, lo, hi)
-                            if t0 < hi:
-                                al_lo[n_al] = t0
-                                al_hi[n_al] = hi
-                                n_al += 1
-                    else:
-                        inv = 1.0 / s
-                        x_hi = _pix_at(A, s, B1, B2, lo)
-                        x_lo = _pix_at(A, s, B1, B2, hi - 1)
-                        if keep and x_hi >= n_along:
-                            t1 = _first_at_most(A, s, inv, B1, B2, n_along - 1.0, lo, hi)
-                            if lo < t1:
-                                al_lo[n_al] = lo
-                                al_hi[n_al] = t1
-                                n_al += 1
-                        for idx in range(last - 1, first - 1, -1):
-                            a = run_lo[idx]
-                            b = run_hi[idx]
-                            if a > x_hi:
-                                continue
-                            if b < x_lo:
-                                break
-                            t0 = lo if b >= x_hi else _first_at_most(A, s, inv, B1, B2, b,
-                                                                     lo, hi)
-                            t1 = hi if a <= x_lo else _first_at_most(A, s, inv, B1, B2,
-                                                                     a - 1.0, lo, hi)
-                            if t0 < t1:
-                                al_lo[n_al] = t0
-                                al_hi[n_al] = t1
-                                n_al += 1
-                        if keep and x_lo < 0.0:
-                            t0 = _first_at_most(A, s, inv, B1, B2, -1.0, lo, hi)
-                            if t0 < hi:
-                                al_lo[n_al] = t0
-                                al_hi[n_al] = hi
-                                n_al += 1
-                # -- use them
-                if mode == 0:
+                lo = cur_lo[w, 0] if mode == LINES_INTERSECT else 0
+                hi = cur_hi[w, n_cur - 1] if mode == LINES_INTERSECT else nl
+                n_al = _allowed(coef, v, by_row, offsets, run_lo, run_hi, L, H, W, axis, p, q,
+                                lo, hi, keep, al_lo, al_hi)
+                if mode == LINES_INTERSECT:
                     if n_al == 1 and al_lo[0] == lo and al_hi[0] == hi:
                         continue
-                    a = 0
-                    b = 0
-                    n_new = 0
-                    while a < n_cur and b < n_al:
-                        s0 = max(cur_lo[w, a], al_lo[b])
-                        e0 = min(cur_hi[w, a], al_hi[b])
-                        if s0 < e0:
-                            cur_lo[1 - w, n_new] = s0
-                            cur_hi[1 - w, n_new] = e0
-                            n_new += 1
-                        if cur_hi[w, a] < al_hi[b]:
-                            a += 1
-                        else:
-                            b += 1
+                    n_cur = _intersect(cur_lo, cur_hi, w, n_cur, al_lo, al_hi, n_al)
                     w = 1 - w
-                    n_cur = n_new
                     if n_cur == 0:
                         break
                 else:
+                    # the gaps between allowed intervals are misses
                     prev = 0
                     for a in range(n_al + 1):
                         end = al_lo[a] if a < n_al else nl
-                        if mode == 1:
+                        if mode == LINES_COUNT:
                             count[prev] += 1
                             count[end] -= 1
                         else:
-                            for t in range(prev, end):
-                                if axis == 2:
-                                    if misses[p, q, t] < cap:
-                                        misses[p, q, t] += 1
-                                elif axis == 1:
-                                    if misses[p, t, q] < cap:
-                                        misses[p, t, q] += 1
-                                elif misses[t, p, q] < cap:
-                                    misses[t, p, q] += 1
+                            _add_misses(misses, axis, p, q, prev, end, cap)
                         if a < n_al:
                             prev = al_hi[a]
-            if mode == 2:
+            if mode == LINES_ADD_VIEW:
                 continue
-            if mode == 1:
-                # survivors: prefix sum of the difference array <= max_misses
-                run = 0
-                n_cur = 0
-                start = -1
-                for t in range(nl + 1):
-                    if t < nl:
-                        run += count[t]
-                        count[t] = 0
-                    ok = t < nl and run <= max_misses
-                    if ok and start < 0:
-                        start = t
-                    elif not ok and start >= 0:
-                        cur_lo[w, n_cur] = start
-                        cur_hi[w, n_cur] = t
-                        n_cur += 1
-                        start = -1
-                count[nl] = 0
+            if mode == LINES_COUNT:
+                n_cur = _survivors(count, nl, max_misses, cur_lo, cur_hi, w)
             for a in range(n_cur):
-                if axis == 2:
-                    out[p, q, cur_lo[w, a]:cur_hi[w, a]] = True
-                elif axis == 1:
-                    out[p, cur_lo[w, a]:cur_hi[w, a], q] = True
-                else:
-                    out[cur_lo[w, a]:cur_hi[w, a], p, q] = True
+                _fill_line(out, axis, p, q, cur_lo[w, a], cur_hi[w, a])
