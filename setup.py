@@ -33,7 +33,7 @@ setup(
         "pillow>=10.2.0",
         "rosbags>=0.11.9",
     ],
-    extras_require={"test": ["pytest>=8"]},
+    extras_require={"test": ["pytest>=8", "ruff>=0.6"]},
     zip_safe=True,
     maintainer="sfs_ros maintainers",
     maintainer_email="maintainers@sfs-ros.invalid",

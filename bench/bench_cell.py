@@ -36,9 +36,9 @@ import yaml
 from sfs_ros.cell.scan_plan import ScanPlan
 from sfs_ros.cli.bringup import Cell, cell_nodes
 from sfs_ros.core.exchange.inputs import load_views
-from sfs_ros.core.simulation.objects import make_object
-from sfs_ros.core.pipeline import ReconstructionParams, reconstruct
 from sfs_ros.core.exchange.session import write_session
+from sfs_ros.core.pipeline import ReconstructionParams, reconstruct
+from sfs_ros.core.simulation.objects import make_object
 from sfs_ros.core.simulation.synthetic import simulate_scan
 from sfs_ros.ros.rig_params import RIG_PARAMS, rig_calibration
 

@@ -31,15 +31,15 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
-from sfs_ros.core.meshing.colour import vertex_colours
 from sfs_ros.core.exchange.inputs import load_views
-from sfs_ros.core.simulation.objects import make_object
-from sfs_ros.core.pipeline import ReconstructionParams, reconstruct
-from sfs_ros.core.simulation.plan import ring_plan
-from sfs_ros.core.render import render_image
-from sfs_ros.core.geometry.rig import RigCalibration
-from sfs_ros.core.segment import segment
 from sfs_ros.core.exchange.session import write_session
+from sfs_ros.core.geometry.rig import RigCalibration
+from sfs_ros.core.meshing.colour import vertex_colours
+from sfs_ros.core.pipeline import ReconstructionParams, reconstruct
+from sfs_ros.core.render import render_image
+from sfs_ros.core.segment import segment
+from sfs_ros.core.simulation.objects import make_object
+from sfs_ros.core.simulation.plan import ring_plan
 from sfs_ros.core.simulation.synthetic import carving_box, simulate_scan
 
 from .timing import best_of

@@ -13,7 +13,6 @@ hull, against making the cloud. Run: ``python -m bench.bench_marching``.
 
 from __future__ import annotations
 
-
 import numpy as np
 from skimage import measure
 

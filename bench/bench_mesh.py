@@ -13,9 +13,9 @@ import time
 import numpy as np
 from scipy.spatial import ConvexHull
 
+from sfs_ros.core.geometry.grid import VoxelGrid
 from sfs_ros.core.meshing.advancing_front import advancing_front
 from sfs_ros.core.meshing.cloud import cloud_of_points
-from sfs_ros.core.geometry.grid import VoxelGrid
 
 
 def _fibonacci_sphere(n: int) -> np.ndarray:

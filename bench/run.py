@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import platform
 import os
+import platform
 import sys
 
 import numpy as np

@@ -7,11 +7,12 @@ import inspect
 import pytest
 
 from sfs_ros.core.exchange.inputs import load_views
+from sfs_ros.core.exchange.session import write_session
+from sfs_ros.core.geometry.rig import RigCalibration
 from sfs_ros.core.simulation.objects import make_object
 from sfs_ros.core.simulation.plan import ring_plan
-from sfs_ros.core.geometry.rig import RigCalibration
-from sfs_ros.core.exchange.session import write_session
 from sfs_ros.core.simulation.synthetic import carving_box, simulate_scan
+
 from ros_harness import leftovers_stopped, node_starter
 
 #: Small pinhole camera so the end-to-end tests stay fast: 320 x 240 px, 0.6 m away.

@@ -13,12 +13,13 @@ from pathlib import Path
 
 import yaml
 
-from ros_harness import NAMESPACE, SOURCE_ROOT
 from sfs_ros.cell.scan_plan import ScanPlan
 from sfs_ros.cli.bringup import Cell, cell_nodes
 from sfs_ros.core.simulation.objects import make_object
 from sfs_ros.core.simulation.synthetic import carving_box
 from sfs_ros.ros.cell_client import CellClient
+
+from ros_harness import NAMESPACE, SOURCE_ROOT
 
 CONFIG = Path(__file__).resolve().parent.parent / "config"
 RINGS_DEG, PER_RING = [20.0, 55.0], 8

@@ -37,6 +37,7 @@ from pathlib import Path
 from typing import Callable
 
 import sfs_ros
+
 from waiting import wait  # noqa: F401  (for a probe spinning in its own thread)
 
 #: Seconds to wait for a process to come up / for a message. Deadlines that only bound a

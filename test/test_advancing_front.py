@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
+from sfs_ros.core.geometry.grid import VoxelGrid
 from sfs_ros.core.meshing.advancing_front import advancing_front, estimate_normals
 from sfs_ros.core.meshing.cloud import cloud_of_points
 from sfs_ros.core.meshing.edge_swap import swap_edges
-from sfs_ros.core.geometry.grid import VoxelGrid
 
 # A mesh whose vertices lie on a sphere is a polyhedron inscribed in it: star-shaped around the
 # centre, its volume is at most the ball's. With ~1500 evenly spread points the missing caps

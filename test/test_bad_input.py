@@ -9,6 +9,7 @@ import pytest
 from sfs_ros.cli.reconstruct import main
 from sfs_ros.core.exchange.inputs import load_views
 from sfs_ros.core.pipeline import ReconstructionParams, reconstruct
+
 from tolerances import MUG_IOU_SPARSE_MIN
 
 FAST = ReconstructionParams(resolution=64)

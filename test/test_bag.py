@@ -20,21 +20,31 @@ import pytest
 from rosbags.rosbag2 import Writer
 from rosbags.typesys import Stores, get_typestore
 
-from analytic_masks import sphere_mask
-from conftest import TEST_RIG
-from ros_harness import SOURCE_ROOT
-from sfs_ros.cell.bag import (PARAMETERS_TOPIC, SCAN_TOPIC, BagWriter, TOPICS, bag_folder,
-                              open_bag, parameters_message, read_bag, scan_message)
+from sfs_ros.cell.bag import (
+    PARAMETERS_TOPIC,
+    SCAN_TOPIC,
+    TOPICS,
+    BagWriter,
+    bag_folder,
+    open_bag,
+    parameters_message,
+    read_bag,
+    scan_message,
+)
 from sfs_ros.cell.live import LiveReconstruction
 from sfs_ros.cli.common import load_input
 from sfs_ros.core.exchange.inputs import load_views
-from sfs_ros.core.pipeline import ReconstructionParams, reconstruct
-from sfs_ros.core.simulation.plan import ring_plan
-from sfs_ros.core.geometry.rig import rig_camera
-from sfs_ros.core.segment import SegmentationParams
 from sfs_ros.core.exchange.session import write_session
-from sfs_ros.core.simulation.synthetic import carving_box
 from sfs_ros.core.exchange.views import ViewError
+from sfs_ros.core.geometry.rig import rig_camera
+from sfs_ros.core.pipeline import ReconstructionParams, reconstruct
+from sfs_ros.core.segment import SegmentationParams
+from sfs_ros.core.simulation.plan import ring_plan
+from sfs_ros.core.simulation.synthetic import carving_box
+
+from analytic_masks import sphere_mask
+from conftest import TEST_RIG
+from ros_harness import SOURCE_ROOT
 
 STORE = get_typestore(Stores.ROS2_KILTED)
 T = STORE.types

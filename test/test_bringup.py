@@ -17,8 +17,9 @@ from pathlib import Path
 import pytest
 from std_srvs.srv import Trigger
 
-from ros_harness import NAMESPACE, SOURCE_ROOT, NodeProcess, RosProbe
 from sfs_ros.cli.bringup import cell_nodes, default_config_dir
+
+from ros_harness import NAMESPACE, SOURCE_ROOT, NodeProcess, RosProbe
 
 REPO = Path(__file__).resolve().parents[1]
 CONFIG = REPO / "config"

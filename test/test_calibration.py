@@ -16,8 +16,7 @@ import pytest
 import yaml
 
 from sfs_ros.cli import calibrate as cli
-from sfs_ros.core.calibration import (BoardSpec, calibrate_rig, camera_info, canonical,
-                                      detect_board)
+from sfs_ros.core.calibration import BoardSpec, calibrate_rig, camera_info, canonical, detect_board
 from sfs_ros.core.exchange.session import write_session
 from sfs_ros.core.geometry.rig import rig_camera
 from sfs_ros.core.simulation.calibration_scene import board_scene, nominal_rig

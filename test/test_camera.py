@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from sfs_ros.core.geometry.camera import Camera
+
 from tolerances import PIXEL_ROUND_OFF_PX, ROUND_OFF
 
 K = np.array([[800.0, 0.0, 320.0], [0.0, 820.0, 240.0], [0.0, 0.0, 1.0]])

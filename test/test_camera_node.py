@@ -13,14 +13,15 @@ from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image
 from std_srvs.srv import Trigger
 
-from ros_harness import NAMESPACE, NodeProcess, NodeUnderTest, RosProbe
-from sfs_ros.core.simulation.objects import make_object
-from sfs_ros.core.render import render_image
 from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
+from sfs_ros.core.render import render_image
+from sfs_ros.core.simulation.objects import make_object
 from sfs_ros.hardware.cameras import RenderedSource
 from sfs_ros.nodes.camera_node import CameraNode
 from sfs_ros.ros import capture_qos
 from sfs_ros.ros.convert import msg_to_image
+
+from ros_harness import NAMESPACE, NodeProcess, NodeUnderTest, RosProbe
 from tolerances import QUIET_S
 
 MODULE = "sfs_ros.nodes.camera_node"

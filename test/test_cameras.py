@@ -4,9 +4,9 @@ import cv2
 import numpy as np
 import pytest
 
-from sfs_ros.core.simulation.objects import make_object
-from sfs_ros.core.render import render_image
 from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
+from sfs_ros.core.render import render_image
+from sfs_ros.core.simulation.objects import make_object
 from sfs_ros.hardware.cameras import FolderSource, FrameUnavailable, OpenCVSource, RenderedSource
 
 H, W = 24, 32

@@ -6,11 +6,12 @@ import math
 import numpy as np
 import pytest
 
-from analytic_masks import sphere_mask
-from sfs_ros.core.geometry.camera import Camera
 from sfs_ros.core.carving.carve import Carver, PreparedMasks, carve, view_coefficients
+from sfs_ros.core.geometry.camera import Camera
 from sfs_ros.core.geometry.grid import VoxelGrid
 from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
+
+from analytic_masks import sphere_mask
 from tolerances import HALF_PIXEL_DIAGONAL_PX
 
 # The module itself (the package's ``carve`` attribute is the function of that name).

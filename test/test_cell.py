@@ -22,8 +22,6 @@ from sensor_msgs.msg import Image, JointState
 from std_msgs.msg import Header
 from std_srvs.srv import SetBool, Trigger
 
-from mock_cell import PLAN, RESOLUTION, SCAN_TIMEOUT_S, running_cell
-from ros_harness import MESSAGE_TIMEOUT_S, RosProbe, wait
 from sfs_ros.core.exchange.export import load_mesh
 from sfs_ros.core.geometry.grid import VoxelGrid
 from sfs_ros.core.simulation.objects import make_object
@@ -31,6 +29,9 @@ from sfs_ros.core.simulation.synthetic import carving_box, score_against_truth
 from sfs_ros.ros import capture_qos
 from sfs_ros.ros.cell_client import ScanFailed
 from sfs_ros.ros.convert import image_to_msg
+
+from mock_cell import PLAN, RESOLUTION, SCAN_TIMEOUT_S, running_cell
+from ros_harness import MESSAGE_TIMEOUT_S, RosProbe, wait
 from tolerances import MUG_IOU_SPARSE_MIN, READBACK_TOL_RAD
 
 

@@ -3,8 +3,9 @@
 import numpy as np
 import pytest
 
-from sfs_ros.core.meshing.cloud import cloud_of_points, surface_voxels
 from sfs_ros.core.geometry.grid import VoxelGrid
+from sfs_ros.core.meshing.cloud import cloud_of_points, surface_voxels
+
 from tolerances import ROUND_OFF
 
 # Normals of a voxelised sphere of radius ~12 voxels, from the smoothed occupancy, deviate from

@@ -12,9 +12,9 @@ import pytest
 import trimesh
 from scipy.spatial import cKDTree
 
+from sfs_ros.core.exchange.export import export_mesh, load_mesh
 from sfs_ros.core.geometry.camera import Camera
 from sfs_ros.core.meshing.colour import vertex_colours, vertex_normals
-from sfs_ros.core.exchange.export import export_mesh, load_mesh
 from sfs_ros.core.pipeline import ReconstructionParams, reconstruct
 from sfs_ros.core.render import render_image
 from sfs_ros.core.segment import segment

@@ -10,8 +10,15 @@ from pathlib import Path
 import pytest
 import yaml
 
-from sfs_ros.nodes import (camera_node, mock_hardware_node, motor_node, reconstruction_node,
-                           recorder_node, scan_node, segmentation_node)
+from sfs_ros.nodes import (
+    camera_node,
+    mock_hardware_node,
+    motor_node,
+    reconstruction_node,
+    recorder_node,
+    scan_node,
+    segmentation_node,
+)
 from sfs_ros.ros.rig_params import RIG_PARAMS
 
 CONFIG = Path(__file__).resolve().parent.parent / "config"

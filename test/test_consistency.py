@@ -5,12 +5,17 @@ import math
 import numpy as np
 import pytest
 
-from analytic_masks import sphere_mask
 from sfs_ros.core.carving.carve import carve
-from sfs_ros.core.carving.consistency import (ViewCheck, bbox_clips_object, find_inconsistent_views,
-                                      hull_silhouettes)
+from sfs_ros.core.carving.consistency import (
+    ViewCheck,
+    bbox_clips_object,
+    find_inconsistent_views,
+    hull_silhouettes,
+)
 from sfs_ros.core.geometry.grid import VoxelGrid
 from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
+
+from analytic_masks import sphere_mask
 
 CENTRE, RADIUS = np.array([0.004, -0.006, 0.01]), 0.08
 GRID = VoxelGrid.cube([-0.12] * 3, [0.12] * 3, 64)

@@ -10,8 +10,15 @@ import cv2
 import numpy as np
 import pytest
 
-from sfs_ros.core.pictures.contact_sheet import (BACKGROUND_RGB, FRAME_RGB, OUTLINE_RGB, WARNING_RGB,
-                                        SheetLayout, contact_sheet, write_contact_sheet)
+from sfs_ros.core.pictures.contact_sheet import (
+    BACKGROUND_RGB,
+    FRAME_RGB,
+    OUTLINE_RGB,
+    WARNING_RGB,
+    SheetLayout,
+    contact_sheet,
+    write_contact_sheet,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 W, H = 320, 240          # image size, pixels

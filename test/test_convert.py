@@ -12,9 +12,20 @@ from visualization_msgs.msg import Marker
 
 from sfs_ros.core.geometry.camera import Camera
 from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
-from sfs_ros.ros.convert import (angles_from_joint_state, camera_info, camera_poses,
-                                 cloud_to_points, image_to_msg, joint_state, mesh_to_marker,
-                                 mesh_to_shape, msg_to_image, points_to_cloud, shape_to_mesh)
+from sfs_ros.ros.convert import (
+    angles_from_joint_state,
+    camera_info,
+    camera_poses,
+    cloud_to_points,
+    image_to_msg,
+    joint_state,
+    mesh_to_marker,
+    mesh_to_shape,
+    msg_to_image,
+    points_to_cloud,
+    shape_to_mesh,
+)
+
 from tolerances import PIXEL_ROUND_OFF_PX, ROUND_OFF
 
 STAMP = (1712345678, 123456789)

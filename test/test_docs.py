@@ -100,7 +100,8 @@ def project_commands():
             except ValueError as error:
                 words = [line]
                 if re.search(r"\bsfs-|-m (sfs_ros|bench)\b", line):
-                    raise AssertionError(f"{path.name}:{number}: not a shell line: {error}")
+                    raise AssertionError(
+                        f"{path.name}:{number}: not a shell line: {error}") from None
             if not words:
                 continue
             head = words[0]

@@ -8,11 +8,27 @@ import tty
 
 import pytest
 
-from sfs_ros.hardware.driver import (CommandRejected, ConnectionLost, GrblClient, MotionCancelled,
-                                     MotorAlarm, MotorError, MotorStalled, MotorTimeout, Status)
+from sfs_ros.hardware.driver import (
+    CommandRejected,
+    ConnectionLost,
+    GrblClient,
+    MotionCancelled,
+    MotorAlarm,
+    MotorError,
+    MotorStalled,
+    MotorTimeout,
+    Status,
+)
 from sfs_ros.hardware.simulator import SimulatedGrbl, move_duration_s
-from tolerances import (ENCODER_NOISE_DEG, ENCODER_OFFSET_DEG, HANG_S, PRINT_ROUNDING_DEG,
-                        READBACK_TOL_RAD, ROUND_OFF)
+
+from tolerances import (
+    ENCODER_NOISE_DEG,
+    ENCODER_OFFSET_DEG,
+    HANG_S,
+    PRINT_ROUNDING_DEG,
+    READBACK_TOL_RAD,
+    ROUND_OFF,
+)
 from waiting import wait
 
 #: Fast axes so that tests run quickly: 900 deg/s, 18000 deg/s^2 (0.05 s to full speed).

@@ -14,7 +14,6 @@ import math
 import numpy as np
 import pytest
 
-from conftest import TEST_RIG
 from sfs_ros.core.exchange.inputs import load_views
 from sfs_ros.core.exchange.session import write_session
 from sfs_ros.core.meshing.hull_distance import HullDistance
@@ -22,6 +21,8 @@ from sfs_ros.core.pipeline import ReconstructionParams, reconstruct
 from sfs_ros.core.simulation.objects import Cylinder, SyntheticObject
 from sfs_ros.core.simulation.plan import ring_plan
 from sfs_ros.core.simulation.synthetic import carving_box, simulate_scan
+
+from conftest import TEST_RIG
 
 RADIUS_M = 0.03
 #: Top height: with the carving box from the plate (z = 0) and 64 voxels of

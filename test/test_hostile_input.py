@@ -19,7 +19,6 @@ import zlib
 from pathlib import Path
 
 import cv2
-import numpy as np
 import pytest
 import yaml
 
@@ -29,8 +28,15 @@ from sfs_ros.core.geometry.rig import RigCalibration
 from sfs_ros.core.simulation.objects import make_object
 from sfs_ros.core.simulation.plan import ring_plan
 from sfs_ros.core.simulation.synthetic import carving_box, simulate_scan
-from test_bag import (PARAMETERS_TOPIC, document, mask_messages, parameters_message,
-                      sphere_views, write_bag)
+
+from test_bag import (
+    PARAMETERS_TOPIC,
+    document,
+    mask_messages,
+    parameters_message,
+    sphere_views,
+    write_bag,
+)
 
 HERE = Path(__file__).resolve().parent
 #: The acceptance bound on the memory of the whole run, MiB (the issue's 4 GB); the
@@ -196,7 +202,7 @@ def build_cases(root: Path, base: Path, secret: Path) -> Cases:
         lines[0] = count
         par.write_text("\n".join(lines) + "\n")
         c.add(f"middlebury count {n}", [par])
-    for n, (key, value) in enumerate([("fl_x", "abc"), ("fl_x", 1e300), ("w", 1e300),
+    for key, value in ([("fl_x", "abc"), ("fl_x", 1e300), ("w", 1e300),
                                       ("w", -5), ("h", 0.4), ("transform_matrix", "I"),
                                       ("transform_matrix", [[1e308] * 4] * 4), ("k1", 0.1)]):
         folder = c.session()
@@ -243,7 +249,7 @@ def build_cases(root: Path, base: Path, secret: Path) -> Cases:
     c.add("nerf: file_path is a link outside", [path])
 
     # ---- image headers: refused before decoding
-    for n, (data, what) in enumerate([(png_header(50000, 50000), "50000^2 PNG header"),
+    for data, what in ([(png_header(50000, 50000), "50000^2 PNG header"),
                                       (png_header(20000, 20000, bit_depth=16, colour_type=6),
                                        "20000^2 16-bit RGBA header"),
                                       (png_header(96, 72), "right size, no pixels"),

@@ -20,9 +20,17 @@ import numpy as np
 import pytest
 import trimesh
 
-from sfs_ros.core.pictures.html_viewer import (AMBIENT, BACKGROUND_RGB, DEFAULT_RGB, FIT, FOV_RAD,
-                                      HOME_AZIMUTH_RAD, HOME_ELEVATION_RAD, html_viewer,
-                                      write_html_viewer)
+from sfs_ros.core.pictures.html_viewer import (
+    AMBIENT,
+    BACKGROUND_RGB,
+    DEFAULT_RGB,
+    FIT,
+    FOV_RAD,
+    HOME_AZIMUTH_RAD,
+    HOME_ELEVATION_RAD,
+    html_viewer,
+    write_html_viewer,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",

@@ -10,7 +10,6 @@ tangent to the sphere, the one nearest ``u`` binding).
 import numpy as np
 import pytest
 
-from analytic_masks import sphere_mask
 from sfs_ros.core.carving.carve import carve
 from sfs_ros.core.geometry.camera import Camera
 from sfs_ros.core.geometry.grid import VoxelGrid
@@ -19,6 +18,8 @@ from sfs_ros.core.meshing.cloud import cloud_of_points
 from sfs_ros.core.meshing.hull_distance import HullDistance
 from sfs_ros.core.meshing.marching import hull_marching_cubes_mesh, marching_cubes_mesh
 from sfs_ros.core.meshing.mesh_checks import check_mesh
+
+from analytic_masks import sphere_mask
 
 WIDTH, HEIGHT = 200, 160
 FOCAL_PX = 500.0

@@ -7,21 +7,27 @@ import cv2
 import numpy as np
 import pytest
 
-from sfs_ros.cell.live import (MASK_SEGMENTATION, DuplicateViewError, LiveReconstruction,
-                               mask_to_rgb, surface_points)
+from sfs_ros.cell.live import (
+    MASK_SEGMENTATION,
+    DuplicateViewError,
+    LiveReconstruction,
+    mask_to_rgb,
+    surface_points,
+)
 from sfs_ros.cli.reconstruct import main as reconstruct_cli
 from sfs_ros.core.carving.carve import carve
 from sfs_ros.core.exchange.export import load_mesh
-from sfs_ros.core.geometry.grid import VoxelGrid
 from sfs_ros.core.exchange.inputs import load_views
+from sfs_ros.core.exchange.views import read_image
+from sfs_ros.core.geometry.grid import VoxelGrid
+from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
 from sfs_ros.core.metrics import occupancy_from_contains, volume_iou
+from sfs_ros.core.render import rasterize_silhouette, render_image
+from sfs_ros.core.segment import segment
 from sfs_ros.core.simulation.objects import make_object
 from sfs_ros.core.simulation.plan import ring_plan
-from sfs_ros.core.render import rasterize_silhouette, render_image
-from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
-from sfs_ros.core.segment import segment
 from sfs_ros.core.simulation.synthetic import carving_box, score_against_truth
-from sfs_ros.core.exchange.views import read_image
+
 from tolerances import CHAMFER_MEAN_VOXELS, HULL_REPROJECTION_IOU_MIN
 
 #: Small pinhole camera, 0.6 m away, so the end-to-end tests stay fast.

@@ -6,6 +6,7 @@ import pytest
 from sfs_ros.core.geometry.grid import VoxelGrid
 from sfs_ros.core.meshing.marching import LEVEL, marching_cubes_mesh
 from sfs_ros.core.meshing.mesh_checks import check_mesh
+
 from tolerances import ROUND_OFF
 
 RADIUS_M = 0.031

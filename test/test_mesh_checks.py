@@ -7,6 +7,7 @@ import pytest
 import trimesh
 
 from sfs_ros.core.meshing.mesh_checks import check_mesh
+
 from tolerances import ROUND_OFF
 
 #: Unit cube corners, index = x + 2 y + 4 z.

@@ -7,12 +7,19 @@ from scipy import ndimage
 
 from sfs_ros.core.geometry.camera import Camera
 from sfs_ros.core.geometry.grid import VoxelGrid
-from sfs_ros.core.metrics import (ChamferResult, chamfer_distance, mesh_occupancy,
-                                  occupancy_from_contains, reprojection_iou, silhouette_iou,
-                                  volume_iou)
-from sfs_ros.core.simulation.objects import OBJECT_NAMES, make_object
-from sfs_ros.core.render import rasterize_silhouette
 from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
+from sfs_ros.core.metrics import (
+    ChamferResult,
+    chamfer_distance,
+    mesh_occupancy,
+    occupancy_from_contains,
+    reprojection_iou,
+    silhouette_iou,
+    volume_iou,
+)
+from sfs_ros.core.render import rasterize_silhouette
+from sfs_ros.core.simulation.objects import OBJECT_NAMES, make_object
+
 from tolerances import ROUND_OFF
 
 

@@ -9,6 +9,7 @@ import pytest
 from sfs_ros.core.exchange.inputs import load_views
 from sfs_ros.core.exchange.middlebury import read_middlebury
 from sfs_ros.core.exchange.views import ViewError
+
 from tolerances import PIXEL_ROUND_OFF_PX
 
 WIDTH, HEIGHT = 40, 30

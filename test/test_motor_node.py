@@ -14,13 +14,19 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from ros_harness import NodeProcess, NodeUnderTest, RosProbe
 from sfs_ros.hardware.driver import GrblClient
 from sfs_ros.hardware.simulator import SimulatedGrbl
 from sfs_ros.ros import result_qos
 from sfs_ros.ros.convert import joint_state
-from tolerances import (ENCODER_NOISE_DEG, ENCODER_OFFSET_DEG, PRINT_ROUNDING_DEG,
-                        READBACK_TOL_RAD, ROUND_OFF)
+
+from ros_harness import NodeProcess, NodeUnderTest, RosProbe
+from tolerances import (
+    ENCODER_NOISE_DEG,
+    ENCODER_OFFSET_DEG,
+    PRINT_ROUNDING_DEG,
+    READBACK_TOL_RAD,
+    ROUND_OFF,
+)
 
 MODULE = "sfs_ros.nodes.motor_node"
 # Targets go on the wire in degrees with 3 decimals: GRBL's step counters end within

@@ -10,6 +10,7 @@ import pytest
 from sfs_ros.core.exchange.inputs import load_views
 from sfs_ros.core.exchange.nerf import read_transforms
 from sfs_ros.core.exchange.views import ViewError
+
 from tolerances import PIXEL_ROUND_OFF_PX, ROUND_OFF
 
 WIDTH, HEIGHT = 40, 30

@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 import trimesh
 
-from sfs_ros.core.simulation.objects import OBJECT_NAMES, make_object
-from sfs_ros.core.render import rasterize_silhouette
 from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
+from sfs_ros.core.render import rasterize_silhouette
+from sfs_ros.core.simulation.objects import OBJECT_NAMES, make_object
+
 from tolerances import ROUND_OFF
 
 #: Pixels per metre of a 512 px image spanning the 0.12 m object box.

@@ -5,6 +5,7 @@ import pytest
 
 from sfs_ros.core.pipeline import ReconstructionParams, reconstruct
 from sfs_ros.core.simulation.synthetic import score_against_truth
+
 from tolerances import CHAMFER_MEAN_VOXELS, HULL_REPROJECTION_IOU_MIN
 
 

@@ -6,11 +6,11 @@ import json
 import numpy as np
 import pytest
 
-from sfs_ros.core.geometry.camera import Camera
 from sfs_ros.core.exchange.nerf import read_transforms
 from sfs_ros.core.exchange.pose_export import export_session, write_colmap, write_nerf_transforms
 from sfs_ros.core.exchange.session import read_session
 from sfs_ros.core.exchange.views import View, ViewSet
+from sfs_ros.core.geometry.camera import Camera
 
 # Points around the mug (metres, object frame), seen by every view.
 POINTS = np.random.default_rng(0).uniform([-0.04, -0.04, 0.0], [0.04, 0.04, 0.09], (200, 3))

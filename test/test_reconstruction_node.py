@@ -9,21 +9,22 @@ import yaml
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseArray
 from sensor_msgs.msg import Image, JointState, PointCloud2
-from std_msgs.msg import Header
 from shape_msgs.msg import Mesh
+from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker
 
-from ros_harness import NodeProcess, NodeUnderTest
 from sfs_ros.core.exchange.export import load_mesh
 from sfs_ros.core.geometry.grid import VoxelGrid
+from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
+from sfs_ros.core.render import rasterize_silhouette
 from sfs_ros.core.simulation.objects import make_object
 from sfs_ros.core.simulation.plan import ring_plan
-from sfs_ros.core.render import rasterize_silhouette
-from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
 from sfs_ros.core.simulation.synthetic import carving_box, score_against_truth
 from sfs_ros.ros import capture_qos, result_qos
 from sfs_ros.ros.convert import cloud_to_points, image_to_msg, joint_state, shape_to_mesh
+
+from ros_harness import NodeProcess, NodeUnderTest
 from tolerances import MUG_IOU_29_VIEWS_MIN, QUIET_S
 
 MODULE = "sfs_ros.nodes.reconstruction_node"

@@ -23,15 +23,16 @@ from rosbags.typesys import Stores, get_typestore
 from sensor_msgs.msg import Image, JointState
 from std_srvs.srv import Trigger
 
+from sfs_ros.cell.bag import open_bag, read_bag
+from sfs_ros.core.exchange.views import ViewError
+from sfs_ros.core.geometry.rig import rig_camera
+from sfs_ros.core.simulation.plan import ring_plan
+from sfs_ros.ros import capture_qos
+from sfs_ros.ros.convert import image_to_msg, joint_state
+
 from analytic_masks import sphere_mask
 from conftest import TEST_RIG
 from ros_harness import NAMESPACE, NodeProcess, NodeUnderTest, RosProbe
-from sfs_ros.cell.bag import open_bag, read_bag
-from sfs_ros.core.simulation.plan import ring_plan
-from sfs_ros.core.geometry.rig import rig_camera
-from sfs_ros.core.exchange.views import ViewError
-from sfs_ros.ros import capture_qos
-from sfs_ros.ros.convert import image_to_msg, joint_state
 
 RECORDER = "sfs_ros.nodes.recorder_node"
 PLAN = ring_plan([20.0, 55.0], 8, top_view=True)                 # 17 views

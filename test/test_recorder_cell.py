@@ -23,14 +23,15 @@ from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_typestore
 from std_srvs.srv import Trigger
 
-from mock_cell import RESOLUTION, SCAN_TIMEOUT_S, running_cell
-from ros_harness import NAMESPACE, SOURCE_ROOT, RosProbe, wait
 from sfs_ros.cell.bag import PARAMETERS_TOPIC, TOPICS, open_bag
 from sfs_ros.core.exchange.export import load_mesh
 from sfs_ros.core.exchange.nerf import read_transforms
 from sfs_ros.core.exchange.session import read_session
 from sfs_ros.core.exchange.views import read_image
 from sfs_ros.ros.services import call
+
+from mock_cell import RESOLUTION, SCAN_TIMEOUT_S, running_cell
+from ros_harness import NAMESPACE, SOURCE_ROOT, RosProbe, wait
 
 STORE = get_typestore(Stores.ROS2_KILTED)
 

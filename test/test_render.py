@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 
 from sfs_ros.core.geometry.camera import Camera
-from sfs_ros.core.simulation.objects import make_object
-from sfs_ros.core.render import rasterize_faces, rasterize_silhouette, render_image
 from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
+from sfs_ros.core.render import rasterize_faces, rasterize_silhouette, render_image
+from sfs_ros.core.simulation.objects import make_object
+
 from tolerances import HALF_PIXEL_DIAGONAL_PX, ROUND_OFF
 
 CENTRE = np.array([0.0, 0.0, 0.05])

@@ -14,9 +14,10 @@ import numpy as np
 import pytest
 from sensor_msgs.msg import Image, JointState
 
-from ros_harness import NAMESPACE, SOURCE_ROOT, RosProbe
 from sfs_ros.cell.bag import TOPICS, BagWriter
 from sfs_ros.ros import capture_qos
+
+from ros_harness import NAMESPACE, SOURCE_ROOT, RosProbe
 from test_bag import image_bytes, joints_bytes, scan_bytes
 
 N_VIEWS = 12

@@ -5,11 +5,17 @@ import math
 import numpy as np
 import pytest
 
-from analytic_masks import sphere_mask
 from sfs_ros.core.carving.bounds import refine_bounds
-from sfs_ros.core.carving.resolution import (BYTES_PER_VOXEL, choose_voxel_size, grid_shape,
-                                             parse_memory, pixel_footprints_m)
+from sfs_ros.core.carving.resolution import (
+    BYTES_PER_VOXEL,
+    choose_voxel_size,
+    grid_shape,
+    parse_memory,
+    pixel_footprints_m,
+)
 from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
+
+from analytic_masks import sphere_mask
 
 DISTANCE_M, FX = 0.6, 1200.0
 RIG = RigCalibration(width=320, height=240, projection="pinhole", fx=FX, fy=FX + 100.0,

@@ -8,6 +8,7 @@ import pytest
 
 from sfs_ros.core.geometry.camera import Camera
 from sfs_ros.core.geometry.rig import RigCalibration, rig_camera, rig_rotation
+
 from tolerances import PIXEL_ROUND_OFF_PX, ROUND_OFF
 
 DEG = math.pi / 180

@@ -13,8 +13,9 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
-from ros_harness import MESSAGE_TIMEOUT_S, NodeProcess, NodeUnderTest
 from sfs_ros.cell.scan_plan import ScanPlan
+
+from ros_harness import MESSAGE_TIMEOUT_S, NodeProcess, NodeUnderTest
 from tolerances import QUIET_S
 
 MODULE = "sfs_ros.nodes.scan_node"

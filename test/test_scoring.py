@@ -4,11 +4,14 @@ reprojection IoU of all views at once."""
 import numpy as np
 import pytest
 
+from sfs_ros.core.geometry.grid import VoxelGrid
 from sfs_ros.core.metrics import reprojection_iou, reprojection_ious
 from sfs_ros.core.render import rasterize_silhouette
-from sfs_ros.core.simulation.synthetic import (exact_silhouettes, score_against_truth,
-                                                true_visual_hull)
-from sfs_ros.core.geometry.grid import VoxelGrid
+from sfs_ros.core.simulation.synthetic import (
+    exact_silhouettes,
+    score_against_truth,
+    true_visual_hull,
+)
 
 
 @pytest.fixture(scope="module")

@@ -9,8 +9,16 @@ import numpy as np
 import pytest
 from scipy.ndimage import binary_dilation
 
-from sfs_ros.core.segment import (PRESETS, Segmentation, SegmentationParams, estimate_background,
-                                  segment)
+from sfs_ros.core.segment import (
+    PRESETS,
+    Segmentation,
+    SegmentationParams,
+    estimate_background,
+    segment,
+)
+
+#: The threshold method, whose steps these tests check one by one.
+THRESHOLD = "threshold"
 
 H, W = 240, 320
 # The object: an ellipse with a large hole (a handle: real, must stay open) and
@@ -91,7 +99,8 @@ def within_band(mask, truth, band=BAND_PX):
 def test_mask_matches_truth(background, object_rgb, shade, model):
     image, _, _ = render(background, object_rgb=object_rgb, shade=shade)
     _, filled_truth = ground_truth()
-    params = SegmentationParams(method="threshold", background_model=model, fill_holes_max_fraction=FILL_FRACTION,
+    params = SegmentationParams(method=THRESHOLD,
+                                background_model=model, fill_holes_max_fraction=FILL_FRACTION,
                                 dilate_px=0)
     result = segment(image, params)
     assert isinstance(result, Segmentation)
@@ -110,7 +119,7 @@ def test_mask_matches_truth(background, object_rgb, shade, model):
 @pytest.mark.parametrize("background", [(245, 245, 240), (12, 10, 14)])
 def test_background_estimate(background):
     image, field, _ = render(background)
-    smooth = segment(image, SegmentationParams(method="threshold", background_model="smooth"))
+    smooth = segment(image, SegmentationParams(method=THRESHOLD, background_model="smooth"))
     # The smooth model reports the mean of its field: the mean of the true field.
     np.testing.assert_allclose(smooth.background_rgb, field.reshape(-1, 3).mean(axis=0),
                                atol=BACKGROUND_TOL)
@@ -130,8 +139,8 @@ def test_smooth_background_absorbs_strong_vignetting():
                          gradient=60.0)
     _, filled_truth = ground_truth()
     params = dict(fill_holes_max_fraction=FILL_FRACTION, dilate_px=0)
-    smooth = segment(image, SegmentationParams(method="threshold", background_model="smooth", **params))
-    constant = segment(image, SegmentationParams(method="threshold", background_model="constant", **params))
+    smooth = segment(image, SegmentationParams(method=THRESHOLD, background_model="smooth", **params))
+    constant = segment(image, SegmentationParams(method=THRESHOLD, background_model="constant", **params))
     assert iou(smooth.mask, filled_truth) > IOU_MIN
     assert within_band(smooth.mask, filled_truth) == (0, 0)
     assert iou(constant.mask, filled_truth) < 0.9
@@ -141,7 +150,7 @@ def test_background_estimate_survives_object_on_the_border():
     # The object covers a third of the top edge: the border mode ignores it.
     image, _, _ = render((245, 245, 240), centre=(150.0, 40.0), gradient=0.0, specks=False)
     np.testing.assert_allclose(estimate_background(image), (245, 245, 240), atol=BACKGROUND_TOL)
-    result = segment(image, SegmentationParams(method="threshold", dilate_px=0))
+    result = segment(image, SegmentationParams(method=THRESHOLD, dilate_px=0))
     truth, _ = ground_truth(centre=(150.0, 40.0))
     assert result.touches_border
     assert iou(result.mask, truth) > IOU_MIN
@@ -151,11 +160,12 @@ def test_white_and_black_hints_and_given_colour():
     image, _, _ = render((245, 245, 240), gradient=0.0)
     np.testing.assert_allclose(estimate_background(image, background="white"), (245, 245, 240),
                                atol=BACKGROUND_TOL)
-    given = segment(image, SegmentationParams(method="threshold", background=(245, 245, 240)))
+    given = segment(image, SegmentationParams(method=THRESHOLD, background=(245, 245, 240)))
     np.testing.assert_array_equal(given.background_rgb, (245, 245, 240))
     # Told "black", a white-backdrop image has no dark border pixels: black is assumed
     # and the whole frame is "object" touching the border.
-    black = segment(image, SegmentationParams(method="threshold", background="black", background_model="constant"))
+    black = segment(image, SegmentationParams(method=THRESHOLD,
+                                              background="black", background_model="constant"))
     assert black.touches_border and black.foreground_fraction > 0.9
 
 
@@ -167,10 +177,12 @@ def test_hysteresis_keeps_shadows_connected_to_the_object_only():
     image[80:160, 60:120] = 40     # shadowed part of the object
     image[80:160, 120:220] = 200   # lit part
     image[20:50, 250:300] = 40     # dim patch elsewhere
-    strong_only = segment(image, SegmentationParams(method="threshold", threshold=0.3, weak_ratio=1.0, dilate_px=0))
-    hysteresis = segment(image, SegmentationParams(method="threshold", threshold=0.3, weak_ratio=0.3, grow_px=None,
+    strong_only = segment(image, SegmentationParams(method=THRESHOLD,
+                                                    threshold=0.3, weak_ratio=1.0, dilate_px=0))
+    hysteresis = segment(image, SegmentationParams(method=THRESHOLD,
+                                                   threshold=0.3, weak_ratio=0.3, grow_px=None,
                                                    dilate_px=0))
-    limited = segment(image, SegmentationParams(method="threshold", threshold=0.3, weak_ratio=0.3, grow_px=10,
+    limited = segment(image, SegmentationParams(method=THRESHOLD, threshold=0.3, weak_ratio=0.3, grow_px=10,
                                                 dilate_px=0))
     assert strong_only.mask[80:160, 60:120].sum() == 0
     # (Interiors: the opening rounds the corners of the rectangles.)
@@ -185,9 +197,9 @@ def test_keep_largest_only_and_min_blob_fraction():
     image[40:140, 40:140] = 30     # 10 000 px
     image[160:200, 200:240] = 30   # 1 600 px: 16 % of the largest
     params = dict(dilate_px=0, open_px=0, background_model="constant")
-    both = segment(image, SegmentationParams(method="threshold", min_blob_fraction=0.1, **params))
-    largest = segment(image, SegmentationParams(method="threshold", keep_largest_only=True, **params))
-    strict = segment(image, SegmentationParams(method="threshold", min_blob_fraction=0.2, **params))
+    both = segment(image, SegmentationParams(method=THRESHOLD, min_blob_fraction=0.1, **params))
+    largest = segment(image, SegmentationParams(method=THRESHOLD, keep_largest_only=True, **params))
+    strict = segment(image, SegmentationParams(method=THRESHOLD, min_blob_fraction=0.2, **params))
     assert both.mask.sum() == 11600 and both.n_blobs_removed == 0
     assert largest.mask.sum() == 10000 and largest.n_blobs_removed == 1
     assert strict.mask.sum() == 10000 and strict.n_blobs_removed == 1
@@ -196,7 +208,8 @@ def test_keep_largest_only_and_min_blob_fraction():
 def test_dilation_is_conservative():
     image, _, _ = render((12, 10, 14), object_rgb=(220, 215, 200))
     _, filled_truth = ground_truth()
-    mask = segment(image, SegmentationParams(method="threshold", dilate_px=2, fill_holes_max_fraction=FILL_FRACTION)).mask
+    mask = segment(image, SegmentationParams(method=THRESHOLD,
+                                             dilate_px=2, fill_holes_max_fraction=FILL_FRACTION)).mask
     assert mask[filled_truth].all()   # one-sided: the truth is inside the dilated mask
     extra, _ = within_band(mask, filled_truth, band=3)
     assert extra == 0

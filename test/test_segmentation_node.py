@@ -8,16 +8,17 @@ from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from sensor_msgs.msg import Image, JointState
 
-from ros_harness import NodeProcess, NodeUnderTest
+from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
 from sfs_ros.core.metrics import silhouette_iou
+from sfs_ros.core.render import rasterize_silhouette
+from sfs_ros.core.segment import SegmentationParams, segment
 from sfs_ros.core.simulation.objects import make_object
 from sfs_ros.core.simulation.plan import ring_plan
-from sfs_ros.core.render import rasterize_silhouette
-from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
-from sfs_ros.core.segment import SegmentationParams, segment
 from sfs_ros.core.simulation.synthetic import simulate_scan
 from sfs_ros.ros import capture_qos
 from sfs_ros.ros.convert import image_to_msg, joint_state, msg_to_image
+
+from ros_harness import NodeProcess, NodeUnderTest
 from tolerances import QUIET_S
 
 MODULE = "sfs_ros.nodes.segmentation_node"

@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 import yaml
 
-from sfs_ros.core.geometry.camera import Camera
 from sfs_ros.core.exchange.inputs import load_views
-from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
 from sfs_ros.core.exchange.session import append_view, read_session, write_session
 from sfs_ros.core.exchange.views import ViewError, read_image
+from sfs_ros.core.geometry.camera import Camera
+from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
 
 RIG = RigCalibration(width=32, height=24, projection="pinhole", fx=40.0, fy=40.0,
                      camera_distance_m=0.5, aim_point_m=(0.0, 0.0, 0.02), phi_zero_rad=0.05)

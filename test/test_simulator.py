@@ -8,6 +8,7 @@ import serial
 
 from sfs_ros.hardware import grbl
 from sfs_ros.hardware.simulator import SimulatedGrbl, move_duration_s
+
 from tolerances import HANG_S, ROUND_OFF
 from waiting import wait
 

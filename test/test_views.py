@@ -4,9 +4,17 @@ import cv2
 import numpy as np
 import pytest
 
-from sfs_ros.core.geometry.camera import Camera
 from sfs_ros.core.exchange.inputs import load_views
-from sfs_ros.core.exchange.views import View, ViewError, ViewSet, image_size, nearest_rotation, read_image
+from sfs_ros.core.exchange.views import (
+    View,
+    ViewError,
+    ViewSet,
+    image_size,
+    nearest_rotation,
+    read_image,
+)
+from sfs_ros.core.geometry.camera import Camera
+
 from tolerances import ROUND_OFF
 
 

@@ -38,16 +38,16 @@ from pathlib import Path
 import numpy as np
 
 from ..core.carving.carve import Carver
-from ..core.meshing.colour import vertex_colours
 from ..core.exchange.export import SUPPORTED_SUFFIXES
-from ..core.geometry.grid import VoxelGrid
 from ..core.exchange.inputs import load_views
-from ..core.pipeline import ReconstructionParams, reconstruct
-from ..core.result_files import SheetViews, write_result
-from ..core.geometry.rig import RigCalibration, rig_camera
-from ..core.segment import SegmentationParams
 from ..core.exchange.session import append_view, write_session
 from ..core.exchange.views import as_bounds
+from ..core.geometry.grid import VoxelGrid
+from ..core.geometry.rig import RigCalibration, rig_camera
+from ..core.meshing.colour import vertex_colours
+from ..core.pipeline import ReconstructionParams, reconstruct
+from ..core.result_files import SheetViews, write_result
+from ..core.segment import SegmentationParams
 from .paths import confined_path
 
 __all__ = ["MASK_SEGMENTATION", "DuplicateViewError", "AddedView", "LiveReconstruction",
@@ -55,7 +55,8 @@ __all__ = ["MASK_SEGMENTATION", "DuplicateViewError", "AddedView", "LiveReconstr
 
 #: Segmentation under which a 0/255 mask image segments to exactly that mask.
 MASK_SEGMENTATION = SegmentationParams(
-    background=(0, 0, 0), background_model="constant", threshold=0.5, weak_ratio=1.0,
+    method="threshold", background=(0, 0, 0), background_model="constant", threshold=0.5,
+    weak_ratio=1.0,
     open_px=0, close_px=0, min_blob_fraction=0.0, fill_holes_max_fraction=0.0, dilate_px=0,
     min_area_fraction=0.0)
 

@@ -32,8 +32,8 @@ import yaml
 
 from ..core.exchange.export import load_mesh
 from ..core.geometry.grid import VoxelGrid
-from ..core.simulation.objects import make_object
 from ..core.pipeline import ReconstructionParams, reconstruct
+from ..core.simulation.objects import make_object
 from ..core.simulation.synthetic import score_against_truth
 from ..ros.cell_client import CellClient, ScanFailed
 from ..ros.services import ServiceError

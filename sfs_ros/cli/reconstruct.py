@@ -17,15 +17,22 @@ import argparse
 import sys
 from pathlib import Path
 
-from ..core.meshing.colour import vertex_colours
 from ..core.carving.resolution import parse_memory
 from ..core.exchange.export import SUPPORTED_SUFFIXES
+from ..core.exchange.views import ViewSet, read_image
+from ..core.meshing.colour import vertex_colours
 from ..core.pipeline import MESHERS, ReconstructionParams, reconstruct
 from ..core.result_files import SheetViews, report_path_for, write_result
 from ..core.segment import PRESETS, SegmentationParams
-from ..core.exchange.views import ViewSet, read_image
-from .common import (ACCEPTED_INPUTS, StageProgress, check_outputs, input_files, load_input,
-                     one_line, run_reporting_errors)
+from .common import (
+    ACCEPTED_INPUTS,
+    StageProgress,
+    check_outputs,
+    input_files,
+    load_input,
+    one_line,
+    run_reporting_errors,
+)
 
 PROG = "sfs-reconstruct"
 

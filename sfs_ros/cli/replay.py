@@ -24,8 +24,8 @@ from rclpy.duration import Duration
 from rclpy.signals import SignalHandlerOptions
 
 from ..cell.bag import CAPTURE, DEFAULT, RESULT, TOPICS, open_bag
-from ..ros.messages import message_class
 from ..ros import capture_qos, result_qos
+from ..ros.messages import message_class
 from .common import run_reporting_errors
 
 PROG = "sfs-replay"

@@ -16,12 +16,12 @@ from pathlib import Path
 
 from ..core.exchange.export import SUPPORTED_SUFFIXES, export_mesh
 from ..core.exchange.inputs import load_views
-from ..core.simulation.objects import OBJECT_NAMES, make_object
-from ..core.pipeline import MESHERS, ReconstructionParams, reconstruct
-from ..core.simulation.plan import ring_plan
-from ..core.pictures.preview import preview_image, write_png
-from ..core.geometry.rig import RigCalibration
 from ..core.exchange.session import write_session
+from ..core.geometry.rig import RigCalibration
+from ..core.pictures.preview import preview_image, write_png
+from ..core.pipeline import MESHERS, ReconstructionParams, reconstruct
+from ..core.simulation.objects import OBJECT_NAMES, make_object
+from ..core.simulation.plan import ring_plan
 from ..core.simulation.synthetic import carving_box, score_against_truth, simulate_scan
 from .common import StageProgress, run_reporting_errors
 from .reconstruct import summary

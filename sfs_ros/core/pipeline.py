@@ -14,22 +14,22 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from .meshing.advancing_front import advancing_front
 from .carving.bounds import estimate_bounds, refine_bounds
 from .carving.carve import PreparedMasks, carve
-from .meshing.cloud import cloud_of_points
-from .meshing.colour import vertex_colours
 from .carving.consistency import bbox_clips_object
 from .carving.fusion import fuse_silhouettes, reference_misses
-from .carving.resolution import choose_voxel_size, default_memory_budget
-from .geometry.grid import VoxelGrid
 from .carving.hull import drop_specks
+from .carving.resolution import choose_voxel_size, default_memory_budget
+from .exchange.views import View, ViewSet, read_image
+from .geometry.grid import VoxelGrid
+from .meshing.advancing_front import advancing_front
+from .meshing.cloud import cloud_of_points
+from .meshing.colour import vertex_colours
 from .meshing.hull_distance import HullDistance
 from .meshing.marching import hull_marching_cubes_mesh
 from .meshing.mesh_checks import check_mesh
 from .metrics import reprojection_ious
 from .segment import SegmentationParams, segment
-from .exchange.views import View, ViewSet, read_image
 
 __all__ = ["MESHERS", "ReconstructionParams", "Reconstruction", "reconstruct"]
 

@@ -753,8 +753,9 @@ def segment(image, params: SegmentationParams = SegmentationParams()) -> Segment
         mask = alpha > params.alpha_threshold
         empty = bool(np.count_nonzero(mask) < max(1, params.min_area_fraction * h * w))
         behind = rgb[~mask]
-        return Segmentation(mask=np.zeros_like(mask) if empty else mask, background_rgb=behind.mean(axis=0) if len(behind)
-                            else np.zeros(3), threshold=params.alpha_threshold / 255,
+        background = behind.mean(axis=0) if len(behind) else np.zeros(3)
+        return Segmentation(mask=np.zeros_like(mask) if empty else mask, background_rgb=background,
+                            threshold=params.alpha_threshold / 255,
                             n_blobs_removed=0, holes_filled=0,
                             foreground_fraction=0.0 if empty else float(mask.mean()),
                             empty=empty, touches_border=not empty and _touches_border(mask))

@@ -25,9 +25,9 @@ from typing import Callable
 import cv2
 import numpy as np
 
-from sfs_ros.core.simulation.objects import SyntheticObject
-from sfs_ros.core.render import render_image
 from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
+from sfs_ros.core.render import render_image
+from sfs_ros.core.simulation.objects import SyntheticObject
 
 __all__ = ["FrameUnavailable", "CameraSource", "OpenCVSource", "FolderSource", "RenderedSource",
            "IMAGE_SUFFIXES"]
@@ -55,7 +55,7 @@ class CameraSource(ABC):
     def grab(self) -> np.ndarray:
         """Take a frame now: (H, W, 3) uint8 RGB; raises :class:`FrameUnavailable`."""
 
-    def close(self) -> None:
+    def close(self) -> None:  # noqa: B027 - optional: sources that hold nothing keep it
         """Release the device (nothing to release by default)."""
 
 

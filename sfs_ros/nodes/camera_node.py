@@ -50,8 +50,8 @@ from sfs_ros.hardware.cameras import CameraSource, FolderSource, FrameUnavailabl
 from sfs_ros.nodes.entry import run_node
 from sfs_ros.ros import capture_qos
 from sfs_ros.ros.convert import camera_info, diagnostic_array, image_to_msg
-from sfs_ros.ros.params import Param, ParameterError, declare
 from sfs_ros.ros.pairing import stamp_key
+from sfs_ros.ros.params import Param, ParameterError, declare
 from sfs_ros.ros.rig_params import RIG_PARAMS, rig_calibration
 
 __all__ = ["CameraNode", "PARAMS", "main"]

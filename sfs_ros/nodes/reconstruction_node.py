@@ -82,9 +82,9 @@ from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker
 
 from sfs_ros.cell.live import DuplicateViewError, LiveReconstruction
-from sfs_ros.core.pipeline import MESHERS
-from sfs_ros.core.geometry.rig import rig_camera
 from sfs_ros.core.exchange.views import as_bounds
+from sfs_ros.core.geometry.rig import rig_camera
+from sfs_ros.core.pipeline import MESHERS
 from sfs_ros.nodes.entry import run_node
 from sfs_ros.ros import capture_qos, result_qos
 from sfs_ros.ros.convert import (

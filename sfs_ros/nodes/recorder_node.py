@@ -82,9 +82,19 @@ from rclpy.parameter_client import AsyncParameterClient
 from rclpy.serialization import deserialize_message
 from std_srvs.srv import Trigger
 
-from sfs_ros.cell.bag import (CAPTURE, PARAMETERS_TOPIC, RECORDER_TOPICS, RESULT, SCAN_TOPIC,
-                              STORAGES, TOPICS, BagWriter, bag_folder, parameters_message,
-                              scan_message)
+from sfs_ros.cell.bag import (
+    CAPTURE,
+    PARAMETERS_TOPIC,
+    RECORDER_TOPICS,
+    RESULT,
+    SCAN_TOPIC,
+    STORAGES,
+    TOPICS,
+    BagWriter,
+    bag_folder,
+    parameters_message,
+    scan_message,
+)
 from sfs_ros.cell.messages import scan_report
 from sfs_ros.nodes.entry import run_node
 from sfs_ros.ros import capture_qos, result_qos

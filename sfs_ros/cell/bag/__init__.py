@@ -12,8 +12,20 @@ message fields are decoded by :mod:`sfs_ros.cell.messages`, as the nodes do.
 * :mod:`.views`: :func:`read_bag`, the views as the reconstruction node received them.
 """
 
-from .layout import (BAG_SUFFIXES, CAPTURE, DEFAULT, PARAMETERS_TOPIC, RECORDER_TOPICS, RESULT,
-                     SCAN_TOPIC, STORAGES, TOPICS, bag_folder, parameters_message, scan_message)
+from .layout import (
+                     BAG_SUFFIXES,
+                     CAPTURE,
+                     DEFAULT,
+                     PARAMETERS_TOPIC,
+                     RECORDER_TOPICS,
+                     RESULT,
+                     SCAN_TOPIC,
+                     STORAGES,
+                     TOPICS,
+                     bag_folder,
+                     parameters_message,
+                     scan_message,
+)
 from .reading import Bag, BagMessage, open_bag
 from .views import BagViewSet, read_bag
 from .writing import BagWriter

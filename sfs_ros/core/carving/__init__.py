@@ -1,8 +1,7 @@
 """Shape from silhouette: voxel carving, the carving box, view consistency and specks."""
 
 from .bounds import axes_meeting_point, estimate_bounds, refine_bounds
-from .carve import (OUTSIDE_IMAGE, Carver, PreparedMasks, carve, validate_masks,
-                    view_coefficients)
+from .carve import OUTSIDE_IMAGE, Carver, PreparedMasks, carve, validate_masks, view_coefficients
 from .consistency import ViewCheck, bbox_clips_object, find_inconsistent_views, hull_silhouettes
 from .fusion import Fusion, ViewVerdict, fuse_silhouettes
 from .hull import drop_specks

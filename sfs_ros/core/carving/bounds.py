@@ -12,8 +12,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry.camera import Camera
-from .carve import carve
 from ..geometry.grid import VoxelGrid
+from .carve import carve
 from .hull import drop_specks
 
 __all__ = ["axes_meeting_point", "box_in_frame", "estimate_bounds", "refine_bounds",

@@ -29,9 +29,9 @@ from typing import Sequence
 import numba
 import numpy as np
 
-from . import carve_kernels as _k
 from ..geometry.camera import Camera
 from ..geometry.grid import VoxelGrid
+from . import carve_kernels as _k
 
 __all__ = ["OUTSIDE_IMAGE", "PreparedMasks", "carve", "Carver", "validate_masks",
            "view_coefficients"]

@@ -22,9 +22,9 @@ import numpy as np
 from numba import njit, prange
 
 from ..geometry.camera import Camera
-from .carve import carve, validate_masks, view_coefficients
 from ..geometry.grid import VoxelGrid
 from ..metrics import silhouette_iou
+from .carve import carve, validate_masks, view_coefficients
 
 __all__ = ["ViewCheck", "hull_silhouettes", "find_inconsistent_views", "bbox_clips_object"]
 

@@ -444,7 +444,8 @@ class AdvancingFrontResult:
         ``n_hole_faces`` (added by ear clipping), ``n_faces_removed`` (grown faces
         removed around loops ear clipping could not fill, to retry a larger hole),
         ``n_holes_filled``, ``n_holes_left`` (front loops that stayed open),
-        ``n_front_edges_left`` (edges used by one face at the end), ``n_nonmanifold_edges`` (used by more than two faces, 0 by
+        ``n_front_edges_left`` (edges used by one face at the end),
+        ``n_nonmanifold_edges`` (used by more than two faces, 0 by
         construction), ``n_nonmanifold_vertices`` (vertices whose faces form more than one
         fan), ``n_swaps``, ``closed`` (every edge used by exactly two faces).
     """

@@ -44,8 +44,8 @@ from scipy import sparse
 from scipy.sparse import csgraph
 from scipy.sparse.linalg import splu
 
-from ..geometry.camera import Camera
 from ..carving.carve import validate_masks
+from ..geometry.camera import Camera
 from ..render import as_mesh_arrays, rasterize_faces
 
 __all__ = ["VertexColours", "vertex_colours", "vertex_normals"]

@@ -8,9 +8,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ..render import render_image
 from ..exchange.files import write_atomic
 from ..geometry.rig import RigCalibration, rig_camera
+from ..render import render_image
 
 __all__ = ["PREVIEW_VIEWS_DEG", "png_bytes", "preview_image", "write_png"]
 

@@ -15,12 +15,17 @@ import trimesh
 from ..carving.carve import carve
 from ..carving.hull import drop_specks
 from ..geometry.grid import VoxelGrid
-from ..meshing.marching import marching_cubes_mesh
-from ..metrics import (chamfer_distance, mesh_occupancy, occupancy_from_contains,
-                       reprojection_ious, volume_iou)
-from .objects import SyntheticObject
-from ..render import rasterize_silhouette, render_image
 from ..geometry.rig import RigCalibration, rig_camera
+from ..meshing.marching import marching_cubes_mesh
+from ..metrics import (
+    chamfer_distance,
+    mesh_occupancy,
+    occupancy_from_contains,
+    reprojection_ious,
+    volume_iou,
+)
+from ..render import rasterize_silhouette, render_image
+from .objects import SyntheticObject
 
 __all__ = ["Capture", "carving_box", "exact_silhouettes", "simulate_scan", "score_against_truth",
            "true_visual_hull"]
