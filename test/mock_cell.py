@@ -37,7 +37,9 @@ OVERRIDES = {
                             "bounds_m": carving_box(make_object("mug")).ravel().tolist()},
     "scan.yaml": {"settle_samples": 2, "stall_s": 1.5, "move_timeout_s": 4.0, "move_retries": 1,
                   "capture_timeout_s": 3.0, "capture_retries": 1, "receipt_timeout_s": 3.0,
-                  "home_timeout_s": 20.0},
+                  # Homing only bounded against a hang: under the load of two full suites
+                  # at once the mock's homing call took over 20 s.
+                  "home_timeout_s": 120.0},
 }
 
 
