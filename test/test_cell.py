@@ -135,14 +135,19 @@ def _check_every_view_once(rec: Recorder, status) -> None:
     """Every planned view captured once: one stamp each, tagged with that view's angles;
     any further message on the capture topic repeats one of those stamps and is one of
     the scan node's counted resends (a receipt late under load, a restarted node). And
-    every view stored once by the reconstruction."""
+    every view stored once by the reconstruction.
+
+    The probe waits for one message of every view, not for every resend: a resend is
+    counted when it is decided, and the probe is one more reader that may see it late
+    (its arrival proves nothing about delivery, which the receipts and the
+    reconstruction's view count below do prove)."""
     assert status.complete and status.count("total") == len(PLAN)
     resends = status.count("resends")
-    wait(lambda: len(rec.joints) >= len(PLAN) + resends, what="every capture",
+    wait(lambda: len(set(_stamps(rec.joints))) >= len(PLAN), what="a capture of every view",
          timeout=MESSAGE_TIMEOUT_S)
     stamps = _stamps(rec.joints)
     unique = sorted(set(stamps))
-    assert len(unique) == len(PLAN) and len(stamps) == len(PLAN) + resends
+    assert len(unique) == len(PLAN) and len(stamps) <= len(PLAN) + resends
     by_stamp = dict(zip(stamps, rec.joints))
     assert sorted(_matched_views(by_stamp[s] for s in unique)) == list(range(len(PLAN)))
     wait(lambda: _reconstruction_views(rec) == len(PLAN), timeout=MESSAGE_TIMEOUT_S,
