@@ -10,9 +10,9 @@
 | pub | ``camera_poses`` | geometry_msgs/PoseArray | the cameras of this scan's views, frame "turntable" |
 | pub | ``mesh`` | visualization_msgs/Marker | TRIANGLE_LIST of the last reconstruction |
 | pub | ``mesh_shape`` | shape_msgs/Mesh | the same mesh |
-| pub | ``diagnostics`` | diagnostic_msgs/DiagnosticArray | per event and at 1 Hz |
-| srv | ``reconstruct`` | std_srvs/Trigger | message: JSON summary of the written mesh |
-| srv | ``reset`` | std_srvs/Trigger | start a new scan |
+| pub | ``/diagnostics`` | diagnostic_msgs/DiagnosticArray | per event and at 1 Hz |
+| srv | ``~/reconstruct`` | std_srvs/Trigger | message: JSON summary of the written mesh |
+| srv | ``~/reset`` | std_srvs/Trigger | start a new scan |
 
 One node does both carving and meshing: both work on the same
 :class:`sfs_ros.cell.live.LiveReconstruction` (live hull, views persisted in a
@@ -98,6 +98,7 @@ from sfs_ros.ros.convert import (
     msg_to_image,
     points_to_cloud,
 )
+from sfs_ros.ros.names import DIAGNOSTICS, private, status_name
 from sfs_ros.ros.paired_input import PairedInput, Stream
 from sfs_ros.ros.pairing import format_stamp, stamp_key, view_key
 from sfs_ros.ros.params import Param, ParameterError, declare
@@ -203,7 +204,7 @@ class ReconstructionNode(Node):
         self._cameras: list = []   # of this scan's views, for camera_poses (worker thread)
         self._marker_pub = self.create_publisher(Marker, "mesh", result_qos())
         self._shape_pub = self.create_publisher(Mesh, "mesh_shape", result_qos())
-        self._diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
+        self._diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
         self._input = PairedInput(
             self, Stream(Image, "capture/mask", "mask", _decode_mask),
             Stream(JointState, "capture/mask_joint_state", "joint state",
@@ -213,9 +214,9 @@ class ReconstructionNode(Node):
         if values["colour"]:
             self.create_subscription(Image, "capture/image", self._on_image, qos,
                                      callback_group=inputs)
-        self.create_service(Trigger, "reconstruct", self._on_reconstruct,
+        self.create_service(Trigger, private("reconstruct"), self._on_reconstruct,
                             callback_group=services)
-        self.create_service(Trigger, "reset", self._on_reset, callback_group=services)
+        self.create_service(Trigger, private("reset"), self._on_reset, callback_group=services)
         self.create_timer(1.0, self._publish_diagnostics, callback_group=inputs)
 
         self._last_hull = -float("inf")   # worker thread: when the hull was last published
@@ -401,7 +402,7 @@ class ReconstructionNode(Node):
         values.update(waiting_masks=self._input.pending("first"),
                       waiting_joint_states=self._input.pending("second"))
         self._diag_pub.publish(diagnostic_array(
-            f"{self.get_name()}: reconstruction", level, message, values,
+            status_name(self, "reconstruction"), level, message, values,
             stamp=self.get_clock().now().to_msg()))
 
 
