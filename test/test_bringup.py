@@ -18,6 +18,7 @@ import pytest
 from std_srvs.srv import Trigger
 
 from sfs_ros.cli.bringup import cell_nodes, default_config_dir
+from sfs_ros.ros.names import SERVICES
 
 from ros_harness import NAMESPACE, SOURCE_ROOT, NodeProcess, RosProbe
 
@@ -206,7 +207,7 @@ class MockCell:
         and reconstruction services are ready."""
         probe = RosProbe()
         try:
-            clients = [probe.node.create_client(Trigger, f"{self.namespace}/{name}")
+            clients = [probe.node.create_client(Trigger, f"{self.namespace}/{SERVICES[name]}")
                        for name in ("scan/start", "reconstruct")]
 
             def up() -> bool:

@@ -23,8 +23,9 @@ from sfs_ros.core.simulation.plan import ring_plan
 from sfs_ros.core.simulation.synthetic import carving_box, score_against_truth
 from sfs_ros.ros import capture_qos, result_qos
 from sfs_ros.ros.convert import cloud_to_points, image_to_msg, joint_state, shape_to_mesh
+from sfs_ros.ros.names import DIAGNOSTICS, SERVICES
 
-from ros_harness import NodeProcess, NodeUnderTest
+from ros_harness import NodeProcess, NodeUnderTest, keep_ours
 from tolerances import MUG_IOU_29_VIEWS_MIN, QUIET_S
 
 MODULE = "sfs_ros.nodes.reconstruction_node"
@@ -79,9 +80,9 @@ class Cell(NodeUnderTest):
                 node.create_subscription(Header, "capture/stored", self.receipts.append, qos),
                 node.create_subscription(Marker, "mesh", self.markers.append, result_qos()),
                 node.create_subscription(Mesh, "mesh_shape", self.shapes.append, result_qos()),
-                node.create_subscription(DiagnosticArray, "diagnostics",
-                                         self.diagnostics.append, 10)]
-        self.clients = {name: node.create_client(Trigger, name)
+                node.create_subscription(DiagnosticArray, DIAGNOSTICS,
+                                         keep_ours(self.diagnostics), 10)]
+        self.clients = {name: node.create_client(Trigger, SERVICES[name])
                         for name in ("reconstruct", "reset")}
         self.probe.wait_connected([self.mask_pub, self.joints_pub], subs, process=self.process)
         self.probe.spin_until(lambda: all(c.service_is_ready() for c in self.clients.values()),

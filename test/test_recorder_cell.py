@@ -28,6 +28,7 @@ from sfs_ros.core.exchange.export import load_mesh
 from sfs_ros.core.exchange.nerf import read_transforms
 from sfs_ros.core.exchange.session import read_session
 from sfs_ros.core.exchange.views import read_image
+from sfs_ros.ros.names import SERVICES
 from sfs_ros.ros.services import call
 
 from mock_cell import RESOLUTION, SCAN_TIMEOUT_S, running_cell
@@ -40,7 +41,7 @@ STORE = get_typestore(Stores.ROS2_KILTED)
 def cell(tmp_path_factory):
     with running_cell(tmp_path_factory.mktemp("recorded_cell"), "recorded_cell_client") as up:
         probe = RosProbe("recorded_cell_probe")
-        services = {n: probe.node.create_client(Trigger, f"record/{n}") for n in ("start", "stop")}
+        services = {n: probe.node.create_client(Trigger, SERVICES[f"record/{n}"]) for n in ("start", "stop")}
         threading.Thread(target=probe.executor.spin, daemon=True).start()
         try:
             yield {**up, "services": services}

@@ -13,11 +13,10 @@ runs the sequence in the test's own thread, so every run is deterministic.
 import heapq
 import itertools
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
-
-from dataclasses import replace
 
 from sfs_ros.cell.scan_sequence import ScanSequence, ScanSettings, StepFailed
 
