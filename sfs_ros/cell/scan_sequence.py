@@ -221,7 +221,7 @@ class ScanStatus:
 
     ``values``: scan (number of starts), state, view (1-based), total,
     captured, receipted, resends, move_retries, capture_retries,
-    lost_in_transport, malformed, motion_s, shutter_s. ``problem`` (ERROR)
+    lost_in_transport, malformed, motion_s, shutter_s, trigger (this scan's). ``problem`` (ERROR)
     and ``warning`` (WARN): empty when none; ``summary``: one line.
     """
 
@@ -570,7 +570,8 @@ class ScanSequence:
                           shutter_s=round(self._counts["shutter_s"], 4), scan=self._scan,
                           state=self._state, view=self._view + 1, total=len(self),
                           captured=self._ledger.captured, receipted=self._ledger.receipted,
-                          lost_in_transport=self._ledger.given_up)
+                          lost_in_transport=self._ledger.given_up,
+                          trigger=self.settings.trigger)
             problem, warning = self._problem, self._warning
         summary = (f"{values['state']}: {values['captured']} of {values['total']} views "
                    f"captured, {values['receipted']} receipted")

@@ -63,8 +63,9 @@ Diagnostics values: ``scan`` (1 for the first ``scan/start``, then 2, ...),
 ``state`` (idle, starting, running, paused, cancelled, done), ``view`` (the
 view being taken, 1-based), ``total``, ``captured``, ``receipted``,
 ``resends``, ``move_retries``, ``capture_retries``, ``lost_in_transport``,
-``malformed``, and this scan's seconds of ``motion_s`` (command to settled)
-and ``shutter_s`` (shutter call to frame in hand). Parameters: :data:`PARAMS`.
+``malformed``, this scan's seconds of ``motion_s`` (command to settled)
+and ``shutter_s`` (shutter call, or settling, to frame in hand), and its
+``trigger``. Parameters: :data:`PARAMS`.
 """
 
 from __future__ import annotations
