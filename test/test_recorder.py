@@ -3,7 +3,7 @@
 A reconstruction node runs beside it (the recorder stores its parameters,
 and the offline reader needs them to place the cameras); the probe publishes
 exact sphere silhouettes with their joint states as the segmentation node
-would. A bag closed by SIGINT or ``record/stop`` opens with rosbags; a bag
+would. A bag closed by SIGINT or ``recorder/stop`` opens with rosbags; a bag
 whose recorder was killed outright (SIGKILL) reads up to its last whole
 message, and every view in it is one the probe sent, in order, with no gap.
 """
@@ -195,12 +195,12 @@ def test_sqlite3_storage_on_request(recorder_factory, probe, views):
 def test_start_twice_and_stop_without_recording_are_refused(recorder_factory):
     recorder = recorder_factory(bag_name="mine")
     refused = recorder.call("stop")
-    assert not refused.success and refused.message == "not recording: call record/start first"
+    assert not refused.success and refused.message == "not recording: call recorder/start first"
     path = recorder.start()
     assert path.endswith("/bags/mine")
     again = recorder.call("start")
     assert not again.success and again.message == f"already recording to {path}; call " \
-                                                  "record/stop first"
+                                                  "recorder/stop first"
     assert recorder.call("stop").success
     taken = recorder.call("start")                            # bag_name is taken now
     assert not taken.success and "exists" in taken.message and "bag_name" in taken.message

@@ -2,7 +2,7 @@
 
 The mock cell is brought up as in test_cell.py (:mod:`mock_cell`: small
 camera, fast axes, 64^3, a 17-view plan), the recorder among its nodes. The scan
-runs through :class:`CellClient` while ``record/start`` .. ``record/stop``
+runs through :class:`CellClient` while ``recorder/start`` .. ``recorder/stop``
 records it; ``sfs-reconstruct BAG`` must then give the mesh the
 reconstruction node wrote: the bag holds the masks and joint states the node
 carved and the parameters it ran with, and the offline reader feeds them to
@@ -55,7 +55,7 @@ def _record(cell, what: str) -> Trigger.Response:
 
 @pytest.fixture(scope="module")
 def recorded(cell):
-    """One scan recorded from record/start to record/stop: the bag, the live summary, figures."""
+    """One scan recorded from recorder/start to recorder/stop: the bag, the live summary, figures."""
     client = cell["client"]
     answer = _record(cell, "start")
     assert answer.success, answer.message

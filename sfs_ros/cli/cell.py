@@ -55,7 +55,7 @@ def build_parser() -> argparse.ArgumentParser:
                              "starting our camera node")
     p.add_argument("--record", action="store_true",
                    help="record every scan as a rosbag2 in OUTPUT_DIR/bags (the recorder "
-                        "also takes record/start and record/stop at any time)")
+                        "also takes recorder/start and recorder/stop at any time)")
     return p
 
 
