@@ -256,6 +256,7 @@ class ScanSequence:
         self._history = EncoderHistory()
         self._readings: deque[tuple[float, float]] = deque(maxlen=_READINGS_KEPT)
         self._frames: OrderedDict[Stamp, Any] = OrderedDict()
+        self._earliest: Stamp | None = None    # stream: a view waits for a frame this late
         self._receivers: set = set()
         self._ledger = self._new_ledger()
         self._counts = self._new_counts()
@@ -284,9 +285,15 @@ class ScanSequence:
             self._cv.notify_all()
 
     def frame(self, stamp: Stamp, frame: Any) -> None:
-        """A camera frame; the last few are kept by stamp for the shutter that took them."""
+        """A camera frame; the last few are kept by stamp for the shutter that took them
+        (``stream``: only while a view waits, and only those stamped late enough, so a
+        fast stream of large frames does not pile up)."""
+        stamp = tuple(stamp)
         with self._cv:
-            self._frames[tuple(stamp)] = frame
+            if self.settings.trigger == "stream" and (self._earliest is None
+                                                      or stamp < self._earliest):
+                return
+            self._frames[stamp] = frame
             while len(self._frames) > _FRAMES_KEPT:
                 self._frames.popitem(last=False)
             self._cv.notify_all()
@@ -536,18 +543,23 @@ class ScanSequence:
             late = [s for s in self._frames if s >= earliest]
             return min(late) if late else None
 
-        if not self._ports.wait_for(self._cv, lambda: first() is not None
-                                    or self.cancelled.is_set(), timeout_s):
-            self._check_cancel()
-            raise StepFailed(f"no camera frame stamped at or after {_format(earliest)} (the axes "
-                             f"settled, plus {self.settings.exposure_delay_s:g} s) within "
-                             f"{timeout_s:g} s: is the camera streaming on image_raw?")
-        self._check_cancel()
         with self._cv:
-            stamp = first()
-            for older in [s for s in self._frames if s < stamp]:   # exposed while moving
-                del self._frames[older]
-        return stamp
+            self._frames.clear()                 # of an earlier view
+            self._earliest = earliest
+        try:
+            if not self._ports.wait_for(self._cv, lambda: first() is not None
+                                        or self.cancelled.is_set(), timeout_s):
+                self._check_cancel()
+                raise StepFailed(f"no camera frame stamped at or after {_format(earliest)} "
+                                 f"(the axes settled, plus {self.settings.exposure_delay_s:g} "
+                                 f"s) within {timeout_s:g} s: is the camera streaming on "
+                                 "image_raw?")
+            self._check_cancel()
+            with self._cv:
+                return first()
+        finally:
+            with self._cv:
+                self._earliest = None
 
     # -- state and diagnostics (any thread) --------------------------------------------------
 
