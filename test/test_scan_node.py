@@ -8,14 +8,18 @@ the probe calls the scan services and watches ``/diagnostics`` and ``joint_comma
 import functools
 import time
 
+import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
-from sensor_msgs.msg import JointState
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import Image, JointState
 from std_srvs.srv import Trigger
 
 from sfs_ros.cell.scan_plan import ScanPlan
+from sfs_ros.ros import capture_qos
+from sfs_ros.ros.convert import image_to_msg, joint_state
 from sfs_ros.ros.names import DIAGNOSTICS, SERVICES
 
 from ros_harness import MESSAGE_TIMEOUT_S, NodeProcess, NodeUnderTest, keep_ours
@@ -216,3 +220,63 @@ def test_the_camera_trigger_can_change_between_scans_and_a_bad_value_is_refused(
     assert set_one("camera_trigger", "stream").successful
     assert set_one("exposure_delay_s", 0.05).successful
     assert trigger() == "stream"
+
+
+class StreamingDriver:
+    """A stand-in for a third-party camera driver and the cell's encoders, in the probe.
+
+    Every ``PERIOD_S`` it publishes the encoders at the last commanded viewpoint (the axes
+    reach it at once) and a frame on ``image_raw`` with the sensor-data QoS (best effort),
+    as many drivers do. The driver has ``LATENCY_S`` of latency: a frame is stamped when
+    exposed and published that much later, so when the axes settle, frames exposed on the
+    way are still coming. ``seen[stamp]`` is the viewpoint a frame was exposed at.
+    """
+
+    PERIOD_S = 0.05
+    LATENCY_S = 0.3
+
+    def __init__(self, node):
+        self.node = node
+        self.target = (0.0, 0.0)
+        self.seen: dict[tuple[int, int], tuple[float, float]] = {}
+        self.exposed: list[tuple[float, tuple, tuple]] = []   # (publish at, stamp, viewpoint)
+        self.encoders = node.create_publisher(JointState, "joint_states", 10)
+        self.camera = node.create_publisher(Image, "image_raw", qos_profile_sensor_data)
+        node.create_subscription(JointState, "joint_command", self._command, 10)
+        node.create_timer(self.PERIOD_S, self._tick)
+
+    def _command(self, msg: JointState) -> None:
+        self.target = tuple(float(v) for v in msg.position)
+
+    def _tick(self) -> None:
+        now = self.node.get_clock().now()
+        self.encoders.publish(joint_state(*self.target, stamp=now.to_msg()))
+        stamp = now.to_msg()
+        self.exposed.append((time.monotonic() + self.LATENCY_S, stamp, self.target))
+        while self.exposed and self.exposed[0][0] <= time.monotonic():
+            _, stamp, seen = self.exposed.pop(0)
+            self.seen[(stamp.sec, stamp.nanosec)] = seen
+            self.camera.publish(image_to_msg(np.zeros((6, 8, 3), np.uint8), stamp=stamp,
+                                             frame_id="camera_optical"))
+
+
+def test_a_streaming_driver_with_best_effort_frames_gives_every_view_at_its_viewpoint(start):
+    node = start(reset_reconstruction=False, home_before_scan=False, camera_trigger="stream",
+                 image_reliability="best_effort", exposure_delay_s=0.1)
+    driver = StreamingDriver(node.probe.node)
+    captures = []
+    node.probe.node.create_subscription(Image, "capture/image", captures.append,
+                                        capture_qos(20))
+    node.probe.wait_connected(publishers=[driver.camera, driver.encoders],
+                              process=node.process)
+    assert node.call("start").success
+    node.probe.spin_until(lambda: node.statuses()[-1].values["state"] == "done",
+                          what="the scan done", process=node.process)
+    node.probe.spin_until(lambda: len(captures) == N, what=f"{N} captures",
+                          process=node.process)
+    assert node.statuses()[-1].values["trigger"] == "stream"
+    # Each view is a frame the driver streamed, exposed at that view's viewpoint (not on
+    # the way to it, although such frames arrived after the axes had settled).
+    for capture, view in zip(captures, PLAN.views):
+        seen = driver.seen[(capture.header.stamp.sec, capture.header.stamp.nanosec)]
+        assert seen == tuple(float(v) for v in view)
