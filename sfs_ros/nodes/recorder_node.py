@@ -6,7 +6,7 @@
 | sub | ``capture/joint_state``, ``capture/mask_joint_state`` | sensor_msgs/JointState | captures |
 | sub | ``capture/stored`` | std_msgs/Header | captures QoS |
 | sub | ``joint_states``, ``camera_info`` | sensor_msgs/JointState, CameraInfo | depth 10 |
-| sub | ``/diagnostics`` | diagnostic_msgs/DiagnosticArray | depth 10; in the bag as ``<ns>/diagnostics`` |
+| sub | ``/diagnostics`` | diagnostic_msgs/DiagnosticArray | in the bag as ``<ns>/diagnostics`` |
 | sub | ``hull``, ``camera_poses`` | sensor_msgs/PointCloud2, geometry_msgs/PoseArray | results |
 | sub | ``mesh``, ``mesh_shape`` | visualization_msgs/Marker, shape_msgs/Mesh | results QoS |
 | pub | ``/diagnostics`` | diagnostic_msgs/DiagnosticArray | 1 Hz and at start / stop |

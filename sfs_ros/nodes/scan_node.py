@@ -4,7 +4,7 @@
 |---|---|---|---|
 | pub | ``joint_command`` | sensor_msgs/JointState | the next viewpoint, rad (to the motor node) |
 | sub | ``joint_states`` | sensor_msgs/JointState | encoder read-back (from the motor node) |
-| sub | ``image_raw`` | sensor_msgs/Image | frames of the camera (any driver), reliable |
+| sub | ``image_raw`` | sensor_msgs/Image | the camera's frames (any driver); QoS: see below |
 | pub | ``capture/image`` | sensor_msgs/Image | each view's frame, its shutter stamp |
 | pub | ``capture/joint_state`` | sensor_msgs/JointState | encoder angles at the shutter, same stamp |
 | sub | ``capture/stored`` | std_msgs/Header | receipts of the reconstruction node |
@@ -21,13 +21,16 @@ Names: :mod:`sfs_ros.ros.names` (the node is ``scan``, so ``~/start`` is
 elsewhere is connected by a remap (``-r image_raw:=/my_camera/image_raw``).
 
 Capture topics and receipts: reliable, volatile, depth ``queue_depth``
-(:func:`sfs_ros.ros.capture_qos`): no view may be dropped.
+(:func:`sfs_ros.ros.capture_qos`): no view may be dropped. ``image_raw``:
+depth 10, reliable, or best effort with ``image_reliability`` (a driver that
+publishes with the sensor-data QoS).
 
 A scan, view by view, in plan order (:class:`sfs_ros.cell.scan_plan.ScanPlan`,
 from ``plan_file`` or the ring parameters): command the viewpoint, wait until
 the encoders have settled on it (:class:`sfs_ros.cell.settle.SettleDetector`),
-take the view's frame, and tag it with the encoder reading nearest to its stamp: ``capture/image`` (the
-frame) and ``capture/joint_state`` (that reading) share the frame's stamp.
+take the view's frame, and tag it with the encoder reading nearest to its
+stamp: ``capture/image`` (the frame) and ``capture/joint_state`` (that
+reading) share the frame's stamp.
 ``scan/start`` first resets the reconstruction and homes the axes (each can
 be switched off).
 
