@@ -17,7 +17,8 @@ from pathlib import Path
 import pytest
 from std_srvs.srv import Trigger
 
-from sfs_ros.cli.bringup import cell_nodes, default_config_dir
+from sfs_ros.cli.bringup import Cell, cell_nodes, default_config_dir
+from sfs_ros.ros.names import NAMESPACE as NAMESPACE_DEFAULT
 from sfs_ros.ros.names import SERVICES
 
 from ros_harness import NAMESPACE, SOURCE_ROOT, NodeProcess, RosProbe
@@ -107,6 +108,18 @@ def test_real_cell_options_port_camera_device_camera_topic_and_site_params(tmp_p
 def test_cell_nodes_refuses_options_that_do_not_fit(options, error, tmp_path):
     with pytest.raises(ValueError, match=error):
         cell_nodes(CONFIG, tmp_path / "out", **options)
+
+
+@pytest.mark.parametrize("given, namespace", [("/cell1", "/cell1"), ("cell1", "/cell1"),
+                                              ("/a/b/", "/a/b"), ("", ""), ("/", "")])
+def test_the_cells_namespace_is_made_absolute(given, namespace):
+    # rcl refuses a relative __ns remap: "sfs-cell --namespace cell1" means /cell1.
+    cell = Cell([], namespace=given, log=None)
+    assert cell.namespace == namespace
+
+
+def test_the_cell_is_in_its_own_namespace_by_default():
+    assert Cell([], log=None).namespace == NAMESPACE_DEFAULT == "/sfs"
 
 
 def test_cell_nodes_names_a_missing_site_params_file(tmp_path):

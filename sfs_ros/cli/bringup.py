@@ -155,7 +155,8 @@ class Cell:
 
     specs : list of NodeSpec
     namespace : str
-        ROS namespace of every node (absolute; "" = the root).
+        ROS namespace of every node ("" or "/" = the root; made absolute: "cell1" is
+        "/cell1").
     log : file, optional
         Where the nodes' output lines go, prefixed with ``[name]``; None = discarded.
     env : dict, optional
@@ -165,7 +166,7 @@ class Cell:
     def __init__(self, specs: list[NodeSpec], *, namespace: str = NAMESPACE, log=sys.stdout,
                  env: dict | None = None):
         self.specs = specs
-        self.namespace = namespace
+        self.namespace = "/" + namespace.strip("/") if namespace.strip("/") else ""
         self._log = log
         self._env = dict(os.environ if env is None else env, PYTHONUNBUFFERED="1")
         self._log_lock = threading.Lock()

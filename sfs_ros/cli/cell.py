@@ -72,8 +72,7 @@ def main(argv=None) -> int:
         return 2
     print(f"{PROG}: starting {', '.join(s.name for s in specs)} (config {config}); "
           "Ctrl-C stops", flush=True)
-    namespace = "/" + args.namespace.strip("/") if args.namespace.strip("/") else ""
-    return wait_until_signal(Cell(specs, namespace=namespace).start())
+    return wait_until_signal(Cell(specs, namespace=args.namespace).start())
 
 
 if __name__ == "__main__":
