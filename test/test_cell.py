@@ -29,9 +29,10 @@ from sfs_ros.core.simulation.synthetic import carving_box, score_against_truth
 from sfs_ros.ros import capture_qos
 from sfs_ros.ros.cell_client import ScanFailed
 from sfs_ros.ros.convert import image_to_msg
+from sfs_ros.ros.names import DIAGNOSTICS
 
 from mock_cell import PLAN, RESOLUTION, SCAN_TIMEOUT_S, running_cell
-from ros_harness import MESSAGE_TIMEOUT_S, RosProbe, wait
+from ros_harness import MESSAGE_TIMEOUT_S, RosProbe, keep_ours, wait
 from tolerances import MUG_IOU_SPARSE_MIN, READBACK_TOL_RAD
 
 
@@ -49,7 +50,8 @@ class Recorder:
         self.joints, self.diagnostics, self.encoders = [], [], []
         node.create_subscription(JointState, "joint_states", self.encoders.append, 10)
         node.create_subscription(JointState, "capture/joint_state", self.joints.append, qos)
-        node.create_subscription(DiagnosticArray, "diagnostics", self.diagnostics.append, 100)
+        node.create_subscription(DiagnosticArray, DIAGNOSTICS, keep_ours(self.diagnostics),
+                                 100)
         self.bad_image_pub = node.create_publisher(Image, "capture/image", qos)
         self.bad_joints_pub = node.create_publisher(JointState, "joint_states", 10)
         self.bad_mask_pub = node.create_publisher(Image, "capture/mask", qos)

@@ -51,7 +51,7 @@ from ..core.segment import SegmentationParams
 from .paths import confined_path
 
 __all__ = ["MASK_SEGMENTATION", "DuplicateViewError", "AddedView", "LiveReconstruction",
-           "surface_points", "mask_to_rgb"]
+           "surface_points", "mask_to_rgb", "check_scan_name"]
 
 #: Segmentation under which a 0/255 mask image segments to exactly that mask.
 MASK_SEGMENTATION = SegmentationParams(
@@ -96,6 +96,17 @@ class _Received:
     packed_mask: np.ndarray  # np.packbits of the (H, W) bool mask
     theta_rad: float
     phi_rad: float
+
+
+def check_scan_name(output_dir, scan_name: str) -> None:
+    """ValueError unless ``scan_name`` can name a new scan folder in ``output_dir``: 1-100
+    letters, digits, ``_``, ``-`` or ``.`` (not first) and no such folder yet."""
+    if not isinstance(scan_name, str) or not _SCAN_NAME.fullmatch(scan_name):
+        raise ValueError(f"scan name {scan_name!r} must be 1-100 letters, digits, "
+                         "'_', '-' or '.', not starting with '.', '_' or '-'")
+    if (Path(output_dir) / scan_name).exists():
+        raise ValueError(f"scan folder {Path(output_dir) / scan_name} already exists; "
+                         "choose a new scan name")
 
 
 def mask_to_rgb(mask: np.ndarray) -> np.ndarray:
@@ -218,12 +229,7 @@ class LiveReconstruction:
         ValueError if that folder already exists.
         """
         if scan_name is not None:
-            if not isinstance(scan_name, str) or not _SCAN_NAME.fullmatch(scan_name):
-                raise ValueError(f"scan name {scan_name!r} must be 1-100 letters, digits, "
-                                 "'_', '-' or '.', not starting with '.', '_' or '-'")
-            if (self.output_dir / scan_name).exists():
-                raise ValueError(f"scan folder {self.output_dir / scan_name} already exists; "
-                                 "choose a new scan name")
+            check_scan_name(self.output_dir, scan_name)
         self._requested_name = scan_name
         self._session: Path | None = None
         self._carver = Carver(self.grid, max_misses=self.params.max_misses)
