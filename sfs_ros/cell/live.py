@@ -3,7 +3,8 @@
 :class:`LiveReconstruction` carves each arriving mask into a voxel hull at
 once (a preview that grows sharper with every view), writes every view to a
 session folder as it arrives, and on request runs the full reconstruction
-(:func:`sfs_ros.core.pipeline.reconstruct`) on the views received so far.
+(:func:`sfs_ros.core.pipeline.reconstruct`) on the views received so far, with the
+masks received (the images are not read back nor segmented again).
 
 Persistence and the final reconstruction share one path: each mask is stored
 as a black-and-white PNG (object 255, background 0) in a scan session folder
@@ -436,7 +437,10 @@ class LiveReconstruction:
         html_path = confined_path(root, stem + ".html", suffixes=(".html",))
         sheet_path = confined_path(root, stem + ".views.png", suffixes=(".png",))
         view_set = load_views(self._session)
-        result = reconstruct(view_set, self.params)
+        # The masks received are what segmenting their stored images gives
+        # (MASK_SEGMENTATION): the pipeline takes them as they are.
+        received = {self._views[key].name: mask for key, mask, _, _ in self.views()}
+        result = reconstruct(view_set, self.params, masks=received)
         colours, coloured = (None, 0) if path.suffix.lower() == ".stl" \
             else self._colour(result, view_set)
         write_result(result, path, vertex_colors=colours, report=report_path,
