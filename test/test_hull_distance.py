@@ -13,7 +13,6 @@ import pytest
 from sfs_ros.core.carving.carve import carve
 from sfs_ros.core.geometry.camera import Camera
 from sfs_ros.core.geometry.grid import VoxelGrid
-from sfs_ros.core.meshing import hull_distance
 from sfs_ros.core.meshing.advancing_front import advancing_front
 from sfs_ros.core.meshing.cloud import cloud_of_points
 from sfs_ros.core.meshing.hull_distance import HullDistance
@@ -105,23 +104,6 @@ def test_views_intersect_and_misses_are_tolerated():
     only_box = HullDistance(cameras, masks, max_misses=3, bounds_m=box)(points)
     np.testing.assert_allclose(only_box, np.max(np.maximum(box[0] - points, points - box[1]),
                                                 axis=1))
-
-
-def test_points_in_many_chunks_each_get_their_own_value():
-    # More points than one chunk of the kernel (views are taken chunk by chunk), in an
-    # order that jumps around: each point still gets the largest (or, with a miss
-    # allowed, the second largest) of its own view values, bit for bit.
-    rng = np.random.default_rng(7)
-    cameras = [looking_along(d, orthographic=orthographic, scale=1000.0, width=WIDTH,
-                             height=HEIGHT)
-               for d, orthographic in (([1.0, 0.0, 0.0], True), ([0.0, 1.0, 0.0], False),
-                                       ([1.0, 1.0, 0.5], True), ([0.3, -1.0, 0.2], False))]
-    masks = [half_plane(c, col) for c, col in zip(cameras, (95, 100, 105, 80))]
-    points = rng.uniform(-0.02, 0.02, (3 * hull_distance._CHUNK_POINTS + 17, 3))
-    each = np.stack([HullDistance([c], [m])(points) for c, m in zip(cameras, masks)], axis=1)
-    np.testing.assert_array_equal(HullDistance(cameras, masks)(points), each.max(axis=1))
-    np.testing.assert_array_equal(HullDistance(cameras, masks, max_misses=1)(points),
-                                  np.sort(each, axis=1)[:, -2])
 
 
 def test_a_view_that_does_not_see_a_point_does_not_decide_it():

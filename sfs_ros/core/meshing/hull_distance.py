@@ -56,9 +56,6 @@ MAX_DISTANCE_PX = 1.0e6
 #: max-of-views distance has kinks, where regula falsi is no faster).
 _SEARCH_STEPS = 4
 _BISECTIONS = 20
-#: Points evaluated together, view by view (see ``_distance_kernel``): measured on
-#: 100 views of 800 x 800, 4096 took half the time of one point at a time, 1024 two thirds.
-_CHUNK_POINTS = 4096
 
 
 def _silhouette_distance(mask: np.ndarray) -> tuple[np.ndarray, int, int]:
@@ -123,86 +120,52 @@ def _sample(images, offset, width, height, u0, v0, margin, u, v):
 
 
 @njit(cache=True)
-def _view_value(hull, view, x, y, z):
-    """Signed distance (metres) of the point ``(x, y, z)`` to the silhouette cone of one
-    view; ``-inf`` when the view knows nothing about the point (outside its image or
-    behind it). ``hull`` is :attr:`HullDistance._kernel_data`."""
-    proj, orthographic, metres_per_px, image_size, crops, images, margin, _, _ = hull
-    v = view
-    hu = proj[v, 0, 0] * x + proj[v, 0, 1] * y + proj[v, 0, 2] * z + proj[v, 0, 3]
-    hv = proj[v, 1, 0] * x + proj[v, 1, 1] * y + proj[v, 1, 2] * z + proj[v, 1, 3]
-    scale = metres_per_px[view]
-    if not orthographic[view]:
-        depth = proj[v, 2, 0] * x + proj[v, 2, 1] * y + proj[v, 2, 2] * z + proj[v, 2, 3]
-        if depth <= 0.0:
-            return -np.inf
-        hu /= depth
-        hv /= depth
-        scale *= depth
-    width, height = image_size[view, 0], image_size[view, 1]
-    # The carver's pixel is floor(u + 1/2): inside the image for u in [-1/2, W - 1/2).
-    if not (-0.5 <= hu < width - 0.5 and -0.5 <= hv < height - 0.5):
-        return -np.inf
-    # Within the outer half pixel, the edge pixel's value holds.
-    hu = min(max(hu, 0.0), width - 1.0)
-    hv = min(max(hv, 0.0), height - 1.0)
-    return scale * _sample(images, crops[view, 0], crops[view, 1], crops[view, 2],
-                           crops[view, 3], crops[view, 4], margin, hu, hv)
-
-
-@njit(cache=True)
-def _insert(top, row, value):
-    """Keep ``value`` among the ``top.shape[1]`` largest so far in ``top[row]`` (descending)."""
-    rank = top.shape[1]
-    if value > top[row, rank - 1]:
-        slot = rank - 1
-        while slot > 0 and top[row, slot - 1] < value:
-            top[row, slot] = top[row, slot - 1]
-            slot -= 1
-        top[row, slot] = value
-
-
-@njit(cache=True)
-def _box_distance(hull, x, y, z):
-    """Signed distance (metres) of ``(x, y, z)`` to the carving box (an upper bound outside)."""
-    box_lo, box_hi = hull[7], hull[8]
-    return max(box_lo[0] - x, x - box_hi[0], box_lo[1] - y, y - box_hi[1],
-               box_lo[2] - z, z - box_hi[2])
-
-
-@njit(cache=True)
 def _distance_at(hull, x, y, z, top):
     """Signed distance (metres) of the point ``(x, y, z)`` to the hull (see the module doc).
 
-    ``hull`` is :attr:`HullDistance._kernel_data`; ``top`` (1, rank) float64 is
+    ``hull`` is :attr:`HullDistance._kernel_data`; ``top`` (rank,) float64 is
     scratch for the ``rank`` largest view values.
     """
-    top[0, :] = -np.inf  # descending
-    for view in range(hull[0].shape[0]):
-        _insert(top, 0, _view_value(hull, view, x, y, z))
-    return max(top[0, top.shape[1] - 1], _box_distance(hull, x, y, z))
+    proj, orthographic, metres_per_px, image_size, crops, images, margin, box_lo, box_hi = hull
+    rank = top.shape[0]
+    top[:] = -np.inf  # descending
+    for view in range(proj.shape[0]):
+        P = proj[view]
+        hu = P[0, 0] * x + P[0, 1] * y + P[0, 2] * z + P[0, 3]
+        hv = P[1, 0] * x + P[1, 1] * y + P[1, 2] * z + P[1, 3]
+        scale = metres_per_px[view]
+        if not orthographic[view]:
+            depth = P[2, 0] * x + P[2, 1] * y + P[2, 2] * z + P[2, 3]
+            if depth <= 0.0:
+                continue
+            hu /= depth
+            hv /= depth
+            scale *= depth
+        width, height = image_size[view, 0], image_size[view, 1]
+        # The carver's pixel is floor(u + 1/2): inside the image for u in [-1/2, W - 1/2).
+        if not (-0.5 <= hu < width - 0.5 and -0.5 <= hv < height - 0.5):
+            continue
+        # Within the outer half pixel, the edge pixel's value holds.
+        hu = min(max(hu, 0.0), width - 1.0)
+        hv = min(max(hv, 0.0), height - 1.0)
+        value = scale * _sample(images, crops[view, 0], crops[view, 1], crops[view, 2],
+                                crops[view, 3], crops[view, 4], margin, hu, hv)
+        if value > top[rank - 1]:
+            slot = rank - 1
+            while slot > 0 and top[slot - 1] < value:
+                top[slot] = top[slot - 1]
+                slot -= 1
+            top[slot] = value
+    box = max(box_lo[0] - x, x - box_hi[0], box_lo[1] - y, y - box_hi[1],
+              box_lo[2] - z, z - box_hi[2])
+    return max(top[rank - 1], box)
 
 
 @njit(parallel=True, cache=True)
-def _distance_kernel(hull, points, chunk, top, out):
-    """``out[p]``: signed distance (metres) of ``points[p]``; ``top`` (n, rank) scratch.
-
-    Points go in chunks of ``chunk``, each chunk view by view: one view's distance
-    image stays in the cache while the chunk's points sample it (the values, and so
-    the result, are those of :func:`_distance_at`).
-    """
-    n = points.shape[0]
-    for c in prange((n + chunk - 1) // chunk):
-        first = c * chunk
-        last = min(n, first + chunk)
-        top[first:last] = -np.inf
-        for view in range(hull[0].shape[0]):
-            for p in range(first, last):
-                _insert(top, p, _view_value(hull, view, points[p, 0], points[p, 1],
-                                            points[p, 2]))
-        for p in range(first, last):
-            out[p] = max(top[p, top.shape[1] - 1],
-                         _box_distance(hull, points[p, 0], points[p, 1], points[p, 2]))
+def _distance_kernel(hull, points, top, out):
+    """``out[p]``: signed distance (metres) of ``points[p]``; ``top`` (n, rank) scratch."""
+    for p in prange(points.shape[0]):
+        out[p] = _distance_at(hull, points[p, 0], points[p, 1], points[p, 2], top[p])
 
 
 @njit(parallel=True, cache=True)
@@ -218,10 +181,10 @@ def _project_kernel(hull, points, unit, steps, bisections, top, moved, found):
         ux, uy, uz = unit[p, 0], unit[p, 1], unit[p, 2]
         pick = -1
         previous = _distance_at(hull, x + steps[0] * ux, y + steps[0] * uy, z + steps[0] * uz,
-                                top[p:p + 1])
+                                top[p])
         for j in range(1, steps.shape[0]):
             t = steps[j]
-            current = _distance_at(hull, x + t * ux, y + t * uy, z + t * uz, top[p:p + 1])
+            current = _distance_at(hull, x + t * ux, y + t * uy, z + t * uz, top[p])
             if previous <= 0.0 < current and (
                     pick < 0 or abs(steps[j - 1] + t) < abs(steps[pick] + steps[pick + 1])):
                 pick = j - 1
@@ -232,7 +195,7 @@ def _project_kernel(hull, points, unit, steps, bisections, top, moved, found):
             lo, hi = steps[pick], steps[pick + 1]
             for _ in range(bisections):
                 mid = 0.5 * (lo + hi)
-                if _distance_at(hull, x + mid * ux, y + mid * uy, z + mid * uz, top[p:p + 1]) > 0.0:
+                if _distance_at(hull, x + mid * ux, y + mid * uy, z + mid * uz, top[p]) > 0.0:
                     hi = mid
                 else:
                     lo = mid
@@ -315,8 +278,7 @@ class HullDistance:
         if not np.all(np.isfinite(pts)):
             raise ValueError("points must be finite")
         out = np.empty(len(pts))
-        _distance_kernel(self._kernel_data, pts, _CHUNK_POINTS, np.empty((len(pts), self._rank)),
-                         out)
+        _distance_kernel(self._kernel_data, pts, np.empty((len(pts), self._rank)), out)
         return out
 
     def project(self, points, directions, *, reach_m: float) -> tuple[np.ndarray, np.ndarray]:
