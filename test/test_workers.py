@@ -1,6 +1,10 @@
 """Per-view work in threads: results in order, errors where they belong."""
 
+import os
+import subprocess
+import sys
 import threading
+from pathlib import Path
 
 import pytest
 
@@ -36,3 +40,16 @@ def test_an_error_is_raised_at_its_item():
 
 def test_at_least_one_worker():
     assert worker_count() >= 1
+
+
+@pytest.mark.parametrize("given, expected", [(None, "1"), ("3", "3")])
+def test_blas_runs_one_thread_unless_the_user_says_otherwise(given, expected):
+    # Importing the package sets BLAS's threads before numpy loads; a user's value wins.
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    if given is not None:
+        env["OPENBLAS_NUM_THREADS"] = given
+    out = subprocess.run([sys.executable, "-c", "import os, sfs_ros, numpy; "
+                          "print(os.environ['OPENBLAS_NUM_THREADS'])"],
+                         env=env, capture_output=True, text=True, check=True,
+                         cwd=Path(__file__).resolve().parents[1])
+    assert out.stdout.strip() == expected
