@@ -10,7 +10,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
@@ -22,6 +22,7 @@ from .carving.hull import drop_specks
 from .carving.resolution import choose_voxel_size, default_memory_budget
 from .exchange.views import View, ViewSet, read_image
 from .geometry.grid import VoxelGrid
+from .geometry.lens import ideal_camera, undistort_image, undistort_mask
 from .meshing.advancing_front import advancing_front
 from .meshing.cloud import cloud_of_points
 from .meshing.colour import vertex_colours
@@ -169,8 +170,9 @@ def _segment_views(views: list[View], params: SegmentationParams, progress: Prog
         if result.empty:
             rejected.append({"view": view.name, "reason": "empty silhouette: no object found"})
             continue
-        kept.append(view)
-        masks.append(result.mask)
+        # Segmented as taken, carved as an ideal pinhole: the mask is undistorted once.
+        kept.append(replace(view, camera=ideal_camera(view.camera)))
+        masks.append(undistort_mask(result.mask, view.camera))
     progress("segmentation", 1.0)
     return kept, masks
 
@@ -222,6 +224,7 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
 
     with _timed(timings, "segmentation"):
         views, masks = _segment_views(view_set.views, seg_params, progress, rejected)
+    lenses = {v.name: v.camera for v in view_set.views}   # the cameras as taken, with their lens
     used = [i for i, v in enumerate(views) if v.name not in params.holdout]
     if not used:
         raise ValueError(
@@ -336,7 +339,8 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
         with _timed(timings, "colour"):
             progress("colour", 0.0)
             colours = vertex_colours(vertices, faces,
-                                     [read_image(views[i].image_path) for i in used],
+                                     [undistort_image(read_image(views[i].image_path),
+                                                      lenses[views[i].name]) for i in used],
                                      cameras, masks=used_masks)
             progress("colour", 1.0)
 
