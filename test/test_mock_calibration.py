@@ -44,11 +44,14 @@ from tolerances import HANG_S
 CONFIG = Path(__file__).resolve().parent.parent / "config"
 DEG = math.pi / 180
 
-# The acceptance bar of the calibration (what carving needs), with what this world gives.
-INTRINSICS_REL = 0.005     # 0.5 %: fx, fy within 0.01 %, cx 0.08 %, cy 0.05 %
-K1_ABS = 0.01              # k1 within 0.002
-AXIS_POINT_M = 0.5e-3      # within 0.03 mm
-ANGLE_RAD = 0.1 * DEG      # tilt and encoder zeros within 0.01 degree
+# The acceptance bar of the calibration (what carving needs), with what this world gives
+# (error; the fit's own standard uncertainty). The principal point is the weak parameter:
+# through a 26 degree lens a camera turned on its carriage looks almost like a shifted
+# principal point, which only the image's corners tell apart.
+INTRINSICS_REL = 0.005     # 0.5 %: fx, fy ~0.01 %, cx, cy ~0.1 % (0.3 %)
+K1_ABS = 0.01              # k1: ~0.003 (0.004)
+AXIS_POINT_M = 0.5e-3      # ~0.02 mm (0.04 mm)
+ANGLE_RAD = 0.1 * DEG      # tilt and encoder zeros: ~0.002 degree (0.005)
 # A calibrated scan carves as well as a scan of a perfect world: the same views of the
 # same mug, through a lens that resamples the silhouettes (edge pixels) and read-backs
 # with the same 0.01 degree of noise.
@@ -74,7 +77,7 @@ def cell():
 
 def _scan(scene_name: str, world, mock: dict, plan_file: str, *, offsets_deg, seed: int):
     """``(images, readings)``: ``scene_name`` seen through ``world`` at every view of the
-    plan, the controller's encoders off by ``offsets_deg``; readings in radians."""
+    plan, the controller's read-back off by ``offsets_deg``; readings in radians."""
     simulator = SimulatedGrbl(max_speed_deg_s=(3600.0, 3600.0), accel_deg_s2=(1e5, 1e5),
                               encoder_offset_deg=offsets_deg,
                               encoder_noise_deg=mock["encoder_noise_deg"], start_locked=False,
@@ -105,7 +108,7 @@ def calibrated(cell, tmp_path_factory):
     folder = write_session(tmp_path_factory.mktemp("board") / "session", images, readings,
                            cell["nominal"])
     out = tmp_path_factory.mktemp("calibration")
-    assert cli.main([str(folder), "-o", str(out)]) == 0
+    assert cli.main([str(folder), "-o", str(out), "--board", "9x7"]) == 0
     values = yaml.safe_load((out / "rig.yaml").read_text())["/**"]["ros__parameters"]
     zeros = np.radians(mock["encoder_offset_deg"])
     true_rig = replace(cell["world"], theta_zero_rad=cell["world"].theta_zero_rad + zeros[0],
@@ -119,7 +122,8 @@ def test_the_wrong_world_is_wrong(cell):
     world, nominal = cell["world"], cell["nominal"]
     assert any(world.distortion) and not world.is_ideal
     assert world.fx != nominal.fx and nominal.is_ideal and not any(nominal.distortion)
-    assert max(abs(v) for v in cell["mock"]["encoder_offset_deg"]) >= 0.3
+    assert abs(world.theta_zero_rad - nominal.theta_zero_rad) > 1 * DEG
+    assert abs(world.phi_zero_rad - nominal.phi_zero_rad) > 1 * DEG
 
 
 def test_calibration_recovers_the_intrinsics(calibrated):
@@ -135,7 +139,16 @@ def test_calibration_recovers_the_axis_and_the_encoder_zeros(calibrated):
     assert rig.axis_tilt_y_rad == pytest.approx(truth.axis_tilt_y_rad, abs=ANGLE_RAD)
     assert rig.theta_zero_rad == pytest.approx(truth.theta_zero_rad, abs=ANGLE_RAD)
     assert rig.phi_zero_rad == pytest.approx(truth.phi_zero_rad, abs=ANGLE_RAD)
-    assert not calibrated["report"]["rejected"]
+
+
+def test_only_views_without_the_board_are_rejected(calibrated):
+    # At 75 degrees of turntable and carriage the board is seen too obliquely for its
+    # markers to be read: those views are named, every other is used.
+    report = calibrated["report"]
+    assert len(report["view_rms_px"]) + len(report["rejected"]) == 66
+    assert len(report["rejected"]) <= 6
+    for name, reason in report["rejected"].items():
+        assert reason.startswith(("no marker", "only ")), (name, reason)
 
 
 @pytest.fixture(scope="module")

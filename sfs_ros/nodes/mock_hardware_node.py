@@ -80,8 +80,8 @@ PARAMS: list[Param] = [
           choices=SCENES, read_only=True),
     Param("world", "perfect", "The cell the mock camera sees: 'perfect' is the rig parameters "
           "as given; 'wrong' adds a tilted, off-centre turntable axis, lens distortion, other "
-          "intrinsics, radius and camera mounting (what sfs-calibrate recovers; the encoder "
-          "zeros are encoder_offset_deg).", choices=WORLDS, read_only=True),
+          "intrinsics, radius, camera mounting and axis zeros (what sfs-calibrate recovers).",
+          choices=WORLDS, read_only=True),
     Param("image_noise", 2.0, "Standard deviation of the mock camera's pixel noise, grey "
           "levels.", bounds=(0.0, 100.0), read_only=True),
     Param("background_rgb", [255, 255, 255], "Backdrop colour of the mock camera, 0..255.",

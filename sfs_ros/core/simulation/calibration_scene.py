@@ -5,8 +5,8 @@ encoder zero offsets, lens distortion and a camera turned on its carriage; the
 *nominal* rig (:func:`nominal_rig`) is what a hand measurement would say. The
 images are rendered through the true rig, the encoder angles are the true
 angles plus the true zeros: a calibration must recover the true rig from them.
-:func:`wrong_world` makes the same errors (but the encoder zeros) in any
-nominal rig: the mock hardware's wrong world. :class:`BoardPicture` renders
+:func:`wrong_world` makes the same errors in any nominal rig: the mock
+hardware's wrong world. :class:`BoardPicture` renders
 the board through any camera (the mock camera's board on the plate).
 
 Rendering: every output pixel is supersampled, each sample undistorted to a
@@ -49,9 +49,9 @@ def wrong_world(nominal: RigCalibration) -> RigCalibration:
     focal lengths 0.75 % and 1.125 % longer, the principal point (+5, -3.5) px off the
     image centre, a barrel lens (k1 -0.18, k2 0.08, p1 0.0012, p2 -0.0008), the C-arm
     radius 2 % shorter, the turntable axis 3.1 mm and -2.4 mm off and tilted 0.4 and -0.6
-    degrees about lab X and Y, and the camera turned (0.6, -0.8, 0.5) degrees on its
-    carriage. The encoder zeros are the nominal ones (the encoders' own offsets add
-    theirs)."""
+    degrees about lab X and Y, the camera turned (0.6, -0.8, 0.5) degrees on its
+    carriage, and the axes' true zeros at encoder readings 1.7 and 1.2 degrees past the
+    nominal ones (homing switches that are not where the drawing puts them)."""
     if nominal.projection != "pinhole" or nominal.convention != "physical" \
             or not nominal.is_ideal or any(nominal.distortion):
         raise ValueError("the wrong world is made from a pinhole, 'physical' rig with an "
@@ -60,7 +60,9 @@ def wrong_world(nominal: RigCalibration) -> RigCalibration:
                          f"{nominal.is_ideal}")
     K = nominal.K
     return replace(
-        nominal, fx=nominal.fx * 806.0 / 800.0, fy=nominal.fy * 809.0 / 800.0,
+        nominal, theta_zero_rad=nominal.theta_zero_rad + 1.7 * DEG,
+        phi_zero_rad=nominal.phi_zero_rad + 1.2 * DEG,
+        fx=nominal.fx * 806.0 / 800.0, fy=nominal.fy * 809.0 / 800.0,
         cx=float(K[0, 2]) + 5.0, cy=float(K[1, 2]) - 3.5,
         camera_distance_m=nominal.camera_distance_m * 0.98,
         distortion=(-0.18, 0.08, 0.0012, -0.0008, 0.0),
@@ -70,8 +72,7 @@ def wrong_world(nominal: RigCalibration) -> RigCalibration:
 
 def wrong_rig() -> RigCalibration:
     """The true rig: the nominal one with every error the calibration must find."""
-    return replace(wrong_world(nominal_rig()), theta_zero_rad=1.7 * DEG,
-                   phi_zero_rad=-1.2 * DEG)
+    return wrong_world(nominal_rig())
 
 
 def true_board_pose(board: BoardSpec) -> BoardPose:
