@@ -89,7 +89,8 @@ def main(argv=None) -> int:
         return status
     fit, rig = result["fit"], result["fit"].rig
     print(f"{len(fit.view_rms_px)} views, {fit.corners} corners: RMS {fit.rms_px:.3f} px; "
-          f"f = ({rig.fx:.1f}, {rig.fy:.1f}) px, k1 {rig.distortion[0]:.4f}, "
+          f"f = ({rig.fx:.1f}, {rig.fy:.1f}) px, c = ({rig.K[0, 2]:.1f}, {rig.K[1, 2]:.1f}) px, "
+          f"k1 {rig.distortion[0]:.4f}, "
           f"axis at ({1000 * rig.axis_point_m[0]:.2f}, {1000 * rig.axis_point_m[1]:.2f}) mm "
           f"tilted {math.degrees(rig.axis_tilt_y_rad):.3f} deg, zeros theta "
           f"{math.degrees(rig.theta_zero_rad):.3f} deg, phi {math.degrees(rig.phi_zero_rad):.3f} "
