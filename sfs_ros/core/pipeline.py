@@ -132,7 +132,8 @@ class Reconstruction:
     vertices : (n, 3) float64, metres, object frame; faces : (m, 3) int64,
     outward; occupancy : (nx, ny, nz) bool on ``grid``; report : JSON-ready dict;
     vertex_colors : (n, 3) uint8 RGB with ``colour=True``, else None;
-    masks : {view name: (H, W) bool} silhouette of every view read and segmented.
+    masks : {view name: (H, W) bool} silhouette of every view read and segmented, as taken
+        (through the lens; carving used it undistorted, :mod:`.geometry.lens`).
     """
 
     vertices: np.ndarray
@@ -155,9 +156,12 @@ def _timed(seconds: dict[str, float], stage: str):
 
 
 def _segment_views(views: list[View], params: SegmentationParams, progress: Progress,
-                   rejected: list[dict]) -> tuple[list[View], list[np.ndarray]]:
-    """Read and segment every view; bad ones go to ``rejected`` with the reason."""
-    kept, masks = [], []
+                   rejected: list[dict]) -> tuple[list[View], list[np.ndarray], dict]:
+    """Read and segment every view; bad ones go to ``rejected`` with the reason.
+
+    Returns the kept views with ideal cameras, their masks undistorted onto them, and
+    ``{name: mask as taken}``."""
+    kept, masks, taken = [], [], {}
     for n, view in enumerate(views):
         progress("segmentation", n / max(1, len(views)))
         try:
@@ -173,8 +177,9 @@ def _segment_views(views: list[View], params: SegmentationParams, progress: Prog
         # Segmented as taken, carved as an ideal pinhole: the mask is undistorted once.
         kept.append(replace(view, camera=ideal_camera(view.camera)))
         masks.append(undistort_mask(result.mask, view.camera))
+        taken[view.name] = result.mask
     progress("segmentation", 1.0)
-    return kept, masks
+    return kept, masks, taken
 
 
 def _some(names: list[str], limit: int = 3) -> str:
@@ -223,7 +228,7 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
         raise ValueError(f"held-out views {unknown} are not in the input (views: {names[:5]}...)")
 
     with _timed(timings, "segmentation"):
-        views, masks = _segment_views(view_set.views, seg_params, progress, rejected)
+        views, masks, taken = _segment_views(view_set.views, seg_params, progress, rejected)
     lenses = {v.name: v.camera for v in view_set.views}   # the cameras as taken, with their lens
     used = [i for i, v in enumerate(views) if v.name not in params.holdout]
     if not used:
@@ -389,4 +394,4 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
     return Reconstruction(vertices=vertices, faces=faces, occupancy=occupancy, grid=grid,
                           report=report,
                           vertex_colors=None if colours is None else colours.colours,
-                          masks={v.name: m for v, m in zip(views, masks)})
+                          masks=taken)

@@ -76,7 +76,7 @@ PARAMS: list[Param] = [
     Param("port_link", "", "Symbolic link kept pointing at the controller's pty; empty = none.",
           read_only=True),
     Param("object", "mug", "Known object on the turntable, rendered by the mock camera; "
-          "'board' is the default ChArUco calibration board standing on the plate.",
+          "'board' is a 9x7 ChArUco board standing on the plate (sfs-calibrate --board 9x7).",
           choices=SCENES, read_only=True),
     Param("world", "perfect", "The cell the mock camera sees: 'perfect' is the rig parameters "
           "as given; 'wrong' adds a tilted, off-centre turntable axis, lens distortion, other "
