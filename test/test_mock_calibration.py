@@ -48,8 +48,8 @@ DEG = math.pi / 180
 # (error; the fit's own standard uncertainty). The principal point is the weak parameter:
 # through a 26 degree lens a camera turned on its carriage looks almost like a shifted
 # principal point, which only the image's corners tell apart.
-INTRINSICS_REL = 0.005     # 0.5 %: fx, fy ~0.01 %; cx, cy 0.04 % to 0.34 % over the runs
-#                            made (0.3 %: the encoders' noise depends on the polling)
+INTRINSICS_REL = 0.005     # 0.5 %: fx, fy ~0.02 %; cx -0.05 % to +0.40 % over ten noise
+#                            draws (fit: 0.3 %), cy under 0.14 % (doc/calibration.md)
 K1_ABS = 0.01              # k1: ~0.003 (0.004)
 AXIS_POINT_M = 0.5e-3      # ~0.02 mm (0.04 mm)
 ANGLE_RAD = 0.1 * DEG      # tilt and encoder zeros: ~0.002 degree (0.005)
