@@ -43,13 +43,13 @@ OVERRIDES = {
 }
 
 
-def write_config(folder: Path, *, overrides=None, plan=None) -> Path:
-    """The repository's config with :data:`OVERRIDES` (then ``overrides``, ``{file: {name:
-    value}}``) and the 17-view plan (or ``plan``, a plan file's mapping)."""
+def write_config(folder: Path, more: dict | None = None, *, plan: dict | None = None) -> Path:
+    """The repository's config with :data:`OVERRIDES`, then ``more`` (same form), and the
+    17-view plan (or ``plan``, a plan file's mapping)."""
     folder.mkdir()
     for path in CONFIG.glob("*.yaml"):
         data = yaml.safe_load(path.read_text())
-        for changes in (OVERRIDES, overrides or {}):
+        for changes in (OVERRIDES, more or {}):
             if path.name in changes:
                 data["/**"]["ros__parameters"].update(changes[path.name])
         (folder / path.name).write_text(yaml.safe_dump(data))
@@ -59,11 +59,12 @@ def write_config(folder: Path, *, overrides=None, plan=None) -> Path:
 
 
 @contextmanager
-def running_cell(root: Path, client_name: str, *, overrides=None, plan=None):
+def running_cell(root: Path, client_name: str, overrides: dict | None = None, *,
+                 plan: dict | None = None):
     """``{"cell": Cell, "client": CellClient, "output": Path, "log": Path}`` of a cell up in
     ``root`` (config: :func:`write_config` with ``overrides`` and ``plan``); the nodes are
     stopped (and checked to exit 0) when the block ends."""
-    config = write_config(root / "config", overrides=overrides, plan=plan)
+    config = write_config(root / "config", overrides, plan=plan)
     output = root / "output"
     output.mkdir()
     log_path = root / "cell.log"
