@@ -24,6 +24,7 @@ from std_srvs.srv import Trigger
 
 from sfs_ros.core.calibration import canonical
 from sfs_ros.hardware.mock_world import mock_scene, world_rig
+from sfs_ros.ros.names import SERVICES
 from sfs_ros.ros.rig_params import rig_calibration
 from sfs_ros.ros.services import call
 
@@ -51,7 +52,8 @@ def calibration(tmp_path_factory):
     plan = yaml.safe_load((CONFIG / "calibration_plan.yaml").read_text())
     with running_cell(root, "calibration_cell_client", overrides=overrides, plan=plan) as up:
         probe = RosProbe("calibration_cell_probe")
-        services = {n: probe.node.create_client(Trigger, f"record/{n}") for n in ("start", "stop")}
+        services = {n: probe.node.create_client(Trigger, SERVICES[f"record/{n}"])
+                    for n in ("start", "stop")}
         threading.Thread(target=probe.executor.spin, daemon=True).start()
         try:
             answer = call(services["start"], Trigger.Request(), timeout_s=60.0)
