@@ -18,8 +18,8 @@ import numpy as np
 
 SUITES = [("bench_carve", "run"), ("bench_marching", "run"),
           ("bench_marching", "run_hull_surface"), ("bench_mesh", "run_advancing_front"),
-          ("bench_segment", "run"), ("bench_colour", "run"), ("bench_cell", "run"),
-          ("bench_reconstruct", "run")]
+          ("bench_lens", "run"), ("bench_segment", "run"), ("bench_colour", "run"),
+          ("bench_cell", "run"), ("bench_reconstruct", "run")]
 
 
 def main(argv=None) -> int:

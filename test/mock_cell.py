@@ -43,9 +43,9 @@ OVERRIDES = {
 }
 
 
-def write_config(folder: Path, more: dict | None = None) -> Path:
+def write_config(folder: Path, more: dict | None = None, *, plan: dict | None = None) -> Path:
     """The repository's config with :data:`OVERRIDES`, then ``more`` (same form), and the
-    17-view plan."""
+    17-view plan (or ``plan``, a plan file's mapping)."""
     folder.mkdir()
     for path in CONFIG.glob("*.yaml"):
         data = yaml.safe_load(path.read_text())
@@ -53,17 +53,18 @@ def write_config(folder: Path, more: dict | None = None) -> Path:
             if path.name in changes:
                 data["/**"]["ros__parameters"].update(changes[path.name])
         (folder / path.name).write_text(yaml.safe_dump(data))
-    plan = {"rings": {"phi_deg": RINGS_DEG, "per_ring": PER_RING, "top_view": True}}
+    plan = plan or {"rings": {"phi_deg": RINGS_DEG, "per_ring": PER_RING, "top_view": True}}
     (folder / "scan_plan.yaml").write_text(yaml.safe_dump(plan))
     return folder
 
 
 @contextmanager
-def running_cell(root: Path, client_name: str, overrides: dict | None = None):
+def running_cell(root: Path, client_name: str, overrides: dict | None = None, *,
+                 plan: dict | None = None):
     """``{"cell": Cell, "client": CellClient, "output": Path, "log": Path}`` of a cell up in
-    ``root`` (config: :func:`write_config` with ``overrides``); the nodes are stopped (and
-    checked to exit 0) when the block ends."""
-    config = write_config(root / "config", overrides)
+    ``root`` (config: :func:`write_config` with ``overrides`` and ``plan``); the nodes are
+    stopped (and checked to exit 0) when the block ends."""
+    config = write_config(root / "config", overrides, plan=plan)
     output = root / "output"
     output.mkdir()
     log_path = root / "cell.log"

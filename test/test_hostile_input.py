@@ -204,7 +204,8 @@ def build_cases(root: Path, base: Path, secret: Path) -> Cases:
         c.add(f"middlebury count {n}", [par])
     for key, value in ([("fl_x", "abc"), ("fl_x", 1e300), ("w", 1e300),
                                       ("w", -5), ("h", 0.4), ("transform_matrix", "I"),
-                                      ("transform_matrix", [[1e308] * 4] * 4), ("k1", 0.1)]):
+                                      ("transform_matrix", [[1e308] * 4] * 4), ("k4", 0.1),
+                                      ("k1", 1e300)]):
         folder = c.session()
         path = write_nerf_transforms(read_session(folder), folder / "transforms.json")
         data = json.loads(path.read_text())

@@ -241,6 +241,14 @@ def test_empty_port_exits_with_one_line():
     assert len(lines) == 1 and "'port'" in lines[0], lines
 
 
+def test_mock_hardware_refuses_a_wrong_world_it_cannot_make():
+    # The wrong world spoils a pinhole rig; the rig parameters' default is orthographic.
+    process = NodeProcess("sfs_ros.nodes.mock_hardware_node", parameters={"world": "wrong"})
+    code, lines = process.exit_lines()
+    assert code != 0
+    assert len(lines) == 1 and "'world'" in lines[0] and "pinhole" in lines[0], lines
+
+
 def test_mock_hardware_publishes_a_usable_port_and_stops_cleanly():
     process = NodeProcess("sfs_ros.nodes.mock_hardware_node",
                           parameters={"max_speed_deg_s": [720.0, 360.0], "seed": 3})

@@ -2,6 +2,7 @@
 
 import json
 import math
+from dataclasses import replace
 
 import cv2
 import numpy as np
@@ -10,6 +11,13 @@ import pytest
 from sfs_ros.core.exchange.inputs import load_views
 from sfs_ros.core.exchange.nerf import read_transforms
 from sfs_ros.core.exchange.views import ViewError
+from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
+from sfs_ros.core.metrics import mesh_occupancy, volume_iou
+from sfs_ros.core.pipeline import ReconstructionParams, reconstruct
+from sfs_ros.core.render import render_image
+from sfs_ros.core.simulation.objects import make_object
+from sfs_ros.core.simulation.plan import ring_plan
+from sfs_ros.core.simulation.synthetic import carving_box, score_against_truth
 
 from tolerances import PIXEL_ROUND_OFF_PX, ROUND_OFF
 
@@ -117,7 +125,8 @@ def bad_pose():
     ({"camera_angle_x": 4.0}, {}, r"camera_angle_x must be in \(0, pi\)"),
     ({}, {2: {"file_path": "./train/missing"}}, r"frame 2: image .*missing does not exist"),
     ({}, {1: {"file_path": "./train/r_0"}}, r"frame 1: image 'train/r_0.png' is listed twice"),
-    ({"k1": 0.01}, {}, "frame 0: lens distortion k1 is not supported"),
+    ({"k4": 0.01}, {}, "frame 0: lens distortion k4 is not supported"),
+    ({"k1": "strong"}, {}, "frame 0: k1 must be a finite number"),
     ({}, {0: {"is_fisheye": True}}, "fisheye"),
     ({}, {3: {"transform_matrix": bad_pose()}}, "frame 3: transform_matrix: not a rotation"),
     ({}, {0: {"transform_matrix": [[1, 0, 0], [0, 1, 0]]}}, "must be a finite 4x4"),
@@ -148,3 +157,60 @@ def test_invalid_json(tmp_path):
     path.write_text('{"frames": [')
     with pytest.raises(ViewError, match="is not valid JSON"):
         read_transforms(path)
+
+
+def test_distortion_is_read_as_plumb_bob(tmp_path):
+    views = read_transforms(write_scene(tmp_path, {"k1": -0.2, "p2": 0.001},
+                                        {1: {"k2": 0.05, "p1": -0.002, "k3": 0.01}}))
+    np.testing.assert_array_equal(views.views[0].camera.distortion, [-0.2, 0, 0, 0.001, 0])
+    np.testing.assert_array_equal(views.views[1].camera.distortion,
+                                  [-0.2, 0.05, -0.002, 0.001, 0.01])
+
+
+def _nerf_scan(folder, rig, *, write_lens=True):
+    """The mug rendered through ``rig`` at 24 views, as a transforms.json (OpenGL poses)."""
+    obj = make_object("mug")
+    folder.mkdir()
+    frames = []
+    for n, (theta, phi) in enumerate(ring_plan([15, 45, 75], 8)):
+        camera = rig_camera(theta, phi, rig)
+        image = render_image(obj.mesh.vertices, obj.mesh.faces, camera,
+                             vertex_colors=obj.color_at(obj.mesh.vertices), seed=n)
+        cv2.imwrite(str(folder / f"v{n:02d}.png"), image[:, :, ::-1])
+        pose = np.eye(4)
+        pose[:3, :3] = camera.R.T @ np.diag([1.0, -1.0, -1.0])     # OpenCV -> OpenGL axes
+        pose[:3, 3] = camera.center
+        frames.append({"file_path": f"v{n:02d}.png", "transform_matrix": pose.tolist()})
+    K = rig.K
+    lens = dict(zip(("k1", "k2", "p1", "p2", "k3"), rig.distortion)) if write_lens else {}
+    document = {"fl_x": K[0, 0], "fl_y": K[1, 1], "cx": K[0, 2] + 0.5, "cy": K[1, 2] + 0.5,
+                "w": rig.width, "h": rig.height, "bounds_m": carving_box(obj).tolist(),
+                **lens, "frames": frames}
+    (folder / "transforms.json").write_text(json.dumps(document))
+    return read_transforms(folder / "transforms.json"), obj
+
+
+def test_a_distorted_scan_reconstructs_as_well_as_an_undistorted_one(tmp_path):
+    # A wide-angle lens (3 to 5 px of barrel where the mug's rim is) close to the mug.
+    lens = (-0.3, 0.1, 0.001, -0.001, 0.0)
+    rig = RigCalibration(width=320, height=240, projection="pinhole", fx=300.0, fy=300.0,
+                         camera_distance_m=0.22, aim_point_m=(0.0, 0.0, 0.045))
+    params = ReconstructionParams(resolution=72)
+    runs = {name: _nerf_scan(tmp_path / name, replace(rig, distortion=d), write_lens=w)
+            for name, d, w in [("ideal", rig.distortion, True), ("lens", lens, True),
+                               ("ignored", lens, False)]}
+    results = {name: reconstruct(views, params) for name, (views, _) in runs.items()}
+    obj = runs["ideal"][1]
+    score = {name: score_against_truth(obj, r.vertices, r.faces, r.grid)["volume_iou"]
+             for name, r in results.items()}
+    grid = results["ideal"].grid
+    occupancy = {name: mesh_occupancy(r.vertices, r.faces, grid) for name, r in results.items()}
+    # Through the lens, with its coefficients, the scan reconstructs as well as through an
+    # ideal lens (measured: volume IoU 0.9737 against 0.9770; the resampled silhouettes'
+    # edge pixels) and the same hull (0.9942 agreement). Carving the same images as if the
+    # lens were ideal makes another hull (0.9897 agreement: barrel shrinks the silhouettes,
+    # which here even happens to score 0.9776 against the truth).
+    assert score["lens"] == pytest.approx(score["ideal"], abs=0.01)
+    agree_lens = volume_iou(occupancy["lens"], occupancy["ideal"])
+    assert agree_lens > 0.99
+    assert volume_iou(occupancy["ignored"], occupancy["ideal"]) < agree_lens - 0.003

@@ -2,14 +2,16 @@
 the same cameras: the same pixel for every point."""
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
+from sfs_ros.core.exchange.colmap import read_colmap
 from sfs_ros.core.exchange.nerf import read_transforms
 from sfs_ros.core.exchange.pose_export import export_session, write_colmap, write_nerf_transforms
-from sfs_ros.core.exchange.session import read_session
-from sfs_ros.core.exchange.views import View, ViewSet
+from sfs_ros.core.exchange.session import read_session, write_session
+from sfs_ros.core.exchange.views import View, ViewSet, read_image
 from sfs_ros.core.geometry.camera import Camera
 
 # Points around the mug (metres, object frame), seen by every view.
@@ -85,6 +87,28 @@ def test_colmap_text_model_projects_like_our_cameras(mug_views, tmp_path):
     rows = (folder / "points3D.txt").read_text().splitlines()[1:]
     assert len(rows) == 5
     np.testing.assert_allclose([list(map(float, r.split()[1:4])) for r in rows], POINTS[:5])
+
+
+def test_a_lens_survives_export_to_colmap_and_nerf(mug_views, tmp_path):
+    # A session through a distorted lens: both pose formats carry the lens, and the readers
+    # give back the same cameras, lens included.
+    lens = (-0.2, 0.05, 0.001, -0.002, 0.0)
+    rig = replace(mug_views.calibration, distortion=lens)
+    images = [(v.name, read_image(v.image_path)) for v in mug_views.views[:4]]
+    views = read_session(write_session(tmp_path / "s", images,
+                                       [(v.theta_rad, v.phi_rad) for v in mug_views.views[:4]],
+                                       rig))
+    colmap = write_colmap(views, tmp_path / "s" / "sparse")
+    assert " OPENCV " in (colmap / "cameras.txt").read_text()
+    nerf = read_transforms(write_nerf_transforms(views, tmp_path / "s" / "transforms.json"))
+    for back in (read_colmap(colmap), nerf):
+        for ours, theirs in zip(views.views, back.views):
+            np.testing.assert_allclose(theirs.camera.distortion, lens)
+            np.testing.assert_allclose(theirs.camera.project_distorted(POINTS),
+                                       ours.camera.project_distorted(POINTS), atol=PIXEL_TOL)
+    with pytest.raises(ValueError, match="k3 = 0.01 is not a COLMAP OPENCV camera"):
+        write_colmap(replace(views, views=[replace(v, camera=replace(
+            v.camera, distortion=(*lens[:4], 0.01))) for v in views.views]), tmp_path / "x")
 
 
 def test_session_export_keeps_angles_and_calibration(mug_views, tmp_path):

@@ -1,5 +1,6 @@
 """Scan session folders: writing, reading back, appending, and every malformed case."""
 
+import dataclasses
 import math
 
 import cv2
@@ -80,6 +81,26 @@ def test_projection_matrix_table(tmp_path):
         assert view.theta_rad is None and view.phi_rad is None
         # RQ decomposition in float64: agreement to far below a pixel.
         assert np.allclose(view.camera.project(points), camera.project(points), atol=1e-8)
+
+
+def test_the_lens_round_trips_with_angles_and_with_matrices(tmp_path):
+    # The session carries the rig's distortion; every view's camera has it, both tables.
+    lens = (-0.2, 0.05, 0.001, -0.002, 0.01)
+    rig = dataclasses.replace(RIG, distortion=lens, axis_point_m=(0.002, -0.001),
+                              axis_tilt_y_rad=0.01, mount_rotation_rad=(0.01, 0.0, -0.02))
+    images = [(f"view_{n:03d}.png", image(n)) for n in range(len(ANGLES))]
+    angles = read_session(write_session(tmp_path / "a", images, ANGLES, rig))
+    assert angles.calibration == rig
+    cameras = [rig_camera(theta, phi, rig) for theta, phi in ANGLES]
+    matrices = read_session(write_session(tmp_path / "m", images, None, rig, cameras=cameras))
+    points = np.array([[0.0, 0.0, 0.0], [0.03, -0.02, 0.05]])
+    for a, m, camera in zip(angles.views, matrices.views, cameras):
+        assert a.camera.distortion.tolist() == m.camera.distortion.tolist() == list(lens)
+        np.testing.assert_allclose(m.camera.project_distorted(points),
+                                   camera.project_distorted(points), atol=1e-8)
+    with pytest.raises(ValueError, match=r"camera of 'view_000.png' has lens distortion "
+                                         r"\[-0.2, .*expected one lens per session"):
+        write_session(tmp_path / "x", images, None, RIG, cameras=cameras)
 
 
 def test_nan_and_out_of_range_angles_are_rejected_views(session):

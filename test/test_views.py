@@ -97,7 +97,7 @@ def test_view_set_checks_source_and_bounds(tmp_path):
     views = [View("a", tmp_path / "a.png", camera)]
     assert ViewSet(views, "session", bounds_m=[[0, 0, 0], [1, 1, 1]]).bounds_m.shape == (2, 3)
     with pytest.raises(ValueError, match="source"):
-        ViewSet(views, "colmap")
+        ViewSet(views, "photogrammetry")
     with pytest.raises(ValueError, match="min < max"):
         ViewSet(views, "nerf", bounds_m=[[0, 0, 0], [1, -1, 1]])
 

@@ -45,6 +45,7 @@ from ..core.exchange.inputs import load_views
 from ..core.exchange.session import append_view, write_session
 from ..core.exchange.views import as_bounds
 from ..core.geometry.grid import VoxelGrid
+from ..core.geometry.lens import ideal_camera, undistort_image, undistort_mask
 from ..core.geometry.rig import RigCalibration, rig_camera
 from ..core.meshing.colour import vertex_colours
 from ..core.pipeline import ReconstructionParams, reconstruct
@@ -345,8 +346,8 @@ class LiveReconstruction:
         else:
             append_view(self._session, name, rgb, theta, phi)
         carved = bool(mask.any())
-        if carved:
-            self._carver.add_view(camera, mask)
+        if carved:   # stored as taken; carved as the ideal pinhole (the mask undistorted once)
+            self._carver.add_view(ideal_camera(camera), undistort_mask(mask, camera))
         self._views[key] = _Received(name, np.packbits(mask, axis=None), theta, phi)
         return AddedView(key=key, file=self._session / "images" / name, carved=carved,
                          reason="" if carved else "empty mask: no object to carve with",
@@ -378,9 +379,10 @@ class LiveReconstruction:
         if not used:
             return None, 0
         colours = vertex_colours(result.vertices, result.faces,
-                                 [self._colour_images[k] for k, _ in used],
-                                 [cameras[n] for _, n in used],
-                                 masks=[masks[k] for k, _ in used])
+                                 [undistort_image(self._colour_images[k], cameras[n])
+                                  for k, n in used],
+                                 [ideal_camera(cameras[n]) for _, n in used],
+                                 masks=[undistort_mask(masks[k], cameras[n]) for k, n in used])
         return colours.colours, len(used)
 
     def _sheet_views(self, masks: dict) -> SheetViews:

@@ -5,8 +5,10 @@
 
 INPUT is a session folder (``session.yaml`` + ``views.csv`` with
 ``image,theta_rad,phi_rad`` + ``images/``) of the board standing on the
-plate, photographed at a spread of turntable and carriage angles; its ``rig``
-is the hand-measured start. OUTDIR receives ``rig.yaml`` (the cell's rig
+plate, photographed at a spread of turntable and carriage angles, or a
+rosbag2 the recorder made of such a scan (its captured images with their
+joint states); its ``rig`` (a bag's: the reconstruction node's) is the
+hand-measured start. OUTDIR receives ``rig.yaml`` (the cell's rig
 parameters, for ``--params-file``), ``camera_info.yaml`` (ROS
 camera_calibration_parsers format) and ``calibration_report.yaml`` (RMS and
 per-view residuals, uncertainties, rejected views, fixed parameters).
@@ -22,8 +24,7 @@ from pathlib import Path
 import yaml
 
 from ..core.calibration import BoardSpec, calibrate_views, write_camera_info, write_rig_yaml
-from ..core.exchange.session import read_session
-from .common import run_reporting_errors
+from .common import load_input, run_reporting_errors
 
 PROG = "sfs-calibrate"
 
@@ -39,7 +40,8 @@ def _squares(text: str) -> tuple[int, int]:
 def build_parser() -> argparse.ArgumentParser:
     board = BoardSpec()
     p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
-    p.add_argument("input", type=Path, help="session folder of board photographs with angles")
+    p.add_argument("input", type=Path, help="session folder of board photographs with angles, "
+                   "or a recorded bag of a board scan")
     p.add_argument("-o", "--output", type=Path, required=True, metavar="OUTDIR",
                    help="folder for rig.yaml, camera_info.yaml and calibration_report.yaml")
     p.add_argument("--board", type=_squares, default=f"{board.squares_x}x{board.squares_y}",
@@ -62,7 +64,8 @@ def build_parser() -> argparse.ArgumentParser:
 def run(args) -> dict:
     board = BoardSpec(*args.board, square_m=args.square_m, marker_m=args.marker_m,
                       dictionary=args.dictionary)
-    fit = calibrate_views(read_session(args.input), board, radial_terms=args.radial_terms,
+    views = load_input(args.input, captures=True)[0]
+    fit = calibrate_views(views, board, radial_terms=args.radial_terms,
                           max_view_rms_px=args.max_view_rms_px)
     header = (f"Calibrated by {PROG} from {args.input.name}: {len(fit.view_rms_px)} views, "
               f"{fit.corners} corners, RMS {fit.rms_px:.3f} px")
@@ -86,7 +89,8 @@ def main(argv=None) -> int:
         return status
     fit, rig = result["fit"], result["fit"].rig
     print(f"{len(fit.view_rms_px)} views, {fit.corners} corners: RMS {fit.rms_px:.3f} px; "
-          f"f = ({rig.fx:.1f}, {rig.fy:.1f}) px, k1 {rig.distortion[0]:.4f}, "
+          f"f = ({rig.fx:.1f}, {rig.fy:.1f}) px, c = ({rig.K[0, 2]:.1f}, {rig.K[1, 2]:.1f}) px, "
+          f"k1 {rig.distortion[0]:.4f}, "
           f"axis at ({1000 * rig.axis_point_m[0]:.2f}, {1000 * rig.axis_point_m[1]:.2f}) mm "
           f"tilted {math.degrees(rig.axis_tilt_y_rad):.3f} deg, zeros theta "
           f"{math.degrees(rig.theta_zero_rad):.3f} deg, phi {math.degrees(rig.phi_zero_rad):.3f} "

@@ -20,6 +20,7 @@ from pathlib import Path
 from ..core.carving.resolution import parse_memory
 from ..core.exchange.export import SUPPORTED_SUFFIXES
 from ..core.exchange.views import ViewSet, read_image
+from ..core.geometry.lens import ideal_camera, undistort_image
 from ..core.meshing.colour import vertex_colours
 from ..core.pipeline import MESHERS, ReconstructionParams, reconstruct
 from ..core.result_files import SheetViews, report_path_for, write_result
@@ -168,8 +169,9 @@ def run(args) -> dict:
     colours = result.vertex_colors
     if bag_images is not None:
         colours = vertex_colours(result.vertices, result.faces,
-                                 [read_image(v.image_path) for v in bag_images.views],
-                                 [v.camera for v in bag_images.views]).colours
+                                 [undistort_image(read_image(v.image_path), v.camera)
+                                  for v in bag_images.views],
+                                 [ideal_camera(v.camera) for v in bag_images.views]).colours
     written = write_result(
         result, args.output, units=args.units, vertex_colors=colours, preview=args.preview,
         html=args.html, contact_sheet=args.contact_sheet,

@@ -10,7 +10,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
@@ -22,6 +22,7 @@ from .carving.hull import drop_specks
 from .carving.resolution import choose_voxel_size, default_memory_budget
 from .exchange.views import View, ViewSet, read_image
 from .geometry.grid import VoxelGrid
+from .geometry.lens import ideal_camera, undistort_image, undistort_mask
 from .meshing.advancing_front import advancing_front
 from .meshing.cloud import cloud_of_points
 from .meshing.colour import vertex_colours
@@ -132,7 +133,8 @@ class Reconstruction:
     vertices : (n, 3) float64, metres, object frame; faces : (m, 3) int64,
     outward; occupancy : (nx, ny, nz) bool on ``grid``; report : JSON-ready dict;
     vertex_colors : (n, 3) uint8 RGB with ``colour=True``, else None;
-    masks : {view name: (H, W) bool} silhouette of every view read and segmented.
+    masks : {view name: (H, W) bool} silhouette of every view read and segmented, as taken
+        (through the lens; carving used it undistorted, :mod:`.geometry.lens`).
     """
 
     vertices: np.ndarray
@@ -174,10 +176,13 @@ def _read_and_segment(view: View, params: SegmentationParams,
 
 
 def _segment_views(views: list[View], params: SegmentationParams, progress: Progress,
-                   rejected: list[dict], given: dict) -> tuple[list[View], list[np.ndarray]]:
+                   rejected: list[dict], given: dict) -> tuple[list[View], list[np.ndarray], dict]:
     """Read and segment every view not in ``given`` (in threads, results in input order);
-    bad ones go to ``rejected`` with the reason."""
-    kept, masks = [], []
+    bad ones go to ``rejected`` with the reason.
+
+    Returns the kept views with ideal cameras, their masks undistorted onto them
+    (:mod:`.geometry.lens`), and ``{name: mask as taken}``."""
+    kept, masks, taken = [], [], {}
     progress("segmentation", 0.0)
     results = map_in_threads(lambda view: _read_and_segment(view, params, given.get(view.name)),
                              views)
@@ -185,10 +190,12 @@ def _segment_views(views: list[View], params: SegmentationParams, progress: Prog
         if isinstance(result, str):
             rejected.append({"view": view.name, "reason": result})
         else:
-            kept.append(view)
-            masks.append(result)
+            # Segmented as taken, carved as an ideal pinhole: the mask is undistorted once.
+            kept.append(replace(view, camera=ideal_camera(view.camera)))
+            masks.append(undistort_mask(result, view.camera))
+            taken[view.name] = result
         progress("segmentation", (n + 1) / max(1, len(views)))
-    return kept, masks
+    return kept, masks, taken
 
 
 def _some(names: list[str], limit: int = 3) -> str:
@@ -240,8 +247,9 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
         raise ValueError(f"held-out views {unknown} are not in the input (views: {names[:5]}...)")
 
     with _timed(timings, "segmentation"):
-        views, masks = _segment_views(view_set.views, seg_params, progress, rejected,
-                                      masks or {})
+        views, masks, taken = _segment_views(view_set.views, seg_params, progress, rejected,
+                                             masks or {})
+    lenses = {v.name: v.camera for v in view_set.views}   # the cameras as taken, with their lens
     used = [i for i, v in enumerate(views) if v.name not in params.holdout]
     if not used:
         raise ValueError(
@@ -356,7 +364,8 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
         with _timed(timings, "colour"):
             progress("colour", 0.0)
             colours = vertex_colours(vertices, faces,
-                                     [read_image(views[i].image_path) for i in used],
+                                     [undistort_image(read_image(views[i].image_path),
+                                                      lenses[views[i].name]) for i in used],
                                      cameras, masks=used_masks)
             progress("colour", 1.0)
 
@@ -405,4 +414,4 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
     return Reconstruction(vertices=vertices, faces=faces, occupancy=occupancy, grid=grid,
                           report=report,
                           vertex_colors=None if colours is None else colours.colours,
-                          masks={v.name: m for v, m in zip(views, masks)})
+                          masks=taken)

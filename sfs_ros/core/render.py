@@ -26,6 +26,7 @@ import numpy as np
 from numba import njit
 
 from .geometry.camera import Camera
+from .geometry.lens import render_through_lens
 
 __all__ = ["rasterize_faces", "rasterize_silhouette", "render_image"]
 
@@ -198,7 +199,9 @@ def rasterize_silhouette(vertices, faces, camera: Camera) -> np.ndarray:
     """(H, W) bool mask: True where a pixel centre sees the mesh.
 
     Exact coverage at pixel centres for both camera models; pinhole triangles
-    behind the camera contribute only their part in front of it.
+    behind the camera contribute only their part in front of it. A camera with
+    lens distortion sees the mask its lens forms (the ideal one resampled,
+    nearest pixel: :func:`~sfs_ros.core.geometry.lens.render_through_lens`).
 
     Parameters
     ----------
@@ -206,7 +209,8 @@ def rasterize_silhouette(vertices, faces, camera: Camera) -> np.ndarray:
     faces : (m, 3) int, vertex indices
     camera : Camera
     """
-    return rasterize_faces(vertices, faces, camera)[0] >= 0
+    return render_through_lens(camera, lambda ideal: rasterize_faces(vertices, faces, ideal)[0]
+                               >= 0, nearest=True)
 
 
 @njit(cache=True)
@@ -294,6 +298,9 @@ def render_image(vertices, faces, camera: Camera, *, vertex_colors=None,
     Shading is per pixel from interpolated corner normals (:func:`corner_normals`):
     ``colour * (ambient + (1 - ambient) * max(0, n . light))``. ``ambient=1``
     renders the unshaded colours (albedo), e.g. to check colour reconstruction.
+    A camera with lens distortion gives the image its lens forms (rendered
+    ideally, resampled: :func:`~sfs_ros.core.geometry.lens.render_through_lens`;
+    the noise is added after).
 
     Parameters
     ----------
@@ -341,15 +348,21 @@ def render_image(vertices, faces, camera: Camera, *, vertex_colors=None,
             raise ValueError(f"light_dir must be a finite non-zero 3-vector, got {light_dir!r}")
     light = light / np.linalg.norm(light)
 
-    face_id, bary, _ = rasterize_faces(vertices, faces, camera)
-    image = np.empty((camera.height, camera.width, 3), dtype=np.float32)
     if normals is None:
         normals = corner_normals(vertices, faces)
     elif np.shape(normals) != (len(faces), 3, 3):
         raise ValueError(f"normals must be ({len(faces)}, 3, 3) corner normals, one per face "
                          f"corner, got shape {np.shape(normals)}")
-    _shade_kernel(face_id, bary, faces, np.asarray(normals, dtype=np.float64),
-                  np.ascontiguousarray(colors), light, float(ambient), background, image)
+    normals = np.asarray(normals, dtype=np.float64)
+
+    def shade(ideal: Camera) -> np.ndarray:
+        face_id, bary, _ = rasterize_faces(vertices, faces, ideal)
+        image = np.empty((ideal.height, ideal.width, 3), dtype=np.float32)
+        _shade_kernel(face_id, bary, faces, normals, np.ascontiguousarray(colors), light,
+                      float(ambient), background, image)
+        return image
+
+    image = render_through_lens(camera, shade)
     if noise_sigma > 0:
         rng = np.random.default_rng(seed)
         image += float(noise_sigma) * rng.standard_normal(image.shape, dtype=np.float32)

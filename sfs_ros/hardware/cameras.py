@@ -10,9 +10,9 @@ releases the device.
   video file or a stream URL;
 * :class:`FolderSource` -- the image files of a folder, in name order (replays
   a recorded scan, or stands in for a camera in tests);
-* :class:`RenderedSource` -- the mock camera: a known object rendered at the
-  true angles of the simulated turntable and carriage, with injectable
-  missing frames.
+* :class:`RenderedSource` -- the mock camera: a known object (or the
+  calibration board) rendered at the true angles of the simulated turntable
+  and carriage, through the world's lens, with injectable missing frames.
 """
 
 from __future__ import annotations
@@ -27,6 +27,7 @@ import numpy as np
 
 from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
 from sfs_ros.core.render import render_image
+from sfs_ros.core.simulation.calibration_scene import BoardPicture
 from sfs_ros.core.simulation.objects import SyntheticObject
 
 __all__ = ["FrameUnavailable", "CameraSource", "OpenCVSource", "FolderSource", "RenderedSource",
@@ -177,9 +178,11 @@ class FolderSource(CameraSource):
 class RenderedSource(CameraSource):
     """The mock camera: ``obj`` rendered at the turntable and carriage's true angles.
 
-    obj : SyntheticObject
+    obj : SyntheticObject or BoardPicture
+        A known object, or the calibration board standing on the plate.
     calibration : RigCalibration
-        Camera model and image size.
+        The world's camera model, axes and lens (:func:`rig_camera` at the true
+        angles), and the image size.
     angles_rad : callable () -> (theta_rad, phi_rad)
         The true angles at the shutter (the simulated controller's
         ``true_position_rad``), called once per grab.
@@ -188,12 +191,13 @@ class RenderedSource(CameraSource):
     seed : int, optional
         Seeds the generator that draws each frame's noise seed.
 
-    Each grab is ``render_image`` as in :func:`sfs_ros.core.simulation.synthetic.simulate_scan`.
+    Each grab is ``render_image`` as in :func:`sfs_ros.core.simulation.synthetic.simulate_scan`
+    (the board: :meth:`BoardPicture.render`), through the calibration's lens.
     :meth:`fail_next` makes grabs fail as a camera that drops frames; it and
     :meth:`grab` may be called from different threads.
     """
 
-    def __init__(self, obj: SyntheticObject, calibration: RigCalibration,
+    def __init__(self, obj: SyntheticObject | BoardPicture, calibration: RigCalibration,
                  angles_rad: Callable[[], tuple[float, float]], *,
                  background_rgb=(255, 255, 255), noise_sigma: float = 2.0, seed=None):
         self.calibration = calibration
@@ -201,9 +205,11 @@ class RenderedSource(CameraSource):
         self.background_rgb = tuple(background_rgb)
         self.noise_sigma = float(noise_sigma)
         self.name = f"rendered {obj.name}"
-        self._vertices = np.asarray(obj.mesh.vertices, dtype=np.float64)
-        self._faces = np.asarray(obj.mesh.faces)
-        self._colors = obj.color_at(self._vertices)
+        self._board = obj if isinstance(obj, BoardPicture) else None
+        if self._board is None:
+            self._vertices = np.asarray(obj.mesh.vertices, dtype=np.float64)
+            self._faces = np.asarray(obj.mesh.faces)
+            self._colors = obj.color_at(self._vertices)
         self._rng = np.random.default_rng(seed)
         self._failures = 0
         self._lock = threading.Lock()
@@ -228,6 +234,8 @@ class RenderedSource(CameraSource):
                                    "(injected fault)")
         theta, phi = self.angles_rad()
         camera = rig_camera(float(theta), float(phi), self.calibration)
+        if self._board is not None:
+            return self._board.render(camera, noise=self.noise_sigma, seed=noise_seed)
         return render_image(self._vertices, self._faces, camera, vertex_colors=self._colors,
                             background_rgb=self.background_rgb, noise_sigma=self.noise_sigma,
                             seed=noise_seed)

@@ -25,7 +25,13 @@ its position and state across an unplug. On shutdown (SIGINT) the pty is
 closed and the link removed.
 
 Parameters: :data:`PARAMS` (all read-only), the camera's, and the rig
-calibration (``config/rig.yaml``), with which the object is rendered.
+calibration (``config/rig.yaml``), with which the object is rendered: as given
+(``world`` "perfect"), or with the errors of
+:mod:`sfs_ros.hardware.mock_world` (``world``
+"wrong": the cell believes ``rig.yaml``, the camera sees another cell).
+``object`` "board" puts the ChArUco calibration board on the plate
+(``config/mock_wrong_world.yaml`` and ``config/calibration_plan.yaml``: a
+calibration scan, see ``doc/calibration.md``).
 """
 
 from __future__ import annotations
@@ -38,8 +44,8 @@ from rclpy.parameter import Parameter
 from std_msgs.msg import String
 from std_srvs.srv import SetBool, Trigger
 
-from sfs_ros.core.simulation.objects import OBJECT_NAMES, make_object
 from sfs_ros.hardware.cameras import RenderedSource
+from sfs_ros.hardware.mock_world import SCENES, WORLDS, mock_scene, world_rig
 from sfs_ros.hardware.simulator import SimulatedGrbl
 from sfs_ros.nodes.camera_node import CameraNode
 from sfs_ros.nodes.entry import run_node
@@ -69,8 +75,13 @@ PARAMS: list[Param] = [
           "enabled.", read_only=True),
     Param("port_link", "", "Symbolic link kept pointing at the controller's pty; empty = none.",
           read_only=True),
-    Param("object", "mug", "Known object on the turntable, rendered by the mock camera.",
-          choices=OBJECT_NAMES, read_only=True),
+    Param("object", "mug", "Known object on the turntable, rendered by the mock camera; "
+          "'board' is a 9x7 ChArUco board standing on the plate (sfs-calibrate --board 9x7).",
+          choices=SCENES, read_only=True),
+    Param("world", "perfect", "The cell the mock camera sees: 'perfect' is the rig parameters "
+          "as given; 'wrong' adds a tilted, off-centre turntable axis, lens distortion, other "
+          "intrinsics, radius, camera mounting and axis zeros (what sfs-calibrate recovers).",
+          choices=WORLDS, read_only=True),
     Param("image_noise", 2.0, "Standard deviation of the mock camera's pixel noise, grey "
           "levels.", bounds=(0.0, 100.0), read_only=True),
     Param("background_rgb", [255, 255, 255], "Backdrop colour of the mock camera, 0..255.",
@@ -100,6 +111,11 @@ class MockHardwareNode(Node):
                 raise ParameterError("background_rgb", f"got {p['background_rgb']}, expected "
                                      "three values r, g, b")
             calibration = rig_calibration(p)
+            try:
+                calibration = world_rig(calibration, p["world"])
+            except ValueError as err:
+                raise ParameterError("world", f"got {p['world']!r} with this rig: {err}") \
+                    from None
             link = Path(p["port_link"]) if p["port_link"] else None
             if link is not None and not link.parent.is_dir():
                 raise ParameterError("port_link", f"got {p['port_link']!r}: its folder does not "
@@ -114,8 +130,9 @@ class MockHardwareNode(Node):
             encoder_noise_deg=p["encoder_noise_deg"],
             homing_speed_deg_s=p["homing_speed_deg_s"], start_locked=p["start_locked"],
             seed=seed).start()
+        scene = mock_scene(p["object"], background_rgb=p["background_rgb"])
         self.camera_source = RenderedSource(
-            make_object(p["object"]), calibration, self.simulator.true_position_rad,
+            scene, calibration, self.simulator.true_position_rad,
             background_rgb=p["background_rgb"], noise_sigma=p["image_noise"], seed=seed)
         self._link = link
         self._port_pub = self.create_publisher(String, "mock/port", result_qos())
@@ -126,7 +143,7 @@ class MockHardwareNode(Node):
         self.get_logger().info(f"simulated GRBL controller on {self.simulator.port}"
                                f"{f' (link {self._link})' if self._link else ''}, speeds "
                                f"{p['max_speed_deg_s']} deg/s; mock camera renders the "
-                               f"{p['object']}")
+                               f"{scene.name} in the {p['world']} world")
 
     def _plugged_in(self) -> None:
         port = self.simulator.port

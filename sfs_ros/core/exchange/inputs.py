@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from .colmap import CAMERAS_FILE, IMAGES_FILE, read_colmap
 from .middlebury import read_middlebury
 from .nerf import read_transforms
 from .session import SESSION_FILE, VIEWS_FILE, read_session
@@ -13,7 +14,8 @@ __all__ = ["ACCEPTED_INPUTS", "load_views"]
 
 ACCEPTED_INPUTS = (f"a scan session folder (with {SESSION_FILE}), "
                    "a Middlebury *_par.txt file (or a folder holding one), "
-                   "or a NeRF transforms*.json file (or a folder holding one)")
+                   "a NeRF transforms*.json file (or a folder holding one), "
+                   f"or a COLMAP text model folder ({CAMERAS_FILE} + {IMAGES_FILE})")
 
 
 def _one(found: list[Path], what: str, folder: Path) -> Path:
@@ -30,7 +32,9 @@ def load_views(path: Path | str) -> ViewSet:
       itself): a scan session;
     * a ``*_par.txt`` file, or a folder holding exactly one: Middlebury;
     * a ``*.json`` file, or a folder holding ``transforms*.json`` (with
-      several, ``transforms.json`` is taken): NeRF / instant-ngp.
+      several, ``transforms.json`` is taken): NeRF / instant-ngp;
+    * a folder holding ``cameras.txt`` and ``images.txt`` (or one of those
+      files): COLMAP's text model.
 
     Raises
     ------
@@ -48,8 +52,12 @@ def load_views(path: Path | str) -> ViewSet:
             return read_middlebury(path)
         if path.suffix.lower() == ".json":
             return read_transforms(path)
+        if path.name in (CAMERAS_FILE, IMAGES_FILE):
+            return read_colmap(path.parent)
     elif (path / SESSION_FILE).is_file() or (path / VIEWS_FILE).is_file():
         return read_session(path)  # without session.yaml: says that it is missing
+    elif (path / CAMERAS_FILE).is_file() or (path / IMAGES_FILE).is_file():
+        return read_colmap(path)  # with only one of them: says which is missing
     else:
         pars = sorted(path.glob("*_par.txt"))
         if pars:

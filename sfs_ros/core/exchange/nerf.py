@@ -10,8 +10,11 @@ frame's value winning):
 * ``cx``, ``cy``: principal point in the file's convention (pixel corners at
   integer values, image centre ``w / 2``); converted to ours (integer values at
   pixel centres) by subtracting 0.5. Default: the image centre.
-* lens distortion (``k1``, ``k2``, ``k3``, ``k4``, ``p1``, ``p2``,
-  ``is_fisheye``) is not modelled: non-zero values are an error (undistort first).
+* lens distortion ``k1``, ``k2``, ``k3``, ``p1``, ``p2`` (instant-ngp's, on
+  normalised coordinates): OpenCV ``plumb_bob`` ``(k1, k2, p1, p2, k3)``, 0 when
+  absent; masks are undistorted once before carving
+  (:mod:`sfs_ros.core.geometry.lens`). ``k4`` (a fisheye or rational term) and
+  ``is_fisheye`` are other lens models: non-zero values are an error (undistort first).
 * ``frames[].file_path``: image path relative to the json file, with or
   without the file extension (NeRF synthetic omits ``.png``).
 * ``frames[].transform_matrix``: 4x4 camera-to-world pose, camera axes in the
@@ -37,7 +40,10 @@ from .views import IMAGE_SUFFIXES, View, ViewError, ViewSet, as_bounds, image_si
 
 __all__ = ["read_transforms"]
 
-_DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
+#: transforms.json keys of the OpenCV plumb_bob coefficients, in its order (k1, k2, p1, p2, k3).
+_DISTORTION_KEYS = ("k1", "k2", "p1", "p2", "k3")
+#: Keys of lens models this reader does not take.
+_OTHER_LENS_KEYS = ("k4",)
 #: OpenGL camera axes (x right, y up, z back) -> OpenCV (x right, y down, z forward).
 _GL_TO_CV = np.diag([1.0, -1.0, -1.0])
 
@@ -114,8 +120,8 @@ def read_transforms(json_path: Path | str) -> ViewSet:
     Raises
     ------
     ViewError
-        Invalid JSON, missing keys, missing images, lens distortion, or a
-        pose that is not rigid.
+        Invalid JSON, missing keys, missing images, a lens model other than
+        plumb_bob, or a pose that is not rigid.
     """
     json_path = Path(json_path)
     data = load_json(json_path, "transforms file")
@@ -134,12 +140,15 @@ def read_transforms(json_path: Path | str) -> ViewSet:
         if name in seen:
             raise ViewError(f"{where}: image {name!r} is listed twice (first in frame {seen[name]})")
         seen[name] = n
-        for key in _DISTORTION_KEYS:
+        for key in _OTHER_LENS_KEYS:
             if _number(levels, key, where) not in (None, 0.0):
-                raise ViewError(f"{where}: lens distortion {key} is not supported; undistort "
-                                "the images and set the distortion to 0")
+                raise ViewError(f"{where}: lens distortion {key} is not supported (only k1, k2, "
+                                "k3, p1, p2: OpenCV plumb_bob); undistort the images and set it "
+                                "to 0")
         if any(level.get("is_fisheye") for level in levels):
             raise ViewError(f"{where}: fisheye cameras are not supported")
+        distortion = [_number(levels, key, where) for key in _DISTORTION_KEYS]
+        distortion = tuple(0.0 if d is None else d for d in distortion)
         width, height = _number(levels, "w", where), _number(levels, "h", where)
         if width is None or height is None:
             if default_size is None:
@@ -158,7 +167,7 @@ def read_transforms(json_path: Path | str) -> ViewSet:
                       [0.0, 0.0, 1.0]])
         R, t = _pose(frame.get("transform_matrix"), where)
         try:
-            camera = Camera(K=K, R=R, t=t, width=width, height=height)
+            camera = Camera(K=K, R=R, t=t, width=width, height=height, distortion=distortion)
         except ValueError as err:
             raise ViewError(f"{where}: {err}") from None
         views.append(View(name=name, image_path=path, camera=camera))

@@ -8,16 +8,18 @@ camera, so it hands them over:
   ``session.yaml``, :mod:`.session`): encoder angles with the rig calibration
   when the views have them, else a table of 3x4 projection matrices;
 * :func:`write_colmap` -- COLMAP's text model (``cameras.txt``,
-  ``images.txt``, ``points3D.txt``): ``PINHOLE`` cameras, world-to-camera
+  ``images.txt``, ``points3D.txt``): ``PINHOLE`` cameras (``OPENCV`` with the
+  lens ``k1, k2, p1, p2`` for a distorted one; ``k3`` is refused), world-to-camera
   poses as ``QW QX QY QZ TX TY TZ`` (the same OpenCV axes as ours), the
   principal point in COLMAP's pixel convention (the centre of the top-left
   pixel at (0.5, 0.5): ours + 0.5); ``points3D.txt`` holds optional points
   (e.g. the hull's surface, which seeds a dense reconstruction);
 * :func:`write_nerf_transforms` -- NeRF / instant-ngp ``transforms.json``:
   ``fl_x``, ``fl_y``, ``cx``, ``cy`` (pixel corners at integers: ours + 0.5),
-  ``w``, ``h``, and per frame ``file_path`` with a camera-to-world
-  ``transform_matrix`` in OpenGL axes (x right, y up, z backwards), as
-  :func:`sfs_ros.core.exchange.nerf.read_transforms` reads it back; plus ``bounds_m``.
+  ``w``, ``h``, the lens ``k1``, ``k2``, ``p1``, ``p2``, ``k3``, and per frame
+  ``file_path`` with a camera-to-world ``transform_matrix`` in OpenGL axes (x
+  right, y up, z backwards), as :func:`sfs_ros.core.exchange.nerf.read_transforms`
+  reads it back; plus ``bounds_m``.
 
 Both pose formats describe pinhole cameras; orthographic views are refused.
 World frame: the object frame (metres, Z up on the turntable axis).
@@ -110,11 +112,16 @@ def write_colmap(view_set: ViewSet, folder, *, points=None) -> Path:
         K = camera.K
         if abs(K[0, 1]) > 1e-9:
             raise ValueError(f"view {view.name}: skewed intrinsics are not a COLMAP PINHOLE camera")
+        lens = tuple(camera.distortion.tolist())
+        if lens[4]:
+            raise ValueError(f"view {view.name}: a lens with k3 = {lens[4]} is not a COLMAP "
+                             "OPENCV camera (k1, k2, p1, p2 only)")
         key = (camera.width, camera.height, K[0, 0], K[1, 1], K[0, 2] + 0.5, K[1, 2] + 0.5)
+        key += lens[:4] if any(lens) else ()
         if key not in intrinsics:
             intrinsics[key] = len(intrinsics) + 1
-            camera_lines.append(f"{intrinsics[key]} PINHOLE {key[0]} {key[1]} "
-                                + " ".join(repr(float(v)) for v in key[2:]))
+            camera_lines.append(f"{intrinsics[key]} {'OPENCV' if any(lens) else 'PINHOLE'} "
+                                f"{key[0]} {key[1]} " + " ".join(repr(float(v)) for v in key[2:]))
         # A writable copy: SciPy 1.11 (Ubuntu 24.04's) refuses the camera's read-only R.
         qx, qy, qz, qw = Rotation.from_matrix(np.array(camera.R)).as_quat()
         values = [qw, qx, qy, qz, *camera.t]
@@ -164,6 +171,7 @@ def write_nerf_transforms(view_set: ViewSet, path, *, image_root=None) -> Path:
         frames.append({"file_path": relative,
                        "fl_x": K[0, 0], "fl_y": K[1, 1], "cx": K[0, 2] + 0.5,
                        "cy": K[1, 2] + 0.5, "w": camera.width, "h": camera.height,
+                       **dict(zip(("k1", "k2", "p1", "p2", "k3"), camera.distortion.tolist())),
                        "transform_matrix": c2w.tolist()})
     document = {"camera_model": "OPENCV", "frames": frames}
     if view_set.bounds_m is not None:

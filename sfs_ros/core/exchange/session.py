@@ -26,6 +26,11 @@ Layout::
       theta_zero_rad: 0.0            #   encoder readings at the true zero of each axis
       phi_zero_rad: 0.0
       convention: physical           #   or paper
+      distortion: [0.0, 0.0, 0.0, 0.0, 0.0]  # lens (k1, k2, p1, p2, k3), OpenCV plumb_bob
+      axis_point_m: [0.0, 0.0]       #   turntable axis (see RigCalibration), as
+      axis_tilt_x_rad: 0.0           #   sfs-calibrate writes them
+      axis_tilt_y_rad: 0.0
+      mount_rotation_rad: [0.0, 0.0, 0.0]
     bounds_m: [[xmin, ymin, zmin], [xmax, ymax, zmax]]   # optional carving box, metres
     segmentation: {threshold: 0.2}   # optional SegmentationParams fields
 
@@ -39,8 +44,9 @@ The header is one of two forms:
   is reported as a rejected view; the other views still load.
 * ``image,p11,p12,p13,p14,p21,...,p34``: a pinhole 3x4 projection matrix per
   view, row by row, mapping object-frame metres to pixels (integer values at
-  pixel centres, origin top-left); ``rig`` gives only the image size. A row
-  with a non-finite or singular matrix is a rejected view.
+  pixel centres, origin top-left); ``rig`` gives only the image size and the
+  lens ``distortion`` (the matrix is the ideal pinhole; the images are as the
+  lens formed them). A row with a non-finite or singular matrix is a rejected view.
 
 ``images/`` holds exactly the images listed in ``views.csv`` (any format
 OpenCV reads; files whose names start with ``.`` are ignored). A listed
@@ -190,7 +196,8 @@ def _matrix_camera(values: np.ndarray, rig: RigCalibration) -> tuple[Camera | No
     if not np.all(np.isfinite(values)):
         return None, "projection matrix contains NaN or infinity"
     try:
-        return Camera.from_projection_matrix(values.reshape(3, 4), rig.width, rig.height), ""
+        camera = Camera.from_projection_matrix(values.reshape(3, 4), rig.width, rig.height)
+        return dataclasses.replace(camera, distortion=rig.distortion), ""
     except ValueError as err:
         return None, str(err)
 
@@ -358,9 +365,10 @@ def write_session(folder: Path | str, images: list[tuple[str, np.ndarray]],
         ``(theta_rad, phi_rad)`` encoder readings per image, radians (stored
         as given; unusable ones are rejected when the session is read).
     calibration : RigCalibration
-        With ``cameras``, only its image size is used.
+        With ``cameras``, only its image size and lens ``distortion`` are used.
     cameras : list of Camera, optional, keyword-only
-        Pinhole cameras instead of angles: a table of 3x4 projection matrices.
+        Pinhole cameras instead of angles: a table of 3x4 projection matrices;
+        their lens distortion must be the calibration's (one lens per session).
     bounds_m : (2, 3) array-like or None
         Carving box ``[min, max]``, metres.
     segmentation : dict, SegmentationParams or None
@@ -398,6 +406,10 @@ def write_session(folder: Path | str, images: list[tuple[str, np.ndarray]],
             if camera.orthographic:
                 raise ValueError(f"camera of {name!r} is orthographic; a matrix table holds "
                                  "pinhole cameras")
+            if not np.array_equal(camera.distortion, calibration.distortion):
+                raise ValueError(f"camera of {name!r} has lens distortion "
+                                 f"{camera.distortion.tolist()}, the session's rig "
+                                 f"{list(calibration.distortion)}; expected one lens per session")
             P = camera.projection_matrix
             rows.append(_csv_line([name] + [repr(float(v)) for v in P.ravel()]))
     document = {"format": FORMAT, "version": VERSION, "rig": _plain(calibration.to_dict())}

@@ -22,7 +22,7 @@ __all__ = ["SOURCES", "IMAGE_SUFFIXES", "ViewError", "View", "ViewSet", "read_im
            "as_bounds", "nearest_rotation"]
 
 #: Input formats a :class:`ViewSet` can come from.
-SOURCES = ("session", "middlebury", "nerf")
+SOURCES = ("session", "middlebury", "nerf", "colmap")
 
 #: File name endings (lower case) treated as images when a folder is searched.
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp", ".ppm", ".pgm")
@@ -65,7 +65,7 @@ class ViewSet:
     views : list of View
         The usable views, in input order.
     source : str
-        ``"session"``, ``"middlebury"`` or ``"nerf"``.
+        ``"session"``, ``"middlebury"``, ``"nerf"`` or ``"colmap"``.
     bounds_m : (2, 3) float64 or None
         Bounding box ``[min, max]`` of the object stored by the input, metres.
     segmentation : dict or None

@@ -31,8 +31,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Camera", "distort_normalized", "MAX_IMAGE_SIDE_PX", "MAX_INTRINSIC",
-           "MAX_TRANSLATION_M"]
+__all__ = ["Camera", "distort_normalized", "MAX_DISTORTION", "MAX_IMAGE_SIDE_PX",
+           "MAX_INTRINSIC", "MAX_TRANSLATION_M"]
 
 #: Largest image side a camera may have, pixels.
 MAX_IMAGE_SIDE_PX = 65535
@@ -40,6 +40,8 @@ MAX_IMAGE_SIDE_PX = 65535
 MAX_INTRINSIC = 1e9
 #: Largest camera translation, metres: further than any cell or data set puts a camera.
 MAX_TRANSLATION_M = 1e6
+#: Largest magnitude of a lens distortion coefficient (as the rig's).
+MAX_DISTORTION = 1e3
 
 
 @dataclass(frozen=True, eq=False)
@@ -72,9 +74,9 @@ class Camera:
 
     def __post_init__(self) -> None:
         D = np.zeros(5) if self.distortion is None else np.array(self.distortion, np.float64)
-        if D.shape != (5,) or not np.all(np.isfinite(D)):
-            raise ValueError(f"camera distortion must be 5 finite values (k1, k2, p1, p2, k3), "
-                             f"got {self.distortion!r}")
+        if D.shape != (5,) or not np.all(np.isfinite(D)) or np.abs(D).max() > MAX_DISTORTION:
+            raise ValueError(f"camera distortion must be 5 finite values (k1, k2, p1, p2, k3) "
+                             f"within +-{MAX_DISTORTION:g}, got {self.distortion!r}")
         if self.orthographic and np.any(D):
             raise ValueError("an orthographic camera cannot carry lens distortion")
         K = np.array(self.K, dtype=np.float64)

@@ -5,6 +5,9 @@ encoder zero offsets, lens distortion and a camera turned on its carriage; the
 *nominal* rig (:func:`nominal_rig`) is what a hand measurement would say. The
 images are rendered through the true rig, the encoder angles are the true
 angles plus the true zeros: a calibration must recover the true rig from them.
+:func:`wrong_world` makes the same errors in any nominal rig: the mock
+hardware's wrong world. :class:`BoardPicture` renders
+the board through any camera (the mock camera's board on the plate).
 
 Rendering: every output pixel is supersampled, each sample undistorted to a
 ray (the inverse of the true lens), the ray met with the board plane, and the
@@ -15,7 +18,7 @@ face see a grey backdrop. Mild Gaussian noise is added.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -25,7 +28,8 @@ from ..calibration.model import BoardPose
 from ..geometry.camera import Camera
 from ..geometry.rig import RigCalibration, rig_camera
 
-__all__ = ["BoardScene", "board_scene", "nominal_rig", "true_board_pose", "wrong_rig"]
+__all__ = ["BoardPicture", "BoardScene", "board_scene", "nominal_rig", "true_board_pose",
+           "wrong_rig", "wrong_world"]
 
 DEG = math.pi / 180
 _BACKDROP = 90           # grey level around the board
@@ -40,15 +44,35 @@ def nominal_rig() -> RigCalibration:
                           camera_distance_m=0.35, aim_point_m=(0.0, 0.0, 0.08))
 
 
-def wrong_rig() -> RigCalibration:
-    """The true rig: the nominal one with every error the calibration must find."""
-    return RigCalibration(
-        width=640, height=480, projection="pinhole", fx=806.0, fy=809.0, cx=324.5, cy=236.0,
-        camera_distance_m=0.343, aim_point_m=(0.0, 0.0, 0.08),
-        theta_zero_rad=1.7 * DEG, phi_zero_rad=-1.2 * DEG,
+def wrong_world(nominal: RigCalibration) -> RigCalibration:
+    """The cell ``nominal`` (pinhole, ``physical``, an ideal lens and axes) as it really is:
+    focal lengths 0.75 % and 1.125 % longer, the principal point (+5, -3.5) px off the
+    image centre, a barrel lens (k1 -0.18, k2 0.08, p1 0.0012, p2 -0.0008), the C-arm
+    radius 2 % shorter, the turntable axis 3.1 mm and -2.4 mm off and tilted 0.4 and -0.6
+    degrees about lab X and Y, the camera turned (0.6, -0.8, 0.5) degrees on its
+    carriage, and the axes' true zeros at encoder readings 1.7 and 1.2 degrees past the
+    nominal ones (homing switches that are not where the drawing puts them)."""
+    if nominal.projection != "pinhole" or nominal.convention != "physical" \
+            or not nominal.is_ideal or any(nominal.distortion):
+        raise ValueError("the wrong world is made from a pinhole, 'physical' rig with an "
+                         f"ideal lens and axes, got {nominal.projection!r}, "
+                         f"{nominal.convention!r}, distortion {nominal.distortion}, ideal axes "
+                         f"{nominal.is_ideal}")
+    K = nominal.K
+    return replace(
+        nominal, theta_zero_rad=nominal.theta_zero_rad + 1.7 * DEG,
+        phi_zero_rad=nominal.phi_zero_rad + 1.2 * DEG,
+        fx=nominal.fx * 806.0 / 800.0, fy=nominal.fy * 809.0 / 800.0,
+        cx=float(K[0, 2]) + 5.0, cy=float(K[1, 2]) - 3.5,
+        camera_distance_m=nominal.camera_distance_m * 0.98,
         distortion=(-0.18, 0.08, 0.0012, -0.0008, 0.0),
         axis_point_m=(0.0031, -0.0024), axis_tilt_x_rad=0.4 * DEG, axis_tilt_y_rad=-0.6 * DEG,
         mount_rotation_rad=(0.6 * DEG, -0.8 * DEG, 0.5 * DEG))
+
+
+def wrong_rig() -> RigCalibration:
+    """The true rig: the nominal one with every error the calibration must find."""
+    return wrong_world(nominal_rig())
 
 
 def true_board_pose(board: BoardSpec) -> BoardPose:
@@ -79,9 +103,10 @@ def _picture(board: BoardSpec) -> np.ndarray:
 
 
 def _render(picture: np.ndarray, rays: np.ndarray, pose: BoardPose, camera: Camera,
-            noise: float, rng: np.random.Generator) -> np.ndarray:
+            noise: float, rng: np.random.Generator, backdrop: int = _BACKDROP) -> np.ndarray:
     """(H, W, 3) uint8 RGB image of the board's ``picture`` at ``pose`` seen along ``rays``
-    (:func:`_sample_rays` of ``camera``), with Gaussian noise of ``noise`` grey levels."""
+    (:func:`_sample_rays` of ``camera``), with Gaussian noise of ``noise`` grey levels, on
+    a ``backdrop`` grey level."""
     to_cam = camera.R @ pose.rotation                        # board -> camera rotation
     origin = camera.R @ np.asarray(pose.offset_m) + camera.t  # board origin, camera frame
     normal = to_cam[:, 2]
@@ -92,12 +117,50 @@ def _render(picture: np.ndarray, rays: np.ndarray, pose: BoardPose, camera: Came
     pix = (board_xy + _MARGIN_M) * _PIXELS_PER_M - 0.5
     pix[~((facing > 0) & (depth > 0))] = -1e6                 # the back or behind the camera
     grey = cv2.remap(picture, pix[..., 0].astype(np.float32), pix[..., 1].astype(np.float32),
-                     cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=_BACKDROP)
+                     cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=backdrop)
     grey = cv2.resize(grey.astype(np.float32), (camera.width, camera.height),
                       interpolation=cv2.INTER_AREA)
     grey = grey + rng.normal(0.0, noise, grey.shape)
     grey = np.clip(np.rint(grey), 0, 255).astype(np.uint8)
     return np.repeat(grey[..., None], 3, axis=2)
+
+
+class BoardPicture:
+    """The board standing on the turntable, as any camera sees it.
+
+    board : BoardSpec
+    pose : BoardPose
+        Its pose on the turntable (default :func:`true_board_pose`).
+    backdrop : int, keyword-only
+        Grey level around the board, 0..255.
+
+    :meth:`render` draws it through a camera's lens (the rays of the lens are
+    computed once per lens: ``K``, distortion and image size).
+    """
+
+    def __init__(self, board: BoardSpec | None = None, pose: BoardPose | None = None, *,
+                 backdrop: int = _BACKDROP):
+        self.board = BoardSpec() if board is None else board
+        self.pose = true_board_pose(self.board) if pose is None else pose
+        if not 0 <= int(backdrop) <= 255:
+            raise ValueError(f"backdrop must be a grey level in 0..255, got {backdrop}")
+        self.backdrop = int(backdrop)
+        self.name = (f"ChArUco board {self.board.squares_x}x{self.board.squares_y} "
+                     f"({self.board.dictionary})")
+        self._picture = _picture(self.board)
+        self._rays: tuple = (None, None)
+
+    def render(self, camera: Camera, *, noise: float = 2.0, seed=None) -> np.ndarray:
+        """(camera.height, camera.width, 3) uint8 RGB: the board through ``camera`` (pinhole,
+        its lens included), with Gaussian noise of ``noise`` grey levels (``seed``)."""
+        if camera.orthographic:
+            raise ValueError("the board is rendered through a pinhole camera, got an "
+                             "orthographic one")
+        lens = (camera.K.tobytes(), camera.distortion.tobytes(), camera.width, camera.height)
+        if self._rays[0] != lens:
+            self._rays = (lens, _sample_rays(camera, _SUPERSAMPLE))
+        return _render(self._picture, self._rays[1], self.pose, camera, float(noise),
+                       np.random.default_rng(seed), self.backdrop)
 
 
 @dataclass(frozen=True)

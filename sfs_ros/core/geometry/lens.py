@@ -1,0 +1,150 @@
+"""Lens distortion: from the image a distorted lens forms to the ideal pinhole, and back.
+
+A pinhole :class:`Camera` with ``distortion`` forms its image through the lens
+(:meth:`Camera.project_distorted`); carving, fusion, meshing and the metrics use
+the ideal pinhole ``K [R | t]`` (:meth:`Camera.project`). The two meet here, once
+per view:
+
+* :func:`undistort_mask` (:func:`undistort_image`) resamples a mask (an image)
+  taken through the lens onto the
+  pixel grid of :func:`ideal_camera` (same ``K``, ``R``, ``t``, no distortion):
+  ideal pixel ``(u, v)`` takes the mask pixel nearest to where the lens forms
+  the ray through ``(u, v)``. A voxel centre projecting into ideal pixel
+  ``(u, v)`` is then tested against the mask pixel its distorted projection
+  falls nearest to, within the half pixel that rounding to a pixel already
+  allows. Ideal pixels the lens forms outside the image are background.
+* :func:`render_through_lens` renders through an ideal camera on a canvas
+  large enough for the lens's field of view and resamples the result into the
+  image the lens forms (the renderer of a distorted camera).
+
+The resampling maps depend only on ``K``, the distortion and the image size,
+so they are computed once per lens and cached.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from functools import lru_cache
+from typing import Callable
+
+import cv2
+import numpy as np
+
+from .camera import Camera, distort_normalized
+
+__all__ = ["ideal_camera", "is_distorted", "undistort_image", "undistort_mask",
+           "render_through_lens"]
+
+#: Extra canvas around the lens's field of view, pixels (room for interpolation).
+_CANVAS_MARGIN_PX = 2
+
+
+def is_distorted(camera: Camera) -> bool:
+    """Whether ``camera`` has a lens distortion (non-zero coefficients)."""
+    return not camera.orthographic and bool(np.any(camera.distortion))
+
+
+def ideal_camera(camera: Camera) -> Camera:
+    """The same camera (``K``, ``R``, ``t``, size) with an ideal lens."""
+    if not is_distorted(camera):
+        return camera
+    return replace(camera, distortion=None)
+
+
+def _lens(camera: Camera) -> tuple:
+    """Hashable key of the lens: ``K``, distortion and image size."""
+    return (tuple(camera.K.ravel().tolist()), tuple(camera.distortion.tolist()),
+            camera.width, camera.height)
+
+
+@lru_cache(maxsize=8)
+def _ideal_to_distorted(lens: tuple) -> tuple[np.ndarray, np.ndarray]:
+    """Nearest distorted pixel ``(row, col)`` (H, W) int64 each of every ideal pixel centre;
+    -1 where the lens forms that ray outside the image."""
+    K = np.asarray(lens[0]).reshape(3, 3)
+    width, height = lens[2], lens[3]
+    u, v = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
+    pixels = np.stack([u.ravel(), v.ravel(), np.ones(u.size)], axis=1)
+    xy = (pixels @ np.linalg.inv(K).T)[:, :2]
+    uv = distort_normalized(xy, lens[1]) @ K[:2, :2].T + K[:2, 2]
+    col, row = np.rint(uv[:, 0]), np.rint(uv[:, 1])
+    inside = (col >= 0) & (col < width) & (row >= 0) & (row < height)
+    row = np.where(inside, row, -1).astype(np.int64).reshape(height, width)
+    col = np.where(inside, col, -1).astype(np.int64).reshape(height, width)
+    return row, col
+
+
+def undistort_image(image: np.ndarray, camera: Camera) -> np.ndarray:
+    """An image or mask ``(camera.height, camera.width[, c])`` taken through ``camera``'s lens,
+    seen by :func:`ideal_camera` (nearest pixel, module docstring; zero where the lens forms
+    the ray outside the image); unchanged for an ideal lens."""
+    image = np.asarray(image)
+    if image.shape[:2] != (camera.height, camera.width):
+        raise ValueError(f"image has shape {image.shape}, expected the camera's (height, width) "
+                         f"= ({camera.height}, {camera.width})")
+    if not is_distorted(camera):
+        return image
+    row, col = _ideal_to_distorted(_lens(camera))
+    out = image[np.maximum(row, 0), np.maximum(col, 0)]
+    out[row < 0] = 0
+    return out
+
+
+def undistort_mask(mask: np.ndarray, camera: Camera) -> np.ndarray:
+    """(H, W) bool: :func:`undistort_image` of a silhouette mask."""
+    return undistort_image(np.asarray(mask, dtype=bool), camera)
+
+
+@lru_cache(maxsize=8)
+def _canvas(lens: tuple) -> tuple[np.ndarray, int, int, np.ndarray, np.ndarray]:
+    """The ideal canvas covering the lens's image: its ``K`` (3, 3), width, height, and the
+    canvas position ``(map_x, map_y)`` (H, W) float32 of every pixel of the lens's image."""
+    K = np.asarray(lens[0]).reshape(3, 3)
+    D = np.asarray(lens[1])
+    width, height = lens[2], lens[3]
+    u, v = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
+    uv = np.stack([u.ravel(), v.ravel()], axis=1).reshape(-1, 1, 2)
+    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-12)
+    ideal = cv2.undistortPointsIter(uv, K, D, None, K, criteria).reshape(-1, 2)
+    low = np.floor(ideal.min(axis=0)) - _CANVAS_MARGIN_PX
+    high = np.ceil(ideal.max(axis=0)) + _CANVAS_MARGIN_PX
+    canvas_K = K.copy()
+    canvas_K[:2, 2] -= low
+    size = (high - low + 1).astype(int)
+    shifted = (ideal - low).astype(np.float32).reshape(height, width, 2)
+    return canvas_K, int(size[0]), int(size[1]), shifted[..., 0].copy(), shifted[..., 1].copy()
+
+
+def render_through_lens(camera: Camera, render: Callable[[Camera], np.ndarray], *,
+                        nearest: bool = False) -> np.ndarray:
+    """The image ``camera``'s lens forms of what ``render`` draws through an ideal camera.
+
+    Parameters
+    ----------
+    camera : Camera
+        A pinhole camera, usually with distortion (without, ``render(camera)``).
+    render : callable Camera -> (h, w) or (h, w, c) array
+        Draws the scene through an ideal pinhole camera of any size.
+    nearest : bool, keyword-only
+        Nearest-pixel resampling (for masks); linear otherwise.
+
+    Returns
+    -------
+    (camera.height, camera.width[, c]) array of ``render``'s dtype.
+    """
+    if not is_distorted(camera):
+        return render(camera)
+    K, width, height, map_x, map_y = _canvas(_lens(camera))
+    if max(width, height) > 4 * max(camera.width, camera.height) or not math.isfinite(K[0, 2]):
+        raise ValueError(f"the lens distortion {camera.distortion.tolist()} spreads a "
+                         f"{camera.width}x{camera.height} image over {width}x{height} ideal "
+                         "pixels: not a lens this renderer can draw")
+    canvas = Camera(K=K, R=camera.R, t=camera.t, width=width, height=height)
+    image = np.asarray(render(canvas))
+    dtype = image.dtype
+    if np.issubdtype(dtype, np.bool_):
+        image = image.astype(np.uint8)
+    out = cv2.remap(image, map_x, map_y, cv2.INTER_NEAREST if nearest else cv2.INTER_LINEAR,
+                    borderMode=cv2.BORDER_REPLICATE)
+    return out.astype(dtype)
