@@ -1,0 +1,146 @@
+"""Re-segmentation of a view with the hull of all views as a prior (multi-view consensus).
+
+One view's segmentation sees one picture: an object whose colours reach the
+frame joins the backdrop model, a cast shadow joins the object. The hull
+carved from all views, projected into the view, says where the object can be:
+:func:`resegment` runs a GrabCut (colour GMMs + graph cut) in mask mode on the
+neighbourhood of that projection, where
+
+* pixels inside the projection are *probable object*, and *sure object* where
+  the view's first mask agrees deep inside it (by ``3 %`` of the object size);
+* pixels outside it, up to a band ``_BAND_FRACTION`` of the object size
+  wide (at least ``_BAND_MIN_PX``), are *probable backdrop* (the object
+  could still be there if most views cut it);
+* pixels beyond the band are *sure backdrop*.
+
+The colour models are learnt from these labels, not from the image border:
+the object's colours come from where the views agree the object is, the
+backdrop's from what surrounds it (plate, shadow, cloth), so neither a
+backdrop that resembles part of the object far away nor an object touching
+the frame misleads them. GrabCut runs at full resolution on the
+neighbourhood when it holds at most ``_WORK_PIXELS`` pixels, else on a
+reduced copy whose result is drawn back at full size.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import cv2
+import numpy as np
+
+from .carving.bounds import seen_by
+from .carving.carve import PreparedMasks, carve
+from .carving.consistency import hull_silhouettes
+from .carving.fusion import reference_misses
+from .geometry.camera import Camera
+from .geometry.grid import VoxelGrid
+from .segment import _close, _fill_small_holes
+
+__all__ = ["resegment", "consensus_masks"]
+
+#: GrabCut's working size (pixels of the neighbourhood), and iterations.
+_WORK_PIXELS = 160_000
+_ITERATIONS = 3
+#: Width of the probable-backdrop band around the hull's projection, as a
+#: fraction of the square root of the projection's area, and at least this
+#: many pixels.
+_BAND_FRACTION = 0.06
+_BAND_MIN_PX = 4
+#: Sure object: where the view's own mask and the projection agree, eroded by
+#: this fraction of the square root of the projection's area.
+_SURE_FRACTION = 0.03
+#: Backdrop context around the band, as a fraction of the object size: the
+#: backdrop colours GrabCut learns come from this ring.
+_CONTEXT_FRACTION = 0.3
+#: The result's closing radius (a fraction of the object size, bridges dark
+#: cracks) and the largest hole filled (a fraction of its area), as the graph cut's.
+_CLOSE_FRACTION = 0.02
+_FILL_HOLES_FRACTION = 0.002
+#: The view's first mask is kept within this fraction of the object size of the new one.
+_EDGE_FRACTION = 0.01
+
+
+def _disk(radius: int) -> np.ndarray:
+    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
+
+
+def resegment(rgb: np.ndarray, prior: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Re-decide the object in one view with the hull's projection as a prior.
+
+    rgb : (H, W, 3) uint8, the view's image
+    prior : (H, W) bool, the projection of the hull of all views into this view
+    mask : (H, W) bool, the view's own first mask
+
+    Returns (H, W) bool, the new mask (all False when the prior is empty).
+    """
+    h, w = rgb.shape[:2]
+    prior = np.asarray(prior, bool)
+    area = int(np.count_nonzero(prior))
+    if area == 0:
+        return np.zeros((h, w), bool)
+    size = np.sqrt(area)
+    band = max(_BAND_MIN_PX, int(round(_BAND_FRACTION * size)))
+    context = band + int(round(_CONTEXT_FRACTION * size))
+    x, y, bw, bh = cv2.boundingRect(prior.view(np.uint8))
+    x0, y0 = max(0, x - context), max(0, y - context)
+    x1, y1 = min(w, x + bw + context), min(h, y + bh + context)
+    crop = np.ascontiguousarray(rgb[y0:y1, x0:x1])
+    p = prior[y0:y1, x0:x1].view(np.uint8)
+    m_full = np.asarray(mask, bool).view(np.uint8)
+    m = m_full[y0:y1, x0:x1]
+    labels = np.full(p.shape, cv2.GC_BGD, np.uint8)
+    labels[cv2.dilate(p, _disk(band)) > 0] = cv2.GC_PR_BGD
+    labels[p > 0] = cv2.GC_PR_FGD
+    sure = max(1, int(round(_SURE_FRACTION * size)))
+    labels[cv2.erode(p & m, _disk(sure)) > 0] = cv2.GC_FGD
+    ch, cw = p.shape
+    scale = min(1.0, float(np.sqrt(_WORK_PIXELS / (ch * cw))))
+    if scale < 1.0:
+        small = (max(8, round(cw * scale)), max(8, round(ch * scale)))
+        work = cv2.resize(crop, small, interpolation=cv2.INTER_AREA)
+        work_labels = cv2.resize(labels, small, interpolation=cv2.INTER_NEAREST)
+    else:
+        work, work_labels = crop, labels
+    if np.count_nonzero((work_labels == cv2.GC_BGD) | (work_labels == cv2.GC_PR_BGD)) and \
+            np.count_nonzero((work_labels == cv2.GC_FGD) | (work_labels == cv2.GC_PR_FGD)):
+        cv2.grabCut(work, work_labels, None, np.zeros((1, 65)), np.zeros((1, 65)),
+                    _ITERATIONS, cv2.GC_INIT_WITH_MASK)
+    chosen = ((work_labels == cv2.GC_FGD) | (work_labels == cv2.GC_PR_FGD)).astype(np.float32)
+    if scale < 1.0:
+        chosen = cv2.resize(chosen, (cw, ch), interpolation=cv2.INTER_LINEAR)
+    out = np.zeros((h, w), np.uint8)
+    out[y0:y1, x0:x1] = chosen > 0.5
+    # The view's own full-resolution edge where it is the more inclusive (partly
+    # covered pixels): near the new mask only, so far shadows and clutter stay out.
+    edge = max(1, int(round(_EDGE_FRACTION * size)))
+    out |= m_full & (cv2.dilate(out, _disk(edge)) > 0)
+    out = _close(out, int(round(_CLOSE_FRACTION * size)))
+    out, _ = _fill_small_holes(out, _FILL_HOLES_FRACTION)
+    return out.astype(bool)
+
+
+def consensus_masks(grid: VoxelGrid, cameras: Sequence[Camera], masks: Sequence[np.ndarray],
+                    read_rgb: Callable[[int], np.ndarray | None]) -> list[np.ndarray]:
+    """Re-segment every view with the projection of the hull the others agree on.
+
+    grid : VoxelGrid of the hull (coarse is enough: the prior only has to
+        hold the object; its footprint widens the projection)
+    cameras : n Camera; masks : n (H, W) bool, the views' first masks
+    read_rgb : view index -> its (H, W, 3) uint8 RGB image, or None to keep
+        that view's mask (e.g. an alpha mask, exact already)
+
+    Returns the n new (H, W) bool masks. The hull tolerates
+    :func:`~sfs_ros.core.carving.fusion.reference_misses` misses per voxel,
+    so one view's missing part does not remove it from the prior of the
+    others; a voxel seen by too few views to be judged is left out.
+    """
+    k = reference_misses(len(cameras))
+    prepared = PreparedMasks(list(cameras), masks)
+    hull = carve(grid, cameras, prepared, max_misses=k) & seen_by(grid, list(cameras), k + 1)
+    projections, _ = hull_silhouettes(grid, hull, cameras)
+    out = []
+    for n, (mask, prior) in enumerate(zip(masks, projections)):
+        rgb = read_rgb(n)
+        out.append(mask if rgb is None else resegment(rgb, prior, mask))
+    return out
