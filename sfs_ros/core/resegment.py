@@ -59,10 +59,31 @@ _CLOSE_FRACTION = 0.02
 _FILL_HOLES_FRACTION = 0.002
 #: The view's first mask is kept within this fraction of the object size of the new one.
 _EDGE_FRACTION = 0.01
+#: Chromaticity features: grey levels per unit of (difference / brightness),
+#: and the brightness added below the division (grey levels).
+_CHROMA_GAIN = 64.0
+_DARK_FLOOR = 16.0
 
 
 def _disk(radius: int) -> np.ndarray:
     return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
+
+
+def _features(rgb: np.ndarray) -> np.ndarray:
+    """(h, w, 3) uint8 colours GrabCut models: brightness and two opponent
+    chromaticities, each divided by the brightness plus ``_DARK_FLOOR``.
+
+    A cast shadow is a darker backdrop of the same chromaticity, a shaded side
+    of the object a darker object: in RGB both crowd near black, here they keep
+    their hue apart (the floor keeps the noise of near-black pixels from
+    turning into colour)."""
+    c = rgb.astype(np.float32)
+    brightness = c.mean(axis=2)
+    scale = _CHROMA_GAIN / (brightness + _DARK_FLOOR)
+    red_green = 128.0 + (c[..., 0] - c[..., 1]) * scale
+    blue_yellow = 128.0 + (c[..., 2] - 0.5 * (c[..., 0] + c[..., 1])) * scale
+    out = np.stack([brightness, red_green, blue_yellow], axis=2)
+    return np.clip(np.rint(out), 0, 255).astype(np.uint8)
 
 
 def resegment(rgb: np.ndarray, prior: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -85,7 +106,7 @@ def resegment(rgb: np.ndarray, prior: np.ndarray, mask: np.ndarray) -> np.ndarra
     x, y, bw, bh = cv2.boundingRect(prior.view(np.uint8))
     x0, y0 = max(0, x - context), max(0, y - context)
     x1, y1 = min(w, x + bw + context), min(h, y + bh + context)
-    crop = np.ascontiguousarray(rgb[y0:y1, x0:x1])
+    crop = _features(rgb[y0:y1, x0:x1])
     p = prior[y0:y1, x0:x1].view(np.uint8)
     m_full = np.asarray(mask, bool).view(np.uint8)
     m = m_full[y0:y1, x0:x1]
@@ -130,12 +151,14 @@ def consensus_masks(grid: VoxelGrid, cameras: Sequence[Camera], masks: Sequence[
     read_rgb : view index -> its (H, W, 3) uint8 RGB image, or None to keep
         that view's mask (e.g. an alpha mask, exact already)
 
-    Returns the n new (H, W) bool masks. The hull tolerates
-    :func:`~sfs_ros.core.carving.fusion.reference_misses` misses per voxel,
-    so one view's missing part does not remove it from the prior of the
-    others; a voxel seen by too few views to be judged is left out.
+    Returns the n new (H, W) bool masks. The hull tolerates one miss per
+    voxel more than the fusion's reference hull
+    (:func:`~sfs_ros.core.carving.fusion.reference_misses`): it is only a
+    prior, where a part lost by a few views (an object touching the frame, a
+    shaded side next to its shadow) must stay for GrabCut to find again; a
+    voxel seen by too few views to be judged is left out.
     """
-    k = reference_misses(len(cameras))
+    k = reference_misses(len(cameras)) + 1
     prepared = PreparedMasks(list(cameras), masks)
     hull = carve(grid, cameras, prepared, max_misses=k) & seen_by(grid, list(cameras), k + 1)
     projections, _ = hull_silhouettes(grid, hull, cameras)
