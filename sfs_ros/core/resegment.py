@@ -125,6 +125,7 @@ def resegment(rgb: np.ndarray, prior: np.ndarray, mask: np.ndarray) -> np.ndarra
         work, work_labels = crop, labels
     if np.count_nonzero((work_labels == cv2.GC_BGD) | (work_labels == cv2.GC_PR_BGD)) and \
             np.count_nonzero((work_labels == cv2.GC_FGD) | (work_labels == cv2.GC_PR_FGD)):
+        cv2.setRNGSeed(0)  # GrabCut seeds its GMMs by k-means: the same result every run
         cv2.grabCut(work, work_labels, None, np.zeros((1, 65)), np.zeros((1, 65)),
                     _ITERATIONS, cv2.GC_INIT_WITH_MASK)
     chosen = ((work_labels == cv2.GC_FGD) | (work_labels == cv2.GC_PR_FGD)).astype(np.float32)
