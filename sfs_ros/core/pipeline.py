@@ -29,7 +29,7 @@ from .meshing.hull_distance import HullDistance
 from .meshing.marching import hull_marching_cubes_mesh
 from .meshing.mesh_checks import check_mesh
 from .metrics import reprojection_ious
-from .resegment import consensus_masks
+from .resegment import Consensus, consensus_masks
 from .segment import SegmentationParams, segment
 
 __all__ = ["MESHERS", "ReconstructionParams", "Reconstruction", "reconstruct"]
@@ -208,7 +208,7 @@ def _mesh(occupancy: np.ndarray, grid: VoxelGrid, params: ReconstructionParams, 
 
 
 def _consensus(views: list[View], used: list[int], cameras, masks, grid: VoxelGrid,
-               seg_params: SegmentationParams) -> list[np.ndarray]:
+               seg_params: SegmentationParams) -> Consensus:
     """The used views' masks re-segmented with the hull of all views as a prior
     (:func:`sfs_ros.core.resegment.consensus_masks`); alpha masks are kept."""
     reference = (VoxelGrid(grid.bounds_min, grid.bounds_max, 2 * grid.voxel_size)
@@ -296,12 +296,21 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
                                    or default_memory_budget())
         grid = VoxelGrid(bounds[0], bounds[1], choice.voxel_size_m)
 
+    resegmentation = None
     if params.consensus and len(cameras) >= 3 and seg_params.method == "graph-cut":
         with _timed(timings, "consensus"):
-            used_masks = _consensus(views, used, cameras, used_masks, grid, seg_params)
-            for i, mask in zip(used, used_masks):
-                masks[i] = mask
-            prepared = PreparedMasks(cameras, used_masks)
+            consensus = _consensus(views, used, cameras, used_masks, grid, seg_params)
+            resegmentation = {
+                "applied": consensus.applied, "reason": consensus.reason,
+                "per_view": [{"view": views[i].name, "prior_iou": float(iou),
+                              "added_px": int(a), "removed_px": int(r)}
+                             for i, iou, a, r in zip(used, consensus.prior_iou,
+                                                     consensus.added_px, consensus.removed_px)]}
+            if consensus.applied:
+                used_masks = consensus.masks
+                for i, mask in zip(used, used_masks):
+                    masks[i] = mask
+                prepared = PreparedMasks(cameras, used_masks)
 
     consistency, fusion_report = [], None
     with _timed(timings, "fusion"):
@@ -401,6 +410,7 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
                  "max_memory_bytes": choice.max_memory_bytes},
         "views": {"used": [views[i].name for i in used], "held_out": list(params.holdout),
                   "rejected": rejected, "clipped_by_bounds": clipped},
+        "resegmentation": resegmentation,
         "consistency": consistency,
         "fusion": fusion_report,
         "occupied_voxels": int(occupancy.sum()),

@@ -25,6 +25,7 @@ reduced copy whose result is drawn back at full size.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -32,12 +33,13 @@ import numpy as np
 from .carving.bounds import seen_by
 from .carving.carve import PreparedMasks, carve
 from .carving.consistency import hull_silhouettes
-from .carving.fusion import reference_misses
+from .carving.fusion import MIN_MEDIAN_IOU, reference_misses
 from .geometry.camera import Camera
 from .geometry.grid import VoxelGrid
+from .metrics import silhouette_iou
 from .segment import _close, _fill_small_holes
 
-__all__ = ["resegment", "consensus_masks"]
+__all__ = ["resegment", "Consensus", "consensus_masks"]
 
 #: GrabCut's working size (pixels of the neighbourhood), and iterations.
 _WORK_PIXELS = 160_000
@@ -142,8 +144,28 @@ def resegment(rgb: np.ndarray, prior: np.ndarray, mask: np.ndarray) -> np.ndarra
     return out.astype(bool)
 
 
+@dataclass
+class Consensus:
+    """What :func:`consensus_masks` did.
+
+    masks : n (H, W) bool, the masks to carve with (the first ones when not applied)
+    applied : bool, whether the views were re-segmented
+    reason : str, why not (None when applied)
+    prior_iou : (n,) float, IoU of each view's first mask with the hull's projection
+    added_px, removed_px : (n,) int, pixels the re-segmentation added to and
+        removed from each view's first mask
+    """
+
+    masks: list
+    applied: bool
+    reason: str | None
+    prior_iou: np.ndarray
+    added_px: np.ndarray
+    removed_px: np.ndarray
+
+
 def consensus_masks(grid: VoxelGrid, cameras: Sequence[Camera], masks: Sequence[np.ndarray],
-                    read_rgb: Callable[[int], np.ndarray | None]) -> list[np.ndarray]:
+                    read_rgb: Callable[[int], np.ndarray | None]) -> Consensus:
     """Re-segment every view with the projection of the hull the others agree on.
 
     grid : VoxelGrid of the hull (coarse is enough: the prior only has to
@@ -152,19 +174,33 @@ def consensus_masks(grid: VoxelGrid, cameras: Sequence[Camera], masks: Sequence[
     read_rgb : view index -> its (H, W, 3) uint8 RGB image, or None to keep
         that view's mask (e.g. an alpha mask, exact already)
 
-    Returns the n new (H, W) bool masks. The hull tolerates one miss per
-    voxel more than the fusion's reference hull
-    (:func:`~sfs_ros.core.carving.fusion.reference_misses`): it is only a
+    The hull tolerates one miss per voxel more than the fusion's reference
+    hull (:func:`~sfs_ros.core.carving.fusion.reference_misses`): it is only a
     prior, where a part lost by a few views (an object touching the frame, a
     shaded side next to its shadow) must stay for GrabCut to find again; a
-    voxel seen by too few views to be judged is left out.
+    voxel seen by too few views to be judged is left out. When the views do
+    not agree on one object (median IoU of a first mask with the projection
+    below :data:`~sfs_ros.core.carving.fusion.MIN_MEDIAN_IOU`: a calibration
+    that does not fit), nothing is re-segmented: the masks must not be bent
+    to a wrong hull, and the fusion names the error.
     """
     k = reference_misses(len(cameras)) + 1
     prepared = PreparedMasks(list(cameras), masks)
     hull = carve(grid, cameras, prepared, max_misses=k) & seen_by(grid, list(cameras), k + 1)
     projections, _ = hull_silhouettes(grid, hull, cameras)
-    out = []
+    prior_iou = np.array([silhouette_iou(p, m) for p, m in zip(projections, masks)])
+    zeros = np.zeros(len(masks), np.int64)
+    median = float(np.median(prior_iou))
+    if median < MIN_MEDIAN_IOU:
+        return Consensus(list(masks), False,
+                         f"the views do not agree on one object (median IoU of a mask with "
+                         f"the hull's projection {median:.2f}, below {MIN_MEDIAN_IOU})",
+                         prior_iou, zeros, zeros)
+    out, added, removed = [], zeros.copy(), zeros.copy()
     for n, (mask, prior) in enumerate(zip(masks, projections)):
         rgb = read_rgb(n)
-        out.append(mask if rgb is None else resegment(rgb, prior, mask))
-    return out
+        new = mask if rgb is None else resegment(rgb, prior, mask)
+        added[n] = np.count_nonzero(new & ~mask)
+        removed[n] = np.count_nonzero(mask & ~new)
+        out.append(new)
+    return Consensus(out, True, None, prior_iou, added, removed)
