@@ -24,9 +24,7 @@ reduced copy whose result is drawn back at full size.
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable, Sequence
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import cv2
@@ -174,8 +172,7 @@ def consensus_masks(grid: VoxelGrid, cameras: Sequence[Camera], masks: Sequence[
         hold the object; its footprint widens the projection)
     cameras : n Camera; masks : n (H, W) bool, the views' first masks
     read_rgb : view index -> its (H, W, 3) uint8 RGB image, or None to keep
-        that view's mask (e.g. an alpha mask, exact already); called from
-        several threads at once
+        that view's mask (e.g. an alpha mask, exact already)
 
     The hull tolerates one miss per voxel more than the fusion's reference
     hull (:func:`~sfs_ros.core.carving.fusion.reference_misses`): it is only a
@@ -199,14 +196,11 @@ def consensus_masks(grid: VoxelGrid, cameras: Sequence[Camera], masks: Sequence[
                          f"the views do not agree on one object (median IoU of a mask with "
                          f"the hull's projection {median:.2f}, below {MIN_MEDIAN_IOU})",
                          prior_iou, zeros, zeros)
-
-    def one(n: int) -> np.ndarray:
+    out, added, removed = [], zeros.copy(), zeros.copy()
+    for n, (mask, prior) in enumerate(zip(masks, projections)):
         rgb = read_rgb(n)
-        return masks[n] if rgb is None else resegment(rgb, projections[n], masks[n])
-
-    # Decoding and GrabCut release the GIL: the views run side by side, one per core.
-    with ThreadPoolExecutor(max_workers=max(1, min(len(masks), os.cpu_count() or 1))) as pool:
-        out = list(pool.map(one, range(len(masks))))
-    added = np.array([np.count_nonzero(new & ~old) for new, old in zip(out, masks)], np.int64)
-    removed = np.array([np.count_nonzero(old & ~new) for new, old in zip(out, masks)], np.int64)
+        new = mask if rgb is None else resegment(rgb, prior, mask)
+        added[n] = np.count_nonzero(new & ~mask)
+        removed[n] = np.count_nonzero(mask & ~new)
+        out.append(new)
     return Consensus(out, True, None, prior_iou, added, removed)
