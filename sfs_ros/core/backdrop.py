@@ -55,7 +55,7 @@ class BackdropModel:
         return out.reshape(rgb.shape[:-1]), index.reshape(rgb.shape[:-1])
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _min_mahalanobis(pixels, means, inverses, out, index):
     """``out[i]`` = min over clusters k of sqrt(r^T inverses[k] r), r = pixels[i] - means[k];
     ``index[i]`` = that k."""

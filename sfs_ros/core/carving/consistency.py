@@ -1,20 +1,14 @@
-"""Checks that one bad mask or a too small bounding box does not pass silently.
+"""Checks between the hull and the views: the hull's silhouette in each view, and a box too
+small for the object.
 
-A visual hull trusts every view: a single mask with a chunk missing (a
-segmentation failure, a hand in front of the object) carves that chunk away
-for good. :func:`find_inconsistent_views` carves with a tolerance (a voxel
-may be missed by ``max_misses`` views), projects that tolerant hull back into
-every view and compares it with the view's mask: the hull projection of a
-good view lies inside its mask, that of a bad view does not.
-
-:func:`bbox_clips_object` finds views whose foreground reaches outside the
-projection of the grid's box: the box misses part of the object.
+:func:`hull_silhouettes` draws each occupied voxel's footprint into every
+view (the fusion compares those with the masks). :func:`bbox_clips_object`
+finds views whose foreground reaches outside the projection of the grid's
+box: the box misses part of the object.
 """
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
 from typing import Sequence
 
 import cv2
@@ -23,33 +17,9 @@ from numba import njit, prange
 
 from ..geometry.camera import Camera
 from ..geometry.grid import VoxelGrid
-from ..metrics import silhouette_iou
-from .carve import carve, validate_masks, view_coefficients
+from .carve import validate_masks, view_coefficients
 
-__all__ = ["ViewCheck", "hull_silhouettes", "find_inconsistent_views", "bbox_clips_object"]
-
-
-@dataclass(frozen=True)
-class ViewCheck:
-    """How well one view's mask agrees with the hull of all views.
-
-    Attributes
-    ----------
-    index : int
-        View index.
-    iou : float
-        Intersection over union of the projected tolerant hull and the mask.
-    missing_fraction : float
-        Fraction of the projected hull's pixels that the mask (dilated by the
-        voxel footprint) does not cover.
-    consistent : bool
-        ``missing_fraction <= max_missing_fraction and iou >= min_iou``.
-    """
-
-    index: int
-    iou: float
-    missing_fraction: float
-    consistent: bool
+__all__ = ["hull_silhouettes", "bbox_clips_object"]
 
 
 @njit(parallel=True, cache=True, error_model="numpy")
@@ -146,58 +116,6 @@ def hull_silhouettes(grid: VoxelGrid, occupancy: np.ndarray,
     images = [flat[o:o + h * w].reshape(h, w).astype(bool)
               for o, h, w in zip(offsets, heights, widths)]
     return images, half
-
-
-def find_inconsistent_views(grid: VoxelGrid, cameras: Sequence[Camera], masks, *,
-                            max_misses: int = 1, min_iou: float = 0.8,
-                            max_missing_fraction: float = 0.05,
-                            outside_image: str = "keep") -> list[ViewCheck]:
-    """Check every view's mask against the hull carved with tolerance.
-
-    Parameters
-    ----------
-    grid : VoxelGrid
-    cameras : sequence of n Camera
-    masks : sequence of n (H, W) bool (or 0/1)
-    max_misses : int
-        Tolerance of the reference hull: a voxel stays when at most this many
-        views miss it, so up to ``max_misses`` bad views cannot carve it.
-    min_iou, max_missing_fraction : float
-        Thresholds of :attr:`ViewCheck.consistent`.
-    outside_image : {"keep", "carve"}
-        As in :func:`sfs_ros.core.carving.carve.carve`.
-
-    Returns
-    -------
-    list of n ViewCheck
-        One per view, in order (filter on ``consistent``). The reference hull
-        leaves out voxels inside the image of ``max_misses`` views or fewer
-        (nothing could carve them). When it is empty, every view with
-        foreground is inconsistent.
-    """
-    if not 0.0 <= min_iou <= 1.0 or not 0.0 <= max_missing_fraction <= 1.0:
-        raise ValueError(f"min_iou and max_missing_fraction must lie in [0, 1], got {min_iou}, "
-                         f"{max_missing_fraction}")
-    cameras = list(cameras)
-    masks = validate_masks(cameras, masks)
-    hull = carve(grid, cameras, masks, max_misses=max_misses, outside_image=outside_image)
-    # A voxel inside the image of at most max_misses views is never carved by
-    # the tolerant hull, whatever the masks say: leave such voxels out.
-    if len(cameras) > max_misses:
-        hull &= carve(grid, cameras, [np.ones(m.shape, bool) for m in masks],
-                      max_misses=len(cameras) - max_misses - 1, outside_image="carve")
-    images, half = hull_silhouettes(grid, hull, cameras)
-    checks = []
-    for v, (mask, proj) in enumerate(zip(masks, images)):
-        r = int(math.ceil(half[v] + 0.5))
-        grown = cv2.dilate(mask.view(np.uint8), np.ones((2 * r + 1, 2 * r + 1), np.uint8)) > 0
-        n_proj = int(proj.sum())
-        iou = silhouette_iou(proj, mask)
-        missing = float((proj & ~grown).sum()) / n_proj if n_proj else 0.0
-        checks.append(ViewCheck(index=v, iou=iou, missing_fraction=missing,
-                                consistent=bool(iou >= min_iou
-                                                and missing <= max_missing_fraction)))
-    return checks
 
 
 def bbox_clips_object(grid: VoxelGrid, cameras: Sequence[Camera], masks, *,
