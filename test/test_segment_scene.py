@@ -1,4 +1,5 @@
-"""The default segmentation (no preset) scored against exact silhouettes, and RGBA input.
+"""The default segmentation and reconstruction (no options) scored against exact
+silhouettes, and RGBA input.
 
 The hostile cell (:mod:`sfs_ros.core.simulation.hostile`) renders the object
 with a turntable plate reaching the frame, its cast shadow, a dark cloth,
@@ -14,8 +15,9 @@ import pytest
 
 from sfs_ros.cli.reconstruct import _segmentation, build_parser
 from sfs_ros.core.exchange.nerf import read_transforms
-from sfs_ros.core.exchange.views import read_image
+from sfs_ros.core.exchange.views import View, ViewSet, read_image
 from sfs_ros.core.geometry.rig import RigCalibration
+from sfs_ros.core.metrics import reprojection_ious
 from sfs_ros.core.pipeline import ReconstructionParams, reconstruct
 from sfs_ros.core.render import rasterize_silhouette
 from sfs_ros.core.segment import SegmentationParams, segment
@@ -29,17 +31,18 @@ RIG = RigCalibration(width=480, height=360, projection="pinhole", fx=1500.0, fy=
                      camera_distance_m=0.6, aim_point_m=(0.0, 0.0, 0.045))
 PLAN = ring_plan([20.0, 45.0, 70.0], 4)  # 12 views, views 3, 7, 11 partly out of frame
 
-#: Mean per-view IoU against the exact silhouettes, per backdrop. Measured with
-#: this plan: 0.844 (black) and 0.805 (white); the issue asks for 0.97, which
-#: is NOT reached. What is lost: the cast shadow on the plate, joined to the
-#: object, in the views from 70 degrees (IoU ~0.70-0.77), and the views where
-#: the object covers ~10 % of the frame's border and its colours join the
-#: backdrop model (IoU 0.40-0.81). The other views score 0.95-0.96. The bars
-#: sit 0.025 under the measurement (k-means and GrabCut are deterministic
-#: here, so this is margin for library versions, not for chance) and far above
-#: the threshold method, the old default (0.474 black, 0.436 white: the plate
-#: becomes the backdrop colour and the real backdrop the object).
-MEAN_IOU_MIN = {"black": 0.82, "white": 0.78}
+#: Mean per-view IoU of the views' first masks (each view alone) against the exact
+#: silhouettes, per backdrop. Measured with this plan: 0.874 (black) and 0.807 (white).
+#: What is lost: the cast shadow on the plate, joined to the object, in the views from
+#: 70 degrees (IoU ~0.73-0.77), and the views where the object covers ~10 % of the
+#: frame's border and its colours join the backdrop model (IoU 0.53-0.84). The other
+#: views score 0.95-0.96. The reconstruction recovers these views by re-segmenting
+#: them with the hull as a prior (below). The bars sit 0.025 under the measurement
+#: (k-means and GrabCut are deterministic here, so this is margin for library
+#: versions, not for chance) and far above the threshold method, the old default
+#: (0.474 black, 0.436 white: the plate becomes the backdrop colour and the real
+#: backdrop the object).
+MEAN_IOU_MIN = {"black": 0.85, "white": 0.78}
 
 
 def iou(a, b):
@@ -77,6 +80,47 @@ def test_default_segmentation_on_the_hostile_scene(scene):
     print(f"{backdrop}: mean IoU {np.mean(ious):.4f}, per view "
           + " ".join(f"{v:.3f}" for v in ious))
     assert np.mean(ious) >= MEAN_IOU_MIN[backdrop]
+
+
+# --- The whole reconstruction with no options ----------------------------------------
+
+#: The mesh of the default reconstruction, rasterised into every view, against the
+#: exact silhouettes: the issue asks for 0.97. Measured 0.984 (black; worst view 0.977)
+#: and 0.983 (white; worst 0.969). What is left is the visual hull's own limit (the
+#: handle's hole, seen through by few views, stays filled) and a pixel of edge; the
+#: views touching the frame score like the others. Everything here is deterministic
+#: (a seeded scene, seeded k-means and GrabCut), so the 0.014 of margin is for library
+#: versions, and a tenth of what the views' own first masks lose (MEAN_IOU_MIN).
+MESH_IOU_MIN = 0.97
+#: The masks the reconstruction carved with (after the re-segmentation with the hull
+#: as a prior), against the exact silhouettes: measured 0.977 (black), 0.972 (white).
+CONSENSUS_MASK_IOU_MIN = 0.96
+
+
+@pytest.fixture(scope="module")
+def reconstructed(scene, tmp_path_factory):
+    """The hostile scene written as images with their cameras and reconstructed with
+    the default parameters (the box estimated from the views)."""
+    backdrop, captures = scene
+    folder = tmp_path_factory.mktemp(f"hostile_{backdrop}")
+    views = []
+    for c in captures:
+        cv2.imwrite(str(folder / c.name), cv2.cvtColor(c.image, cv2.COLOR_RGB2BGR))
+        views.append(View(c.name, folder / c.name, c.camera))
+    return backdrop, captures, reconstruct(ViewSet(views=views, source="session"))
+
+
+def test_default_reconstruction_of_the_hostile_scene(reconstructed):
+    backdrop, captures, result = reconstructed
+    mesh = reprojection_ious(result.vertices, result.faces, [c.camera for c in captures],
+                             [c.object_mask for c in captures])
+    masks = [iou(result.masks[c.name], c.object_mask) for c in captures]
+    print(f"{backdrop}: mesh IoU {mesh.mean():.4f} per view " + " ".join(f"{v:.3f}" for v in mesh)
+          + f"; masks carved with {np.mean(masks):.4f} per view "
+          + " ".join(f"{v:.3f}" for v in masks))
+    assert result.report["views"]["rejected"] == []
+    assert mesh.mean() >= MESH_IOU_MIN
+    assert np.mean(masks) >= CONSENSUS_MASK_IOU_MIN
 
 
 # --- RGBA input -------------------------------------------------------------------------

@@ -66,6 +66,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="keep voxels that fall outside at most K silhouettes (default 0)")
     p.add_argument("--no-consistency-check", action="store_true",
                    help="do not detect and drop views inconsistent with the others")
+    p.add_argument("--no-consensus", action="store_true",
+                   help="do not re-segment the views with the hull of all views as a prior")
     p.add_argument("--preset", choices=sorted(PRESETS), help="segmentation preset")
     p.add_argument("--threshold", type=float,
                    help="segment by this colour-distance threshold (the threshold method; "
@@ -158,6 +160,7 @@ def run(args) -> dict:
         mesher=args.mesher or recorded.get("mesher", MESHERS[0]),
         block=args.block, bounds_m=None if args.bounds is None else (args.bounds[:3], args.bounds[3:]),
         max_misses=args.max_misses, check_consistency=not args.no_consistency_check,
+        consensus=not args.no_consensus,
         holdout=_holdout_names(args.holdout, [v.name for v in view_set.views]),
         segmentation=_segmentation(args, view_set.segmentation),
         colour=args.colour and bag_images is None)

@@ -42,17 +42,26 @@ class BackdropModel:
         """Smallest Mahalanobis distance of each colour of ``rgb`` ((..., 3) uint8, e.g.
         an (H, W, 3) image or (n, 3) pixels) to a backdrop cluster: (...) float32, in
         standard deviations."""
+        return self.nearest(rgb)[0]
+
+    def nearest(self, rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The smallest Mahalanobis distance of each colour of ``rgb`` ((..., 3) uint8) to
+        a backdrop cluster ((...) float32, standard deviations) and that cluster's
+        index ((...) int32)."""
         pixels = np.ascontiguousarray(rgb).reshape(-1, 3)
         out = np.empty(len(pixels), np.float32)
-        _min_mahalanobis(pixels, self.means, self.inverse_covariances, out)
-        return out.reshape(rgb.shape[:-1])
+        index = np.empty(len(pixels), np.int32)
+        _min_mahalanobis(pixels, self.means, self.inverse_covariances, out, index)
+        return out.reshape(rgb.shape[:-1]), index.reshape(rgb.shape[:-1])
 
 
 @njit(cache=True, nogil=True)
-def _min_mahalanobis(pixels, means, inverses, out):
-    """``out[i]`` = min over clusters k of sqrt(r^T inverses[k] r), r = pixels[i] - means[k]."""
+def _min_mahalanobis(pixels, means, inverses, out, index):
+    """``out[i]`` = min over clusters k of sqrt(r^T inverses[k] r), r = pixels[i] - means[k];
+    ``index[i]`` = that k."""
     for i in range(pixels.shape[0]):
         best = np.inf
+        index[i] = 0
         for k in range(means.shape[0]):
             r0 = pixels[i, 0] - means[k, 0]
             r1 = pixels[i, 1] - means[k, 1]
@@ -61,7 +70,9 @@ def _min_mahalanobis(pixels, means, inverses, out):
             q = (r0 * (m[0, 0] * r0 + m[0, 1] * r1 + m[0, 2] * r2)
                  + r1 * (m[1, 0] * r0 + m[1, 1] * r1 + m[1, 2] * r2)
                  + r2 * (m[2, 0] * r0 + m[2, 1] * r1 + m[2, 2] * r2))
-            best = min(best, q)
+            if q < best:
+                best = q
+                index[i] = k
         out[i] = np.sqrt(max(best, 0.0))
 
 

@@ -30,6 +30,7 @@ from .meshing.hull_distance import HullDistance
 from .meshing.marching import hull_marching_cubes_mesh
 from .meshing.mesh_checks import check_mesh
 from .metrics import reprojection_ious
+from .resegment import Consensus, consensus_masks
 from .segment import SegmentationParams, segment
 from .workers import map_in_threads
 
@@ -89,6 +90,10 @@ class ReconstructionParams:
         Names of views kept out of carving and only used to evaluate the mesh.
     segmentation : SegmentationParams or None
         None: the input's stored parameters, else the defaults.
+    consensus : bool
+        Re-segment every view (graph-cut segmentation only) with the projection
+        of the hull all views agree on as a prior, before the fusion
+        (:mod:`sfs_ros.core.resegment`).
     colour : bool
         Colour the mesh's vertices from the images of the views used
         (:func:`sfs_ros.core.meshing.colour.vertex_colours`: the views that see each
@@ -107,6 +112,7 @@ class ReconstructionParams:
     holdout: tuple = ()
     segmentation: SegmentationParams | None = None
     colour: bool = False
+    consensus: bool = True
 
     def __post_init__(self) -> None:
         if self.mesher not in MESHERS:
@@ -224,6 +230,21 @@ def _mesh(occupancy: np.ndarray, grid: VoxelGrid, params: ReconstructionParams, 
                                   "cloud_points_on_hull": int(on_hull.sum())}
 
 
+def _consensus(views: list[View], used: list[int], cameras, masks, grid: VoxelGrid,
+               seg_params: SegmentationParams) -> Consensus:
+    """The used views' masks re-segmented with the hull of all views as a prior
+    (:func:`sfs_ros.core.resegment.consensus_masks`); alpha masks are kept."""
+    reference = (VoxelGrid(grid.bounds_min, grid.bounds_max, 2 * grid.voxel_size)
+                 if max(grid.shape) >= 128 else grid)
+
+    def read_rgb(n: int) -> np.ndarray | None:
+        view = views[used[n]]
+        image = read_image(view.image_path, keep_alpha=not seg_params.ignore_alpha)
+        return image if image.ndim == 3 and image.shape[2] == 3 else None
+
+    return consensus_masks(reference, cameras, masks, read_rgb)
+
+
 def reconstruct(view_set: ViewSet, params: ReconstructionParams = ReconstructionParams(), *,
                 progress: Progress | None = None, masks: dict | None = None) -> Reconstruction:
     """Reconstruct the object seen in ``view_set``.
@@ -266,7 +287,9 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
         elif view_set.bounds_m is not None:
             bounds, bounds_source = np.asarray(view_set.bounds_m, dtype=np.float64), "input"
         else:
-            bounds, bounds_source = estimate_bounds(cameras, prepared), "estimated"
+            bounds, bounds_source = estimate_bounds(
+                cameras, prepared, max_misses=reference_misses(len(cameras))
+                if len(cameras) >= 3 else 0), "estimated"
         if bounds.shape != (2, 3) or not np.all(np.isfinite(bounds)) or np.any(bounds[1] <= bounds[0]):
             raise ValueError(f"bounding box must be [[xmin, ymin, zmin], [xmax, ymax, zmax]] "
                              f"with min < max, got {bounds.tolist()}")
@@ -300,6 +323,22 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
                                    max_memory_bytes=params.max_memory_bytes
                                    or default_memory_budget())
         grid = VoxelGrid(bounds[0], bounds[1], choice.voxel_size_m)
+
+    resegmentation = None
+    if params.consensus and len(cameras) >= 3 and seg_params.method == "graph-cut":
+        with _timed(timings, "consensus"):
+            consensus = _consensus(views, used, cameras, used_masks, grid, seg_params)
+            resegmentation = {
+                "applied": consensus.applied, "reason": consensus.reason,
+                "per_view": [{"view": views[i].name, "prior_iou": float(iou),
+                              "added_px": int(a), "removed_px": int(r)}
+                             for i, iou, a, r in zip(used, consensus.prior_iou,
+                                                     consensus.added_px, consensus.removed_px)]}
+            if consensus.applied:
+                used_masks = consensus.masks
+                for i, mask in zip(used, used_masks):
+                    masks[i] = mask
+                prepared = PreparedMasks(cameras, used_masks)
 
     consistency, fusion_report = [], None
     with _timed(timings, "fusion"):
@@ -400,6 +439,7 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
                  "max_memory_bytes": choice.max_memory_bytes},
         "views": {"used": [views[i].name for i in used], "held_out": list(params.holdout),
                   "rejected": rejected, "clipped_by_bounds": clipped},
+        "resegmentation": resegmentation,
         "consistency": consistency,
         "fusion": fusion_report,
         "occupied_voxels": int(occupancy.sum()),

@@ -5,7 +5,10 @@ Two methods (``SegmentationParams.method``):
 ``"graph-cut"`` (default, needs no preset): the backdrop is modelled from the
 image border (:mod:`.backdrop`: the colour clusters of the border band, so a
 turntable plate or a cloth reaching the frame is backdrop too); pixels far
-from every backdrop cluster start as probable object, border-connected pixels
+from every backdrop cluster start as probable object, and so do patches of a
+backdrop colour that do not reach the frame and are mostly enclosed by object
+colours (the white top of an object seen from above against a white sweep
+beyond a grey plate); border-connected pixels
 close to one as sure backdrop (an opening first cuts thin dark details, e.g.
 a shadowed crease on the object, out of the sure part). A GrabCut (colour
 GMMs + graph cut) on a copy of about 40 000 pixels decides; the boundary is
@@ -74,6 +77,9 @@ _WORK_PIXELS = 40_000
 _GRABCUT_ITERATIONS = 4
 _SURE_SIGMA = 3.0
 _EDGE_SIGMA = 1.5
+#: A patch of a backdrop colour not reaching the frame starts as object when more than
+#: this fraction of its outline borders object colours.
+_ENCLOSED_FRACTION = 0.5
 
 
 #: Largest radius or distance in pixels a parameter may give (morphology kernels grow with it).
@@ -704,9 +710,29 @@ def _graph_cut_mask(rgb: np.ndarray, params: SegmentationParams) -> tuple[np.nda
     distance = backdrop.distance(rgb)
     small = cv2.resize(rgb, size, interpolation=cv2.INTER_AREA)
     small_distance = cv2.resize(distance, size, interpolation=cv2.INTER_AREA)
-    labels = np.where(small_distance > params.object_sigma, cv2.GC_PR_FGD,
-                      cv2.GC_PR_BGD).astype(np.uint8)
     edge = border_band(size[1], size[0], 0.0)  # the 2-pixel frame of the working copy
+    # A backdrop colour away from the frame and enclosed mostly by object colours (the
+    # white top of an object seen from above, on a grey plate, before a white sweep) is
+    # no evidence of backdrop: such a patch of one cluster's colour starts as object.
+    _, nearest = backdrop.nearest(small)
+    far = small_distance > params.object_sigma
+    enclosed = np.zeros(size[::-1], bool)
+    for k in range(len(backdrop.means)):
+        near_k = (~far & (nearest == k)).astype(np.uint8)
+        n, components = cv2.connectedComponents(near_k, connectivity=8)
+        if n <= 1:
+            continue
+        framed = np.zeros(n, bool)
+        framed[np.unique(components[edge & (near_k > 0)])] = True
+        ring = (cv2.dilate(near_k, np.ones((3, 3), np.uint8)) > 0) & (near_k == 0)
+        owner = cv2.dilate(components.astype(np.float32), np.ones((3, 3), np.uint8))
+        owner = owner.astype(np.int64)[ring]  # the (largest-numbered) patch a ring pixel borders
+        around = np.bincount(owner, minlength=n)
+        around_far = np.bincount(owner, weights=far[ring], minlength=n)
+        patch = ~framed & (around_far > _ENCLOSED_FRACTION * np.maximum(around, 1))
+        patch[0] = False
+        enclosed |= patch[components]
+    labels = np.where(far | enclosed, cv2.GC_PR_FGD, cv2.GC_PR_BGD).astype(np.uint8)
     labels[edge] = cv2.GC_PR_BGD  # seeds the backdrop colours with whatever reaches the frame
     # Sure backdrop: near a cluster and connected to the frame, minus thin parts
     # (a dark crease on the object touching the dark backdrop stays undecided).

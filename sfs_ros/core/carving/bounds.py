@@ -65,18 +65,21 @@ def _visible_half_size(cam: Camera, centre: np.ndarray) -> float:
 
 
 def estimate_bounds(cameras: list[Camera], masks: list[np.ndarray], *,
-                    resolution: int = 48, margin_voxels: float = 2.0) -> np.ndarray:
+                    resolution: int = 48, margin_voxels: float = 2.0,
+                    max_misses: int = 0) -> np.ndarray:
     """(2, 3) bounding box ``[min, max]`` of the object seen in ``masks``, metres.
 
     Carves a ``resolution``^3 grid over the region all cameras can see around
     :func:`axes_meeting_point`, keeping only voxels inside the image in at
     least half the views, and grows the occupied box by ``margin_voxels``
-    coarse voxels. Raises ``ValueError`` if nothing survives.
+    coarse voxels. ``max_misses`` views may see a voxel outside their mask
+    (one view that lost part of the object must not cut the box). Raises
+    ``ValueError`` if nothing survives.
     """
     centre = axes_meeting_point(cameras)
     half = max(_visible_half_size(cam, centre) for cam in cameras)
     grid = VoxelGrid(centre - half, centre + half, 2 * half / resolution)
-    occupancy = carve(grid, cameras, masks, outside_image="keep")
+    occupancy = carve(grid, cameras, masks, max_misses=max_misses, outside_image="keep")
     ijk = np.argwhere(occupancy)
     if len(ijk) == 0:
         raise ValueError("cannot estimate a bounding box: the silhouettes have no common volume")

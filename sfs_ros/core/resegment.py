@@ -1,0 +1,206 @@
+"""Re-segmentation of a view with the hull of all views as a prior (multi-view consensus).
+
+One view's segmentation sees one picture: an object whose colours reach the
+frame joins the backdrop model, a cast shadow joins the object. The hull
+carved from all views, projected into the view, says where the object can be:
+:func:`resegment` runs a GrabCut (colour GMMs + graph cut) in mask mode on the
+neighbourhood of that projection, where
+
+* pixels inside the projection are *probable object*, and *sure object* where
+  the view's first mask agrees deep inside it (by ``3 %`` of the object size);
+* pixels outside it, up to a band ``_BAND_FRACTION`` of the object size
+  wide (at least ``_BAND_MIN_PX``), are *probable backdrop* (the object
+  could still be there if most views cut it);
+* pixels beyond the band are *sure backdrop*.
+
+The colour models are learnt from these labels, not from the image border:
+the object's colours come from where the views agree the object is, the
+backdrop's from what surrounds it (plate, shadow, cloth), so neither a
+backdrop that resembles part of the object far away nor an object touching
+the frame misleads them. GrabCut runs at full resolution on the
+neighbourhood when it holds at most ``_WORK_PIXELS`` pixels, else on a
+reduced copy whose result is drawn back at full size.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from .carving.bounds import seen_by
+from .carving.carve import PreparedMasks, carve
+from .carving.consistency import hull_silhouettes
+from .carving.fusion import MIN_MEDIAN_IOU, reference_misses
+from .geometry.camera import Camera
+from .geometry.grid import VoxelGrid
+from .metrics import silhouette_iou
+from .segment import _close, _fill_small_holes
+
+__all__ = ["resegment", "Consensus", "consensus_masks"]
+
+#: GrabCut's working size (pixels of the neighbourhood), and iterations.
+_WORK_PIXELS = 160_000
+_ITERATIONS = 3
+#: Width of the probable-backdrop band around the hull's projection, as a
+#: fraction of the square root of the projection's area, and at least this
+#: many pixels.
+_BAND_FRACTION = 0.06
+_BAND_MIN_PX = 4
+#: Sure object: where the view's own mask and the projection agree, eroded by
+#: this fraction of the square root of the projection's area.
+_SURE_FRACTION = 0.03
+#: Backdrop context around the band, as a fraction of the object size: the
+#: backdrop colours GrabCut learns come from this ring.
+_CONTEXT_FRACTION = 0.3
+#: The result's closing radius (a fraction of the object size, bridges dark
+#: cracks) and the largest hole filled (a fraction of its area), as the graph cut's.
+_CLOSE_FRACTION = 0.02
+_FILL_HOLES_FRACTION = 0.002
+#: The view's first mask is kept within this fraction of the object size of the new one.
+_EDGE_FRACTION = 0.01
+#: Chromaticity features: grey levels per unit of (difference / brightness),
+#: and the brightness added below the division (grey levels).
+_CHROMA_GAIN = 64.0
+_DARK_FLOOR = 16.0
+
+
+def _disk(radius: int) -> np.ndarray:
+    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
+
+
+def _features(rgb: np.ndarray) -> np.ndarray:
+    """(h, w, 3) uint8 colours GrabCut models: brightness and two opponent
+    chromaticities, each divided by the brightness plus ``_DARK_FLOOR``.
+
+    A cast shadow is a darker backdrop of the same chromaticity, a shaded side
+    of the object a darker object: in RGB both crowd near black, here they keep
+    their hue apart (the floor keeps the noise of near-black pixels from
+    turning into colour)."""
+    c = rgb.astype(np.float32)
+    brightness = c.mean(axis=2)
+    scale = _CHROMA_GAIN / (brightness + _DARK_FLOOR)
+    red_green = 128.0 + (c[..., 0] - c[..., 1]) * scale
+    blue_yellow = 128.0 + (c[..., 2] - 0.5 * (c[..., 0] + c[..., 1])) * scale
+    out = np.stack([brightness, red_green, blue_yellow], axis=2)
+    return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+
+
+def resegment(rgb: np.ndarray, prior: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Re-decide the object in one view with the hull's projection as a prior.
+
+    rgb : (H, W, 3) uint8, the view's image
+    prior : (H, W) bool, the projection of the hull of all views into this view
+    mask : (H, W) bool, the view's own first mask
+
+    Returns (H, W) bool, the new mask (all False when the prior is empty).
+    """
+    h, w = rgb.shape[:2]
+    prior = np.asarray(prior, bool)
+    area = int(np.count_nonzero(prior))
+    if area == 0:
+        return np.zeros((h, w), bool)
+    size = np.sqrt(area)
+    band = max(_BAND_MIN_PX, int(round(_BAND_FRACTION * size)))
+    context = band + int(round(_CONTEXT_FRACTION * size))
+    x, y, bw, bh = cv2.boundingRect(prior.view(np.uint8))
+    x0, y0 = max(0, x - context), max(0, y - context)
+    x1, y1 = min(w, x + bw + context), min(h, y + bh + context)
+    crop = _features(rgb[y0:y1, x0:x1])
+    p = prior[y0:y1, x0:x1].view(np.uint8)
+    m_full = np.asarray(mask, bool).view(np.uint8)
+    m = m_full[y0:y1, x0:x1]
+    labels = np.full(p.shape, cv2.GC_BGD, np.uint8)
+    labels[cv2.dilate(p, _disk(band)) > 0] = cv2.GC_PR_BGD
+    labels[p > 0] = cv2.GC_PR_FGD
+    sure = max(1, int(round(_SURE_FRACTION * size)))
+    labels[cv2.erode(p & m, _disk(sure)) > 0] = cv2.GC_FGD
+    ch, cw = p.shape
+    scale = min(1.0, float(np.sqrt(_WORK_PIXELS / (ch * cw))))
+    if scale < 1.0:
+        small = (max(8, round(cw * scale)), max(8, round(ch * scale)))
+        work = cv2.resize(crop, small, interpolation=cv2.INTER_AREA)
+        work_labels = cv2.resize(labels, small, interpolation=cv2.INTER_NEAREST)
+    else:
+        work, work_labels = crop, labels
+    if np.count_nonzero((work_labels == cv2.GC_BGD) | (work_labels == cv2.GC_PR_BGD)) and \
+            np.count_nonzero((work_labels == cv2.GC_FGD) | (work_labels == cv2.GC_PR_FGD)):
+        cv2.setRNGSeed(0)  # GrabCut seeds its GMMs by k-means: the same result every run
+        cv2.grabCut(work, work_labels, None, np.zeros((1, 65)), np.zeros((1, 65)),
+                    _ITERATIONS, cv2.GC_INIT_WITH_MASK)
+    chosen = ((work_labels == cv2.GC_FGD) | (work_labels == cv2.GC_PR_FGD)).astype(np.float32)
+    if scale < 1.0:
+        chosen = cv2.resize(chosen, (cw, ch), interpolation=cv2.INTER_LINEAR)
+    out = np.zeros((h, w), np.uint8)
+    out[y0:y1, x0:x1] = chosen > 0.5
+    # The view's own full-resolution edge where it is the more inclusive (partly
+    # covered pixels): near the new mask only, so far shadows and clutter stay out.
+    edge = max(1, int(round(_EDGE_FRACTION * size)))
+    out |= m_full & (cv2.dilate(out, _disk(edge)) > 0)
+    out = _close(out, int(round(_CLOSE_FRACTION * size)))
+    out, _ = _fill_small_holes(out, _FILL_HOLES_FRACTION)
+    return out.astype(bool)
+
+
+@dataclass
+class Consensus:
+    """What :func:`consensus_masks` did.
+
+    masks : n (H, W) bool, the masks to carve with (the first ones when not applied)
+    applied : bool, whether the views were re-segmented
+    reason : str, why not (None when applied)
+    prior_iou : (n,) float, IoU of each view's first mask with the hull's projection
+    added_px, removed_px : (n,) int, pixels the re-segmentation added to and
+        removed from each view's first mask
+    """
+
+    masks: list
+    applied: bool
+    reason: str | None
+    prior_iou: np.ndarray
+    added_px: np.ndarray
+    removed_px: np.ndarray
+
+
+def consensus_masks(grid: VoxelGrid, cameras: Sequence[Camera], masks: Sequence[np.ndarray],
+                    read_rgb: Callable[[int], np.ndarray | None]) -> Consensus:
+    """Re-segment every view with the projection of the hull the others agree on.
+
+    grid : VoxelGrid of the hull (coarse is enough: the prior only has to
+        hold the object; its footprint widens the projection)
+    cameras : n Camera; masks : n (H, W) bool, the views' first masks
+    read_rgb : view index -> its (H, W, 3) uint8 RGB image, or None to keep
+        that view's mask (e.g. an alpha mask, exact already)
+
+    The hull tolerates one miss per voxel more than the fusion's reference
+    hull (:func:`~sfs_ros.core.carving.fusion.reference_misses`): it is only a
+    prior, where a part lost by a few views (an object touching the frame, a
+    shaded side next to its shadow) must stay for GrabCut to find again; a
+    voxel seen by too few views to be judged is left out. When the views do
+    not agree on one object (median IoU of a first mask with the projection
+    below :data:`~sfs_ros.core.carving.fusion.MIN_MEDIAN_IOU`: a calibration
+    that does not fit), nothing is re-segmented: the masks must not be bent
+    to a wrong hull, and the fusion names the error.
+    """
+    k = reference_misses(len(cameras)) + 1
+    prepared = PreparedMasks(list(cameras), masks)
+    hull = carve(grid, cameras, prepared, max_misses=k) & seen_by(grid, list(cameras), k + 1)
+    projections, _ = hull_silhouettes(grid, hull, cameras)
+    prior_iou = np.array([silhouette_iou(p, m) for p, m in zip(projections, masks)])
+    zeros = np.zeros(len(masks), np.int64)
+    median = float(np.median(prior_iou))
+    if median < MIN_MEDIAN_IOU:
+        return Consensus(list(masks), False,
+                         f"the views do not agree on one object (median IoU of a mask with "
+                         f"the hull's projection {median:.2f}, below {MIN_MEDIAN_IOU})",
+                         prior_iou, zeros, zeros)
+    out, added, removed = [], zeros.copy(), zeros.copy()
+    for n, (mask, prior) in enumerate(zip(masks, projections)):
+        rgb = read_rgb(n)
+        new = mask if rgb is None else resegment(rgb, prior, mask)
+        added[n] = np.count_nonzero(new & ~mask)
+        removed[n] = np.count_nonzero(mask & ~new)
+        out.append(new)
+    return Consensus(out, True, None, prior_iou, added, removed)
