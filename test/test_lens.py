@@ -13,7 +13,7 @@ import pytest
 from sfs_ros.core.carving.carve import carve
 from sfs_ros.core.geometry.camera import Camera
 from sfs_ros.core.geometry.grid import VoxelGrid
-from sfs_ros.core.geometry.lens import ideal_camera, undistort_image, undistort_mask
+from sfs_ros.core.geometry.lens import distort_mask, ideal_camera, undistort_image, undistort_mask
 from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
 from sfs_ros.core.metrics import occupancy_from_contains, silhouette_iou, volume_iou
 from sfs_ros.core.render import rasterize_silhouette
@@ -56,6 +56,22 @@ def test_undistorting_a_mask_gives_the_ideal_cameras_mask():
         got = silhouette_iou(undistort_mask(taken, camera), ideal)
         assert got > EDGE_PIXELS_IOU
         assert 1 - got < 0.5 * (1 - silhouette_iou(taken, ideal))   # the lens matters here
+
+
+def test_distorting_the_ideal_cameras_mask_gives_the_lens_image():
+    for theta, phi in VIEWS[::3]:
+        camera = rig_camera(theta, phi, RIG)
+        taken = sphere_mask(camera, CENTRE, RADIUS)
+        ideal = sphere_mask(ideal_camera(camera), CENTRE, RADIUS)
+        got = silhouette_iou(distort_mask(ideal, camera), taken)
+        assert got > EDGE_PIXELS_IOU
+        assert 1 - got < 0.5 * (1 - silhouette_iou(ideal, taken))   # the lens matters here
+        # The way there and back moves only edge pixels.
+        assert silhouette_iou(distort_mask(undistort_mask(taken, camera), camera),
+                              taken) > EDGE_PIXELS_IOU
+    plain = ideal_camera(rig_camera(*VIEWS[0], RIG))
+    mask = sphere_mask(plain, CENTRE, RADIUS)
+    np.testing.assert_array_equal(distort_mask(mask, plain), mask)
 
 
 def _grid():

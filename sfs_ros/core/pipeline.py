@@ -22,7 +22,7 @@ from .carving.hull import drop_specks
 from .carving.resolution import choose_voxel_size, default_memory_budget
 from .exchange.views import View, ViewSet, read_image
 from .geometry.grid import VoxelGrid
-from .geometry.lens import ideal_camera, undistort_image, undistort_mask
+from .geometry.lens import distort_mask, ideal_camera, undistort_image, undistort_mask
 from .meshing.advancing_front import advancing_front
 from .meshing.cloud import cloud_of_points
 from .meshing.colour import vertex_colours
@@ -231,16 +231,20 @@ def _mesh(occupancy: np.ndarray, grid: VoxelGrid, params: ReconstructionParams, 
 
 
 def _consensus(views: list[View], used: list[int], cameras, masks, grid: VoxelGrid,
-               seg_params: SegmentationParams) -> Consensus:
+               seg_params: SegmentationParams, lenses: dict) -> Consensus:
     """The used views' masks re-segmented with the hull of all views as a prior
-    (:func:`sfs_ros.core.resegment.consensus_masks`); alpha masks are kept."""
+    (:func:`sfs_ros.core.resegment.consensus_masks`); alpha masks are kept. The masks
+    and ``cameras`` are on the ideal pinhole's pixel grid, so each image is undistorted
+    through its lens (``lenses``: {view name: Camera as taken}) before it is read."""
     reference = (VoxelGrid(grid.bounds_min, grid.bounds_max, 2 * grid.voxel_size)
                  if max(grid.shape) >= 128 else grid)
 
     def read_rgb(n: int) -> np.ndarray | None:
         view = views[used[n]]
         image = read_image(view.image_path, keep_alpha=not seg_params.ignore_alpha)
-        return image if image.ndim == 3 and image.shape[2] == 3 else None
+        if image.ndim != 3 or image.shape[2] != 3:
+            return None
+        return undistort_image(image, lenses[view.name])
 
     return consensus_masks(reference, cameras, masks, read_rgb)
 
@@ -327,7 +331,7 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
     resegmentation = None
     if params.consensus and len(cameras) >= 3 and seg_params.method == "graph-cut":
         with _timed(timings, "consensus"):
-            consensus = _consensus(views, used, cameras, used_masks, grid, seg_params)
+            consensus = _consensus(views, used, cameras, used_masks, grid, seg_params, lenses)
             resegmentation = {
                 "applied": consensus.applied, "reason": consensus.reason,
                 "per_view": [{"view": views[i].name, "prior_iou": float(iou),
@@ -338,6 +342,7 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
                 used_masks = consensus.masks
                 for i, mask in zip(used, used_masks):
                     masks[i] = mask
+                    taken[views[i].name] = distort_mask(mask, lenses[views[i].name])
                 prepared = PreparedMasks(cameras, used_masks)
 
     consistency, fusion_report = [], None

@@ -38,6 +38,7 @@ from .geometry.camera import Camera
 from .geometry.grid import VoxelGrid
 from .metrics import silhouette_iou
 from .segment import _close, _fill_small_holes
+from .workers import map_in_threads
 
 __all__ = ["resegment", "Consensus", "consensus_masks"]
 
@@ -196,11 +197,12 @@ def consensus_masks(grid: VoxelGrid, cameras: Sequence[Camera], masks: Sequence[
                          f"the views do not agree on one object (median IoU of a mask with "
                          f"the hull's projection {median:.2f}, below {MIN_MEDIAN_IOU})",
                          prior_iou, zeros, zeros)
-    out, added, removed = [], zeros.copy(), zeros.copy()
-    for n, (mask, prior) in enumerate(zip(masks, projections)):
+
+    def one_view(n: int) -> np.ndarray:
         rgb = read_rgb(n)
-        new = mask if rgb is None else resegment(rgb, prior, mask)
-        added[n] = np.count_nonzero(new & ~mask)
-        removed[n] = np.count_nonzero(mask & ~new)
-        out.append(new)
+        return masks[n] if rgb is None else resegment(rgb, projections[n], masks[n])
+
+    out = list(map_in_threads(one_view, range(len(masks))))   # views side by side
+    added = np.array([np.count_nonzero(new & ~mask) for new, mask in zip(out, masks)], np.int64)
+    removed = np.array([np.count_nonzero(mask & ~new) for new, mask in zip(out, masks)], np.int64)
     return Consensus(out, True, None, prior_iou, added, removed)

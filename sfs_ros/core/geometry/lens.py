@@ -13,6 +13,10 @@ per view:
   ``(u, v)`` is then tested against the mask pixel its distorted projection
   falls nearest to, within the half pixel that rounding to a pixel already
   allows. Ideal pixels the lens forms outside the image are background.
+* :func:`distort_mask` is the way back: a mask on the ideal pixel grid resampled
+  into the image the lens forms (each lens pixel takes the ideal pixel nearest to
+  where its ray crosses the ideal image), for masks decided on the ideal grid and
+  shown over the images as taken.
 * :func:`render_through_lens` renders through an ideal camera on a canvas
   large enough for the lens's field of view and resamples the result into the
   image the lens forms (the renderer of a distorted camera).
@@ -33,7 +37,7 @@ import numpy as np
 
 from .camera import Camera, distort_normalized
 
-__all__ = ["ideal_camera", "is_distorted", "undistort_image", "undistort_mask",
+__all__ = ["ideal_camera", "is_distorted", "undistort_image", "undistort_mask", "distort_mask",
            "render_through_lens"]
 
 #: Extra canvas around the lens's field of view, pixels (room for interpolation).
@@ -94,6 +98,42 @@ def undistort_image(image: np.ndarray, camera: Camera) -> np.ndarray:
 def undistort_mask(mask: np.ndarray, camera: Camera) -> np.ndarray:
     """(H, W) bool: :func:`undistort_image` of a silhouette mask."""
     return undistort_image(np.asarray(mask, dtype=bool), camera)
+
+
+@lru_cache(maxsize=8)
+def _distorted_to_ideal(lens: tuple) -> tuple[np.ndarray, np.ndarray]:
+    """Nearest ideal pixel ``(row, col)`` (H, W) int64 each of every pixel centre of the
+    lens's image; -1 where that ray crosses the ideal image outside its frame."""
+    K = np.asarray(lens[0]).reshape(3, 3)
+    width, height = lens[2], lens[3]
+    u, v = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
+    pixels = np.stack([u.ravel(), v.ravel()], axis=1).reshape(-1, 1, 2)
+    # Inverting the lens model is iterative; 1e-9 normalised units is ~1e-6 pixel.
+    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-9)
+    uv = cv2.undistortPointsIter(pixels, K, np.asarray(lens[1], np.float64), None, K,
+                                 criteria).reshape(-1, 2)
+    col, row = np.rint(uv[:, 0]), np.rint(uv[:, 1])
+    inside = np.isfinite(uv).all(axis=1) & (col >= 0) & (col < width) & (row >= 0) \
+        & (row < height)
+    row = np.where(inside, row, -1).astype(np.int64).reshape(height, width)
+    col = np.where(inside, col, -1).astype(np.int64).reshape(height, width)
+    return row, col
+
+
+def distort_mask(mask: np.ndarray, camera: Camera) -> np.ndarray:
+    """(H, W) bool: a mask on :func:`ideal_camera`'s pixel grid, as ``camera``'s lens forms
+    it (nearest pixel; the inverse of :func:`undistort_mask` up to the pixels on the mask's
+    edge); unchanged for an ideal lens."""
+    mask = np.asarray(mask, dtype=bool)
+    if mask.shape != (camera.height, camera.width):
+        raise ValueError(f"mask has shape {mask.shape}, expected the camera's (height, width) "
+                         f"= ({camera.height}, {camera.width})")
+    if not is_distorted(camera):
+        return mask
+    row, col = _distorted_to_ideal(_lens(camera))
+    out = mask[np.maximum(row, 0), np.maximum(col, 0)]
+    out[row < 0] = False
+    return out
 
 
 @lru_cache(maxsize=8)
