@@ -102,7 +102,8 @@ def cell_nodes(config_dir, output_dir, *, mock: bool, record: bool = False) -> l
         NodeSpec("recorder", "recorder_node", files("recorder.yaml"),
                  {"output_dir": str(output), **({"with_scan": "true"} if record else {})}),
         NodeSpec("scan", "scan_node", files("scan.yaml"),
-                 {"plan_file": files("scan_plan.yaml")[0]}),
+                 {"plan_file": files("scan_plan.yaml")[0],
+                  "progress_dir": str(output / "scan_progress")}),
     ]
 
 

@@ -1,0 +1,136 @@
+"""The cell outlives its nodes: each node is killed (SIGKILL) in turn in the middle of one scan
+of the real bring-up (``Cell`` with the supervisor of ``wait_until_signal``, mock hardware),
+and every view of the plan is still delivered exactly once.
+
+Exactly once, checked against the plan: the scan node's progress lists one capture per
+planned view; the reconstruction's session folder holds each of those captures' views once
+and nothing else; the mesh is made of all of them; the bags of the scan hold each capture.
+"""
+
+import os
+import signal
+import threading
+import time
+
+import pytest
+import yaml
+from rclpy.serialization import deserialize_message
+from sensor_msgs.msg import JointState
+
+from sfs_ros.cell.bag import open_bag
+from sfs_ros.cell.messages import stamp_key, view_key
+from sfs_ros.cli.bringup import Cell, RestartPolicy, cell_nodes, wait_until_signal
+from sfs_ros.core.exchange.session import read_session
+from sfs_ros.ros.cell_client import CellClient
+
+from mock_cell import PLAN, SCAN_TIMEOUT_S, write_config
+from ros_harness import NAMESPACE, SOURCE_ROOT
+from waiting import wait
+
+#: Kill order: hardware first, the scan node last (the hard case: it resumes from disk).
+#: mock_hardware is the controller and the camera: killing it is a power cut of both.
+KILLED = ("mock_hardware", "motor", "segmentation", "reconstruction", "recorder", "scan")
+#: Bounds the whole scan with six restarts on a loaded machine (a hang bound only).
+SURVIVAL_TIMEOUT_S = 900.0
+
+#: Retries generous enough to ride through a restart (a node's start-up under load takes
+#: 10-30 s): moves and shots are tried again, homing first (a restarted controller is locked
+#: until homed), and receipts are awaited without giving up.
+SURVIVAL_SCAN = {"home_before_retry": True, "move_retries": 20, "capture_retries": 40,
+                 "max_sends": 1000}
+
+
+def _config(root):
+    config = write_config(root / "config")
+    path = config / "scan.yaml"
+    data = yaml.safe_load(path.read_text())
+    data["/**"]["ros__parameters"].update(SURVIVAL_SCAN)
+    path.write_text(yaml.safe_dump(data))
+    return config
+
+
+def _captured(client: CellClient) -> int:
+    status = client.scan
+    return 0 if status is None else status.count("captured")
+
+
+def _bag_stamps(bags) -> set:
+    """The stamps of the captures (``capture/joint_state``) in every bag under ``bags``."""
+    stamps = set()
+    for folder in sorted(p for p in bags.iterdir() if p.is_dir()):
+        bag = open_bag(folder)
+        topic = bag.topic("capture/joint_state")
+        if topic is None:
+            continue
+        for message in bag.messages([topic]):
+            stamps.add(stamp_key(deserialize_message(message.data, JointState).header.stamp))
+    return stamps
+
+
+@pytest.fixture()
+def supervised_cell(tmp_path):
+    """A mock cell in ``tmp_path`` recording every scan, under the supervisor."""
+    config = _config(tmp_path)
+    output = tmp_path / "output"
+    output.mkdir()
+    log_path = tmp_path / "cell.log"
+    env = dict(os.environ, PYTHONPATH=str(SOURCE_ROOT))
+    with open(log_path, "w") as log:
+        cell = Cell(cell_nodes(config, output, mock=True, record=True), namespace=NAMESPACE,
+                    log=log, env=env).start()
+        stopping = threading.Event()
+        result = {}
+        supervisor = threading.Thread(target=lambda: result.update(status=wait_until_signal(
+            cell, policy=RestartPolicy(first_delay_s=0.2), stopping=stopping, log=log)))
+        supervisor.start()
+        client = CellClient(NAMESPACE, name="survival_client")
+        try:
+            client.wait_ready(timeout_s=SCAN_TIMEOUT_S)
+            yield {"cell": cell, "client": client, "output": output, "log": log_path}
+        finally:
+            client.close()
+            stopping.set()
+            supervisor.join(SURVIVAL_TIMEOUT_S)
+    assert result.get("status") == 0, \
+        f"the cell did not stop cleanly\n{log_path.read_text()[-5000:]}"
+
+
+def test_every_node_killed_mid_scan_and_every_view_delivered_exactly_once(supervised_cell):
+    cell, client = supervised_cell["cell"], supervised_cell["client"]
+    output, log_path = supervised_cell["output"], supervised_cell["log"]
+    total = len(PLAN)
+    scan = client.start_scan()
+    deadline = time.monotonic() + SURVIVAL_TIMEOUT_S
+    for n, name in enumerate(KILLED):
+        # Kill points spread over the scan (views 2, 4, ... 12 of 17), each after the last
+        # victim is back, so every node dies while views are being taken.
+        wait(lambda: _captured(client) >= 2 * (n + 1), what=f"view {2 * (n + 1)} captured",
+             timeout=deadline - time.monotonic())
+        victim = cell.processes[name]
+        os.kill(victim.pid, signal.SIGKILL)
+        wait(lambda: cell.processes[name] is not victim and cell.processes[name].poll() is None,
+             what=f"{name} started again", timeout=deadline - time.monotonic())
+    status = client.wait_scan_done(scan, timeout_s=deadline - time.monotonic())
+    assert status.count("captured") == status.count("receipted") == total
+    summary = client.reconstruct()
+
+    log = log_path.read_text()
+    for name in KILLED:
+        assert f"node {name} ended by itself (exit status -9)" in log, name
+    assert "took up scan 1 (running)" in log        # the scan node resumed, not restarted
+    assert "took up the open scan" in log            # so did the reconstruction
+
+    progress = yaml.safe_load((output / "scan_progress" / "progress.json").read_text())
+    assert progress["scan"] == scan and progress["state"] == "done"
+    assert sorted(c["view"] for c in progress["captures"]) == list(range(total))
+    stamps = {tuple(c["stamp"]) for c in progress["captures"]}
+    assert len(stamps) == total
+
+    session = read_session(summary["session"])
+    names = [v.name for v in session.views]
+    assert len(names) == len(set(names)) == total          # no view stored twice
+    assert {n.split("_", 2)[2].removesuffix(".png") for n in names} == \
+        {view_key(s) for s in stamps}                       # exactly the scan's captures
+    assert summary["views_received"] == summary["views_used"] == total
+    assert summary["n_faces"] > 0 and os.path.isfile(summary["path"])
+    assert stamps <= _bag_stamps(output / "bags")          # the bags hold every capture
