@@ -1,16 +1,23 @@
-"""The cell outlives its nodes: each node is killed (SIGKILL) in turn in the middle of one scan
-of the real bring-up (``Cell`` with the supervisor of ``wait_until_signal``, mock hardware),
-and every view of the plan is still delivered exactly once.
+"""The cell outlives its nodes and a full disk, in the real bring-up (``Cell`` with the
+supervisor of ``wait_until_signal``, mock hardware), and every view of the plan is still
+delivered exactly once:
+
+* each node is killed (SIGKILL) in turn in the middle of one scan;
+* the output folder is a small tmpfs that is filled up in the middle of a scan, then
+  emptied again.
 
 Exactly once, checked against the plan: the scan node's progress lists one capture per
 planned view; the reconstruction's session folder holds each of those captures' views once
 and nothing else; the mesh is made of all of them; the bags of the scan hold each capture.
 """
 
+import errno
 import os
 import signal
+import subprocess
 import threading
 import time
+from contextlib import contextmanager
 
 import pytest
 import yaml
@@ -67,13 +74,13 @@ def _bag_stamps(bags) -> set:
     return stamps
 
 
-@pytest.fixture()
-def supervised_cell(tmp_path):
-    """A mock cell in ``tmp_path`` recording every scan, under the supervisor."""
-    config = _config(tmp_path)
-    output = tmp_path / "output"
-    output.mkdir()
-    log_path = tmp_path / "cell.log"
+@contextmanager
+def _supervised(root, output):
+    """A mock cell configured in ``root``, writing to ``output``, recording every scan,
+    under the supervisor."""
+    config = _config(root)
+    output.mkdir(exist_ok=True)
+    log_path = root / "cell.log"
     env = dict(os.environ, PYTHONPATH=str(SOURCE_ROOT))
     with open(log_path, "w") as log:
         cell = Cell(cell_nodes(config, output, mock=True, record=True), namespace=NAMESPACE,
@@ -93,6 +100,31 @@ def supervised_cell(tmp_path):
             supervisor.join(SURVIVAL_TIMEOUT_S)
     assert result.get("status") == 0, \
         f"the cell did not stop cleanly\n{log_path.read_text()[-5000:]}"
+
+
+@pytest.fixture()
+def supervised_cell(tmp_path):
+    with _supervised(tmp_path, tmp_path / "output") as cell:
+        yield cell
+
+
+def _delivered_once(output, scan: int, summary: dict) -> set:
+    """Checks that every planned view of ``scan`` was stored once and meshed; its stamps."""
+    total = len(PLAN)
+    progress = yaml.safe_load((output / "scan_progress" / "progress.json").read_text())
+    assert progress["scan"] == scan and progress["state"] == "done"
+    assert sorted(c["view"] for c in progress["captures"]) == list(range(total))
+    stamps = {tuple(c["stamp"]) for c in progress["captures"]}
+    assert len(stamps) == total
+
+    session = read_session(summary["session"])
+    names = [v.name for v in session.views]
+    assert len(names) == len(set(names)) == total          # no view stored twice
+    assert {n.split("_", 2)[2].removesuffix(".png") for n in names} == \
+        {view_key(s) for s in stamps}                       # exactly the scan's captures
+    assert summary["views_received"] == summary["views_used"] == total
+    assert summary["n_faces"] > 0 and os.path.isfile(summary["path"])
+    return stamps
 
 
 def test_every_node_killed_mid_scan_and_every_view_delivered_exactly_once(supervised_cell):
@@ -120,17 +152,84 @@ def test_every_node_killed_mid_scan_and_every_view_delivered_exactly_once(superv
     assert "took up scan 1 (running)" in log        # the scan node resumed, not restarted
     assert "took up the open scan" in log            # so did the reconstruction
 
-    progress = yaml.safe_load((output / "scan_progress" / "progress.json").read_text())
-    assert progress["scan"] == scan and progress["state"] == "done"
-    assert sorted(c["view"] for c in progress["captures"]) == list(range(total))
-    stamps = {tuple(c["stamp"]) for c in progress["captures"]}
-    assert len(stamps) == total
-
-    session = read_session(summary["session"])
-    names = [v.name for v in session.views]
-    assert len(names) == len(set(names)) == total          # no view stored twice
-    assert {n.split("_", 2)[2].removesuffix(".png") for n in names} == \
-        {view_key(s) for s in stamps}                       # exactly the scan's captures
-    assert summary["views_received"] == summary["views_used"] == total
-    assert summary["n_faces"] > 0 and os.path.isfile(summary["path"])
+    stamps = _delivered_once(output, scan, summary)
     assert stamps <= _bag_stamps(output / "bags")          # the bags hold every capture
+
+
+#: Size of the small filesystem: room for a scan (captures of 320 x 240 RGB, about 0.25 MB
+#: each, kept by the scan node and recorded in the bag) with a wide margin, so that only the
+#: filler makes it full.
+TMPFS_SIZE = "64m"
+
+
+@pytest.fixture()
+def small_disk(tmp_path):
+    """A tmpfs of :data:`TMPFS_SIZE` at ``tmp_path/disk`` (we run as root, as CI does)."""
+    mount_point = tmp_path / "disk"
+    mount_point.mkdir()
+    done = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={TMPFS_SIZE}", "tmpfs",
+                           str(mount_point)], capture_output=True, text=True)
+    if done.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here ({done.stderr.strip() or done.returncode}): "
+                    "the disk-full test needs root (CAP_SYS_ADMIN)")
+    try:
+        yield mount_point
+    finally:
+        subprocess.run(["umount", "-l", str(mount_point)], check=True)
+
+
+def _keep_full(path, release: threading.Event) -> None:
+    """Keep the filesystem of ``path`` full (appending zeros to it, also whatever another
+    process frees) until ``release`` is set."""
+    with open(path, "ab", buffering=0) as f:
+        while not release.is_set():
+            for size in (1 << 20, 1 << 12):      # megabytes, then the last pages
+                try:
+                    while f.write(bytes(size)) == size:
+                        pass
+                except OSError as exc:
+                    assert exc.errno == errno.ENOSPC, exc
+            release.wait(0.05)
+
+
+def _session_intact(output) -> int:
+    """The open session folder reads whole (every row's image decodes); its view count."""
+    opened = [p.parent for p in output.glob("scan_*/.open")]
+    assert len(opened) == 1, opened
+    session = read_session(opened[0])
+    assert not session.rejected
+    for view in session.views:
+        assert view.image_path.stat().st_size > 0
+    return len(session.views)
+
+
+def test_a_full_disk_pauses_the_scan_which_goes_on_once_space_returns(tmp_path, small_disk):
+    output = small_disk / "cell"
+    with _supervised(tmp_path, output) as cell:
+        client = cell["client"]
+        scan = client.start_scan()
+        wait(lambda: _captured(client) >= 4, what="view 4 captured", timeout=SCAN_TIMEOUT_S)
+        filler, release = small_disk / "filler", threading.Event()
+        keeper = threading.Thread(target=_keep_full, args=(filler, release))
+        keeper.start()
+        try:
+            wait(lambda: client.scan.state == "waiting", what="the scan waiting for space",
+                 timeout=SCAN_TIMEOUT_S)
+            stalled = client.scan
+            assert "cannot keep the capture in" in stalled.message
+            assert str(output / "scan_progress") in stalled.message
+            assert "No space left on device" in stalled.message
+            assert "MB free there" in stalled.message
+            stored = _session_intact(output)     # what was stored before is whole
+            assert stored <= stalled.count("captured") < len(PLAN)
+            assert client.scan.state == "waiting"     # while the disk is held full
+        finally:
+            release.set()
+            keeper.join()
+        filler.unlink()
+        status = client.wait_scan_done(scan, timeout_s=SCAN_TIMEOUT_S)
+        assert status.count("receipted") == len(PLAN)
+        summary = client.reconstruct()
+        _delivered_once(output, scan, summary)
+    log = (tmp_path / "cell.log").read_text()
+    assert "the scan goes on" in log
