@@ -11,10 +11,8 @@ planned view; the reconstruction's session folder holds each of those captures' 
 and nothing else; the mesh is made of all of them; the bags of the scan hold each capture.
 """
 
-import errno
 import os
 import signal
-import subprocess
 import threading
 import time
 from contextlib import contextmanager
@@ -32,6 +30,7 @@ from sfs_ros.ros.cell_client import CellClient
 
 from mock_cell import PLAN, SCAN_TIMEOUT_S, write_config
 from ros_harness import NAMESPACE, SOURCE_ROOT
+from small_disk import keep_full, small_disk
 from waiting import wait
 
 #: Kill order: hardware first, the scan node last (the hard case: it resumes from disk).
@@ -163,33 +162,11 @@ TMPFS_SIZE = "64m"
 
 
 @pytest.fixture()
-def small_disk(tmp_path):
-    """A tmpfs of :data:`TMPFS_SIZE` at ``tmp_path/disk`` (we run as root, as CI does)."""
+def disk(tmp_path):
     mount_point = tmp_path / "disk"
     mount_point.mkdir()
-    done = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={TMPFS_SIZE}", "tmpfs",
-                           str(mount_point)], capture_output=True, text=True)
-    if done.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs here ({done.stderr.strip() or done.returncode}): "
-                    "the disk-full test needs root (CAP_SYS_ADMIN)")
-    try:
+    with small_disk(mount_point, TMPFS_SIZE):
         yield mount_point
-    finally:
-        subprocess.run(["umount", "-l", str(mount_point)], check=True)
-
-
-def _keep_full(path, release: threading.Event) -> None:
-    """Keep the filesystem of ``path`` full (appending zeros to it, also whatever another
-    process frees) until ``release`` is set."""
-    with open(path, "ab", buffering=0) as f:
-        while not release.is_set():
-            for size in (1 << 20, 1 << 12):      # megabytes, then the last pages
-                try:
-                    while f.write(bytes(size)) == size:
-                        pass
-                except OSError as exc:
-                    assert exc.errno == errno.ENOSPC, exc
-            release.wait(0.05)
 
 
 def _session_intact(output) -> int:
@@ -203,14 +180,14 @@ def _session_intact(output) -> int:
     return len(session.views)
 
 
-def test_a_full_disk_pauses_the_scan_which_goes_on_once_space_returns(tmp_path, small_disk):
-    output = small_disk / "cell"
+def test_a_full_disk_pauses_the_scan_which_goes_on_once_space_returns(tmp_path, disk):
+    output = disk / "cell"
     with _supervised(tmp_path, output) as cell:
         client = cell["client"]
         scan = client.start_scan()
         wait(lambda: _captured(client) >= 4, what="view 4 captured", timeout=SCAN_TIMEOUT_S)
-        filler, release = small_disk / "filler", threading.Event()
-        keeper = threading.Thread(target=_keep_full, args=(filler, release))
+        filler, release = disk / "filler", threading.Event()
+        keeper = threading.Thread(target=keep_full, args=(filler, release))
         keeper.start()
         try:
             wait(lambda: client.scan.state == "waiting", what="the scan waiting for space",
