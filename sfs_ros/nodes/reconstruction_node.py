@@ -96,11 +96,11 @@ from visualization_msgs.msg import Marker
 from sfs_ros.cell.live import DuplicateViewError, LiveReconstruction
 from sfs_ros.core.carving.resolution import (
     default_memory_budget,
+    grid_shape,
     parse_memory,
     refuse_unfit_grid,
 )
 from sfs_ros.core.exchange.views import as_bounds
-from sfs_ros.core.geometry.grid import VoxelGrid
 from sfs_ros.core.geometry.rig import rig_camera
 from sfs_ros.core.pipeline import MESHERS
 from sfs_ros.nodes.entry import run_node
@@ -220,8 +220,9 @@ class ReconstructionNode(Node):
         self._live = None
         self._refusal = ""     # why no reconstruction can be held (the node stays up)
         try:
-            refuse_unfit_grid(VoxelGrid.cube(bounds[0], bounds[1], values["resolution"]).shape,
-                              budget, f"resolution {values['resolution']}")
+            voxel_m = float(np.max(bounds[1] - bounds[0])) / values["resolution"]
+            refuse_unfit_grid(grid_shape(bounds, voxel_m), budget,
+                              f"resolution {values['resolution']}")
         except ValueError as exc:
             self._refusal = f"refused: {exc}"
         if not self._refusal:

@@ -143,9 +143,11 @@ def refuse_unfit_grid(shape, max_memory_bytes: int, what: str) -> None:
     """ValueError naming ``what``, the memory the grid ``shape`` (voxels per axis) needs and
     the budget ``max_memory_bytes`` when it does not fit (nothing is allocated)."""
     if not _fits(shape, max_memory_bytes):
+        cap = "" if int(np.prod(shape)) <= MAX_VOXELS \
+            else f" and a grid has at most {MAX_VOXELS / 1e6:.0f} M voxels"
         raise ValueError(f"{what} is more than this machine may hold: {_describe(shape)}, "
-                         f"the budget is {max_memory_bytes / (1 << 30):.2f} GiB; choose a "
-                         "coarser resolution")
+                         f"the budget is {max_memory_bytes / (1 << 30):.2f} GiB{cap}; choose "
+                         "a coarser resolution")
 
 
 def choose_voxel_size(bounds_m, cameras: Sequence[Camera], *, max_memory_bytes: int,
