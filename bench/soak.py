@@ -11,7 +11,11 @@ figure from the warm-up to the last scan, per scan.
 
 Run: ``python -m bench.soak [--scans 50]``. Growth that is not zero for fds,
 threads and ``/dev/shm`` files, or memory rising steadily rather than settling,
-is a leak.
+is a leak: the growth over the second half of the run is printed apart, as the
+steady rate. ``/dev/shm`` counts only the segments the cell's processes map;
+Fast DDS maps those of other participants it discovers on the machine too,
+so a count that rises and falls back while other ROS programs run is not the
+cell's.
 """
 
 from __future__ import annotations
@@ -96,6 +100,23 @@ def _table(samples: list[dict]) -> None:
                                        f"{samples[n]['shm_mib']:.1f} MiB" for n in picks) + " |")
 
 
+def _growth(samples: list[dict], since: int, label: str) -> None:
+    """Per node, what grew from ``samples[since]`` to the last one, in total and per scan."""
+    first, last = samples[since], samples[-1]
+    scans = max(1, len(samples) - 1 - since)
+    print(f"\ngrowth {label} to scan {len(samples) - 1}, per node (total, per scan):")
+    for name in first["nodes"]:
+        a, b = first["nodes"][name], last["nodes"].get(name)
+        if b is None:
+            print(f"  {name:15s} ended during the soak")
+            continue
+        print(f"  {name:15s} rss {b['rss_mib'] - a['rss_mib']:+7.1f} MiB "
+              f"({(b['rss_mib'] - a['rss_mib']) / scans:+.2f}/scan), fds {b['fds'] - a['fds']:+d}, "
+              f"threads {b['threads'] - a['threads']:+d}")
+    print(f"  /dev/shm        files {last['shm_files'] - first['shm_files']:+d}, "
+          f"{last['shm_mib'] - first['shm_mib']:+.1f} MiB")
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--scans", type=int, default=50)
@@ -126,18 +147,9 @@ def main(argv=None) -> int:
                       f"threads {sum(v['threads'] for v in s['nodes'].values()):4d}, "
                       f"/dev/shm {s['shm_files']} files {s['shm_mib']:.1f} MiB", flush=True)
     _table(samples)
-    first, last, scans = samples[0], samples[-1], max(1, len(samples) - 1)
-    print(f"\ngrowth from the warm-up scan to scan {scans}, per node (total, per scan):")
-    for name in first["nodes"]:
-        a, b = first["nodes"][name], last["nodes"].get(name)
-        if b is None:
-            print(f"  {name:15s} ended during the soak")
-            continue
-        print(f"  {name:15s} rss {b['rss_mib'] - a['rss_mib']:+7.1f} MiB "
-              f"({(b['rss_mib'] - a['rss_mib']) / scans:+.2f}/scan), fds {b['fds'] - a['fds']:+d}, "
-              f"threads {b['threads'] - a['threads']:+d}")
-    print(f"  /dev/shm        files {last['shm_files'] - first['shm_files']:+d}, "
-          f"{last['shm_mib'] - first['shm_mib']:+.1f} MiB")
+    middle = len(samples) // 2
+    _growth(samples, 0, "from the warm-up scan")
+    _growth(samples, middle, f"from scan {middle} (the second half: the steady rate)")
     return 0
 
 

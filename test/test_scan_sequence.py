@@ -327,13 +327,25 @@ def test_every_capture_is_sent_again_when_a_new_receiver_appears():
     assert len(cell.sent) == len(VIEWS)
     cell.seq.tick({"reconstruction (restarted)"})
     assert cell.sent[len(VIEWS):] == cell.sent[:len(VIEWS)]
-    assert cell.lines("warning") == [f"a new receiver of captures (the reconstruction "
-                                     f"restarted?): sending all {len(VIEWS)} captures of the "
-                                     "scan again"]
+    assert cell.lines("warning") == [f"a new receiver of captures (a node restarted?): "
+                                     f"sending all {len(VIEWS)} captures of the scan again"]
     status = cell.seq.status()
     assert status.values["receipted"] == 0 and status.values["resends"] == len(VIEWS)
     cell.seq.tick({"reconstruction (restarted)"})     # seen now: nothing more
     assert len(cell.sent) == 2 * len(VIEWS)
+
+
+def test_a_new_listener_gets_every_capture_only_while_the_scan_is_under_way():
+    cell = FakeCell()
+    cell.seq.tick({"reconstruction"}, {"segmentation"})
+    # A recorder restarted while the third view is being taken: the two captures so far again.
+    cell.on_move[3] = lambda: cell.seq.tick({"reconstruction"}, {"segmentation", "recorder"})
+    cell.run()
+    assert len(cell.sent) == len(VIEWS) + 2 and cell.sent[2:4] == cell.sent[:2]
+    # After the scan (a segmentation node restarted then): nothing is sent again, so no
+    # capture of this scan can reach the next one.
+    cell.seq.tick({"reconstruction"}, {"segmentation (restarted)", "recorder"})
+    assert len(cell.sent) == len(VIEWS) + 2
 
 
 def test_a_receiver_seen_before_any_capture_triggers_no_resend():

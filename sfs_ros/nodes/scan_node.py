@@ -44,7 +44,8 @@ One that the reconstruction has not receipted on ``capture/stored`` within
 reported as lost in transport); when a publisher of receipts appears that
 was not there before (the reconstruction node restarted, or started late),
 every capture is sent again; likewise when a subscriber of ``capture/image`` appears that was
-not there before (a restarted recorder then records the whole scan). The reconstruction stores
+not there before while the scan is under way (a restarted recorder then records the whole
+scan). The reconstruction stores
 each view once, so a view is never lost to a restarted node and never carved twice.
 
 Restarts of this node: with ``progress_dir`` (the bring-up sets
@@ -350,9 +351,10 @@ class ScanNode(Node):
     def _tick(self) -> None:
         """Delivery (resends; a publisher of receipts or a subscriber of the captured images
         not seen before is a restarted node: everything is sent again), then diagnostics."""
-        receivers = self.get_publishers_info_by_topic(self._receipt_sub.topic_name) \
-            + self.get_subscriptions_info_by_topic(self.image_pub.topic_name)
-        self._sequence.tick({bytes(info.endpoint_gid) for info in receivers})
+        receivers = self.get_publishers_info_by_topic(self._receipt_sub.topic_name)
+        listeners = self.get_subscriptions_info_by_topic(self.image_pub.topic_name)
+        self._sequence.tick({bytes(info.endpoint_gid) for info in receivers},
+                            {bytes(info.endpoint_gid) for info in listeners})
         self.publish_diagnostics()
 
     # -- services (executor) -----------------------------------------------------------------
