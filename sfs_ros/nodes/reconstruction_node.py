@@ -65,7 +65,8 @@ an ERROR giving the memory it would need, answers ``reconstruct`` and ``reset``
 with that reason, and receipts no view (the scan node keeps them).
 
 Diagnostics values: counts (views_received, carved, empty, rejected,
-malformed, repeats, unpaired_dropped, unstored, reconstructions, ...), ``scan_views``
+malformed, repeats, unpaired_dropped, reconstructions, ...), ``unstored`` (views
+kept in memory that the disk refused), ``scan_views``
 (views in this scan) and ``carve_s``, the seconds spent storing and carving
 this scan's views.
 
@@ -240,7 +241,7 @@ class ReconstructionNode(Node):
 
         self._stats_lock = threading.Lock()
         self._counts = {"views_received": 0, "carved": 0, "empty": 0, "rejected": 0,
-                        "malformed": 0, "repeats": 0, "unpaired_dropped": 0, "unstored": 0,
+                        "malformed": 0, "repeats": 0, "unpaired_dropped": 0,
                         "reconstructions": 0, "reconstruction_failures": 0, "scan_views": 0}
         self._carve_s = 0.0     # storing and carving this scan's views, for the benchmark
         self._unstored: dict = {}   # view key -> _add_view's arguments (worker thread)
@@ -416,7 +417,6 @@ class ReconstructionNode(Node):
             added = self._live.add_view(key, mask, theta, phi)
         except OSError as exc:
             self._unstored[key] = (stamp, frame_id, mask, theta, phi)
-            self._count("unstored")
             self._report_problem(_store_problem(stamp, self._live, exc, len(self._unstored)))
             return
         except DuplicateViewError:
@@ -500,7 +500,8 @@ class ReconstructionNode(Node):
             problem, warning = self._problem, self._warning
         level, message = health(problem, warning, f"{values['scan_views']} views in this scan")
         values.update(waiting_masks=self._input.pending("first"),
-                      waiting_joint_states=self._input.pending("second"))
+                      waiting_joint_states=self._input.pending("second"),
+                      unstored=len(self._unstored))
         self._diag_pub.publish(diagnostic_array(
             f"{self.get_name()}: reconstruction", level, message, values,
             stamp=self.get_clock().now().to_msg()))
