@@ -466,21 +466,19 @@ class ScanSequence:
         return SavedScan(scan=self._scan, state=self._state, prepared=self._prepared,
                          captures=tuple(captures + ([extra] if extra else [])))
 
-    def _save(self) -> bool:
-        """Write the progress (when kept); False, with a WARN, when it cannot be written (the
-        next write carries what this one missed)."""
+    def _save(self) -> None:
+        """Write the progress (when kept); a WARN when it cannot be written (the next write
+        carries what this one missed)."""
         if self._progress is None:
-            return True
+            return
         with self._save_lock:
             with self._cv:
                 snapshot = self._snapshot()
             try:
                 self._progress.save(snapshot)
-                return True
             except OSError as exc:
                 self._ports.log("warning", f"scan progress not written to "
                                            f"{self._progress.folder}: {exc}")
-                return False
 
     # -- the run (a worker thread) -----------------------------------------------------------
 
