@@ -91,12 +91,10 @@ class ScanProgress:
                                   "receipted": c.receipted} for c in scan.captures]}
         write_atomic(self.folder / PROGRESS_FILE, json.dumps(document, indent=1).encode())
 
-    def clear_captures(self, keep=()) -> None:
-        """Delete the capture files of earlier scans (all but the ``(view, stamp)`` pairs in
-        ``keep``)."""
-        kept = {self._blob(view, stamp).name for view, stamp in keep}
+    def clear_captures(self) -> None:
+        """Delete the capture files of the last scan (a new one starts)."""
         for path in (self.folder / _CAPTURES).iterdir():
-            if _BLOB.fullmatch(path.name) and path.name not in kept:
+            if _BLOB.fullmatch(path.name):
                 path.unlink(missing_ok=True)
 
     def load(self) -> SavedScan | None:
