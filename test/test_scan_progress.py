@@ -94,7 +94,11 @@ def test_a_new_scan_forgets_the_captures_of_the_last_one(tmp_path):
     cell.run()
     files = sorted((tmp_path / "captures").iterdir())
     assert len(files) == len(VIEWS)
+    # What a process killed in the middle of a write leaves (write_atomic's temporary files).
+    (tmp_path / "captures" / f".{files[0].name}.0123abcd.tmp").write_bytes(b"half")
+    (tmp_path / ".progress.json.89abcdef.tmp").write_bytes(b"{")
     cell.run()
+    assert not (tmp_path / ".progress.json.89abcdef.tmp").exists()
     assert not set(files) & set((tmp_path / "captures").iterdir())
     assert len(list((tmp_path / "captures").iterdir())) == len(VIEWS)
 

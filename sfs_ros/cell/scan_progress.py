@@ -36,7 +36,9 @@ _FORMAT = "sfs_ros-scan-progress"
 _VERSION = 1
 #: Plans are the same when every viewpoint agrees to this, radians (JSON keeps 17 digits).
 _PLAN_TOLERANCE_RAD = 1e-12
-_BLOB = re.compile(r"view_\d{3,}_\d+_\d{9}\.bin")
+#: A capture's file, or the temporary file of a write cut short (a process killed then).
+_BLOB = re.compile(r"(view_\d{3,}_\d+_\d{9}\.bin|\.view_\d{3,}_\d+_\d{9}\.bin\.[0-9a-f]{8}\.tmp)")
+_PROGRESS_TEMPORARY = re.compile(r"\.progress\.json\.[0-9a-f]{8}\.tmp")
 
 
 @dataclass(frozen=True)
@@ -92,9 +94,13 @@ class ScanProgress:
         write_atomic(self.folder / PROGRESS_FILE, json.dumps(document, indent=1).encode())
 
     def clear_captures(self) -> None:
-        """Delete the capture files of the last scan (a new one starts)."""
+        """Delete the capture files of the last scan (a new one starts), and temporary files
+        left by a process killed while writing."""
         for path in (self.folder / _CAPTURES).iterdir():
             if _BLOB.fullmatch(path.name):
+                path.unlink(missing_ok=True)
+        for path in self.folder.iterdir():
+            if _PROGRESS_TEMPORARY.fullmatch(path.name):
                 path.unlink(missing_ok=True)
 
     def load(self) -> SavedScan | None:
