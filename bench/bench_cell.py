@@ -33,6 +33,7 @@ from pathlib import Path
 
 import yaml
 
+from sfs_ros.cell.messages import status_namespace
 from sfs_ros.cell.scan_plan import ScanPlan
 from sfs_ros.cli.bringup import Cell, cell_nodes
 from sfs_ros.core.exchange.inputs import load_views
@@ -40,6 +41,7 @@ from sfs_ros.core.exchange.session import write_session
 from sfs_ros.core.pipeline import ReconstructionParams, reconstruct
 from sfs_ros.core.simulation.objects import make_object
 from sfs_ros.core.simulation.synthetic import simulate_scan
+from sfs_ros.ros.names import DIAGNOSTICS
 from sfs_ros.ros.rig_params import RIG_PARAMS, rig_calibration
 
 CONFIG = Path(__file__).resolve().parent.parent / "config"
@@ -126,11 +128,12 @@ def _node_value(client, node: str, key: str) -> float:
 
     def on(msg):
         for status in msg.status:
-            if status.name.endswith(f": {node}"):
+            if status.name.endswith(f": {node}") \
+                    and status_namespace(status.name) == client.node.get_namespace():
                 value.update({kv.key: kv.value for kv in status.values})
                 found.set()
 
-    sub = client.node.create_subscription(DiagnosticArray, "diagnostics", on, 50)
+    sub = client.node.create_subscription(DiagnosticArray, DIAGNOSTICS, on, 50)
     try:
         if not found.wait(5.0):
             raise RuntimeError(f"no diagnostics from the {node} node")

@@ -1,10 +1,14 @@
-"""The cell with its real hardware: the camera and the motor controller (motor.yaml's port).
+"""The cell with its real hardware: the camera and the motor controller.
 
-    ros2 launch sfs_ros cell.launch.py output_dir:=/data/scans [namespace:=/cell1]
+    ros2 launch sfs_ros cell.launch.py output_dir:=/data/scans [namespace:=/sfs] \
+        [port:=/dev/ttyUSB0] [camera_device:=/dev/video2 | camera_topic:=/usb_cam/image_raw] \
+        [params_file:=my_cell.yaml]
 
 The same nodes, params files and overrides as ``sfs-cell -o OUTPUT_DIR``
 (``sfs_ros.cli.bringup.cell_nodes(..., mock=False)``), plus robot_state_publisher
 (the TF of ``urdf/sfs_cell.urdf``; it is not on PyPI, so ``sfs-cell`` has no TF).
+With ``camera_topic`` another driver's frames are the views: our camera node
+is not started and the scan node streams from that topic.
 """
 
 import os
@@ -12,7 +16,13 @@ from pathlib import Path
 
 from ament_index_python.packages import get_package_share_directory
 from launch.actions import DeclareLaunchArgument
-from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
+from launch.conditions import IfCondition
+from launch.substitutions import (
+    EqualsSubstitution,
+    LaunchConfiguration,
+    NotEqualsSubstitution,
+    PathJoinSubstitution,
+)
 from launch_ros.actions import Node
 
 from launch import LaunchDescription
@@ -27,32 +37,59 @@ def generate_launch_description():
     robot_description = Path(os.path.join(share, 'urdf', 'sfs_cell.urdf')).read_text()
     output_dir = LaunchConfiguration('output_dir')
     namespace = LaunchConfiguration('namespace')
+    params_file = LaunchConfiguration('params_file')
+    camera_topic = LaunchConfiguration('camera_topic')
+    own_camera = IfCondition(EqualsSubstitution(camera_topic, ''))
+    other_camera = IfCondition(NotEqualsSubstitution(camera_topic, ''))
     return LaunchDescription([
         DeclareLaunchArgument('output_dir',
                               description='Folder of the scans, meshes and reports'),
-        DeclareLaunchArgument('namespace', default_value='',
+        DeclareLaunchArgument('namespace', default_value='/sfs',
                               description='ROS namespace of all nodes'),
+        DeclareLaunchArgument('params_file', default_value=os.path.join(config, 'overrides.yaml'),
+                              description="YAML parameters given to every node after its own "
+                                          "files (default: overrides.yaml, which sets nothing)"),
+        DeclareLaunchArgument('port', default_value='/dev/ttyACM0',
+                              description="The motor controller's serial port"),
+        DeclareLaunchArgument('camera_device', default_value='0',
+                              description="Our camera node's device: index, /dev/videoN, file "
+                                          "or URL"),
+        DeclareLaunchArgument('camera_topic', default_value='',
+                              description="Image topic of another camera driver (usb_cam, "
+                                          "v4l2_camera, GenICam): then our camera node is not "
+                                          "started and the scan takes that topic's frames"),
         Node(package='sfs_ros', executable='sfs-camera', name='camera', namespace=namespace,
-             output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
-             parameters=[os.path.join(config, 'rig.yaml'), os.path.join(config, 'camera.yaml')]),
+             output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S, condition=own_camera,
+             parameters=[os.path.join(config, 'rig.yaml'), os.path.join(config, 'camera.yaml'),
+                         params_file, {'device': LaunchConfiguration('camera_device')}]),
         Node(package='sfs_ros', executable='sfs-motor', name='motor', namespace=namespace,
              output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
-             parameters=[os.path.join(config, 'motor.yaml')]),
+             parameters=[os.path.join(config, 'motor.yaml'), params_file,
+                         {'port': LaunchConfiguration('port')}]),
         Node(package='sfs_ros', executable='sfs-segmentation', name='segmentation',
              namespace=namespace, output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
-             parameters=[os.path.join(config, 'segmentation.yaml')]),
+             parameters=[os.path.join(config, 'segmentation.yaml'), params_file]),
         Node(package='sfs_ros', executable='sfs-reconstruction', name='reconstruction',
              namespace=namespace, output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
              parameters=[os.path.join(config, 'rig.yaml'),
-                         os.path.join(config, 'reconstruction.yaml'),
+                         os.path.join(config, 'reconstruction.yaml'), params_file,
                          {'output_dir': output_dir}]),
         Node(package='sfs_ros', executable='sfs-recorder', name='recorder',
              namespace=namespace, output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
-             parameters=[os.path.join(config, 'recorder.yaml'), {'output_dir': output_dir}]),
+             parameters=[os.path.join(config, 'recorder.yaml'), params_file,
+                         {'output_dir': output_dir}]),
+        Node(package='sfs_ros', executable='sfs-scan', name='scan', namespace=namespace,
+             output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S, condition=own_camera,
+             parameters=[os.path.join(config, 'scan.yaml'), params_file,
+                         {'plan_file': os.path.join(config, 'scan_plan.yaml'),
+                          'progress_dir': PathJoinSubstitution([output_dir, 'scan_progress'])}]),
+        # Another driver's camera: the scan node takes its streamed frames.
         Node(package='sfs_ros', executable='sfs-scan', name='scan', namespace=namespace,
              output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
-             parameters=[os.path.join(config, 'scan.yaml'),
+             condition=other_camera, remappings=[('image_raw', camera_topic)],
+             parameters=[os.path.join(config, 'scan.yaml'), params_file,
                          {'plan_file': os.path.join(config, 'scan_plan.yaml'),
+                          'camera_trigger': 'stream',
                           'progress_dir': PathJoinSubstitution([output_dir, 'scan_progress'])}]),
         # TF of the cell (base_link, turntable, carriage, camera_optical) from the motor
         # node's joint_states; the URDF is made from config/rig.yaml's defaults.

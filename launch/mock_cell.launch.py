@@ -1,6 +1,7 @@
 """The cell with simulated hardware: the mock controller and camera of sfs-mock-hardware.
 
-    ros2 launch sfs_ros mock_cell.launch.py output_dir:=out/cell [namespace:=/cell1]
+    ros2 launch sfs_ros mock_cell.launch.py output_dir:=out/cell [namespace:=/sfs] \
+        [params_file:=my_cell.yaml]
 
 The same nodes, params files and overrides as ``sfs-cell --mock -o OUTPUT_DIR``
 (``sfs_ros.cli.bringup.cell_nodes(..., mock=True)``): the motor node opens
@@ -35,35 +36,41 @@ def generate_launch_description():
     robot_description = Path(os.path.join(share, 'urdf', 'sfs_cell.urdf')).read_text()
     output_dir = LaunchConfiguration('output_dir')
     namespace = LaunchConfiguration('namespace')
+    params_file = LaunchConfiguration('params_file')
     port = PathJoinSubstitution([output_dir, 'ttyMOCK'])
     return LaunchDescription([
         DeclareLaunchArgument('output_dir',
                               description='Folder of the scans, meshes and reports'),
-        DeclareLaunchArgument('namespace', default_value='',
+        DeclareLaunchArgument('namespace', default_value='/sfs',
                               description='ROS namespace of all nodes'),
+        DeclareLaunchArgument('params_file', default_value=os.path.join(config, 'overrides.yaml'),
+                              description="YAML parameters given to every node after its own "
+                                          "files (default: overrides.yaml, which sets nothing)"),
         OpaqueFunction(function=make_output_dir),
         # One process, two nodes (mock_hardware and camera): no name, which would rename both.
         Node(package='sfs_ros', executable='sfs-mock-hardware', namespace=namespace,
              output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
              parameters=[os.path.join(config, 'rig.yaml'), os.path.join(config, 'camera.yaml'),
-                         os.path.join(config, 'mock_hardware.yaml'), {'port_link': port}]),
+                         os.path.join(config, 'mock_hardware.yaml'), params_file,
+                         {'port_link': port}]),
         Node(package='sfs_ros', executable='sfs-motor', name='motor', namespace=namespace,
              output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
-             parameters=[os.path.join(config, 'motor.yaml'), {'port': port}]),
+             parameters=[os.path.join(config, 'motor.yaml'), params_file, {'port': port}]),
         Node(package='sfs_ros', executable='sfs-segmentation', name='segmentation',
              namespace=namespace, output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
-             parameters=[os.path.join(config, 'segmentation.yaml')]),
+             parameters=[os.path.join(config, 'segmentation.yaml'), params_file]),
         Node(package='sfs_ros', executable='sfs-reconstruction', name='reconstruction',
              namespace=namespace, output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
              parameters=[os.path.join(config, 'rig.yaml'),
-                         os.path.join(config, 'reconstruction.yaml'),
+                         os.path.join(config, 'reconstruction.yaml'), params_file,
                          {'output_dir': output_dir}]),
         Node(package='sfs_ros', executable='sfs-recorder', name='recorder',
              namespace=namespace, output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
-             parameters=[os.path.join(config, 'recorder.yaml'), {'output_dir': output_dir}]),
+             parameters=[os.path.join(config, 'recorder.yaml'), params_file,
+                         {'output_dir': output_dir}]),
         Node(package='sfs_ros', executable='sfs-scan', name='scan', namespace=namespace,
              output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
-             parameters=[os.path.join(config, 'scan.yaml'),
+             parameters=[os.path.join(config, 'scan.yaml'), params_file,
                          {'plan_file': os.path.join(config, 'scan_plan.yaml'),
                           'progress_dir': PathJoinSubstitution([output_dir, 'scan_progress'])}]),
         # TF of the cell (base_link, turntable, carriage, camera_optical) from the motor

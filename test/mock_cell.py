@@ -43,13 +43,15 @@ OVERRIDES = {
 }
 
 
-def write_config(folder: Path) -> Path:
-    """The repository's config with :data:`OVERRIDES` and the 17-view plan."""
+def write_config(folder: Path, more: dict | None = None) -> Path:
+    """The repository's config with :data:`OVERRIDES`, then ``more`` (same form), and the
+    17-view plan."""
     folder.mkdir()
     for path in CONFIG.glob("*.yaml"):
         data = yaml.safe_load(path.read_text())
-        if path.name in OVERRIDES:
-            data["/**"]["ros__parameters"].update(OVERRIDES[path.name])
+        for changes in (OVERRIDES, more or {}):
+            if path.name in changes:
+                data["/**"]["ros__parameters"].update(changes[path.name])
         (folder / path.name).write_text(yaml.safe_dump(data))
     plan = {"rings": {"phi_deg": RINGS_DEG, "per_ring": PER_RING, "top_view": True}}
     (folder / "scan_plan.yaml").write_text(yaml.safe_dump(plan))
@@ -57,10 +59,11 @@ def write_config(folder: Path) -> Path:
 
 
 @contextmanager
-def running_cell(root: Path, client_name: str):
+def running_cell(root: Path, client_name: str, overrides: dict | None = None):
     """``{"cell": Cell, "client": CellClient, "output": Path, "log": Path}`` of a cell up in
-    ``root``; the nodes are stopped (and checked to exit 0) when the block ends."""
-    config = write_config(root / "config")
+    ``root`` (config: :func:`write_config` with ``overrides``); the nodes are stopped (and
+    checked to exit 0) when the block ends."""
+    config = write_config(root / "config", overrides)
     output = root / "output"
     output.mkdir()
     log_path = root / "cell.log"

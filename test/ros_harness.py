@@ -37,6 +37,7 @@ from pathlib import Path
 from typing import Callable
 
 import sfs_ros
+from sfs_ros.cell.messages import status_namespace
 
 from waiting import wait  # noqa: F401  (for a probe spinning in its own thread)
 
@@ -55,6 +56,16 @@ NAMESPACE = f"/sfs_test_{os.getpid()}"
 
 #: The directory holding the ``sfs_ros`` package the tests import.
 SOURCE_ROOT = Path(sfs_ros.__file__).resolve().parent.parent
+
+
+def keep_ours(store: list):
+    """A ``/diagnostics`` callback appending to ``store`` the arrays of this test run's nodes
+    (statuses named ``<namespace>/<node>: ...``): the topic is absolute, shared with any
+    other run that drew the same domain id."""
+    def keep(array) -> None:
+        if array.status and all(status_namespace(s.name) == NAMESPACE for s in array.status):
+            store.append(array)
+    return keep
 
 
 class NodeProcess:

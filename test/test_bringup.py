@@ -17,7 +17,9 @@ from pathlib import Path
 import pytest
 from std_srvs.srv import Trigger
 
-from sfs_ros.cli.bringup import cell_nodes, default_config_dir
+from sfs_ros.cli.bringup import Cell, cell_nodes, default_config_dir
+from sfs_ros.ros.names import NAMESPACE as NAMESPACE_DEFAULT
+from sfs_ros.ros.names import SERVICES
 
 from ros_harness import NAMESPACE, SOURCE_ROOT, NodeProcess, RosProbe
 
@@ -52,8 +54,10 @@ def test_cell_nodes_in_start_order_with_their_files_and_overrides(mock, tmp_path
     # The real cell needs no mock_hardware.yaml.
     config = CONFIG if mock else config_copy(tmp_path / "config", without="mock_hardware.yaml")
     specs = cell_nodes(config, "out", mock=mock)           # a relative output folder
+    # Each node's own files, then the site's (by default overrides.yaml, which sets nothing).
     assert [(s.name, s.module, [Path(p).name for p in s.params_files]) for s in specs] == \
-        (MOCK if mock else REAL) + REST
+        [(name, module, files + ["overrides.yaml"]) for name, module, files in
+         (MOCK if mock else REAL) + REST]
     assert all(Path(p).parent == config for s in specs for p in s.params_files)
 
     output = tmp_path.resolve() / "out"                    # made absolute
@@ -70,8 +74,59 @@ def test_cell_nodes_in_start_order_with_their_files_and_overrides(mock, tmp_path
     assert scan.command("/cell1") == [
         sys.executable, "-m", "sfs_ros.nodes.scan_node", "--ros-args", "-r", "__ns:=/cell1",
         "--params-file", str(config / "scan.yaml"),
+        "--params-file", str(config / "overrides.yaml"),
         "-p", f"plan_file:={config / 'scan_plan.yaml'}",
         "-p", f"progress_dir:={output / 'scan_progress'}"]
+
+
+def test_real_cell_options_port_camera_device_camera_topic_and_site_params(tmp_path):
+    config = config_copy(tmp_path / "config", without="mock_hardware.yaml")
+    site = tmp_path / "site.yaml"
+    site.write_text("/**:\n  ros__parameters: {}\n")
+    specs = {s.name: s for s in cell_nodes(config, tmp_path / "out", mock=False,
+                                           params_file=site, port="/dev/ttyUSB3",
+                                           camera_device="/dev/video2")}
+    assert all(s.params_files[-1] == str(site) for s in specs.values())
+    assert specs["motor"].overrides == {"port": "/dev/ttyUSB3"}
+    assert specs["camera"].overrides == {"device": "/dev/video2"}
+    assert specs["scan"].remaps == {}
+
+    # Another driver's camera: no camera node; the scan node streams from its topic.
+    other = cell_nodes(config, tmp_path / "out", mock=False, camera_topic="/usb_cam/image_raw")
+    assert [s.name for s in other] == ["motor", "segmentation", "reconstruction", "recorder",
+                                       "scan"]
+    scan = other[-1]
+    assert scan.overrides["camera_trigger"] == "stream"
+    assert scan.command("/sfs")[4:8] == ["-r", "__ns:=/sfs", "-r",
+                                         "image_raw:=/usb_cam/image_raw"]
+
+
+@pytest.mark.parametrize("options, error", [
+    ({"mock": True, "port": "/dev/ttyUSB0"}, "port: only for the real hardware"),
+    ({"mock": True, "camera_topic": "/cam/image_raw"}, "camera_topic: only for the real"),
+    ({"mock": False, "camera_device": "1", "camera_topic": "/cam/image_raw"},
+     "camera_device and camera_topic: one or the other"),
+])
+def test_cell_nodes_refuses_options_that_do_not_fit(options, error, tmp_path):
+    with pytest.raises(ValueError, match=error):
+        cell_nodes(CONFIG, tmp_path / "out", **options)
+
+
+@pytest.mark.parametrize("given, namespace", [("/cell1", "/cell1"), ("cell1", "/cell1"),
+                                              ("/a/b/", "/a/b"), ("", ""), ("/", "")])
+def test_the_cells_namespace_is_made_absolute(given, namespace):
+    # rcl refuses a relative __ns remap: "sfs-cell --namespace cell1" means /cell1.
+    cell = Cell([], namespace=given, log=None)
+    assert cell.namespace == namespace
+
+
+def test_the_cell_is_in_its_own_namespace_by_default():
+    assert Cell([], log=None).namespace == NAMESPACE_DEFAULT == "/sfs"
+
+
+def test_cell_nodes_names_a_missing_site_params_file(tmp_path):
+    with pytest.raises(FileNotFoundError, match="params file missing: .*nowhere.yaml"):
+        cell_nodes(CONFIG, tmp_path / "out", mock=True, params_file=tmp_path / "nowhere.yaml")
 
 
 @pytest.mark.parametrize("missing", sorted(p.name for p in CONFIG.glob("*.yaml")))
@@ -167,7 +222,7 @@ class MockCell:
         and reconstruction services are ready."""
         probe = RosProbe()
         try:
-            clients = [probe.node.create_client(Trigger, f"{self.namespace}/{name}")
+            clients = [probe.node.create_client(Trigger, f"{self.namespace}/{SERVICES[name]}")
                        for name in ("scan/start", "reconstruct")]
 
             def up() -> bool:

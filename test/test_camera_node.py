@@ -20,8 +20,9 @@ from sfs_ros.hardware.cameras import RenderedSource
 from sfs_ros.nodes.camera_node import CameraNode
 from sfs_ros.ros import capture_qos
 from sfs_ros.ros.convert import msg_to_image
+from sfs_ros.ros.names import DIAGNOSTICS, SERVICES
 
-from ros_harness import NAMESPACE, NodeProcess, NodeUnderTest, RosProbe
+from ros_harness import NAMESPACE, NodeProcess, NodeUnderTest, RosProbe, keep_ours
 from tolerances import QUIET_S
 
 MODULE = "sfs_ros.nodes.camera_node"
@@ -69,9 +70,9 @@ class Cell(NodeUnderTest):
                 # a best-effort viewer (REP-2003 sensor data) matches the reliable publisher
                 node.create_subscription(Image, "image_raw", self.viewer.append,
                                          qos_profile_sensor_data),
-                node.create_subscription(DiagnosticArray, "diagnostics",
-                                         self.diagnostics.append, 10)]
-        self.client = node.create_client(Trigger, "capture")
+                node.create_subscription(DiagnosticArray, DIAGNOSTICS,
+                                         keep_ours(self.diagnostics), 10)]
+        self.client = node.create_client(Trigger, SERVICES["capture"])
         self.probe.wait_connected(subscriptions=subs, process=self.process)
         self.probe.spin_until(self.client.service_is_ready, what="capture service",
                               process=self.process)
@@ -206,7 +207,7 @@ def test_an_injected_source_is_used_and_closed_by_the_node():
         probe.executor.add_node(node)
         images = []
         probe.node.create_subscription(Image, "image_raw", images.append, capture_qos(10))
-        client = probe.node.create_client(Trigger, "capture")
+        client = probe.node.create_client(Trigger, SERVICES["capture"])
         probe.spin_until(client.service_is_ready, what="capture service")
 
         def capture():

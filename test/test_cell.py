@@ -29,9 +29,10 @@ from sfs_ros.core.simulation.synthetic import carving_box, score_against_truth
 from sfs_ros.ros import capture_qos
 from sfs_ros.ros.cell_client import ScanFailed
 from sfs_ros.ros.convert import image_to_msg
+from sfs_ros.ros.names import DIAGNOSTICS
 
 from mock_cell import PLAN, RESOLUTION, SCAN_TIMEOUT_S, running_cell
-from ros_harness import MESSAGE_TIMEOUT_S, RosProbe, wait
+from ros_harness import MESSAGE_TIMEOUT_S, RosProbe, keep_ours, wait
 from tolerances import MUG_IOU_SPARSE_MIN, READBACK_TOL_RAD
 
 
@@ -49,7 +50,8 @@ class Recorder:
         self.joints, self.diagnostics, self.encoders = [], [], []
         node.create_subscription(JointState, "joint_states", self.encoders.append, 10)
         node.create_subscription(JointState, "capture/joint_state", self.joints.append, qos)
-        node.create_subscription(DiagnosticArray, "diagnostics", self.diagnostics.append, 100)
+        node.create_subscription(DiagnosticArray, DIAGNOSTICS, keep_ours(self.diagnostics),
+                                 100)
         self.bad_image_pub = node.create_publisher(Image, "capture/image", qos)
         self.bad_joints_pub = node.create_publisher(JointState, "joint_states", 10)
         self.bad_mask_pub = node.create_publisher(Image, "capture/mask", qos)
@@ -135,14 +137,19 @@ def _check_every_view_once(rec: Recorder, status) -> None:
     """Every planned view captured once: one stamp each, tagged with that view's angles;
     any further message on the capture topic repeats one of those stamps and is one of
     the scan node's counted resends (a receipt late under load, a restarted node). And
-    every view stored once by the reconstruction."""
+    every view stored once by the reconstruction.
+
+    The probe waits for one message of every view, not for every resend: a resend is
+    counted when it is decided, and the probe is one more reader that may see it late
+    (its arrival proves nothing about delivery, which the receipts and the
+    reconstruction's view count below do prove)."""
     assert status.complete and status.count("total") == len(PLAN)
     resends = status.count("resends")
-    wait(lambda: len(rec.joints) >= len(PLAN) + resends, what="every capture",
+    wait(lambda: len(set(_stamps(rec.joints))) >= len(PLAN), what="a capture of every view",
          timeout=MESSAGE_TIMEOUT_S)
     stamps = _stamps(rec.joints)
     unique = sorted(set(stamps))
-    assert len(unique) == len(PLAN) and len(stamps) == len(PLAN) + resends
+    assert len(unique) == len(PLAN) and len(stamps) <= len(PLAN) + resends
     by_stamp = dict(zip(stamps, rec.joints))
     assert sorted(_matched_views(by_stamp[s] for s in unique)) == list(range(len(PLAN)))
     wait(lambda: _reconstruction_views(rec) == len(PLAN), timeout=MESSAGE_TIMEOUT_S,

@@ -50,3 +50,9 @@ def test_segmentation_file_names_every_parameter():
     text = (CONFIG / "segmentation.yaml").read_text()
     for param in segmentation_node.PARAMS:
         assert f" {param.name}:" in text, param.name
+
+
+def test_the_default_site_params_file_sets_nothing():
+    # sfs-cell and the launch files give it to every node last: a site's own values go in a
+    # file that replaces it, so by default it must change nothing.
+    assert _values("overrides.yaml") == {}

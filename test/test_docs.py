@@ -271,3 +271,19 @@ def test_readme_picture_is_small():
     picture = ROOT / "doc" / "images" / "mesh.png"
     assert picture.is_file()
     assert picture.stat().st_size < 300_000
+
+
+def test_documented_input_limits_match_the_code():
+    from sfs_ros.core.carving.resolution import DEFAULT_MEMORY_SHARE
+    from sfs_ros.core.exchange import limits
+
+    text = (ROOT / "doc" / "reconstruct.md").read_text(encoding="utf-8")
+    documented = [
+        f"at most {limits.MAX_IMAGE_FILE_BYTES >> 30} GiB and at most "
+        f"{limits.MAX_IMAGE_PIXELS // 1_000_000} megapixels",
+        f"{limits.MAX_TEXT_FILE_BYTES >> 20} MiB",
+        f"nests at most {limits.MAX_DOCUMENT_DEPTH} levels",
+        {0.25: "a quarter of the machine's memory"}[DEFAULT_MEMORY_SHARE],
+    ]
+    for phrase in documented:
+        assert phrase in " ".join(text.split()), f"doc/reconstruct.md does not say {phrase!r}"

@@ -2,8 +2,10 @@
 
 ``launch`` and ``launch_ros`` are not on PyPI, so the files are parsed with
 ``ast`` and their ``Node(...)`` actions evaluated here for the few
-constructs they use (strings, lists, dicts, names assigned in the file,
+constructs they use (strings, lists, tuples, dicts, names assigned in the file,
 ``os.path.join``, ``PathJoinSubstitution``, ``LaunchConfiguration``,
+``IfCondition`` of ``EqualsSubstitution`` / ``NotEqualsSubstitution`` (a node
+whose condition is false is not started),
 ``get_package_share_directory``, ``Path(...).read_text()``); anything else fails
 the test, naming the line, rather than being skipped. The package share folder
 is a temporary copy of the repository's ``config/*.yaml`` and ``urdf/``, so the
@@ -21,9 +23,11 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import pytest
+import yaml
 
 from sfs_ros.cell.messages import JOINT_NAMES
 from sfs_ros.cli.bringup import cell_nodes
+from sfs_ros.ros.names import NAMESPACE
 
 REPO = Path(__file__).resolve().parents[1]
 LAUNCH_FILES = {"cell.launch.py": False, "mock_cell.launch.py": True}     # file: mock
@@ -68,12 +72,13 @@ class LaunchFile:
         return {k.arg: self.value(k.value) for k in call.keywords}
 
     def nodes(self, package: str = "sfs_ros") -> list[dict]:
-        """Keywords of the ``Node`` actions of ``package``."""
+        """Keywords of the ``Node`` actions of ``package`` that start (condition true)."""
         nodes = [self.keywords(call) for call in self.calls("Node")]
-        return [n for n in nodes if n["package"] == package]
+        return [n for n in nodes if n["package"] == package and n.get("condition", True)]
 
     def packages(self) -> list[str]:
-        return [self.keywords(call)["package"] for call in self.calls("Node")]
+        return [n["package"] for n in map(self.keywords, self.calls("Node"))
+                if n.get("condition", True)]
 
     def value(self, expr: ast.expr):
         if isinstance(expr, ast.Constant):
@@ -82,6 +87,8 @@ class LaunchFile:
             return self.value(self.assigned[expr.id])
         if isinstance(expr, ast.List):
             return [self.value(e) for e in expr.elts]
+        if isinstance(expr, ast.Tuple):
+            return tuple(self.value(e) for e in expr.elts)
         if isinstance(expr, ast.Dict):
             return {self.value(k): self.value(v) for k, v in zip(expr.keys, expr.values)}
         if isinstance(expr, ast.Call) and not expr.keywords and not expr.args \
@@ -98,6 +105,12 @@ class LaunchFile:
                 return os.path.join(*args[0])
             if function == "LaunchConfiguration":
                 return self.arguments[args[0]]
+            if function == "EqualsSubstitution":
+                return args[0] == args[1]
+            if function == "NotEqualsSubstitution":
+                return args[0] != args[1]
+            if function == "IfCondition" and isinstance(args[0], bool):
+                return args[0]
             if function == "get_package_share_directory" and args == ["sfs_ros"]:
                 return str(self.share)
         raise AssertionError(f"{self.path.name}:{expr.lineno}: {ast.unparse(expr)!r} is not "
@@ -116,26 +129,56 @@ def share(tmp_path):
     return folder
 
 
-@pytest.mark.parametrize("filename, mock", LAUNCH_FILES.items())
+def _yaml_value(share: Path, name: str, key: str):
+    return yaml.safe_load((share / "config" / name).read_text())["/**"]["ros__parameters"][key]
+
+
+#: Launch arguments of the real cell beyond output_dir and namespace, by case.
+REAL_CASES = {"defaults": {}, "port and device": {"port": "/dev/ttyUSB3",
+                                                  "camera_device": "/dev/video2"},
+              "another driver": {"camera_topic": "/usb_cam/image_raw"},
+              "site params": {"params_file": "site.yaml"}}
+
+
+@pytest.mark.parametrize("filename, mock, case", [("mock_cell.launch.py", True, "defaults"),
+                                                  ("mock_cell.launch.py", True, "site params")]
+                         + [("cell.launch.py", False, case) for case in REAL_CASES])
 @pytest.mark.parametrize("namespace", [None, "/cell1"])
-def test_launch_file_starts_the_nodes_of_cell_nodes(filename, mock, namespace, share, tmp_path):
+def test_launch_file_starts_the_nodes_of_cell_nodes(filename, mock, case, namespace, share,
+                                                    tmp_path):
     output_dir = str(tmp_path.resolve() / "scans")
-    arguments = {"output_dir": output_dir} | ({} if namespace is None else {"namespace": namespace})
+    given = dict(REAL_CASES[case])
+    if "params_file" in given:
+        site = tmp_path.resolve() / given["params_file"]
+        site.write_text("/**:\n  ros__parameters: {}\n")
+        given["params_file"] = str(site)
+    arguments = {"output_dir": output_dir, **given} | (
+        {} if namespace is None else {"namespace": namespace})
     launch = LaunchFile(REPO / "launch" / filename, arguments=arguments, share=share)
     script = {target: name for name, target in console_scripts().items()}
-    specs = cell_nodes(share / "config", output_dir, mock=mock)
+    # The real cell's port and camera device arguments default to the config files' values:
+    # by default they change nothing, as sfs-cell without --port / --camera-device.
+    camera = ({"camera_topic": given["camera_topic"]} if "camera_topic" in given else
+              {"camera_device": given.get("camera_device",
+                                          _yaml_value(share, "camera.yaml", "device"))})
+    hardware = {} if mock else {
+        "port": given.get("port", _yaml_value(share, "motor.yaml", "port")), **camera}
+    specs = cell_nodes(share / "config", output_dir, mock=mock,
+                       params_file=given.get("params_file"), **hardware)
 
-    # What the launch file starts, as (executable, params files then the overrides dict).
-    started = [(n["executable"], n["parameters"]) for n in launch.nodes()]
+    # What the launch file starts, as (executable, params files then the overrides dict,
+    # remaps).
+    started = [(n["executable"], n["parameters"], dict(n.get("remappings", [])))
+               for n in launch.nodes()]
     assert started == [(script[f"sfs_ros.nodes.{spec.module}:main"],
-                        spec.params_files + ([spec.overrides] if spec.overrides else []))
-                       for spec in specs]
+                        spec.params_files + ([spec.overrides] if spec.overrides else []),
+                        spec.remaps) for spec in specs]
 
     for spec, node in zip(specs, launch.nodes()):
         assert node["package"] == "sfs_ros"
         # Supervised as by sfs-cell: a node that ends by itself is started again.
         assert node["respawn"] is True and node["respawn_delay"] > 0
-        assert node["namespace"] == (namespace or "")       # sfs-cell --namespace, default root
+        assert node["namespace"] == (namespace or NAMESPACE)   # sfs-cell's default too
         # A name is only a no-op remap to the node's own name; none for a composed process.
         if spec.module in COMPOSED:
             assert node.get("name") is None, spec.module
@@ -146,14 +189,25 @@ def test_launch_file_starts_the_nodes_of_cell_nodes(filename, mock, namespace, s
         overrides = {k: v for n in launch.nodes() for entry in n["parameters"]
                      if isinstance(entry, dict) for k, v in entry.items()}
         assert overrides["port_link"] == overrides["port"] == os.path.join(output_dir, "ttyMOCK")
+    if "camera_topic" in given:     # no camera node of ours; the scan streams the driver's
+        assert "camera" not in [n.get("name") for n in launch.nodes()]
+        assert specs[-1].overrides["camera_trigger"] == "stream"
+
+
+#: Launch arguments each file declares; only output_dir is required.
+ARGUMENTS = {"mock_cell.launch.py": {"output_dir", "namespace", "params_file"},
+             "cell.launch.py": {"output_dir", "namespace", "params_file", "port",
+                                "camera_device", "camera_topic"}}
 
 
 @pytest.mark.parametrize("filename", LAUNCH_FILES)
-def test_launch_arguments_output_dir_required_namespace_root_by_default(filename, share):
+def test_launch_arguments_output_dir_required_namespace_sfs_by_default(filename, share):
     launch = LaunchFile(REPO / "launch" / filename, arguments={}, share=share)
-    assert set(launch.declared) == {"output_dir", "namespace"}
+    assert set(launch.declared) == ARGUMENTS[filename]
     assert "default_value" not in launch.declared["output_dir"]          # required
-    assert launch.declared["namespace"]["default_value"] == ""
+    assert launch.declared["namespace"]["default_value"] == NAMESPACE
+    assert launch.declared["params_file"]["default_value"] == \
+        str(share / "config" / "overrides.yaml")
     assert all(kw.get("description") for kw in launch.declared.values())
     assert any(isinstance(n, ast.FunctionDef) and n.name == "generate_launch_description"
                for n in launch.tree.body)
@@ -180,7 +234,7 @@ def test_robot_state_publisher_gets_the_installed_urdf(filename, namespace, shar
     (node,) = launch.nodes("robot_state_publisher")
     assert node["executable"] == "robot_state_publisher"
     # In the cell's namespace, so its relative joint_states is the motor node's.
-    assert node["namespace"] == (namespace or "")
+    assert node["namespace"] == (namespace or NAMESPACE)
     assert node["respawn"] is True and node["respawn_delay"] > 0
     (parameters,) = node["parameters"]
     assert set(parameters) == {"robot_description"}

@@ -2,9 +2,10 @@
 
 import numpy as np
 import pytest
+from scipy import ndimage
 
 from sfs_ros.core.geometry.grid import VoxelGrid
-from sfs_ros.core.meshing.marching import LEVEL, marching_cubes_mesh
+from sfs_ros.core.meshing.marching import LEVEL, _cube_grow, marching_cubes_mesh
 from sfs_ros.core.meshing.mesh_checks import check_mesh
 
 from tolerances import ROUND_OFF
@@ -131,3 +132,19 @@ def test_invalid_input():
     single[5, 5, 5] = True
     with pytest.raises(ValueError, match="removes the whole object"):
         marching_cubes_mesh(single, grid, smooth_sigma_vox=2.0)
+
+
+@pytest.mark.parametrize("steps", [1, 2])
+def test_cube_grow_is_scipy_binary_dilation_and_erosion(steps):
+    # The band of the hull mesher: the separable cube against scipy's 3^3 structure
+    # applied ``steps`` times (erosion with empty space beyond the array).
+    rng = np.random.default_rng(steps)
+    cube = np.ones((3, 3, 3), bool)
+    for shape in ((9, 7, 8), (2, 5, 3), (12, 1, 6)):
+        volume = rng.random(shape) < 0.6
+        np.testing.assert_array_equal(
+            _cube_grow(volume, steps, dilate=True),
+            ndimage.binary_dilation(volume, cube, iterations=steps))
+        np.testing.assert_array_equal(
+            _cube_grow(volume, steps, dilate=False),
+            ndimage.binary_erosion(volume, cube, iterations=steps, border_value=0))

@@ -4,7 +4,13 @@ import numpy as np
 import pytest
 from rosbags.typesys import Stores, get_typestore
 
-from sfs_ros.cell.messages import angles_from_joint_state, msg_to_image, scan_report
+from sfs_ros.cell.messages import (
+    ForeignJointState,
+    angles_from_joint_state,
+    msg_to_image,
+    scan_report,
+    status_namespace,
+)
 
 STORE = get_typestore(Stores.ROS2_KILTED)
 T = STORE.types
@@ -64,3 +70,36 @@ def _diagnostics(*statuses):
 ])
 def test_the_scan_nodes_report_is_found_in_a_diagnostics_array(statuses, expected):
     assert scan_report(_diagnostics(*statuses)) == expected
+
+
+def _joints(names, positions):
+    return _round_trip(T["sensor_msgs/msg/JointState"](
+        header=_header(), name=names, position=np.array(positions, dtype=np.float64),
+        velocity=np.zeros(0), effort=np.zeros(0)), "sensor_msgs/msg/JointState")
+
+
+def test_a_joint_state_of_another_machine_is_foreign_one_missing_a_joint_is_malformed():
+    with pytest.raises(ForeignJointState, match="none of the cell's joints"):
+        angles_from_joint_state(_joints(["shoulder_pan", "elbow"], [0.1, 0.2]))
+    with pytest.raises(ForeignJointState):
+        angles_from_joint_state(_joints([], []))
+    with pytest.raises(ValueError, match="has no joint 'carriage'") as raised:
+        angles_from_joint_state(_joints(["turntable", "elbow"], [0.1, 0.2]))
+    assert not isinstance(raised.value, ForeignJointState)
+
+
+@pytest.mark.parametrize("name, namespace", [
+    ("/sfs/scan: scan", "/sfs"), ("/scan: scan", "/"), ("/a/b/motor: motor", "/a/b"),
+    ("scan: scan", None),                                 # a node name without namespace
+])
+def test_the_namespace_of_a_status_is_its_nodes(name, namespace):
+    assert status_namespace(name) == namespace
+
+
+def test_a_scan_report_of_another_namespace_is_passed_over():
+    array = _diagnostics(("/other/scan: scan", [("scan", "7"), ("state", "running")]),
+                         ("/cell/scan: scan", [("scan", "2"), ("state", "done")]))
+    assert scan_report(array, "/cell") == (2, "done")
+    assert scan_report(array, "/other") == (7, "running")
+    assert scan_report(array, "/") is None
+    assert scan_report(array) == (7, "running")           # the first, when not asked

@@ -18,8 +18,9 @@ from sfs_ros.hardware.driver import GrblClient
 from sfs_ros.hardware.simulator import SimulatedGrbl
 from sfs_ros.ros import result_qos
 from sfs_ros.ros.convert import joint_state
+from sfs_ros.ros.names import DIAGNOSTICS, SERVICES
 
-from ros_harness import NodeProcess, NodeUnderTest, RosProbe
+from ros_harness import NodeProcess, NodeUnderTest, RosProbe, keep_ours
 from tolerances import (
     ENCODER_NOISE_DEG,
     ENCODER_OFFSET_DEG,
@@ -56,10 +57,10 @@ class Cell(NodeUnderTest):
         self.command_pub = node.create_publisher(JointState, "joint_command", 10)
         self.joints, self.diagnostics = [], []
         subs = [node.create_subscription(JointState, "joint_states", self.joints.append, 10),
-                node.create_subscription(DiagnosticArray, "diagnostics",
-                                         self.diagnostics.append, 10)]
-        self.home_client = node.create_client(Trigger, "home")
-        self.stop_client = node.create_client(Trigger, "stop")
+                node.create_subscription(DiagnosticArray, DIAGNOSTICS,
+                                         keep_ours(self.diagnostics), 10)]
+        self.home_client = node.create_client(Trigger, SERVICES["home"])
+        self.stop_client = node.create_client(Trigger, SERVICES["stop"])
         self.probe.wait_connected([self.command_pub], subs, process=self.process)
         self.probe.spin_until(lambda: self.home_client.service_is_ready()
                               and self.stop_client.service_is_ready(),

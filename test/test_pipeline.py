@@ -42,6 +42,22 @@ def test_shape_matches_the_true_object(results, mesher):
     assert truth["chamfer_mean_m"] <= CHAMFER_MEAN_VOXELS * voxel
 
 
+def test_given_masks_are_used_as_they_are(results, mug_views):
+    # Silhouettes the caller already has (a live scan's received masks) replace reading
+    # and segmenting: given the pipeline's own masks, the very same mesh comes out.
+    result = results["marching-cubes"][0]
+    params = ReconstructionParams(resolution=128, holdout=("view_005.png",))
+    again = reconstruct(mug_views, params, masks=result.masks)
+    np.testing.assert_array_equal(again.vertices, result.vertices)
+    np.testing.assert_array_equal(again.faces, result.faces)
+    # A given mask of the wrong size is no silhouette of its view: rejected, with why.
+    wrong = dict(result.masks, **{"view_003.png": np.ones((10, 10), bool)})
+    bad = reconstruct(mug_views, ReconstructionParams(resolution=48), masks=wrong)
+    reasons = {r["view"]: r["reason"] for r in bad.report["views"]["rejected"]}
+    assert "expected (" in reasons["view_003.png"] and "(10, 10)" in reasons["view_003.png"]
+    assert "view_003.png" not in bad.report["views"]["used"]
+
+
 def test_held_out_view_is_predicted(results):
     report = results["marching-cubes"][0].report
     assert "view_005.png" not in report["views"]["used"]

@@ -18,8 +18,9 @@ from sfs_ros.core.carving.resolution import BYTES_PER_VOXEL, grid_shape
 from sfs_ros.core.exchange.session import read_session
 from sfs_ros.ros import capture_qos
 from sfs_ros.ros.convert import image_to_msg, joint_state
+from sfs_ros.ros.names import DIAGNOSTICS, SERVICES
 
-from ros_harness import NodeUnderTest
+from ros_harness import NodeUnderTest, keep_ours
 from small_disk import fill, small_disk
 
 MODULE = "sfs_ros.nodes.reconstruction_node"
@@ -39,13 +40,13 @@ class ReconstructionNode(NodeUnderTest):
     def __init__(self, params_file):
         super().__init__(MODULE, params_file=params_file)
         node, qos = self.probe.node, capture_qos(100)
-        self.statuses, self.receipts = [], []
+        self.diagnostics, self.receipts = [], []
         self.mask_pub = node.create_publisher(Image, "capture/mask", qos)
         self.joints_pub = node.create_publisher(JointState, "capture/mask_joint_state", qos)
-        subs = [node.create_subscription(DiagnosticArray, "diagnostics",
-                                         lambda m: self.statuses.extend(m.status), 10),
+        subs = [node.create_subscription(DiagnosticArray, DIAGNOSTICS,
+                                         keep_ours(self.diagnostics), 10),
                 node.create_subscription(Header, "capture/stored", self.receipts.append, qos)]
-        self.client = node.create_client(Trigger, "reconstruct")
+        self.client = node.create_client(Trigger, SERVICES["reconstruct"])
         self.probe.wait_connected([self.mask_pub, self.joints_pub], subs, process=self.process)
         self.probe.spin_until(self.client.service_is_ready, what="reconstruct",
                               process=self.process)
@@ -56,6 +57,10 @@ class ReconstructionNode(NodeUnderTest):
         mask = ((xx - 160) ** 2 + (yy - 120) ** 2 < 60 ** 2).astype(np.uint8) * 255
         self.mask_pub.publish(image_to_msg(mask, stamp=(100 + n, 0), frame_id="camera"))
         self.joints_pub.publish(joint_state(float(n), 0.5, stamp=(100 + n, 0)))
+
+    @property
+    def statuses(self):
+        return [s for array in self.diagnostics for s in array.status]
 
     def receipted(self) -> list[int]:
         return [r.stamp.sec - 100 for r in self.receipts]

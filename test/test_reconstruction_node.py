@@ -8,6 +8,8 @@ import pytest
 import yaml
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseArray
+from rclpy.parameter import Parameter
+from rclpy.parameter_client import AsyncParameterClient
 from sensor_msgs.msg import Image, JointState, PointCloud2
 from shape_msgs.msg import Mesh
 from std_msgs.msg import Header
@@ -23,8 +25,9 @@ from sfs_ros.core.simulation.plan import ring_plan
 from sfs_ros.core.simulation.synthetic import carving_box, score_against_truth
 from sfs_ros.ros import capture_qos, result_qos
 from sfs_ros.ros.convert import cloud_to_points, image_to_msg, joint_state, shape_to_mesh
+from sfs_ros.ros.names import DIAGNOSTICS, SERVICES
 
-from ros_harness import NodeProcess, NodeUnderTest
+from ros_harness import MESSAGE_TIMEOUT_S, NodeProcess, NodeUnderTest, keep_ours
 from tolerances import MUG_IOU_29_VIEWS_MIN, QUIET_S
 
 MODULE = "sfs_ros.nodes.reconstruction_node"
@@ -79,9 +82,9 @@ class Cell(NodeUnderTest):
                 node.create_subscription(Header, "capture/stored", self.receipts.append, qos),
                 node.create_subscription(Marker, "mesh", self.markers.append, result_qos()),
                 node.create_subscription(Mesh, "mesh_shape", self.shapes.append, result_qos()),
-                node.create_subscription(DiagnosticArray, "diagnostics",
-                                         self.diagnostics.append, 10)]
-        self.clients = {name: node.create_client(Trigger, name)
+                node.create_subscription(DiagnosticArray, DIAGNOSTICS,
+                                         keep_ours(self.diagnostics), 10)]
+        self.clients = {name: node.create_client(Trigger, SERVICES[name])
                         for name in ("reconstruct", "reset")}
         self.probe.wait_connected([self.mask_pub, self.joints_pub], subs, process=self.process)
         self.probe.spin_until(lambda: all(c.service_is_ready() for c in self.clients.values()),
@@ -246,3 +249,59 @@ def test_missing_output_dir_exits_with_one_line():
     code, lines = process.exit_lines()
     assert code != 0
     assert len(lines) == 1 and "'output_dir'" in lines[0], lines
+
+
+def test_per_scan_settings_change_between_scans_and_bad_values_are_refused(scan, cell, masks,
+                                                                           mug, out_dir):
+    client = AsyncParameterClient(cell.probe.node, "reconstruction")
+    cell.probe.spin_until(client.services_are_ready, what="parameter services",
+                          process=cell.process)
+
+    def set_one(name, value):
+        future = client.set_parameters([Parameter(name, value=value)])
+        cell.probe.spin_until(future.done, what=f"setting {name}", process=cell.process)
+        return future.result().results[0]
+
+    taken = Path(json.loads(scan.message)["path"]).stem          # the first scan's folder
+    for name, value, words in [
+            ("bounds_m", [0.1, -0.1, 0.0, -0.1, 0.1, 0.2], "finite min < max"),
+            ("bounds_m", [0.0, 0.0, 0.1], "expected [xmin, ymin, zmin, xmax, ymax, zmax]"),
+            ("resolution", 4, "resolution"),
+            ("mesher", "voxels", "mesher"),
+            ("scan_name", "../elsewhere", "must be 1-100 letters"),
+            ("scan_name", taken, "already exists")]:
+        refused = set_one(name, value)
+        assert not refused.successful and words in refused.reason, (name, refused.reason)
+    assert not set_one("output_dir", str(out_dir / "other")).successful       # read-only
+
+    # A second scan with other settings: a coarser grid, the other mesher, a name.
+    box = carving_box(mug).ravel() + [-0.01, -0.01, 0.0, 0.01, 0.01, 0.01]    # 1 cm margin
+    assert set_one("bounds_m", box.tolist()).successful
+    assert set_one("resolution", 48).successful
+    assert set_one("mesher", "advancing-front").successful
+    assert set_one("scan_name", "mug_coarse").successful
+    assert cell.call("reset").success
+    for i in range(len(PLAN)):
+        cell.send((3000 + i, 0), masks[i], *PLAN[i])
+    cell.wait_values("the second scan's views", scan_views=len(PLAN))
+    # The advancing front compiles its kernels on first use: a bound against a hang only.
+    answer = cell.call("reconstruct", timeout=MESSAGE_TIMEOUT_S)
+    assert answer.success, answer.message
+    summary = json.loads(answer.message)
+    assert Path(summary["path"]).name == "mug_coarse.ply"
+    assert (out_dir / "mug_coarse").is_dir()
+    # The new resolution and mesher; the grid (refined to the silhouettes by the pipeline)
+    # has its longest side in 48 voxels and lies in the new box, to a voxel's rounding.
+    report = json.loads(Path(summary["report_path"]).read_text())
+    assert report["parameters"]["resolution"] == 48 and max(report["grid"]["shape"]) == 48
+    assert report["mesher"]["name"] == "advancing-front"
+    low, high = (np.array(b) for b in report["grid"]["bounds_m"])
+    voxel = report["grid"]["voxel_size_m"]
+    assert np.all(low >= box[:3] - voxel) and np.all(high <= box[3:] + voxel)
+
+    # The name is used: the next reset is refused with the reason, and nothing changes.
+    answer = cell.call("reset")
+    assert not answer.success and "mug_coarse already exists" in answer.message
+    assert cell.last_values()["scan_views"] == str(len(PLAN))
+    assert set_one("scan_name", "").successful                        # scan_NNN again
+    assert cell.call("reset").success

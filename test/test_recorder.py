@@ -3,7 +3,7 @@
 A reconstruction node runs beside it (the recorder stores its parameters,
 and the offline reader needs them to place the cameras); the probe publishes
 exact sphere silhouettes with their joint states as the segmentation node
-would. A bag closed by SIGINT or ``record/stop`` opens with rosbags; a bag
+would. A bag closed by SIGINT or ``recorder/stop`` opens with rosbags; a bag
 whose recorder was killed outright (SIGKILL) reads up to its last whole
 message, and every view in it is one the probe sent, in order, with no gap.
 """
@@ -29,6 +29,7 @@ from sfs_ros.core.geometry.rig import rig_camera
 from sfs_ros.core.simulation.plan import ring_plan
 from sfs_ros.ros import capture_qos
 from sfs_ros.ros.convert import image_to_msg, joint_state
+from sfs_ros.ros.names import DIAGNOSTICS, SERVICES
 
 from analytic_masks import sphere_mask
 from conftest import TEST_RIG
@@ -69,7 +70,7 @@ def probe(tmp_path_factory, start_node_for_module):
     qos = capture_qos(100)
     probe.masks = probe.node.create_publisher(Image, "capture/mask", qos)
     probe.joints = probe.node.create_publisher(JointState, "capture/mask_joint_state", qos)
-    probe.diagnostics = probe.node.create_publisher(DiagnosticArray, "diagnostics", 10)
+    probe.diagnostics = probe.node.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
     probe.wait_connected([probe.masks, probe.joints], process=reconstruction.process)
     return probe
 
@@ -83,7 +84,7 @@ class Recorder:
         self.process = NodeProcess(RECORDER, parameters={
             "output_dir": str(output_dir), "parameter_nodes": ["reconstruction"],
             "parameter_timeout_s": 10.0, **parameters})
-        self.clients = {n: probe.node.create_client(Trigger, f"record/{n}")
+        self.clients = {n: probe.node.create_client(Trigger, SERVICES[f"record/{n}"])
                         for n in ("start", "stop")}
         # up when its services answer and it has matched both capture topics (the
         # reconstruction node is the other subscriber)
@@ -194,12 +195,12 @@ def test_sqlite3_storage_on_request(recorder_factory, probe, views):
 def test_start_twice_and_stop_without_recording_are_refused(recorder_factory):
     recorder = recorder_factory(bag_name="mine")
     refused = recorder.call("stop")
-    assert not refused.success and refused.message == "not recording: call record/start first"
+    assert not refused.success and refused.message == "not recording: call recorder/start first"
     path = recorder.start()
     assert path.endswith("/bags/mine")
     again = recorder.call("start")
     assert not again.success and again.message == f"already recording to {path}; call " \
-                                                  "record/stop first"
+                                                  "recorder/stop first"
     assert recorder.call("stop").success
     taken = recorder.call("start")                            # bag_name is taken now
     assert not taken.success and "exists" in taken.message and "bag_name" in taken.message

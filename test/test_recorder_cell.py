@@ -2,7 +2,7 @@
 
 The mock cell is brought up as in test_cell.py (:mod:`mock_cell`: small
 camera, fast axes, 64^3, a 17-view plan), the recorder among its nodes. The scan
-runs through :class:`CellClient` while ``record/start`` .. ``record/stop``
+runs through :class:`CellClient` while ``recorder/start`` .. ``recorder/stop``
 records it; ``sfs-reconstruct BAG`` must then give the mesh the
 reconstruction node wrote: the bag holds the masks and joint states the node
 carved and the parameters it ran with, and the offline reader feeds them to
@@ -28,6 +28,7 @@ from sfs_ros.core.exchange.export import load_mesh
 from sfs_ros.core.exchange.nerf import read_transforms
 from sfs_ros.core.exchange.session import read_session
 from sfs_ros.core.exchange.views import read_image
+from sfs_ros.ros.names import SERVICES
 from sfs_ros.ros.services import call
 
 from mock_cell import RESOLUTION, SCAN_TIMEOUT_S, running_cell
@@ -40,7 +41,7 @@ STORE = get_typestore(Stores.ROS2_KILTED)
 def cell(tmp_path_factory):
     with running_cell(tmp_path_factory.mktemp("recorded_cell"), "recorded_cell_client") as up:
         probe = RosProbe("recorded_cell_probe")
-        services = {n: probe.node.create_client(Trigger, f"record/{n}") for n in ("start", "stop")}
+        services = {n: probe.node.create_client(Trigger, SERVICES[f"record/{n}"]) for n in ("start", "stop")}
         threading.Thread(target=probe.executor.spin, daemon=True).start()
         try:
             yield {**up, "services": services}
@@ -54,7 +55,7 @@ def _record(cell, what: str) -> Trigger.Response:
 
 @pytest.fixture(scope="module")
 def recorded(cell):
-    """One scan recorded from record/start to record/stop: the bag, the live summary, figures."""
+    """One scan recorded from recorder/start to recorder/stop: the bag, the live summary, figures."""
     client = cell["client"]
     answer = _record(cell, "start")
     assert answer.success, answer.message

@@ -2,20 +2,27 @@
 pauses when its peers (reconstruction, motor, encoders) are missing.
 
 No other node of the cell runs here (the whole cell is tested with ``sfs-cell``):
-the probe calls the scan services and watches ``diagnostics`` and ``joint_command``.
+the probe calls the scan services and watches ``/diagnostics`` and ``joint_command``.
 """
 
 import functools
 import time
 
+import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from sensor_msgs.msg import JointState
+from rclpy.parameter import Parameter
+from rclpy.parameter_client import AsyncParameterClient
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import Image, JointState
 from std_srvs.srv import Trigger
 
 from sfs_ros.cell.scan_plan import ScanPlan
+from sfs_ros.ros import capture_qos
+from sfs_ros.ros.convert import image_to_msg, joint_state
+from sfs_ros.ros.names import DIAGNOSTICS, SERVICES
 
-from ros_harness import MESSAGE_TIMEOUT_S, NodeProcess, NodeUnderTest
+from ros_harness import MESSAGE_TIMEOUT_S, NodeProcess, NodeUnderTest, keep_ours
 from tolerances import QUIET_S
 
 MODULE = "sfs_ros.nodes.scan_node"
@@ -47,10 +54,10 @@ class ScanNodeUnderTest(NodeUnderTest):
         super().__init__(MODULE, parameters={**FAST, **parameters})
         node = self.probe.node
         self.diagnostics, self.commands = [], []
-        subs = [node.create_subscription(DiagnosticArray, "diagnostics",
-                                         self.diagnostics.append, 10),
+        subs = [node.create_subscription(DiagnosticArray, DIAGNOSTICS,
+                                         keep_ours(self.diagnostics), 10),
                 node.create_subscription(JointState, "joint_command", self.commands.append, 10)]
-        self.clients = {name: node.create_client(Trigger, f"scan/{name}")
+        self.clients = {name: node.create_client(Trigger, SERVICES[f"scan/{name}"])
                         for name in ("start", "cancel", "resume")}
         self.probe.wait_connected(subscriptions=subs, process=self.process)
         # The services, and a first report (the node's writers have matched the probe too).
@@ -120,7 +127,7 @@ def test_idle_services_and_a_start_without_the_reconstruction_pauses(start):
         assert time.monotonic() - sent_s >= SERVICE_TIMEOUT_S
         assert status.level == DiagnosticStatus.ERROR
         assert f"scan paused at view 1 of {N}" in status.message, status.message
-        assert "service reset is not available (waited 1 s)" in status.message
+        assert "service reconstruction/reset is not available (waited 1 s)" in status.message
         assert node.process.alive()
     node.probe.spin_for(QUIET_S)
     assert node.commands == []                 # nothing moved before the reset
@@ -132,7 +139,7 @@ def test_a_start_without_the_motor_node_pauses_on_homing(start):
     assert response.success and response.message == f"scan 1 started: {N} views"
     status = node.wait_paused(1)
     assert status.level == DiagnosticStatus.ERROR
-    assert "service home is not available (waited 1 s)" in status.message, status.message
+    assert "service motor/home is not available (waited 1 s)" in status.message, status.message
     node.probe.spin_for(QUIET_S)
     assert node.commands == [] and node.process.alive()
 
@@ -162,3 +169,114 @@ def test_the_first_view_is_commanded_and_the_scan_pauses_without_encoder_reading
         assert list(command.position) == [float(v) for v in PLAN.views[0]]
     retries = [s for s in node.statuses() if s.level == DiagnosticStatus.WARN]
     assert retries and all("retrying" in s.message for s in retries)
+
+
+def test_joint_states_of_another_machine_are_ignored_with_one_info_line(start):
+    node = start(reset_reconstruction=False, home_before_scan=False)
+    arm = node.probe.node.create_publisher(JointState, "joint_states", 10)
+    node.probe.wait_connected(publishers=[arm], process=node.process)
+    for i in range(20):         # a robot arm's joint_state_broadcaster on the same topic
+        arm.publish(JointState(name=["shoulder", "elbow"], position=[0.1 * i, 0.2]))
+    cell_joint_missing = JointState(name=["turntable"], position=[0.5])   # the cell's, broken
+    arm.publish(cell_joint_missing)
+
+    def malformed() -> int:
+        return int(node.statuses()[-1].values["malformed"])
+    node.probe.spin_until(lambda: malformed() == 1, what="the broken joint state counted",
+                          process=node.process)
+    node.probe.spin_for(QUIET_S)
+    assert malformed() == 1                   # only the cell's broken one
+    output = node.process.output()
+    assert output.count("joint state has none of the cell's joints") == 1, output
+    assert output.count("ERROR") == 1 and "has no joint 'carriage'" in output, output
+
+
+def test_the_camera_trigger_can_change_between_scans_and_a_bad_value_is_refused(start):
+    node = start(reset_reconstruction=False, home_before_scan=False)
+    client = AsyncParameterClient(node.probe.node, "scan")
+    node.probe.spin_until(client.services_are_ready, what="parameter services",
+                          process=node.process)
+
+    def set_one(name, value):
+        future = client.set_parameters([Parameter(name, value=value)])
+        node.probe.spin_until(future.done, what=f"setting {name}", process=node.process)
+        return future.result().results[0]
+
+    def trigger() -> str:
+        future = client.get_parameters(["camera_trigger"])
+        node.probe.spin_until(future.done, what="reading camera_trigger", process=node.process)
+        return future.result().values[0].string_value
+
+    refused = set_one("camera_trigger", "video")
+    assert not refused.successful
+    assert "'camera_trigger'" in refused.reason and "one of ['shutter', 'stream']" in \
+        refused.reason, refused.reason
+    negative = set_one("exposure_delay_s", -1.0)
+    # rclpy's own range check of the descriptor answers first, naming the parameter and range.
+    assert not negative.successful and "exposure_delay_s" in negative.reason \
+        and "0.0" in negative.reason, negative.reason
+    assert not set_one("queue_depth", 50).successful                  # read-only
+    assert trigger() == "shutter"                                     # the old one kept
+    assert set_one("camera_trigger", "stream").successful
+    assert set_one("exposure_delay_s", 0.05).successful
+    assert trigger() == "stream"
+
+
+class StreamingDriver:
+    """A stand-in for a third-party camera driver and the cell's encoders, in the probe.
+
+    Every ``PERIOD_S`` it publishes the encoders at the last commanded viewpoint (the axes
+    reach it at once) and a frame on ``image_raw`` with the sensor-data QoS (best effort),
+    as many drivers do. The driver has ``LATENCY_S`` of latency: a frame is stamped when
+    exposed and published that much later, so when the axes settle, frames exposed on the
+    way are still coming. ``seen[stamp]`` is the viewpoint a frame was exposed at.
+    """
+
+    PERIOD_S = 0.05
+    LATENCY_S = 0.3
+
+    def __init__(self, node):
+        self.node = node
+        self.target = (0.0, 0.0)
+        self.seen: dict[tuple[int, int], tuple[float, float]] = {}
+        self.exposed: list[tuple[float, tuple, tuple]] = []   # (publish at, stamp, viewpoint)
+        self.encoders = node.create_publisher(JointState, "joint_states", 10)
+        self.camera = node.create_publisher(Image, "image_raw", qos_profile_sensor_data)
+        node.create_subscription(JointState, "joint_command", self._command, 10)
+        node.create_timer(self.PERIOD_S, self._tick)
+
+    def _command(self, msg: JointState) -> None:
+        self.target = tuple(float(v) for v in msg.position)
+
+    def _tick(self) -> None:
+        now = self.node.get_clock().now()
+        self.encoders.publish(joint_state(*self.target, stamp=now.to_msg()))
+        stamp = now.to_msg()
+        self.exposed.append((time.monotonic() + self.LATENCY_S, stamp, self.target))
+        while self.exposed and self.exposed[0][0] <= time.monotonic():
+            _, stamp, seen = self.exposed.pop(0)
+            self.seen[(stamp.sec, stamp.nanosec)] = seen
+            self.camera.publish(image_to_msg(np.zeros((6, 8, 3), np.uint8), stamp=stamp,
+                                             frame_id="camera_optical"))
+
+
+def test_a_streaming_driver_with_best_effort_frames_gives_every_view_at_its_viewpoint(start):
+    node = start(reset_reconstruction=False, home_before_scan=False, camera_trigger="stream",
+                 image_reliability="best_effort", exposure_delay_s=0.1)
+    driver = StreamingDriver(node.probe.node)
+    captures = []
+    node.probe.node.create_subscription(Image, "capture/image", captures.append,
+                                        capture_qos(20))
+    node.probe.wait_connected(publishers=[driver.camera, driver.encoders],
+                              process=node.process)
+    assert node.call("start").success
+    node.probe.spin_until(lambda: node.statuses()[-1].values["state"] == "done",
+                          what="the scan done", process=node.process)
+    node.probe.spin_until(lambda: len(captures) == N, what=f"{N} captures",
+                          process=node.process)
+    assert node.statuses()[-1].values["trigger"] == "stream"
+    # Each view is a frame the driver streamed, exposed at that view's viewpoint (not on
+    # the way to it, although such frames arrived after the axes had settled).
+    for capture, view in zip(captures, PLAN.views):
+        seen = driver.seen[(capture.header.stamp.sec, capture.header.stamp.nanosec)]
+        assert seen == tuple(float(v) for v in view)

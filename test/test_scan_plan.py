@@ -113,7 +113,7 @@ def test_example_plan_file_loads():
 
 
 @pytest.mark.parametrize("text, problem", [
-    ("views: [[0, 20]]\nspeed: 3\n", r"unknown scan plan keys \['speed'\]"),
+    ("views: [[0, 20]]\nspeed: 3\n", r"unknown keys \['speed'\] in the scan plan"),
     ("rings: {phi_deg: [10], per_ring: 4, tilt: 1}\n", r"unknown keys \['tilt'\] in 'rings'"),
     ("views: [[0, 20]]\nrings: {phi_deg: [10], per_ring: 4}\n", "exactly one of"),
     ("reorder: true\n", "exactly one of"),

@@ -4,13 +4,16 @@ The fake cell is a discrete-event simulation: a clock that only moves when the
 sequence waits (to the next scheduled event: an encoder reading, a frame, an
 injected fault or control), axes that reach a commanded viewpoint after
 ``MOVE_S`` unless a fault is switched on, encoders read every ``READ_S`` and a
-camera whose frame arrives ``FRAME_S`` after its shutter. Each test runs the
-sequence in the test's own thread, so every run is deterministic.
+camera whose frame arrives ``FRAME_S`` after its shutter, or (``stream``) a
+camera that streams on its own, as a third-party driver does, a frame every
+``STREAM_S`` stamped when exposed and arriving ``LATENCY_S`` later. Each test
+runs the sequence in the test's own thread, so every run is deterministic.
 """
 
 import heapq
 import itertools
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -21,6 +24,11 @@ VIEWS = np.radians([[0.0, 20.0], [90.0, 20.0], [180.0, 20.0], [270.0, 20.0], [0.
 MOVE_S = 0.5        # a move takes this long
 READ_S = 0.1        # encoder period
 FRAME_S = 0.05      # shutter to frame
+STREAM_S = 1 / 30   # a streaming camera's frame period
+#: Exposure (the frame's stamp) to arrival, streaming: longer than the time from the axes'
+#: arrival to their settling (3 readings, 0.2-0.3 s), so frames exposed while they moved are
+#: still arriving when they have settled.
+LATENCY_S = 0.4
 SETTINGS = ScanSettings(settle_tolerance_rad=math.radians(0.1), settle_samples=3,
                         move_timeout_s=5.0, stall_s=2.0, move_retries=2, capture_timeout_s=1.0,
                         capture_retries=2, encoder_max_gap_s=0.5, receipt_timeout_s=10.0,
@@ -48,8 +56,14 @@ class FakeCell:
         self.on_move = {}               # move number -> action run 0.2 s after it
         self.drop_frames = 0            # this many next frames never arrive
         self.failing_steps = set()      # prepare steps that fail
+        self.streaming = False          # the stream camera's frames (trigger "stream")
+        self.shutters = 0
+        self.settled_at = []            # when the sequence asked for the stream's time
         self.seq = ScanSequence(VIEWS, self, settings)
         self.at(READ_S, self._read)
+        if settings.trigger == "stream":
+            self.streaming = True
+            self.at(STREAM_S, self._expose)
 
     # -- the simulation --------------------------------------------------------------------
 
@@ -68,6 +82,14 @@ class FakeCell:
 
     def _arrive(self, target) -> None:
         self.position = target
+
+    def _expose(self) -> None:
+        """A streamed frame: what the camera saw now (the axes' position), stamped now,
+        delivered LATENCY_S later."""
+        if self.streaming:
+            stamp, seen = _stamp(self.t), self.position
+            self.at(LATENCY_S, lambda: self.seq.frame(stamp, ("streamed", seen)))
+        self.at(STREAM_S, self._expose)
 
     # -- ports -------------------------------------------------------------------------------
 
@@ -102,7 +124,12 @@ class FakeCell:
         if step in self.failing_steps:
             raise StepFailed(f"service {step} is not available (waited {timeout_s:g} s)")
 
+    def stamp_now(self):
+        self.settled_at.append(self.t)
+        return _stamp(self.t)
+
     def shutter(self, *, timeout_s, cancelled):
+        self.shutters += 1
         stamp = _stamp(self.t)
         if self.drop_frames:
             self.drop_frames -= 1
@@ -124,8 +151,8 @@ class FakeCell:
 
     # -- checks ------------------------------------------------------------------------------
 
-    def run(self):
-        ok, message = self.seq.start()
+    def run(self, settings=None):
+        ok, message = self.seq.start(settings)
         assert ok, message
         self.seq.run()
         return self.seq.status()
@@ -368,3 +395,61 @@ def test_inputs_are_checked():
         ScanSettings(**{**SETTINGS.__dict__, "capture_retries": -1})
     with pytest.raises(ValueError, match="samples must be an integer >= 1"):
         ScanSettings(**{**SETTINGS.__dict__, "settle_samples": 0})
+
+
+STREAM = replace(SETTINGS, trigger="stream")
+
+
+def _seconds(stamp) -> float:
+    return stamp[0] + 1e-9 * stamp[1]
+
+
+@pytest.mark.parametrize("delay_s", [0.0, 0.25])
+def test_a_streaming_camera_gives_the_first_frame_stamped_after_settling_plus_the_delay(
+        delay_s):
+    cell = FakeCell(replace(STREAM, exposure_delay_s=delay_s))
+    status = cell.run()
+    assert status.values["state"] == "done" and status.problem == status.warning == ""
+    assert cell.shutters == 0                              # no shutter to release
+    assert cell.views_sent() == list(range(len(VIEWS)))
+    assert len(cell.settled_at) == len(VIEWS)
+    for (frame, stamp, reading), view, settled in zip(cell.sent, VIEWS, cell.settled_at):
+        kind, seen = frame
+        # Exposed at the viewpoint, not on the way: frames stamped before the settling were
+        # still arriving then (LATENCY_S) and are passed over.
+        assert kind == "streamed" and seen == tuple(view)
+        # The first frame at or after settling + delay: within one frame period of it (the
+        # stamps are whole nanoseconds, hence 1e-9).
+        assert settled + delay_s - 1e-9 <= _seconds(stamp) < settled + delay_s + STREAM_S
+        assert (reading.theta_rad, reading.phi_rad) == tuple(view)
+        assert abs(_seconds(reading.stamp) - _seconds(stamp)) <= READ_S / 2 + 1e-9
+
+
+def test_frames_that_never_come_on_the_stream_pause_the_scan_naming_the_topic():
+    cell = FakeCell(STREAM)
+    cell.streaming = False                                  # the driver publishes nothing
+    status = cell.run()
+    assert status.values["state"] == "paused" and status.values["captured"] == 0
+    assert status.values["capture_retries"] == SETTINGS.capture_retries
+    assert "no camera frame stamped at or after" in status.problem
+    assert "is the camera streaming on image_raw?" in status.problem
+    assert f"after {SETTINGS.capture_retries + 1} attempts" in status.problem
+    cell.streaming = True                                   # mended: resume goes on
+    assert cell.resume().values["state"] == "done"
+    assert cell.views_sent() == list(range(len(VIEWS)))
+
+
+def test_the_trigger_can_change_between_scans():
+    cell = FakeCell(STREAM)
+    assert cell.run().values["state"] == "done" and cell.shutters == 0
+    status = cell.run(replace(STREAM, trigger="shutter"))
+    assert status.values["state"] == "done" and cell.shutters == len(VIEWS)
+    assert [frame for frame, _, _ in cell.sent[len(VIEWS):]] == \
+        [f"frame {stamp}" for _, stamp, _ in cell.sent[len(VIEWS):]]
+
+
+def test_stream_settings_are_checked():
+    with pytest.raises(ValueError, match=r"trigger must be one of \['shutter', 'stream'\]"):
+        replace(SETTINGS, trigger="video")
+    with pytest.raises(ValueError, match="exposure_delay_s must be a finite number >= 0"):
+        replace(STREAM, exposure_delay_s=-0.1)

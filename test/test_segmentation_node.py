@@ -17,8 +17,9 @@ from sfs_ros.core.simulation.plan import ring_plan
 from sfs_ros.core.simulation.synthetic import simulate_scan
 from sfs_ros.ros import capture_qos
 from sfs_ros.ros.convert import image_to_msg, joint_state, msg_to_image
+from sfs_ros.ros.names import DIAGNOSTICS
 
-from ros_harness import NodeProcess, NodeUnderTest
+from ros_harness import NodeProcess, NodeUnderTest, keep_ours
 from tolerances import QUIET_S
 
 MODULE = "sfs_ros.nodes.segmentation_node"
@@ -63,8 +64,8 @@ class Cell(NodeUnderTest):
         subs = [node.create_subscription(Image, "capture/mask", self.masks.append, qos),
                 node.create_subscription(JointState, "capture/mask_joint_state",
                                          self.mask_joints.append, qos),
-                node.create_subscription(DiagnosticArray, "diagnostics",
-                                         self.diagnostics.append, 10)]
+                node.create_subscription(DiagnosticArray, DIAGNOSTICS,
+                                         keep_ours(self.diagnostics), 10)]
         self.probe.wait_connected([self.image_pub, self.joints_pub], subs, process=self.process)
 
     def receive(self, n: int) -> None:

@@ -48,12 +48,7 @@ SURVIVAL_SCAN = {"home_before_retry": True, "move_retries": 20, "capture_retries
 
 
 def _config(root):
-    config = write_config(root / "config")
-    path = config / "scan.yaml"
-    data = yaml.safe_load(path.read_text())
-    data["/**"]["ros__parameters"].update(SURVIVAL_SCAN)
-    path.write_text(yaml.safe_dump(data))
-    return config
+    return write_config(root / "config", {"scan.yaml": SURVIVAL_SCAN})
 
 
 def _captured(client: CellClient) -> int:

@@ -3,7 +3,8 @@
 :class:`LiveReconstruction` carves each arriving mask into a voxel hull at
 once (a preview that grows sharper with every view), writes every view to a
 session folder as it arrives, and on request runs the full reconstruction
-(:func:`sfs_ros.core.pipeline.reconstruct`) on the views received so far.
+(:func:`sfs_ros.core.pipeline.reconstruct`) on the views received so far, with the
+masks received (the images are not read back nor segmented again).
 
 Persistence and the final reconstruction share one path: each mask is stored
 as a black-and-white PNG (object 255, background 0) in a scan session folder
@@ -12,7 +13,8 @@ calibration, the carving box and :data:`MASK_SEGMENTATION`, segmentation
 parameters under which :func:`sfs_ros.core.segment.segment` returns such an
 image's mask unchanged (a fixed threshold at half scale against a black
 background, no morphology, no blob or hole filtering, no dilation). The
-reconstruction reads that folder back, so a crash loses nothing and
+reconstruction reads that folder's views (cameras, box) and takes the received
+masks, which are what segmenting the stored images gives; so a crash loses nothing and
 ``sfs-reconstruct SCAN_FOLDER -o mesh.ply`` (same resolution) later gives
 the same mesh as :meth:`LiveReconstruction.reconstruct`.
 
@@ -61,7 +63,7 @@ from ..core.segment import SegmentationParams
 from .paths import confined_path
 
 __all__ = ["MASK_SEGMENTATION", "DuplicateViewError", "AddedView", "LiveReconstruction",
-           "surface_points", "mask_to_rgb"]
+           "surface_points", "mask_to_rgb", "check_scan_name"]
 
 #: Segmentation under which a 0/255 mask image segments to exactly that mask.
 MASK_SEGMENTATION = SegmentationParams(
@@ -109,6 +111,17 @@ class _Received:
     packed_mask: np.ndarray  # np.packbits of the (H, W) bool mask
     theta_rad: float
     phi_rad: float
+
+
+def check_scan_name(output_dir, scan_name: str) -> None:
+    """ValueError unless ``scan_name`` can name a new scan folder in ``output_dir``: 1-100
+    letters, digits, ``_``, ``-`` or ``.`` (not first) and no such folder yet."""
+    if not isinstance(scan_name, str) or not _SCAN_NAME.fullmatch(scan_name):
+        raise ValueError(f"scan name {scan_name!r} must be 1-100 letters, digits, "
+                         "'_', '-' or '.', not starting with '.', '_' or '-'")
+    if (Path(output_dir) / scan_name).exists():
+        raise ValueError(f"scan folder {Path(output_dir) / scan_name} already exists; "
+                         "choose a new scan name")
 
 
 def mask_to_rgb(mask: np.ndarray) -> np.ndarray:
@@ -231,12 +244,7 @@ class LiveReconstruction:
         ValueError if that folder already exists.
         """
         if scan_name is not None:
-            if not isinstance(scan_name, str) or not _SCAN_NAME.fullmatch(scan_name):
-                raise ValueError(f"scan name {scan_name!r} must be 1-100 letters, digits, "
-                                 "'_', '-' or '.', not starting with '.', '_' or '-'")
-            if (self.output_dir / scan_name).exists():
-                raise ValueError(f"scan folder {self.output_dir / scan_name} already exists; "
-                                 "choose a new scan name")
+            check_scan_name(self.output_dir, scan_name)
         self._requested_name = scan_name
         if getattr(self, "_session", None) is not None:
             (self._session / OPEN_MARKER).unlink(missing_ok=True)
@@ -413,25 +421,26 @@ class LiveReconstruction:
                              f"{expected} uint8 RGB (the rig's size)")
         self._colour_images[key] = rgb
 
-    def _colour(self, result, view_set) -> tuple[np.ndarray | None, int]:
-        """Vertex colours from the kept images of the views ``result`` used; and how many."""
+    def _colour(self, result, view_set, masks: dict) -> tuple[np.ndarray | None, int]:
+        """Vertex colours from the kept images of the views ``result`` used; and how many.
+        ``masks``: {key: (H, W) bool} of every view received."""
         by_name = {received.name: key for key, received in self._views.items()}
         cameras = {v.name: v.camera for v in view_set.views}
         used = [(by_name[n], n) for n in result.report["views"]["used"]
                 if by_name.get(n) in self._colour_images]
         if not used:
             return None, 0
-        masks = {key: mask for key, mask, _, _ in self.views()}
         colours = vertex_colours(result.vertices, result.faces,
                                  [self._colour_images[k] for k, _ in used],
                                  [cameras[n] for _, n in used],
                                  masks=[masks[k] for k, _ in used])
         return colours.colours, len(used)
 
-    def _sheet_views(self) -> SheetViews:
-        """Every view received: its captured image (the mask where none was kept) and mask."""
+    def _sheet_views(self, masks: dict) -> SheetViews:
+        """Every view received: its captured image (the mask where none was kept) and mask
+        (``masks``: {key: (H, W) bool} of every view received)."""
         keys, received = list(self._views), list(self._views.values())
-        masks = [mask for _, mask, _, _ in self.views()]
+        masks = [masks[k] for k in keys]
         images = [self._colour_images[k] if k in self._colour_images else mask_to_rgb(m)
                   for k, m in zip(keys, masks)]
         return SheetViews(names=[v.name for v in received], images=images, masks=masks,
@@ -489,12 +498,16 @@ class LiveReconstruction:
         html_path = confined_path(root, stem + ".html", suffixes=(".html",))
         sheet_path = confined_path(root, stem + ".views.png", suffixes=(".png",))
         view_set = load_views(self._session)
-        result = reconstruct(view_set, self.params)
+        # The masks received are what segmenting their stored images gives
+        # (MASK_SEGMENTATION): the pipeline takes them as they are.
+        masks = {key: mask for key, mask, _, _ in self.views()}
+        result = reconstruct(view_set, self.params,
+                             masks={self._views[key].name: m for key, m in masks.items()})
         colours, coloured = (None, 0) if path.suffix.lower() == ".stl" \
-            else self._colour(result, view_set)
+            else self._colour(result, view_set, masks)
         write_result(result, path, vertex_colors=colours, report=report_path,
                      extra={"session": str(self._session)}, preview=preview_path,
-                     html=html_path, contact_sheet=sheet_path, sheet_views=self._sheet_views(),
+                     html=html_path, contact_sheet=sheet_path, sheet_views=self._sheet_views(masks),
                      within=root)
         self._mesh, self._colours = (result.vertices, result.faces), colours
         mesh, views = result.report["mesh"], result.report["views"]

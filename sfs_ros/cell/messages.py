@@ -16,7 +16,8 @@ import math
 import numpy as np
 
 __all__ = ["JOINT_NAMES", "IMAGE_ENCODINGS", "stamp_key", "format_stamp", "view_key",
-           "msg_to_image", "angles_from_joint_state", "scan_report"]
+           "msg_to_image", "angles_from_joint_state", "ForeignJointState", "scan_report",
+           "status_namespace"]
 
 #: Joint names of the cell: turntable = theta, carriage = phi.
 JOINT_NAMES = ("turntable", "carriage")
@@ -88,6 +89,11 @@ def msg_to_image(msg) -> np.ndarray:
     return image[:, :, ::-1] if msg.encoding == "bgr8" else image
 
 
+class ForeignJointState(ValueError):
+    """A joint state with none of the cell's joints: another machine's (a robot arm's
+    ``joint_state_broadcaster`` on the same topic), not a malformed one of the cell."""
+
+
 def angles_from_joint_state(msg) -> tuple[float, float]:
     """``(theta_rad, phi_rad)`` of the joints named "turntable" and "carriage" (any order)
     of a ``sensor_msgs/JointState``.
@@ -96,6 +102,9 @@ def angles_from_joint_state(msg) -> tuple[float, float]:
     """
     names = list(msg.name)
     positions = list(msg.position)
+    if not set(JOINT_NAMES) & set(names):
+        raise ForeignJointState(f"joint state has none of the cell's joints (names {names}); "
+                                f"expected {list(JOINT_NAMES)}")
     angles = []
     for joint in JOINT_NAMES:
         if joint not in names:
@@ -112,12 +121,26 @@ def angles_from_joint_state(msg) -> tuple[float, float]:
     return angles[0], angles[1]
 
 
-def scan_report(array) -> tuple[int, str] | None:
+def status_namespace(name: str) -> str | None:
+    """The namespace of the node that named a diagnostic status ``<full node name>: <kind>``
+    (``"/sfs/scan: scan"`` -> ``"/sfs"``, ``"/scan: scan"`` -> ``"/"``); None for a name
+    without a full node name."""
+    node = name.rsplit(": ", 1)[0]
+    if not node.startswith("/"):
+        return None
+    return node.rsplit("/", 1)[0] or "/"
+
+
+def scan_report(array, namespace: str | None = None) -> tuple[int, str] | None:
     """``(scan number, state)`` the scan node reports in a ``diagnostic_msgs/DiagnosticArray``
     (its status named ``<node>: scan`` with the values ``scan`` and ``state``); None when
-    the array holds no such status or its scan is not a number."""
+    the array holds no such status or its scan is not a number. ``namespace``: only the
+    scan node of that namespace (``"/sfs"``, ``"/"``) counts (the diagnostics topic is
+    shared by every cell)."""
     for status in array.status:
         if not status.name.endswith(": scan"):
+            continue
+        if namespace is not None and status_namespace(status.name) != namespace:
             continue
         values = {kv.key: kv.value for kv in status.values}
         scan = values.get("scan", "")

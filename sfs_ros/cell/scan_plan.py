@@ -50,8 +50,16 @@ __all__ = ["ScanPlan", "load_plan", "travel_deg"]
 
 _TOP_KEYS = ("views", "rings", "reorder", "allow_duplicates")
 _RING_KEYS = ("phi_deg", "per_ring", "top_view", "stagger")
+
 #: Angles closer than this are the same viewpoint, degrees.
 _SAME_DEG = 1e-6
+
+
+def _refuse_unknown_keys(mapping: dict, allowed: tuple[str, ...], where: str) -> None:
+    """Raise ValueError naming the keys of ``mapping`` that are not in ``allowed``."""
+    unknown = sorted(set(map(str, mapping)) - set(allowed))
+    if unknown:
+        raise ValueError(f"unknown keys {unknown} in {where}; expected some of {list(allowed)}")
 
 
 def travel_deg(views_rad) -> tuple[float, float]:
@@ -204,10 +212,7 @@ class ScanPlan:
         if not isinstance(data, dict):
             raise ValueError(f"a scan plan must be a mapping with 'views' or 'rings', got "
                              f"{type(data).__name__}")
-        unknown = sorted(set(map(str, data)) - set(_TOP_KEYS))
-        if unknown:
-            raise ValueError(f"unknown scan plan keys {unknown}; expected some of "
-                             f"{list(_TOP_KEYS)}")
+        _refuse_unknown_keys(data, _TOP_KEYS, "the scan plan")
         if ("views" in data) == ("rings" in data):
             raise ValueError("a scan plan needs exactly one of 'views' (explicit [theta_deg, "
                              "phi_deg] pairs) or 'rings'")
@@ -222,10 +227,7 @@ class ScanPlan:
         if not isinstance(rings, dict):
             raise ValueError(f"'rings' must be a mapping with keys {list(_RING_KEYS)}, "
                              f"got {rings!r}")
-        unknown = sorted(set(map(str, rings)) - set(_RING_KEYS))
-        if unknown:
-            raise ValueError(f"unknown keys {unknown} in 'rings'; expected some of "
-                             f"{list(_RING_KEYS)}")
+        _refuse_unknown_keys(rings, _RING_KEYS, "'rings'")
         missing = [k for k in ("phi_deg", "per_ring") if k not in rings]
         if missing:
             raise ValueError(f"'rings' needs {missing}")

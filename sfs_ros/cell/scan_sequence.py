@@ -6,10 +6,18 @@ services, and a test with fakes:
 
 * for each view not yet captured, in plan order: command the viewpoint and
   wait until the encoder readings have settled on it
-  (:class:`sfs_ros.cell.settle.SettleDetector`); release the shutter, wait for
-  the frame it announces, and tag the frame with the encoder reading whose
-  stamp is nearest to the frame's (:class:`EncoderHistory`); record the
-  capture in the :class:`CaptureLedger` and send it;
+  (:class:`sfs_ros.cell.settle.SettleDetector`); take the view's frame, and
+  tag it with the encoder reading whose stamp is nearest to the frame's
+  (:class:`EncoderHistory`); record the capture in the :class:`CaptureLedger`
+  and send it. The frame is, by ``ScanSettings.trigger``:
+
+  - ``shutter``: release the shutter (``ports.shutter``, our camera node's
+    ``capture``) and wait for the frame it announces by its stamp;
+  - ``stream``: a camera that streams on its own (any driver publishing
+    ``image_raw``): the first frame stamped at or after the moment the axes
+    settled plus ``exposure_delay_s`` (``ports.stamp_now``). Frames stamped
+    earlier, even those that arrive after the axes settled (a driver's
+    latency), were exposed while the axes moved and are passed over;
 * a move that does not settle (timeout, stall, no readings) is commanded
   again up to ``move_retries`` times, a shot that brings no frame retaken up
   to ``capture_retries`` times, each retry a WARN; when they are used up the
@@ -61,7 +69,7 @@ from .scan_progress import SavedCapture, SavedScan, ScanProgress
 from .settle import SettleDetector
 
 __all__ = ["MonotonicClock", "ScanPorts", "ScanSequence", "ScanSettings", "ScanStatus",
-           "StepFailed", "SCAN_STATES"]
+           "StepFailed", "SCAN_STATES", "TRIGGERS"]
 
 Stamp = tuple[int, int]
 
@@ -74,8 +82,10 @@ _ACTIVE = ("starting", "running", "waiting")
 _DISK_RETRY_S = 1.0
 #: How often a move's state is judged when no encoder reading comes, s.
 _POLL_S = 0.1
-#: Camera frames kept by stamp while waiting for the shutter's one.
+#: Camera frames kept by stamp while waiting for the view's one (a second of a 16 Hz stream).
 _FRAMES_KEPT = 16
+#: How the view's frame is taken (see the module's description).
+TRIGGERS = ("shutter", "stream")
 #: Encoder readings kept for the move being watched (drained every _POLL_S).
 _READINGS_KEPT = 1000
 
@@ -95,6 +105,10 @@ def _disk_problem(view: int, folder, size: int, exc: OSError) -> str:
 def _format(stamp: Stamp) -> str:
     """``sec.nanosec`` of a stamp, for messages."""
     return f"{stamp[0]}.{stamp[1]:09d}"
+
+
+def _nanoseconds(stamp: Stamp) -> int:
+    return stamp[0] * 1_000_000_000 + stamp[1]
 
 
 class StepFailed(Exception):
@@ -118,7 +132,8 @@ class ScanSettings:
     move_retries, capture_retries : int
         Moves commanded again / shots retaken before the scan pauses.
     capture_timeout_s : float
-        Longest wait for the shutter's answer and for its frame, s.
+        Longest wait for the shutter's answer and for its frame (``stream``: for the
+        first frame stamped late enough), s.
     encoder_max_gap_s : float
         Largest time between a frame's stamp and the reading that tags it, s.
     receipt_timeout_s : float, max_sends : int
@@ -126,6 +141,11 @@ class ScanSettings:
     prepare : tuple of (step, timeout_s)
         Steps run before the first view (``ScanPorts.prepare``), e.g.
         ``(("reset", 10.0), ("home", 120.0))``.
+    trigger : str
+        One of :data:`TRIGGERS`: ``shutter`` (our camera's ``capture``) or ``stream``.
+    exposure_delay_s : float
+        ``stream``: the view's frame is stamped at least this long after the axes
+        settled (>= 0), s; e.g. a camera's exposure plus the vibration's dying away.
     rehome_before_retry : bool
         Run the ``home`` step of ``prepare`` (when there is one) before commanding a
         failed move again.
@@ -142,9 +162,16 @@ class ScanSettings:
     receipt_timeout_s: float
     max_sends: int
     prepare: tuple[tuple[str, float], ...] = ()
+    trigger: str = "shutter"
+    exposure_delay_s: float = 0.0
     rehome_before_retry: bool = False
 
     def __post_init__(self) -> None:
+        if self.trigger not in TRIGGERS:
+            raise ValueError(f"trigger must be one of {list(TRIGGERS)}, got {self.trigger!r}")
+        if not (math.isfinite(self.exposure_delay_s) and self.exposure_delay_s >= 0):
+            raise ValueError(f"exposure_delay_s must be a finite number >= 0, got "
+                             f"{self.exposure_delay_s!r}")
         for name in ("move_retries", "capture_retries"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 0:
@@ -184,7 +211,12 @@ class ScanPorts(Protocol):
 
     def shutter(self, *, timeout_s: float, cancelled: threading.Event) -> Stamp:
         """Release the shutter; the stamp of the frame it took (the frame itself comes
-        through :meth:`ScanSequence.frame`), or :class:`StepFailed` saying why not."""
+        through :meth:`ScanSequence.frame`), or :class:`StepFailed` saying why not.
+        (``trigger`` ``shutter`` only.)"""
+
+    def stamp_now(self) -> Stamp:
+        """Now on the clock that stamps the frames and encoder readings (the node's ROS
+        clock). (``trigger`` ``stream`` only.)"""
 
     def make_capture(self, frame: Any, stamp: Stamp, reading: EncoderReading) -> Any:
         """The capture to send (and keep for resending): ``frame`` tagged with ``reading``."""
@@ -225,7 +257,7 @@ class ScanStatus:
 
     ``values``: scan (number of starts), state, view (1-based), total,
     captured, receipted, resends, move_retries, capture_retries,
-    lost_in_transport, malformed, motion_s, shutter_s. ``problem`` (ERROR)
+    lost_in_transport, malformed, motion_s, shutter_s, trigger (this scan's). ``problem`` (ERROR)
     and ``warning`` (WARN): empty when none; ``summary``: one line.
     """
 
@@ -263,6 +295,7 @@ class ScanSequence:
         self._history = EncoderHistory()
         self._readings: deque[tuple[float, float]] = deque(maxlen=_READINGS_KEPT)
         self._frames: OrderedDict[Stamp, Any] = OrderedDict()
+        self._earliest: Stamp | None = None    # stream: a view waits for a frame this late
         self._receivers: set = set()
         self._listeners: set = set()
         self._ledger = self._new_ledger()
@@ -294,9 +327,15 @@ class ScanSequence:
             self._cv.notify_all()
 
     def frame(self, stamp: Stamp, frame: Any) -> None:
-        """A camera frame; the last few are kept by stamp for the shutter that took them."""
+        """A camera frame; the last few are kept by stamp for the shutter that took them
+        (``stream``: only while a view waits, and only those stamped late enough, so a
+        fast stream of large frames does not pile up)."""
+        stamp = tuple(stamp)
         with self._cv:
-            self._frames[tuple(stamp)] = frame
+            if self.settings.trigger == "stream" and (self._earliest is None
+                                                      or stamp < self._earliest):
+                return
+            self._frames[stamp] = frame
             while len(self._frames) > _FRAMES_KEPT:
                 self._frames.popitem(last=False)
             self._cv.notify_all()
@@ -358,13 +397,16 @@ class ScanSequence:
         """Whether a run is under way (or about to start)."""
         return self._state in _ACTIVE
 
-    def start(self) -> tuple[bool, str]:
-        """A new scan from the first view (captures of the last one forgotten); call
-        :meth:`run` next when accepted."""
+    def start(self, settings: ScanSettings | None = None) -> tuple[bool, str]:
+        """A new scan from the first view (captures of the last one forgotten), with
+        ``settings`` from now on if given (a resume keeps them); call :meth:`run` next when
+        accepted."""
         with self._cv:
             if self.active:
                 return False, (f"a scan is running (view {self._view + 1} of {len(self)}); "
                                "call scan/cancel first")
+            if settings is not None:
+                self.settings = settings
             self._ledger = self._new_ledger()
             self._counts = self._new_counts()
             self._problem = self._warning = ""
@@ -638,16 +680,19 @@ class ScanSequence:
         raise _Fault(f"no frame: {reason} (after {retries + 1} attempts)")
 
     def _shoot(self) -> tuple[Stamp, Any, EncoderReading]:
-        """Release the shutter: ``(stamp, frame, encoder reading)``, or StepFailed saying why
-        not."""
+        """Take the view's frame: ``(stamp, frame, encoder reading)``, or StepFailed saying
+        why not."""
         timeout_s = self.settings.capture_timeout_s
-        stamp = tuple(self._ports.shutter(timeout_s=timeout_s, cancelled=self.cancelled))
-        if not self._ports.wait_for(self._cv, lambda: stamp in self._frames
-                                    or self.cancelled.is_set(), timeout_s) \
-                or stamp not in self._frames:
-            self._check_cancel()
-            raise StepFailed(f"frame at stamp {_format(stamp)} announced by the camera "
-                             f"but not received within {timeout_s:g} s")
+        if self.settings.trigger == "stream":
+            stamp = self._streamed(timeout_s)
+        else:
+            stamp = tuple(self._ports.shutter(timeout_s=timeout_s, cancelled=self.cancelled))
+            if not self._ports.wait_for(self._cv, lambda: stamp in self._frames
+                                        or self.cancelled.is_set(), timeout_s) \
+                    or stamp not in self._frames:
+                self._check_cancel()
+                raise StepFailed(f"frame at stamp {_format(stamp)} announced by the camera "
+                                 f"but not received within {timeout_s:g} s")
         gap_s = self.settings.encoder_max_gap_s
         # The first reading after the shutter, if it comes soon, may be nearer than the last.
         self._ports.wait_for(self._cv, lambda: self._history.has_after(stamp), gap_s)
@@ -658,6 +703,34 @@ class ScanSequence:
             except ValueError as exc:
                 raise StepFailed(str(exc)) from None
         return stamp, frame, reading
+
+    def _streamed(self, timeout_s: float) -> Stamp:
+        """The stamp of the first streamed frame stamped at or after now plus the exposure
+        delay (the frame is then in ``_frames``); StepFailed if none comes in time."""
+        now_ns = _nanoseconds(tuple(self._ports.stamp_now()))
+        earliest = divmod(now_ns + round(self.settings.exposure_delay_s * 1e9), 1_000_000_000)
+
+        def first() -> Stamp | None:
+            late = [s for s in self._frames if s >= earliest]
+            return min(late) if late else None
+
+        with self._cv:
+            self._frames.clear()                 # of an earlier view
+            self._earliest = earliest
+        try:
+            if not self._ports.wait_for(self._cv, lambda: first() is not None
+                                        or self.cancelled.is_set(), timeout_s):
+                self._check_cancel()
+                raise StepFailed(f"no camera frame stamped at or after {_format(earliest)} "
+                                 f"(the axes settled, plus {self.settings.exposure_delay_s:g} "
+                                 f"s) within {timeout_s:g} s: is the camera streaming on "
+                                 "image_raw?")
+            self._check_cancel()
+            with self._cv:
+                return first()
+        finally:
+            with self._cv:
+                self._earliest = None
 
     # -- state and diagnostics (any thread) --------------------------------------------------
 
@@ -681,7 +754,8 @@ class ScanSequence:
                           shutter_s=round(self._counts["shutter_s"], 4), scan=self._scan,
                           state=self._state, view=self._view + 1, total=len(self),
                           captured=self._ledger.captured, receipted=self._ledger.receipted,
-                          lost_in_transport=self._ledger.given_up)
+                          lost_in_transport=self._ledger.given_up,
+                          trigger=self.settings.trigger)
             problem, warning = self._problem, self._warning
         summary = (f"{values['state']}: {values['captured']} of {values['total']} views "
                    f"captured, {values['receipted']} receipted")

@@ -12,7 +12,14 @@ The recorder node (:mod:`sfs_ros.nodes.recorder_node`) writes its bags to
 ``OUTPUT_DIR/bags/``. With ``mock=True`` the hardware is the mock hardware node (simulated
 controller + mock camera), whose pseudo-terminal is linked at
 ``OUTPUT_DIR/ttyMOCK`` for the motor node; otherwise the camera node and the
-motor node's ``port`` from ``motor.yaml``.
+motor node's ``port`` from ``motor.yaml``, or, with ``camera_topic``, the
+frames of any camera driver the user runs (the camera node is then not
+started; the scan node takes the streamed frames, ``camera_trigger`` stream).
+
+Every node gets ``params_file`` last among its files (default
+``overrides.yaml`` of the config folder, which sets nothing): a site's own
+values, without editing the installed files. The cell runs in the namespace
+:data:`sfs_ros.ros.names.NAMESPACE` unless told otherwise.
 """
 
 from __future__ import annotations
@@ -25,6 +32,8 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+
+from sfs_ros.ros.names import NAMESPACE
 
 __all__ = ["NodeSpec", "Cell", "RestartPolicy", "cell_nodes", "default_config_dir",
            "wait_until_signal"]
@@ -52,17 +61,20 @@ def default_config_dir() -> Path:
 @dataclass
 class NodeSpec:
     """One node process: ``module`` under ``sfs_ros.nodes``, its params files (in order,
-    later ones win) and ``-p name:=value`` overrides."""
+    later ones win), ``-p name:=value`` overrides and ``-r from:=to`` topic remaps."""
 
     name: str
     module: str
     params_files: list[str]
     overrides: dict[str, str] = field(default_factory=dict)
+    remaps: dict[str, str] = field(default_factory=dict)
 
     def command(self, namespace: str = "") -> list[str]:
         args = [sys.executable, "-m", f"sfs_ros.nodes.{self.module}", "--ros-args"]
         if namespace:
             args += ["-r", f"__ns:={namespace}"]
+        for name, target in self.remaps.items():
+            args += ["-r", f"{name}:={target}"]
         for path in self.params_files:
             args += ["--params-file", path]
         for name, value in self.overrides.items():
@@ -70,14 +82,34 @@ class NodeSpec:
         return args
 
 
-def cell_nodes(config_dir, output_dir, *, mock: bool, record: bool = False) -> list[NodeSpec]:
+#: The params file every node gets last by default: it sets nothing.
+OVERRIDES_FILE = "overrides.yaml"
+
+
+def cell_nodes(config_dir, output_dir, *, mock: bool, record: bool = False,
+               params_file=None, port: str | None = None, camera_device: str | None = None,
+               camera_topic: str | None = None) -> list[NodeSpec]:
     """The cell's node processes in start order (hardware first, the scan node last).
 
-    The recorder is always there (idle until ``record/start``); ``record``
-    makes it record every scan (``with_scan``).
+    The recorder is always there (idle until ``recorder/start``); ``record``
+    makes it record every scan (``with_scan``). ``params_file``: given to
+    every node after its own files (default ``overrides.yaml`` of
+    ``config_dir``). The real hardware only (ValueError with ``mock``):
+    ``port``, the motor controller's serial port (default: motor.yaml's);
+    ``camera_device``, the camera node's ``device`` (default: camera.yaml's);
+    ``camera_topic``, the image topic of another camera driver: no camera
+    node, the scan node takes that topic's streamed frames.
     """
     config = Path(config_dir)
     output = Path(output_dir).resolve()
+    real_only = {"port": port, "camera_device": camera_device, "camera_topic": camera_topic}
+    given = [name for name, value in real_only.items() if value]
+    if mock and given:
+        raise ValueError(f"{', '.join(given)}: only for the real hardware (the mock cell has "
+                         "its own controller and camera)")
+    if camera_device and camera_topic:
+        raise ValueError("camera_device and camera_topic: one or the other (our camera node "
+                         "on a device, or another driver's topic)")
 
     def files(*names: str) -> list[str]:
         paths = [config / n for n in names]
@@ -86,24 +118,36 @@ def cell_nodes(config_dir, output_dir, *, mock: bool, record: bool = False) -> l
             raise FileNotFoundError(f"config file(s) missing: {', '.join(missing)}")
         return [str(p) for p in paths]
 
+    site = str(Path(params_file).resolve()) if params_file else files(OVERRIDES_FILE)[0]
+    if not Path(site).is_file():
+        raise FileNotFoundError(f"params file missing: {site}")
+
+    def spec(name: str, module: str, names: list[str], overrides=None, remaps=None):
+        return NodeSpec(name, module, files(*names) + [site], overrides or {}, remaps or {})
+
     link = output / "ttyMOCK"
     if mock:
-        hardware = [NodeSpec("mock_hardware", "mock_hardware_node",
-                             files("rig.yaml", "camera.yaml", "mock_hardware.yaml"),
-                             {"port_link": str(link)}),
-                    NodeSpec("motor", "motor_node", files("motor.yaml"), {"port": str(link)})]
+        hardware = [spec("mock_hardware", "mock_hardware_node",
+                         ["rig.yaml", "camera.yaml", "mock_hardware.yaml"],
+                         {"port_link": str(link)}),
+                    spec("motor", "motor_node", ["motor.yaml"], {"port": str(link)})]
     else:
-        hardware = [NodeSpec("camera", "camera_node", files("rig.yaml", "camera.yaml")),
-                    NodeSpec("motor", "motor_node", files("motor.yaml"))]
+        camera = [] if camera_topic else [
+            spec("camera", "camera_node", ["rig.yaml", "camera.yaml"],
+                 {"device": camera_device} if camera_device else {})]
+        hardware = camera + [spec("motor", "motor_node", ["motor.yaml"],
+                                  {"port": port} if port else {})]
+    stream = ({"camera_trigger": "stream"}, {"image_raw": camera_topic}) if camera_topic \
+        else ({}, {})
     return hardware + [
-        NodeSpec("segmentation", "segmentation_node", files("segmentation.yaml")),
-        NodeSpec("reconstruction", "reconstruction_node",
-                 files("rig.yaml", "reconstruction.yaml"), {"output_dir": str(output)}),
-        NodeSpec("recorder", "recorder_node", files("recorder.yaml"),
-                 {"output_dir": str(output), **({"with_scan": "true"} if record else {})}),
-        NodeSpec("scan", "scan_node", files("scan.yaml"),
-                 {"plan_file": files("scan_plan.yaml")[0],
-                  "progress_dir": str(output / "scan_progress")}),
+        spec("segmentation", "segmentation_node", ["segmentation.yaml"]),
+        spec("reconstruction", "reconstruction_node", ["rig.yaml", "reconstruction.yaml"],
+             {"output_dir": str(output)}),
+        spec("recorder", "recorder_node", ["recorder.yaml"],
+             {"output_dir": str(output), **({"with_scan": "true"} if record else {})}),
+        spec("scan", "scan_node", ["scan.yaml"],
+             {"plan_file": files("scan_plan.yaml")[0],
+              "progress_dir": str(output / "scan_progress"), **stream[0]}, stream[1]),
     ]
 
 
@@ -112,17 +156,18 @@ class Cell:
 
     specs : list of NodeSpec
     namespace : str
-        ROS namespace of every node ("" = the root).
+        ROS namespace of every node ("" or "/" = the root; made absolute: "cell1" is
+        "/cell1").
     log : file, optional
         Where the nodes' output lines go, prefixed with ``[name]``; None = discarded.
     env : dict, optional
         Environment of the processes (default: this process's).
     """
 
-    def __init__(self, specs: list[NodeSpec], *, namespace: str = "", log=sys.stdout,
+    def __init__(self, specs: list[NodeSpec], *, namespace: str = NAMESPACE, log=sys.stdout,
                  env: dict | None = None):
         self.specs = specs
-        self.namespace = namespace
+        self.namespace = "/" + namespace.strip("/") if namespace.strip("/") else ""
         self._log = log
         self._env = dict(os.environ if env is None else env, PYTHONUNBUFFERED="1")
         self._log_lock = threading.Lock()

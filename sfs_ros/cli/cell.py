@@ -1,10 +1,13 @@
 """``sfs-cell``: bring up the whole cell, each node a separate process, until Ctrl-C.
 
     sfs-cell --mock -o out/cell          # simulated hardware
-    sfs-cell -o /data/scans              # the real camera and motor controller
+    sfs-cell -o /data/scans --port /dev/ttyUSB0 --camera-device /dev/video2
+    sfs-cell -o /data/scans --camera-topic /usb_cam/image_raw   # another camera driver
 
 The nodes read the YAML files of ``--config`` (default: the installed
-``share/sfs_ros/config``); files and meshes go to ``--output-dir``. Then,
+``share/sfs_ros/config``), then ``--params-file`` (a site's own values);
+files and meshes go to ``--output-dir``. The nodes run in the namespace
+``/sfs`` (``--namespace``). Then,
 from another terminal or a program: ``scan/start``, and ``reconstruct``
 once the scan is done (see the README). Ctrl-C (SIGINT) or SIGTERM stops
 the nodes, the last started first. A node that ends by itself is started
@@ -17,6 +20,8 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+
+from sfs_ros.ros.names import NAMESPACE
 
 from .bringup import Cell, cell_nodes, default_config_dir, wait_until_signal
 
@@ -31,10 +36,26 @@ def build_parser() -> argparse.ArgumentParser:
                    help="folder of the scans, meshes and reports")
     p.add_argument("--config", type=Path, default=None,
                    help="folder of the YAML parameter files (default: the installed ones)")
-    p.add_argument("--namespace", default="", help="ROS namespace of all nodes")
+    p.add_argument("--namespace", default=NAMESPACE,
+                   help=f"ROS namespace of all nodes, absolute (default {NAMESPACE}; "
+                        "'' = the root)")
+    p.add_argument("--params-file", type=Path, default=None,
+                   help="YAML parameters given to every node after its own files (default: "
+                        "the config folder's overrides.yaml, which sets nothing)")
+    p.add_argument("--port", default=None,
+                   help="real hardware: the motor controller's serial port (default: "
+                        "motor.yaml's)")
+    camera = p.add_mutually_exclusive_group()
+    camera.add_argument("--camera-device", default=None,
+                        help="real hardware: our camera node's device, e.g. /dev/video2 "
+                             "(default: camera.yaml's)")
+    camera.add_argument("--camera-topic", default=None,
+                        help="real hardware: take the frames another camera driver streams on "
+                             "this image topic (usb_cam, v4l2_camera, GenICam) instead of "
+                             "starting our camera node")
     p.add_argument("--record", action="store_true",
                    help="record every scan as a rosbag2 in OUTPUT_DIR/bags (the recorder "
-                        "also takes record/start and record/stop at any time)")
+                        "also takes recorder/start and recorder/stop at any time)")
     return p
 
 
@@ -43,8 +64,10 @@ def main(argv=None) -> int:
     try:
         config = args.config or default_config_dir()
         args.output_dir.mkdir(parents=True, exist_ok=True)
-        specs = cell_nodes(config, args.output_dir, mock=args.mock, record=args.record)
-    except (FileNotFoundError, OSError) as exc:
+        specs = cell_nodes(config, args.output_dir, mock=args.mock, record=args.record,
+                           params_file=args.params_file, port=args.port,
+                           camera_device=args.camera_device, camera_topic=args.camera_topic)
+    except (ValueError, OSError) as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
     print(f"{PROG}: starting {', '.join(s.name for s in specs)} (config {config}); "

@@ -48,7 +48,7 @@ class BackdropModel:
         return out.reshape(rgb.shape[:-1])
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _min_mahalanobis(pixels, means, inverses, out):
     """``out[i]`` = min over clusters k of sqrt(r^T inverses[k] r), r = pixels[i] - means[k]."""
     for i in range(pixels.shape[0]):

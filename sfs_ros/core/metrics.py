@@ -10,7 +10,13 @@ from scipy.spatial import cKDTree
 
 from .geometry.camera import Camera
 from .geometry.grid import VoxelGrid
-from .render import _pixel_box, as_mesh_arrays, rasterize_silhouette, triangle_edges
+from .render import (
+    _pixel_box,
+    as_mesh_arrays,
+    face_orientation,
+    rasterize_silhouette,
+    triangle_edges,
+)
 
 __all__ = ["ChamferResult", "volume_iou", "silhouette_iou", "reprojection_iou",
            "reprojection_ious",
@@ -89,8 +95,9 @@ def _coverage_overlap(vertices, faces, P, heights, widths, masks, moff, front_on
                         or np.ceil(min(uv[a, 1], uv[b, 1], uv[c, 1]) - 1e-6)
                         > np.floor(max(uv[a, 1], uv[b, 1], uv[c, 1]) + 1e-6)):
                     continue
-            orientation = triangle_edges(h, faces, f, coef)
-            if orientation == 0.0 or (front_only and orientation != _FRONT):
+            if front_only and face_orientation(h, faces, f) != _FRONT:
+                continue  # (the edges of a back face are not needed)
+            if triangle_edges(h, faces, f, coef) == 0.0:
                 continue
             c0, c1, r0, r1 = _pixel_box(h, faces, f, W, H)
             for row in range(r0, r1 + 1):

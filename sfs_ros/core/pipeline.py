@@ -30,6 +30,7 @@ from .meshing.marching import hull_marching_cubes_mesh
 from .meshing.mesh_checks import check_mesh
 from .metrics import reprojection_ious
 from .segment import SegmentationParams, segment
+from .workers import map_in_threads
 
 __all__ = ["MESHERS", "ReconstructionParams", "Reconstruction", "reconstruct"]
 
@@ -153,25 +154,40 @@ def _timed(seconds: dict[str, float], stage: str):
         seconds[stage] = seconds.get(stage, 0.0) + time.perf_counter() - start
 
 
+def _read_and_segment(view: View, params: SegmentationParams,
+                      given: np.ndarray | None) -> np.ndarray | str:
+    """The view's silhouette (H, W) bool (``given``, else segmented from its image), or why
+    it cannot be used."""
+    if given is not None:
+        expected = (view.camera.height, view.camera.width)
+        if np.shape(given) != expected or np.asarray(given).dtype != np.bool_:
+            return (f"given silhouette is {np.asarray(given).dtype} {np.shape(given)}, "
+                    f"expected {expected} bool (the camera's size)")
+        return given if given.any() else "empty silhouette: no object found"
+    try:
+        image = read_image(view.image_path, keep_alpha=not params.ignore_alpha,
+                           expected_size=(view.camera.width, view.camera.height))
+    except ValueError as err:
+        return str(err)
+    result = segment(image, params)
+    return "empty silhouette: no object found" if result.empty else result.mask
+
+
 def _segment_views(views: list[View], params: SegmentationParams, progress: Progress,
-                   rejected: list[dict]) -> tuple[list[View], list[np.ndarray]]:
-    """Read and segment every view; bad ones go to ``rejected`` with the reason."""
+                   rejected: list[dict], given: dict) -> tuple[list[View], list[np.ndarray]]:
+    """Read and segment every view not in ``given`` (in threads, results in input order);
+    bad ones go to ``rejected`` with the reason."""
     kept, masks = [], []
-    for n, view in enumerate(views):
-        progress("segmentation", n / max(1, len(views)))
-        try:
-            image = read_image(view.image_path, keep_alpha=not params.ignore_alpha,
-                               expected_size=(view.camera.width, view.camera.height))
-        except ValueError as err:
-            rejected.append({"view": view.name, "reason": str(err)})
-            continue
-        result = segment(image, params)
-        if result.empty:
-            rejected.append({"view": view.name, "reason": "empty silhouette: no object found"})
-            continue
-        kept.append(view)
-        masks.append(result.mask)
-    progress("segmentation", 1.0)
+    progress("segmentation", 0.0)
+    results = map_in_threads(lambda view: _read_and_segment(view, params, given.get(view.name)),
+                             views)
+    for n, (view, result) in enumerate(zip(views, results)):
+        if isinstance(result, str):
+            rejected.append({"view": view.name, "reason": result})
+        else:
+            kept.append(view)
+            masks.append(result)
+        progress("segmentation", (n + 1) / max(1, len(views)))
     return kept, masks
 
 
@@ -202,8 +218,11 @@ def _mesh(occupancy: np.ndarray, grid: VoxelGrid, params: ReconstructionParams, 
 
 
 def reconstruct(view_set: ViewSet, params: ReconstructionParams = ReconstructionParams(), *,
-                progress: Progress | None = None) -> Reconstruction:
+                progress: Progress | None = None, masks: dict | None = None) -> Reconstruction:
     """Reconstruct the object seen in ``view_set``.
+
+    ``masks`` ({view name: (H, W) bool}, optional) are silhouettes the caller already
+    has (e.g. a live scan's received masks): those views are not read nor segmented.
 
     Views that cannot be read, have an empty silhouette or disagree with the
     others are rejected and reported, never silently used or dropped. Raises
@@ -221,7 +240,8 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
         raise ValueError(f"held-out views {unknown} are not in the input (views: {names[:5]}...)")
 
     with _timed(timings, "segmentation"):
-        views, masks = _segment_views(view_set.views, seg_params, progress, rejected)
+        views, masks = _segment_views(view_set.views, seg_params, progress, rejected,
+                                      masks or {})
     used = [i for i, v in enumerate(views) if v.name not in params.holdout]
     if not used:
         raise ValueError(

@@ -63,6 +63,19 @@ def homogeneous_pixels(vertices: np.ndarray, camera: Camera) -> np.ndarray:
 
 
 @njit(cache=True)
+def face_orientation(h, faces, f):
+    """Orientation of face ``f`` in the homogeneous pixels ``h``: the sign of
+    det(h_a, h_b, h_c) (+1, -1, or 0 if degenerate or NaN); :func:`triangle_edges`'s."""
+    a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
+    det = (h[a, 0] * (h[b, 1] * h[c, 2] - h[b, 2] * h[c, 1])
+           - h[a, 1] * (h[b, 0] * h[c, 2] - h[b, 2] * h[c, 0])
+           + h[a, 2] * (h[b, 0] * h[c, 1] - h[b, 1] * h[c, 0]))
+    if not (det > 0.0 or det < 0.0):  # zero (edge-on) or NaN
+        return 0.0
+    return 1.0 if det > 0.0 else -1.0
+
+
+@njit(cache=True)
 def triangle_edges(h, faces, f, coef):
     """Oriented edge functions of face ``f``; returns the orientation (+1, -1, or 0 if degenerate).
 
@@ -71,13 +84,9 @@ def triangle_edges(h, faces, f, coef):
     A point with ``e == 0`` (exactly on the edge) is inside iff ``T == 1``: iff
     moving it by ``(eps, eps^2)`` would make ``e`` positive.
     """
-    a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
-    det = (h[a, 0] * (h[b, 1] * h[c, 2] - h[b, 2] * h[c, 1])
-           - h[a, 1] * (h[b, 0] * h[c, 2] - h[b, 2] * h[c, 0])
-           + h[a, 2] * (h[b, 0] * h[c, 1] - h[b, 1] * h[c, 0]))
-    if not (det > 0.0 or det < 0.0):  # zero (edge-on) or NaN
+    orientation = face_orientation(h, faces, f)
+    if orientation == 0.0:
         return 0.0
-    orientation = 1.0 if det > 0.0 else -1.0
     for k in range(3):
         p = faces[f, (k + 1) % 3]
         q = faces[f, (k + 2) % 3]
@@ -120,7 +129,7 @@ def _pixel_box(h, faces, f, width, height):
     return 0, width - 1, 0, height - 1
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _rasterize_kernel(h, depth, faces, face_id, bary, zbuf):
     height, width = face_id.shape
     coef = np.empty((3, 4))
@@ -239,7 +248,7 @@ def corner_normals(vertices: np.ndarray, faces: np.ndarray, *, crease_deg: float
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _shade_kernel(face_id, bary, faces, normals, colors, light, ambient, background, image):
     """``normals`` (m, 3, 3) per face corner, ``colors`` (n, 3) per vertex."""
     height, width = face_id.shape
@@ -278,7 +287,8 @@ def _rgb(value, name: str) -> np.ndarray:
 
 def render_image(vertices, faces, camera: Camera, *, vertex_colors=None,
                  background_rgb=(255, 255, 255), color_rgb=(170, 120, 70), light_dir=None,
-                 ambient: float = 0.25, noise_sigma: float = 2.0, seed=None) -> np.ndarray:
+                 ambient: float = 0.25, noise_sigma: float = 2.0, seed=None,
+                 normals=None) -> np.ndarray:
     """Render a z-buffered, Lambert-shaded, noisy RGB image of a mesh on a plain background.
 
     Shading is per pixel from interpolated corner normals (:func:`corner_normals`):
@@ -301,6 +311,9 @@ def render_image(vertices, faces, camera: Camera, *, vertex_colors=None,
         Standard deviation of additive Gaussian noise, grey levels, on every pixel.
     seed : int or numpy Generator, optional
         Seed of the noise.
+    normals : (m, 3, 3) float64, optional
+        The mesh's :func:`corner_normals`, computed when not given (pass them when
+        rendering one mesh from several cameras).
 
     Returns
     -------
@@ -330,7 +343,12 @@ def render_image(vertices, faces, camera: Camera, *, vertex_colors=None,
 
     face_id, bary, _ = rasterize_faces(vertices, faces, camera)
     image = np.empty((camera.height, camera.width, 3), dtype=np.float32)
-    _shade_kernel(face_id, bary, faces, corner_normals(vertices, faces),
+    if normals is None:
+        normals = corner_normals(vertices, faces)
+    elif np.shape(normals) != (len(faces), 3, 3):
+        raise ValueError(f"normals must be ({len(faces)}, 3, 3) corner normals, one per face "
+                         f"corner, got shape {np.shape(normals)}")
+    _shade_kernel(face_id, bary, faces, np.asarray(normals, dtype=np.float64),
                   np.ascontiguousarray(colors), light, float(ambient), background, image)
     if noise_sigma > 0:
         rng = np.random.default_rng(seed)

@@ -458,7 +458,7 @@ def _field_mean(coef, y, x):
     return total / np.float32(len(y) * len(x))
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _distance_kernel(rgb, coef, y, x, weight_sq, distance, hist):
     """Colour distance to the background field, and its 256-bin histogram.
 
@@ -532,7 +532,7 @@ def _disk(radius: int) -> np.ndarray:
     return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _lookup(table, labels):
     """``table[labels]``: (H, W) uint8 from a (N,) uint8 table and (H, W) int32 labels."""
     out = np.empty(labels.shape, np.uint8)
@@ -542,7 +542,7 @@ def _lookup(table, labels):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _areas(labels, n):
     """(n,) int64 pixel count of each label of (H, W) int32 ``labels`` (0..n-1)."""
     counts = np.zeros((4, n), np.int64)  # 4 interleaved counters: no chain of increments

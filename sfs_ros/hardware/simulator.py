@@ -297,12 +297,7 @@ class SimulatedGrbl:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=2.0)
-        with self._lock:
-            for name in ("_master", "_slave"):
-                fd = getattr(self, name)
-                if fd is not None:
-                    os.close(fd)
-                    setattr(self, name, None)
+        self._close_port()
 
     def __enter__(self) -> SimulatedGrbl:
         return self.start()

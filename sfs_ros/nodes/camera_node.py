@@ -4,8 +4,8 @@
 |---|---|---|---|
 | pub | ``image_raw`` | sensor_msgs/Image | rgb8, the rig's width x height |
 | pub | ``camera_info`` | sensor_msgs/CameraInfo | the rig's intrinsics, same header as its image |
-| pub | ``diagnostics`` | diagnostic_msgs/DiagnosticArray | 1 Hz and on every failure |
-| srv | ``capture`` | std_srvs/Trigger | take one frame now; message: JSON stamp, size, count |
+| pub | ``/diagnostics`` | diagnostic_msgs/DiagnosticArray | 1 Hz and on every failure |
+| srv | ``~/capture`` | std_srvs/Trigger | take one frame now; message: JSON stamp, size, count |
 
 ``image_raw`` and ``camera_info``: reliable, volatile, depth 10
 (:func:`sfs_ros.ros.capture_qos`): a triggered frame must not be dropped, and
@@ -50,6 +50,7 @@ from sfs_ros.hardware.cameras import CameraSource, FolderSource, FrameUnavailabl
 from sfs_ros.nodes.entry import run_node
 from sfs_ros.ros import capture_qos
 from sfs_ros.ros.convert import camera_info, diagnostic_array, image_to_msg
+from sfs_ros.ros.names import DIAGNOSTICS, private, status_name
 from sfs_ros.ros.pairing import stamp_key
 from sfs_ros.ros.params import Param, ParameterError, declare
 from sfs_ros.ros.rig_params import RIG_PARAMS, rig_calibration
@@ -134,9 +135,9 @@ class CameraNode(Node):
         qos = capture_qos(10)
         self._image_pub = self.create_publisher(Image, "image_raw", qos)
         self._info_pub = self.create_publisher(CameraInfo, "camera_info", qos)
-        self._diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
+        self._diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
         grabs = MutuallyExclusiveCallbackGroup()
-        self.create_service(Trigger, "capture", self._on_capture, callback_group=grabs)
+        self.create_service(Trigger, private("capture"), self._on_capture, callback_group=grabs)
         if values["rate_hz"] > 0:
             self.create_timer(1.0 / values["rate_hz"], self._take, callback_group=grabs)
         self.create_timer(1.0, self._publish_diagnostics)
@@ -196,7 +197,7 @@ class CameraNode(Node):
         values.update(source=self._source.name,
                       size=f"{self._size[0]}x{self._size[1]}")
         self._diag_pub.publish(diagnostic_array(
-            f"{self.get_name()}: camera", level, message, values,
+            status_name(self, "camera"), level, message, values,
             stamp=self.get_clock().now().to_msg(), hardware_id=self._source.name))
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import faulthandler
 import sys
 from collections.abc import Callable
 
@@ -22,8 +23,11 @@ def run_node(prog: str, make_node: Callable[[], Node | list[Node]], args=None, *
     A parameter refused at start-up prints one line ``prog: reason`` and exits
     with status 2. ``threads`` > 1 spins a multi-threaded executor (for nodes
     whose services wait on worker threads). The nodes are destroyed (in
-    reverse order) and rclpy shut down on every way out.
+    reverse order) and rclpy shut down on every way out. A fatal signal (SIGSEGV,
+    SIGABRT, ...) prints every thread's Python stack to stderr before the process
+    dies, so a crash in native code names where it happened.
     """
+    faulthandler.enable()
     rclpy.init(args=args)
     try:
         made = make_node()

@@ -3,10 +3,10 @@
 | kind | name | type | notes |
 |---|---|---|---|
 | pub | ``joint_states`` | sensor_msgs/JointState | turntable, carriage; rad; encoder read-back |
-| pub | ``diagnostics`` | diagnostic_msgs/DiagnosticArray | 1 Hz and on every fault |
+| pub | ``/diagnostics`` | diagnostic_msgs/DiagnosticArray | 1 Hz and on every fault |
 | sub | ``joint_command`` | sensor_msgs/JointState | target positions by joint name, rad |
-| srv | ``home`` | std_srvs/Trigger | homing cycle; also recovers from an alarm |
-| srv | ``stop`` | std_srvs/Trigger | stop now, keep the position |
+| srv | ``~/home`` | std_srvs/Trigger | homing cycle; also recovers from an alarm |
+| srv | ``~/stop`` | std_srvs/Trigger | stop now, keep the position |
 
 Behaviour
 ---------
@@ -63,6 +63,7 @@ from sfs_ros.hardware.driver import (
 )
 from sfs_ros.nodes.entry import run_node
 from sfs_ros.ros.convert import angles_from_joint_state, diagnostic_array, joint_state
+from sfs_ros.ros.names import DIAGNOSTICS, private, status_name
 from sfs_ros.ros.params import Param, ParameterError, declare, validating_callback
 from sfs_ros.ros.worker import Hold, JobCancelled, Worker
 
@@ -123,13 +124,13 @@ class MotorNode(Node):
         self._worker = Worker("motor-worker", on_error=self._job_failed)
 
         self._joints_pub = self.create_publisher(JointState, "joint_states", 10)
-        self._diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
+        self._diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
         reentrant = ReentrantCallbackGroup()
         polling = MutuallyExclusiveCallbackGroup()
         self.create_subscription(JointState, "joint_command", self._on_command, 10,
                                  callback_group=reentrant)
-        self.create_service(Trigger, "home", self._on_home, callback_group=reentrant)
-        self.create_service(Trigger, "stop", self._on_stop, callback_group=reentrant)
+        self.create_service(Trigger, private("home"), self._on_home, callback_group=reentrant)
+        self.create_service(Trigger, private("stop"), self._on_stop, callback_group=reentrant)
         self.create_timer(1.0 / self._p["status_rate_hz"], self._poll, callback_group=polling)
         self.create_timer(self._p["reconnect_period_s"], self._reconnect, callback_group=polling)
         self.create_timer(1.0, self._publish_diagnostics, callback_group=reentrant)
@@ -372,7 +373,7 @@ class MotorNode(Node):
             values.update(theta_rad=f"{self._position[0]:.6f}",
                           phi_rad=f"{self._position[1]:.6f}")
         self._diag_pub.publish(diagnostic_array(
-            f"{self.get_name()}: motor", level, message, values,
+            status_name(self, "motor"), level, message, values,
             stamp=self.get_clock().now().to_msg(), hardware_id=self._p["port"]))
 
     def destroy_node(self) -> None:

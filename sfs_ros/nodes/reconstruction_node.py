@@ -10,9 +10,9 @@
 | pub | ``camera_poses`` | geometry_msgs/PoseArray | the cameras of this scan's views, frame "turntable" |
 | pub | ``mesh`` | visualization_msgs/Marker | TRIANGLE_LIST of the last reconstruction |
 | pub | ``mesh_shape`` | shape_msgs/Mesh | the same mesh |
-| pub | ``diagnostics`` | diagnostic_msgs/DiagnosticArray | per event and at 1 Hz |
-| srv | ``reconstruct`` | std_srvs/Trigger | message: JSON summary of the written mesh |
-| srv | ``reset`` | std_srvs/Trigger | start a new scan |
+| pub | ``/diagnostics`` | diagnostic_msgs/DiagnosticArray | per event and at 1 Hz |
+| srv | ``~/reconstruct`` | std_srvs/Trigger | message: JSON summary of the written mesh |
+| srv | ``~/reset`` | std_srvs/Trigger | start a new scan |
 
 One node does both carving and meshing: both work on the same
 :class:`sfs_ros.cell.live.LiveReconstruction` (live hull, views persisted in a
@@ -70,8 +70,16 @@ kept in memory that the disk refused), ``scan_views``
 (views in this scan) and ``carve_s``, the seconds spent storing and carving
 this scan's views.
 
-Parameters: see :data:`PARAMS` (all read-only: they define the scan);
-``output_dir`` is required. Output files stay inside ``output_dir``.
+Per-scan settings: ``bounds_m``, ``resolution``, ``mesher`` and ``scan_name``
+(the next scan's folder and mesh name) can be set at run time, between
+scans; a value is checked when it is set (refused with the reason, the old
+one kept) and takes effect at the next ``reset`` (which ``scan/start``
+calls), so a scan is carved and meshed with one set of values. A
+``scan_name`` whose folder exists by then makes that ``reset`` fail with the
+reason (the scan pauses on it): choose a new one, or "" for ``scan_NNN``.
+
+Parameters: see :data:`PARAMS` (the others read-only); ``output_dir`` is
+required. Output files stay inside ``output_dir``.
 """
 
 from __future__ import annotations
@@ -94,7 +102,7 @@ from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker
 
-from sfs_ros.cell.live import DuplicateViewError, LiveReconstruction
+from sfs_ros.cell.live import DuplicateViewError, LiveReconstruction, check_scan_name
 from sfs_ros.core.carving.resolution import (
     default_memory_budget,
     grid_shape,
@@ -117,9 +125,10 @@ from sfs_ros.ros.convert import (
     msg_to_image,
     points_to_cloud,
 )
+from sfs_ros.ros.names import DIAGNOSTICS, private, status_name
 from sfs_ros.ros.paired_input import PairedInput, Stream
 from sfs_ros.ros.pairing import format_stamp, stamp_key, view_key
-from sfs_ros.ros.params import Param, ParameterError, declare
+from sfs_ros.ros.params import Param, ParameterError, declare, read, validating_callback
 from sfs_ros.ros.rig_params import RIG_PARAMS, rig_calibration
 from sfs_ros.ros.worker import Worker
 
@@ -129,16 +138,21 @@ NODE_NAME = "reconstruction"
 #: Frame of the hull and the mesh: the object frame on the turntable.
 FRAME_ID = "turntable"
 
-#: The node's parameters (all read-only): the rig calibration, then the scan's own.
+#: The node's parameters: the rig calibration, then the scan's own (the per-scan settings
+#: settable at run time, see the module's description).
 PARAMS: list[Param] = [
     *RIG_PARAMS,
     Param("bounds_m", [-0.1, -0.1, 0.0, 0.1, 0.1, 0.2], "Carving box [xmin, ymin, zmin, xmax, "
-          "ymax, zmax], metres, object frame.", read_only=True,
-          constraints="six values, min < max on each axis"),
+          "ymax, zmax], metres, object frame.",
+          constraints="six values, min < max on each axis; from the next reset"),
     Param("resolution", 192, "Voxels along the longest side of the box (live hull and final "
-          "reconstruction).", bounds=(8, 2048), read_only=True),
+          "reconstruction).", bounds=(8, 2048), constraints="from the next reset"),
     Param("mesher", MESHERS[0], "Surface extraction of the final reconstruction.",
-          choices=MESHERS, read_only=True),
+          choices=MESHERS, constraints="from the next reset"),
+    Param("scan_name", "", "Name of the next scan's folder in output_dir and of its mesh "
+          "(<name>.ply); empty = scan_NNN, the next free number.",
+          constraints="from the next reset; 1-100 letters, digits, '_', '-', '.', a folder "
+          "not yet in output_dir"),
     Param("output_dir", "", "Folder for scan session folders, meshes and reports (created if "
           "needed); every file the node writes stays inside it.", read_only=True,
           constraints="required, non-empty"),
@@ -182,6 +196,11 @@ def _store_problem(stamp, live: LiveReconstruction, exc: OSError, waiting: int) 
             f"view(s) kept in memory without a receipt, stored as soon as a write succeeds")
 
 
+def _scan_settings(values: dict) -> tuple:
+    """The settings that need a new :class:`LiveReconstruction` when they change."""
+    return tuple(values["bounds_m"]), values["resolution"], values["mesher"]
+
+
 def _internal_error(job: str, exc: Exception) -> str:
     return f"internal error in {job}: {type(exc).__name__}: {exc}"
 
@@ -218,16 +237,16 @@ class ReconstructionNode(Node):
                 else default_memory_budget()
         except ValueError as exc:
             raise ParameterError("max_memory", str(exc)) from None
+        self._budget = budget
+        self._calibration = calibration
         self._live = None
-        self._refusal = ""     # why no reconstruction can be held (the node stays up)
-        try:
-            voxel_m = float(np.max(bounds[1] - bounds[0])) / values["resolution"]
-            refuse_unfit_grid(grid_shape(bounds, voxel_m), budget,
-                              f"resolution {values['resolution']}")
-        except ValueError as exc:
-            self._refusal = f"refused: {exc}"
+        # Why no reconstruction can be held (the node stays up; a reset with a resolution
+        # that fits ends it).
+        self._refusal = self._grid_refusal(values)
         if not self._refusal:
             try:
+                # scan_name is for the next reset: a respawned node must not be refused
+                # because the scan it was named for is on disk already.
                 self._live = LiveReconstruction(calibration, bounds,
                                                 output_dir=values["output_dir"],
                                                 resolution=values["resolution"],
@@ -235,6 +254,9 @@ class ReconstructionNode(Node):
             except (ValueError, OSError) as exc:
                 raise ParameterError("output_dir" if isinstance(exc, OSError)
                                      else "resolution", str(exc)) from None
+        self._scan_settings = _scan_settings(values)
+        self.add_on_set_parameters_callback(validating_callback(self, PARAMS,
+                                                                self._check_scan_settings))
         self._hull_period = 0.0 if values["hull_rate_hz"] == 0 else 1.0 / values["hull_rate_hz"]
         self._max_hull_points = values["max_hull_points"]
         depth = values["queue_depth"]
@@ -257,7 +279,7 @@ class ReconstructionNode(Node):
         self._cameras: list = []   # of this scan's views, for camera_poses (worker thread)
         self._marker_pub = self.create_publisher(Marker, "mesh", result_qos())
         self._shape_pub = self.create_publisher(Mesh, "mesh_shape", result_qos())
-        self._diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
+        self._diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
         self._input = PairedInput(
             self, Stream(Image, "capture/mask", "mask", _decode_mask),
             Stream(JointState, "capture/mask_joint_state", "joint state",
@@ -267,9 +289,9 @@ class ReconstructionNode(Node):
         if values["colour"]:
             self.create_subscription(Image, "capture/image", self._on_image, qos,
                                      callback_group=inputs)
-        self.create_service(Trigger, "reconstruct", self._on_reconstruct,
+        self.create_service(Trigger, private("reconstruct"), self._on_reconstruct,
                             callback_group=services)
-        self.create_service(Trigger, "reset", self._on_reset, callback_group=services)
+        self.create_service(Trigger, private("reset"), self._on_reset, callback_group=services)
         self.create_timer(1.0, self._publish_diagnostics, callback_group=inputs)
         self.create_timer(STORE_RETRY_S, self._retry_unstored, callback_group=inputs)
 
@@ -387,11 +409,54 @@ class ReconstructionNode(Node):
             self._report_problem(f"captured image at stamp {format_stamp(stamp)} not kept for "
                                  f"colour: {exc}")
 
+    def _grid_refusal(self, values: dict) -> str:
+        """Why the voxel grid of ``values`` cannot be held within the memory budget ("" if it
+        can), with the memory it would need; nothing is allocated."""
+        bounds = _bounds(values)
+        voxel_m = float(np.max(bounds[1] - bounds[0])) / values["resolution"]
+        try:
+            refuse_unfit_grid(grid_shape(bounds, voxel_m), self._budget,
+                              f"resolution {values['resolution']}")
+        except ValueError as exc:
+            return f"refused: {exc}"
+        return ""
+
+    def _check_scan_settings(self, values: dict) -> None:
+        """ParameterError for per-scan settings that cannot make a scan."""
+        _bounds(values)
+        refusal = self._grid_refusal(values)
+        if refusal:
+            raise ParameterError("resolution", refusal)
+        if values["scan_name"]:
+            try:
+                check_scan_name(values["output_dir"], values["scan_name"])
+            except ValueError as exc:
+                raise ParameterError("scan_name", str(exc)) from None
+
     def _reset(self) -> tuple[bool, str]:
-        """Start a new scan; publishes an empty hull."""
-        if self._live is None:
-            return False, self._refusal
-        self._live.reset()
+        """Start a new scan with the per-scan settings as they are now; publishes an empty
+        hull. (False, the reason) if the scan name is taken or the grid does not fit in
+        memory: nothing changes."""
+        values = read(self, PARAMS)
+        settings, name = _scan_settings(values), values["scan_name"] or None
+        refusal = self._grid_refusal(values)
+        if refusal:
+            self.get_logger().error(refusal)
+            return False, refusal
+        try:
+            if self._live is None or settings != self._scan_settings:
+                self._live = LiveReconstruction(
+                    self._calibration, _bounds(values), output_dir=values["output_dir"],
+                    resolution=values["resolution"], mesher=values["mesher"], scan_name=name)
+                self._scan_settings, self._refusal = settings, ""
+                self.get_logger().info(f"new scan settings: box {values['bounds_m']}, "
+                                       f"resolution {values['resolution']}, {values['mesher']}")
+            else:
+                self._live.reset(name)
+        except ValueError as exc:
+            text = f"reset refused: {exc}"
+            self.get_logger().error(text)
+            return False, text
         self._unstored.clear()
         self._cameras = []
         self._publish_poses()
@@ -503,7 +568,7 @@ class ReconstructionNode(Node):
                       waiting_joint_states=self._input.pending("second"),
                       unstored=len(self._unstored))
         self._diag_pub.publish(diagnostic_array(
-            f"{self.get_name()}: reconstruction", level, message, values,
+            status_name(self, "reconstruction"), level, message, values,
             stamp=self.get_clock().now().to_msg()))
 
 

@@ -6,12 +6,12 @@
 | sub | ``capture/joint_state``, ``capture/mask_joint_state`` | sensor_msgs/JointState | captures |
 | sub | ``capture/stored`` | std_msgs/Header | captures QoS |
 | sub | ``joint_states``, ``camera_info`` | sensor_msgs/JointState, CameraInfo | depth 10 |
-| sub | ``diagnostics`` | diagnostic_msgs/DiagnosticArray | depth 10 |
+| sub | ``/diagnostics`` | diagnostic_msgs/DiagnosticArray | in the bag as ``<ns>/diagnostics`` |
 | sub | ``hull``, ``camera_poses`` | sensor_msgs/PointCloud2, geometry_msgs/PoseArray | results |
 | sub | ``mesh``, ``mesh_shape`` | visualization_msgs/Marker, shape_msgs/Mesh | results QoS |
-| pub | ``diagnostics`` | diagnostic_msgs/DiagnosticArray | 1 Hz and at start / stop |
-| srv | ``record/start`` | std_srvs/Trigger | open a bag; JSON ``{"path", "storage"}`` |
-| srv | ``record/stop`` | std_srvs/Trigger | close it; JSON ``{"path", "messages", ...}`` |
+| pub | ``/diagnostics`` | diagnostic_msgs/DiagnosticArray | 1 Hz and at start / stop |
+| srv | ``~/start`` | std_srvs/Trigger | open a bag; JSON ``{"path", "storage"}`` |
+| srv | ``~/stop`` | std_srvs/Trigger | close it; JSON ``{"path", "messages", ...}`` |
 | cli | ``<node>/list_parameters``, ``.../get_parameters`` | rcl_interfaces | ``parameter_nodes`` |
 
 Captures QoS: reliable, volatile, keep-last ``queue_depth``
@@ -28,8 +28,8 @@ and, once closed, ``metadata.yaml``): ``name`` is ``bag_name`` when set (a
 bag that exists already is refused), else ``bag_<UTC time>``, or
 ``scan_<NNN>_<UTC time>`` for a bag started with scan NNN.
 
-Starting and stopping: ``record/start`` answers the bag's ``path`` and
-``storage``, ``record/stop`` its ``path``, ``messages``, ``bytes`` (of message
+Starting and stopping: ``recorder/start`` answers the bag's ``path`` and
+``storage``, ``recorder/stop`` its ``path``, ``messages``, ``bytes`` (of message
 data), ``seconds`` (recording) and ``write_s`` (spent writing), as JSON; a
 second start or a stop with nothing recording is refused with the reason. With
 ``with_scan``, a new bag also opens when the scan node's diagnostics report
@@ -37,7 +37,7 @@ a scan number not seen before in state ``starting`` or ``running`` (the bag
 being recorded, if any, is closed first), and also when a capture arrives
 while no bag is open (so no capture is missed when the scan's report comes
 late: that bag is then taken as the scan's); recording goes on until
-``record/stop``, the next scan's start or shutdown. Each bag holds one scan
+``recorder/stop``, the next scan's start or shutdown. Each bag holds one scan
 from its first capture, and the ``reconstruct`` results that follow it.
 
 Parameters used: at every start a worker thread asks ``parameter_nodes``
@@ -100,6 +100,7 @@ from sfs_ros.nodes.entry import run_node
 from sfs_ros.ros import capture_qos, result_qos
 from sfs_ros.ros.convert import diagnostic_array, health
 from sfs_ros.ros.messages import message_class
+from sfs_ros.ros.names import DIAGNOSTICS, private, status_name
 from sfs_ros.ros.params import Param, ParameterError, declare, validating_callback
 from sfs_ros.ros.rig_params import rig_calibration
 from sfs_ros.ros.segmentation_params import segmentation_params
@@ -121,7 +122,7 @@ PARAMS: list[Param] = [
     Param("storage", STORAGES[0], "Storage of the bags.", choices=STORAGES, read_only=True),
     BAG_NAME,
     Param("with_scan", False, "Also open a new bag when a scan starts (and keep recording until "
-          "record/stop, the next scan or shutdown).", read_only=True),
+          "recorder/stop, the next scan or shutdown).", read_only=True),
     Param("parameter_nodes", ["reconstruction", "segmentation", "scan", "camera"], "Nodes "
           "(names relative to this node's namespace) whose parameters each bag stores.",
           read_only=True),
@@ -192,8 +193,11 @@ class RecorderNode(Node):
             # scan's start above all), and a keep-last queue of 10 would drop some.
             qos = capture_qos(p["queue_depth"]) if kind == CAPTURE \
                 else result_qos() if kind == RESULT else p["queue_depth"]
+            # The bag keeps every topic under the cell's namespace; the diagnostics come
+            # from the absolute topic they are published on.
             topic = self.resolve_topic_name(name)
-            self.create_subscription(message_class(msgtype), name,
+            source = DIAGNOSTICS if name == "diagnostics" else name
+            self.create_subscription(message_class(msgtype), source,
                                      partial(self._on_message, topic), qos,
                                      callback_group=inputs, raw=True)
             self._topics[topic] = (msgtype, kind)
@@ -203,14 +207,16 @@ class RecorderNode(Node):
         self._bag_scan_written: int | None = None    # the last sfs/scan record in the bag
         self._parameter_clients = {n: AsyncParameterClient(self, n, callback_group=clients)
                                    for n in p["parameter_nodes"]}
-        self._diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
-        self.create_service(Trigger, "record/start", self._on_start, callback_group=services)
-        self.create_service(Trigger, "record/stop", self._on_stop, callback_group=services)
+        self._diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
+        self.create_service(Trigger, private("record/start"), self._on_start,
+                            callback_group=services)
+        self.create_service(Trigger, private("record/stop"), self._on_stop,
+                            callback_group=services)
         self.create_timer(1.0, self._publish_diagnostics, callback_group=inputs)
         self._worker = Worker("recorder", on_error=self._job_failed)
         self.get_logger().info(
             f"recording into {Path(p['output_dir']) / 'bags'} ({p['storage']}"
-            f"{', a bag per scan' if p['with_scan'] else ''}): call record/start")
+            f"{', a bag per scan' if p['with_scan'] else ''}): call recorder/start")
 
     def _check_name(self, values: dict) -> None:
         if values["bag_name"]:
@@ -239,7 +245,7 @@ class RecorderNode(Node):
 
     def _watch_scan(self, data: bytes) -> None:
         """Queue a new bag when the scan node reports a new scan starting."""
-        report = scan_report(deserialize_message(data, DiagnosticArray))
+        report = scan_report(deserialize_message(data, DiagnosticArray), self.get_namespace())
         # "starting" is a moment (reset, homing): a report of the scan in any later
         # state opens its bag too, if that moment was missed.
         if report is not None and report[0] != self._scan_seen \
@@ -293,14 +299,14 @@ class RecorderNode(Node):
 
     def _stop(self) -> tuple[bool, str]:
         return self._close() if self._bag is not None \
-            else (False, "not recording: call record/start first")
+            else (False, "not recording: call recorder/start first")
 
     def _open(self, scan: int | None, *, rolling: bool) -> tuple[bool, str]:
         """Open a bag (closing the one open when ``rolling``): ``scan_NNN_<time>`` for scan
         NNN, ``scan_<time>`` for a scan not yet reported, ``bag_<time>`` on request."""
         if self._bag is not None:
             if not rolling:
-                return False, (f"already recording to {self._bag.path}; call record/stop "
+                return False, (f"already recording to {self._bag.path}; call recorder/stop "
                                "first")
             self._close()
         name = self.get_parameter("bag_name").value
@@ -351,7 +357,8 @@ class RecorderNode(Node):
     def _write_scan(self, log_ns: int, diagnostics: bytes) -> None:
         """Before a diagnostics message that reports a scan new to this bag, an ``sfs/scan``
         record of its number (one ns earlier: log times stay strictly increasing)."""
-        report = scan_report(deserialize_message(diagnostics, DiagnosticArray))
+        report = scan_report(deserialize_message(diagnostics, DiagnosticArray),
+                             self.get_namespace())
         if report is None or report[0] == self._bag_scan_written:
             return
         self._bag_scan_written = report[0]
@@ -473,7 +480,7 @@ class RecorderNode(Node):
             problem, warning = self._problem, self._warning
         level, message = health(problem, warning, f"recording to {values['path']}"
                                 if values["recording"] else "idle")
-        self._diag_pub.publish(diagnostic_array(f"{self.get_name()}: recorder", level, message,
+        self._diag_pub.publish(diagnostic_array(status_name(self, "recorder"), level, message,
                                                 values, stamp=self.get_clock().now().to_msg()))
 
 

@@ -4,29 +4,45 @@
 |---|---|---|---|
 | pub | ``joint_command`` | sensor_msgs/JointState | the next viewpoint, rad (to the motor node) |
 | sub | ``joint_states`` | sensor_msgs/JointState | encoder read-back (from the motor node) |
-| sub | ``image_raw`` | sensor_msgs/Image | frames of the camera, reliable |
+| sub | ``image_raw`` | sensor_msgs/Image | the camera's frames (any driver); QoS: see below |
 | pub | ``capture/image`` | sensor_msgs/Image | each view's frame, its shutter stamp |
 | pub | ``capture/joint_state`` | sensor_msgs/JointState | encoder angles at the shutter, same stamp |
 | sub | ``capture/stored`` | std_msgs/Header | receipts of the reconstruction node |
-| pub | ``diagnostics`` | diagnostic_msgs/DiagnosticArray | progress, at 1 Hz and on every event |
-| srv | ``scan/start`` | std_srvs/Trigger | a new scan from the first view |
-| srv | ``scan/cancel`` | std_srvs/Trigger | stop the axes, keep what was captured |
-| srv | ``scan/resume`` | std_srvs/Trigger | go on with the views not yet captured |
-| cli | ``home``, ``stop`` | std_srvs/Trigger | the motor node's |
-| cli | ``capture`` | std_srvs/Trigger | the camera's shutter |
-| cli | ``reset`` | std_srvs/Trigger | the reconstruction node's: a new scan |
+| pub | ``/diagnostics`` | diagnostic_msgs/DiagnosticArray | progress, at 1 Hz and on every event |
+| srv | ``~/start`` | std_srvs/Trigger | a new scan from the first view |
+| srv | ``~/cancel`` | std_srvs/Trigger | stop the axes, keep what was captured |
+| srv | ``~/resume`` | std_srvs/Trigger | go on with the views not yet captured |
+| cli | ``motor/home``, ``motor/stop`` | std_srvs/Trigger | the motor node's |
+| cli | ``camera/capture`` | std_srvs/Trigger | our camera's shutter (trigger ``shutter``) |
+| cli | ``reconstruction/reset`` | std_srvs/Trigger | the reconstruction node's: a new scan |
+
+Names: :mod:`sfs_ros.ros.names` (the node is ``scan``, so ``~/start`` is
+``scan/start`` in the cell's namespace). A camera driver publishing
+elsewhere is connected by a remap (``-r image_raw:=/my_camera/image_raw``).
 
 Capture topics and receipts: reliable, volatile, depth ``queue_depth``
-(:func:`sfs_ros.ros.capture_qos`): no view may be dropped.
+(:func:`sfs_ros.ros.capture_qos`): no view may be dropped. ``image_raw``:
+depth 10, reliable, or best effort with ``image_reliability`` (a driver that
+publishes with the sensor-data QoS).
 
 A scan, view by view, in plan order (:class:`sfs_ros.cell.scan_plan.ScanPlan`,
 from ``plan_file`` or the ring parameters): command the viewpoint, wait until
 the encoders have settled on it (:class:`sfs_ros.cell.settle.SettleDetector`),
-release the shutter (the camera's ``capture``), wait for that frame, and tag
-it with the encoder reading nearest to its stamp: ``capture/image`` (the
-frame) and ``capture/joint_state`` (that reading) share the frame's stamp.
+take the view's frame, and tag it with the encoder reading nearest to its
+stamp: ``capture/image`` (the frame) and ``capture/joint_state`` (that
+reading) share the frame's stamp.
 ``scan/start`` first resets the reconstruction and homes the axes (each can
 be switched off).
+
+The view's frame (``camera_trigger``): ``shutter`` calls our camera node's
+``capture`` and waits for the frame it announces; ``stream`` takes the frame
+from any driver that streams ``image_raw`` (``usb_cam``, ``v4l2_camera``, a
+GenICam driver): the first frame stamped at or after the moment the axes
+settled plus ``exposure_delay_s``. Both can change between scans (they take
+effect at the next ``scan/start``).
+
+Joint states without the cell's joints (a robot arm's broadcaster on the
+same topic) are ignored: one INFO line the first time, nothing counted.
 
 The sequencing is :class:`sfs_ros.cell.scan_sequence.ScanSequence` (tested
 without processes); this node connects its ports to topics and services.
@@ -62,8 +78,9 @@ Diagnostics values: ``scan`` (1 for the first ``scan/start``, then 2, ...),
 ``state`` (idle, starting, running, waiting, paused, cancelled, done), ``view`` (the
 view being taken, 1-based), ``total``, ``captured``, ``receipted``,
 ``resends``, ``move_retries``, ``capture_retries``, ``lost_in_transport``,
-``malformed``, and this scan's seconds of ``motion_s`` (command to settled)
-and ``shutter_s`` (shutter call to frame in hand). Parameters: :data:`PARAMS`.
+``malformed``, this scan's seconds of ``motion_s`` (command to settled)
+and ``shutter_s`` (shutter call, or settling, to frame in hand), and its
+``trigger``. Parameters: :data:`PARAMS`.
 """
 
 from __future__ import annotations
@@ -76,20 +93,29 @@ import threading
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.node import Node
+from rclpy.qos import ReliabilityPolicy
 from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import Image, JointState
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
 from sfs_ros.cell.capture_ledger import EncoderReading
+from sfs_ros.cell.messages import ForeignJointState
 from sfs_ros.cell.scan_plan import ScanPlan, load_plan
 from sfs_ros.cell.scan_progress import ScanProgress
-from sfs_ros.cell.scan_sequence import MonotonicClock, ScanSequence, ScanSettings, StepFailed
+from sfs_ros.cell.scan_sequence import (
+    TRIGGERS,
+    MonotonicClock,
+    ScanSequence,
+    ScanSettings,
+    StepFailed,
+)
 from sfs_ros.nodes.entry import run_node
 from sfs_ros.ros import capture_qos
 from sfs_ros.ros.convert import angles_from_joint_state, diagnostic_array, health, joint_state
+from sfs_ros.ros.names import DIAGNOSTICS, SERVICES, private, status_name
 from sfs_ros.ros.pairing import stamp_key
-from sfs_ros.ros.params import Param, ParameterError, declare
+from sfs_ros.ros.params import Param, ParameterError, declare, read, validating_callback
 from sfs_ros.ros.services import ServiceError, call
 
 __all__ = ["ScanNode", "PARAMS", "main"]
@@ -136,6 +162,17 @@ PARAMS: list[Param] = [
           read_only=True),
     Param("queue_depth", 100, "Depth of the reliable capture topics; at least the number of "
           "views of a scan.", bounds=(1, 100000), read_only=True),
+    Param("camera_trigger", TRIGGERS[0], "How a view's frame is taken: shutter (our camera "
+          "node's capture service) or stream (the first frame of image_raw stamped after the "
+          "axes settled plus exposure_delay_s: any camera driver).", choices=TRIGGERS,
+          constraints="takes effect at the next scan/start"),
+    Param("image_reliability", "reliable", "QoS reliability of the image_raw subscription: "
+          "reliable (our camera node, usb_cam) or best_effort (a driver publishing with the "
+          "sensor-data QoS, which a reliable subscription does not receive).",
+          choices=("reliable", "best_effort"), read_only=True),
+    Param("exposure_delay_s", 0.0, "stream: the view's frame is stamped at least this long "
+          "after the axes settled, s.", bounds=(0.0, 60.0),
+          constraints="takes effect at the next scan/start"),
     Param("progress_dir", "", "Folder where the scan's progress and captures are kept, so "
           "that a restarted node takes the scan up; empty = not kept.", read_only=True),
     Param("home_before_retry", False, "Home the axes before a failed move is commanded "
@@ -173,6 +210,7 @@ def scan_settings(values: dict) -> ScanSettings:
         encoder_max_gap_s=values["encoder_max_gap_s"],
         receipt_timeout_s=values["receipt_timeout_s"], max_sends=values["max_sends"],
         prepare=tuple((name, timeout_s) for name, wanted, timeout_s in steps if wanted),
+        trigger=values["camera_trigger"], exposure_delay_s=values["exposure_delay_s"],
         rehome_before_retry=values["home_before_retry"])
 
 
@@ -198,6 +236,9 @@ class _RosPorts(MonotonicClock):
             raise StepFailed(str(exc)) from None
         if not answer.success:
             raise StepFailed(f"{step} failed: {answer.message}")
+
+    def stamp_now(self):
+        return stamp_key(self._node.get_clock().now().to_msg())
 
     def shutter(self, *, timeout_s: float, cancelled: threading.Event):
         try:
@@ -282,6 +323,8 @@ class ScanNode(Node):
         self._sequence = ScanSequence(self.plan.views, _RosPorts(self), scan_settings(self._p),
                                       progress)
         self._receivers: set[bytes] = set()   # every publisher of receipts seen (by GID)
+        self._foreign_seen = False            # a joint state of another machine was logged
+        self.add_on_set_parameters_callback(validating_callback(self, PARAMS, lambda _: None))
 
         inputs = MutuallyExclusiveCallbackGroup()
         services = MutuallyExclusiveCallbackGroup()
@@ -290,18 +333,21 @@ class ScanNode(Node):
         self.command_pub = self.create_publisher(JointState, "joint_command", 10)
         self.image_pub = self.create_publisher(Image, "capture/image", qos)
         self.joints_pub = self.create_publisher(JointState, "capture/joint_state", qos)
-        self._diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
+        self._diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
         self.create_subscription(JointState, "joint_states", self._on_joint_state, 10,
                                  callback_group=inputs)
-        self.create_subscription(Image, "image_raw", self._on_frame, capture_qos(10),
+        frames = capture_qos(10)
+        if self._p["image_reliability"] == "best_effort":
+            frames.reliability = ReliabilityPolicy.BEST_EFFORT
+        self.create_subscription(Image, "image_raw", self._on_frame, frames,
                                  callback_group=inputs)
         self._receipt_sub = self.create_subscription(Header, "capture/stored", self._on_receipt,
                                                      qos, callback_group=inputs)
-        self.peers = {name: self.create_client(Trigger, name, callback_group=clients)
+        self.peers = {name: self.create_client(Trigger, SERVICES[name], callback_group=clients)
                       for name in ("home", "stop", "capture", "reset")}
         for name, handler in (("start", self._on_start), ("cancel", self._on_cancel),
                               ("resume", self._on_resume)):
-            self.create_service(Trigger, f"scan/{name}", handler, callback_group=services)
+            self.create_service(Trigger, private(f"scan/{name}"), handler, callback_group=services)
         self.create_timer(1.0, self._tick, callback_group=inputs)
         turntable, carriage = self.plan.travel_deg()
         self.get_logger().info(f"scan plan of {len(self.plan)} views ({turntable:.0f} deg of "
@@ -325,6 +371,11 @@ class ScanNode(Node):
         try:
             theta, phi = angles_from_joint_state(msg)
             self._sequence.encoder_reading(stamp_key(msg.header.stamp), theta, phi)
+        except ForeignJointState as exc:
+            if not self._foreign_seen:
+                self._foreign_seen = True
+                self.get_logger().info(f"{exc}: such joint states are ignored (another "
+                                       "machine's on the same topic); said once")
         except ValueError as exc:
             self._malformed(f"joint state ignored: {exc}")
 
@@ -360,7 +411,8 @@ class ScanNode(Node):
     # -- services (executor) -----------------------------------------------------------------
 
     def _on_start(self, _request, response):
-        response.success, response.message = self._sequence.start()
+        response.success, response.message = self._sequence.start(
+            scan_settings(read(self, PARAMS)))
         if response.success:
             self._launch()
         return response
@@ -386,7 +438,7 @@ class ScanNode(Node):
     def publish_diagnostics(self) -> None:
         status = self._sequence.status()
         level, message = health(status.problem, status.warning, status.summary)
-        self._diag_pub.publish(diagnostic_array(f"{self.get_name()}: scan", level, message,
+        self._diag_pub.publish(diagnostic_array(status_name(self, "scan"), level, message,
                                                 status.values,
                                                 stamp=self.get_clock().now().to_msg()))
 

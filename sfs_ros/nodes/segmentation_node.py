@@ -6,7 +6,7 @@
 | sub | ``capture/joint_state`` | sensor_msgs/JointState | same stamp as its image |
 | pub | ``capture/mask`` | sensor_msgs/Image | mono8, 255 = object, image's header |
 | pub | ``capture/mask_joint_state`` | sensor_msgs/JointState | the capture's, same header |
-| pub | ``diagnostics`` | diagnostic_msgs/DiagnosticArray | per capture and at 1 Hz |
+| pub | ``/diagnostics`` | diagnostic_msgs/DiagnosticArray | per capture and at 1 Hz |
 
 Capture topics: reliable, volatile, depth ``queue_depth``
 (:func:`sfs_ros.ros.capture_qos`). Joint states name "turntable" and
@@ -54,6 +54,7 @@ from sfs_ros.ros.convert import (
     image_to_msg,
     msg_to_image,
 )
+from sfs_ros.ros.names import DIAGNOSTICS, status_name
 from sfs_ros.ros.paired_input import PairedInput, Stream
 from sfs_ros.ros.pairing import format_stamp
 from sfs_ros.ros.params import Param, declare, read, validating_callback
@@ -115,7 +116,7 @@ class SegmentationNode(Node):
         qos = capture_qos(depth)
         self._mask_pub = self.create_publisher(Image, "capture/mask", qos)
         self._joints_pub = self.create_publisher(JointState, "capture/mask_joint_state", qos)
-        self._diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
+        self._diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
         self._input = PairedInput(
             self, Stream(Image, "capture/image", "image", _decode_image),
             Stream(JointState, "capture/joint_state", "joint state", _checked_joint_state),
@@ -177,7 +178,7 @@ class SegmentationNode(Node):
                       waiting_images=self._input.pending("first"),
                       waiting_joint_states=self._input.pending("second"))
         self._diag_pub.publish(diagnostic_array(
-            f"{self.get_name()}: segmentation", level, message, values,
+            status_name(self, "segmentation"), level, message, values,
             stamp=self.get_clock().now().to_msg()))
 
 

@@ -1,8 +1,12 @@
 """A program's handle on a running cell: start a scan, follow it, reconstruct.
 
 What a robot cell's controller (or ``sfs-demo``) does over ROS: call
-``scan/start``, follow the scan node's progress on ``diagnostics``, and call
-``reconstruct`` once every view is stored. :class:`CellClient` runs its own
+``scan/start``, follow the scan node's progress on ``/diagnostics``, and call
+``reconstruct`` once every view is stored. Services go by their short names
+(``"reset"``, ``"home"``, ...), which :data:`sfs_ros.ros.names.SERVICES` maps to
+the node's own (``reconstruction/reset``, ``motor/home``, ...) in the cell's
+namespace (default :data:`sfs_ros.ros.names.NAMESPACE`); only the statuses
+of that namespace's nodes are followed. :class:`CellClient` runs its own
 node in a private rclpy context, spun by a background thread, so it can be
 used from plain synchronous code::
 
@@ -24,11 +28,14 @@ from typing import Callable
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from std_srvs.srv import Trigger
 
+from sfs_ros.cell.messages import status_namespace
+from sfs_ros.ros.names import DIAGNOSTICS, NAMESPACE, SERVICES
 from sfs_ros.ros.services import ServiceError, call
 
-__all__ = ["CellClient", "ScanFailed", "ScanStatus"]
+__all__ = ["CellClient", "ScanFailed", "ScanStatus", "SERVICES", "READY"]
 
-SERVICES = ("scan/start", "scan/cancel", "scan/resume", "reconstruct", "reset")
+#: The services that must answer before :meth:`CellClient.wait_ready` returns.
+READY = ("scan/start", "scan/cancel", "scan/resume", "reconstruct", "reset")
 
 
 class ScanFailed(RuntimeError):
@@ -58,9 +65,10 @@ class ScanStatus:
 
 
 class CellClient:
-    """Service calls and scan progress of a cell in ``namespace``; call :meth:`close`."""
+    """Service calls and scan progress of a cell in ``namespace`` ("" or "/" = the root);
+    call :meth:`close`."""
 
-    def __init__(self, namespace: str = "", *, name: str = "cell_client"):
+    def __init__(self, namespace: str = NAMESPACE, *, name: str = "cell_client"):
         import rclpy
         from rclpy.context import Context
         from rclpy.executors import MultiThreadedExecutor
@@ -72,8 +80,9 @@ class CellClient:
         self._scan: ScanStatus | None = None
         self._motor_connected = False
         self._changed = threading.Condition(self._lock)
-        self.node.create_subscription(DiagnosticArray, "diagnostics", self._on_diagnostics, 50)
-        self._clients = {n: self.node.create_client(Trigger, n) for n in SERVICES}
+        self.node.create_subscription(DiagnosticArray, DIAGNOSTICS, self._on_diagnostics, 50)
+        self._clients = {n: self.node.create_client(Trigger, name) for n, name in
+                         SERVICES.items()}
         self._executor = MultiThreadedExecutor(num_threads=2, context=self._context)
         self._executor.add_node(self.node)
         self._spinner = threading.Thread(target=self._executor.spin, daemon=True)
@@ -81,6 +90,8 @@ class CellClient:
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         for status in msg.status:
+            if status_namespace(status.name) != self.node.get_namespace():
+                continue                     # another cell's, or a robot's
             if status.name.endswith(": scan"):
                 with self._changed:
                     self._scan = ScanStatus(status)
@@ -100,7 +111,7 @@ class CellClient:
         is connected to its controller; ServiceError."""
         deadline = time.monotonic() + timeout_s
         while True:
-            missing = [n for n, c in self._clients.items() if not c.service_is_ready()]
+            missing = [SERVICES[n] for n in READY if not self._clients[n].service_is_ready()]
             if self.scan is None:
                 missing.append("scan progress")
             if not self._motor_connected:
@@ -113,7 +124,7 @@ class CellClient:
             time.sleep(0.1)
 
     def call(self, service: str, timeout_s: float = 30.0) -> Trigger.Response:
-        """Call one of :data:`SERVICES` (std_srvs/Trigger); the response."""
+        """Call one of :data:`SERVICES` by its short name (std_srvs/Trigger); the response."""
         return call(self._clients[service], Trigger.Request(), timeout_s=timeout_s)
 
     def wait_scan(self, scan: int, until: Callable[[ScanStatus], bool], *, timeout_s: float,

@@ -9,7 +9,7 @@ Recorded topics (:data:`TOPICS`, names relative to the cell's namespace):
 | ``capture/joint_state``, ``capture/mask_joint_state`` | sensor_msgs/JointState | capture |
 | ``capture/stored`` | std_msgs/Header | capture |
 | ``joint_states`` | sensor_msgs/JointState | default |
-| ``diagnostics`` | diagnostic_msgs/DiagnosticArray | default |
+| ``diagnostics`` | diagnostic_msgs/DiagnosticArray (from the absolute ``/diagnostics``) | default |
 | ``camera_info`` | sensor_msgs/CameraInfo | default |
 | ``hull`` | sensor_msgs/PointCloud2 | result |
 | ``camera_poses`` | geometry_msgs/PoseArray | result |

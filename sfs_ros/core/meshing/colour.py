@@ -47,6 +47,7 @@ from scipy.sparse.linalg import splu
 from ..carving.carve import validate_masks
 from ..geometry.camera import Camera
 from ..render import as_mesh_arrays, rasterize_faces
+from ..workers import map_in_threads
 
 __all__ = ["VertexColours", "vertex_colours", "vertex_normals"]
 
@@ -274,7 +275,10 @@ def vertex_colours(vertices, faces, images: Sequence, cameras: Sequence[Camera],
     weight_sum = np.zeros(len(vertices))
     n_views = np.zeros(len(vertices), dtype=np.int64)
     n_hidden = np.zeros(len(vertices), dtype=np.int64)
-    for image, camera, mask in zip(images, cameras, masks):
+    def one_view(view: tuple) -> tuple:
+        """What one view adds: the vertices it sees, their weights and colours, and the
+        vertices it would see but the mesh hides."""
+        image, camera, mask = view
         u, v, z, cos = _view_of(camera, vertices, normals)
         idx = np.flatnonzero((cos > min_cos) & (u >= 0) & (u <= camera.width - 1)
                              & (v >= 0) & (v <= camera.height - 1))  # NaN (behind) fails
@@ -284,17 +288,23 @@ def vertex_colours(vertices, faces, images: Sequence, cameras: Sequence[Camera],
         edge_px = _edge_distance_px(zbuf, mask, camera)
         if edge_px is not None:
             w *= np.clip((_bilinear(edge_px, u, v) - EDGE_MARGIN_PX) / edge_ramp_px, 0.0, 1.0)
+        hidden = np.zeros(0, dtype=np.int64)
         if zbuf is not None:
             # w > 0 only off the edges: the 2 x 2 pixels read see one surface, all finite.
             s = np.flatnonzero(w > 0)
             tan = np.sqrt(1.0 - cos[s] ** 2) / cos[s]
             tol = _footprint_m(camera, z[s]) * (depth_tolerance_px + tan)
             hidden = s[z[s] > _bilinear(zbuf, u[s], v[s]) + tol]
-            n_hidden[idx[hidden]] += 1
             w[hidden] = 0.0
         keep = w > 0
-        idx, u, v, w = idx[keep], u[keep], v[keep], w[keep]
-        total[idx] += w[:, None] * _bilinear(image, u, v)
+        return (idx[keep], w[keep], w[keep][:, None] * _bilinear(image, u[keep], v[keep]),
+                idx[hidden])
+
+    # Views in threads (numpy and the rasteriser release the GIL), summed in view order:
+    # the same sums as one view after the other.
+    for idx, w, weighted, hidden in map_in_threads(one_view, zip(images, cameras, masks)):
+        n_hidden[hidden] += 1
+        total[idx] += weighted
         weight_sum[idx] += w
         n_views[idx] += 1
 

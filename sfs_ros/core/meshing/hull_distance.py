@@ -40,6 +40,7 @@ from numba import njit, prange
 
 from ..carving.carve import validate_masks
 from ..geometry.camera import Camera
+from ..workers import map_in_threads
 
 __all__ = ["HullDistance"]
 
@@ -128,27 +129,27 @@ def _distance_at(hull, x, y, z, top):
     proj, orthographic, metres_per_px, image_size, crops, images, margin, box_lo, box_hi = hull
     rank = top.shape[0]
     top[:] = -np.inf  # descending
-    for view in range(proj.shape[0]):
-        P = proj[view]
-        hu = P[0, 0] * x + P[0, 1] * y + P[0, 2] * z + P[0, 3]
-        hv = P[1, 0] * x + P[1, 1] * y + P[1, 2] * z + P[1, 3]
-        scale = metres_per_px[view]
-        if not orthographic[view]:
-            depth = P[2, 0] * x + P[2, 1] * y + P[2, 2] * z + P[2, 3]
+    for v in range(proj.shape[0]):
+        # (indexed in place: a view of ``proj`` per point and view costs a reference count)
+        hu = proj[v, 0, 0] * x + proj[v, 0, 1] * y + proj[v, 0, 2] * z + proj[v, 0, 3]
+        hv = proj[v, 1, 0] * x + proj[v, 1, 1] * y + proj[v, 1, 2] * z + proj[v, 1, 3]
+        scale = metres_per_px[v]
+        if not orthographic[v]:
+            depth = proj[v, 2, 0] * x + proj[v, 2, 1] * y + proj[v, 2, 2] * z + proj[v, 2, 3]
             if depth <= 0.0:
                 continue
             hu /= depth
             hv /= depth
             scale *= depth
-        width, height = image_size[view, 0], image_size[view, 1]
+        width, height = image_size[v, 0], image_size[v, 1]
         # The carver's pixel is floor(u + 1/2): inside the image for u in [-1/2, W - 1/2).
         if not (-0.5 <= hu < width - 0.5 and -0.5 <= hv < height - 0.5):
             continue
         # Within the outer half pixel, the edge pixel's value holds.
         hu = min(max(hu, 0.0), width - 1.0)
         hv = min(max(hv, 0.0), height - 1.0)
-        value = scale * _sample(images, crops[view, 0], crops[view, 1], crops[view, 2],
-                                crops[view, 3], crops[view, 4], margin, hu, hv)
+        value = scale * _sample(images, crops[v, 0], crops[v, 1], crops[v, 2],
+                                crops[v, 3], crops[v, 4], margin, hu, hv)
         if value > top[rank - 1]:
             slot = rank - 1
             while slot > 0 and top[slot - 1] < value:
@@ -241,9 +242,10 @@ class HullDistance:
                 raise ValueError(f"bounds_m must be [[xmin, ymin, zmin], [xmax, ymax, zmax]] "
                                  f"with min < max, got {box.tolist()}")
         images, crops, offset = [], [], 0
-        for index, mask in enumerate(masks):
+        distances = map_in_threads(_silhouette_distance, masks)  # in order, in threads
+        for index in range(len(masks)):
             try:
-                distance, u0, v0 = _silhouette_distance(mask)
+                distance, u0, v0 = next(distances)
             except ValueError as err:
                 raise ValueError(f"view {index}: {err}") from None
             images.append(distance.ravel())

@@ -137,9 +137,7 @@ def hull_marching_cubes_mesh(occupancy, grid: VoxelGrid, hull: HullDistance, *,
     # outside (the level set is closed even where the object touches the grid box).
     pad = band + 1
     crop = np.pad(occ[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]], pad)
-    cube = np.ones((3, 3, 3), dtype=bool)
-    near = (ndimage.binary_dilation(crop, cube, iterations=band)
-            & ~ndimage.binary_erosion(crop, cube, iterations=band, border_value=0))
+    near = _cube_grow(crop, band, dilate=True) & ~_cube_grow(crop, band, dilate=False)
     # Signed distance in voxels, positive outside; negated below, as for the
     # occupancy, larger means more inside.
     volume = np.where(crop, np.float32(-pad), np.float32(pad))
@@ -151,6 +149,30 @@ def hull_marching_cubes_mesh(occupancy, grid: VoxelGrid, hull: HullDistance, *,
     volume[volume == 0.0] = np.float32(1e-6)
     np.negative(volume, out=volume)
     return _contour(volume, 0.0, corner, grid)
+
+
+def _cube_grow(volume: np.ndarray, steps: int, *, dilate: bool) -> np.ndarray:
+    """Binary dilation (or erosion, with empty space beyond the array) of a 3-D bool
+    ``volume`` by the (2 steps + 1)^3 cube: ``steps`` passes of a 3-voxel line along each
+    axis (the cube is separable), the same as scipy's ``binary_dilation`` /
+    ``binary_erosion(border_value=0)`` with the 3^3 cube and ``iterations=steps``, in a
+    fraction of the time."""
+    out = volume.copy()
+    combine = np.logical_or if dilate else np.logical_and
+    for axis in range(3):
+        for _ in range(steps):
+            ahead = [slice(None)] * 3
+            behind = [slice(None)] * 3
+            ahead[axis], behind[axis] = slice(1, None), slice(None, -1)
+            before = out.copy()
+            combine(out[tuple(ahead)], before[tuple(behind)], out=out[tuple(ahead)])
+            combine(out[tuple(behind)], before[tuple(ahead)], out=out[tuple(behind)])
+            if not dilate:  # beyond the array is empty
+                edge = [slice(None)] * 3
+                for end in (0, -1):
+                    edge[axis] = end
+                    out[tuple(edge)] = False
+    return out
 
 
 def _check_occupancy(occupancy, grid: VoxelGrid) -> np.ndarray:

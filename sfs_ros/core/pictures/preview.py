@@ -10,7 +10,8 @@ import numpy as np
 
 from ..exchange.files import write_atomic
 from ..geometry.rig import RigCalibration, rig_camera
-from ..render import render_image
+from ..render import as_mesh_arrays, corner_normals, render_image
+from ..workers import map_in_threads
 
 __all__ = ["PREVIEW_VIEWS_DEG", "png_bytes", "preview_image", "write_png"]
 
@@ -35,12 +36,15 @@ def preview_image(vertices: np.ndarray, faces: np.ndarray, *, size_px: int = 360
     scale = 0.45 * size_px / radius  # pixels per metre: the bounding sphere fits with a margin
     calibration = RigCalibration(width=size_px, height=size_px, projection="orthographic",
                                  fx=scale, fy=scale, camera_distance_m=4 * radius)
-    panels = []
-    for theta_deg, phi_deg in views_deg:
-        camera = rig_camera(math.radians(theta_deg), math.radians(phi_deg), calibration)
-        panels.append(render_image(vertices, faces, camera, vertex_colors=vertex_colors,
-                                   background_rgb=(245, 245, 245), noise_sigma=0.0))
-    return np.hstack(panels)
+    vertices, faces = as_mesh_arrays(vertices, faces)
+    normals = corner_normals(vertices, faces)  # the same for every panel
+
+    def panel(view_deg) -> np.ndarray:
+        camera = rig_camera(math.radians(view_deg[0]), math.radians(view_deg[1]), calibration)
+        return render_image(vertices, faces, camera, vertex_colors=vertex_colors,
+                            background_rgb=(245, 245, 245), noise_sigma=0.0, normals=normals)
+
+    return np.hstack(list(map_in_threads(panel, views_deg)))
 
 
 def png_bytes(image_rgb: np.ndarray) -> bytes:

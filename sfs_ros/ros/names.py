@@ -1,0 +1,51 @@
+"""The cell's ROS names in one place: its namespace, the services of each node, diagnostics.
+
+The cell lives in a namespace (:data:`NAMESPACE` by default, as ``sfs-cell``
+and the launch files start it); its topics are relative to it
+(``<namespace>/capture/image``, ``<namespace>/joint_states``, ...). Each
+node's services are private to the node (``~/home`` of the node ``motor`` is
+``<namespace>/motor/home``), so nothing of the cell sits at the root or
+under a generic name a robot cell already uses. Only the diagnostics are
+absolute (:data:`DIAGNOSTICS`), where the standard aggregator listens; each
+status is named ``<node's full name>: <kind>`` (``/sfs/scan: scan``), so a
+reader tells cells apart (:func:`sfs_ros.cell.messages.status_namespace`).
+
+:data:`SERVICES` maps the short names a program uses
+(:class:`sfs_ros.ros.cell_client.CellClient`, the scan node's calls) to the
+names relative to the cell's namespace; a node started under another name
+is reached by remapping these.
+"""
+
+from __future__ import annotations
+
+__all__ = ["NAMESPACE", "DIAGNOSTICS", "SERVICES", "private", "status_name"]
+
+#: Namespace of the cell when started by ``sfs-cell`` or the launch files.
+NAMESPACE = "/sfs"
+#: The diagnostics topic of every node: absolute, the standard aggregator's.
+DIAGNOSTICS = "/diagnostics"
+
+#: Short name -> service name relative to the cell's namespace (``<node>/<service>``).
+SERVICES: dict[str, str] = {
+    "scan/start": "scan/start",
+    "scan/cancel": "scan/cancel",
+    "scan/resume": "scan/resume",
+    "home": "motor/home",
+    "stop": "motor/stop",
+    "capture": "camera/capture",
+    "reset": "reconstruction/reset",
+    "reconstruct": "reconstruction/reconstruct",
+    "record/start": "recorder/start",
+    "record/stop": "recorder/stop",
+}
+
+
+def private(service: str) -> str:
+    """The name a node gives its own service ``<node>/<service>`` of :data:`SERVICES`:
+    ``~/<service>``."""
+    return "~/" + SERVICES[service].split("/", 1)[1]
+
+
+def status_name(node, kind: str) -> str:
+    """The diagnostic status name of ``node`` (an rclpy node): ``<full name>: <kind>``."""
+    return f"{node.get_fully_qualified_name()}: {kind}"
