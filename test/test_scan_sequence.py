@@ -362,16 +362,20 @@ def test_every_capture_is_sent_again_when_a_new_receiver_appears():
     assert len(cell.sent) == 2 * len(VIEWS)
 
 
-def test_a_new_listener_gets_every_capture_only_while_the_scan_is_under_way():
+def test_a_restarted_listener_gets_every_capture_only_while_the_scan_is_under_way():
     cell = FakeCell()
-    cell.seq.tick({"reconstruction"}, {"segmentation"})
-    # A recorder restarted while the third view is being taken: the two captures so far again.
-    cell.on_move[3] = lambda: cell.seq.tick({"reconstruction"}, {"segmentation", "recorder"})
+    before = {("/segmentation", 1), ("/recorder", 2)}
+    cell.seq.tick({"reconstruction"}, before)
+    # A viewer subscribing for the first time while the first view is taken gets what comes
+    # next; the recorder, restarted while the third is taken, gets the two captures so far.
+    cell.on_move[1] = lambda: cell.seq.tick({"reconstruction"}, before | {("/viewer", 3)})
+    cell.on_move[3] = lambda: cell.seq.tick(
+        {"reconstruction"}, {("/segmentation", 1), ("/viewer", 3), ("/recorder", 4)})
     cell.run()
     assert len(cell.sent) == len(VIEWS) + 2 and cell.sent[2:4] == cell.sent[:2]
     # After the scan (a segmentation node restarted then): nothing is sent again, so no
     # capture of this scan can reach the next one.
-    cell.seq.tick({"reconstruction"}, {"segmentation (restarted)", "recorder"})
+    cell.seq.tick({"reconstruction"}, {("/segmentation", 5), ("/recorder", 4)})
     assert len(cell.sent) == len(VIEWS) + 2
 
 

@@ -358,12 +358,15 @@ class ScanSequence:
     def tick(self, receivers: set, listeners: set = frozenset()) -> None:
         """Delivery, from a timer: resend what is due, report what is lost; ``receivers`` are
         the ids of the receipt publishers now; one not seen before means a receiver
-        (re)started: every capture is sent again. ``listeners`` are the ids of other
-        subscribers of the captures (a recorder): one not seen before while the scan is
-        under way gets every capture too."""
+        (re)started: every capture is sent again. ``listeners`` are ``(node name, id)`` of
+        the other subscribers of the captures (a recorder): a node seen before that comes
+        back with a new id (it restarted) while the scan is under way gets every capture
+        too; a subscriber new by name gets what is sent from then on."""
         now = self._ports.now()
         with self._cv:
-            new_listener = bool(set(listeners) - self._listeners) and self.active
+            known = {name for name, _ in self._listeners}
+            new_listener = self.active and any(
+                name in known and (name, gid) not in self._listeners for name, gid in listeners)
             came_back = (bool(set(receivers) - self._receivers) or new_listener) \
                 and self._ledger.captured > 0
             self._receivers |= set(receivers)

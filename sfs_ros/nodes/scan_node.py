@@ -59,9 +59,9 @@ One that the reconstruction has not receipted on ``capture/stored`` within
 ``receipt_timeout_s`` is sent again (at most ``max_sends`` times in all, then
 reported as lost in transport); when a publisher of receipts appears that
 was not there before (the reconstruction node restarted, or started late),
-every capture is sent again; likewise when a subscriber of ``capture/image`` appears that was
-not there before while the scan is under way (a restarted recorder then records the whole
-scan). The reconstruction stores
+every capture is sent again; likewise when a node subscribed to ``capture/image`` comes back
+with a new subscription while the scan is under way (a restarted recorder then records the
+whole scan). The reconstruction stores
 each view once, so a view is never lost to a restarted node and never carved twice.
 
 Restarts of this node: with ``progress_dir`` (the bring-up sets
@@ -405,7 +405,8 @@ class ScanNode(Node):
         receivers = self.get_publishers_info_by_topic(self._receipt_sub.topic_name)
         listeners = self.get_subscriptions_info_by_topic(self.image_pub.topic_name)
         self._sequence.tick({bytes(info.endpoint_gid) for info in receivers},
-                            {bytes(info.endpoint_gid) for info in listeners})
+                            {(f"{info.node_namespace}/{info.node_name}",
+                              bytes(info.endpoint_gid)) for info in listeners})
         self.publish_diagnostics()
 
     # -- services (executor) -----------------------------------------------------------------
