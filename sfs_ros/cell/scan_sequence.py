@@ -297,7 +297,6 @@ class ScanSequence:
         self._frames: OrderedDict[Stamp, Any] = OrderedDict()
         self._earliest: Stamp | None = None    # stream: a view waits for a frame this late
         self._receivers: set = set()
-        self._listeners: set = set()
         self._ledger = self._new_ledger()
         self._counts = self._new_counts()
         self._state, self._view, self._scan = "idle", 0, 0
@@ -355,29 +354,22 @@ class ScanSequence:
         with self._cv:
             self._counts["malformed"] += 1
 
-    def tick(self, receivers: set, listeners: set = frozenset()) -> None:
+    def tick(self, receivers: set) -> None:
         """Delivery, from a timer: resend what is due, report what is lost; ``receivers`` are
         the ids of the receipt publishers now; one not seen before means a receiver
-        (re)started: every capture is sent again. ``listeners`` are ``(node name, id)`` of
-        the other subscribers of the captures (a recorder): a node seen before that comes
-        back with a new id (it restarted) while the scan is under way gets every capture
-        too; a subscriber new by name gets what is sent from then on."""
+        (re)started: every capture is sent again."""
         now = self._ports.now()
         with self._cv:
-            known = {name for name, _ in self._listeners}
-            new_listener = self.active and any(
-                name in known and (name, gid) not in self._listeners for name, gid in listeners)
-            came_back = (bool(set(receivers) - self._receivers) or new_listener) \
-                and self._ledger.captured > 0
+            came_back = bool(set(receivers) - self._receivers) and self._ledger.captured > 0
             self._receivers |= set(receivers)
-            self._listeners |= set(listeners)
             resend = self._ledger.restart_downstream(now) if came_back else []
             more, lost = self._ledger.due(now)
             resend += more
             self._counts["resends"] += len(resend)
         if came_back:
-            self._ports.log("warning", f"a new receiver of captures (a node restarted?): "
-                                       f"sending all {len(resend)} captures of the scan again")
+            self._ports.log("warning", f"a new receiver of captures (the reconstruction "
+                                       f"restarted?): sending all {len(resend)} captures of "
+                                       "the scan again")
         elif resend:
             self._ports.log("warning", f"sending {len(resend)} unreceipted capture(s) again: "
                                        f"views {[e.view + 1 for e in resend]}")

@@ -59,9 +59,7 @@ One that the reconstruction has not receipted on ``capture/stored`` within
 ``receipt_timeout_s`` is sent again (at most ``max_sends`` times in all, then
 reported as lost in transport); when a publisher of receipts appears that
 was not there before (the reconstruction node restarted, or started late),
-every capture is sent again; likewise when a node subscribed to ``capture/image`` comes back
-with a new subscription while the scan is under way (a restarted recorder then records the
-whole scan). The reconstruction stores
+every capture is sent again. The reconstruction stores
 each view once, so a view is never lost to a restarted node and never carved twice.
 
 Restarts of this node: with ``progress_dir`` (the bring-up sets
@@ -400,13 +398,10 @@ class ScanNode(Node):
         self.get_logger().error(text)
 
     def _tick(self) -> None:
-        """Delivery (resends; a publisher of receipts or a subscriber of the captured images
-        not seen before is a restarted node: everything is sent again), then diagnostics."""
-        receivers = self.get_publishers_info_by_topic(self._receipt_sub.topic_name)
-        listeners = self.get_subscriptions_info_by_topic(self.image_pub.topic_name)
-        self._sequence.tick({bytes(info.endpoint_gid) for info in receivers},
-                            {(f"{info.node_namespace}/{info.node_name}",
-                              bytes(info.endpoint_gid)) for info in listeners})
+        """Delivery (resends; a publisher of receipts not seen before is a restarted
+        reconstruction node: everything is sent again), then diagnostics."""
+        self._sequence.tick({bytes(info.endpoint_gid) for info in
+                             self.get_publishers_info_by_topic(self._receipt_sub.topic_name)})
         self.publish_diagnostics()
 
     # -- services (executor) -----------------------------------------------------------------
