@@ -35,8 +35,11 @@ from small_disk import keep_full, small_disk
 from waiting import wait
 
 #: Kill order: hardware first, the scan node last (the hard case: it resumes from disk).
-#: mock_hardware is the controller and the camera: killing it is a power cut of both.
-KILLED = ("mock_hardware", "motor", "segmentation", "reconstruction", "recorder", "scan")
+#: mock_hardware is the controller and the camera: killing it is a power cut of both. The
+#: captures taken while the recorder is down reach a bag when the reconstruction, killed
+#: next, comes back: a new receiver of receipts gets every capture again (so the recorder
+#: must be up again by then).
+KILLED = ("mock_hardware", "motor", "segmentation", "recorder", "reconstruction", "scan")
 #: Bounds the whole scan with six restarts on a loaded machine (a hang bound only).
 SURVIVAL_TIMEOUT_S = 900.0
 
@@ -141,6 +144,10 @@ def test_every_node_killed_mid_scan_and_every_view_delivered_exactly_once(superv
         os.kill(victim.pid, signal.SIGKILL)
         wait(lambda: cell.processes[name] is not victim and cell.processes[name].poll() is None,
              what=f"{name} started again", timeout=deadline - time.monotonic())
+        if name == "recorder":
+            # Its start-up line ("recording into <folder>"), once per process.
+            wait(lambda: log_path.read_text().count("recording into") >= 2,
+                 what="the recorder up again", timeout=deadline - time.monotonic())
     status = client.wait_scan_done(scan, timeout_s=deadline - time.monotonic())
     assert status.count("captured") == status.count("receipted") == total
     summary = client.reconstruct()
