@@ -17,7 +17,12 @@ from pathlib import Path
 from ament_index_python.packages import get_package_share_directory
 from launch.actions import DeclareLaunchArgument
 from launch.conditions import IfCondition
-from launch.substitutions import EqualsSubstitution, LaunchConfiguration, NotEqualsSubstitution
+from launch.substitutions import (
+    EqualsSubstitution,
+    LaunchConfiguration,
+    NotEqualsSubstitution,
+    PathJoinSubstitution,
+)
 from launch_ros.actions import Node
 
 from launch import LaunchDescription
@@ -76,14 +81,16 @@ def generate_launch_description():
         Node(package='sfs_ros', executable='sfs-scan', name='scan', namespace=namespace,
              output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S, condition=own_camera,
              parameters=[os.path.join(config, 'scan.yaml'), params_file,
-                         {'plan_file': os.path.join(config, 'scan_plan.yaml')}]),
+                         {'plan_file': os.path.join(config, 'scan_plan.yaml'),
+                          'progress_dir': PathJoinSubstitution([output_dir, 'scan_progress'])}]),
         # Another driver's camera: the scan node takes its streamed frames.
         Node(package='sfs_ros', executable='sfs-scan', name='scan', namespace=namespace,
              output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
              condition=other_camera, remappings=[('image_raw', camera_topic)],
              parameters=[os.path.join(config, 'scan.yaml'), params_file,
                          {'plan_file': os.path.join(config, 'scan_plan.yaml'),
-                          'camera_trigger': 'stream'}]),
+                          'camera_trigger': 'stream',
+                          'progress_dir': PathJoinSubstitution([output_dir, 'scan_progress'])}]),
         # TF of the cell (base_link, turntable, carriage, camera_optical) from the motor
         # node's joint_states; the URDF is made from config/rig.yaml's defaults.
         Node(package='robot_state_publisher', executable='robot_state_publisher',

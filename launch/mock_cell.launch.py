@@ -71,7 +71,8 @@ def generate_launch_description():
         Node(package='sfs_ros', executable='sfs-scan', name='scan', namespace=namespace,
              output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
              parameters=[os.path.join(config, 'scan.yaml'), params_file,
-                         {'plan_file': os.path.join(config, 'scan_plan.yaml')}]),
+                         {'plan_file': os.path.join(config, 'scan_plan.yaml'),
+                          'progress_dir': PathJoinSubstitution([output_dir, 'scan_progress'])}]),
         # TF of the cell (base_link, turntable, carriage, camera_optical) from the motor
         # node's joint_states; the URDF is made from config/rig.yaml's defaults.
         Node(package='robot_state_publisher', executable='robot_state_publisher',

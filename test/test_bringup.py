@@ -64,7 +64,8 @@ def test_cell_nodes_in_start_order_with_their_files_and_overrides(mock, tmp_path
     hardware = [{"port_link": str(output / "ttyMOCK")}, {"port": str(output / "ttyMOCK")}]
     assert [s.overrides for s in specs] == (hardware if mock else [{}, {}]) + [
         {}, {"output_dir": str(output)}, {"output_dir": str(output)},
-        {"plan_file": str(config / "scan_plan.yaml")}]
+        {"plan_file": str(config / "scan_plan.yaml"),
+         "progress_dir": str(output / "scan_progress")}]
     recording = cell_nodes(config, "out", mock=mock, record=True)
     assert [s.name for s in recording] == [s.name for s in specs]
     assert recording[-2].overrides == {"output_dir": str(output), "with_scan": "true"}
@@ -74,7 +75,8 @@ def test_cell_nodes_in_start_order_with_their_files_and_overrides(mock, tmp_path
         sys.executable, "-m", "sfs_ros.nodes.scan_node", "--ros-args", "-r", "__ns:=/cell1",
         "--params-file", str(config / "scan.yaml"),
         "--params-file", str(config / "overrides.yaml"),
-        "-p", f"plan_file:={config / 'scan_plan.yaml'}"]
+        "-p", f"plan_file:={config / 'scan_plan.yaml'}",
+        "-p", f"progress_dir:={output / 'scan_progress'}"]
 
 
 def test_real_cell_options_port_camera_device_camera_topic_and_site_params(tmp_path):

@@ -1,6 +1,7 @@
 """Live reconstruction on the exact silhouettes of a known object (the mug)."""
 
 import csv
+import errno
 import math
 
 import cv2
@@ -28,6 +29,7 @@ from sfs_ros.core.simulation.objects import make_object
 from sfs_ros.core.simulation.plan import ring_plan
 from sfs_ros.core.simulation.synthetic import carving_box, score_against_truth
 
+from small_disk import fill, small_disk
 from tolerances import CHAMFER_MEAN_VOXELS, HULL_REPROJECTION_IOU_MIN
 
 #: Small pinhole camera, 0.6 m away, so the end-to-end tests stay fast.
@@ -337,3 +339,49 @@ def test_final_mesh_is_coloured_from_the_captured_images(tmp_path, mug, box, mas
     # unseen underside is filled from its neighbours. 5.4 measured.
     error = np.abs(live.last_colours.astype(float) - mug.color_at(vertices)).mean()
     assert error <= 7.0
+
+
+# ------------------------------------------------------------------ restarts and a full disk
+
+def test_a_restarted_process_takes_up_the_open_scan(tmp_path, box, masks):
+    live = small_live(tmp_path, box)
+    keys = ["1700000000_000000001", "1700000000_000000002", "1700000000_000000003"]
+    for key, mask, angles in zip(keys, masks, PLAN):
+        live.add_view(key, mask, *angles)
+    again = small_live(tmp_path, box)                 # the node started again
+    assert again.reopen() == f"took up the open scan {live.session_dir} with its 3 views"
+    assert again.keys == keys and again.session_dir == live.session_dir
+    np.testing.assert_array_equal(again.occupancy, live.occupancy)
+    with pytest.raises(DuplicateViewError):           # a view sent again is known
+        again.add_view(keys[1], masks[1], *PLAN[1])
+    again.add_view("1700000000_000000004", masks[3], *PLAN[3])
+    assert len(csv_rows(live.session_dir)) == 4
+    again.reset()                                     # a new scan closes the open one
+    assert small_live(tmp_path, box).reopen() == "no open scan to take up"
+
+
+def test_a_view_refused_by_a_full_disk_leaves_the_scan_whole_and_can_come_again(tmp_path, box,
+                                                                                 masks):
+    mount_point = tmp_path / "disk"
+    mount_point.mkdir()
+    with small_disk(mount_point, "1m"):
+        live = LiveReconstruction(RIG, box, output_dir=mount_point / "out", resolution=32)
+        live.add_view("a", masks[0], *PLAN[0])
+        live.add_view("b", masks[1], *PLAN[1])
+        fresh = LiveReconstruction(RIG, box, output_dir=mount_point / "other", resolution=32)
+        fill(mount_point / "filler")
+        with pytest.raises(OSError) as refused:
+            live.add_view("c", masks[2], *PLAN[2])
+        assert refused.value.errno == errno.ENOSPC
+        with pytest.raises(OSError):
+            fresh.add_view("a", masks[0], *PLAN[0])   # its first view: no half-made folder
+        assert list((mount_point / "other").iterdir()) == []
+        assert live.n_views == 2 and len(csv_rows(live.session_dir)) == 2
+        assert sorted(p.name for p in (live.session_dir / "images").iterdir()) == \
+            ["view_000_a.png", "view_001_b.png"]      # no temporary or partial file
+        assert len(load_views(live.session_dir).views) == 2
+        (mount_point / "filler").unlink()
+        live.add_view("c", masks[2], *PLAN[2])        # space again: the same view goes in
+        assert [row[0] for row in csv_rows(live.session_dir)] == \
+            ["view_000_a.png", "view_001_b.png", "view_002_c.png"]
+        assert fresh.add_view("a", masks[0], *PLAN[0]).n_views == 1

@@ -85,7 +85,9 @@ class LedgerEntry:
     """A capture sent downstream.
 
     ``view`` is its index in the plan, ``payload`` what is sent again (the
-    messages), ``sent_s`` when it was last sent, ``sends`` how often.
+    messages), ``sent_s`` when it was last sent, ``sends`` how often,
+    ``angles_rad`` the encoder reading ``(theta, phi)`` that tags it (None if
+    not given).
     """
 
     view: int
@@ -95,6 +97,7 @@ class LedgerEntry:
     sends: int = 1
     receipted: bool = False
     given_up: bool = False
+    angles_rad: tuple[float, float] | None = None
 
 
 @dataclass
@@ -119,14 +122,16 @@ class CaptureLedger:
                 or self.max_sends < 1:
             raise ValueError(f"max_sends must be an integer >= 1, got {self.max_sends!r}")
 
-    def add(self, view: int, stamp: Stamp, payload, now_s: float) -> LedgerEntry:
-        """Record a capture just sent; ValueError if its stamp or its view is already here."""
+    def add(self, view: int, stamp: Stamp, payload, now_s: float, *,
+            angles_rad: tuple[float, float] | None = None) -> LedgerEntry:
+        """Record a capture just sent (tagged with ``angles_rad``, radians); ValueError if its
+        stamp or its view is already here."""
         stamp = tuple(stamp)
         if stamp in self.entries:
             raise ValueError(f"a capture with stamp {stamp} is already in the ledger")
         if any(e.view == view for e in self.entries.values()):
             raise ValueError(f"view {view} was already captured in this scan")
-        entry = LedgerEntry(view, stamp, payload, now_s)
+        entry = LedgerEntry(view, stamp, payload, now_s, angles_rad=angles_rad)
         self.entries[stamp] = entry
         return entry
 

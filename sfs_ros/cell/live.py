@@ -18,6 +18,14 @@ masks, which are what segmenting the stored images gives; so a crash loses nothi
 ``sfs-reconstruct SCAN_FOLDER -o mesh.ply`` (same resolution) later gives
 the same mesh as :meth:`LiveReconstruction.reconstruct`.
 
+The scan being received is marked open (an empty file ``.open`` in its
+session folder) until :meth:`LiveReconstruction.reset`; a restarted process
+takes it up with :meth:`LiveReconstruction.reopen` (its views read back and
+carved again), so a view sent again after the restart is known and not
+stored twice. A view that cannot be stored (``OSError``: a full disk) leaves
+the folder as it was (no half-written image, row or folder) and can be added
+again.
+
 Output folder layout::
 
     OUTPUT_DIR/
@@ -33,16 +41,18 @@ from __future__ import annotations
 
 import math
 import re
+import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from ..core.carving.carve import Carver
 from ..core.exchange.export import SUPPORTED_SUFFIXES
 from ..core.exchange.inputs import load_views
-from ..core.exchange.session import append_view, write_session
+from ..core.exchange.session import append_view, read_session, write_session
 from ..core.exchange.views import as_bounds
 from ..core.geometry.grid import VoxelGrid
 from ..core.geometry.lens import ideal_camera, undistort_image, undistort_mask
@@ -69,6 +79,9 @@ _SCAN_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,99}")
 _AUTO_SCAN = re.compile(r"scan_(\d{3,})")
 _KEY_AS_FILE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,95}\.png")
 _UNSAFE = re.compile(r"[^A-Za-z0-9_.-]")
+_NAMED_KEY = re.compile(r"view_\d{3,}_([A-Za-z0-9_.-]{1,64})\.png")
+#: The file that marks the session folder of the scan being received.
+OPEN_MARKER = ".open"
 
 
 class DuplicateViewError(ValueError):
@@ -234,6 +247,8 @@ class LiveReconstruction:
         if scan_name is not None:
             check_scan_name(self.output_dir, scan_name)
         self._requested_name = scan_name
+        if getattr(self, "_session", None) is not None:
+            (self._session / OPEN_MARKER).unlink(missing_ok=True)
         self._session: Path | None = None
         self._carver = Carver(self.grid, max_misses=self.params.max_misses)
         self._views: dict[str, _Received] = {}
@@ -301,8 +316,13 @@ class LiveReconstruction:
                 folder.mkdir()  # claims the name, also against another process
             except FileExistsError:
                 continue
-            write_session(folder, [(name, rgb)], [(theta, phi)], self.calibration,
-                          bounds_m=self.bounds_m, segmentation=MASK_SEGMENTATION)
+            try:
+                write_session(folder, [(name, rgb)], [(theta, phi)], self.calibration,
+                              bounds_m=self.bounds_m, segmentation=MASK_SEGMENTATION)
+                (folder / OPEN_MARKER).touch()
+            except BaseException:
+                shutil.rmtree(folder, ignore_errors=True)   # ours, half written
+                raise
             return folder
         raise ValueError(f"cannot create a scan folder in {self.output_dir}: "
                          f"{', '.join(candidates[:3])}... exist")
@@ -353,6 +373,39 @@ class LiveReconstruction:
                          reason="" if carved else "empty mask: no object to carve with",
                          n_views=len(self._views),
                          occupied_voxels=int(np.count_nonzero(self._carver.occupancy)))
+
+    def reopen(self) -> str:
+        """Take up the scan that was being received (the newest session folder marked open
+        in ``output_dir``): read its views back and carve them again. Returns what was done,
+        for the log; nothing is taken up when no folder is open or it cannot be read (the
+        next view then opens a new one).
+
+        A view's key is taken back from its file name (a stamp key, or a name
+        ending in ``.png``, as :meth:`add_view` stored it).
+        """
+        marked = [p.parent for p in self.output_dir.glob(f"*/{OPEN_MARKER}")
+                  if p.parent.is_dir() and not p.parent.is_symlink()]
+        if not marked:
+            return "no open scan to take up"
+        folder = max(marked, key=lambda p: (p / OPEN_MARKER).stat().st_mtime_ns)
+        try:
+            view_set = read_session(folder)
+        except (ValueError, OSError) as exc:
+            return f"open scan {folder} not taken up: {exc}"
+        self.reset()
+        self._session = folder
+        for view in view_set.views:
+            image = cv2.imread(str(view.image_path), cv2.IMREAD_GRAYSCALE)
+            if image is None or view.theta_rad is None:
+                continue
+            mask = image > 127
+            found = _NAMED_KEY.fullmatch(view.name)
+            key = found.group(1) if found else view.name
+            if mask.any():
+                self._carver.add_view(view.camera, mask)
+            self._views[key] = _Received(view.name, np.packbits(mask, axis=None),
+                                         view.theta_rad, view.phi_rad)
+        return f"took up the open scan {folder} with its {len(self._views)} views"
 
     def add_colour_image(self, key, rgb) -> None:
         """Keep the captured image of view ``key`` (before or after its mask): the final

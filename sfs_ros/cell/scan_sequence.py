@@ -30,7 +30,16 @@ services, and a test with fakes:
 * delivery (:meth:`ScanSequence.tick`, from a timer): captures without a
   receipt in time are sent again, up to ``max_sends`` sends, then reported
   lost; when a receiver appears that was not there before, every capture is
-  sent again.
+  sent again;
+* with a :class:`sfs_ros.cell.scan_progress.ScanProgress`, every capture is
+  written to disk before it is sent, and the scan's number, state and
+  receipts with it, so that a restarted node takes up the same scan
+  (:meth:`ScanSequence.restore`); a capture that cannot be written (a full
+  disk) puts the scan in state ``waiting`` with an ERROR naming the folder
+  and the space needed, and it goes on by itself once the write succeeds;
+* with ``rehome_before_retry``, a move that failed is retried after the
+  ``home`` step (a controller that restarted has lost its position and
+  refuses moves until homed).
 
 Threads: :meth:`ScanSequence.run` blocks (a worker thread of the node); the
 inputs (:meth:`encoder_reading`, :meth:`frame`, :meth:`receipt`, :meth:`tick`)
@@ -45,6 +54,7 @@ Times are seconds of the ports' monotonic clock, angles radians, stamps
 from __future__ import annotations
 
 import math
+import os
 import threading
 import time
 import traceback
@@ -55,6 +65,7 @@ from typing import Any, Callable, Protocol
 import numpy as np
 
 from .capture_ledger import CaptureLedger, EncoderHistory, EncoderReading
+from .scan_progress import SavedCapture, SavedScan, ScanProgress
 from .settle import SettleDetector
 
 __all__ = ["MonotonicClock", "ScanPorts", "ScanSequence", "ScanSettings", "ScanStatus",
@@ -62,10 +73,13 @@ __all__ = ["MonotonicClock", "ScanPorts", "ScanSequence", "ScanSettings", "ScanS
 
 Stamp = tuple[int, int]
 
-#: ``idle`` before the first start; ``starting`` (prepare steps) and ``running`` while
-#: :meth:`ScanSequence.run` works; then ``done``, ``paused`` or ``cancelled``.
-SCAN_STATES = ("idle", "starting", "running", "paused", "cancelled", "done")
-_ACTIVE = ("starting", "running")
+#: ``idle`` before the first start; ``starting`` (prepare steps), ``running`` and
+#: ``waiting`` (for disk space, goes on by itself) while :meth:`ScanSequence.run` works;
+#: then ``done``, ``paused`` or ``cancelled``.
+SCAN_STATES = ("idle", "starting", "running", "waiting", "paused", "cancelled", "done")
+_ACTIVE = ("starting", "running", "waiting")
+#: How often a capture that could not be written to disk is tried again, s.
+_DISK_RETRY_S = 1.0
 #: How often a move's state is judged when no encoder reading comes, s.
 _POLL_S = 0.1
 #: Camera frames kept by stamp while waiting for the view's one (a second of a 16 Hz stream).
@@ -74,6 +88,18 @@ _FRAMES_KEPT = 16
 TRIGGERS = ("shutter", "stream")
 #: Encoder readings kept for the move being watched (drained every _POLL_S).
 _READINGS_KEPT = 1000
+
+
+def _disk_problem(view: int, folder, size: int, exc: OSError) -> str:
+    """The ERROR of a capture that could not be written: where, why, and the space needed."""
+    try:
+        stat = os.statvfs(folder)
+        free = f" ({stat.f_bavail * stat.f_frsize / 1e6:.1f} MB free now)"
+    except OSError:
+        free = ""
+    return (f"view {view + 1}: cannot keep the capture in {folder}: "
+            f"{exc.strerror or exc}; it needs {size / 1e6:.2f} MB free there{free}; "
+            "the scan waits and goes on by itself once the write succeeds")
 
 
 def _format(stamp: Stamp) -> str:
@@ -120,6 +146,9 @@ class ScanSettings:
     exposure_delay_s : float
         ``stream``: the view's frame is stamped at least this long after the axes
         settled (>= 0), s; e.g. a camera's exposure plus the vibration's dying away.
+    rehome_before_retry : bool
+        Run the ``home`` step of ``prepare`` (when there is one) before commanding a
+        failed move again.
     """
 
     settle_tolerance_rad: float
@@ -135,6 +164,7 @@ class ScanSettings:
     prepare: tuple[tuple[str, float], ...] = ()
     trigger: str = "shutter"
     exposure_delay_s: float = 0.0
+    rehome_before_retry: bool = False
 
     def __post_init__(self) -> None:
         if self.trigger not in TRIGGERS:
@@ -200,6 +230,12 @@ class ScanPorts(Protocol):
     def changed(self) -> None:
         """The state, the view or a problem changed (publish the diagnostics)."""
 
+    def encode_capture(self, capture: Any) -> bytes:
+        """A capture as bytes, to keep on disk (used with a :class:`ScanProgress`)."""
+
+    def decode_capture(self, data: bytes) -> Any:
+        """The capture of :meth:`encode_capture`'s bytes; ValueError if they are not one."""
+
 
 class MonotonicClock:
     """``now`` and ``wait_for`` of :class:`ScanPorts` on the machine's clock, for real ports."""
@@ -240,9 +276,12 @@ class ScanSequence:
         ``(theta, phi)`` of each view, radians, in the order to take them.
     ports : ScanPorts
     settings : ScanSettings
+    progress : ScanProgress, optional
+        Where the scan's progress and captures are kept on disk.
     """
 
-    def __init__(self, views_rad, ports: ScanPorts, settings: ScanSettings):
+    def __init__(self, views_rad, ports: ScanPorts, settings: ScanSettings,
+                 progress: ScanProgress | None = None):
         views = np.asarray(views_rad, dtype=np.float64)
         if views.ndim != 2 or views.shape[1] != 2 or len(views) == 0 \
                 or not np.all(np.isfinite(views)):
@@ -263,6 +302,8 @@ class ScanSequence:
         self._state, self._view, self._scan = "idle", 0, 0
         self._problem = self._warning = ""
         self._prepared = False
+        self._progress = progress
+        self._save_lock = threading.Lock()   # one progress write at a time, the newest last
 
     def __len__(self) -> int:
         return len(self.views_rad)
@@ -301,7 +342,12 @@ class ScanSequence:
     def receipt(self, stamp: Stamp) -> bool:
         """The receiver stored the capture at ``stamp``; False if it is not this scan's."""
         with self._cv:
-            return self._ledger.receipt(stamp)
+            entry = self._ledger.entries.get(tuple(stamp))
+            news = entry is not None and not entry.receipted
+            ours = self._ledger.receipt(stamp)
+        if news:
+            self._save()
+        return ours
 
     def count_malformed(self) -> None:
         """An input was refused (the caller logs why); counted in this scan's diagnostics."""
@@ -363,6 +409,12 @@ class ScanSequence:
             self._view = 0
             self._scan += 1
             self._begin()
+        if self._progress is not None:
+            try:
+                self._progress.clear_captures()
+            except OSError as exc:
+                self._ports.log("warning", f"captures of the last scan not deleted: {exc}")
+        self._save()
         self._ports.changed()
         return True, f"scan {self._scan} started: {len(self)} views"
 
@@ -399,6 +451,71 @@ class ScanSequence:
     def _begin(self) -> None:
         self.cancelled.clear()
         self._state = "running" if self._prepared else "starting"
+
+    def restore(self) -> tuple[bool, str]:
+        """Take up the scan saved in the progress folder (the node restarted): its number,
+        captures (sent again at the next :meth:`tick`) and receipts. ``(go_on, message)``:
+        ``go_on`` when it was under way, then call :meth:`run` next."""
+        if self._progress is None:
+            return False, "no progress folder"
+        try:
+            saved = self._progress.load()
+        except ValueError as exc:
+            return False, f"saved progress not taken up: {exc}"
+        if saved is None:
+            return False, "no saved scan"
+        payloads, dropped = [], []
+        for capture in saved.captures:
+            try:
+                payloads.append((capture, self._ports.decode_capture(
+                    self._progress.load_capture(capture))))
+            except (OSError, ValueError) as exc:
+                dropped.append(f"view {capture.view + 1} ({exc})")
+        now = self._ports.now()
+        with self._cv:
+            self._ledger = self._new_ledger()
+            for capture, payload in payloads:
+                entry = self._ledger.add(capture.view, capture.stamp, payload, now,
+                                         angles_rad=(capture.theta_rad, capture.phi_rad))
+                entry.receipted = capture.receipted
+            self._scan, self._prepared = saved.scan, saved.prepared
+            self._view = min(set(range(len(self))) - self._ledger.views(), default=0)
+            go_on = saved.state in _ACTIVE and self._ledger.captured < len(self)
+            if go_on:
+                self._begin()
+            elif saved.state in _ACTIVE:
+                self._state = "done"
+            else:
+                self._state = saved.state if saved.state in SCAN_STATES else "paused"
+            captured = self._ledger.captured
+        message = (f"took up scan {saved.scan} ({saved.state}): {captured} of {len(self)} "
+                   f"views captured" + (f"; captures lost from the disk, to be taken again: "
+                                        f"{', '.join(dropped)}" if dropped else "")
+                   + ("; going on" if go_on else ""))
+        self._save()
+        self._ports.changed()
+        return go_on, message
+
+    def _snapshot(self, extra: SavedCapture | None = None) -> SavedScan:
+        """The scan as saved (with ``extra``, a capture about to be added); under the lock."""
+        captures = [SavedCapture(e.view, e.stamp, *(e.angles_rad or (math.nan, math.nan)),
+                                 e.receipted) for e in self._ledger.entries.values()]
+        return SavedScan(scan=self._scan, state=self._state, prepared=self._prepared,
+                         captures=tuple(captures + ([extra] if extra else [])))
+
+    def _save(self) -> None:
+        """Write the progress (when kept); a WARN when it cannot be written (the next write
+        carries what this one missed)."""
+        if self._progress is None:
+            return
+        with self._save_lock:
+            with self._cv:
+                snapshot = self._snapshot()
+            try:
+                self._progress.save(snapshot)
+            except OSError as exc:
+                self._ports.log("warning", f"scan progress not written to "
+                                           f"{self._progress.folder}: {exc}")
 
     # -- the run (a worker thread) -----------------------------------------------------------
 
@@ -485,7 +602,54 @@ class ScanSequence:
                 return
             reason = f"move {state.reason}"
             self._retry("move_retries", attempt, retries, reason)
+            if attempt < retries:
+                self._rehome()
         raise _Fault(f"{reason} (after {retries + 1} attempts)")
+
+    def _rehome(self) -> None:
+        """Home the axes before a move is commanded again (``rehome_before_retry``); a
+        failure is only a WARN (the retry then fails in its turn)."""
+        steps = dict(self.settings.prepare)
+        if not self.settings.rehome_before_retry or "home" not in steps:
+            return
+        self._ports.log("warning", f"view {self._view + 1}: homing before the move is "
+                                   "commanded again")
+        try:
+            self._ports.prepare("home", timeout_s=steps["home"], cancelled=self.cancelled)
+        except StepFailed as exc:
+            self._check_cancel()
+            self._ports.log("warning", f"homing before the retry failed: {exc}")
+
+    def _keep(self, view: int, stamp: Stamp, capture: Any, reading: EncoderReading) -> None:
+        """Write a capture and the progress listing it to disk before it is sent; while the
+        disk refuses, the scan is ``waiting`` (ERROR) and the write is tried again."""
+        if self._progress is None:
+            return
+        data = self._ports.encode_capture(capture)
+        saved = SavedCapture(view, stamp, reading.theta_rad, reading.phi_rad, False)
+        waiting = False
+        while True:
+            try:
+                with self._save_lock:
+                    self._progress.save_capture(view, stamp, data)
+                    with self._cv:
+                        snapshot = self._snapshot(saved)
+                    self._progress.save(snapshot)
+                break
+            except OSError as exc:
+                if not waiting:
+                    waiting = True
+                    self._set_problem(_disk_problem(view, self._progress.folder, len(data),
+                                                    exc))
+                    self._set_state("waiting")
+                self._ports.wait_for(self._cv, self.cancelled.is_set, _DISK_RETRY_S)
+                self._check_cancel()
+        if waiting:
+            with self._cv:
+                self._problem = ""
+            self._ports.log("info", f"view {view + 1}: capture written to "
+                                    f"{self._progress.folder}; the scan goes on")
+            self._set_state("running")
 
     def _capture(self, view: int) -> None:
         retries = self.settings.capture_retries
@@ -501,9 +665,11 @@ class ScanSequence:
                 self._retry("capture_retries", attempt, retries, reason)
                 continue
             capture = self._ports.make_capture(frame, stamp, reading)
+            self._keep(view, stamp, capture, reading)
             with self._cv:
                 self._counts["shutter_s"] += self._ports.now() - start
-                self._ledger.add(view, stamp, capture, self._ports.now())
+                self._ledger.add(view, stamp, capture, self._ports.now(),
+                                 angles_rad=(reading.theta_rad, reading.phi_rad))
             self._ports.send(capture)
             return
         raise _Fault(f"no frame: {reason} (after {retries + 1} attempts)")
@@ -567,6 +733,7 @@ class ScanSequence:
         with self._cv:
             self._state = state
             self._cv.notify_all()
+        self._save()
         self._ports.changed()
 
     def _set_problem(self, text: str) -> None:

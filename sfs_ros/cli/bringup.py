@@ -146,7 +146,8 @@ def cell_nodes(config_dir, output_dir, *, mock: bool, record: bool = False,
         spec("recorder", "recorder_node", ["recorder.yaml"],
              {"output_dir": str(output), **({"with_scan": "true"} if record else {})}),
         spec("scan", "scan_node", ["scan.yaml"],
-             {"plan_file": files("scan_plan.yaml")[0], **stream[0]}, stream[1]),
+             {"plan_file": files("scan_plan.yaml")[0],
+              "progress_dir": str(output / "scan_progress"), **stream[0]}, stream[1]),
     ]
 
 

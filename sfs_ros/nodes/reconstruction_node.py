@@ -53,8 +53,20 @@ unusable view is logged, counted in the diagnostics
 (ERROR until the next good view) and dropped; the node carries on. An
 all-zero mask is stored but carves nothing (WARN).
 
+Restarts, disk, memory: a node started again takes up the scan being received
+(:meth:`LiveReconstruction.reopen`: the session folder still open, its views
+carved again), so the views the scan node sends again are known and receipted,
+not stored twice. A view that cannot be stored (a full disk) is an ERROR naming
+the folder and the free space; it is kept in memory, without a receipt, and
+stored (then receipted) as soon as a write succeeds, tried every second; what
+was stored before is left intact. A ``resolution`` whose grid does not fit
+``max_memory`` is refused before anything is allocated: the node stays up with
+an ERROR giving the memory it would need, answers ``reconstruct`` and ``reset``
+with that reason, and receipts no view (the scan node keeps them).
+
 Diagnostics values: counts (views_received, carved, empty, rejected,
-malformed, repeats, unpaired_dropped, reconstructions, ...), ``scan_views``
+malformed, repeats, unpaired_dropped, reconstructions, ...), ``unstored`` (views
+kept in memory that the disk refused), ``scan_views``
 (views in this scan) and ``carve_s``, the seconds spent storing and carving
 this scan's views.
 
@@ -73,6 +85,7 @@ required. Output files stay inside ``output_dir``.
 from __future__ import annotations
 
 import json
+import os
 import threading
 import time
 import traceback
@@ -90,6 +103,12 @@ from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker
 
 from sfs_ros.cell.live import DuplicateViewError, LiveReconstruction, check_scan_name
+from sfs_ros.core.carving.resolution import (
+    default_memory_budget,
+    grid_shape,
+    parse_memory,
+    refuse_unfit_grid,
+)
 from sfs_ros.core.exchange.views import as_bounds
 from sfs_ros.core.geometry.rig import rig_camera
 from sfs_ros.core.pipeline import MESHERS
@@ -147,7 +166,12 @@ PARAMS: list[Param] = [
           read_only=True),
     Param("colour", True, "Colour the mesh from the captured images (capture/image) of the "
           "views it uses.", read_only=True),
+    Param("max_memory", "", "Working memory the voxel grid may take, e.g. 2G or 512M; a "
+          "resolution that needs more is refused.", read_only=True,
+          constraints="empty = a quarter of the machine's memory"),
 ]
+#: How often views that could not be stored (a full disk) are tried again, s.
+STORE_RETRY_S = 1.0
 
 
 def _decode_mask(msg: Image) -> tuple[np.ndarray, str]:
@@ -156,6 +180,20 @@ def _decode_mask(msg: Image) -> tuple[np.ndarray, str]:
     if msg.encoding != "mono8":
         raise ValueError(f"mask encoding is {msg.encoding!r}, expected 'mono8'")
     return msg_to_image(msg).copy(), msg.header.frame_id
+
+
+def _store_problem(stamp, live: LiveReconstruction, exc: OSError, waiting: int) -> str:
+    """The ERROR of a view the disk refused: where, why, the free space, what happens next."""
+    folder = live.session_dir or live.output_dir
+    try:
+        stat = os.statvfs(live.output_dir)
+        free = f"{stat.f_bavail * stat.f_frsize / 1e6:.1f} MB free"
+    except OSError:
+        free = "free space unknown"
+    return (f"view at stamp {format_stamp(stamp)} not stored in {folder}: "
+            f"{exc.strerror or exc} ({free}; a view's image takes at most "
+            f"{live.calibration.width * live.calibration.height * 3 / 1e6:.2f} MB); {waiting} "
+            f"view(s) kept in memory without a receipt, stored as soon as a write succeeds")
 
 
 def _scan_settings(values: dict) -> tuple:
@@ -193,16 +231,29 @@ class ReconstructionNode(Node):
         if not values["output_dir"].strip():
             raise ParameterError("output_dir", "is required: the folder for scans and meshes")
         calibration = rig_calibration(values)
+        bounds = _bounds(values)
         try:
-            # scan_name is for the next reset: a respawned node must not be refused because
-            # the scan it was named for is on disk already.
-            self._live = LiveReconstruction(calibration, _bounds(values),
-                                            output_dir=values["output_dir"],
-                                            resolution=values["resolution"],
-                                            mesher=values["mesher"])
-        except (ValueError, OSError) as exc:
-            raise ParameterError("output_dir" if isinstance(exc, OSError) else "resolution",
-                                 str(exc)) from None
+            budget = parse_memory(values["max_memory"]) if values["max_memory"].strip() \
+                else default_memory_budget()
+        except ValueError as exc:
+            raise ParameterError("max_memory", str(exc)) from None
+        self._budget = budget
+        self._calibration = calibration
+        self._live = None
+        # Why no reconstruction can be held (the node stays up; a reset with a resolution
+        # that fits ends it).
+        self._refusal = self._grid_refusal(values)
+        if not self._refusal:
+            try:
+                # scan_name is for the next reset: a respawned node must not be refused
+                # because the scan it was named for is on disk already.
+                self._live = LiveReconstruction(calibration, bounds,
+                                                output_dir=values["output_dir"],
+                                                resolution=values["resolution"],
+                                                mesher=values["mesher"])
+            except (ValueError, OSError) as exc:
+                raise ParameterError("output_dir" if isinstance(exc, OSError)
+                                     else "resolution", str(exc)) from None
         self._scan_settings = _scan_settings(values)
         self.add_on_set_parameters_callback(validating_callback(self, PARAMS,
                                                                 self._check_scan_settings))
@@ -215,7 +266,8 @@ class ReconstructionNode(Node):
                         "malformed": 0, "repeats": 0, "unpaired_dropped": 0,
                         "reconstructions": 0, "reconstruction_failures": 0, "scan_views": 0}
         self._carve_s = 0.0     # storing and carving this scan's views, for the benchmark
-        self._problem = ""
+        self._unstored: dict = {}   # view key -> _add_view's arguments (worker thread)
+        self._problem = self._refusal
         self._warning = ""
 
         inputs = MutuallyExclusiveCallbackGroup()     # pairer, timers
@@ -241,13 +293,19 @@ class ReconstructionNode(Node):
                             callback_group=services)
         self.create_service(Trigger, private("reset"), self._on_reset, callback_group=services)
         self.create_timer(1.0, self._publish_diagnostics, callback_group=inputs)
+        self.create_timer(STORE_RETRY_S, self._retry_unstored, callback_group=inputs)
 
         self._last_hull = -float("inf")   # worker thread: when the hull was last published
         self._hull_dirty = False           # worker thread: carved since then
         self._worker = Worker("reconstruction", on_error=self._job_failed)
+        if self._refusal:
+            self.get_logger().error(f"{self._refusal}; the node receipts no view and "
+                                    "reconstructs nothing until started with another one")
+            return
         self.get_logger().info(
             f"reconstructing into {self._live.output_dir} (box {self._live.bounds_m.tolist()}, "
             f"resolution {values['resolution']}, {values['mesher']}, queue depth {depth})")
+        self._submit("reopen", self._reopen)
 
     def destroy_node(self) -> None:
         """Finish the queued work, stop the worker thread, then destroy the node."""
@@ -319,34 +377,78 @@ class ReconstructionNode(Node):
         self.get_logger().error(f"{text}\n{''.join(traceback.format_exception(exc))}")
         self._report_problem(text)
 
+    def _reopen(self) -> None:
+        """Take up the scan that was open when the node last stopped (a restart)."""
+        self.get_logger().info(self._live.reopen())
+        self._cameras = [rig_camera(theta, phi, self._live.calibration)
+                         for _, _, theta, phi in self._live.views()]
+        with self._stats_lock:
+            self._counts["scan_views"] = self._live.n_views
+        if self._cameras:
+            self._publish_poses()
+            self._hull_dirty = True
+
+    def _retry_unstored(self) -> None:
+        """Timer: store again the views a full disk refused (in the worker)."""
+        if self._unstored:
+            self._submit("store again", self._store_again)
+
+    def _store_again(self) -> None:
+        for args in list(self._unstored.values()):
+            self._add_view(*args)
+            if view_key(args[0]) in self._unstored:
+                return                      # still refused: the rest waits too
+
     def _add_colour_image(self, stamp, image) -> None:
         """Keep a captured image to colour the mesh."""
+        if self._live is None:
+            return
         try:
             self._live.add_colour_image(view_key(stamp), image)
         except ValueError as exc:
             self._report_problem(f"captured image at stamp {format_stamp(stamp)} not kept for "
                                  f"colour: {exc}")
 
+    def _grid_refusal(self, values: dict) -> str:
+        """Why the voxel grid of ``values`` cannot be held within the memory budget ("" if it
+        can), with the memory it would need; nothing is allocated."""
+        bounds = _bounds(values)
+        voxel_m = float(np.max(bounds[1] - bounds[0])) / values["resolution"]
+        try:
+            refuse_unfit_grid(grid_shape(bounds, voxel_m), self._budget,
+                              f"resolution {values['resolution']}")
+        except ValueError as exc:
+            return f"refused: {exc}"
+        return ""
+
     def _check_scan_settings(self, values: dict) -> None:
         """ParameterError for per-scan settings that cannot make a scan."""
         _bounds(values)
+        refusal = self._grid_refusal(values)
+        if refusal:
+            raise ParameterError("resolution", refusal)
         if values["scan_name"]:
             try:
-                check_scan_name(self._live.output_dir, values["scan_name"])
+                check_scan_name(values["output_dir"], values["scan_name"])
             except ValueError as exc:
                 raise ParameterError("scan_name", str(exc)) from None
 
     def _reset(self) -> tuple[bool, str]:
         """Start a new scan with the per-scan settings as they are now; publishes an empty
-        hull. (False, the reason) if the scan name is taken: nothing changes."""
+        hull. (False, the reason) if the scan name is taken or the grid does not fit in
+        memory: nothing changes."""
         values = read(self, PARAMS)
         settings, name = _scan_settings(values), values["scan_name"] or None
+        refusal = self._grid_refusal(values)
+        if refusal:
+            self.get_logger().error(refusal)
+            return False, refusal
         try:
-            if settings != self._scan_settings:
+            if self._live is None or settings != self._scan_settings:
                 self._live = LiveReconstruction(
-                    self._live.calibration, _bounds(values), output_dir=self._live.output_dir,
+                    self._calibration, _bounds(values), output_dir=values["output_dir"],
                     resolution=values["resolution"], mesher=values["mesher"], scan_name=name)
-                self._scan_settings = settings
+                self._scan_settings, self._refusal = settings, ""
                 self.get_logger().info(f"new scan settings: box {values['bounds_m']}, "
                                        f"resolution {values['resolution']}, {values['mesher']}")
             else:
@@ -355,6 +457,7 @@ class ReconstructionNode(Node):
             text = f"reset refused: {exc}"
             self.get_logger().error(text)
             return False, text
+        self._unstored.clear()
         self._cameras = []
         self._publish_poses()
         with self._stats_lock:
@@ -367,10 +470,20 @@ class ReconstructionNode(Node):
 
     def _add_view(self, stamp, frame_id: str, mask, theta: float, phi: float) -> None:
         """Give one view to the live reconstruction and send its receipt."""
+        if self._live is None:
+            self._report_problem(f"view at stamp {format_stamp(stamp)} not received: "
+                                 f"{self._refusal}")
+            return
         receipt = header(stamp=stamp, frame_id=frame_id)
         start = time.perf_counter()
+        key = view_key(stamp)
+        self._unstored.pop(key, None)
         try:
-            added = self._live.add_view(view_key(stamp), mask, theta, phi)
+            added = self._live.add_view(key, mask, theta, phi)
+        except OSError as exc:
+            self._unstored[key] = (stamp, frame_id, mask, theta, phi)
+            self._report_problem(_store_problem(stamp, self._live, exc, len(self._unstored)))
+            return
         except DuplicateViewError:
             self._count("repeats")
             self.get_logger().info(f"view at stamp {format_stamp(stamp)} came again: already "
@@ -398,9 +511,11 @@ class ReconstructionNode(Node):
         self._publish_diagnostics()
 
     def _reconstruct(self) -> tuple[bool, str]:
+        if self._live is None:
+            return False, self._refusal
         try:
             summary = self._live.reconstruct()
-        except ValueError as exc:
+        except (ValueError, OSError) as exc:
             self._count("reconstruction_failures")
             reason = str(exc)
             if self._live.n_views == 0:
@@ -426,6 +541,8 @@ class ReconstructionNode(Node):
                                              frame_id=FRAME_ID))
 
     def _publish_hull(self) -> None:
+        if self._live is None:
+            return
         points = self._live.hull_points(self._max_hull_points)
         stamp = self.get_clock().now().to_msg()
         self._hull_pub.publish(points_to_cloud(points, stamp=stamp, frame_id=FRAME_ID))
@@ -448,7 +565,8 @@ class ReconstructionNode(Node):
             problem, warning = self._problem, self._warning
         level, message = health(problem, warning, f"{values['scan_views']} views in this scan")
         values.update(waiting_masks=self._input.pending("first"),
-                      waiting_joint_states=self._input.pending("second"))
+                      waiting_joint_states=self._input.pending("second"),
+                      unstored=len(self._unstored))
         self._diag_pub.publish(diagnostic_array(
             status_name(self, "reconstruction"), level, message, values,
             stamp=self.get_clock().now().to_msg()))

@@ -59,11 +59,21 @@ One that the reconstruction has not receipted on ``capture/stored`` within
 ``receipt_timeout_s`` is sent again (at most ``max_sends`` times in all, then
 reported as lost in transport); when a publisher of receipts appears that
 was not there before (the reconstruction node restarted, or started late),
-every capture is sent again. The reconstruction stores each view once, so a view is never lost to
-a restarted node and never carved twice.
+every capture is sent again. The reconstruction stores
+each view once, so a view is never lost to a restarted node and never carved twice.
+
+Restarts of this node: with ``progress_dir`` (the bring-up sets
+``OUTPUT_DIR/scan_progress``), every capture is written there before it is sent, with the
+scan's number, state and receipts (:mod:`sfs_ros.cell.scan_progress`, atomic writes). A node
+started again (after SIGKILL, a crash) takes that scan up: a scan that was under way goes on
+from the first view not captured, and its captures are sent again. A capture that cannot be
+written (disk full) puts the scan in state ``waiting`` with an ERROR naming the folder and the
+space needed; it goes on by itself once the write succeeds. ``home_before_retry`` homes the
+axes before a failed move is commanded again (a restarted controller refuses moves until
+homed).
 
 Diagnostics values: ``scan`` (1 for the first ``scan/start``, then 2, ...),
-``state`` (idle, starting, running, paused, cancelled, done), ``view`` (the
+``state`` (idle, starting, running, waiting, paused, cancelled, done), ``view`` (the
 view being taken, 1-based), ``total``, ``captured``, ``receipted``,
 ``resends``, ``move_retries``, ``capture_retries``, ``lost_in_transport``,
 ``malformed``, this scan's seconds of ``motion_s`` (command to settled)
@@ -75,12 +85,14 @@ from __future__ import annotations
 
 import json
 import math
+import struct
 import threading
 
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.node import Node
 from rclpy.qos import ReliabilityPolicy
+from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import Image, JointState
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
@@ -88,6 +100,7 @@ from std_srvs.srv import Trigger
 from sfs_ros.cell.capture_ledger import EncoderReading
 from sfs_ros.cell.messages import ForeignJointState
 from sfs_ros.cell.scan_plan import ScanPlan, load_plan
+from sfs_ros.cell.scan_progress import ScanProgress
 from sfs_ros.cell.scan_sequence import (
     TRIGGERS,
     MonotonicClock,
@@ -158,7 +171,13 @@ PARAMS: list[Param] = [
     Param("exposure_delay_s", 0.0, "stream: the view's frame is stamped at least this long "
           "after the axes settled, s.", bounds=(0.0, 60.0),
           constraints="takes effect at the next scan/start"),
+    Param("progress_dir", "", "Folder where the scan's progress and captures are kept, so "
+          "that a restarted node takes the scan up; empty = not kept.", read_only=True),
+    Param("home_before_retry", False, "Home the axes before a failed move is commanded "
+          "again.", read_only=True),
 ]
+#: Bytes of the length of the first message in a capture's bytes (big-endian).
+_LENGTH = struct.Struct(">Q")
 
 
 def scan_plan(values: dict) -> ScanPlan:
@@ -189,7 +208,8 @@ def scan_settings(values: dict) -> ScanSettings:
         encoder_max_gap_s=values["encoder_max_gap_s"],
         receipt_timeout_s=values["receipt_timeout_s"], max_sends=values["max_sends"],
         prepare=tuple((name, timeout_s) for name, wanted, timeout_s in steps if wanted),
-        trigger=values["camera_trigger"], exposure_delay_s=values["exposure_delay_s"])
+        trigger=values["camera_trigger"], exposure_delay_s=values["exposure_delay_s"],
+        rehome_before_retry=values["home_before_retry"])
 
 
 class _RosPorts(MonotonicClock):
@@ -240,6 +260,23 @@ class _RosPorts(MonotonicClock):
         self._node.image_pub.publish(frame)
         self._node.joints_pub.publish(joints)
 
+    def encode_capture(self, capture) -> bytes:
+        frame, joints = (serialize_message(m) for m in capture)
+        return _LENGTH.pack(len(frame)) + frame + joints
+
+    def decode_capture(self, data: bytes):
+        if len(data) < _LENGTH.size:
+            raise ValueError(f"{len(data)} bytes is too short for a capture")
+        (length,) = _LENGTH.unpack_from(data)
+        if length > len(data) - _LENGTH.size:
+            raise ValueError(f"a capture of {len(data)} bytes cannot hold a frame of {length}")
+        start = _LENGTH.size
+        try:
+            return (deserialize_message(data[start:start + length], Image),
+                    deserialize_message(data[start + length:], JointState))
+        except Exception as exc:  # noqa: BLE001 -- rclpy raises several kinds for bad bytes
+            raise ValueError(f"not a capture: {exc}") from None
+
     def log(self, level: str, text: str) -> None:
         logger = self._node.get_logger()
         # One call site per severity: rclpy refuses a site whose severity changes.
@@ -273,7 +310,16 @@ class ScanNode(Node):
             super().destroy_node()
             raise ParameterError("queue_depth", f"got {self._p['queue_depth']}, expected at "
                                  f"least the {len(self.plan)} views of the plan")
-        self._sequence = ScanSequence(self.plan.views, _RosPorts(self), scan_settings(self._p))
+        progress = None
+        if self._p["progress_dir"].strip():
+            try:
+                progress = ScanProgress(self._p["progress_dir"], self.plan.views)
+            except OSError as exc:
+                super().destroy_node()
+                raise ParameterError("progress_dir", f"cannot use {self._p['progress_dir']}: "
+                                     f"{exc}") from None
+        self._sequence = ScanSequence(self.plan.views, _RosPorts(self), scan_settings(self._p),
+                                      progress)
         self._receivers: set[bytes] = set()   # every publisher of receipts seen (by GID)
         self._foreign_seen = False            # a joint state of another machine was logged
         self.add_on_set_parameters_callback(validating_callback(self, PARAMS, lambda _: None))
@@ -305,6 +351,11 @@ class ScanNode(Node):
         self.get_logger().info(f"scan plan of {len(self.plan)} views ({turntable:.0f} deg of "
                                f"turntable and {carriage:.0f} deg of carriage travel); "
                                "call scan/start")
+        if progress is not None:
+            go_on, message = self._sequence.restore()
+            self.get_logger().info(f"progress in {progress.folder}: {message}")
+            if go_on:
+                self._launch()
 
     def destroy_node(self) -> None:
         if self._worker is not None:

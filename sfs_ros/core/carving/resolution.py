@@ -22,7 +22,7 @@ import numpy as np
 from ..geometry.camera import Camera
 from ..geometry.grid import MAX_VOXELS
 
-__all__ = ["BYTES_PER_VOXEL", "ResolutionChoice", "pixel_footprints_m", "parse_memory",
+__all__ = ["BYTES_PER_VOXEL", "refuse_unfit_grid", "ResolutionChoice", "pixel_footprints_m", "parse_memory",
            "default_memory_budget", "grid_shape", "choose_voxel_size"]
 
 #: Peak working memory of a reconstruction per voxel of its grid, bytes: the
@@ -137,6 +137,17 @@ def _describe(shape) -> str:
     voxels = int(np.prod(shape))
     return (f"grid {tuple(shape)} = {voxels / 1e6:.0f} M voxels needs "
             f"{voxels * BYTES_PER_VOXEL / (1 << 30):.2f} GiB")
+
+
+def refuse_unfit_grid(shape, max_memory_bytes: int, what: str) -> None:
+    """ValueError naming ``what``, the memory the grid ``shape`` (voxels per axis) needs and
+    the budget ``max_memory_bytes`` when it does not fit (nothing is allocated)."""
+    if not _fits(shape, max_memory_bytes):
+        cap = "" if int(np.prod(shape)) <= MAX_VOXELS \
+            else f" and a grid has at most {MAX_VOXELS / 1e6:.0f} M voxels"
+        raise ValueError(f"{what} is more than this machine may hold: {_describe(shape)}, "
+                         f"the budget is {max_memory_bytes / (1 << 30):.2f} GiB{cap}; choose "
+                         "a coarser resolution")
 
 
 def choose_voxel_size(bounds_m, cameras: Sequence[Camera], *, max_memory_bytes: int,

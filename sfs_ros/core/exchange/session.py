@@ -63,6 +63,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import errno
 import io
 import math
 import os
@@ -438,8 +439,10 @@ def append_view(folder: Path | str, name: str, rgb: np.ndarray, theta_rad: float
                 phi_rad: float) -> Path:
     """Add one image with its encoder readings to an existing angles session.
 
-    The PNG is written first, then one row is appended to ``views.csv``;
-    earlier rows are never rewritten.
+    The PNG is written first (atomically), then one row is appended to
+    ``views.csv``; earlier rows are never rewritten. When a write fails
+    (``OSError``, e.g. a full disk) the table is cut back to its earlier
+    rows and the image removed, so the same view can be appended later.
 
     Parameters
     ----------
@@ -470,12 +473,21 @@ def append_view(folder: Path | str, name: str, rgb: np.ndarray, theta_rad: float
     rgb = _check_rgb(rgb, rig, name)
     _write_png(path, rgb)
     table = folder / VIEWS_FILE
-    with table.open("rb") as f:
-        f.seek(-1, os.SEEK_END)
-        needs_newline = f.read(1) != b"\n"
-    with table.open("a", encoding="utf-8", newline="") as f:
-        f.write(("\n" if needs_newline else "")
-                + _csv_line([name, repr(float(theta_rad)), repr(float(phi_rad))]))
-        f.flush()
-        os.fsync(f.fileno())
+    try:
+        with table.open("rb+", buffering=0) as f:   # unbuffered: a failed write raises here
+            size = f.seek(0, os.SEEK_END)
+            f.seek(-1, os.SEEK_END)
+            row = (("\n" if f.read(1) != b"\n" else "")
+                   + _csv_line([name, repr(float(theta_rad)), repr(float(phi_rad))]))
+            try:
+                data = row.encode("utf-8")
+                if f.write(data) != len(data):
+                    raise OSError(errno.ENOSPC, f"{table}: the row was written in part")
+                os.fsync(f.fileno())
+            except OSError:
+                f.truncate(size)    # no half row left behind (a full disk)
+                raise
+    except OSError:
+        path.unlink(missing_ok=True)   # nor an image without its row: the view can come again
+        raise
     return path
