@@ -244,6 +244,19 @@ def test_reset_then_reconstruct_without_views_fails_clearly(scan, cell):
     assert cell.process.alive()
 
 
+def test_a_late_copy_of_an_earlier_scans_view_is_not_stored_in_the_next(scan, cell, masks):
+    assert cell.call("reset").success           # the scan fixture's views: an earlier scan's
+    cell.wait_values("the new scan", scan_views=0)
+    before = _receipts(cell, _stamp(4))
+    cell.send(_stamp(4), masks[4], *PLAN[4])    # a resend that crossed its receipt
+    cell.probe.spin_until(lambda: _receipts(cell, _stamp(4)) == before + 1,
+                          what="the receipt of the late copy", process=cell.process)
+    cell.wait_values("the late copy counted, not stored", stale=1, scan_views=0)
+    cell.send((4000, 0), masks[4], *PLAN[4])    # a new capture of that viewpoint is stored
+    cell.wait_values("the new scan's first view", scan_views=1)
+    assert cell.call("reset").success
+
+
 def test_missing_output_dir_exits_with_one_line():
     process = NodeProcess(MODULE)
     code, lines = process.exit_lines()

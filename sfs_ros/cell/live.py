@@ -287,6 +287,10 @@ class LiveReconstruction:
         """(nx, ny, nz) bool on :attr:`grid`: the live hull of the non-empty masks so far."""
         return self._carver.occupancy
 
+    def view_keys(self) -> list[str]:
+        """The keys of every view received, in order."""
+        return list(self._views)
+
     def views(self) -> list[tuple[str, np.ndarray, float, float]]:
         """``(key, mask (H, W) bool, theta_rad, phi_rad)`` of every view received, in order."""
         shape = (self.calibration.height, self.calibration.width)

@@ -26,9 +26,12 @@ Receipts: once a view is stored in the session folder (or rejected as
 unusable), its header goes out on ``capture/stored``. The scan node resends
 a capture that has no receipt in time (at-least-once delivery); a view that
 comes again is not carved twice: it is counted in ``repeats`` and its
-receipt sent again. ``hull``, ``camera_poses``, ``mesh`` and ``mesh_shape``: reliable,
-transient-local, depth 1 (:func:`sfs_ros.ros.result_qos`), so a viewer
-started later gets the latest.
+receipt sent again. A late copy of a view stored in an earlier scan (a resend
+that crossed its receipt, arriving after ``reset``) is not stored in the new
+scan: it is counted in ``stale`` and receipted again. ``hull``,
+``camera_poses``, ``mesh`` and ``mesh_shape``: reliable, transient-local,
+depth 1 (:func:`sfs_ros.ros.result_qos`), so a viewer started later gets the
+latest.
 
 Threads: the executor (several threads) only decodes and pairs messages and
 answers services; one worker thread owns the ``LiveReconstruction`` and
@@ -65,7 +68,7 @@ an ERROR giving the memory it would need, answers ``reconstruct`` and ``reset``
 with that reason, and receipts no view (the scan node keeps them).
 
 Diagnostics values: counts (views_received, carved, empty, rejected,
-malformed, repeats, unpaired_dropped, reconstructions, ...), ``unstored`` (views
+malformed, repeats, stale, unpaired_dropped, reconstructions, ...), ``unstored`` (views
 kept in memory that the disk refused), ``scan_views``
 (views in this scan) and ``carve_s``, the seconds spent storing and carving
 this scan's views.
@@ -172,6 +175,9 @@ PARAMS: list[Param] = [
 ]
 #: How often views that could not be stored (a full disk) are tried again, s.
 STORE_RETRY_S = 1.0
+#: Views of earlier scans remembered by their keys, so that a late copy of one (a resend
+#: that crossed its receipt) is not stored into the next scan; the most recent are kept.
+EARLIER_VIEWS_KEPT = 10_000
 
 
 def _decode_mask(msg: Image) -> tuple[np.ndarray, str]:
@@ -263,10 +269,11 @@ class ReconstructionNode(Node):
 
         self._stats_lock = threading.Lock()
         self._counts = {"views_received": 0, "carved": 0, "empty": 0, "rejected": 0,
-                        "malformed": 0, "repeats": 0, "unpaired_dropped": 0,
+                        "malformed": 0, "repeats": 0, "stale": 0, "unpaired_dropped": 0,
                         "reconstructions": 0, "reconstruction_failures": 0, "scan_views": 0}
         self._carve_s = 0.0     # storing and carving this scan's views, for the benchmark
         self._unstored: dict = {}   # view key -> _add_view's arguments (worker thread)
+        self._earlier: dict = {}    # keys of views stored in earlier scans (worker thread)
         self._problem = self._refusal
         self._warning = ""
 
@@ -443,6 +450,7 @@ class ReconstructionNode(Node):
         if refusal:
             self.get_logger().error(refusal)
             return False, refusal
+        earlier = [] if self._live is None else self._live.view_keys()
         try:
             if self._live is None or settings != self._scan_settings:
                 self._live = LiveReconstruction(
@@ -458,6 +466,7 @@ class ReconstructionNode(Node):
             self.get_logger().error(text)
             return False, text
         self._unstored.clear()
+        self._remember_earlier(earlier)
         self._cameras = []
         self._publish_poses()
         with self._stats_lock:
@@ -468,6 +477,12 @@ class ReconstructionNode(Node):
         self._hull_dirty = True
         return True, "new scan: no views yet"
 
+    def _remember_earlier(self, keys: list) -> None:
+        """Remember the keys of a finished scan's views (at most :data:`EARLIER_VIEWS_KEPT`)."""
+        self._earlier.update(dict.fromkeys(keys))
+        for key in list(self._earlier)[:max(0, len(self._earlier) - EARLIER_VIEWS_KEPT)]:
+            del self._earlier[key]
+
     def _add_view(self, stamp, frame_id: str, mask, theta: float, phi: float) -> None:
         """Give one view to the live reconstruction and send its receipt."""
         if self._live is None:
@@ -477,6 +492,12 @@ class ReconstructionNode(Node):
         receipt = header(stamp=stamp, frame_id=frame_id)
         start = time.perf_counter()
         key = view_key(stamp)
+        if key in self._earlier:
+            self._count("stale")
+            self.get_logger().info(f"view at stamp {format_stamp(stamp)} came again after its "
+                                   "scan ended: not stored in this scan, receipt sent again")
+            self._stored_pub.publish(receipt)
+            return
         self._unstored.pop(key, None)
         try:
             added = self._live.add_view(key, mask, theta, phi)
