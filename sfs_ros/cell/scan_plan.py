@@ -12,7 +12,7 @@ Plan file (YAML mapping; unknown keys are an error). Either explicit views::
 or rings of views (:func:`sfs_ros.core.simulation.plan.ring_plan`)::
 
     rings:
-      phi_deg: [15, 40, 65]  # carriage elevations, degrees
+      phi_deg: [5, 35, 65]   # carriage elevations, degrees
       per_ring: 16           # turntable stops per ring, evenly spaced
       top_view: true         # optional (default false): one view from straight above
       stagger: true          # optional (default true): offset every other ring by half a step

@@ -37,7 +37,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
     p.add_argument("-o", "--out", type=Path, default=Path("out/simulate"), help="output folder")
     p.add_argument("--object", choices=OBJECT_NAMES, default="mug")
-    p.add_argument("--rings", type=float, nargs="+", default=[15.0, 40.0, 65.0], metavar="PHI_DEG",
+    p.add_argument("--rings", type=float, nargs="+", default=[5.0, 35.0, 65.0], metavar="PHI_DEG",
                    help="carriage elevations of the view rings, degrees")
     p.add_argument("--per-ring", type=int, default=24, help="turntable stops per ring")
     p.add_argument("-r", "--resolution", type=int, default=192)
