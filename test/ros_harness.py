@@ -238,6 +238,28 @@ class NodeUnderTest:
                  probe_name: str = "test_probe"):
         self.process = NodeProcess(module, params_file=params_file, parameters=parameters)
         self.probe = RosProbe(probe_name)
+        self._parameter_clients: dict = {}
+
+    def parameter_client(self, node_name: str):
+        """The probe's ``AsyncParameterClient`` of ``node_name``, its services ready."""
+        from rclpy.parameter_client import AsyncParameterClient
+
+        client = self._parameter_clients.get(node_name)
+        if client is None:
+            client = AsyncParameterClient(self.probe.node, node_name)
+            self.probe.spin_until(client.services_are_ready, process=self.process,
+                                  what=f"{node_name}'s parameter services")
+            self._parameter_clients[node_name] = client
+        return client
+
+    def set_parameter(self, node_name: str, name: str, value):
+        """Set one parameter of ``node_name`` through its parameter services, as a user
+        would at run time; the ``SetParametersResult`` (``successful``, ``reason``)."""
+        from rclpy.parameter import Parameter
+
+        future = self.parameter_client(node_name).set_parameters([Parameter(name, value=value)])
+        self.probe.spin_until(future.done, what=f"setting {name}", process=self.process)
+        return future.result().results[0]
 
     def close(self) -> tuple[int, str]:
         """Close the probe and stop the node (SIGINT first); its exit code and output."""

@@ -8,8 +8,6 @@ import pytest
 import yaml
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseArray
-from rclpy.parameter import Parameter
-from rclpy.parameter_client import AsyncParameterClient
 from sensor_msgs.msg import Image, JointState, PointCloud2
 from shape_msgs.msg import Mesh
 from std_msgs.msg import Header
@@ -266,14 +264,8 @@ def test_missing_output_dir_exits_with_one_line():
 
 def test_per_scan_settings_change_between_scans_and_bad_values_are_refused(scan, cell, masks,
                                                                            mug, out_dir):
-    client = AsyncParameterClient(cell.probe.node, "reconstruction")
-    cell.probe.spin_until(client.services_are_ready, what="parameter services",
-                          process=cell.process)
-
     def set_one(name, value):
-        future = client.set_parameters([Parameter(name, value=value)])
-        cell.probe.spin_until(future.done, what=f"setting {name}", process=cell.process)
-        return future.result().results[0]
+        return cell.set_parameter("reconstruction", name, value)
 
     taken = Path(json.loads(scan.message)["path"]).stem          # the first scan's folder
     for name, value, words in [

@@ -11,8 +11,6 @@ import time
 import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from rclpy.parameter import Parameter
-from rclpy.parameter_client import AsyncParameterClient
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Image, JointState
 from std_srvs.srv import Trigger
@@ -193,17 +191,12 @@ def test_joint_states_of_another_machine_are_ignored_with_one_info_line(start):
 
 def test_the_camera_trigger_can_change_between_scans_and_a_bad_value_is_refused(start):
     node = start(reset_reconstruction=False, home_before_scan=False)
-    client = AsyncParameterClient(node.probe.node, "scan")
-    node.probe.spin_until(client.services_are_ready, what="parameter services",
-                          process=node.process)
 
     def set_one(name, value):
-        future = client.set_parameters([Parameter(name, value=value)])
-        node.probe.spin_until(future.done, what=f"setting {name}", process=node.process)
-        return future.result().results[0]
+        return node.set_parameter("scan", name, value)
 
     def trigger() -> str:
-        future = client.get_parameters(["camera_trigger"])
+        future = node.parameter_client("scan").get_parameters(["camera_trigger"])
         node.probe.spin_until(future.done, what="reading camera_trigger", process=node.process)
         return future.result().values[0].string_value
 

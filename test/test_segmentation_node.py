@@ -4,8 +4,6 @@ import numpy as np
 import pytest
 import yaml
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from rclpy.parameter import Parameter
-from rclpy.parameter_client import AsyncParameterClient
 from sensor_msgs.msg import Image, JointState
 
 from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
@@ -187,14 +185,8 @@ def test_malformed_inputs_are_reported_and_the_node_carries_on(cell, mug_scan):
 
 
 def test_runtime_parameter_changes_are_validated(cell):
-    client = AsyncParameterClient(cell.probe.node, "segmentation")
-    cell.probe.spin_until(lambda: client.services_are_ready(), what="parameter services",
-                          process=cell.process)
-
     def set_one(name, value):
-        future = client.set_parameters([Parameter(name, value=value)])
-        cell.probe.spin_until(future.done, what=f"setting {name}", process=cell.process)
-        return future.result().results[0]
+        return cell.set_parameter("segmentation", name, value)
 
     out_of_range = set_one("threshold", 1.5)
     assert not out_of_range.successful and "threshold" in out_of_range.reason
