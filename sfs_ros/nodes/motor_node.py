@@ -178,6 +178,10 @@ class MotorNode(Node):
         client = self._client
         if client is None:
             return
+        # The reading is stamped when it is asked for: the controller answers within
+        # milliseconds, and a stamp taken before the answer can never fall after a loss of
+        # the port that the answer preceded (this thread may be held up after reading).
+        asked = self.get_clock().now().to_msg()
         try:
             status = client.status(timeout_s=0.5)
         except ConnectionLost as exc:
@@ -203,8 +207,7 @@ class MotorNode(Node):
             self._alarm = ""
         if math.isfinite(status.theta_rad) and math.isfinite(status.phi_rad):
             self._position = (status.theta_rad, status.phi_rad)
-            self._joints_pub.publish(joint_state(status.theta_rad, status.phi_rad,
-                                                 stamp=self.get_clock().now().to_msg()))
+            self._joints_pub.publish(joint_state(status.theta_rad, status.phi_rad, stamp=asked))
 
     def _set_alarm(self, text: str) -> None:
         if text != self._alarm:
