@@ -13,6 +13,7 @@ ran, no node may have ended.
 """
 
 import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -48,8 +49,9 @@ class Recorder:
         node = probe.node
         qos = capture_qos(100)
         self.joints, self.diagnostics, self.encoders = [], [], []
+        self.since_ns = 0
         node.create_subscription(JointState, "joint_states", self.encoders.append, 10)
-        node.create_subscription(JointState, "capture/joint_state", self.joints.append, qos)
+        node.create_subscription(JointState, "capture/joint_state", self._on_capture, qos)
         node.create_subscription(DiagnosticArray, DIAGNOSTICS, keep_ours(self.diagnostics),
                                  100)
         self.bad_image_pub = node.create_publisher(Image, "capture/image", qos)
@@ -62,6 +64,13 @@ class Recorder:
         self.drop_frame = node.create_client(Trigger, "mock/drop_frame")
         threading.Thread(target=probe.executor.spin, daemon=True).start()
 
+    def _on_capture(self, msg: JointState) -> None:
+        # A late resend of an earlier test's scan is stamped before this test's clear():
+        # it is that scan's capture, not this one's (the cell's clock is the system's).
+        stamp = msg.header.stamp
+        if stamp.sec * 1_000_000_000 + stamp.nanosec >= self.since_ns:
+            self.joints.append(msg)
+
     def set(self, switch: str, on: bool) -> None:
         future = self.switches[switch].call_async(SetBool.Request(data=on))
         wait(future.done, what=f"mock/{switch} answer")
@@ -72,6 +81,7 @@ class Recorder:
         wait(future.done, what="mock/drop_frame answer")
 
     def clear(self) -> None:
+        self.since_ns = time.time_ns()
         self.joints.clear()
         self.diagnostics.clear()
 
