@@ -72,8 +72,15 @@ def _ideal_to_distorted(lens: tuple) -> tuple[np.ndarray, np.ndarray]:
     pixels = np.stack([u.ravel(), v.ravel(), np.ones(u.size)], axis=1)
     xy = (pixels @ np.linalg.inv(K).T)[:, :2]
     uv = distort_normalized(xy, lens[1]) @ K[:2, :2].T + K[:2, 2]
+    return _nearest_pixels(uv, width, height)
+
+
+def _nearest_pixels(uv: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(row, col)`` (height, width) int64 each: the pixel nearest each of the
+    ``height * width`` points ``uv`` (n, 2) (row-major), -1 where it is outside the image."""
     col, row = np.rint(uv[:, 0]), np.rint(uv[:, 1])
-    inside = (col >= 0) & (col < width) & (row >= 0) & (row < height)
+    inside = np.isfinite(uv).all(axis=1) & (col >= 0) & (col < width) & (row >= 0) \
+        & (row < height)
     row = np.where(inside, row, -1).astype(np.int64).reshape(height, width)
     col = np.where(inside, col, -1).astype(np.int64).reshape(height, width)
     return row, col
@@ -112,12 +119,7 @@ def _distorted_to_ideal(lens: tuple) -> tuple[np.ndarray, np.ndarray]:
     criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-9)
     uv = cv2.undistortPointsIter(pixels, K, np.asarray(lens[1], np.float64), None, K,
                                  criteria).reshape(-1, 2)
-    col, row = np.rint(uv[:, 0]), np.rint(uv[:, 1])
-    inside = np.isfinite(uv).all(axis=1) & (col >= 0) & (col < width) & (row >= 0) \
-        & (row < height)
-    row = np.where(inside, row, -1).astype(np.int64).reshape(height, width)
-    col = np.where(inside, col, -1).astype(np.int64).reshape(height, width)
-    return row, col
+    return _nearest_pixels(uv, width, height)
 
 
 def distort_mask(mask: np.ndarray, camera: Camera) -> np.ndarray:
