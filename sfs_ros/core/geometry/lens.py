@@ -90,16 +90,7 @@ def undistort_image(image: np.ndarray, camera: Camera) -> np.ndarray:
     """An image or mask ``(camera.height, camera.width[, c])`` taken through ``camera``'s lens,
     seen by :func:`ideal_camera` (nearest pixel, module docstring; zero where the lens forms
     the ray outside the image); unchanged for an ideal lens."""
-    image = np.asarray(image)
-    if image.shape[:2] != (camera.height, camera.width):
-        raise ValueError(f"image has shape {image.shape}, expected the camera's (height, width) "
-                         f"= ({camera.height}, {camera.width})")
-    if not is_distorted(camera):
-        return image
-    row, col = _ideal_to_distorted(_lens(camera))
-    out = image[np.maximum(row, 0), np.maximum(col, 0)]
-    out[row < 0] = 0
-    return out
+    return _resample(np.asarray(image), camera, _ideal_to_distorted, "image")
 
 
 def undistort_mask(mask: np.ndarray, camera: Camera) -> np.ndarray:
@@ -126,15 +117,21 @@ def distort_mask(mask: np.ndarray, camera: Camera) -> np.ndarray:
     """(H, W) bool: a mask on :func:`ideal_camera`'s pixel grid, as ``camera``'s lens forms
     it (nearest pixel; the inverse of :func:`undistort_mask` up to the pixels on the mask's
     edge); unchanged for an ideal lens."""
-    mask = np.asarray(mask, dtype=bool)
-    if mask.shape != (camera.height, camera.width):
-        raise ValueError(f"mask has shape {mask.shape}, expected the camera's (height, width) "
+    return _resample(np.asarray(mask, dtype=bool), camera, _distorted_to_ideal, "mask")
+
+
+def _resample(image: np.ndarray, camera: Camera, lookup, what: str) -> np.ndarray:
+    """``image`` (H, W[, c]) on one of the two pixel grids, resampled onto the other: each
+    output pixel takes the pixel ``lookup(lens)`` names, zero where it names -1; unchanged
+    for an ideal lens."""
+    if image.shape[:2] != (camera.height, camera.width):
+        raise ValueError(f"{what} has shape {image.shape}, expected the camera's (height, width) "
                          f"= ({camera.height}, {camera.width})")
     if not is_distorted(camera):
-        return mask
-    row, col = _distorted_to_ideal(_lens(camera))
-    out = mask[np.maximum(row, 0), np.maximum(col, 0)]
-    out[row < 0] = False
+        return image
+    row, col = lookup(_lens(camera))
+    out = image[np.maximum(row, 0), np.maximum(col, 0)]
+    out[row < 0] = 0
     return out
 
 
