@@ -20,7 +20,7 @@ from sfs_ros.ros import result_qos
 from sfs_ros.ros.convert import joint_state
 from sfs_ros.ros.names import DIAGNOSTICS, SERVICES
 
-from ros_harness import NodeProcess, NodeUnderTest, RosProbe, keep_ours
+from ros_harness import STARTUP_TIMEOUT_S, NodeProcess, NodeUnderTest, RosProbe, keep_ours
 from tolerances import (
     ENCODER_NOISE_DEG,
     ENCODER_OFFSET_DEG,
@@ -28,6 +28,7 @@ from tolerances import (
     READBACK_TOL_RAD,
     ROUND_OFF,
 )
+from waiting import wait
 
 MODULE = "sfs_ros.nodes.motor_node"
 # Targets go on the wire in degrees with 3 decimals: GRBL's step counters end within
@@ -203,6 +204,30 @@ def test_stall_is_reported_and_home_recovers(cell, simulator):
     cell.wait_at(1.5, 0.2)
 
 
+def test_a_home_asked_while_homing_joins_it(cell, simulator):
+    """A caller may send ``home`` again when its answer is late: one cycle, two answers."""
+    # A first call (sent again if its answer is lost) matches the client at the node, so
+    # the two calls below are answered whatever the order the tests run in.
+    assert cell.call(cell.home_client).success
+    simulator.faults.homing_hold = True      # the cycle stays open until released
+    simulator.clear_received()
+    try:
+        first = cell.home_client.call_async(Trigger.Request())
+        cell.probe.spin_until(lambda: simulator.state == "Home", what="homing under way",
+                              process=cell.process)
+        second = cell.home_client.call_async(Trigger.Request())
+        cell.probe.spin_until(lambda: "joining the homing under way" in cell.process.output(),
+                              what="the second home joining the first", process=cell.process)
+    finally:
+        simulator.faults.homing_hold = False
+    cell.probe.spin_until(lambda: first.done() and second.done(), what="both answers",
+                          process=cell.process)
+    assert first.result().success and second.result().success, \
+        (first.result().message, second.result().message)
+    assert simulator.received().count(b"$H") == 1
+    assert simulator.state == "Idle"
+
+
 def test_lost_connection_is_reported_and_the_port_reopened(cell, simulator, device):
     cell.diagnostics.clear()
     simulator.disconnect()
@@ -239,6 +264,22 @@ def test_empty_port_exits_with_one_line():
     code, lines = process.exit_lines()
     assert code != 0
     assert len(lines) == 1 and "'port'" in lines[0], lines
+
+
+def test_the_mock_port_link_leads_nowhere_once_the_mock_is_killed(tmp_path):
+    """A pty number freed by a SIGKILL is soon another process's: the link must not follow."""
+    link = tmp_path / "ttyMOCK"
+    process = NodeProcess("sfs_ros.nodes.mock_hardware_node",
+                          parameters={"port_link": str(link), "seed": 3})
+    try:
+        wait(lambda: link.is_symlink() or not process.alive(), what="the port link",
+             timeout=STARTUP_TIMEOUT_S)
+        with GrblClient(str(link)) as client:              # the link opens the controller
+            assert client.status().state == "Alarm"
+    finally:
+        process.process.kill()
+        process.process.wait()
+    assert link.is_symlink() and not link.exists()          # dangling, not another's pty
 
 
 def test_mock_hardware_refuses_a_wrong_world_it_cannot_make():

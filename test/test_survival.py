@@ -27,7 +27,7 @@ from sfs_ros.cell.messages import stamp_key, view_key
 from sfs_ros.cli.bringup import Cell, RestartPolicy, cell_nodes, wait_until_signal
 from sfs_ros.core.exchange.errors import ViewError
 from sfs_ros.core.exchange.session import read_session
-from sfs_ros.ros.cell_client import CellClient
+from sfs_ros.ros.cell_client import CellClient, ScanFailed
 
 from mock_cell import PLAN, SCAN_TIMEOUT_S, write_config
 from ros_harness import NAMESPACE, SOURCE_ROOT
@@ -52,11 +52,6 @@ SURVIVAL_SCAN = {"home_before_retry": True, "move_retries": 20, "capture_retries
 
 def _config(root):
     return write_config(root / "config", {"scan.yaml": SURVIVAL_SCAN})
-
-
-def _captured(client: CellClient) -> int:
-    status = client.scan
-    return 0 if status is None else status.count("captured")
 
 
 def _bag_stamps(bags) -> set:
@@ -129,7 +124,29 @@ def _delivered_once(output, scan: int, summary: dict) -> set:
     return stamps
 
 
+@contextmanager
+def _log_on_failure(log_path):
+    """A failure inside says what the cell's nodes logged (the end of the cell's log)."""
+    try:
+        yield
+    except (AssertionError, TimeoutError, ScanFailed) as exc:
+        tail = "\n".join(log_path.read_text(errors="replace").splitlines()[-150:])
+        raise AssertionError(f"{type(exc).__name__}: {exc}\n--- the end of the cell's log "
+                             f"---\n{tail}") from exc
+
+
+def _wait_captured(client: CellClient, scan: int, views: int, deadline: float) -> None:
+    """Until ``views`` views of ``scan`` are captured; ScanFailed at once if it pauses."""
+    client.wait_scan(scan, lambda s: s.count("captured") >= views,
+                     timeout_s=deadline - time.monotonic())
+
+
 def test_every_node_killed_mid_scan_and_every_view_delivered_exactly_once(supervised_cell):
+    with _log_on_failure(supervised_cell["log"]):
+        _kill_each_node_mid_scan(supervised_cell)
+
+
+def _kill_each_node_mid_scan(supervised_cell) -> None:
     cell, client = supervised_cell["cell"], supervised_cell["client"]
     output, log_path = supervised_cell["output"], supervised_cell["log"]
     total = len(PLAN)
@@ -138,8 +155,7 @@ def test_every_node_killed_mid_scan_and_every_view_delivered_exactly_once(superv
     for n, name in enumerate(KILLED):
         # Kill points spread over the scan (views 2, 4, ... 12 of 17), each after the last
         # victim is back, so every node dies while views are being taken.
-        wait(lambda: _captured(client) >= 2 * (n + 1), what=f"view {2 * (n + 1)} captured",
-             timeout=deadline - time.monotonic())
+        _wait_captured(client, scan, 2 * (n + 1), deadline)
         victim = cell.processes[name]
         os.kill(victim.pid, signal.SIGKILL)
         wait(lambda: cell.processes[name] is not victim and cell.processes[name].poll() is None,
@@ -189,10 +205,10 @@ def _session_intact(output) -> int:
 
 def test_a_full_disk_pauses_the_scan_which_goes_on_once_space_returns(tmp_path, disk):
     output = disk / "cell"
-    with _supervised(tmp_path, output) as cell:
+    with _supervised(tmp_path, output) as cell, _log_on_failure(cell["log"]):
         client = cell["client"]
         scan = client.start_scan()
-        wait(lambda: _captured(client) >= 4, what="view 4 captured", timeout=SCAN_TIMEOUT_S)
+        _wait_captured(client, scan, 4, time.monotonic() + SCAN_TIMEOUT_S)
         filler, release = disk / "filler", threading.Event()
         keeper = threading.Thread(target=keep_full, args=(filler, release))
         keeper.start()

@@ -283,6 +283,14 @@ class SimulatedGrbl:
         os.set_blocking(self._master, False)
         self.port = os.ttyname(self._slave)
 
+    @property
+    def held_port(self) -> str:
+        """A path of the pty that exists only while this process holds it
+        (``/proc/<pid>/fd/<n>``, Linux). A link to it leads nowhere once the
+        process dies, even SIGKILLed; a link to :attr:`port` would lead to
+        whichever process gets that pty number next."""
+        return f"/proc/{os.getpid()}/fd/{self._slave}"
+
     # --- life cycle ------------------------------------------------------------
 
     def start(self) -> SimulatedGrbl:

@@ -22,7 +22,9 @@ give it to the motor node as ``port``. Unplugging removes the link and
 closes the pty (the motor node sees a lost connection); plugging back opens a
 new pty and restores the link. The controller has its own power: it keeps
 its position and state across an unplug. On shutdown (SIGINT) the pty is
-closed and the link removed.
+closed and the link removed. The link leads through this process's open
+descriptor (``/proc/<pid>/fd/<n>``), so after a SIGKILL it leads nowhere
+rather than to the next process that gets the same pty number.
 
 Parameters: :data:`PARAMS` (all read-only), the camera's, and the rig
 calibration (``config/rig.yaml``), with which the object is rendered: as given
@@ -150,7 +152,8 @@ class MockHardwareNode(Node):
         if self._link is not None:
             tmp = self._link.with_name(f".{self._link.name}.tmp")
             tmp.unlink(missing_ok=True)
-            tmp.symlink_to(port)
+            # Through this process's fd: dead with the process, never another's pty.
+            tmp.symlink_to(self.simulator.held_port)
             os.replace(tmp, self._link)          # atomic: the link is never missing midway
         self._port_pub.publish(String(data=port))
 

@@ -26,7 +26,9 @@ Behaviour
   It succeeds when the axes are at rest, also when an alarm had already
   stopped them (the message says so); it fails when not connected.
 * ``home`` waits for the homing cycle (its answer comes when the axes are
-  home, or with the reason they are not). After a limit alarm the controller
+  home, or with the reason they are not). A ``home`` that comes while a
+  homing is waiting or running joins it (one cycle, the same answer), so a
+  caller may send it again when an answer is late. After a limit alarm the controller
   answers nothing but a soft reset: ``home`` then resets first, then homes
   (GRBL accepts ``$H`` in the alarm lock, so no separate unlock is needed).
 * Faults (timeouts, alarms, stalls, rejected commands, lost connection) are
@@ -119,6 +121,8 @@ class MotorNode(Node):
         self._position: tuple[float, float] | None = None
         self._alarm: str = ""
         self._home_on_start = bool(self._p["home_on_start"])
+        self._homing_lock = threading.Lock()
+        self._homing: Future | None = None  # the homing waiting or running, joined by a home
 
         # Moves and homing, one at a time; a hold while the axes are being stopped.
         self._worker = Worker("motor-worker", on_error=self._job_failed)
@@ -157,7 +161,7 @@ class MotorNode(Node):
         self.get_logger().info(f"connected to the motor controller on {self._p['port']}")
         if self._home_on_start:            # the first connection only
             self._home_on_start = False
-            self._submit("home", self._home)
+            self._join_homing()
         self._publish_diagnostics()
 
     def _lost(self, exc: Exception) -> None:
@@ -228,7 +232,7 @@ class MotorNode(Node):
 
     def _on_home(self, _request, response):
         try:
-            error = self._submit("home", self._home).result()
+            error = self._join_homing().result()
         except JobCancelled as exc:       # superseded, stopped, shutting down
             error = str(exc)
         except Exception as exc:  # noqa: BLE001 -- a bug in the job, already reported
@@ -265,6 +269,15 @@ class MotorNode(Node):
                             f"phi={status.phi_rad:.4f} rad (state {status.state})")
         self.get_logger().info(response.message)
         return response
+
+    def _join_homing(self) -> Future:
+        """The future of the homing waiting or running, or of a new one."""
+        with self._homing_lock:
+            if self._homing is None or self._homing.done():
+                self._homing = self._submit("home", self._home)
+            else:
+                self.get_logger().info("home asked while homing: joining the homing under way")
+            return self._homing
 
     def _submit(self, kind: str, job) -> Future:
         """Queue ``job`` (a move or homing, answering its error or None) in place of a waiting

@@ -228,11 +228,11 @@ class _RosPorts(MonotonicClock):
 
     def prepare(self, step: str, *, timeout_s: float, cancelled: threading.Event) -> None:
         try:
-            # A reset is quick and safe twice (no view of the new scan yet): sent again
-            # when its answer is late, as the shutter is (services.call: a lost answer).
+            # Both steps may be asked twice (a reset before the scan's first view; a home
+            # that comes while homing joins it): sent again when the answer is late, as the
+            # shutter is (services.call: a lost answer).
             answer = call(self._node.peers[step], Trigger.Request(), timeout_s=timeout_s,
-                          cancelled=cancelled,
-                          resend_after_s=_RESEND_AFTER_S if step == "reset" else None)
+                          cancelled=cancelled, resend_after_s=_RESEND_AFTER_S)
         except ServiceError as exc:
             raise StepFailed(str(exc)) from None
         if not answer.success:
