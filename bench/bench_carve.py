@@ -13,7 +13,6 @@ Run: ``python -m bench.bench_carve`` (``--quick`` for the small cases only).
 
 from __future__ import annotations
 
-import argparse
 import math
 import time
 
@@ -22,6 +21,8 @@ import numpy as np
 from sfs_ros.core.carving.carve import Carver, carve
 from sfs_ros.core.geometry.grid import VoxelGrid
 from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
+
+from .timing import main
 
 RING_RADIUS_M = 0.10
 SPHERE_RADIUS_M = 0.04
@@ -212,18 +213,5 @@ def run(quick: bool = False) -> list[dict]:
     return rows
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true", help="small cases only")
-    rows = run(quick=parser.parse_args().quick)
-    print(f"{'case':<54} {'carve s':>9} {'naive s':>9} {'ratio':>8}")
-    for r in rows:
-        print(f"{r['name']:<54} {r['seconds']:9.4f} {r['baseline_seconds']:9.2f} "
-              f"{r['ratio']:8.0f}")
-    for r in rows:
-        for n in r["notes"]:
-            print("  " + n)
-
-
 if __name__ == "__main__":
-    main()
+    main(__doc__, run, quick_help="small cases only")

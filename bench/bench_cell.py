@@ -24,7 +24,6 @@ Run: ``python -m bench.bench_cell`` (``--quick``: 24 views at 128^3).
 
 from __future__ import annotations
 
-import argparse
 import os
 import tempfile
 import threading
@@ -43,6 +42,8 @@ from sfs_ros.core.simulation.objects import make_object
 from sfs_ros.core.simulation.synthetic import simulate_scan
 from sfs_ros.ros.names import DIAGNOSTICS
 from sfs_ros.ros.rig_params import RIG_PARAMS, rig_calibration
+
+from .timing import main
 
 CONFIG = Path(__file__).resolve().parent.parent / "config"
 
@@ -194,17 +195,5 @@ def run(quick: bool = False) -> list[dict]:
     ]
 
 
-def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--quick", action="store_true")
-    args = parser.parse_args(argv)
-    for r in run(quick=args.quick):
-        base = "" if r["baseline_seconds"] is None else \
-            f"  baseline {r['baseline_seconds']:.3f} s  ratio {r['ratio']:.2f}x"
-        print(f"{r['name']:<70} {r['seconds']:8.3f} s{base}")
-        for note in r.get("notes", []):
-            print("note: " + note)
-
-
 if __name__ == "__main__":
-    main()
+    main(__doc__, run, quick_help="24 views at 128^3")

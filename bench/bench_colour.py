@@ -24,7 +24,6 @@ Run: ``python -m bench.bench_colour`` (``--quick`` for the small camera).
 
 from __future__ import annotations
 
-import argparse
 import tempfile
 from pathlib import Path
 
@@ -42,7 +41,7 @@ from sfs_ros.core.simulation.objects import make_object
 from sfs_ros.core.simulation.plan import ring_plan
 from sfs_ros.core.simulation.synthetic import carving_box, simulate_scan
 
-from .timing import best_of
+from .timing import best_of, main
 
 #: The cell's camera (config/rig.yaml) and, for --quick, the tests' smaller one.
 RIGS = {"640x480": RigCalibration(width=640, height=480, projection="pinhole", fx=1400.0,
@@ -132,10 +131,4 @@ def run(quick: bool = False) -> list[dict]:
 
 
 if __name__ == "__main__":
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--quick", action="store_true", help="the small camera, fewer repeats")
-    for row in run(quick=parser.parse_args().quick):
-        print(f"{row['name']:<58} {row['seconds']:8.3f} s   baseline "
-              f"{row['baseline_seconds']:7.3f} s   ratio {row['ratio']:.2f}")
-        for note in row["notes"]:
-            print("note: " + note)
+    main(__doc__, run, quick_help="the small camera, fewer repeats")

@@ -14,7 +14,6 @@ Run: ``python -m bench.bench_lens`` (``--quick``: 96^3 instead of 160^3).
 
 from __future__ import annotations
 
-import argparse
 import math
 
 import cv2
@@ -26,7 +25,7 @@ from sfs_ros.core.geometry.lens import ideal_camera, undistort_mask
 from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
 from sfs_ros.core.metrics import occupancy_from_contains, volume_iou
 
-from .timing import best_of
+from .timing import best_of, main
 
 LENS = (-0.18, 0.08, 0.0012, -0.0008, 0.0)
 RIG = RigCalibration(width=640, height=480, projection="pinhole", fx=800.0, fy=800.0,
@@ -96,10 +95,4 @@ def run(quick: bool = False) -> list[dict]:
 
 
 if __name__ == "__main__":
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--quick", action="store_true")
-    for row in run(quick=parser.parse_args().quick):
-        print(f"{row['name']}: {row['seconds']:.3f} s, exact projection "
-              f"{row['baseline_seconds']:.3f} s ({row['ratio']:.1f}x)")
-        for line in row["notes"]:
-            print("note: " + line)
+    main(__doc__, run, quick_help="96^3 instead of 160^3")

@@ -28,7 +28,7 @@ from sfs_ros.core.simulation.objects import make_object
 from sfs_ros.core.simulation.plan import ring_plan
 from sfs_ros.core.simulation.synthetic import carving_box
 
-from .timing import best_of
+from .timing import best_of, main
 
 #: Torus (metres) in a 0.2 m box, axis Z: like a carved ring-shaped object.
 MAJOR_RADIUS_M = 0.06
@@ -115,7 +115,4 @@ def run_hull_surface(quick: bool = False) -> list[dict]:
 
 
 if __name__ == "__main__":
-    for row in run() + run_hull_surface():
-        ratio = ("" if row["ratio"] is None
-                 else f"  ratio {row['ratio']:.2f} (baseline {row['baseline_seconds']:.3f} s)")
-        print(f"{row['name']:<55} {row['seconds']:.3f} s{ratio}")
+    main(__doc__, run, run_hull_surface, quick_help="smaller grids")

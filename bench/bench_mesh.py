@@ -17,6 +17,8 @@ from sfs_ros.core.geometry.grid import VoxelGrid
 from sfs_ros.core.meshing.advancing_front import advancing_front
 from sfs_ros.core.meshing.cloud import cloud_of_points
 
+from .timing import main
+
 
 def _fibonacci_sphere(n: int) -> np.ndarray:
     i = np.arange(n) + 0.5
@@ -78,6 +80,4 @@ def run_advancing_front(quick: bool = False) -> list[dict]:
 
 
 if __name__ == "__main__":
-    for row in run_advancing_front():
-        ratio = "" if row["ratio"] is None else f"{row['ratio']:.1f}x"
-        print(f"{row['name']:<70} {row['seconds']:8.3f} s {ratio}")
+    main(__doc__, run_advancing_front, quick_help="10k points only")

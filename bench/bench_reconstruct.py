@@ -14,7 +14,6 @@ Run: ``python -m bench.bench_reconstruct`` (``--quick``: 40 views of 400 x 400).
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import io
 import json
@@ -34,7 +33,7 @@ from sfs_ros.core.simulation.objects import make_object
 from sfs_ros.core.simulation.plan import ring_plan
 from sfs_ros.core.simulation.synthetic import exact_silhouettes, simulate_scan
 
-from .timing import best_of
+from .timing import best_of, main
 
 
 def write_scan(folder: Path, *, size_px: int, per_ring: int) -> tuple[Path, object]:
@@ -85,10 +84,4 @@ def run(quick: bool = False) -> list[dict]:
 
 
 if __name__ == "__main__":
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--quick", action="store_true", help="40 views of 400 x 400")
-    for row in run(quick=parser.parse_args().quick):
-        print(f"{row['name']:<58} {row['seconds']:8.2f} s   imread {row['baseline_seconds']:6.2f} s"
-              f"   ratio {row['ratio']:.2f}")
-        for note in row["notes"]:
-            print("note: " + note)
+    main(__doc__, run, quick_help="40 views of 400 x 400")

@@ -13,14 +13,12 @@ Run: ``python -m bench.bench_segment`` (``--quick`` for fewer repeats).
 
 from __future__ import annotations
 
-import argparse
-
 import cv2
 import numpy as np
 
 from sfs_ros.core.segment import PRESETS, SegmentationParams, segment
 
-from .timing import best_of
+from .timing import best_of, main
 
 SIZES = ((800, 800), (1024, 1024), (1280, 800))  # (width, height)
 BACKDROPS = {"white": (240, 240, 235), "black": (12, 10, 14)}
@@ -78,8 +76,4 @@ def run(quick: bool = False) -> list[dict]:
 
 
 if __name__ == "__main__":
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--quick", action="store_true", help="fewer repeats")
-    for row in run(quick=parser.parse_args().quick):
-        print(f"{row['name']:<62} {row['seconds'] * 1e3:8.1f} ms   baseline "
-              f"{row['baseline_seconds'] * 1e3:7.1f} ms   ratio {row['ratio']:.2f}")
+    main(__doc__, run, quick_help="fewer repeats")

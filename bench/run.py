@@ -16,6 +16,8 @@ import sys
 
 import numpy as np
 
+from .timing import print_table
+
 SUITES = [("bench_carve", "run"), ("bench_marching", "run"),
           ("bench_marching", "run_hull_surface"), ("bench_mesh", "run_advancing_front"),
           ("bench_lens", "run"), ("bench_segment", "run"), ("bench_colour", "run"),
@@ -29,21 +31,11 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     print(f"python {platform.python_version()}, numpy {np.__version__}, "
           f"{platform.machine()}, {len(os.sched_getaffinity(0))} cores")
-    print(f"{'benchmark':<58} {'seconds':>9} {'baseline s':>11} {'ratio':>8}")
-    notes = []
-    for module_name, function in SUITES:
-        if args.only and module_name not in args.only:
-            continue
-        rows = getattr(importlib.import_module(f"bench.{module_name}"), function)(quick=args.quick)
-        for row in rows:
-            base = row.get("baseline_seconds")
-            ratio = row.get("ratio")
-            print(f"{row['name']:<58} {row['seconds']:>9.3f} "
-                  f"{'' if base is None else f'{base:.3f}':>11} "
-                  f"{'' if ratio is None else f'{ratio:.1f}x':>8}", flush=True)
-            notes += row.get("notes", [])
-    for note in notes:
-        print("note: " + note)
+    rows = (row for module_name, function in SUITES
+            if not args.only or module_name in args.only
+            for row in getattr(importlib.import_module(f"bench.{module_name}"),
+                               function)(quick=args.quick))
+    print_table(rows)
     return 0
 
 

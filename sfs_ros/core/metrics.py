@@ -11,9 +11,10 @@ from scipy.spatial import cKDTree
 from .geometry.camera import Camera
 from .geometry.grid import VoxelGrid
 from .render import (
-    _pixel_box,
     as_mesh_arrays,
+    covered_point,
     face_orientation,
+    pixel_box,
     rasterize_silhouette,
     triangle_edges,
 )
@@ -89,7 +90,7 @@ def _coverage_overlap(vertices, faces, P, heights, widths, masks, moff, front_on
             a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
             if h[a, 2] > 0.0 and h[b, 2] > 0.0 and h[c, 2] > 0.0:
                 # most faces of a fine mesh hold no pixel centre: the box of
-                # render._pixel_box, from the projections computed once per vertex
+                # render.pixel_box, from the projections computed once per vertex
                 if (np.ceil(min(uv[a, 0], uv[b, 0], uv[c, 0]) - 1e-6)
                         > np.floor(max(uv[a, 0], uv[b, 0], uv[c, 0]) + 1e-6)
                         or np.ceil(min(uv[a, 1], uv[b, 1], uv[c, 1]) - 1e-6)
@@ -99,22 +100,12 @@ def _coverage_overlap(vertices, faces, P, heights, widths, masks, moff, front_on
                 continue  # (the edges of a back face are not needed)
             if triangle_edges(h, faces, f, coef) == 0.0:
                 continue
-            c0, c1, r0, r1 = _pixel_box(h, faces, f, W, H)
+            c0, c1, r0, r1 = pixel_box(h, faces, f, W, H)
             for row in range(r0, r1 + 1):
                 y = float(row)
                 for col in range(c0, c1 + 1):
-                    x = float(col)
-                    e0 = coef[0, 0] * x + coef[0, 1] * y + coef[0, 2]
-                    e1 = coef[1, 0] * x + coef[1, 1] * y + coef[1, 2]
-                    e2 = coef[2, 0] * x + coef[2, 1] * y + coef[2, 2]
-                    if e0 < 0.0 or e1 < 0.0 or e2 < 0.0:
-                        continue
-                    if ((e0 == 0.0 and coef[0, 3] == 0.0) or (e1 == 0.0 and coef[1, 3] == 0.0)
-                            or (e2 == 0.0 and coef[2, 3] == 0.0)):
-                        continue
-                    if e0 + e1 + e2 <= 0.0:
-                        continue
-                    cover[row * W + col] = 1
+                    if covered_point(coef, float(col), y)[3] != 0.0:
+                        cover[row * W + col] = 1
         both = 0
         either = 0
         for k in range(H * W):
@@ -209,17 +200,8 @@ def _column_crossings(h, zk, faces, crossings):
         for i in range(i0, i1 + 1):
             u = float(i)
             for j in range(j0, j1 + 1):
-                v = float(j)
-                e0 = coef[0, 0] * u + coef[0, 1] * v + coef[0, 2]
-                e1 = coef[1, 0] * u + coef[1, 1] * v + coef[1, 2]
-                e2 = coef[2, 0] * u + coef[2, 1] * v + coef[2, 2]
-                if e0 < 0.0 or e1 < 0.0 or e2 < 0.0:
-                    continue
-                if ((e0 == 0.0 and coef[0, 3] == 0.0) or (e1 == 0.0 and coef[1, 3] == 0.0)
-                        or (e2 == 0.0 and coef[2, 3] == 0.0)):
-                    continue
-                total = e0 + e1 + e2
-                if total <= 0.0:
+                e0, e1, e2, total = covered_point(coef, u, float(j))
+                if total == 0.0:
                     continue
                 z = (e0 * zk[a] + e1 * zk[b] + e2 * zk[c]) / total  # fractional k of the crossing
                 k = int(np.floor(z)) + 1                            # first voxel centre above it

@@ -104,8 +104,28 @@ def triangle_edges(h, faces, f, coef):
     return orientation
 
 
+@njit(cache=True, inline="always")
+def covered_point(coef, u, v):
+    """Whether the triangle of ``coef`` (:func:`triangle_edges`) covers the point (u, v).
+
+    Returns ``(e0, e1, e2, total)``: the edge functions there and their sum,
+    ``total == 0.0`` when it is not covered (outside, on an edge that belongs to
+    the neighbouring face, or degenerate). Inlined where called (numba IR).
+    """
+    e0 = coef[0, 0] * u + coef[0, 1] * v + coef[0, 2]
+    e1 = coef[1, 0] * u + coef[1, 1] * v + coef[1, 2]
+    e2 = coef[2, 0] * u + coef[2, 1] * v + coef[2, 2]
+    if e0 < 0.0 or e1 < 0.0 or e2 < 0.0:
+        return e0, e1, e2, 0.0
+    if ((e0 == 0.0 and coef[0, 3] == 0.0) or (e1 == 0.0 and coef[1, 3] == 0.0)
+            or (e2 == 0.0 and coef[2, 3] == 0.0)):
+        return e0, e1, e2, 0.0
+    total = e0 + e1 + e2
+    return e0, e1, e2, (0.0 if total <= 0.0 else total)
+
+
 @njit(cache=True)
-def _pixel_box(h, faces, f, width, height):
+def pixel_box(h, faces, f, width, height):
     """Inclusive pixel bounds (c0, c1, r0, r1) that may hold covered centres; c0 > c1 if none."""
     w0, w1, w2 = h[faces[f, 0], 2], h[faces[f, 1], 2], h[faces[f, 2], 2]
     if w0 > 0.0 and w1 > 0.0 and w2 > 0.0:
@@ -137,24 +157,13 @@ def _rasterize_kernel(h, depth, faces, face_id, bary, zbuf):
     for f in range(faces.shape[0]):
         if triangle_edges(h, faces, f, coef) == 0.0:
             continue
-        c0, c1, r0, r1 = _pixel_box(h, faces, f, width, height)
-        a0, b0, g0, t0 = coef[0, 0], coef[0, 1], coef[0, 2], coef[0, 3] > 0.0
-        a1, b1, g1, t1 = coef[1, 0], coef[1, 1], coef[1, 2], coef[1, 3] > 0.0
-        a2, b2, g2, t2 = coef[2, 0], coef[2, 1], coef[2, 2], coef[2, 3] > 0.0
+        c0, c1, r0, r1 = pixel_box(h, faces, f, width, height)
         d0, d1, d2 = depth[faces[f, 0]], depth[faces[f, 1]], depth[faces[f, 2]]
         for r in range(r0, r1 + 1):
             v = float(r)
             for c in range(c0, c1 + 1):
-                u = float(c)
-                e0 = a0 * u + b0 * v + g0
-                e1 = a1 * u + b1 * v + g1
-                e2 = a2 * u + b2 * v + g2
-                if e0 < 0.0 or e1 < 0.0 or e2 < 0.0:
-                    continue
-                if (e0 == 0.0 and not t0) or (e1 == 0.0 and not t1) or (e2 == 0.0 and not t2):
-                    continue
-                total = e0 + e1 + e2
-                if total <= 0.0:
+                e0, e1, e2, total = covered_point(coef, float(c), v)
+                if total == 0.0:
                     continue
                 z = (e0 * d0 + e1 * d1 + e2 * d2) / total
                 if z < zbuf[r, c]:

@@ -37,7 +37,7 @@ from .carving.fusion import MIN_MEDIAN_IOU, reference_misses
 from .geometry.camera import Camera
 from .geometry.grid import VoxelGrid
 from .metrics import silhouette_iou
-from .segment import _close, _fill_small_holes
+from .segment import close_mask, fill_small_holes
 from .workers import map_in_threads
 
 __all__ = ["resegment", "Consensus", "consensus_masks"]
@@ -140,8 +140,8 @@ def resegment(rgb: np.ndarray, prior: np.ndarray, mask: np.ndarray) -> np.ndarra
     # covered pixels): near the new mask only, so far shadows and clutter stay out.
     edge = max(1, int(round(_EDGE_FRACTION * size)))
     out |= m_full & (cv2.dilate(out, _disk(edge)) > 0)
-    out = _close(out, int(round(_CLOSE_FRACTION * size)))
-    out, _ = _fill_small_holes(out, _FILL_HOLES_FRACTION)
+    out = close_mask(out, int(round(_CLOSE_FRACTION * size)))
+    out, _ = fill_small_holes(out, _FILL_HOLES_FRACTION)
     return out.astype(bool)
 
 

@@ -58,7 +58,8 @@ from numba import njit
 
 from .backdrop import border_band, fit_backdrop
 
-__all__ = ["SegmentationParams", "Segmentation", "segment", "estimate_background", "PRESETS"]
+__all__ = ["SegmentationParams", "Segmentation", "segment", "estimate_background", "PRESETS",
+           "close_mask", "fill_small_holes"]
 
 _NAMED_BACKGROUNDS = ("auto", "white", "black")
 _BACKGROUND_MODELS = ("constant", "smooth")
@@ -626,7 +627,7 @@ def _connectivity_test(mask: np.ndarray, min_blob_fraction: float,
     return kept, int((~keep).sum()), largest
 
 
-def _fill_small_holes(mask: np.ndarray, max_fraction: float) -> tuple[np.ndarray, int]:
+def fill_small_holes(mask: np.ndarray, max_fraction: float) -> tuple[np.ndarray, int]:
     """Fill background components that do not touch the border and are small.
 
     Works in the bounding box of the object widened by a pixel: background
@@ -690,10 +691,10 @@ def _threshold_mask(rgb: np.ndarray, params: SegmentationParams) -> tuple[np.nda
     mask = _hysteresis(distance, threshold, weak, params.grow_px)
     if params.open_px:
         mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, _disk(params.open_px))
-    return _close(mask, params.close_px), np.asarray(bg, np.float64), float(threshold)
+    return close_mask(mask, params.close_px), np.asarray(bg, np.float64), float(threshold)
 
 
-def _close(mask: np.ndarray, radius: int) -> np.ndarray:
+def close_mask(mask: np.ndarray, radius: int) -> np.ndarray:
     """Morphological closing of (H, W) uint8 ``mask`` with a disk; the image edge is not object."""
     if not radius:
         return mask
@@ -758,7 +759,7 @@ def _graph_cut_mask(rgb: np.ndarray, params: SegmentationParams) -> tuple[np.nda
     band = (cv2.dilate(mask, square) > 0) & (cv2.erode(mask, square) == 0)
     mask[band] = distance[band] > _EDGE_SIGMA
     radius = int(round(params.close_fraction * np.sqrt(np.count_nonzero(mask))))
-    return _close(mask, radius), background, params.object_sigma
+    return close_mask(mask, radius), background, params.object_sigma
 
 
 def segment(image, params: SegmentationParams = SegmentationParams()) -> Segmentation:
@@ -793,7 +794,7 @@ def segment(image, params: SegmentationParams = SegmentationParams()) -> Segment
         return Segmentation(mask=np.zeros((h, w), bool), background_rgb=bg,
                             threshold=float(threshold), n_blobs_removed=n_removed, holes_filled=0,
                             foreground_fraction=0.0, empty=True, touches_border=False)
-    mask, holes = _fill_small_holes(mask, params.fill_holes_max_fraction)
+    mask, holes = fill_small_holes(mask, params.fill_holes_max_fraction)
     if params.dilate_px:
         mask = cv2.dilate(mask, _disk(params.dilate_px))
     mask = mask.astype(bool)

@@ -29,25 +29,13 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..geometry.rig import RigCalibration, rotation_from_vector
+from ..geometry.rig import RigCalibration, rotation_x, rotation_y
 
 __all__ = ["BoardPose", "STANDING", "canonical", "euler_zyx"]
 
 #: Board frame -> object frame of an upright board facing the C-arm at theta = 0:
 #: board x -> +X, board y (down the picture) -> -Z, board z (into the board) -> +Y.
 STANDING = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
-
-
-def _rx(a: float) -> np.ndarray:
-    return rotation_from_vector([a, 0.0, 0.0])
-
-
-def _ry(a: float) -> np.ndarray:
-    return rotation_from_vector([0.0, a, 0.0])
-
-
-def _rz(a: float) -> np.ndarray:
-    return rotation_from_vector([0.0, 0.0, a])
 
 
 def euler_zyx(R: np.ndarray) -> tuple[float, float, float]:
@@ -80,7 +68,7 @@ class BoardPose:
     @property
     def rotation(self) -> np.ndarray:
         """(3, 3) rotation board -> object."""
-        return _ry(self.tilt_y_rad) @ _rx(self.tilt_x_rad) @ STANDING
+        return rotation_y(self.tilt_y_rad) @ rotation_x(self.tilt_x_rad) @ STANDING
 
     def to_object(self, board_points: np.ndarray) -> np.ndarray:
         """Board points (n, 3), metres -> object-frame points (n, 3), metres."""
@@ -97,8 +85,8 @@ def canonical(rig: RigCalibration, board: BoardPose) -> tuple[RigCalibration, Bo
     """
     a = rig.axis_tilt_x_rad
     pivot = np.asarray(rig.aim_point_m)
-    point = _rx(-a) @ (np.array([*rig.axis_point_m, 0.0]) - pivot) + pivot
-    direction = _ry(rig.axis_tilt_y_rad)[:, 2]
+    point = rotation_x(-a) @ (np.array([*rig.axis_point_m, 0.0]) - pivot) + pivot
+    direction = rotation_y(rig.axis_tilt_y_rad)[:, 2]
     slide = point[2] / direction[2]
     point = point - slide * direction
     new_rig = replace(rig, axis_tilt_x_rad=0.0, phi_zero_rad=rig.phi_zero_rad - a,

@@ -186,6 +186,51 @@ def _rect_count(integ, base, c0, c1, r0, r1, W, H):
             - integ[base + (b1 + 1) * s + a0] + integ[base + b0 * s + a0])
 
 
+# ---------------------------------------------------------------------------
+# block trees: top blocks of ``top`` voxels (C order), split in eight down to ``leaf``
+
+
+@njit(**_NJIT)
+def _tree_levels(top, leaf):
+    """Levels of the block tree from ``top`` down to ``leaf`` voxels, plus one spare."""
+    levels = 2
+    size = top
+    while size > leaf:
+        size //= 2
+        levels += 1
+    return levels
+
+
+@njit(**_NJIT)
+def _top_block(b, nby, nbz, top):
+    """First voxel (i0, j0, k0) of top block ``b`` of a grid ``nby`` x ``nbz`` blocks wide."""
+    return (b // (nby * nbz)) * top, ((b // nbz) % nby) * top, (b % nbz) * top
+
+
+@njit(**_NJIT)
+def _block_last(i0, j0, k0, size, nx, ny, nz):
+    """Last voxel (i1, j1, k1) of the block of ``size`` voxels from (i0, j0, k0), inside
+    the grid (nx, ny, nz)."""
+    return min(i0 + size, nx) - 1, min(j0 + size, ny) - 1, min(k0 + size, nz) - 1
+
+
+@njit(**_INLINE)
+def _push_children(stack, sp, i0, j0, k0, half, nx, ny, nz):
+    """Push the children inside the grid of the block at (i0, j0, k0), ``half`` voxels
+    each, as rows ``(i0, j0, k0, half)`` of ``stack`` from row ``sp``; the new height."""
+    for c in range(8):
+        ci = i0 + (half if c & 1 else 0)
+        cj = j0 + (half if c & 2 else 0)
+        ck = k0 + (half if c & 4 else 0)
+        if ci < nx and cj < ny and ck < nz:
+            stack[sp, 0] = ci
+            stack[sp, 1] = cj
+            stack[sp, 2] = ck
+            stack[sp, 3] = half
+            sp += 1
+    return sp
+
+
 @njit(parallel=True, cache=True, error_model="numpy")
 def integral_images(masks, moff, heights, widths, ioff, integ):
     """Summed-area tables, flat: integ[ioff[v] + r * (W + 1) + c] = sum mask[:r, :c]."""
@@ -216,11 +261,7 @@ def carve_blocks(coef, ortho, masks, moff, integ, ioff, heights, widths, order, 
     nby = (ny + top - 1) // top
     nbz = (nz + top - 1) // top
     n_views = order.size
-    levels = 2
-    size = top
-    while size > leaf:
-        size //= 2
-        levels += 1
+    levels = _tree_levels(top, leaf)
     for b in prange(((nx + top - 1) // top) * nby * nbz):
         lists = np.empty((levels + 1, n_views), np.int64)
         lens = np.empty(levels + 1, np.int64)
@@ -229,9 +270,7 @@ def carve_blocks(coef, ortho, masks, moff, integ, ioff, heights, widths, order, 
         lens[0] = n_views
         bases[0] = 0
         stack = np.empty((8 * (levels + 1), 5), np.int64)
-        stack[0, 0] = (b // (nby * nbz)) * top
-        stack[0, 1] = ((b // nbz) % nby) * top
-        stack[0, 2] = (b % nbz) * top
+        stack[0, 0], stack[0, 1], stack[0, 2] = _top_block(b, nby, nbz, top)
         stack[0, 3] = top
         stack[0, 4] = 1
         sp = 1
@@ -242,9 +281,7 @@ def carve_blocks(coef, ortho, masks, moff, integ, ioff, heights, widths, order, 
             k0 = stack[sp, 2]
             size = stack[sp, 3]
             lev = stack[sp, 4]
-            i1 = min(i0 + size, nx) - 1
-            j1 = min(j0 + size, ny) - 1
-            k1 = min(k0 + size, nz) - 1
+            i1, j1, k1 = _block_last(i0, j0, k0, size, nx, ny, nz)
             misses = bases[lev - 1]
             n_open = 0
             for t in range(lens[lev - 1]):
@@ -288,18 +325,9 @@ def carve_blocks(coef, ortho, masks, moff, integ, ioff, heights, widths, order, 
                 continue
             lens[lev] = n_open
             bases[lev] = misses
-            half = size // 2
-            for c in range(8):
-                ci = i0 + (half if c & 1 else 0)
-                cj = j0 + (half if c & 2 else 0)
-                ck = k0 + (half if c & 4 else 0)
-                if ci < nx and cj < ny and ck < nz:
-                    stack[sp, 0] = ci
-                    stack[sp, 1] = cj
-                    stack[sp, 2] = ck
-                    stack[sp, 3] = half
-                    stack[sp, 4] = lev + 1
-                    sp += 1
+            first = sp
+            sp = _push_children(stack, sp, i0, j0, k0, size // 2, nx, ny, nz)
+            stack[first:sp, 4] = lev + 1
 
 
 @njit(parallel=True, **_NJIT)
@@ -313,19 +341,13 @@ def carve_blocks_one(coef, ortho, masks, integ, W, H, keep, cap, top, leaf, aliv
     nx, ny, nz = misses.shape
     nby = (ny + top - 1) // top
     nbz = (nz + top - 1) // top
-    levels = 2
-    size = top
-    while size > leaf:
-        size //= 2
-        levels += 1
+    levels = _tree_levels(top, leaf)
     cv = view_tuple(coef, 0)
     is_ortho = ortho[0]
     for b in prange(alive.size):
         if not alive[b]:
             continue
-        bi = (b // (nby * nbz)) * top
-        bj = ((b // nbz) % nby) * top
-        bk = (b % nbz) * top
+        bi, bj, bk = _top_block(b, nby, nbz, top)
         stack = np.empty((8 * (levels + 1), 4), np.int64)
         stack[0, 0] = bi
         stack[0, 1] = bj
@@ -339,9 +361,7 @@ def carve_blocks_one(coef, ortho, masks, integ, W, H, keep, cap, top, leaf, aliv
             j0 = stack[sp, 1]
             k0 = stack[sp, 2]
             size = stack[sp, 3]
-            i1 = min(i0 + size, nx) - 1
-            j1 = min(j0 + size, ny) - 1
-            k1 = min(k0 + size, nz) - 1
+            i1, j1, k1 = _block_last(i0, j0, k0, size, nx, ny, nz)
             kind, c0, c1, r0, r1 = block_rect(cv, is_ortho, i0, i1, j0, j1, k0, k1)
             st = rect_status(kind, c0, c1, r0, r1, W, H, keep)
             if st == BLOCK_COUNT:
@@ -361,17 +381,7 @@ def carve_blocks_one(coef, ortho, masks, integ, W, H, keep, cap, top, leaf, aliv
                                 misses[i, j, k] += 1
                                 changed = True
                 continue
-            half = size // 2
-            for c in range(8):
-                ci = i0 + (half if c & 1 else 0)
-                cj = j0 + (half if c & 2 else 0)
-                ck = k0 + (half if c & 4 else 0)
-                if ci < nx and cj < ny and ck < nz:
-                    stack[sp, 0] = ci
-                    stack[sp, 1] = cj
-                    stack[sp, 2] = ck
-                    stack[sp, 3] = half
-                    sp += 1
+            sp = _push_children(stack, sp, i0, j0, k0, size // 2, nx, ny, nz)
         if changed:
             alive[b] = np.any(misses[bi:bi + top, bj:bj + top, bk:bk + top] < cap)
 
@@ -475,6 +485,17 @@ def _first_at_most(A, s, inv_s, B1, B2, target, lo, hi):
 
 
 @njit(**_INLINE)
+def _append_interval(al_lo, al_hi, n_al, t0, t1):
+    """Append ``[t0, t1)`` to the ``n_al`` intervals ``al_lo``, ``al_hi`` unless it is empty;
+    how many there are then."""
+    if t0 < t1:
+        al_lo[n_al] = t0
+        al_hi[n_al] = t1
+        n_al += 1
+    return n_al
+
+
+@njit(**_INLINE)
 def _allowed_rising(A, s, B1, B2, first, last, run_lo, run_hi, n_along, lo, hi, keep, al_lo,
                     al_hi):
     """Allowed intervals of a line whose pixel rises along it (s > 0): runs
@@ -485,10 +506,7 @@ def _allowed_rising(A, s, B1, B2, first, last, run_lo, run_hi, n_along, lo, hi, 
     x_hi = _pix_at(A, s, B1, B2, hi - 1)
     if keep and x_lo < 0.0:
         t1 = _first_at_least(A, s, inv, B1, B2, 0.0, lo, hi)
-        if lo < t1:
-            al_lo[n_al] = lo
-            al_hi[n_al] = t1
-            n_al += 1
+        n_al = _append_interval(al_lo, al_hi, n_al, lo, t1)
     for idx in range(first, last):
         a = run_lo[idx]
         b = run_hi[idx]
@@ -498,16 +516,10 @@ def _allowed_rising(A, s, B1, B2, first, last, run_lo, run_hi, n_along, lo, hi, 
             break
         t0 = lo if a <= x_lo else _first_at_least(A, s, inv, B1, B2, a, lo, hi)
         t1 = hi if b >= x_hi else _first_at_least(A, s, inv, B1, B2, b + 1.0, lo, hi)
-        if t0 < t1:
-            al_lo[n_al] = t0
-            al_hi[n_al] = t1
-            n_al += 1
+        n_al = _append_interval(al_lo, al_hi, n_al, t0, t1)
     if keep and x_hi >= n_along:
         t0 = _first_at_least(A, s, inv, B1, B2, n_along, lo, hi)
-        if t0 < hi:
-            al_lo[n_al] = t0
-            al_hi[n_al] = hi
-            n_al += 1
+        n_al = _append_interval(al_lo, al_hi, n_al, t0, hi)
     return n_al
 
 
@@ -522,10 +534,7 @@ def _allowed_falling(A, s, B1, B2, first, last, run_lo, run_hi, n_along, lo, hi,
     x_lo = _pix_at(A, s, B1, B2, hi - 1)
     if keep and x_hi >= n_along:
         t1 = _first_at_most(A, s, inv, B1, B2, n_along - 1.0, lo, hi)
-        if lo < t1:
-            al_lo[n_al] = lo
-            al_hi[n_al] = t1
-            n_al += 1
+        n_al = _append_interval(al_lo, al_hi, n_al, lo, t1)
     for idx in range(last - 1, first - 1, -1):
         a = run_lo[idx]
         b = run_hi[idx]
@@ -535,16 +544,10 @@ def _allowed_falling(A, s, B1, B2, first, last, run_lo, run_hi, n_along, lo, hi,
             break
         t0 = lo if b >= x_hi else _first_at_most(A, s, inv, B1, B2, b, lo, hi)
         t1 = hi if a <= x_lo else _first_at_most(A, s, inv, B1, B2, a - 1.0, lo, hi)
-        if t0 < t1:
-            al_lo[n_al] = t0
-            al_hi[n_al] = t1
-            n_al += 1
+        n_al = _append_interval(al_lo, al_hi, n_al, t0, t1)
     if keep and x_lo < 0.0:
         t0 = _first_at_most(A, s, inv, B1, B2, -1.0, lo, hi)
-        if t0 < hi:
-            al_lo[n_al] = t0
-            al_hi[n_al] = hi
-            n_al += 1
+        n_al = _append_interval(al_lo, al_hi, n_al, t0, hi)
     return n_al
 
 

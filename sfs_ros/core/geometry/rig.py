@@ -61,8 +61,8 @@ import numpy as np
 
 from .camera import MAX_IMAGE_SIDE_PX, Camera
 
-__all__ = ["CONVENTIONS", "RigCalibration", "rig_rotation", "rig_camera",
-           "rotation_from_vector"]
+__all__ = ["CONVENTIONS", "RigCalibration", "camera_tilt", "rig_rotation", "rig_camera",
+           "rotation_from_vector", "rotation_x", "rotation_y", "rotation_z"]
 
 CONVENTIONS = ("physical", "paper")
 
@@ -213,17 +213,20 @@ class RigCalibration:
         return np.array([[self.fx, 0.0, cx], [0.0, self.fy, cy], [0.0, 0.0, 1.0]])
 
 
-def _rz(angle: float) -> np.ndarray:
+def rotation_z(angle: float) -> np.ndarray:
+    """(3, 3) rotation by ``angle`` radians about the Z axis (right-handed)."""
     c, s = math.cos(angle), math.sin(angle)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
-def _rx(angle: float) -> np.ndarray:
+def rotation_x(angle: float) -> np.ndarray:
+    """(3, 3) rotation by ``angle`` radians about the X axis (right-handed)."""
     c, s = math.cos(angle), math.sin(angle)
     return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
 
 
-def _ry(angle: float) -> np.ndarray:
+def rotation_y(angle: float) -> np.ndarray:
+    """(3, 3) rotation by ``angle`` radians about the Y axis (right-handed)."""
     c, s = math.cos(angle), math.sin(angle)
     return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
 
@@ -239,7 +242,7 @@ def rotation_from_vector(rotvec) -> np.ndarray:
     return np.eye(3) + math.sin(angle) * cross + (1.0 - math.cos(angle)) * cross @ cross
 
 
-def _tilt(phi: float) -> np.ndarray:
+def camera_tilt(phi: float) -> np.ndarray:
     """Lab -> camera rotation for a camera at elevation ``phi`` (rows: right, down, forward)."""
     c, s = math.cos(phi), math.sin(phi)
     return np.array([[1.0, 0.0, 0.0], [0.0, -s, -c], [0.0, c, -s]])
@@ -248,7 +251,7 @@ def _tilt(phi: float) -> np.ndarray:
 def rig_rotation(theta_rad: float, phi_rad: float, convention: str = "physical") -> np.ndarray:
     """(3, 3) rotation object frame -> camera frame for true axis angles, radians."""
     if convention == "physical":
-        return _tilt(phi_rad) @ _rz(theta_rad)
+        return camera_tilt(phi_rad) @ rotation_z(theta_rad)
     if convention == "paper":
         ct, st, cp, sp = math.cos(theta_rad), math.sin(theta_rad), math.cos(phi_rad), math.sin(phi_rad)
         r1 = np.array([ct, -st * cp, -st * sp])
@@ -279,7 +282,7 @@ def rig_camera(theta_rad: float, phi_rad: float, calibration: RigCalibration) ->
     # camera coordinates the aim point sits at (0, 0, camera_distance_m). The
     # aim point is fixed in the lab; the turntable only turns the object. (The
     # paper's matrix has no lab frame: there the aim point is in object frame.)
-    lab_to_cam = _tilt(phi) if calibration.convention == "physical" else R
+    lab_to_cam = camera_tilt(phi) if calibration.convention == "physical" else R
     t = np.array([0.0, 0.0, calibration.camera_distance_m]) - lab_to_cam @ np.asarray(
         calibration.aim_point_m)
     return Camera(K=calibration.K, R=R, t=t, width=calibration.width, height=calibration.height,
@@ -289,11 +292,11 @@ def rig_camera(theta_rad: float, phi_rad: float, calibration: RigCalibration) ->
 
 def _real_rig_camera(theta: float, phi: float, calibration: RigCalibration) -> Camera:
     """The kinematic chain of the module docstring for true angles, radians."""
-    axis = _rx(calibration.axis_tilt_x_rad) @ _ry(calibration.axis_tilt_y_rad)
+    axis = rotation_x(calibration.axis_tilt_x_rad) @ rotation_y(calibration.axis_tilt_y_rad)
     mount = rotation_from_vector(calibration.mount_rotation_rad)
-    arm = _tilt(phi)
+    arm = camera_tilt(phi)
     axis_point = np.array([*calibration.axis_point_m, 0.0])
-    R = mount @ arm @ axis @ _rz(theta)
+    R = mount @ arm @ axis @ rotation_z(theta)
     t = mount @ (arm @ (axis_point - np.asarray(calibration.aim_point_m))
                  + np.array([0.0, 0.0, calibration.camera_distance_m]))
     return Camera(K=calibration.K, R=R, t=t, width=calibration.width, height=calibration.height,

@@ -30,7 +30,14 @@ from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
-from .rig import RigCalibration, _rx, _ry, _rz, _tilt, rotation_from_vector
+from .rig import (
+    RigCalibration,
+    camera_tilt,
+    rotation_from_vector,
+    rotation_x,
+    rotation_y,
+    rotation_z,
+)
 
 __all__ = ["BASE_FRAME", "OBJECT_FRAME", "CARRIAGE_FRAME", "CAMERA_FRAME", "TURNTABLE_JOINT",
            "CARRIAGE_JOINT", "cell_urdf", "rpy_from_matrix", "rig_from_parameters"]
@@ -91,11 +98,11 @@ def cell_urdf(calibration: RigCalibration, *, name: str = "sfs_cell") -> str:
                          f"matrix is no chain of joints (got {calibration.convention!r})")
     c = calibration
     # Turntable: X_lab = A Rz(theta_enc - theta_zero) X + (axis_x, axis_y, 0).
-    axis = _rx(c.axis_tilt_x_rad) @ _ry(c.axis_tilt_y_rad) @ _rz(-c.theta_zero_rad)
+    axis = rotation_x(c.axis_tilt_x_rad) @ rotation_y(c.axis_tilt_y_rad) @ rotation_z(-c.theta_zero_rad)
     # Carriage: X_lab = aim + Rx(-(phi_enc - phi_zero)) Y, i.e. origin Rx(phi_zero),
     # axis -X. Camera: X_cam = M (T(phi) (X_lab - aim) + d e_z) with T(phi) = T(0) Rx(phi),
     # so Y = (0, -d, 0) + T(0)^T M^T X_cam.
-    mount = _tilt(0.0).T @ rotation_from_vector(c.mount_rotation_rad).T
+    mount = camera_tilt(0.0).T @ rotation_from_vector(c.mount_rotation_rad).T
     lower, upper = c.phi_zero_rad - math.pi / 2, c.phi_zero_rad + math.pi / 2
     return "\n".join([
         '<?xml version="1.0"?>',
@@ -115,7 +122,7 @@ def cell_urdf(calibration: RigCalibration, *, name: str = "sfs_cell") -> str:
         f'  <joint name="{CARRIAGE_JOINT}" type="revolute">',
         f'    <parent link="{BASE_FRAME}"/>',
         f'    <child link="{CARRIAGE_FRAME}"/>',
-        f"    {_origin(c.aim_point_m, _rx(c.phi_zero_rad))}",
+        f"    {_origin(c.aim_point_m, rotation_x(c.phi_zero_rad))}",
         '    <axis xyz="-1 0 0"/>',
         # The cell is driven by the motor node, not through this description: no effort
         # or speed is claimed (URDF requires the attributes of a revolute joint).
