@@ -354,9 +354,9 @@ def test_every_capture_is_sent_again_when_a_new_receiver_appears():
     assert len(cell.sent) == len(VIEWS)
     cell.seq.tick({"reconstruction (restarted)"})
     assert cell.sent[len(VIEWS):] == cell.sent[:len(VIEWS)]
-    assert cell.lines("warning") == [f"a new receiver of captures (the reconstruction "
-                                     f"restarted?): sending all {len(VIEWS)} captures of the "
-                                     "scan again"]
+    assert cell.lines("warning") == [f"a new receiver of captures (a restarted "
+                                     f"reconstruction or recorder?): sending all "
+                                     f"{len(VIEWS)} captures of the scan again"]
     status = cell.seq.status()
     assert status.values["receipted"] == 0 and status.values["resends"] == len(VIEWS)
     cell.seq.tick({"reconstruction (restarted)"})     # seen now: nothing more

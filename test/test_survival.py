@@ -36,9 +36,9 @@ from waiting import wait
 
 #: Kill order: hardware first, the scan node last (the hard case: it resumes from disk).
 #: mock_hardware is the controller and the camera: killing it is a power cut of both. The
-#: captures taken while the recorder is down reach a bag when the reconstruction, killed
-#: next, comes back: a new receiver of receipts gets every capture again (so the recorder
-#: must be up again by then).
+#: captures taken while the recorder is down reach its new bag when the scan node sees it
+#: subscribe again (every capture is sent again), and once more when the reconstruction,
+#: killed next, comes back.
 KILLED = ("mock_hardware", "motor", "segmentation", "recorder", "reconstruction", "scan")
 #: Bounds the whole scan with six restarts on a loaded machine (a hang bound only).
 SURVIVAL_TIMEOUT_S = 900.0

@@ -356,8 +356,9 @@ class ScanSequence:
 
     def tick(self, receivers: set) -> None:
         """Delivery, from a timer: resend what is due, report what is lost; ``receivers`` are
-        the ids of the receipt publishers now; one not seen before means a receiver
-        (re)started: every capture is sent again."""
+        the ids of the receivers of captures now (the reconstruction's receipt publisher,
+        the recorder's subscription); one not seen before means a receiver (re)started:
+        every capture is sent again."""
         now = self._ports.now()
         with self._cv:
             came_back = bool(set(receivers) - self._receivers) and self._ledger.captured > 0
@@ -367,8 +368,8 @@ class ScanSequence:
             resend += more
             self._counts["resends"] += len(resend)
         if came_back:
-            self._ports.log("warning", f"a new receiver of captures (the reconstruction "
-                                       f"restarted?): sending all {len(resend)} captures of "
+            self._ports.log("warning", f"a new receiver of captures (a restarted "
+                                       f"reconstruction or recorder?): sending all {len(resend)} captures of "
                                        "the scan again")
         elif resend:
             self._ports.log("warning", f"sending {len(resend)} unreceipted capture(s) again: "

@@ -100,7 +100,7 @@ from sfs_ros.nodes.entry import run_node
 from sfs_ros.ros import capture_qos, result_qos
 from sfs_ros.ros.convert import diagnostic_array, health
 from sfs_ros.ros.messages import message_class
-from sfs_ros.ros.names import DIAGNOSTICS, private, status_name
+from sfs_ros.ros.names import DIAGNOSTICS, RECORDER_NODE, private, status_name
 from sfs_ros.ros.params import Param, ParameterError, declare, validating_callback
 from sfs_ros.ros.rig_params import rig_calibration
 from sfs_ros.ros.segmentation_params import segmentation_params
@@ -109,7 +109,7 @@ from sfs_ros.ros.worker import Worker
 
 __all__ = ["RecorderNode", "PARAMS", "main"]
 
-NODE_NAME = "recorder"
+NODE_NAME = RECORDER_NODE
 
 BAG_NAME = Param("bag_name", "", "Name of the next bag's folder under <output_dir>/bags; "
                  "empty = automatic (bag_<UTC time>, scan_<NNN>_<UTC time>).",

@@ -111,7 +111,7 @@ from sfs_ros.cell.scan_sequence import (
 from sfs_ros.nodes.entry import run_node
 from sfs_ros.ros import capture_qos
 from sfs_ros.ros.convert import angles_from_joint_state, diagnostic_array, health, joint_state
-from sfs_ros.ros.names import DIAGNOSTICS, SERVICES, private, status_name
+from sfs_ros.ros.names import DIAGNOSTICS, RECORDER_NODE, SERVICES, private, status_name
 from sfs_ros.ros.pairing import stamp_key
 from sfs_ros.ros.params import Param, ParameterError, declare, read, validating_callback
 from sfs_ros.ros.services import ServiceError, call
@@ -401,10 +401,15 @@ class ScanNode(Node):
         self.get_logger().error(text)
 
     def _tick(self) -> None:
-        """Delivery (resends; a publisher of receipts not seen before is a restarted
-        reconstruction node: everything is sent again), then diagnostics."""
-        self._sequence.tick({bytes(info.endpoint_gid) for info in
-                             self.get_publishers_info_by_topic(self._receipt_sub.topic_name)})
+        """Delivery (resends; a receiver not seen before, a publisher of receipts or the
+        recorder's subscription to the captures, is a restarted reconstruction node or
+        recorder: everything is sent again), then diagnostics."""
+        receipts = self.get_publishers_info_by_topic(self._receipt_sub.topic_name)
+        recorders = [info for info in
+                     self.get_subscriptions_info_by_topic(self.joints_pub.topic_name)
+                     if info.node_name == RECORDER_NODE
+                     and info.node_namespace == self.get_namespace()]
+        self._sequence.tick({bytes(info.endpoint_gid) for info in receipts + recorders})
         self.publish_diagnostics()
 
     # -- services (executor) -----------------------------------------------------------------

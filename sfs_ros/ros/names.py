@@ -18,12 +18,16 @@ is reached by remapping these.
 
 from __future__ import annotations
 
-__all__ = ["NAMESPACE", "DIAGNOSTICS", "SERVICES", "private", "status_name"]
+__all__ = ["NAMESPACE", "DIAGNOSTICS", "RECORDER_NODE", "SERVICES", "private", "status_name"]
 
 #: Namespace of the cell when started by ``sfs-cell`` or the launch files.
 NAMESPACE = "/sfs"
 #: The diagnostics topic of every node: absolute, the standard aggregator's.
 DIAGNOSTICS = "/diagnostics"
+
+#: The recorder's node name: the scan node knows a restarted recorder by it (and sends it
+#: the scan's captures again, so that its new bag holds them).
+RECORDER_NODE = "recorder"
 
 #: Short name -> service name relative to the cell's namespace (``<node>/<service>``).
 SERVICES: dict[str, str] = {
