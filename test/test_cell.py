@@ -170,6 +170,9 @@ def _scan(cell, *, midway=None, at: int = 4):
     """Start a scan; once ``at`` captures are out, call ``midway()``. Returns the scan number."""
     rec, client = cell["recorder"], cell["client"]
     rec.clear()
+    left = client.scan
+    if left is not None and left.state in ("starting", "running", "waiting"):
+        client.call("scan/cancel")      # left under way by a test that failed: not this one's
     scan = client.start_scan()
     if midway is not None:
         rec.wait_captures(at)
@@ -226,7 +229,7 @@ def _fault_pauses_then_resumes(cell, switch: str, *, paused: str, motor_says: st
     finally:
         rec.set(switch, False)          # even when this test failed: the next one's cell works
     rec.wait_encoders()                                         # the motor node is back
-    assert client.call("scan/resume").success
+    client.resume_scan()
     status = client.wait_scan_done(scan, timeout_s=SCAN_TIMEOUT_S)
     _check_every_view_once(rec, status)
 
@@ -248,7 +251,7 @@ def test_cancel_then_resume(cell):
     assert answer.success and "cancelled at view" in answer.message
     with pytest.raises(ScanFailed):
         client.wait_scan_done(scan, timeout_s=SCAN_TIMEOUT_S)
-    assert client.call("scan/resume").success
+    client.resume_scan()
     status = client.wait_scan_done(scan, timeout_s=SCAN_TIMEOUT_S)
     _check_every_view_once(rec, status)
 

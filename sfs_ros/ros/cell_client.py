@@ -38,6 +38,10 @@ __all__ = ["CellClient", "ScanFailed", "ScanStatus", "SERVICES", "READY"]
 READY = ("scan/start", "scan/cancel", "scan/resume", "reconstruct", "reset")
 
 
+#: States in which a scan is not under way (it waits for ``scan/resume``).
+_STOPPED = ("paused", "cancelled")
+
+
 class ScanFailed(RuntimeError):
     """The scan paused on a fault, or the reconstruction failed; the text says why."""
 
@@ -78,6 +82,7 @@ class CellClient:
         self.node = rclpy.create_node(name, namespace=namespace or "/", context=self._context)
         self._lock = threading.Lock()
         self._scan: ScanStatus | None = None
+        self._resumed: int | None = None      # scan resumed, until a report of it running
         self._motor_connected = False
         self._changed = threading.Condition(self._lock)
         self.node.create_subscription(DiagnosticArray, DIAGNOSTICS, self._on_diagnostics, 50)
@@ -95,6 +100,9 @@ class CellClient:
             if status.name.endswith(": scan"):
                 with self._changed:
                     self._scan = ScanStatus(status)
+                    if self._scan.count("scan") == self._resumed and \
+                            self._scan.state not in _STOPPED:
+                        self._resumed = None
                     self._changed.notify_all()
             elif status.name.endswith(": motor"):
                 self._motor_connected = any(kv.key == "connected" and kv.value == "True"
@@ -138,17 +146,32 @@ class CellClient:
             with self._changed:
                 self._changed.wait_for(lambda: self._scan is not seen, timeout=0.5)
                 status = seen = self._scan
+                resuming = self._resumed == scan
             if status is not None and status.count("scan") == scan:
                 if progress is not None:
                     progress(status)
                 if until(status):
                     return status
-                if status.state in ("paused", "cancelled"):
+                if status.state in _STOPPED and not resuming:
                     raise ScanFailed(status.message)
             if time.monotonic() > deadline:
                 last = status.message if status is not None else "no progress received"
                 raise TimeoutError(f"scan {scan} not finished after {timeout_s:g} s "
                                    f"(last: {last})")
+
+    def resume_scan(self) -> None:
+        """Call ``scan/resume``; ScanFailed with the reason. Until a report shows the scan
+        under way again, :meth:`wait_scan` passes over reports of it stopped (published
+        before the resume, they may arrive after its answer)."""
+        status = self.scan
+        scan = None if status is None else status.count("scan")
+        with self._lock:
+            self._resumed = scan
+        answer = self.call("scan/resume")
+        if not answer.success:
+            with self._lock:
+                self._resumed = None
+            raise ScanFailed(f"scan/resume refused: {answer.message}")
 
     def start_scan(self) -> int:
         """Call ``scan/start``; the number of the new scan, or ScanFailed with the reason."""
