@@ -15,9 +15,10 @@ import os
 from pathlib import Path
 
 from ament_index_python.packages import get_package_share_directory
-from launch.actions import DeclareLaunchArgument
+from launch.actions import DeclareLaunchArgument, SetEnvironmentVariable
 from launch.conditions import IfCondition
 from launch.substitutions import (
+    EnvironmentVariable,
     EqualsSubstitution,
     LaunchConfiguration,
     NotEqualsSubstitution,
@@ -49,6 +50,10 @@ def generate_launch_description():
         DeclareLaunchArgument('params_file', default_value=os.path.join(config, 'overrides.yaml'),
                               description="YAML parameters given to every node after its own "
                                           "files (default: overrides.yaml, which sets nothing)"),
+        # As sfs-cell (bringup.DDS_ENVIRONMENT): UDP, since Fast DDS's shared memory can
+        # leave a respawned node deaf to the nodes that outlived its predecessor.
+        SetEnvironmentVariable('FASTDDS_BUILTIN_TRANSPORTS', EnvironmentVariable(
+            'FASTDDS_BUILTIN_TRANSPORTS', default_value='UDPv4')),
         DeclareLaunchArgument('port', default_value='/dev/ttyACM0',
                               description="The motor controller's serial port"),
         DeclareLaunchArgument('camera_device', default_value='0',

@@ -14,8 +14,12 @@ import os
 from pathlib import Path
 
 from ament_index_python.packages import get_package_share_directory
-from launch.actions import DeclareLaunchArgument, OpaqueFunction
-from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
+from launch.actions import DeclareLaunchArgument, OpaqueFunction, SetEnvironmentVariable
+from launch.substitutions import (
+    EnvironmentVariable,
+    LaunchConfiguration,
+    PathJoinSubstitution,
+)
 from launch_ros.actions import Node
 
 from launch import LaunchDescription
@@ -46,6 +50,10 @@ def generate_launch_description():
         DeclareLaunchArgument('params_file', default_value=os.path.join(config, 'overrides.yaml'),
                               description="YAML parameters given to every node after its own "
                                           "files (default: overrides.yaml, which sets nothing)"),
+        # As sfs-cell (bringup.DDS_ENVIRONMENT): UDP, since Fast DDS's shared memory can
+        # leave a respawned node deaf to the nodes that outlived its predecessor.
+        SetEnvironmentVariable('FASTDDS_BUILTIN_TRANSPORTS', EnvironmentVariable(
+            'FASTDDS_BUILTIN_TRANSPORTS', default_value='UDPv4')),
         OpaqueFunction(function=make_output_dir),
         # One process, two nodes (mock_hardware and camera): no name, which would rename both.
         Node(package='sfs_ros', executable='sfs-mock-hardware', namespace=namespace,

@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 from std_srvs.srv import Trigger
 
-from sfs_ros.cli.bringup import Cell, cell_nodes, default_config_dir
+from sfs_ros.cli.bringup import DDS_ENVIRONMENT, Cell, cell_nodes, default_config_dir
 from sfs_ros.ros.names import NAMESPACE as NAMESPACE_DEFAULT
 from sfs_ros.ros.names import SERVICES
 
@@ -299,6 +299,10 @@ def test_sfs_cell_brings_up_the_mock_cell_and_stops_it_on_sigint(start_cell):
     link = mock_cell.output_dir / "ttyMOCK"
     assert link.is_symlink() and Path(os.readlink(link)).exists()     # the mock's pty
     assert len(mock_cell.nodes()) == len(MockCell.NODES)
+    for pid in mock_cell.nodes():           # the middleware settings, unless the user's
+        environ = Path(f"/proc/{pid}/environ").read_bytes().split(b"\0")
+        for name, value in DDS_ENVIRONMENT.items():
+            assert f"{name}={os.environ.get(name, value)}".encode() in environ
 
     mock_cell.process.send_signal(signal.SIGINT)
     assert mock_cell.wait_exit() == 0, mock_cell.output()

@@ -26,7 +26,7 @@ import pytest
 import yaml
 
 from sfs_ros.cell.messages import JOINT_NAMES
-from sfs_ros.cli.bringup import cell_nodes
+from sfs_ros.cli.bringup import DDS_ENVIRONMENT, cell_nodes
 from sfs_ros.ros.names import NAMESPACE
 
 REPO = Path(__file__).resolve().parents[1]
@@ -211,6 +211,20 @@ def test_launch_arguments_output_dir_required_namespace_sfs_by_default(filename,
     assert all(kw.get("description") for kw in launch.declared.values())
     assert any(isinstance(n, ast.FunctionDef) and n.name == "generate_launch_description"
                for n in launch.tree.body)
+
+
+@pytest.mark.parametrize("filename", LAUNCH_FILES)
+def test_launch_files_set_the_middleware_environment_of_sfs_cell(filename, share):
+    launch = LaunchFile(REPO / "launch" / filename, arguments={}, share=share)
+    settings = {}
+    for call in launch.calls("SetEnvironmentVariable"):
+        name, value = (launch.value(call.args[0]), call.args[1])
+        # EnvironmentVariable(NAME, default_value=...): a value the user set wins, as in
+        # sfs-cell; otherwise the default.
+        assert ast.unparse(value.func) == "EnvironmentVariable"
+        assert launch.value(value.args[0]) == name
+        settings[name] = launch.keywords(value)["default_value"]
+    assert settings == DDS_ENVIRONMENT
 
 
 def test_every_executable_is_a_console_script(share):

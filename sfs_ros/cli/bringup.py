@@ -35,9 +35,15 @@ from pathlib import Path
 
 from sfs_ros.ros.names import NAMESPACE
 
-__all__ = ["NodeSpec", "Cell", "RestartPolicy", "cell_nodes", "default_config_dir",
-           "wait_until_signal"]
+__all__ = ["NodeSpec", "Cell", "DDS_ENVIRONMENT", "RestartPolicy", "cell_nodes",
+           "default_config_dir", "wait_until_signal"]
 
+#: Middleware settings of the node processes (a variable already set is left as it is).
+#: Fast DDS's shared-memory transport can leave a restarted process deaf to the peers that
+#: outlived a SIGKILL of its predecessor (a restarted motor node never got the scan node's
+#: requests and commands, yet answered a new client at once; eProsima Fast-DDS issues
+#: 5053, 5469 and 2811 report the same): the cell's processes talk over UDP on the loopback.
+DDS_ENVIRONMENT = {"FASTDDS_BUILTIN_TRANSPORTS": "UDPv4"}
 #: Seconds a node gets to stop after SIGINT (then SIGTERM, then SIGKILL).
 STOP_GRACE_S = 10.0
 
@@ -161,7 +167,8 @@ class Cell:
     log : file, optional
         Where the nodes' output lines go, prefixed with ``[name]``; None = discarded.
     env : dict, optional
-        Environment of the processes (default: this process's).
+        Environment of the processes (default: this process's), plus
+        :data:`DDS_ENVIRONMENT` where it does not set those variables.
     """
 
     def __init__(self, specs: list[NodeSpec], *, namespace: str = NAMESPACE, log=sys.stdout,
@@ -169,7 +176,8 @@ class Cell:
         self.specs = specs
         self.namespace = "/" + namespace.strip("/") if namespace.strip("/") else ""
         self._log = log
-        self._env = dict(os.environ if env is None else env, PYTHONUNBUFFERED="1")
+        self._env = dict(DDS_ENVIRONMENT) | dict(os.environ if env is None else env,
+                                                 PYTHONUNBUFFERED="1")
         self._log_lock = threading.Lock()
         self.processes: dict[str, subprocess.Popen] = {}
         self._readers: list[threading.Thread] = []
