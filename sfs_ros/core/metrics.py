@@ -13,6 +13,7 @@ from .geometry.grid import VoxelGrid
 from .render import (
     as_mesh_arrays,
     covered_point,
+    edge_tuple,
     face_orientation,
     pixel_box,
     rasterize_silhouette,
@@ -100,11 +101,12 @@ def _coverage_overlap(vertices, faces, P, heights, widths, masks, moff, front_on
                 continue  # (the edges of a back face are not needed)
             if triangle_edges(h, faces, f, coef) == 0.0:
                 continue
+            edges = edge_tuple(coef)
             c0, c1, r0, r1 = pixel_box(h, faces, f, W, H)
             for row in range(r0, r1 + 1):
                 y = float(row)
                 for col in range(c0, c1 + 1):
-                    if covered_point(coef, float(col), y)[3] != 0.0:
+                    if covered_point(edges, float(col), y)[3] != 0.0:
                         cover[row * W + col] = 1
         both = 0
         either = 0
@@ -189,6 +191,7 @@ def _column_crossings(h, zk, faces, crossings):
         orientation = triangle_edges(h, faces, f, coef)
         if orientation == 0.0:
             continue
+        edges = edge_tuple(coef)
         # (u, v) = (i, j): a counter-clockwise triangle in X-Y faces +Z, so the
         # column leaves the solid there.
         step = -1 if orientation > 0.0 else 1
@@ -200,7 +203,7 @@ def _column_crossings(h, zk, faces, crossings):
         for i in range(i0, i1 + 1):
             u = float(i)
             for j in range(j0, j1 + 1):
-                e0, e1, e2, total = covered_point(coef, u, float(j))
+                e0, e1, e2, total = covered_point(edges, u, float(j))
                 if total == 0.0:
                     continue
                 z = (e0 * zk[a] + e1 * zk[b] + e2 * zk[c]) / total  # fractional k of the crossing

@@ -105,20 +105,29 @@ def triangle_edges(h, faces, f, coef):
 
 
 @njit(cache=True, inline="always")
-def covered_point(coef, u, v):
-    """Whether the triangle of ``coef`` (:func:`triangle_edges`) covers the point (u, v).
+def edge_tuple(coef):
+    """The edge functions of :func:`triangle_edges` as a tuple ``(A0, B0, C0, T0, A1, ...,
+    T2)`` (T as bool), for :func:`covered_point`: read once per face, held in registers."""
+    return (coef[0, 0], coef[0, 1], coef[0, 2], coef[0, 3] > 0.0,
+            coef[1, 0], coef[1, 1], coef[1, 2], coef[1, 3] > 0.0,
+            coef[2, 0], coef[2, 1], coef[2, 2], coef[2, 3] > 0.0)
+
+
+@njit(cache=True, inline="always")
+def covered_point(edges, u, v):
+    """Whether the triangle of ``edges`` (:func:`edge_tuple`) covers the point (u, v).
 
     Returns ``(e0, e1, e2, total)``: the edge functions there and their sum,
     ``total == 0.0`` when it is not covered (outside, on an edge that belongs to
     the neighbouring face, or degenerate). Inlined where called (numba IR).
     """
-    e0 = coef[0, 0] * u + coef[0, 1] * v + coef[0, 2]
-    e1 = coef[1, 0] * u + coef[1, 1] * v + coef[1, 2]
-    e2 = coef[2, 0] * u + coef[2, 1] * v + coef[2, 2]
+    e0 = edges[0] * u + edges[1] * v + edges[2]
+    e1 = edges[4] * u + edges[5] * v + edges[6]
+    e2 = edges[8] * u + edges[9] * v + edges[10]
     if e0 < 0.0 or e1 < 0.0 or e2 < 0.0:
         return e0, e1, e2, 0.0
-    if ((e0 == 0.0 and coef[0, 3] == 0.0) or (e1 == 0.0 and coef[1, 3] == 0.0)
-            or (e2 == 0.0 and coef[2, 3] == 0.0)):
+    if (e0 == 0.0 and not edges[3]) or (e1 == 0.0 and not edges[7]) \
+            or (e2 == 0.0 and not edges[11]):
         return e0, e1, e2, 0.0
     total = e0 + e1 + e2
     return e0, e1, e2, (0.0 if total <= 0.0 else total)
@@ -157,12 +166,13 @@ def _rasterize_kernel(h, depth, faces, face_id, bary, zbuf):
     for f in range(faces.shape[0]):
         if triangle_edges(h, faces, f, coef) == 0.0:
             continue
+        edges = edge_tuple(coef)
         c0, c1, r0, r1 = pixel_box(h, faces, f, width, height)
         d0, d1, d2 = depth[faces[f, 0]], depth[faces[f, 1]], depth[faces[f, 2]]
         for r in range(r0, r1 + 1):
             v = float(r)
             for c in range(c0, c1 + 1):
-                e0, e1, e2, total = covered_point(coef, float(c), v)
+                e0, e1, e2, total = covered_point(edges, float(c), v)
                 if total == 0.0:
                     continue
                 z = (e0 * d0 + e1 * d1 + e2 * d2) / total
