@@ -369,8 +369,8 @@ class ScanSequence:
             self._counts["resends"] += len(resend)
         if came_back:
             self._ports.log("warning", f"a new receiver of captures (a restarted "
-                                       f"reconstruction or recorder?): sending all {len(resend)} captures of "
-                                       "the scan again")
+                                       f"reconstruction or recorder?): sending all "
+                                       f"{len(resend)} captures of the scan again")
         elif resend:
             self._ports.log("warning", f"sending {len(resend)} unreceipted capture(s) again: "
                                        f"views {[e.view + 1 for e in resend]}")

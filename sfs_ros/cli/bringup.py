@@ -44,6 +44,7 @@ __all__ = ["NodeSpec", "Cell", "DDS_ENVIRONMENT", "RestartPolicy", "cell_nodes",
 #: requests and commands, yet answered a new client at once; eProsima Fast-DDS issues
 #: 5053, 5469 and 2811 report the same): the cell's processes talk over UDP on the loopback.
 DDS_ENVIRONMENT = {"FASTDDS_BUILTIN_TRANSPORTS": "UDPv4"}
+
 #: Seconds a node gets to stop after SIGINT (then SIGTERM, then SIGKILL).
 STOP_GRACE_S = 10.0
 

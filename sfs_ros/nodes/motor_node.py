@@ -28,9 +28,10 @@ Behaviour
 * ``home`` waits for the homing cycle (its answer comes when the axes are
   home, or with the reason they are not). A ``home`` that comes while a
   homing is waiting or running joins it (one cycle, the same answer), so a
-  caller may send it again when an answer is late. After a limit alarm the controller
-  answers nothing but a soft reset: ``home`` then resets first, then homes
-  (GRBL accepts ``$H`` in the alarm lock, so no separate unlock is needed).
+  caller may send it again when an answer is late. After a limit alarm the
+  controller answers nothing but a soft reset: ``home`` then resets first,
+  then homes (GRBL accepts ``$H`` in the alarm lock, so no separate unlock is
+  needed).
 * Faults (timeouts, alarms, stalls, rejected commands, lost connection) are
   logged and reported as ERROR diagnostics until the next successful move or
   homing. A lost connection closes the port; the node tries to reopen it every

@@ -98,7 +98,8 @@ def cell_urdf(calibration: RigCalibration, *, name: str = "sfs_cell") -> str:
                          f"matrix is no chain of joints (got {calibration.convention!r})")
     c = calibration
     # Turntable: X_lab = A Rz(theta_enc - theta_zero) X + (axis_x, axis_y, 0).
-    axis = rotation_x(c.axis_tilt_x_rad) @ rotation_y(c.axis_tilt_y_rad) @ rotation_z(-c.theta_zero_rad)
+    axis = (rotation_x(c.axis_tilt_x_rad) @ rotation_y(c.axis_tilt_y_rad)
+            @ rotation_z(-c.theta_zero_rad))
     # Carriage: X_lab = aim + Rx(-(phi_enc - phi_zero)) Y, i.e. origin Rx(phi_zero),
     # axis -X. Camera: X_cam = M (T(phi) (X_lab - aim) + d e_z) with T(phi) = T(0) Rx(phi),
     # so Y = (0, -d, 0) + T(0)^T M^T X_cam.
