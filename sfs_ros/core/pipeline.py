@@ -230,8 +230,8 @@ def _mesh(occupancy: np.ndarray, grid: VoxelGrid, params: ReconstructionParams, 
                                   "cloud_points_on_hull": int(on_hull.sum())}
 
 
-def _consensus(views: list[View], used: list[int], cameras, masks, grid: VoxelGrid,
-               seg_params: SegmentationParams, lenses: dict) -> Consensus:
+def _consensus(views: list[View], used: list[int], cameras, masks, prepared: PreparedMasks,
+               grid: VoxelGrid, seg_params: SegmentationParams, lenses: dict) -> Consensus:
     """The used views' masks re-segmented with the hull of all views as a prior
     (:func:`sfs_ros.core.resegment.consensus_masks`); alpha masks are kept. The masks
     and ``cameras`` are on the ideal pinhole's pixel grid, so each image is undistorted
@@ -246,7 +246,7 @@ def _consensus(views: list[View], used: list[int], cameras, masks, grid: VoxelGr
             return None
         return undistort_image(image, lenses[view.name])
 
-    return consensus_masks(reference, cameras, masks, read_rgb)
+    return consensus_masks(reference, cameras, masks, read_rgb, prepared=prepared)
 
 
 def reconstruct(view_set: ViewSet, params: ReconstructionParams = ReconstructionParams(), *,
@@ -331,13 +331,16 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
     resegmentation = None
     if params.consensus and len(cameras) >= 3 and seg_params.method == "graph-cut":
         with _timed(timings, "consensus"):
-            consensus = _consensus(views, used, cameras, used_masks, grid, seg_params, lenses)
+            consensus = _consensus(views, used, cameras, used_masks, prepared, grid,
+                                   seg_params, lenses)
             resegmentation = {
                 "applied": consensus.applied, "reason": consensus.reason,
+                "resegmented": int(consensus.resegmented.sum()),
                 "per_view": [{"view": views[i].name, "prior_iou": float(iou),
-                              "added_px": int(a), "removed_px": int(r)}
-                             for i, iou, a, r in zip(used, consensus.prior_iou,
-                                                     consensus.added_px, consensus.removed_px)]}
+                              "resegmented": bool(again), "added_px": int(a), "removed_px": int(r)}
+                             for i, iou, again, a, r in zip(
+                                 used, consensus.prior_iou, consensus.resegmented,
+                                 consensus.added_px, consensus.removed_px)]}
             if consensus.applied:
                 used_masks = consensus.masks
                 for i, mask in zip(used, used_masks):

@@ -33,17 +33,17 @@ import numpy as np
 from .carving.bounds import seen_by
 from .carving.carve import PreparedMasks, carve
 from .carving.consistency import hull_silhouettes
-from .carving.fusion import MIN_MEDIAN_IOU, reference_misses
+from .carving.fusion import MIN_MEDIAN_IOU, deepest_cut_px, reference_misses
 from .geometry.camera import Camera
 from .geometry.grid import VoxelGrid
 from .metrics import silhouette_iou
 from .segment import close_mask, fill_small_holes
 from .workers import map_in_threads
 
-__all__ = ["resegment", "Consensus", "consensus_masks"]
+__all__ = ["resegment", "settled", "Consensus", "consensus_masks"]
 
 #: GrabCut's working size (pixels of the neighbourhood), and iterations.
-_WORK_PIXELS = 160_000
+_WORK_PIXELS = 80_000
 _ITERATIONS = 3
 #: Width of the probable-backdrop band around the hull's projection, as a
 #: fraction of the square root of the projection's area, and at least this
@@ -62,6 +62,11 @@ _CLOSE_FRACTION = 0.02
 _FILL_HOLES_FRACTION = 0.002
 #: The view's first mask is kept within this fraction of the object size of the new one.
 _EDGE_FRACTION = 0.01
+#: A view is settled, and not re-segmented, when no part of its mask lies outside the
+#: projection (beyond a pixel) and the projection reaches beyond the mask by at most
+#: the voxel footprint plus this fraction of the object's radius (its own image, px).
+_SETTLED_FRACTION = 0.03
+_SETTLED_MIN_PX = 3.0
 #: Chromaticity features: grey levels per unit of (difference / brightness),
 #: and the brightness added below the division (grey levels).
 _CHROMA_GAIN = 64.0
@@ -118,24 +123,9 @@ def resegment(rgb: np.ndarray, prior: np.ndarray, mask: np.ndarray) -> np.ndarra
     labels[p > 0] = cv2.GC_PR_FGD
     sure = max(1, int(round(_SURE_FRACTION * size)))
     labels[cv2.erode(p & m, _disk(sure)) > 0] = cv2.GC_FGD
-    ch, cw = p.shape
-    scale = min(1.0, float(np.sqrt(_WORK_PIXELS / (ch * cw))))
-    if scale < 1.0:
-        small = (max(8, round(cw * scale)), max(8, round(ch * scale)))
-        work = cv2.resize(crop, small, interpolation=cv2.INTER_AREA)
-        work_labels = cv2.resize(labels, small, interpolation=cv2.INTER_NEAREST)
-    else:
-        work, work_labels = crop, labels
-    if np.count_nonzero((work_labels == cv2.GC_BGD) | (work_labels == cv2.GC_PR_BGD)) and \
-            np.count_nonzero((work_labels == cv2.GC_FGD) | (work_labels == cv2.GC_PR_FGD)):
-        cv2.setRNGSeed(0)  # GrabCut seeds its GMMs by k-means: the same result every run
-        cv2.grabCut(work, work_labels, None, np.zeros((1, 65)), np.zeros((1, 65)),
-                    _ITERATIONS, cv2.GC_INIT_WITH_MASK)
-    chosen = ((work_labels == cv2.GC_FGD) | (work_labels == cv2.GC_PR_FGD)).astype(np.float32)
-    if scale < 1.0:
-        chosen = cv2.resize(chosen, (cw, ch), interpolation=cv2.INTER_LINEAR)
+    chosen = _graph_cut(crop, labels)
     out = np.zeros((h, w), np.uint8)
-    out[y0:y1, x0:x1] = chosen > 0.5
+    out[y0:y1, x0:x1] = chosen
     # The view's own full-resolution edge where it is the more inclusive (partly
     # covered pixels): near the new mask only, so far shadows and clutter stay out.
     edge = max(1, int(round(_EDGE_FRACTION * size)))
@@ -143,6 +133,51 @@ def resegment(rgb: np.ndarray, prior: np.ndarray, mask: np.ndarray) -> np.ndarra
     out = close_mask(out, int(round(_CLOSE_FRACTION * size)))
     out, _ = fill_small_holes(out, _FILL_HOLES_FRACTION)
     return out.astype(bool)
+
+
+def _graph_cut(features: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """GrabCut of ``features`` ((h, w, 3) uint8) from ``labels`` ((h, w) uint8 GC_*):
+    (h, w) uint8, 1 = object.
+
+    Up to ``_WORK_PIXELS`` pixels it runs at full size. A larger crop is cut on a
+    reduced copy first, where the colour models are learnt; then the boundary band,
+    as wide as a working pixel on each side, is cut again at full size with those
+    models frozen (one graph cut, over the bounding box of the band only), so the
+    outline has full-resolution precision at a fraction of the cost."""
+    h, w = labels.shape
+    scale = min(1.0, float(np.sqrt(_WORK_PIXELS / (h * w))))
+    if scale == 1.0:
+        work, work_labels = features, labels.copy()
+    else:
+        small = (max(8, round(w * scale)), max(8, round(h * scale)))
+        work = cv2.resize(features, small, interpolation=cv2.INTER_AREA)
+        work_labels = cv2.resize(labels, small, interpolation=cv2.INTER_NEAREST)
+    background = (work_labels == cv2.GC_BGD) | (work_labels == cv2.GC_PR_BGD)
+    if not background.any() or background.all():  # nothing to decide
+        return ((labels == cv2.GC_FGD) | (labels == cv2.GC_PR_FGD)).astype(np.uint8)
+    models = np.zeros((1, 65)), np.zeros((1, 65))
+    cv2.setRNGSeed(0)  # GrabCut seeds its GMMs by k-means: the same result every run
+    cv2.grabCut(work, work_labels, None, *models, _ITERATIONS, cv2.GC_INIT_WITH_MASK)
+    chosen = ((work_labels == cv2.GC_FGD) | (work_labels == cv2.GC_PR_FGD)).astype(np.uint8)
+    if scale == 1.0:
+        return chosen
+    chosen = (cv2.resize(chosen.astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
+              > 0.5).astype(np.uint8)
+    reach = int(np.ceil(1.0 / scale)) + 1
+    square = np.ones((2 * reach + 1, 2 * reach + 1), np.uint8)
+    band = (cv2.dilate(chosen, square) > 0) & (cv2.erode(chosen, square) == 0)
+    rows, cols = np.flatnonzero(band.any(axis=1)), np.flatnonzero(band.any(axis=0))
+    if len(rows) == 0:
+        return chosen
+    box = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))
+    # Outside the band the reduced cut stands (as sure labels); inside, the prior's.
+    fine = np.where(chosen[box] > 0, cv2.GC_FGD, cv2.GC_BGD).astype(np.uint8)
+    fine[band[box]] = labels[box][band[box]]
+    if np.count_nonzero((fine == cv2.GC_PR_FGD) | (fine == cv2.GC_PR_BGD)):
+        cv2.grabCut(np.ascontiguousarray(features[box]), fine, None, *models, 1,
+                    cv2.GC_EVAL_FREEZE_MODEL)
+    chosen[box] = (fine == cv2.GC_FGD) | (fine == cv2.GC_PR_FGD)
+    return chosen
 
 
 @dataclass
@@ -153,6 +188,8 @@ class Consensus:
     applied : bool, whether the views were re-segmented
     reason : str, why not (None when applied)
     prior_iou : (n,) float, IoU of each view's first mask with the hull's projection
+    resegmented : (n,) bool, the views re-segmented (the others were settled:
+        :func:`settled`, or kept an alpha mask)
     added_px, removed_px : (n,) int, pixels the re-segmentation added to and
         removed from each view's first mask
     """
@@ -161,34 +198,60 @@ class Consensus:
     applied: bool
     reason: str | None
     prior_iou: np.ndarray
+    resegmented: np.ndarray
     added_px: np.ndarray
     removed_px: np.ndarray
 
 
+def settled(prior: np.ndarray, mask: np.ndarray, footprint_px: float) -> bool:
+    """Whether a view's first mask already is what the hull of all views says.
+
+    prior : (H, W) bool, the hull's projection; mask : (H, W) bool, the first
+    mask; footprint_px : half the size of the hull's voxels in the image, px.
+
+    Settled: no blob of the mask (wider than a pixel) lies outside the projection
+    dilated by a pixel, and no pixel of the projection lies farther from the mask
+    than the footprint plus ``_SETTLED_FRACTION`` of the projection's radius. The
+    re-segmentation could move such a mask by no more than that; a shadow, clutter
+    or a part missed shows as a deeper difference. With few views the tolerant hull
+    sticks out of the object by whole facets, so nearly every view is re-segmented.
+    """
+    prior8 = prior.view(np.uint8)
+    outside = mask.view(np.uint8) & (cv2.dilate(prior8, np.ones((3, 3), np.uint8)) == 0)
+    if cv2.morphologyEx(outside, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)).any():
+        return False
+    radius = np.sqrt(np.count_nonzero(prior) / np.pi)
+    tolerance = max(_SETTLED_MIN_PX, footprint_px + 1.0) + _SETTLED_FRACTION * radius
+    return deepest_cut_px(mask, prior) <= tolerance
+
+
 def consensus_masks(grid: VoxelGrid, cameras: Sequence[Camera], masks: Sequence[np.ndarray],
-                    read_rgb: Callable[[int], np.ndarray | None]) -> Consensus:
-    """Re-segment every view with the projection of the hull the others agree on.
+                    read_rgb: Callable[[int], np.ndarray | None], *,
+                    prepared: PreparedMasks | None = None) -> Consensus:
+    """Re-segment the views with the projection of the hull the others agree on.
 
     grid : VoxelGrid of the hull (coarse is enough: the prior only has to
         hold the object; its footprint widens the projection)
     cameras : n Camera; masks : n (H, W) bool, the views' first masks
     read_rgb : view index -> its (H, W, 3) uint8 RGB image, or None to keep
         that view's mask (e.g. an alpha mask, exact already)
+    prepared : the masks' carving tables when the caller has them (else built here)
 
     The hull tolerates one miss per voxel more than the fusion's reference
     hull (:func:`~sfs_ros.core.carving.fusion.reference_misses`): it is only a
     prior, where a part lost by a few views (an object touching the frame, a
     shaded side next to its shadow) must stay for GrabCut to find again; a
-    voxel seen by too few views to be judged is left out. When the views do
-    not agree on one object (median IoU of a first mask with the projection
-    below :data:`~sfs_ros.core.carving.fusion.MIN_MEDIAN_IOU`: a calibration
-    that does not fit), nothing is re-segmented: the masks must not be bent
-    to a wrong hull, and the fusion names the error.
+    voxel seen by too few views to be judged is left out. A view whose first
+    mask is :func:`settled` is kept as it is (neither read nor cut again). When
+    the views do not agree on one object (median IoU of a first mask with the
+    projection below :data:`~sfs_ros.core.carving.fusion.MIN_MEDIAN_IOU`: a
+    calibration that does not fit), nothing is re-segmented: the masks must
+    not be bent to a wrong hull, and the fusion names the error.
     """
     k = reference_misses(len(cameras)) + 1
-    prepared = PreparedMasks(list(cameras), masks)
+    prepared = prepared or PreparedMasks(list(cameras), masks)
     hull = carve(grid, cameras, prepared, max_misses=k) & seen_by(grid, list(cameras), k + 1)
-    projections, _ = hull_silhouettes(grid, hull, cameras)
+    projections, footprint_px = hull_silhouettes(grid, hull, cameras)
     prior_iou = np.array([silhouette_iou(p, m) for p, m in zip(projections, masks)])
     zeros = np.zeros(len(masks), np.int64)
     median = float(np.median(prior_iou))
@@ -196,13 +259,17 @@ def consensus_masks(grid: VoxelGrid, cameras: Sequence[Camera], masks: Sequence[
         return Consensus(list(masks), False,
                          f"the views do not agree on one object (median IoU of a mask with "
                          f"the hull's projection {median:.2f}, below {MIN_MEDIAN_IOU})",
-                         prior_iou, zeros, zeros)
+                         prior_iou, zeros.astype(bool), zeros, zeros)
 
-    def one_view(n: int) -> np.ndarray:
+    def one_view(n: int) -> np.ndarray | None:
+        if settled(projections[n], masks[n], footprint_px[n]):
+            return None
         rgb = read_rgb(n)
-        return masks[n] if rgb is None else resegment(rgb, projections[n], masks[n])
+        return None if rgb is None else resegment(rgb, projections[n], masks[n])
 
-    out = list(map_in_threads(one_view, range(len(masks))))   # views side by side
+    found = list(map_in_threads(one_view, range(len(masks))))   # views side by side
+    resegmented = np.array([new is not None for new in found], bool)
+    out = [mask if new is None else new for new, mask in zip(found, masks)]
     added = np.array([np.count_nonzero(new & ~mask) for new, mask in zip(out, masks)], np.int64)
     removed = np.array([np.count_nonzero(mask & ~new) for new, mask in zip(out, masks)], np.int64)
-    return Consensus(out, True, None, prior_iou, added, removed)
+    return Consensus(out, True, None, prior_iou, resegmented, added, removed)

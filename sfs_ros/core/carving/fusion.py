@@ -178,7 +178,7 @@ def _distance_to_mask(mask: np.ndarray, projection: np.ndarray) -> np.ndarray:
     return out
 
 
-def _deepest_cut_px(mask: np.ndarray, projection: np.ndarray) -> float:
+def deepest_cut_px(mask: np.ndarray, projection: np.ndarray) -> float:
     """Largest distance from ``mask`` of a pixel of ``projection`` outside it, pixels."""
     outside = projection & ~mask
     if not outside.any():
@@ -230,7 +230,7 @@ def fuse_silhouettes(grid: VoxelGrid, cameras: Sequence[Camera], masks, *,
     projections, half_px = hull_silhouettes(grid, hull, cameras)
     # How deep each view cuts into the reference hull, relative to its size.
     radius_px = np.array([math.sqrt(np.count_nonzero(p) / math.pi) for p in projections])
-    cut_px = np.array([_deepest_cut_px(m, p) for m, p in zip(masks, projections)])
+    cut_px = np.array([deepest_cut_px(m, p) for m, p in zip(masks, projections)])
     typical = float(np.median(cut_px / np.maximum(radius_px, 1.0)))
     repaired, verdicts = [], []
     for v, (mask, proj) in enumerate(zip(masks, projections)):
