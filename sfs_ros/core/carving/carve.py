@@ -155,19 +155,33 @@ def _runs(masks: np.ndarray, by_row: np.ndarray):
     return offsets, run_lo, run_hi, L
 
 
+def _mask_boxes(masks) -> np.ndarray:
+    """(n, 4) int64 bounding box (column, row, width, height) of each mask's foreground;
+    zeros for an empty mask."""
+    boxes = np.zeros((len(masks), 4), np.int64)
+    for v, m in enumerate(masks):
+        rows, cols = np.flatnonzero(m.any(axis=1)), np.flatnonzero(m.any(axis=0))
+        if len(rows):
+            boxes[v] = cols[0], rows[0], cols[-1] + 1 - cols[0], rows[-1] + 1 - rows[0]
+    return boxes
+
+
 def _flat_views(cameras, masks):
-    """Masks and their summed-area tables, flattened for the block path."""
+    """Masks, flattened for the block path, and the summed-area tables of their
+    foreground's bounding boxes (a few times smaller than the images)."""
     heights = np.array([c.height for c in cameras], np.int64)
     widths = np.array([c.width for c in cameras], np.int64)
     moff = np.zeros(len(cameras), np.int64)
     moff[1:] = np.cumsum(heights * widths)[:-1]
+    boxes = _mask_boxes(masks)
+    sizes = (boxes[:, 2] + 1) * (boxes[:, 3] + 1)
     ioff = np.zeros(len(cameras), np.int64)
-    ioff[1:] = np.cumsum((heights + 1) * (widths + 1))[:-1]
+    ioff[1:] = np.cumsum(sizes)[:-1]
     flat = np.concatenate([m.ravel() for m in masks]).view(np.uint8)
-    integ = np.empty(int(np.sum((heights + 1) * (widths + 1))), np.int32)
-    _k.integral_images(flat, moff, heights, widths, ioff, integ)
+    integ = np.empty(int(np.sum(sizes)), np.int32)
+    _k.integral_images(flat, moff, widths, boxes, ioff, integ)
     ortho = np.array([c.orthographic for c in cameras])
-    return ortho, flat, moff, integ, ioff, heights, widths
+    return ortho, flat, moff, integ, ioff, boxes, heights, widths
 
 
 class PreparedMasks:
@@ -252,8 +266,9 @@ def carve(grid: VoxelGrid, cameras: Sequence[Camera], masks, *, max_misses: int 
                            _k.LINES_INTERSECT if max_misses == 0 else _k.LINES_COUNT, out,
                            np.zeros((1, 1, 1), np.uint8))
         else:
-            ortho, flat, moff, integ, ioff, heights, widths = prepared.block_tables()
-            _k.carve_blocks(coef, ortho, flat, moff, integ, ioff, heights, widths, order, keep,
+            ortho, flat, moff, integ, ioff, boxes, heights, widths = prepared.block_tables()
+            _k.carve_blocks(coef, ortho, flat, moff, integ, ioff, boxes, heights, widths, order,
+                            keep,
                             max_misses, _TOP_BLOCK, _LEAF_BLOCK, out)
     return out
 
@@ -313,8 +328,9 @@ class Carver:
                                _k.LINES_ADD_VIEW,
                                np.zeros((1, 1, 1), bool), self._misses)
             else:
-                ortho, flat, _, integ, _, heights, widths = _flat_views([camera], [mask])
-                _k.carve_blocks_one(coef, ortho, flat, integ, int(widths[0]), int(heights[0]),
+                ortho, flat, _, integ, _, boxes, heights, widths = _flat_views([camera], [mask])
+                _k.carve_blocks_one(coef, ortho, flat, integ, boxes, int(widths[0]),
+                                    int(heights[0]),
                                     keep, self.max_misses + 1, _TOP_BLOCK, _LEAF_BLOCK,
                                     self._alive, self._misses)
         self._n_views += 1

@@ -175,13 +175,19 @@ def count_status(count, c0, c1, r0, r1, W, H, keep):
 
 
 @njit(**_NJIT)
-def _rect_count(integ, base, c0, c1, r0, r1, W, H):
-    """Foreground pixels in the rectangle clipped to the image (summed-area table)."""
-    a0 = int(max(c0, 0.0))
-    a1 = int(min(c1, W - 1.0))
-    b0 = int(max(r0, 0.0))
-    b1 = int(min(r1, H - 1.0))
-    s = W + 1
+def _rect_count(integ, base, boxes, v, c0, c1, r0, r1, W, H):
+    """Foreground pixels of view ``v`` in the rectangle clipped to the image, from its
+    summed-area table at ``integ[base:]``, which covers only the mask's bounding box
+    ``boxes[v]`` = (column, row, width, height): outside it there is no foreground."""
+    x0 = boxes[v, 0]
+    y0 = boxes[v, 1]
+    a0 = max(int(max(c0, 0.0)), x0) - x0
+    a1 = min(int(min(c1, W - 1.0)), x0 + boxes[v, 2] - 1) - x0
+    b0 = max(int(max(r0, 0.0)), y0) - y0
+    b1 = min(int(min(r1, H - 1.0)), y0 + boxes[v, 3] - 1) - y0
+    if a1 < a0 or b1 < b0:
+        return 0
+    s = boxes[v, 2] + 1
     return (integ[base + (b1 + 1) * s + a1 + 1] - integ[base + b0 * s + a1 + 1]
             - integ[base + (b1 + 1) * s + a0] + integ[base + b0 * s + a0])
 
@@ -232,25 +238,30 @@ def _push_children(stack, sp, i0, j0, k0, half, nx, ny, nz):
 
 
 @njit(parallel=True, cache=True, error_model="numpy")
-def integral_images(masks, moff, heights, widths, ioff, integ):
-    """Summed-area tables, flat: integ[ioff[v] + r * (W + 1) + c] = sum mask[:r, :c]."""
+def integral_images(masks, moff, widths, boxes, ioff, integ):
+    """Summed-area tables of the masks' bounding boxes ``boxes`` (n, 4) = (column, row,
+    width, height), flat: ``integ[ioff[v] + r * (w + 1) + c]`` = foreground pixels of
+    ``mask[y0:y0 + r, x0:x0 + c]``."""
     for v in prange(moff.size):
-        H = heights[v]
         W = widths[v]
-        s = W + 1
+        x0 = boxes[v, 0]
+        y0 = boxes[v, 1]
+        w = boxes[v, 2]
+        s = w + 1
         b = ioff[v]
         for c in range(s):
             integ[b + c] = 0
-        for r in range(H):
+        for r in range(boxes[v, 3]):
             run = 0
             integ[b + (r + 1) * s] = 0
-            for c in range(W):
-                run += masks[moff[v] + r * W + c]
+            row = moff[v] + (y0 + r) * W + x0
+            for c in range(w):
+                run += masks[row + c]
                 integ[b + (r + 1) * s + c + 1] = integ[b + r * s + c + 1] + run
 
 
 @njit(parallel=True, **_NJIT)
-def carve_blocks(coef, ortho, masks, moff, integ, ioff, heights, widths, order, keep,
+def carve_blocks(coef, ortho, masks, moff, integ, ioff, boxes, heights, widths, order, keep,
                  max_misses, top, leaf, out):
     """Batch coarse-to-fine carving into ``out`` (nx, ny, nz) bool, zero on entry.
 
@@ -292,7 +303,7 @@ def carve_blocks(coef, ortho, masks, moff, integ, ioff, heights, widths, order, 
                                                   j1, k0, k1)
                 st = rect_status(kind, c0, c1, r0, r1, W, H, keep)
                 if st == BLOCK_COUNT:
-                    st = count_status(_rect_count(integ, ioff[v], c0, c1, r0, r1, W, H),
+                    st = count_status(_rect_count(integ, ioff[v], boxes, v, c0, c1, r0, r1, W, H),
                                       c0, c1, r0, r1, W, H, keep)
                 if st == BLOCK_MISS:
                     misses += 1
@@ -331,8 +342,10 @@ def carve_blocks(coef, ortho, masks, moff, integ, ioff, heights, widths, order, 
 
 
 @njit(parallel=True, **_NJIT)
-def carve_blocks_one(coef, ortho, masks, integ, W, H, keep, cap, top, leaf, alive, misses):
-    """Add view 0 (mask ``masks`` flat (H * W,), table ``integ``) to the miss
+def carve_blocks_one(coef, ortho, masks, integ, boxes, W, H, keep, cap, top, leaf, alive,
+                     misses):
+    """Add view 0 (mask ``masks`` flat (H * W,), summed-area table ``integ`` of its box
+    ``boxes[0]``) to the miss
     counters ``misses`` (nx, ny, nz), saturating at ``cap``.
 
     ``alive`` (n_blocks,) bool flags top blocks that may still hold a voxel
@@ -365,8 +378,8 @@ def carve_blocks_one(coef, ortho, masks, integ, W, H, keep, cap, top, leaf, aliv
             kind, c0, c1, r0, r1 = block_rect(cv, is_ortho, i0, i1, j0, j1, k0, k1)
             st = rect_status(kind, c0, c1, r0, r1, W, H, keep)
             if st == BLOCK_COUNT:
-                st = count_status(_rect_count(integ, 0, c0, c1, r0, r1, W, H), c0, c1, r0,
-                                  r1, W, H, keep)
+                st = count_status(_rect_count(integ, 0, boxes, 0, c0, c1, r0, r1, W, H), c0,
+                                  c1, r0, r1, W, H, keep)
             if st == BLOCK_HIT:
                 continue
             if st == BLOCK_MISS or size <= leaf:

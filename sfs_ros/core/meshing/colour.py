@@ -42,6 +42,7 @@ import cv2
 import numpy as np
 from scipy import sparse
 from scipy.sparse import csgraph
+from numba import njit
 from scipy.sparse.linalg import splu
 
 from ..carving.carve import validate_masks
@@ -106,20 +107,47 @@ def _footprint_m(camera: Camera, depth: np.ndarray) -> np.ndarray:
     return np.full_like(depth, 1.0 / f) if camera.orthographic else depth / f
 
 
-def _bilinear(image: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """``image`` (H, W) or (H, W, C) sampled at ``(u, v)`` (k,), within [0, W-1] x [0, H-1].
+@njit(cache=True, nogil=True, inline="always")
+def _bilinear_at(image, u, v, channel):
+    """``image[..., channel]`` (H, W, C) sampled bilinearly at ``(u, v)`` in
+    [0, W-1] x [0, H-1], pixels."""
+    c0 = min(int(u), image.shape[1] - 2)
+    r0 = min(int(v), image.shape[0] - 2)
+    fu = u - c0
+    fv = v - r0
+    top = (1.0 - fu) * image[r0, c0, channel] + fu * image[r0, c0 + 1, channel]
+    bottom = (1.0 - fu) * image[r0 + 1, c0, channel] + fu * image[r0 + 1, c0 + 1, channel]
+    return (1.0 - fv) * top + fv * bottom
 
-    Returns (k,) or (k, C) float64.
+
+@njit(cache=True, nogil=True)
+def _weigh_view(u, v, z, cos, image, edge_px, zbuf, min_cos, angle_power, edge_ramp_px,
+                depth_tolerance_px, footprint_per_m, footprint_ortho, weights, colours, hidden):
+    """One view's part in the blend, for the k vertices it may see.
+
+    u, v, z, cos : (k,) float64, the projection (pixels), depth (metres) and view
+    cosine; image (H, W, 3) uint8; edge_px (H, W, 1) float32 distance to an edge
+    pixel, or (0, 0, 1) for none; zbuf (H, W, 1) float64 z-buffer, or (0, 0, 1).
+    A pixel's footprint at depth z is ``footprint_ortho + z * footprint_per_m``, metres.
+    Fills ``weights`` (k,) (0: not blended), ``colours`` (k, 3) (the weighted
+    colour) and ``hidden`` (k,) bool (the mesh hides the vertex).
     """
-    height, width = image.shape[:2]
-    c0 = np.minimum(u.astype(np.int64), width - 2)
-    r0 = np.minimum(v.astype(np.int64), height - 2)
-    fu, fv = u - c0, v - r0
-    if image.ndim == 3:
-        fu, fv = fu[:, None], fv[:, None]
-    top = (1 - fu) * image[r0, c0] + fu * image[r0, c0 + 1]
-    bottom = (1 - fu) * image[r0 + 1, c0] + fu * image[r0 + 1, c0 + 1]
-    return (1 - fv) * top + fv * bottom
+    for i in range(u.size):
+        w = ((cos[i] - min_cos) / (1.0 - min_cos)) ** angle_power
+        if edge_px.shape[0]:
+            w *= min(1.0, max(0.0, (_bilinear_at(edge_px, u[i], v[i], 0) - EDGE_MARGIN_PX)
+                                / edge_ramp_px))
+        hidden[i] = False
+        if w > 0.0 and zbuf.shape[0]:
+            # w > 0 only off the edges: the 2 x 2 pixels read see one surface, all finite.
+            tan = np.sqrt(1.0 - cos[i] ** 2) / cos[i]
+            tol = (footprint_ortho + z[i] * footprint_per_m) * (depth_tolerance_px + tan)
+            if z[i] > _bilinear_at(zbuf, u[i], v[i], 0) + tol:
+                hidden[i] = True
+                w = 0.0
+        weights[i] = w
+        for c in range(3):
+            colours[i, c] = w * _bilinear_at(image, u[i], v[i], c) if w > 0.0 else 0.0
 
 
 def _edge_distance_px(zbuf: np.ndarray | None, mask: np.ndarray | None,
@@ -143,6 +171,14 @@ def _edge_distance_px(zbuf: np.ndarray | None, mask: np.ndarray | None,
                 edge[a] |= jump
                 edge[b] |= jump
     return cv2.distanceTransform((~edge).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+
+
+def _planes(image: np.ndarray | None, dtype) -> np.ndarray:
+    """``image`` (H, W) as an (H, W, 1) array of ``dtype`` for :func:`_weigh_view`; None
+    as an empty (0, 0, 1) one."""
+    if image is None:
+        return np.zeros((0, 0, 1), dtype)
+    return np.ascontiguousarray(image, dtype)[:, :, None]
 
 
 def _view_of(camera: Camera, vertices: np.ndarray, normals: np.ndarray) -> tuple:
@@ -283,22 +319,17 @@ def vertex_colours(vertices, faces, images: Sequence, cameras: Sequence[Camera],
         idx = np.flatnonzero((cos > min_cos) & (u >= 0) & (u <= camera.width - 1)
                              & (v >= 0) & (v <= camera.height - 1))  # NaN (behind) fails
         u, v, z, cos = u[idx], v[idx], z[idx], cos[idx]
-        w = ((cos - min_cos) / (1.0 - min_cos)) ** angle_power
         zbuf = rasterize_faces(vertices, faces, camera)[2] if occlusion else None
         edge_px = _edge_distance_px(zbuf, mask, camera)
-        if edge_px is not None:
-            w *= np.clip((_bilinear(edge_px, u, v) - EDGE_MARGIN_PX) / edge_ramp_px, 0.0, 1.0)
-        hidden = np.zeros(0, dtype=np.int64)
-        if zbuf is not None:
-            # w > 0 only off the edges: the 2 x 2 pixels read see one surface, all finite.
-            s = np.flatnonzero(w > 0)
-            tan = np.sqrt(1.0 - cos[s] ** 2) / cos[s]
-            tol = _footprint_m(camera, z[s]) * (depth_tolerance_px + tan)
-            hidden = s[z[s] > _bilinear(zbuf, u[s], v[s]) + tol]
-            w[hidden] = 0.0
-        keep = w > 0
-        return (idx[keep], w[keep], w[keep][:, None] * _bilinear(image, u[keep], v[keep]),
-                idx[hidden])
+        f = min(camera.K[0, 0], camera.K[1, 1])
+        weights, weighted = np.empty(len(idx)), np.empty((len(idx), 3))
+        hidden = np.empty(len(idx), bool)
+        _weigh_view(u, v, z, cos, image, _planes(edge_px, np.float32), _planes(zbuf, np.float64),
+                    min_cos, angle_power, edge_ramp_px, depth_tolerance_px,
+                    0.0 if camera.orthographic else 1.0 / f,
+                    1.0 / f if camera.orthographic else 0.0, weights, weighted, hidden)
+        keep = weights > 0
+        return idx[keep], weights[keep], weighted[keep], idx[hidden]
 
     # Views in threads (numpy and the rasteriser release the GIL), summed in view order:
     # the same sums as one view after the other.
