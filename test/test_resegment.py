@@ -7,11 +7,10 @@ hull's projection is (its voxel footprint and the facets of few views).
 """
 
 import numpy as np
+from test_fusion import BAD, bite, scan
 
 from sfs_ros.core.geometry.grid import VoxelGrid
 from sfs_ros.core.resegment import consensus_masks, resegment, settled
-
-from test_fusion import BAD, bite, scan
 
 H, W = 120, 160
 YY, XX = np.mgrid[0:H, 0:W]

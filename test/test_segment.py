@@ -291,3 +291,38 @@ def test_from_dict():
         assert isinstance(SegmentationParams.from_dict(values), SegmentationParams), name
     with pytest.raises(ValueError, match="SegmentationParams"):
         segment(np.zeros((H, W), np.uint8), {"threshold": 0.2})
+
+
+def test_graph_cut_runs_only_where_something_is_left_to_decide(monkeypatch):
+    import sfs_ros.core.segment as seg
+
+    cuts = []
+    real = seg.cv2.grabCut
+
+    def counted(*args):
+        cuts.append(1)
+        return real(*args)
+
+    monkeypatch.setattr(seg.cv2, "grabCut", counted)
+    # A plain ellipse, strongly coloured, on a flat white backdrop: every pixel is either
+    # far from the backdrop or sure backdrop, so the first labels are the answer.
+    yy, xx = np.mgrid[0:H, 0:W]
+    body = ((xx - CENTRE[0]) / AXES[0]) ** 2 + ((yy - CENTRE[1]) / AXES[1]) ** 2 <= 1
+    image = np.full((H, W, 3), 245.0)
+    image[body] = (200, 120, 60)
+    image = np.clip(np.rint(image + np.random.default_rng(0).normal(0, 4.0, image.shape)),
+                    0, 255).astype(np.uint8)
+    skipped = segment(image).mask
+    assert cuts == []
+    monkeypatch.setattr(seg, "_DECIDED_FRACTION", -1.0)  # never decided: always cut
+    cut = segment(image).mask
+    # The cut changes at most 0.1 % of the object's pixels here (measured: 7 of 15 600,
+    # single pixels on the outline): skipping it loses nothing.
+    assert cuts == [1] and np.count_nonzero(cut ^ skipped) <= 1e-3 * body.sum()
+    monkeypatch.setattr(seg, "_DECIDED_FRACTION", 0.02)
+    cuts.clear()
+    # With a handle's hole, backdrop enclosed by the object and started as object, the
+    # first labels hold a guess: the cut is asked.
+    image, _, _ = render((245, 245, 240), specks=False, gradient=0.0)
+    segment(image)
+    assert cuts == [1]

@@ -40,9 +40,9 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from numba import njit
 from scipy import sparse
 from scipy.sparse import csgraph
-from numba import njit
 from scipy.sparse.linalg import splu
 
 from ..carving.carve import validate_masks
