@@ -58,7 +58,7 @@ def _config(folder: Path, rings: dict, resolution: int) -> dict:
             data["/**"]["ros__parameters"]["resolution"] = resolution
         if path.name == "scan_plan.yaml":
             data = {"rings": rings}
-        else:
+        elif path.name != "mock_wrong_world.yaml" and "/**" in data:  # a node's parameters
             merged.update(data["/**"]["ros__parameters"])
         (folder / path.name).write_text(yaml.safe_dump(data))
     return merged

@@ -56,3 +56,15 @@ def test_the_default_site_params_file_sets_nothing():
     # sfs-cell and the launch files give it to every node last: a site's own values go in a
     # file that replaces it, so by default it must change nothing.
     assert _values("overrides.yaml") == {}
+
+
+def test_the_cell_benchmark_reads_the_config_folder(tmp_path):
+    # bench.bench_cell runs the cell on a copy of this folder with its own plan and grid.
+    from bench.bench_cell import _config
+
+    merged = _config(tmp_path / "config", {"phi_deg": [30], "per_ring": 4}, 64)
+    assert RIG_NAMES <= set(merged) and merged["resolution"] == 64
+    assert {p.name for p in (tmp_path / "config").iterdir()} == \
+        {p.name for p in CONFIG.glob("*.yaml")}
+    plan = yaml.safe_load((tmp_path / "config" / "scan_plan.yaml").read_text())
+    assert plan == {"rings": {"phi_deg": [30], "per_ring": 4}}
