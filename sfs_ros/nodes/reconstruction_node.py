@@ -41,7 +41,8 @@ request, and messages keep being received (and queued for the worker) while
 it runs. ``reconstruct`` answers once the mesh, its report and its picture are
 written: ``success`` and the JSON of :meth:`LiveReconstruction.reconstruct`
 (path, report_path, preview_path, views used / rejected, watertight,
-volume_m3, seconds, ...);
+volume_m3, seconds, ...); the ``mesh`` and ``mesh_shape`` messages follow (building
+and serialising them takes seconds for a large mesh, and the files are the result);
 ``success=False`` with the reason when there are no views or no mesh can be
 made. ``reset`` starts a new scan (new session folder on the next view) and
 publishes an empty hull; the last mesh stays on ``mesh`` until the next one.
@@ -546,16 +547,21 @@ class ReconstructionNode(Node):
             self._publish_diagnostics()
             return False, text
         self._count("reconstructions")
-        vertices, faces = self._live.last_mesh
-        stamp = self.get_clock().now().to_msg()
-        self._marker_pub.publish(mesh_to_marker(vertices, faces, stamp=stamp, frame_id=FRAME_ID,
-                                                vertex_colors=self._live.last_colours))
-        self._shape_pub.publish(mesh_to_shape(vertices, faces))
         self.get_logger().info(f"mesh written to {summary['path']} ({summary['views_used']} "
                                f"views, {summary['n_faces']} faces, "
                                f"{summary['seconds']:.1f} s)")
         self._publish_diagnostics()
+        # The answer goes out now, the mesh being on disk; its messages (seconds of building
+        # and serialising for a few 100 000 faces) follow as the worker's next job.
+        self._submit("publish the mesh", self._publish_mesh, *self._live.last_mesh,
+                     self._live.last_colours)
         return True, json.dumps(summary)
+
+    def _publish_mesh(self, vertices, faces, colours) -> None:
+        stamp = self.get_clock().now().to_msg()
+        self._marker_pub.publish(mesh_to_marker(vertices, faces, stamp=stamp, frame_id=FRAME_ID,
+                                                vertex_colors=colours))
+        self._shape_pub.publish(mesh_to_shape(vertices, faces))
 
     def _publish_poses(self) -> None:
         self._poses_pub.publish(camera_poses(self._cameras, stamp=self.get_clock().now().to_msg(),
