@@ -18,8 +18,12 @@ the object's colours come from where the views agree the object is, the
 backdrop's from what surrounds it (plate, shadow, cloth), so neither a
 backdrop that resembles part of the object far away nor an object touching
 the frame misleads them. GrabCut runs at full resolution on the
-neighbourhood when it holds at most ``_WORK_PIXELS`` pixels, else on a
-reduced copy whose result is drawn back at full size.
+neighbourhood when it holds at most ``_WORK_PIXELS`` pixels; a larger one is
+cut on a reduced copy, where the colour models are learnt, then its outline
+again at full size with those models frozen.
+
+:func:`consensus_masks` leaves alone the views whose first mask is already
+:func:`settled` on the hull's projection: with many views, most clean ones.
 """
 
 from __future__ import annotations

@@ -85,9 +85,9 @@ _ENCLOSED_FRACTION = 0.5
 #: The graph cut is skipped when the first labels leave at most this fraction of the
 #: number of probable-object pixels as probable backdrop, and no backdrop-coloured patch
 #: of ``_SPECK_PX`` working pixels or more was started as object: nothing is left for it
-#: to decide. Measured: 0.001-0.011 on
-#: renders on a plain backdrop (where the cut changed no mask but through a handle's
-#: hole, an enclosed patch), 0.05-0.95 on the Middlebury rings and the hostile cell.
+#: to decide. Measured: 0.001-0.011 on renders on a plain backdrop (where the cut changed
+#: no mask but through a handle's hole, an enclosed patch), 0.05-0.95 on the Middlebury
+#: rings and the hostile cell.
 _DECIDED_FRACTION = 0.02
 _SPECK_PX = 3
 

@@ -268,8 +268,7 @@ def carve(grid: VoxelGrid, cameras: Sequence[Camera], masks, *, max_misses: int 
         else:
             ortho, flat, moff, integ, ioff, boxes, heights, widths = prepared.block_tables()
             _k.carve_blocks(coef, ortho, flat, moff, integ, ioff, boxes, heights, widths, order,
-                            keep,
-                            max_misses, _TOP_BLOCK, _LEAF_BLOCK, out)
+                            keep, max_misses, _TOP_BLOCK, _LEAF_BLOCK, out)
     return out
 
 
@@ -330,7 +329,6 @@ class Carver:
             else:
                 ortho, flat, _, integ, _, boxes, heights, widths = _flat_views([camera], [mask])
                 _k.carve_blocks_one(coef, ortho, flat, integ, boxes, int(widths[0]),
-                                    int(heights[0]),
-                                    keep, self.max_misses + 1, _TOP_BLOCK, _LEAF_BLOCK,
-                                    self._alive, self._misses)
+                                    int(heights[0]), keep, self.max_misses + 1, _TOP_BLOCK,
+                                    _LEAF_BLOCK, self._alive, self._misses)
         self._n_views += 1
