@@ -763,7 +763,7 @@ def _graph_cut_mask(rgb: np.ndarray, params: SegmentationParams) -> tuple[np.nda
     decided = not guessed and np.count_nonzero(labels == cv2.GC_PR_BGD) \
         <= _DECIDED_FRACTION * np.count_nonzero(labels == cv2.GC_PR_FGD)
     if decided:
-        labels[enclosed] = cv2.GC_PR_BGD  # specks of noise, which the cut would drop
+        labels[enclosed] = cv2.GC_PR_BGD  # only specks of noise: no guess to keep as object
     elif np.count_nonzero((labels == cv2.GC_BGD) | (labels == cv2.GC_PR_BGD)):
         cv2.grabCut(small, labels, None, np.zeros((1, 65)), np.zeros((1, 65)),
                     _GRABCUT_ITERATIONS, cv2.GC_INIT_WITH_MASK)

@@ -101,10 +101,17 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return np.divide(normals, length, out=np.zeros_like(normals), where=length > 0)
 
 
+def _footprint_terms(camera: Camera) -> tuple[float, float]:
+    """The size of one pixel on a fronto-parallel surface at depth ``z`` (metres) is
+    ``constant + z * per_metre``, metres: returns ``(constant, per_metre)``."""
+    f = min(camera.K[0, 0], camera.K[1, 1])
+    return (1.0 / f, 0.0) if camera.orthographic else (0.0, 1.0 / f)
+
+
 def _footprint_m(camera: Camera, depth: np.ndarray) -> np.ndarray:
     """Size of one pixel on a fronto-parallel surface at ``depth`` (metres), metres."""
-    f = min(camera.K[0, 0], camera.K[1, 1])
-    return np.full_like(depth, 1.0 / f) if camera.orthographic else depth / f
+    constant, per_metre = _footprint_terms(camera)
+    return constant + depth * per_metre
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -122,13 +129,15 @@ def _bilinear_at(image, u, v, channel):
 
 @njit(cache=True, nogil=True)
 def _weigh_view(u, v, z, cos, image, edge_px, zbuf, min_cos, angle_power, edge_ramp_px,
-                depth_tolerance_px, footprint_per_m, footprint_ortho, weights, colours, hidden):
+                depth_tolerance_px, footprint_per_m, footprint_constant, weights, colours,
+                hidden):
     """One view's part in the blend, for the k vertices it may see.
 
     u, v, z, cos : (k,) float64, the projection (pixels), depth (metres) and view
     cosine; image (H, W, 3) uint8; edge_px (H, W, 1) float32 distance to an edge
     pixel, or (0, 0, 1) for none; zbuf (H, W, 1) float64 z-buffer, or (0, 0, 1).
-    A pixel's footprint at depth z is ``footprint_ortho + z * footprint_per_m``, metres.
+    A pixel's footprint at depth z is ``footprint_constant + z * footprint_per_m``, metres
+    (:func:`_footprint_terms`).
     Fills ``weights`` (k,) (0: not blended), ``colours`` (k, 3) (the weighted
     colour) and ``hidden`` (k,) bool (the mesh hides the vertex).
     """
@@ -141,7 +150,7 @@ def _weigh_view(u, v, z, cos, image, edge_px, zbuf, min_cos, angle_power, edge_r
         if w > 0.0 and zbuf.shape[0]:
             # w > 0 only off the edges: the 2 x 2 pixels read see one surface, all finite.
             tan = np.sqrt(1.0 - cos[i] ** 2) / cos[i]
-            tol = (footprint_ortho + z[i] * footprint_per_m) * (depth_tolerance_px + tan)
+            tol = (footprint_constant + z[i] * footprint_per_m) * (depth_tolerance_px + tan)
             if z[i] > _bilinear_at(zbuf, u[i], v[i], 0) + tol:
                 hidden[i] = True
                 w = 0.0
@@ -321,13 +330,12 @@ def vertex_colours(vertices, faces, images: Sequence, cameras: Sequence[Camera],
         u, v, z, cos = u[idx], v[idx], z[idx], cos[idx]
         zbuf = rasterize_faces(vertices, faces, camera)[2] if occlusion else None
         edge_px = _edge_distance_px(zbuf, mask, camera)
-        f = min(camera.K[0, 0], camera.K[1, 1])
+        constant, per_metre = _footprint_terms(camera)
         weights, weighted = np.empty(len(idx)), np.empty((len(idx), 3))
         hidden = np.empty(len(idx), bool)
         _weigh_view(u, v, z, cos, image, _planes(edge_px, np.float32), _planes(zbuf, np.float64),
-                    min_cos, angle_power, edge_ramp_px, depth_tolerance_px,
-                    0.0 if camera.orthographic else 1.0 / f,
-                    1.0 / f if camera.orthographic else 0.0, weights, weighted, hidden)
+                    min_cos, angle_power, edge_ramp_px, depth_tolerance_px, per_metre, constant,
+                    weights, weighted, hidden)
         keep = weights > 0
         return idx[keep], weights[keep], weighted[keep], idx[hidden]
 
