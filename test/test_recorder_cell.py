@@ -35,6 +35,8 @@ from mock_cell import RESOLUTION, SCAN_TIMEOUT_S, running_cell
 from ros_harness import NAMESPACE, SOURCE_ROOT, RosProbe, wait
 
 STORE = get_typestore(Stores.ROS2_KILTED)
+CAPTURE_TOPICS = ("capture/image", "capture/joint_state", "capture/mask",
+                  "capture/mask_joint_state", "capture/stored")
 
 
 @pytest.fixture(scope="module")
@@ -66,10 +68,19 @@ def recorded(cell):
     client.wait_scan_done(scan, timeout_s=SCAN_TIMEOUT_S)
     summary = client.reconstruct()
     scan_s = time.monotonic() - started
-    # The mesh is published as reconstruct answers; the open bag already reads (without its
-    # summary) up to its last message: wait until the mesh is in it.
+    # The mesh is published after reconstruct answers, and a capture the reconstruction
+    # stored can still be on its way to the recorder (a reliable topic resends what a busy
+    # reader missed, up to a heartbeat later). The open bag already reads (without its
+    # summary) up to its last message: wait until the mesh and every view are in it.
     mcap = bag_path / f"{bag_path.name}.mcap"
-    wait(lambda: open_bag(mcap).counts.get(f"{NAMESPACE}/mesh_shape"), what="the mesh in the bag")
+    views = summary["views_used"]
+
+    def complete() -> bool:
+        counts = open_bag(mcap).counts
+        return counts.get(f"{NAMESPACE}/mesh_shape", 0) >= 1 and all(
+            counts.get(f"{NAMESPACE}/{name}", 0) >= views for name in CAPTURE_TOPICS)
+
+    wait(complete, what="the mesh and every view in the bag")
     answer = _record(cell, "stop")
     assert answer.success, answer.message
     stopped = json.loads(answer.message)
@@ -119,8 +130,7 @@ def test_the_bag_is_a_ros2_mcap_that_rosbags_opens(recorded):
         types = {c.topic: c.msgtype for c in reader.connections}
         parameters = [data for c, _, data in reader.messages()
                       if c.topic == f"{NAMESPACE}/{PARAMETERS_TOPIC}"]
-    for name in ("capture/image", "capture/joint_state", "capture/mask",
-                 "capture/mask_joint_state", "capture/stored"):
+    for name in CAPTURE_TOPICS:
         assert counts[f"{NAMESPACE}/{name}"] >= 17, name           # resends may add some
     for name in ("joint_states", "diagnostics", "camera_info", "mesh", "mesh_shape", "hull"):
         assert counts[f"{NAMESPACE}/{name}"] >= 1, name
