@@ -7,7 +7,12 @@ import pytest
 
 from sfs_ros.core.geometry.camera import Camera
 from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
-from sfs_ros.core.render import rasterize_faces, rasterize_silhouette, render_image
+from sfs_ros.core.render import (
+    rasterize_depth,
+    rasterize_faces,
+    rasterize_silhouette,
+    render_image,
+)
 from sfs_ros.core.simulation.objects import make_object
 
 from tolerances import HALF_PIXEL_DIAGONAL_PX, ROUND_OFF
@@ -122,6 +127,9 @@ def test_pinhole_triangles_behind_camera():
     np.testing.assert_array_equal(face_index >= 0, truth)
     # perspective-correct depth interpolation
     np.testing.assert_allclose(depth[truth], 0.1 * f / (v[truth] - 31.5), rtol=ROUND_OFF)
+    # The depth alone is the same z-buffer, bit for bit (+inf where nothing is seen).
+    np.testing.assert_array_equal(rasterize_depth(vertices, faces, camera), depth)
+    assert np.all(np.isinf(depth[~truth]))
     behind, faces = straddling_floor(-2.0, -1.0)
     assert not rasterize_silhouette(behind, faces, camera).any()
 

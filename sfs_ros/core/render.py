@@ -28,7 +28,7 @@ from numba import njit
 from .geometry.camera import Camera
 from .geometry.lens import render_through_lens
 
-__all__ = ["rasterize_faces", "rasterize_silhouette", "render_image"]
+__all__ = ["rasterize_depth", "rasterize_faces", "rasterize_silhouette", "render_image"]
 
 
 def as_mesh_arrays(vertices, faces) -> tuple[np.ndarray, np.ndarray]:
@@ -161,13 +161,17 @@ def pixel_box(h, faces, f, width, height):
 
 @njit(cache=True, nogil=True)
 def _rasterize_kernel(h, depth, faces, face_id, bary, zbuf):
-    height, width = face_id.shape
+    """Z-buffer ``zbuf`` (H, W) of the faces; ``face_id`` (H, W) and ``bary`` (H, W, 3)
+    too, unless they are empty (0, 0) and (0, 0, 3) (the depth alone)."""
+    height, width = zbuf.shape
+    with_ids = face_id.shape[0] > 0
     coef = np.empty((3, 4))
     for f in range(faces.shape[0]):
-        if triangle_edges(h, faces, f, coef) == 0.0:
+        # (the box first: most faces of a fine mesh hold no pixel centre)
+        c0, c1, r0, r1 = pixel_box(h, faces, f, width, height)
+        if c0 > c1 or r0 > r1 or triangle_edges(h, faces, f, coef) == 0.0:
             continue
         edges = edge_tuple(coef)
-        c0, c1, r0, r1 = pixel_box(h, faces, f, width, height)
         d0, d1, d2 = depth[faces[f, 0]], depth[faces[f, 1]], depth[faces[f, 2]]
         for r in range(r0, r1 + 1):
             v = float(r)
@@ -178,10 +182,11 @@ def _rasterize_kernel(h, depth, faces, face_id, bary, zbuf):
                 z = (e0 * d0 + e1 * d1 + e2 * d2) / total
                 if z < zbuf[r, c]:
                     zbuf[r, c] = z
-                    face_id[r, c] = f
-                    bary[r, c, 0] = e0 / total
-                    bary[r, c, 1] = e1 / total
-                    bary[r, c, 2] = e2 / total
+                    if with_ids:
+                        face_id[r, c] = f
+                        bary[r, c, 0] = e0 / total
+                        bary[r, c, 1] = e1 / total
+                        bary[r, c, 2] = e2 / total
 
 
 def rasterize_faces(vertices, faces, camera: Camera):
@@ -204,14 +209,26 @@ def rasterize_faces(vertices, faces, camera: Camera):
         Depth of the visible point along the viewing direction, metres; +inf
         where ``face_index`` is -1.
     """
-    vertices, faces = as_mesh_arrays(vertices, faces)
     face_id = np.full((camera.height, camera.width), -1, dtype=np.int64)
     bary = np.zeros((camera.height, camera.width, 3))
+    return face_id, bary, _rasterize(vertices, faces, camera, face_id, bary)
+
+
+def rasterize_depth(vertices, faces, camera: Camera) -> np.ndarray:
+    """(H, W) float64 depth of the nearest face at every pixel centre, metres (+inf where
+    none): the ``depth`` of :func:`rasterize_faces`, without the faces and weights."""
+    return _rasterize(vertices, faces, camera, np.empty((0, 0), np.int64),
+                      np.empty((0, 0, 3)))
+
+
+def _rasterize(vertices, faces, camera: Camera, face_id, bary) -> np.ndarray:
+    """The z-buffer of :func:`_rasterize_kernel` (filling ``face_id`` and ``bary``)."""
+    vertices, faces = as_mesh_arrays(vertices, faces)
     zbuf = np.full((camera.height, camera.width), np.inf)
     if len(faces):
         _rasterize_kernel(homogeneous_pixels(vertices, camera), camera.depth(vertices), faces,
                           face_id, bary, zbuf)
-    return face_id, bary, zbuf
+    return zbuf
 
 
 def rasterize_silhouette(vertices, faces, camera: Camera) -> np.ndarray:

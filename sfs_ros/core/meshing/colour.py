@@ -47,7 +47,7 @@ from scipy.sparse.linalg import splu
 
 from ..carving.carve import validate_masks
 from ..geometry.camera import Camera
-from ..render import as_mesh_arrays, rasterize_faces
+from ..render import as_mesh_arrays, rasterize_depth
 from ..workers import map_in_threads
 
 __all__ = ["VertexColours", "vertex_colours", "vertex_normals"]
@@ -170,7 +170,16 @@ def _edge_distance_px(zbuf: np.ndarray | None, mask: np.ndarray | None,
     if zbuf is None and mask is None:
         return None
     edge = np.zeros((camera.height, camera.width), dtype=bool) if mask is None else ~mask
+    out = np.zeros(edge.shape, np.float32)
     if zbuf is not None:
+        # Every pixel off the mesh is an edge pixel: outside the mesh's box grown by one
+        # pixel the distance is 0, and inside it the nearest edge pixel is in that box.
+        rows = np.flatnonzero(np.isfinite(zbuf).any(axis=1))
+        cols = np.flatnonzero(np.isfinite(zbuf).any(axis=0))
+        if rows.size == 0:
+            return out
+        box = np.s_[max(0, rows[0] - 1):rows[-1] + 2, max(0, cols[0] - 1):cols[-1] + 2]
+        zbuf, edge, crop = zbuf[box], edge[box], out[box]
         edge |= ~np.isfinite(zbuf)
         with np.errstate(invalid="ignore"):  # inf - inf between background pixels
             for a, b in ((np.s_[:-1], np.s_[1:]), (np.s_[:, :-1], np.s_[:, 1:])):  # 4-neighbours
@@ -179,7 +188,11 @@ def _edge_distance_px(zbuf: np.ndarray | None, mask: np.ndarray | None,
                 jump = np.abs(zbuf[a] - zbuf[b]) > limit
                 edge[a] |= jump
                 edge[b] |= jump
-    return cv2.distanceTransform((~edge).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    else:
+        crop = out
+    crop[...] = cv2.distanceTransform((~edge).astype(np.uint8), cv2.DIST_L2,
+                                      cv2.DIST_MASK_PRECISE)
+    return out
 
 
 def _planes(image: np.ndarray | None, dtype) -> np.ndarray:
@@ -190,22 +203,36 @@ def _planes(image: np.ndarray | None, dtype) -> np.ndarray:
     return np.ascontiguousarray(image, dtype)[:, :, None]
 
 
+@njit(cache=True, nogil=True)
+def _view_kernel(R, t, K, orthographic, vertices, normals, u, v, depth, cos):
+    """Fills ``u, v`` (pixels; NaN behind a pinhole camera), ``depth`` (metres) and
+    ``cos`` for each vertex (see :func:`_view_of`)."""
+    for i in range(vertices.shape[0]):
+        x = R[0, 0] * vertices[i, 0] + R[0, 1] * vertices[i, 1] + R[0, 2] * vertices[i, 2] + t[0]
+        y = R[1, 0] * vertices[i, 0] + R[1, 1] * vertices[i, 1] + R[1, 2] * vertices[i, 2] + t[1]
+        z = R[2, 0] * vertices[i, 0] + R[2, 1] * vertices[i, 1] + R[2, 2] * vertices[i, 2] + t[2]
+        nx = R[0, 0] * normals[i, 0] + R[0, 1] * normals[i, 1] + R[0, 2] * normals[i, 2]
+        ny = R[1, 0] * normals[i, 0] + R[1, 1] * normals[i, 1] + R[1, 2] * normals[i, 2]
+        nz = R[2, 0] * normals[i, 0] + R[2, 1] * normals[i, 1] + R[2, 2] * normals[i, 2]
+        depth[i] = z
+        if orthographic:
+            cos[i] = -nz
+            qx, qy, qw = x, y, 1.0
+        else:
+            cos[i] = -(nx * x + ny * y + nz * z) / max(math.sqrt(x * x + y * y + z * z), 1e-300)
+            qx, qy, qw = x, y, z if z > 0.0 else np.nan
+        u[i] = (K[0, 0] * qx + K[0, 1] * qy + K[0, 2] * qw) / qw
+        v[i] = (K[1, 0] * qx + K[1, 1] * qy + K[1, 2] * qw) / qw
+
+
 def _view_of(camera: Camera, vertices: np.ndarray, normals: np.ndarray) -> tuple:
     """How ``camera`` sees each vertex: ``u, v`` (n,) pixels (NaN behind a pinhole
     camera), depth (n,) metres and ``cos`` (n,) of the angle between the normal
-    and the direction to the camera. One matmul for the points, one for the normals.
-    """
-    xc = vertices @ camera.R.T + camera.t                         # camera frame, metres
-    nc = normals @ camera.R.T
-    depth = xc[:, 2]
-    if camera.orthographic:
-        cos = -nc[:, 2]
-        q = np.column_stack([xc[:, :2], np.ones(len(xc))])
-    else:
-        cos = -np.einsum("ij,ij->i", nc, xc) / np.maximum(np.linalg.norm(xc, axis=1), 1e-300)
-        q = xc / np.where(depth > 0, depth, np.nan)[:, None]
-    uv = q @ camera.K[:2].T
-    return uv[:, 0], uv[:, 1], depth, cos
+    and the direction to the camera."""
+    u, v, depth, cos = (np.empty(len(vertices)) for _ in range(4))
+    _view_kernel(camera.R, camera.t, camera.K, bool(camera.orthographic), vertices, normals,
+                 u, v, depth, cos)
+    return u, v, depth, cos
 
 
 def _check_image(index: int, image, camera: Camera) -> np.ndarray:
@@ -328,7 +355,7 @@ def vertex_colours(vertices, faces, images: Sequence, cameras: Sequence[Camera],
         idx = np.flatnonzero((cos > min_cos) & (u >= 0) & (u <= camera.width - 1)
                              & (v >= 0) & (v <= camera.height - 1))  # NaN (behind) fails
         u, v, z, cos = u[idx], v[idx], z[idx], cos[idx]
-        zbuf = rasterize_faces(vertices, faces, camera)[2] if occlusion else None
+        zbuf = rasterize_depth(vertices, faces, camera) if occlusion else None
         edge_px = _edge_distance_px(zbuf, mask, camera)
         constant, per_metre = _footprint_terms(camera)
         weights, weighted = np.empty(len(idx)), np.empty((len(idx), 3))

@@ -94,7 +94,7 @@ def _silhouette_distance(mask: np.ndarray) -> tuple[np.ndarray, int, int]:
     return np.clip(distance, -MAX_DISTANCE_PX, MAX_DISTANCE_PX).astype(np.float32), u0, v0
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _sample(images, offset, width, height, u0, v0, margin, u, v):
     """Bilinear value (pixels) of one cropped distance image at image point ``(u, v)``."""
     x = u - u0
@@ -119,53 +119,91 @@ def _sample(images, offset, width, height, u0, v0, margin, u, v):
     return (a * (1.0 - fx) + b * fx) * (1.0 - fy) + (c * (1.0 - fx) + d * fx) * fy
 
 
+@njit(cache=True, inline="always")
+def _view_value(hull, v, x, y, z):
+    """Signed distance (metres) of the point ``(x, y, z)`` to view ``v``'s silhouette cone;
+    -inf where the view knows nothing of the point (behind it, or outside its image)."""
+    proj, orthographic, metres_per_px, image_size, crops, images, margin, _, _ = hull
+    # (indexed in place: a view of ``proj`` per point and view costs a reference count)
+    hu = proj[v, 0, 0] * x + proj[v, 0, 1] * y + proj[v, 0, 2] * z + proj[v, 0, 3]
+    hv = proj[v, 1, 0] * x + proj[v, 1, 1] * y + proj[v, 1, 2] * z + proj[v, 1, 3]
+    scale = metres_per_px[v]
+    if not orthographic[v]:
+        depth = proj[v, 2, 0] * x + proj[v, 2, 1] * y + proj[v, 2, 2] * z + proj[v, 2, 3]
+        if depth <= 0.0:
+            return -np.inf
+        hu /= depth
+        hv /= depth
+        scale *= depth
+    width, height = image_size[v, 0], image_size[v, 1]
+    # The carver's pixel is floor(u + 1/2): inside the image for u in [-1/2, W - 1/2).
+    if not (-0.5 <= hu < width - 0.5 and -0.5 <= hv < height - 0.5):
+        return -np.inf
+    # Within the outer half pixel, the edge pixel's value holds.
+    hu = min(max(hu, 0.0), width - 1.0)
+    hv = min(max(hv, 0.0), height - 1.0)
+    return scale * _sample(images, crops[v, 0], crops[v, 1], crops[v, 2],
+                           crops[v, 3], crops[v, 4], margin, hu, hv)
+
+
+@njit(cache=True, inline="always")
+def _keep_largest(top, p, value):
+    """Insert ``value`` into row ``p`` of ``top`` (n, rank) float64: the largest values so
+    far, descending."""
+    slot = top.shape[1] - 1
+    if value > top[p, slot]:
+        while slot > 0 and top[p, slot - 1] < value:
+            top[p, slot] = top[p, slot - 1]
+            slot -= 1
+        top[p, slot] = value
+
+
+@njit(cache=True, inline="always")
+def _box_value(hull, x, y, z):
+    """Signed distance (metres, Chebyshev) of ``(x, y, z)`` to the carving box."""
+    box_lo, box_hi = hull[7], hull[8]
+    return max(box_lo[0] - x, x - box_hi[0], box_lo[1] - y, y - box_hi[1],
+               box_lo[2] - z, z - box_hi[2])
+
+
 @njit(cache=True)
-def _distance_at(hull, x, y, z, top):
+def _distance_at(hull, x, y, z, top, p):
     """Signed distance (metres) of the point ``(x, y, z)`` to the hull (see the module doc).
 
-    ``hull`` is :attr:`HullDistance._kernel_data`; ``top`` (rank,) float64 is
-    scratch for the ``rank`` largest view values.
+    ``hull`` is :attr:`HullDistance._kernel_data`; row ``p`` of ``top`` (n, rank)
+    float64 is scratch for the ``rank`` largest view values.
     """
-    proj, orthographic, metres_per_px, image_size, crops, images, margin, box_lo, box_hi = hull
-    rank = top.shape[0]
-    top[:] = -np.inf  # descending
-    for v in range(proj.shape[0]):
-        # (indexed in place: a view of ``proj`` per point and view costs a reference count)
-        hu = proj[v, 0, 0] * x + proj[v, 0, 1] * y + proj[v, 0, 2] * z + proj[v, 0, 3]
-        hv = proj[v, 1, 0] * x + proj[v, 1, 1] * y + proj[v, 1, 2] * z + proj[v, 1, 3]
-        scale = metres_per_px[v]
-        if not orthographic[v]:
-            depth = proj[v, 2, 0] * x + proj[v, 2, 1] * y + proj[v, 2, 2] * z + proj[v, 2, 3]
-            if depth <= 0.0:
-                continue
-            hu /= depth
-            hv /= depth
-            scale *= depth
-        width, height = image_size[v, 0], image_size[v, 1]
-        # The carver's pixel is floor(u + 1/2): inside the image for u in [-1/2, W - 1/2).
-        if not (-0.5 <= hu < width - 0.5 and -0.5 <= hv < height - 0.5):
-            continue
-        # Within the outer half pixel, the edge pixel's value holds.
-        hu = min(max(hu, 0.0), width - 1.0)
-        hv = min(max(hv, 0.0), height - 1.0)
-        value = scale * _sample(images, crops[v, 0], crops[v, 1], crops[v, 2],
-                                crops[v, 3], crops[v, 4], margin, hu, hv)
-        if value > top[rank - 1]:
-            slot = rank - 1
-            while slot > 0 and top[slot - 1] < value:
-                top[slot] = top[slot - 1]
-                slot -= 1
-            top[slot] = value
-    box = max(box_lo[0] - x, x - box_hi[0], box_lo[1] - y, y - box_hi[1],
-              box_lo[2] - z, z - box_hi[2])
-    return max(top[rank - 1], box)
+    top[p] = -np.inf
+    for v in range(hull[0].shape[0]):
+        _keep_largest(top, p, _view_value(hull, v, x, y, z))
+    return max(top[p, top.shape[1] - 1], _box_value(hull, x, y, z))
+
+
+#: Points per block of :func:`_distance_kernel`: a block goes through the views one
+#: at a time, so that neighbouring points read neighbouring pixels of one distance
+#: image (point by point, every view's image passes through the cache).
+_BLOCK_POINTS = 16384
 
 
 @njit(parallel=True, cache=True)
 def _distance_kernel(hull, points, top, out):
-    """``out[p]``: signed distance (metres) of ``points[p]``; ``top`` (n, rank) scratch."""
-    for p in prange(points.shape[0]):
-        out[p] = _distance_at(hull, points[p, 0], points[p, 1], points[p, 2], top[p])
+    """``out[p]``: signed distance (metres) of ``points[p]``; ``top`` (n, rank) scratch.
+
+    The same values as :func:`_distance_at` point by point (a largest value does not
+    depend on the order it is looked for in), in blocks of ``_BLOCK_POINTS``.
+    """
+    n = points.shape[0]
+    for b in prange((n + _BLOCK_POINTS - 1) // _BLOCK_POINTS):
+        start = b * _BLOCK_POINTS
+        stop = min(n, start + _BLOCK_POINTS)
+        top[start:stop] = -np.inf
+        for v in range(hull[0].shape[0]):
+            for p in range(start, stop):
+                _keep_largest(top, p, _view_value(hull, v, points[p, 0], points[p, 1],
+                                                  points[p, 2]))
+        for p in range(start, stop):
+            out[p] = max(top[p, top.shape[1] - 1],
+                         _box_value(hull, points[p, 0], points[p, 1], points[p, 2]))
 
 
 @njit(parallel=True, cache=True)
@@ -181,10 +219,10 @@ def _project_kernel(hull, points, unit, steps, bisections, top, moved, found):
         ux, uy, uz = unit[p, 0], unit[p, 1], unit[p, 2]
         pick = -1
         previous = _distance_at(hull, x + steps[0] * ux, y + steps[0] * uy, z + steps[0] * uz,
-                                top[p])
+                                top, p)
         for j in range(1, steps.shape[0]):
             t = steps[j]
-            current = _distance_at(hull, x + t * ux, y + t * uy, z + t * uz, top[p])
+            current = _distance_at(hull, x + t * ux, y + t * uy, z + t * uz, top, p)
             if previous <= 0.0 < current and (
                     pick < 0 or abs(steps[j - 1] + t) < abs(steps[pick] + steps[pick + 1])):
                 pick = j - 1
@@ -195,7 +233,7 @@ def _project_kernel(hull, points, unit, steps, bisections, top, moved, found):
             lo, hi = steps[pick], steps[pick + 1]
             for _ in range(bisections):
                 mid = 0.5 * (lo + hi)
-                if _distance_at(hull, x + mid * ux, y + mid * uy, z + mid * uz, top[p]) > 0.0:
+                if _distance_at(hull, x + mid * ux, y + mid * uy, z + mid * uz, top, p) > 0.0:
                     hi = mid
                 else:
                     lo = mid

@@ -9,8 +9,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 
 import numpy as np
-from scipy import sparse
-from scipy.sparse import csgraph
+from numba import njit
 
 __all__ = ["MeshReport", "check_mesh"]
 
@@ -140,9 +139,7 @@ def check_mesh(vertices, faces) -> MeshReport:
     n_ref = int(referenced.sum())
     euler = n_ref - n_edges + m
 
-    graph = sparse.coo_matrix((np.ones(len(start), dtype=np.int8), (start, end)), shape=(n, n))
-    _, labels = csgraph.connected_components(graph, directed=False)
-    n_components = int(np.count_nonzero(np.bincount(labels[referenced])))
+    n_components = _count_roots(_roots(n, start, end), start)
 
     boundary = counts[edge_of_sorted] == 1
     n_boundary_loops = _count_loops(lo[order][boundary], hi[order][boundary], n)
@@ -199,22 +196,42 @@ def _single_fans(f, start, end, order, pair, n) -> bool:
     # Consecutive sorted half-edges of the same undirected edge are its two faces.
     a = np.r_[corner_lo[:-1][pair], corner_hi[:-1][pair]]
     b = np.r_[corner_lo[1:][pair], corner_hi[1:][pair]]
-    graph = sparse.coo_matrix((np.ones(len(a), dtype=np.int8), (a, b)),
-                              shape=(n_corners, n_corners))
-    n_fans, labels = csgraph.connected_components(graph, directed=False)
-    # Corners are only linked to corners of the same vertex: one vertex per fan.
-    vertex_of_fan = np.empty(n_fans, dtype=np.int64)
-    vertex_of_fan[labels] = f.reshape(-1)
-    return bool(np.all(np.bincount(vertex_of_fan, minlength=n) <= 1))
+    # Corners are only linked to corners of the same vertex, so every fan belongs to
+    # one vertex: single fans when there are as many fans as referenced vertices.
+    n_fans = _count_roots(_roots(n_corners, a, b), np.arange(n_corners))
+    return n_fans == np.count_nonzero(np.bincount(f.reshape(-1), minlength=n))
 
 
 def _count_loops(lo, hi, n) -> int:
     """Connected pieces of the graph of boundary edges ``(lo[i], hi[i])``."""
     if len(lo) == 0:
         return 0
-    graph = sparse.coo_matrix((np.ones(len(lo), dtype=np.int8), (lo, hi)), shape=(n, n))
-    _, labels = csgraph.connected_components(graph, directed=False)
-    return int(np.count_nonzero(np.bincount(labels[np.r_[lo, hi]])))
+    return _count_roots(_roots(n, lo, hi), np.r_[lo, hi])
+
+
+@njit(cache=True)
+def _roots(n, a, b):
+    """(n,) int64: a representative node of each node's connected component, in the
+    undirected graph of ``n`` nodes and edges ``(a[i], b[i])`` (union-find)."""
+    parent = np.arange(n)
+    for i in range(a.shape[0]):
+        x, y = a[i], b[i]
+        while parent[x] != x:           # path halving
+            parent[x] = parent[parent[x]]
+            x = parent[x]
+        while parent[y] != y:
+            parent[y] = parent[parent[y]]
+            y = parent[y]
+        if x != y:
+            parent[max(x, y)] = min(x, y)
+    for x in range(n):                  # every node to its root (roots come first)
+        parent[x] = parent[parent[x]]
+    return parent
+
+
+def _count_roots(roots, nodes) -> int:
+    """Connected components among ``nodes`` (int indices), given :func:`_roots`."""
+    return int(np.count_nonzero(np.bincount(roots[nodes], minlength=len(roots))))
 
 
 def _count_duplicate_rows(rows, n) -> int:
