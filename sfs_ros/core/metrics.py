@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from numba import njit, prange
 from scipy.spatial import cKDTree
@@ -71,51 +72,62 @@ def reprojection_iou(vertices, faces, camera: Camera, mask: np.ndarray) -> float
 _FRONT = -1.0
 
 
+@njit(cache=True, inline="always")
+def _view_coverage(vertices, faces, P, heights, widths, masks, moff, front_only, out, v, h, uv,
+                   cover, coef):
+    """Row ``v`` of :func:`_coverage_overlap`'s ``out``, with the scratch arrays given."""
+    H = heights[v]
+    W = widths[v]
+    for i in range(vertices.shape[0]):
+        for r in range(3):
+            h[i, r] = (P[v, r, 0] * vertices[i, 0] + P[v, r, 1] * vertices[i, 1]
+                       + P[v, r, 2] * vertices[i, 2] + P[v, r, 3])
+        uv[i, 0] = h[i, 0] / h[i, 2]
+        uv[i, 1] = h[i, 1] / h[i, 2]
+    cover[:H * W] = 0
+    for f in range(faces.shape[0]):
+        a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
+        if h[a, 2] > 0.0 and h[b, 2] > 0.0 and h[c, 2] > 0.0:
+            # most faces of a fine mesh hold no pixel centre: the box of
+            # render.pixel_box, from the projections computed once per vertex
+            if (np.ceil(min(uv[a, 0], uv[b, 0], uv[c, 0]) - 1e-6)
+                    > np.floor(max(uv[a, 0], uv[b, 0], uv[c, 0]) + 1e-6)
+                    or np.ceil(min(uv[a, 1], uv[b, 1], uv[c, 1]) - 1e-6)
+                    > np.floor(max(uv[a, 1], uv[b, 1], uv[c, 1]) + 1e-6)):
+                continue
+        if front_only and face_orientation(h, faces, f) != _FRONT:
+            continue  # (the edges of a back face are not needed)
+        if triangle_edges(h, faces, f, coef) == 0.0:
+            continue
+        edges = edge_tuple(coef)
+        c0, c1, r0, r1 = pixel_box(h, faces, f, W, H)
+        for row in range(r0, r1 + 1):
+            y = float(row)
+            for col in range(c0, c1 + 1):
+                if covered_point(edges, float(col), y)[3] != 0.0:
+                    cover[row * W + col] = 1
+    both = 0
+    either = 0
+    for k in range(H * W):
+        m = masks[moff[v] + k]
+        both += cover[k] & m
+        either += cover[k] | m
+    out[v, 0] = both
+    out[v, 1] = either
+
+
 @njit(parallel=True, cache=True)
 def _coverage_overlap(vertices, faces, P, heights, widths, masks, moff, front_only, out):
     """Per view v: out[v] = (pixels covered by the mesh and in the mask, in either)."""
-    for v in prange(P.shape[0]):
-        H = heights[v]
-        W = widths[v]
+    lanes = min(P.shape[0], numba.get_num_threads())
+    for lane in prange(lanes):  # per lane, scratch allocated once (not per view)
         h = np.empty((vertices.shape[0], 3))
         uv = np.empty((vertices.shape[0], 2))
-        for i in range(vertices.shape[0]):
-            for r in range(3):
-                h[i, r] = (P[v, r, 0] * vertices[i, 0] + P[v, r, 1] * vertices[i, 1]
-                           + P[v, r, 2] * vertices[i, 2] + P[v, r, 3])
-            uv[i, 0] = h[i, 0] / h[i, 2]
-            uv[i, 1] = h[i, 1] / h[i, 2]
-        cover = np.zeros(H * W, np.uint8)
+        cover = np.empty(heights.max() * widths.max(), np.uint8)
         coef = np.empty((3, 4))
-        for f in range(faces.shape[0]):
-            a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
-            if h[a, 2] > 0.0 and h[b, 2] > 0.0 and h[c, 2] > 0.0:
-                # most faces of a fine mesh hold no pixel centre: the box of
-                # render.pixel_box, from the projections computed once per vertex
-                if (np.ceil(min(uv[a, 0], uv[b, 0], uv[c, 0]) - 1e-6)
-                        > np.floor(max(uv[a, 0], uv[b, 0], uv[c, 0]) + 1e-6)
-                        or np.ceil(min(uv[a, 1], uv[b, 1], uv[c, 1]) - 1e-6)
-                        > np.floor(max(uv[a, 1], uv[b, 1], uv[c, 1]) + 1e-6)):
-                    continue
-            if front_only and face_orientation(h, faces, f) != _FRONT:
-                continue  # (the edges of a back face are not needed)
-            if triangle_edges(h, faces, f, coef) == 0.0:
-                continue
-            edges = edge_tuple(coef)
-            c0, c1, r0, r1 = pixel_box(h, faces, f, W, H)
-            for row in range(r0, r1 + 1):
-                y = float(row)
-                for col in range(c0, c1 + 1):
-                    if covered_point(edges, float(col), y)[3] != 0.0:
-                        cover[row * W + col] = 1
-        both = 0
-        either = 0
-        for k in range(H * W):
-            m = masks[moff[v] + k]
-            both += cover[k] & m
-            either += cover[k] | m
-        out[v, 0] = both
-        out[v, 1] = either
+        for v in range(lane, P.shape[0], lanes):
+            _view_coverage(vertices, faces, P, heights, widths, masks, moff, front_only, out,
+                           v, h, uv, cover, coef)
 
 
 def reprojection_ious(vertices, faces, cameras, masks, *, closed: bool = False) -> np.ndarray:
