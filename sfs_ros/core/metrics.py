@@ -117,10 +117,10 @@ def _view_coverage(vertices, faces, P, heights, widths, masks, moff, front_only,
 
 
 @njit(parallel=True, cache=True)
-def _coverage_overlap(vertices, faces, P, heights, widths, masks, moff, front_only, out):
-    """Per view v: out[v] = (pixels covered by the mesh and in the mask, in either)."""
-    lanes = min(P.shape[0], numba.get_num_threads())
-    for lane in prange(lanes):  # per lane, scratch allocated once (not per view)
+def _coverage_overlap(vertices, faces, P, heights, widths, masks, moff, front_only, lanes, out):
+    """Per view v: out[v] = (pixels covered by the mesh and in the mask, in either); the
+    views go through ``lanes`` threads, each with its scratch allocated once."""
+    for lane in prange(lanes):
         h = np.empty((vertices.shape[0], 3))
         uv = np.empty((vertices.shape[0], 2))
         cover = np.empty(heights.max() * widths.max(), np.uint8)
@@ -157,7 +157,8 @@ def reprojection_ious(vertices, faces, cameras, masks, *, closed: bool = False) 
     P = np.ascontiguousarray([c.projection_matrix for c in cameras], dtype=np.float64)
     counts = np.zeros((len(cameras), 2), np.int64)
     if len(faces):
-        _coverage_overlap(vertices, faces, P, heights, widths, flat, moff, bool(closed), counts)
+        _coverage_overlap(vertices, faces, P, heights, widths, flat, moff, bool(closed),
+                          min(len(cameras), numba.get_num_threads()), counts)
     else:
         counts[:, 1] = [np.count_nonzero(m) for m in masks]
     union = np.maximum(counts[:, 1], 1)
