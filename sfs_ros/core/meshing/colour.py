@@ -7,7 +7,7 @@ A view takes part in the colour of a vertex when it *sees* the vertex:
   (area-weighted mean of the face normals) and ``d`` the unit direction from
   the vertex to the camera centre (orthographic: against the viewing direction);
 * the mesh itself does not hide it: the mesh's depth is rendered from the camera
-  with :func:`.render.rasterize_faces` and the vertex must lie no deeper than
+  with :func:`.render.rasterize_depth` and the vertex must lie no deeper than
   the z-buffer, interpolated bilinearly at its projection, plus a tolerance
   (see :func:`vertex_colours`), so what the handle of a mug hides from a view
   takes no colour from that view;
