@@ -302,6 +302,9 @@ def test_mock_hardware_publishes_a_usable_port_and_stops_cleanly():
         port = ports[0].data
         probe.spin_until(lambda: port in process.output(), what="the port in the log",
                          process=process)
+        # The pty's creation time: once it is closed, its number may go to a pty another
+        # process opens (suites run side by side), which is a newer one.
+        created_ns = os.stat(port).st_ctime_ns
         with GrblClient(port) as client:
             assert client.status().state == "Alarm"        # start_locked: home first
             assert client.home(timeout_s=5.0).state == "Idle"
@@ -312,4 +315,12 @@ def test_mock_hardware_publishes_a_usable_port_and_stops_cleanly():
         probe.close()
         code, output = process.stop_and_read()
     assert code == 0, f"mock hardware did not exit cleanly on SIGINT (code {code}):\n{output}"
-    assert not os.path.exists(port)                         # the pty is closed
+    assert _pty_gone(port, created_ns)                      # the pty is closed
+
+
+def _pty_gone(port: str, created_ns: int) -> bool:
+    """Whether the pty created at ``created_ns`` at ``port`` no longer exists."""
+    try:
+        return os.stat(port).st_ctime_ns > created_ns       # the number reused since
+    except FileNotFoundError:
+        return True
