@@ -174,13 +174,14 @@ def _edge_distance_px(zbuf: np.ndarray | None, mask: np.ndarray | None,
     if zbuf is not None:
         # Every pixel off the mesh is an edge pixel: outside the mesh's box grown by one
         # pixel the distance is 0, and inside it the nearest edge pixel is in that box.
-        rows = np.flatnonzero(np.isfinite(zbuf).any(axis=1))
-        cols = np.flatnonzero(np.isfinite(zbuf).any(axis=0))
+        finite = np.isfinite(zbuf)
+        rows = np.flatnonzero(finite.any(axis=1))
+        cols = np.flatnonzero(finite.any(axis=0))
         if rows.size == 0:
             return out
         box = np.s_[max(0, rows[0] - 1):rows[-1] + 2, max(0, cols[0] - 1):cols[-1] + 2]
         zbuf, edge, crop = zbuf[box], edge[box], out[box]
-        edge |= ~np.isfinite(zbuf)
+        edge |= ~finite[box]
         with np.errstate(invalid="ignore"):  # inf - inf between background pixels
             for a, b in ((np.s_[:-1], np.s_[1:]), (np.s_[:, :-1], np.s_[:, 1:])):  # 4-neighbours
                 near = np.minimum(zbuf[a], zbuf[b])
