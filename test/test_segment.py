@@ -326,3 +326,16 @@ def test_graph_cut_runs_only_where_something_is_left_to_decide(monkeypatch):
     image, _, _ = render((245, 245, 240), specks=False, gradient=0.0)
     segment(image)
     assert cuts == [1]
+
+
+@pytest.mark.parametrize("shape", [(800, 800), (480, 640), (101, 57), (9, 9), (5, 30), (3, 3)])
+@pytest.mark.parametrize("fraction", [0.0, 0.02, 0.3, 0.5])
+def test_the_backdrop_band_is_read_in_the_order_of_its_mask(shape, fraction):
+    # The backdrop clusters sample every n-th band pixel, so the band's pixels must come
+    # in the order of the full-image mask's indexing, exactly (random colours: any
+    # misplaced pixel shows).
+    from sfs_ros.core.backdrop import _band_pixels, border_band
+
+    image = np.random.default_rng(1).integers(0, 256, (*shape, 3), dtype=np.uint8)
+    np.testing.assert_array_equal(_band_pixels(image, fraction),
+                                  image[border_band(*shape, fraction)])

@@ -116,6 +116,18 @@ def border_band(height: int, width: int, border_fraction: float) -> np.ndarray:
     return band
 
 
+def _band_pixels(rgb: np.ndarray, border_fraction: float) -> np.ndarray:
+    """The pixels of :func:`border_band` of ``rgb`` ((H, W, 3)), in row-major order as
+    ``rgb[border_band(...)]``, without a full-image mask: (n, 3)."""
+    h, w = rgb.shape[:2]
+    b = max(2, int(round(border_fraction * min(h, w))))
+    if 2 * b >= h or 2 * b >= w:
+        return rgb[border_band(h, w, border_fraction)]
+    sides = np.concatenate([rgb[b:h - b, :b], rgb[b:h - b, w - b:]], axis=1)
+    return np.concatenate([rgb[:b].reshape(-1, 3), sides.reshape(-1, 3),
+                           rgb[h - b:].reshape(-1, 3)])
+
+
 def fit_backdrop(rgb: np.ndarray, *, border_fraction: float = 0.02,
                  cover: float = 0.9) -> BackdropModel:
     """Fit the backdrop clusters to the border band of ``rgb`` ((H, W, 3) uint8).
@@ -126,8 +138,7 @@ def fit_backdrop(rgb: np.ndarray, *, border_fraction: float = 0.02,
     """
     if not 0 < cover <= 1:
         raise ValueError(f"cover must be in (0, 1], got {cover}")
-    h, w = rgb.shape[:2]
-    pixels = rgb[border_band(h, w, border_fraction)].astype(np.float32)
+    pixels = _band_pixels(rgb, border_fraction).astype(np.float32)
     pixels = pixels[:: max(1, len(pixels) // _SAMPLES)]  # an even subsample along the border
     colours = pixels.astype(np.int32) @ np.array([65536, 256, 1], np.int32)  # one key per RGB
     k = min(_CLUSTERS, len(np.unique(colours)))
