@@ -3,13 +3,14 @@
 A reconstruction node runs beside it (the recorder stores its parameters,
 and the offline reader needs them to place the cameras); the probe publishes
 exact sphere silhouettes with their joint states as the segmentation node
-would. A bag closed by SIGINT or ``recorder/stop`` opens with rosbags; a bag
+would. A bag closed by SIGINT, SIGTERM or ``recorder/stop`` opens with rosbags; a bag
 whose recorder was killed outright (SIGKILL) reads up to its last whole
 message, and every view in it is one the probe sent, in order, with no gap.
 """
 
 import json
 import logging
+import signal
 import sqlite3
 import time
 from pathlib import Path
@@ -154,13 +155,16 @@ def _stamps(view_set) -> list[tuple[int, int]]:
             for v in view_set.views]
 
 
-def test_sigint_closes_the_bag_with_every_view_and_the_parameters(recorder_factory, probe,
-                                                                  views):
+@pytest.mark.parametrize("stop_signal", [signal.SIGINT, signal.SIGTERM])
+def test_a_stop_signal_closes_the_bag_with_every_view_and_the_parameters(
+        recorder_factory, probe, views, stop_signal):
     recorder = recorder_factory()
     path = recorder.start()
     publish(probe, views)
     wait_views_in_bag(probe, path, len(views))
-    assert recorder.process.stop() == 0                       # SIGINT
+    recorder.process.process.send_signal(stop_signal)     # Ctrl-C; a service manager's stop
+    assert recorder.process.wait_exit() == 0
+    assert "Traceback" not in recorder.process.output()
     assert (recorder.output_dir / "bags").is_dir()
     with Reader(path) as reader:                              # closed: metadata.yaml written
         counts = {c.topic: c.msgcount for c in reader.connections}

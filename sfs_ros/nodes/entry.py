@@ -3,32 +3,65 @@
 from __future__ import annotations
 
 import faulthandler
+import signal
 import sys
 from collections.abc import Callable
 
 import rclpy
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
 
 from sfs_ros.ros.params import ParameterError
 
 __all__ = ["run_node"]
 
+#: Longest wait of the spinning main thread before it looks for a stop signal, seconds.
+SIGNAL_POLL_S = 0.1
+
+
+class _StopSignals:
+    """SIGINT and SIGTERM ask the main thread to stop spinning; a second one while it
+    stops acts as if this handler were not there (SIGINT: KeyboardInterrupt; SIGTERM: the
+    process ends), an escape from a stop that hangs."""
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+    def __init__(self):
+        self.requested = False
+        self._previous = {sig: signal.signal(sig, self._on_signal) for sig in self.SIGNALS}
+
+    def _on_signal(self, signum, _frame) -> None:
+        if not self.requested:
+            self.requested = True
+            return
+        self.restore()
+        signal.raise_signal(signum)
+
+    def restore(self) -> None:
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+
 
 def run_node(prog: str, make_node: Callable[[], Node | list[Node]], args=None, *,
              threads: int = 1) -> None:
     """Initialise rclpy, build the node (or nodes, composed in one process) and spin until
-    SIGINT or shutdown.
+    SIGINT, SIGTERM or shutdown.
 
     A parameter refused at start-up prints one line ``prog: reason`` and exits
     with status 2. ``threads`` > 1 spins a multi-threaded executor (for nodes
-    whose services wait on worker threads). The nodes are destroyed (in
-    reverse order) and rclpy shut down on every way out. A fatal signal (SIGSEGV,
-    SIGABRT, ...) prints every thread's Python stack to stderr before the process
-    dies, so a crash in native code names where it happened.
+    whose services wait on worker threads). On a stop signal rcl is shut down,
+    then the executor, then the nodes are destroyed (in reverse order), all in
+    the main thread: rclpy's own signal handling shuts rcl down from a thread
+    of its own, which then triggers the executors' guard conditions, and that
+    raced the executor's shutdown (now and then a SIGSEGV in
+    ``rcl_trigger_guard_condition`` as the node stopped). A fatal signal
+    (SIGSEGV, SIGABRT, ...) prints every thread's Python stack to stderr
+    before the process dies, so a crash in native code names where it happened.
     """
     faulthandler.enable()
-    rclpy.init(args=args)
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    stop = _StopSignals()     # from here on: a signal during the start-up ends it cleanly too
     try:
         made = make_node()
     except ParameterError as exc:
@@ -40,11 +73,25 @@ def run_node(prog: str, make_node: Callable[[], Node | list[Node]], args=None, *
     for node in nodes:
         executor.add_node(node)
     try:
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
+        # A signal's Python handler runs only between waits: they are kept short.
+        while not stop.requested and rclpy.ok():
+            executor.spin_once(timeout_sec=SIGNAL_POLL_S)
+    except ExternalShutdownException:
         pass
     finally:
+        _shut_down_rcl()
         executor.shutdown()
         for node in reversed(nodes):
             node.destroy_node()
-        rclpy.try_shutdown()
+        stop.restore()
+
+
+def _shut_down_rcl() -> None:
+    """Shut rcl down as rclpy's signal handler does: ``context.ok()`` turns False, so work
+    still waiting on rclpy ends, and the nodes are left for the caller to destroy in order
+    (``rclpy.try_shutdown()`` would destroy them itself, holding the context's lock that a
+    node's own clean-up thread may need)."""
+    handle = rclpy.get_default_context().handle
+    with handle:
+        if handle.ok():
+            handle.shutdown()
