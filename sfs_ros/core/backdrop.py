@@ -106,10 +106,15 @@ def _nearest_cluster(pixels, means, inverses, out, index):
         out[i] = np.sqrt(max(out[i], np.float32(0.0)))
 
 
+def _band_width(height: int, width: int, border_fraction: float) -> int:
+    """Width in pixels of :func:`border_band`."""
+    return max(2, int(round(border_fraction * min(height, width))))
+
+
 def border_band(height: int, width: int, border_fraction: float) -> np.ndarray:
     """(H, W) bool: the band along the image edges, ``border_fraction`` of the smaller
     side wide (at least 2 pixels)."""
-    b = max(2, int(round(border_fraction * min(height, width))))
+    b = _band_width(height, width, border_fraction)
     band = np.zeros((height, width), bool)
     band[:b] = band[-b:] = True
     band[:, :b] = band[:, -b:] = True
@@ -120,7 +125,7 @@ def _band_pixels(rgb: np.ndarray, border_fraction: float) -> np.ndarray:
     """The pixels of :func:`border_band` of ``rgb`` ((H, W, 3)), in row-major order as
     ``rgb[border_band(...)]``, without a full-image mask: (n, 3)."""
     h, w = rgb.shape[:2]
-    b = max(2, int(round(border_fraction * min(h, w))))
+    b = _band_width(h, w, border_fraction)
     if 2 * b >= h or 2 * b >= w:
         return rgb[border_band(h, w, border_fraction)]
     sides = np.concatenate([rgb[b:h - b, :b], rgb[b:h - b, w - b:]], axis=1)
