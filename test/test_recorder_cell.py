@@ -75,12 +75,20 @@ def recorded(cell):
     mcap = bag_path / f"{bag_path.name}.mcap"
     views = summary["views_used"]
 
-    def complete() -> bool:
-        counts = open_bag(mcap).counts
-        return counts.get(f"{NAMESPACE}/mesh_shape", 0) >= 1 and all(
-            counts.get(f"{NAMESPACE}/{name}", 0) >= views for name in CAPTURE_TOPICS)
+    wanted = {f"{NAMESPACE}/mesh_shape": 1, **{f"{NAMESPACE}/{name}": views
+                                                for name in CAPTURE_TOPICS}}
+    counts = {}
 
-    wait(complete, what="the mesh and every view in the bag")
+    def complete() -> bool:
+        counts.update(open_bag(mcap).counts)
+        return all(counts.get(topic, 0) >= n for topic, n in wanted.items())
+
+    try:
+        wait(complete, what="the mesh and every view in the bag")
+    except AssertionError as exc:     # say which topic fell short
+        short = {t: f"{counts.get(t, 0)} of {n}" for t, n in wanted.items()
+                 if counts.get(t, 0) < n}
+        raise AssertionError(f"{exc}; short in the bag: {short}") from None
     answer = _record(cell, "stop")
     assert answer.success, answer.message
     stopped = json.loads(answer.message)
