@@ -59,8 +59,26 @@ def homogeneous_pixels(vertices: np.ndarray, camera: Camera) -> np.ndarray:
 
     Pinhole: the third coordinate is the depth (metres). Orthographic: it is 1.
     """
-    P = camera.projection_matrix
-    return np.ascontiguousarray(vertices @ P[:, :3].T + P[:, 3])
+    return _projected(vertices, camera)[0]
+
+
+@njit(cache=True, nogil=True)
+def _project_kernel(vertices, P, R, t, h, depth):
+    for i in range(vertices.shape[0]):
+        x, y, z = vertices[i, 0], vertices[i, 1], vertices[i, 2]
+        for r in range(3):
+            h[i, r] = P[r, 0] * x + P[r, 1] * y + P[r, 2] * z + P[r, 3]
+        depth[i] = R[2, 0] * x + R[2, 1] * y + R[2, 2] * z + t[2]
+
+
+def _projected(vertices: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`homogeneous_pixels` (n, 3) and :meth:`Camera.depth` (n,) of ``vertices``, in
+    one compiled pass. (A matrix product here would go through BLAS, whose own threads
+    fight the per-view threads that render views side by side.)"""
+    vertices = np.ascontiguousarray(vertices, dtype=np.float64)
+    h, depth = np.empty((len(vertices), 3)), np.empty(len(vertices))
+    _project_kernel(vertices, camera.projection_matrix, camera.R, camera.t, h, depth)
+    return h, depth
 
 
 @njit(cache=True)
@@ -226,8 +244,7 @@ def _rasterize(vertices, faces, camera: Camera, face_id, bary) -> np.ndarray:
     vertices, faces = as_mesh_arrays(vertices, faces)
     zbuf = np.full((camera.height, camera.width), np.inf)
     if len(faces):
-        _rasterize_kernel(homogeneous_pixels(vertices, camera), camera.depth(vertices), faces,
-                          face_id, bary, zbuf)
+        _rasterize_kernel(*_projected(vertices, camera), faces, face_id, bary, zbuf)
     return zbuf
 
 
