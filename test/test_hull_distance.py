@@ -230,3 +230,64 @@ def test_sphere_cloud_moved_onto_the_hull(sphere_scan):
     assert result.stats["closed"]
     report = check_mesh(points, result.faces)
     assert report.watertight and report.outward is True and report.genus == 0
+
+
+# ---- a floor: the values the meshers clip anyway, spared ---------------------------------
+
+def pinhole_sphere_views(n=12):
+    """``n`` pinhole cameras 0.5 m from the sphere, all around it, and its exact masks."""
+    cameras = [looking_along(d, orthographic=False, scale=FOCAL_PX, width=WIDTH, height=HEIGHT)
+               for d in fibonacci_directions(n)]
+    return cameras, [sphere_mask(c, SPHERE_CENTRE_M, SPHERE_RADIUS_M) for c in cameras]
+
+
+@pytest.mark.parametrize("max_misses", [0, 1])
+@pytest.mark.parametrize("floor_voxels", [0.5, 2.0, 6.0])
+def test_a_floor_raises_the_deeper_values_to_it_and_changes_nothing_else(
+        sphere_scan, max_misses, floor_voxels):
+    rng = np.random.default_rng(9)
+    _, grid, _, orthographic = sphere_scan
+    cameras, masks = pinhole_sphere_views()
+    pinhole = HullDistance(cameras, masks, max_misses=max_misses,
+                           bounds_m=(grid.bounds_min, grid.bounds_max))
+    # Every voxel centre of the grid (deep inside, across the surface, far outside,
+    # beyond the box) and scattered points, some behind no camera's image.
+    points = np.concatenate([grid.index_to_world(np.argwhere(np.ones(grid.shape, bool))),
+                             rng.uniform(-0.3, 0.3, (2000, 3))])
+    floor = -floor_voxels * grid.voxel_size
+    for hull in (orthographic, pinhole):
+        # Exactly: the views left out are those that could only give values below the floor.
+        np.testing.assert_array_equal(hull(points, floor_m=floor),
+                                      np.maximum(hull(points), floor))
+
+
+def test_a_view_is_left_out_only_where_all_its_values_are_below_the_floor():
+    from sfs_ros.core.meshing.hull_distance import _below_floor
+
+    rng = np.random.default_rng(10)
+    cameras, masks = pinhole_sphere_views()
+    hull = HullDistance(cameras, masks)
+    singles = [HullDistance([c], [m]) for c, m in zip(cameras, masks)]
+    floor = -0.001
+    left_out = 0
+    for _ in range(300):
+        centre = rng.normal(0.0, 0.6 * SPHERE_RADIUS_M, 3)
+        half = rng.uniform(0.0005, 0.006, 3)
+        lo, hi = centre - half, centre + half
+        inside = rng.uniform(lo, hi, (400, 3))
+        for v, single in enumerate(singles):
+            if _below_floor(hull._kernel_data, v, lo, hi, floor):
+                left_out += 1
+                assert single(inside).max() < floor
+    # Boxes deep inside the sphere are left out by most views; the test is not vacuous.
+    assert left_out > 300
+
+
+def test_a_floor_must_be_a_negative_distance():
+    camera = looking_along([1.0, 0.0, 0.0], orthographic=True, scale=1000.0,
+                           width=WIDTH, height=HEIGHT)
+    hull = HullDistance([camera], [half_plane(camera, 50)])
+    for floor in (0.0, 0.001, float("nan"), float("-inf")):
+        with pytest.raises(ValueError, match="floor_m must be a finite distance < 0 metres"):
+            hull(np.zeros((1, 3)), floor_m=floor)
+    assert hull(np.zeros((0, 3)), floor_m=-0.001).shape == (0,)

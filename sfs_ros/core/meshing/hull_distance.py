@@ -206,6 +206,106 @@ def _distance_kernel(hull, points, top, out):
                          _box_value(hull, points[p, 0], points[p, 1], points[p, 2]))
 
 
+#: With a floor (:meth:`HullDistance.__call__`), points go in cubic groups this many
+#: floors deep on a side: a group is small enough for most views to see all of it deep
+#: inside their silhouette, large enough that testing that costs little per point.
+_GROUP_FLOORS = 4.0
+#: Slack (pixels) added to the bound of :func:`_below_floor`, for its rounding.
+_BOUND_SLACK_PX = 1e-6
+
+
+@njit(cache=True, inline="always")
+def _below_floor(hull, v, lo, hi, floor):
+    """Whether view ``v``'s value (:func:`_view_value`) is below ``floor`` (metres, < 0) at
+    every point of the box ``[lo, hi]`` (metres): False when that is not certain.
+
+    The distance image is interpolated bilinearly from pixel values whose
+    4-neighbours differ by at most 1 px, so it changes by at most sqrt(2) px per
+    pixel moved. The box projects into the convex hull of its corners' projections
+    (all in front of the camera), so no point of it projects farther from the
+    centre's projection than a corner does; and no point is nearer the camera
+    than the nearest corner. A point that projects outside the image has the
+    value -inf.
+    """
+    proj, orthographic, metres_per_px, image_size = hull[0], hull[1], hull[2], hull[3]
+    width, height = image_size[v, 0], image_size[v, 1]
+    cx, cy, cz = 0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1]), 0.5 * (lo[2] + hi[2])
+    uc = proj[v, 0, 0] * cx + proj[v, 0, 1] * cy + proj[v, 0, 2] * cz + proj[v, 0, 3]
+    vc = proj[v, 1, 0] * cx + proj[v, 1, 1] * cy + proj[v, 1, 2] * cz + proj[v, 1, 3]
+    nearest = 1.0
+    if not orthographic[v]:
+        depth = proj[v, 2, 0] * cx + proj[v, 2, 1] * cy + proj[v, 2, 2] * cz + proj[v, 2, 3]
+        if depth <= 0.0:
+            return False
+        uc /= depth
+        vc /= depth
+        nearest = np.inf
+    if not (-0.5 <= uc < width - 0.5 and -0.5 <= vc < height - 0.5):
+        return False
+    reach = 0.0
+    for corner in range(8):
+        x = hi[0] if corner & 1 else lo[0]
+        y = hi[1] if corner & 2 else lo[1]
+        z = hi[2] if corner & 4 else lo[2]
+        u = proj[v, 0, 0] * x + proj[v, 0, 1] * y + proj[v, 0, 2] * z + proj[v, 0, 3]
+        w = proj[v, 1, 0] * x + proj[v, 1, 1] * y + proj[v, 1, 2] * z + proj[v, 1, 3]
+        if not orthographic[v]:
+            depth = proj[v, 2, 0] * x + proj[v, 2, 1] * y + proj[v, 2, 2] * z + proj[v, 2, 3]
+            if depth <= 0.0:
+                return False
+            u /= depth
+            w /= depth
+            nearest = min(nearest, depth)
+        reach = max(reach, math.sqrt((u - uc) ** 2 + (w - vc) ** 2))
+    crops, images, margin = hull[4], hull[5], hull[6]
+    centre = _sample(images, crops[v, 0], crops[v, 1], crops[v, 2], crops[v, 3], crops[v, 4],
+                     margin, min(max(uc, 0.0), width - 1.0), min(max(vc, 0.0), height - 1.0))
+    bound = centre + math.sqrt(2.0) * reach + _BOUND_SLACK_PX
+    return bound < 0.0 and metres_per_px[v] * nearest * bound < floor
+
+
+@njit(parallel=True, cache=True)
+def _floored_kernel(hull, points, starts, floor, top, out):
+    """``out[p]``: the signed distance of ``points[p]`` or ``floor``, whichever is larger.
+
+    The points come group by group, group ``g`` at ``starts[g]:starts[g + 1]``. A view
+    whose value is below ``floor`` over a group's box (:func:`_below_floor`) is not
+    evaluated there. The ``rank`` largest values start as ``floor`` (``top`` (n, rank)
+    scratch): the ``rank``-th largest of the views evaluated and ``rank`` floors is the
+    ``rank``-th largest of all views, or ``floor`` if that is lower (the views left out
+    are all below ``floor``).
+    """
+    for g in prange(starts.shape[0] - 1):
+        first, stop = starts[g], starts[g + 1]
+        lo = np.empty(3)
+        hi = np.empty(3)
+        for axis in range(3):
+            lo[axis] = points[first:stop, axis].min()
+            hi[axis] = points[first:stop, axis].max()
+        top[first:stop] = floor
+        for v in range(hull[0].shape[0]):
+            if _below_floor(hull, v, lo, hi, floor):
+                continue
+            for p in range(first, stop):
+                _keep_largest(top, p, _view_value(hull, v, points[p, 0], points[p, 1],
+                                                  points[p, 2]))
+        for p in range(first, stop):
+            out[p] = max(top[p, top.shape[1] - 1],
+                         _box_value(hull, points[p, 0], points[p, 1], points[p, 2]), floor)
+
+
+def _groups(points: np.ndarray, edge_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """The points (n, 3) in cubes of ``edge_m`` metres: ``order`` (n,) int64, the point
+    indices cube by cube, and ``starts`` (groups + 1,) int64, where each cube's begin."""
+    cells = np.floor((points - points.min(axis=0)) / edge_m).astype(np.int64)
+    size = cells.max(axis=0) + 1
+    keys = (cells[:, 0] * size[1] + cells[:, 1]) * size[2] + cells[:, 2]
+    order = np.argsort(keys, kind="stable")
+    sorted_keys = keys[order]
+    starts = np.flatnonzero(np.diff(sorted_keys)) + 1
+    return order, np.concatenate([[0], starts, [len(points)]]).astype(np.int64)
+
+
 @njit(parallel=True, cache=True)
 def _project_kernel(hull, points, unit, steps, bisections, top, moved, found):
     """Move ``points[p]`` along ``unit[p]`` to the inside -> outside crossing nearest it.
@@ -304,11 +404,15 @@ class HullDistance:
             np.ascontiguousarray(box[1]),
         )
 
-    def __call__(self, points) -> np.ndarray:
+    def __call__(self, points, *, floor_m: float | None = None) -> np.ndarray:
         """Signed distances of ``points`` (n, 3) float64, metres -> (n,) float64, metres.
 
         Negative inside the hull; ``-inf`` where no view sees the point and no
-        box bounds it.
+        box bounds it. With ``floor_m`` (metres, < 0), a value below it comes back
+        as ``floor_m`` (``max(value, floor_m)``, the same as without it otherwise):
+        a view is not evaluated where it can only give values below the floor,
+        which spares most views at points near the surface (the meshers need the
+        distance only within a few voxels of it).
         """
         pts = np.ascontiguousarray(points, dtype=np.float64)
         if pts.ndim != 2 or pts.shape[1] != 3:
@@ -316,7 +420,17 @@ class HullDistance:
         if not np.all(np.isfinite(pts)):
             raise ValueError("points must be finite")
         out = np.empty(len(pts))
-        _distance_kernel(self._kernel_data, pts, np.empty((len(pts), self._rank)), out)
+        top = np.empty((len(pts), self._rank))
+        if floor_m is None:
+            _distance_kernel(self._kernel_data, pts, top, out)
+            return out
+        if not (math.isfinite(floor_m) and floor_m < 0):
+            raise ValueError(f"floor_m must be a finite distance < 0 metres, got {floor_m}")
+        if len(pts):
+            order, starts = _groups(pts, _GROUP_FLOORS * -floor_m)
+            grouped = np.empty(len(pts))
+            _floored_kernel(self._kernel_data, pts[order], starts, float(floor_m), top, grouped)
+            out[order] = grouped
         return out
 
     def project(self, points, directions, *, reach_m: float) -> tuple[np.ndarray, np.ndarray]:

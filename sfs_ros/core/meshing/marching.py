@@ -143,7 +143,10 @@ def hull_marching_cubes_mesh(occupancy, grid: VoxelGrid, hull: HullDistance, *,
     # occupancy, larger means more inside.
     volume = np.where(crop, np.float32(-pad), np.float32(pad))
     corner = lo - pad
-    distance = hull(grid.index_to_world(np.argwhere(near) + corner)) / grid.voxel_size
+    # Below -pad voxels the value is clipped anyway: the floor spares the views that
+    # see a group of points deep inside their silhouette.
+    distance = hull(grid.index_to_world(np.argwhere(near) + corner),
+                    floor_m=-pad * grid.voxel_size) / grid.voxel_size
     volume[near] = np.clip(distance, -pad, pad)
     # A sample exactly on the level makes Lewiner's ambiguity tests tie (see
     # LEVEL); counting it as just outside (by 1e-6 voxel) breaks the tie.
