@@ -210,8 +210,9 @@ def _distance_kernel(hull, points, top, out):
 #: floors deep on a side: a group is small enough for most views to see all of it deep
 #: inside their silhouette, large enough that testing that costs little per point.
 _GROUP_FLOORS = 4.0
-#: Slack (pixels) added to the bound of :func:`_below_floor`, for its rounding.
-_BOUND_SLACK_PX = 1e-6
+#: Largest slope of a distance image (:func:`_below_floor`), pixels per pixel: sqrt(2)
+#: for exact pixel values, with room for their float32 rounding (6e-8 of a value).
+_MAX_SLOPE = 1.5
 
 
 @njit(cache=True, inline="always")
@@ -221,7 +222,7 @@ def _below_floor(hull, v, lo, hi, floor):
 
     The distance image is interpolated bilinearly from pixel values whose
     4-neighbours differ by at most 1 px, so it changes by at most sqrt(2) px per
-    pixel moved. The box projects into the convex hull of its corners' projections
+    pixel moved (:data:`_MAX_SLOPE`). The box projects into the convex hull of its corners' projections
     (all in front of the camera), so no point of it projects farther from the
     centre's projection than a corner does; and no point is nearer the camera
     than the nearest corner. A point that projects outside the image has the
@@ -260,7 +261,7 @@ def _below_floor(hull, v, lo, hi, floor):
     crops, images, margin = hull[4], hull[5], hull[6]
     centre = _sample(images, crops[v, 0], crops[v, 1], crops[v, 2], crops[v, 3], crops[v, 4],
                      margin, min(max(uc, 0.0), width - 1.0), min(max(vc, 0.0), height - 1.0))
-    bound = centre + math.sqrt(2.0) * reach + _BOUND_SLACK_PX
+    bound = centre + _MAX_SLOPE * reach
     return bound < 0.0 and metres_per_px[v] * nearest * bound < floor
 
 
