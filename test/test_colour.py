@@ -16,7 +16,7 @@ from sfs_ros.core.exchange.export import export_mesh, load_mesh
 from sfs_ros.core.geometry.camera import Camera
 from sfs_ros.core.meshing.colour import vertex_colours, vertex_normals
 from sfs_ros.core.pipeline import ReconstructionParams, reconstruct
-from sfs_ros.core.render import render_image
+from sfs_ros.core.render import rasterize_silhouette, render_image
 from sfs_ros.core.segment import segment
 
 RED, GREEN, BLUE = (200, 30, 30), (30, 200, 30), (30, 30, 200)
@@ -156,6 +156,24 @@ def test_invalid_arguments():
         vertex_colours(vertices, faces, [image], [camera], min_cos=1.0)
     with pytest.raises(ValueError, match="no vertex is seen"):
         vertex_colours(vertices + [0.0, 0.0, 2.0], faces, [image], [camera])
+    with pytest.raises(ValueError, match="coverage comes from the occlusion test"):
+        vertex_colours(vertices, faces, [image], [camera], occlusion=False, coverage=True)
+
+
+@pytest.mark.parametrize("orthographic", [False, True])
+def test_the_z_buffers_give_the_silhouettes_of_the_mesh(orthographic):
+    vertices, faces = sphere(0.05)
+    colours = np.where(vertices[:, :1] > 0, RED, BLUE)
+    cameras = [look_at(0.5 * np.array(a), orthographic=orthographic)
+               for a in ([1.0, 0.0, 0.0], [0.36, -0.8, 0.48], [0.0, 0.0, -1.0])]
+    result = vertex_colours(vertices, faces, albedo_images(vertices, faces, colours, cameras),
+                            cameras, coverage=True)
+    for camera, packed in zip(cameras, result.coverage):
+        drawn = np.unpackbits(packed, count=camera.height * camera.width).astype(bool)
+        np.testing.assert_array_equal(drawn.reshape(camera.height, camera.width),
+                                      rasterize_silhouette(vertices, faces, camera))
+    assert vertex_colours(vertices, faces, albedo_images(vertices, faces, colours, cameras),
+                          cameras).coverage is None
 
 
 @pytest.fixture(scope="module")

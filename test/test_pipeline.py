@@ -1,5 +1,7 @@
 """End to end on a simulated scan of a known, non-convex object (the mug)."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -86,6 +88,29 @@ def test_colour_follows_the_objects_pattern(mug, mug_views):
     error = np.abs(chroma(result.vertex_colors) - truth).max(axis=1).mean()
     uniform = np.abs(truth.mean(axis=0) - truth).max(axis=1).mean()
     assert error <= 0.04 and error < 0.5 * uniform
+
+
+def test_colour_from_given_images_and_the_silhouettes_it_draws(mug_views):
+    from sfs_ros.core.exchange.views import read_image
+
+    params = ReconstructionParams(resolution=64, holdout=("view_005.png",))
+    plain = reconstruct(mug_views, params)
+    from_files = reconstruct(mug_views, replace(params, colour=True))
+    # The colour's z-buffers are the coloured views' silhouettes of the mesh: the report's
+    # IoUs are those drawn without colour, exactly (the same pixel-centre rule).
+    assert plain.report["silhouette_iou"]["per_view"] \
+        == from_files.report["silhouette_iou"]["per_view"]
+    # Images given in memory (a live scan's captures) colour as the files do.
+    names = [v.name for v in mug_views.views]
+    given = {n: read_image(v.image_path) for n, v in zip(names, mug_views.views)}
+    coloured = reconstruct(mug_views, replace(params, colour=True), images=given)
+    np.testing.assert_array_equal(coloured.vertex_colors, from_files.vertex_colors)
+    # A used view without an image takes no part (its silhouette is drawn instead).
+    fewer = {n: given[n] for n in names[:10]}
+    part = reconstruct(mug_views, replace(params, colour=True), images=fewer)
+    # (view_005.png, held out, is among the ten but colours nothing.)
+    assert part.report["colour"]["views"] == 9
+    assert part.report["silhouette_iou"]["per_view"] == plain.report["silhouette_iou"]["per_view"]
 
 
 def bite_the_object(path, *, radius_fraction=0.35):

@@ -43,7 +43,7 @@ import math
 import re
 import shutil
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
@@ -55,9 +55,8 @@ from ..core.exchange.inputs import load_views
 from ..core.exchange.session import append_view, read_session, write_session
 from ..core.exchange.views import as_bounds
 from ..core.geometry.grid import VoxelGrid
-from ..core.geometry.lens import ideal_camera, undistort_image, undistort_mask
+from ..core.geometry.lens import ideal_camera, undistort_mask
 from ..core.geometry.rig import RigCalibration, rig_camera
-from ..core.meshing.colour import vertex_colours
 from ..core.pipeline import ReconstructionParams, reconstruct
 from ..core.result_files import SheetViews, write_result
 from ..core.segment import SegmentationParams
@@ -426,22 +425,6 @@ class LiveReconstruction:
                              f"{expected} uint8 RGB (the rig's size)")
         self._colour_images[key] = rgb
 
-    def _colour(self, result, view_set, masks: dict) -> tuple[np.ndarray | None, int]:
-        """Vertex colours from the kept images of the views ``result`` used; and how many.
-        ``masks``: {key: (H, W) bool} of every view received."""
-        by_name = {received.name: key for key, received in self._views.items()}
-        cameras = {v.name: v.camera for v in view_set.views}
-        used = [(by_name[n], n) for n in result.report["views"]["used"]
-                if by_name.get(n) in self._colour_images]
-        if not used:
-            return None, 0
-        colours = vertex_colours(result.vertices, result.faces,
-                                 [undistort_image(self._colour_images[k], cameras[n])
-                                  for k, n in used],
-                                 [ideal_camera(cameras[n]) for _, n in used],
-                                 masks=[undistort_mask(masks[k], cameras[n]) for k, n in used])
-        return colours.colours, len(used)
-
     def _sheet_views(self, masks: dict) -> SheetViews:
         """Every view received: its captured image (the mask where none was kept) and mask
         (``masks``: {key: (H, W) bool} of every view received)."""
@@ -507,10 +490,16 @@ class LiveReconstruction:
         # The masks received are what segmenting their stored images gives
         # (MASK_SEGMENTATION): the pipeline takes them as they are.
         masks = {key: mask for key, mask, _, _ in self.views()}
-        result = reconstruct(view_set, self.params,
-                             masks={self._views[key].name: m for key, m in masks.items()})
-        colours, coloured = (None, 0) if path.suffix.lower() == ".stl" \
-            else self._colour(result, view_set, masks)
+        # The mesh is coloured from the captured images kept (not into an .stl: it has no
+        # colours); a view whose image never came takes no part.
+        images = {self._views[key].name: rgb for key, rgb in self._colour_images.items()
+                  if key in self._views}
+        colour = bool(images) and path.suffix.lower() != ".stl"
+        result = reconstruct(view_set, replace(self.params, colour=colour),
+                             masks={self._views[key].name: m for key, m in masks.items()},
+                             images=images)
+        colours = result.vertex_colors
+        coloured = result.report["colour"]["views"] if "colour" in result.report else 0
         write_result(result, path, vertex_colors=colours, report=report_path,
                      extra={"session": str(self._session)}, preview=preview_path,
                      html=html_path, contact_sheet=sheet_path, sheet_views=self._sheet_views(masks),

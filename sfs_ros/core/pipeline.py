@@ -29,7 +29,7 @@ from .meshing.colour import vertex_colours
 from .meshing.hull_distance import HullDistance
 from .meshing.marching import hull_marching_cubes_mesh
 from .meshing.mesh_checks import check_mesh
-from .metrics import reprojection_ious
+from .metrics import reprojection_ious, silhouette_iou
 from .resegment import Consensus, consensus_masks
 from .segment import SegmentationParams, segment
 from .workers import map_in_threads
@@ -250,11 +250,15 @@ def _consensus(views: list[View], used: list[int], cameras, masks, prepared: Pre
 
 
 def reconstruct(view_set: ViewSet, params: ReconstructionParams = ReconstructionParams(), *,
-                progress: Progress | None = None, masks: dict | None = None) -> Reconstruction:
+                progress: Progress | None = None, masks: dict | None = None,
+                images: dict | None = None) -> Reconstruction:
     """Reconstruct the object seen in ``view_set``.
 
     ``masks`` ({view name: (H, W) bool}, optional) are silhouettes the caller already
     has (e.g. a live scan's received masks): those views are not read nor segmented.
+    ``images`` ({view name: (H, W, 3) uint8 RGB as taken}, optional): with
+    ``params.colour``, the images that colour the mesh instead of the views' files
+    (e.g. a live scan's or a bag's captures); a used view without one takes no part.
 
     Views that cannot be read, have an empty silhouette or disagree with the
     others are rejected and reported, never silently used or dropped. Raises
@@ -406,21 +410,41 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
         progress("meshing", 1.0)
     with _timed(timings, "mesh_checks"):
         mesh_report = check_mesh(vertices, faces).as_dict()
-    colours = None
+    colours, covered = None, {}
     if params.colour:
         with _timed(timings, "colour"):
             progress("colour", 0.0)
-            colours = vertex_colours(vertices, faces,
-                                     [undistort_image(read_image(views[i].image_path),
-                                                      lenses[views[i].name]) for i in used],
-                                     cameras, masks=used_masks)
+            # The used views with an image to colour from: all of them, from their files,
+            # unless the caller gives the images.
+            coloured = [n for n, i in enumerate(used) if images is None or views[i].name in images]
+            if coloured:
+                colours = vertex_colours(
+                    vertices, faces,
+                    [undistort_image(read_image(views[used[n]].image_path) if images is None
+                                     else images[views[used[n]].name],
+                                     lenses[views[used[n]].name]) for n in coloured],
+                    [cameras[n] for n in coloured], masks=[used_masks[n] for n in coloured],
+                    coverage=True)
+                covered = {used[n]: packed for n, packed in zip(coloured, colours.coverage)}
             progress("colour", 1.0)
 
     with _timed(timings, "evaluation"):
         progress("evaluation", 0.0)
         used_names = {views[i].name for i in used}
-        ious = reprojection_ious(vertices, faces, [v.camera for v in views], masks,
-                                 closed=mesh_report["watertight"] and mesh_report["outward"])
+        # The coloured views' silhouettes of the mesh came with the colour's z-buffers (the
+        # same pixel-centre rule; the drawing skips a closed mesh's faces turned away, which
+        # cover no pixel centre that a face turned to the camera does not, exact ties on
+        # the outline aside); the other views' are drawn here.
+        ious = np.empty(len(views))
+        drawn = [i for i in range(len(views)) if i not in covered]
+        if drawn:
+            ious[drawn] = reprojection_ious(
+                vertices, faces, [views[i].camera for i in drawn], [masks[i] for i in drawn],
+                closed=mesh_report["watertight"] and mesh_report["outward"])
+        for i, packed in covered.items():
+            ious[i] = silhouette_iou(
+                np.unpackbits(packed, count=masks[i].size).reshape(masks[i].shape).view(bool),
+                masks[i])
         per_view = [{"view": view.name,
                      "role": ("used" if view.name in used_names
                               else "held-out" if view.name in params.holdout else "rejected"),

@@ -78,12 +78,17 @@ class VertexColours:
         JSON-ready: ``vertices``, ``views``, ``seen`` and ``filled`` vertex
         counts, ``mean_views_per_seen_vertex``, ``occlusion`` (whether the
         z-buffer test was on) and ``occluded_pairs`` (the sum of ``n_hidden``).
+    coverage : list or None
+        With ``coverage=True``: per view, the pixel centres the mesh covers (its
+        z-buffer's finite pixels), ``np.packbits`` of the (H, W) bool image (unpack
+        with ``count=H * W``); else None.
     """
 
     colours: np.ndarray
     n_views: np.ndarray
     n_hidden: np.ndarray
     stats: dict
+    coverage: list | None = None
 
 
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -278,7 +283,7 @@ def _fill_from_neighbours(colours: np.ndarray, seen: np.ndarray, faces: np.ndarr
 def vertex_colours(vertices, faces, images: Sequence, cameras: Sequence[Camera], *,
                    masks: Sequence | None = None, occlusion: bool = True,
                    angle_power: float = 2.0, min_cos: float = 0.2, edge_ramp_px: float = 3.0,
-                   depth_tolerance_px: float = 1.0) -> VertexColours:
+                   depth_tolerance_px: float = 1.0, coverage: bool = False) -> VertexColours:
     """Colour every vertex of a closed mesh from the views that see it.
 
     Parameters
@@ -313,6 +318,11 @@ def vertex_colours(vertices, faces, images: Sequence, cameras: Sequence[Camera],
         surface), ``footprint`` the size of a pixel at depth ``z``. A faceted
         surface bends within the pixel by up to ``tan(angle)`` footprints (its
         depth step across one pixel); what hides the vertex lies further in front.
+    coverage : bool
+        Also return each view's coverage by the mesh, from the z-buffers drawn for
+        the occlusion test (the same pixel-centre rule as
+        :func:`sfs_ros.core.metrics.reprojection_ious`): the silhouettes of the
+        mesh, for free. Needs ``occlusion``.
 
     Returns
     -------
@@ -341,6 +351,9 @@ def vertex_colours(vertices, faces, images: Sequence, cameras: Sequence[Camera],
     if not (math.isfinite(depth_tolerance_px) and depth_tolerance_px >= 0):
         raise ValueError(f"depth_tolerance_px must be a finite number of pixels >= 0, "
                          f"got {depth_tolerance_px}")
+    if coverage and not occlusion:
+        raise ValueError("coverage comes from the occlusion test's z-buffers: it needs "
+                         "occlusion=True")
 
     images = [_check_image(i, image, c) for i, (image, c) in enumerate(zip(images, cameras))]
     normals = vertex_normals(vertices, faces)
@@ -365,11 +378,15 @@ def vertex_colours(vertices, faces, images: Sequence, cameras: Sequence[Camera],
                     min_cos, angle_power, edge_ramp_px, depth_tolerance_px, per_metre, constant,
                     weights, weighted, hidden)
         keep = weights > 0
-        return idx[keep], weights[keep], weighted[keep], idx[hidden]
+        covered = np.packbits(np.isfinite(zbuf), axis=None) if coverage else None
+        return idx[keep], weights[keep], weighted[keep], idx[hidden], covered
 
     # Views in threads (numpy and the rasteriser release the GIL), summed in view order:
     # the same sums as one view after the other.
-    for idx, w, weighted, hidden in map_in_threads(one_view, zip(images, cameras, masks)):
+    covers = []
+    for idx, w, weighted, hidden, covered in map_in_threads(one_view,
+                                                           zip(images, cameras, masks)):
+        covers.append(covered)
         n_hidden[hidden] += 1
         total[idx] += weighted
         weight_sum[idx] += w
@@ -388,4 +405,5 @@ def vertex_colours(vertices, faces, images: Sequence, cameras: Sequence[Camera],
              "mean_views_per_seen_vertex": float(n_views[seen].mean()),
              "occlusion": bool(occlusion), "occluded_pairs": int(n_hidden.sum())}
     return VertexColours(colours=np.clip(np.rint(colours), 0, 255).astype(np.uint8),
-                         n_views=n_views, n_hidden=n_hidden, stats=stats)
+                         n_views=n_views, n_hidden=n_hidden, stats=stats,
+                         coverage=covers if coverage else None)
