@@ -63,7 +63,7 @@ from ..core.segment import SegmentationParams
 from .paths import confined_path
 
 __all__ = ["MASK_SEGMENTATION", "DuplicateViewError", "AddedView", "LiveReconstruction",
-           "surface_points", "mask_to_rgb", "check_scan_name"]
+           "surface_points", "mask_to_rgb", "check_scan_name", "view_key_of"]
 
 #: Segmentation under which a 0/255 mask image segments to exactly that mask.
 MASK_SEGMENTATION = SegmentationParams(
@@ -122,6 +122,13 @@ def check_scan_name(output_dir, scan_name: str) -> None:
     if (Path(output_dir) / scan_name).exists():
         raise ValueError(f"scan folder {Path(output_dir) / scan_name} already exists; "
                          "choose a new scan name")
+
+
+def view_key_of(name: str) -> str:
+    """The key of a view from the name :meth:`LiveReconstruction.add_view` stored it under
+    (a key that is a file name as it is, else ``view_NNN_<key>.png``)."""
+    found = _NAMED_KEY.fullmatch(name)
+    return found.group(1) if found else name
 
 
 def mask_to_rgb(mask: np.ndarray) -> np.ndarray:
@@ -402,8 +409,7 @@ class LiveReconstruction:
             if image is None or view.theta_rad is None:
                 continue
             mask = image > 127
-            found = _NAMED_KEY.fullmatch(view.name)
-            key = found.group(1) if found else view.name
+            key = view_key_of(view.name)
             if mask.any():
                 self._carver.add_view(view.camera, mask)
             self._views[key] = _Received(view.name, np.packbits(mask, axis=None),

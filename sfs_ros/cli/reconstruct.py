@@ -17,11 +17,10 @@ import argparse
 import sys
 from pathlib import Path
 
+from ..cell.live import view_key_of
 from ..core.carving.resolution import parse_memory
 from ..core.exchange.export import SUPPORTED_SUFFIXES
 from ..core.exchange.views import ViewSet, read_image
-from ..core.geometry.lens import ideal_camera, undistort_image
-from ..core.meshing.colour import vertex_colours
 from ..core.pipeline import MESHERS, ReconstructionParams, reconstruct
 from ..core.result_files import SheetViews, report_path_for, write_result
 from ..core.segment import PRESETS, SegmentationParams
@@ -138,6 +137,14 @@ def _sheet_views(view_set: ViewSet, result) -> SheetViews:
                       reasons=short)
 
 
+def _by_view(captures: ViewSet, view_set: ViewSet) -> dict:
+    """{name of a bag's view: path of its captured image} (``captures``: the bag's
+    captured images, named by their keys): the bag's views are the recorded masks, named
+    as the reconstruction node stored them."""
+    paths = {Path(v.name).stem: v.image_path for v in captures.views}
+    return {v.name: paths[key] for v in view_set.views if (key := view_key_of(v.name)) in paths}
+
+
 def run(args) -> dict:
     """Run one reconstruction from parsed arguments; returns the report."""
     suffix = args.output.suffix.lower()
@@ -151,8 +158,10 @@ def run(args) -> dict:
     check_outputs({"-o": args.output, "report": report_path_for(args.output),
                    "--preview": args.preview, "--html": args.html,
                    "--contact-sheet": args.contact_sheet}, input_files(args.input, view_set))
-    # A bag's views are the recorded masks; its captured images colour the mesh.
-    bag_images = load_input(args.input, captures=True)[0] if args.colour and recorded else None
+    # A bag's views are the recorded masks; its captured images colour the mesh (their
+    # files live as long as ``captures``).
+    captures = load_input(args.input, captures=True)[0] if args.colour and recorded else None
+    bag_images = None if captures is None else _by_view(captures, view_set)
     params = ReconstructionParams(
         resolution=recorded.get("resolution") if args.resolution is None else args.resolution,
         voxel_size_m=args.voxel_size,
@@ -163,20 +172,15 @@ def run(args) -> dict:
         consensus=not args.no_consensus,
         holdout=_holdout_names(args.holdout, [v.name for v in view_set.views]),
         segmentation=_segmentation(args, view_set.segmentation),
-        colour=args.colour and bag_images is None)
+        colour=args.colour)
     progress = StageProgress(quiet=args.quiet)
     try:
-        result = reconstruct(view_set, params, progress=progress)
+        result = reconstruct(view_set, params, progress=progress, images=bag_images)
     finally:
         progress.close()
-    colours = result.vertex_colors
-    if bag_images is not None:
-        colours = vertex_colours(result.vertices, result.faces,
-                                 [undistort_image(read_image(v.image_path), v.camera)
-                                  for v in bag_images.views],
-                                 [ideal_camera(v.camera) for v in bag_images.views]).colours
     written = write_result(
-        result, args.output, units=args.units, vertex_colors=colours, preview=args.preview,
+        result, args.output, units=args.units, vertex_colors=result.vertex_colors,
+        preview=args.preview,
         html=args.html, contact_sheet=args.contact_sheet,
         sheet_views=None if args.contact_sheet is None else _sheet_views(view_set, result))
     return written.document

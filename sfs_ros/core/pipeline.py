@@ -7,6 +7,7 @@ cubes), mesh checks, colour (on request), reprojection of the mesh into every vi
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Callable
 from contextlib import contextmanager
@@ -249,6 +250,13 @@ def _consensus(views: list[View], used: list[int], cameras, masks, prepared: Pre
     return consensus_masks(reference, cameras, masks, read_rgb, prepared=prepared)
 
 
+def _colour_image(view: View, images: dict | None) -> np.ndarray:
+    """The RGB image that colours from ``view``: ``images[view.name]`` (read if a path),
+    or the view's own file when ``images`` is None."""
+    given = view.image_path if images is None else images[view.name]
+    return read_image(given) if isinstance(given, (str, os.PathLike)) else given
+
+
 def reconstruct(view_set: ViewSet, params: ReconstructionParams = ReconstructionParams(), *,
                 progress: Progress | None = None, masks: dict | None = None,
                 images: dict | None = None) -> Reconstruction:
@@ -256,9 +264,10 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
 
     ``masks`` ({view name: (H, W) bool}, optional) are silhouettes the caller already
     has (e.g. a live scan's received masks): those views are not read nor segmented.
-    ``images`` ({view name: (H, W, 3) uint8 RGB as taken}, optional): with
-    ``params.colour``, the images that colour the mesh instead of the views' files
-    (e.g. a live scan's or a bag's captures); a used view without one takes no part.
+    ``images`` ({view name: (H, W, 3) uint8 RGB as taken, or the path of its file},
+    optional): with ``params.colour``, the images that colour the mesh instead of the
+    views' files (e.g. a live scan's or a bag's captures); a used view without one takes
+    no part.
 
     Views that cannot be read, have an empty silhouette or disagree with the
     others are rejected and reported, never silently used or dropped. Raises
@@ -420,8 +429,7 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
             if coloured:
                 colours = vertex_colours(
                     vertices, faces,
-                    [undistort_image(read_image(views[used[n]].image_path) if images is None
-                                     else images[views[used[n]].name],
+                    [undistort_image(_colour_image(views[used[n]], images),
                                      lenses[views[used[n]].name]) for n in coloured],
                     [cameras[n] for n in coloured], masks=[used_masks[n] for n in coloured],
                     coverage=True)
