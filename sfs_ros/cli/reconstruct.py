@@ -180,8 +180,7 @@ def run(args) -> dict:
         progress.close()
     written = write_result(
         result, args.output, units=args.units, vertex_colors=result.vertex_colors,
-        preview=args.preview,
-        html=args.html, contact_sheet=args.contact_sheet,
+        preview=args.preview, html=args.html, contact_sheet=args.contact_sheet,
         sheet_views=None if args.contact_sheet is None else _sheet_views(view_set, result))
     return written.document
 
