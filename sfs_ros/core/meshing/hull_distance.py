@@ -120,21 +120,30 @@ def _sample(images, offset, width, height, u0, v0, margin, u, v):
 
 
 @njit(cache=True, inline="always")
+def _pixel(proj, orthographic, v, x, y, z):
+    """``(u, v, depth)``: the pixel of the point ``(x, y, z)`` in view ``v`` and its depth
+    (metres; 1 in an orthographic view, whose pixel size does not change with it). A
+    depth <= 0 is behind a pinhole camera: no pixel (u, v are not divided)."""
+    # (indexed in place: a view of ``proj`` per point and view costs a reference count)
+    hu = proj[v, 0, 0] * x + proj[v, 0, 1] * y + proj[v, 0, 2] * z + proj[v, 0, 3]
+    hv = proj[v, 1, 0] * x + proj[v, 1, 1] * y + proj[v, 1, 2] * z + proj[v, 1, 3]
+    if orthographic[v]:
+        return hu, hv, 1.0
+    depth = proj[v, 2, 0] * x + proj[v, 2, 1] * y + proj[v, 2, 2] * z + proj[v, 2, 3]
+    if depth <= 0.0:
+        return hu, hv, depth
+    return hu / depth, hv / depth, depth
+
+
+@njit(cache=True, inline="always")
 def _view_value(hull, v, x, y, z):
     """Signed distance (metres) of the point ``(x, y, z)`` to view ``v``'s silhouette cone;
     -inf where the view knows nothing of the point (behind it, or outside its image)."""
     proj, orthographic, metres_per_px, image_size, crops, images, margin, _, _ = hull
-    # (indexed in place: a view of ``proj`` per point and view costs a reference count)
-    hu = proj[v, 0, 0] * x + proj[v, 0, 1] * y + proj[v, 0, 2] * z + proj[v, 0, 3]
-    hv = proj[v, 1, 0] * x + proj[v, 1, 1] * y + proj[v, 1, 2] * z + proj[v, 1, 3]
-    scale = metres_per_px[v]
-    if not orthographic[v]:
-        depth = proj[v, 2, 0] * x + proj[v, 2, 1] * y + proj[v, 2, 2] * z + proj[v, 2, 3]
-        if depth <= 0.0:
-            return -np.inf
-        hu /= depth
-        hv /= depth
-        scale *= depth
+    hu, hv, depth = _pixel(proj, orthographic, v, x, y, z)
+    if depth <= 0.0:
+        return -np.inf
+    scale = metres_per_px[v] * depth
     width, height = image_size[v, 0], image_size[v, 1]
     # The carver's pixel is floor(u + 1/2): inside the image for u in [-1/2, W - 1/2).
     if not (-0.5 <= hu < width - 0.5 and -0.5 <= hv < height - 0.5):
@@ -222,41 +231,25 @@ def _below_floor(hull, v, lo, hi, floor):
 
     The distance image is interpolated bilinearly from pixel values whose
     4-neighbours differ by at most 1 px, so it changes by at most sqrt(2) px per
-    pixel moved (:data:`_MAX_SLOPE`). The box projects into the convex hull of its corners' projections
-    (all in front of the camera), so no point of it projects farther from the
-    centre's projection than a corner does; and no point is nearer the camera
-    than the nearest corner. A point that projects outside the image has the
-    value -inf.
+    pixel moved (:data:`_MAX_SLOPE`). The box projects into the convex hull of its
+    corners' projections (all in front of the camera), so no point of it projects
+    farther from the centre's projection than a corner does; and no point is nearer
+    the camera than the nearest corner. A point that projects outside the image has
+    the value -inf.
     """
     proj, orthographic, metres_per_px, image_size = hull[0], hull[1], hull[2], hull[3]
     width, height = image_size[v, 0], image_size[v, 1]
-    cx, cy, cz = 0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1]), 0.5 * (lo[2] + hi[2])
-    uc = proj[v, 0, 0] * cx + proj[v, 0, 1] * cy + proj[v, 0, 2] * cz + proj[v, 0, 3]
-    vc = proj[v, 1, 0] * cx + proj[v, 1, 1] * cy + proj[v, 1, 2] * cz + proj[v, 1, 3]
-    nearest = 1.0
-    if not orthographic[v]:
-        depth = proj[v, 2, 0] * cx + proj[v, 2, 1] * cy + proj[v, 2, 2] * cz + proj[v, 2, 3]
-        if depth <= 0.0:
-            return False
-        uc /= depth
-        vc /= depth
-        nearest = np.inf
-    if not (-0.5 <= uc < width - 0.5 and -0.5 <= vc < height - 0.5):
+    uc, vc, nearest = _pixel(proj, orthographic, v, 0.5 * (lo[0] + hi[0]),
+                             0.5 * (lo[1] + hi[1]), 0.5 * (lo[2] + hi[2]))
+    if nearest <= 0.0 or not (-0.5 <= uc < width - 0.5 and -0.5 <= vc < height - 0.5):
         return False
     reach = 0.0
     for corner in range(8):
-        x = hi[0] if corner & 1 else lo[0]
-        y = hi[1] if corner & 2 else lo[1]
-        z = hi[2] if corner & 4 else lo[2]
-        u = proj[v, 0, 0] * x + proj[v, 0, 1] * y + proj[v, 0, 2] * z + proj[v, 0, 3]
-        w = proj[v, 1, 0] * x + proj[v, 1, 1] * y + proj[v, 1, 2] * z + proj[v, 1, 3]
-        if not orthographic[v]:
-            depth = proj[v, 2, 0] * x + proj[v, 2, 1] * y + proj[v, 2, 2] * z + proj[v, 2, 3]
-            if depth <= 0.0:
-                return False
-            u /= depth
-            w /= depth
-            nearest = min(nearest, depth)
+        u, w, depth = _pixel(proj, orthographic, v, hi[0] if corner & 1 else lo[0],
+                             hi[1] if corner & 2 else lo[1], hi[2] if corner & 4 else lo[2])
+        if depth <= 0.0:
+            return False
+        nearest = min(nearest, depth)
         reach = max(reach, math.sqrt((u - uc) ** 2 + (w - vc) ** 2))
     crops, images, margin = hull[4], hull[5], hull[6]
     centre = _sample(images, crops[v, 0], crops[v, 1], crops[v, 2], crops[v, 3], crops[v, 4],
