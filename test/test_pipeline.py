@@ -5,6 +5,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from sfs_ros.core.exchange.views import read_image
 from sfs_ros.core.pipeline import ReconstructionParams, reconstruct
 from sfs_ros.core.simulation.synthetic import score_against_truth
 
@@ -91,8 +92,6 @@ def test_colour_follows_the_objects_pattern(mug, mug_views):
 
 
 def test_colour_from_given_images_and_the_silhouettes_it_draws(mug_views):
-    from sfs_ros.core.exchange.views import read_image
-
     params = ReconstructionParams(resolution=64, holdout=("view_005.png",))
     plain = reconstruct(mug_views, params)
     from_files = reconstruct(mug_views, replace(params, colour=True))

@@ -251,8 +251,8 @@ def _consensus(views: list[View], used: list[int], cameras, masks, prepared: Pre
 
 
 def _colour_image(view: View, images: dict | None) -> np.ndarray:
-    """The RGB image that colours from ``view``: ``images[view.name]`` (read if a path),
-    or the view's own file when ``images`` is None."""
+    """The RGB image ``view`` colours the mesh with: ``images[view.name]`` (read if a
+    path), or the view's own file when ``images`` is None."""
     given = view.image_path if images is None else images[view.name]
     return read_image(given) if isinstance(given, (str, os.PathLike)) else given
 
