@@ -166,12 +166,19 @@ def test_the_z_buffers_give_the_silhouettes_of_the_mesh(orthographic):
     colours = np.where(vertices[:, :1] > 0, RED, BLUE)
     cameras = [look_at(0.5 * np.array(a), orthographic=orthographic)
                for a in ([1.0, 0.0, 0.0], [0.36, -0.8, 0.48], [0.0, 0.0, -1.0])]
-    result = vertex_colours(vertices, faces, albedo_images(vertices, faces, colours, cameras),
-                            cameras, coverage=True)
+    images = albedo_images(vertices, faces, colours, cameras)
+    result = vertex_colours(vertices, faces, images, cameras, coverage=True)
     for camera, packed in zip(cameras, result.coverage):
         drawn = np.unpackbits(packed, count=camera.height * camera.width).astype(bool)
         np.testing.assert_array_equal(drawn.reshape(camera.height, camera.width),
                                       rasterize_silhouette(vertices, faces, camera))
+    # The sphere is closed and outward: drawing only the faces turned to each camera
+    # gives the same z-buffers, so the same colours and silhouettes, bit for bit.
+    closed = vertex_colours(vertices, faces, images, cameras, coverage=True, closed=True)
+    np.testing.assert_array_equal(closed.colours, result.colours)
+    np.testing.assert_array_equal(closed.n_hidden, result.n_hidden)
+    for ours, theirs in zip(closed.coverage, result.coverage):
+        np.testing.assert_array_equal(ours, theirs)
     assert vertex_colours(vertices, faces, albedo_images(vertices, faces, colours, cameras),
                           cameras).coverage is None
 

@@ -249,6 +249,42 @@ def test_z_buffer_nearest_wins(ortho_camera):
         np.testing.assert_array_equal(image[int(cv), only_far], blue)
 
 
+
+@pytest.mark.parametrize("name", ["sphere", "mug"])
+def test_closed_mesh_depth_from_the_faces_turned_to_the_camera(name):
+    """A ray into a closed outward mesh enters through a face turned towards the camera:
+    drawing only those gives the same z-buffer. The mug's handle hides part of its body
+    and its inside from some views, so the nearest face is not the only front face on a
+    ray. Pinhole views from around and from close by (a wide image of a big object), and
+    orthographic ones."""
+    mesh = make_object(name).mesh
+    vertices, faces = mesh.vertices, mesh.faces
+    pinhole = RigCalibration(width=160, height=120, projection="pinhole", fx=150.0, fy=150.0,
+                             camera_distance_m=0.3, aim_point_m=(0.0, 0.0, 0.04))
+    close = RigCalibration(width=96, height=96, projection="pinhole", fx=40.0, fy=40.0,
+                           camera_distance_m=0.12, aim_point_m=(0.0, 0.0, 0.04))
+    ortho = RigCalibration(width=120, height=120, fx=900.0, fy=900.0,
+                           aim_point_m=(0.0, 0.0, 0.04))
+    cameras = [rig_camera(theta, phi, calib) for calib in (pinhole, close, ortho)
+               for theta in (0.0, 1.3, 2.9, 4.4) for phi in (0.0, 0.7, 1.4)]
+    for camera in cameras:
+        full = rasterize_depth(vertices, faces, camera)
+        assert np.isfinite(full).sum() > 100
+        np.testing.assert_array_equal(rasterize_depth(vertices, faces, camera, closed=True), full)
+
+
+def test_closed_draws_only_the_faces_turned_to_the_camera():
+    """The promise is the caller's: a lone triangle turned away is not drawn with it."""
+    camera = Camera(K=[[100.0, 0, 31.5], [0, 100.0, 31.5], [0, 0, 1]], R=np.eye(3),
+                    t=np.zeros(3), width=64, height=64)
+    vertices = np.array([[-0.1, -0.1, 1.0], [0.1, -0.1, 1.0], [0.0, 0.1, 1.0]])
+    for faces, turned_to_camera in (([[0, 2, 1]], True), ([[0, 1, 2]], False)):
+        # outward normal (0, 0, -1): towards the camera at the origin, seen along +Z
+        full = rasterize_depth(vertices, np.array(faces), camera)
+        assert np.isfinite(full).sum() > 100
+        closed = rasterize_depth(vertices, np.array(faces), camera, closed=True)
+        np.testing.assert_array_equal(closed, full if turned_to_camera else np.inf)
+
 def test_noise_statistics_and_seed():
     camera = Camera(K=np.eye(3), R=np.eye(3), t=np.zeros(3), width=200, height=100,
                     orthographic=True)

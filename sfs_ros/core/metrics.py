@@ -12,6 +12,7 @@ from scipy.spatial import cKDTree
 from .geometry.camera import Camera
 from .geometry.grid import VoxelGrid
 from .render import (
+    FRONT_FACING,
     as_mesh_arrays,
     covered_point,
     edge_tuple,
@@ -67,11 +68,6 @@ def reprojection_iou(vertices, faces, camera: Camera, mask: np.ndarray) -> float
     return silhouette_iou(rasterize_silhouette(vertices, faces, camera), mask)
 
 
-#: Orientation (sign of det(h_a, h_b, h_c), see :mod:`.render`) of the faces of
-#: an outward mesh that face the camera.
-_FRONT = -1.0
-
-
 @njit(cache=True, inline="always")
 def _view_coverage(vertices, faces, P, heights, widths, masks, moff, front_only, out, v, h, uv,
                    cover, coef):
@@ -95,7 +91,7 @@ def _view_coverage(vertices, faces, P, heights, widths, masks, moff, front_only,
                     or np.ceil(min(uv[a, 1], uv[b, 1], uv[c, 1]) - 1e-6)
                     > np.floor(max(uv[a, 1], uv[b, 1], uv[c, 1]) + 1e-6)):
                 continue
-        if front_only and face_orientation(h, faces, f) != _FRONT:
+        if front_only and face_orientation(h, faces, f) != FRONT_FACING:
             continue  # (the edges of a back face are not needed)
         if triangle_edges(h, faces, f, coef) == 0.0:
             continue

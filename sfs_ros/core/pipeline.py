@@ -419,6 +419,7 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
         progress("meshing", 1.0)
     with _timed(timings, "mesh_checks"):
         mesh_report = check_mesh(vertices, faces).as_dict()
+    closed = bool(mesh_report["watertight"] and mesh_report["outward"])
     colours, covered = None, {}
     if params.colour:
         with _timed(timings, "colour"):
@@ -432,7 +433,7 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
                     [undistort_image(_colour_image(views[used[n]], images),
                                      lenses[views[used[n]].name]) for n in coloured],
                     [cameras[n] for n in coloured], masks=[used_masks[n] for n in coloured],
-                    coverage=True)
+                    coverage=True, closed=closed)
                 covered = {used[n]: packed for n, packed in zip(coloured, colours.coverage)}
             progress("colour", 1.0)
 
@@ -440,15 +441,15 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
         progress("evaluation", 0.0)
         used_names = {views[i].name for i in used}
         # The coloured views' silhouettes of the mesh came with the colour's z-buffers (the
-        # same pixel-centre rule; the drawing skips a closed mesh's faces turned away, which
-        # cover no pixel centre that a face turned to the camera does not, exact ties on
-        # the outline aside); the other views' are drawn here.
+        # same pixel-centre rule); the other views' are drawn here. Both skip a closed
+        # mesh's faces turned away, which cover no pixel centre that a face turned to the
+        # camera does not, exact ties on the outline aside.
         ious = np.empty(len(views))
         drawn = [i for i in range(len(views)) if i not in covered]
         if drawn:
             ious[drawn] = reprojection_ious(
                 vertices, faces, [views[i].camera for i in drawn], [masks[i] for i in drawn],
-                closed=mesh_report["watertight"] and mesh_report["outward"])
+                closed=closed)
         for i, packed in covered.items():
             ious[i] = silhouette_iou(
                 np.unpackbits(packed, count=masks[i].size).reshape(masks[i].shape).view(bool),

@@ -81,6 +81,11 @@ def _projected(vertices: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.nda
     return h, depth
 
 
+#: Orientation (sign of det(h_a, h_b, h_c), :func:`face_orientation`) of the faces of an
+#: outward-oriented mesh that are turned towards the camera.
+FRONT_FACING = -1.0
+
+
 @njit(cache=True)
 def face_orientation(h, faces, f):
     """Orientation of face ``f`` in the homogeneous pixels ``h``: the sign of
@@ -178,16 +183,21 @@ def pixel_box(h, faces, f, width, height):
 
 
 @njit(cache=True, nogil=True)
-def _rasterize_kernel(h, depth, faces, face_id, bary, zbuf):
-    """Z-buffer ``zbuf`` (H, W) of the faces; ``face_id`` (H, W) and ``bary`` (H, W, 3)
-    too, unless they are empty (0, 0) and (0, 0, 3) (the depth alone)."""
+def _rasterize_kernel(h, depth, faces, face_id, bary, zbuf, front_only):
+    """Z-buffer ``zbuf`` (H, W) of the faces (only those turned towards the camera when
+    ``front_only``); ``face_id`` (H, W) and ``bary`` (H, W, 3) too, unless they are empty
+    (0, 0) and (0, 0, 3) (the depth alone)."""
     height, width = zbuf.shape
     with_ids = face_id.shape[0] > 0
     coef = np.empty((3, 4))
     for f in range(faces.shape[0]):
         # (the box first: most faces of a fine mesh hold no pixel centre)
         c0, c1, r0, r1 = pixel_box(h, faces, f, width, height)
-        if c0 > c1 or r0 > r1 or triangle_edges(h, faces, f, coef) == 0.0:
+        if c0 > c1 or r0 > r1:
+            continue
+        if front_only and face_orientation(h, faces, f) != FRONT_FACING:
+            continue
+        if triangle_edges(h, faces, f, coef) == 0.0:
             continue
         edges = edge_tuple(coef)
         d0, d1, d2 = depth[faces[f, 0]], depth[faces[f, 1]], depth[faces[f, 2]]
@@ -229,22 +239,28 @@ def rasterize_faces(vertices, faces, camera: Camera):
     """
     face_id = np.full((camera.height, camera.width), -1, dtype=np.int64)
     bary = np.zeros((camera.height, camera.width, 3))
-    return face_id, bary, _rasterize(vertices, faces, camera, face_id, bary)
+    return face_id, bary, _rasterize(vertices, faces, camera, face_id, bary, False)
 
 
-def rasterize_depth(vertices, faces, camera: Camera) -> np.ndarray:
+def rasterize_depth(vertices, faces, camera: Camera, *, closed: bool = False) -> np.ndarray:
     """(H, W) float64 depth of the nearest face at every pixel centre, metres (+inf where
-    none): the ``depth`` of :func:`rasterize_faces`, without the faces and weights."""
+    none): the ``depth`` of :func:`rasterize_faces`, without the faces and weights.
+
+    ``closed=True`` promises a closed, outward-oriented mesh: only the faces turned
+    towards the camera are drawn, about half the work. A ray into a closed surface
+    enters it through such a face, so the depths are the same, but for a pixel centre
+    exactly on the outline, where the face turned away may be the one that holds it.
+    """
     return _rasterize(vertices, faces, camera, np.empty((0, 0), np.int64),
-                      np.empty((0, 0, 3)))
+                      np.empty((0, 0, 3)), bool(closed))
 
 
-def _rasterize(vertices, faces, camera: Camera, face_id, bary) -> np.ndarray:
+def _rasterize(vertices, faces, camera: Camera, face_id, bary, front_only: bool) -> np.ndarray:
     """The z-buffer of :func:`_rasterize_kernel` (filling ``face_id`` and ``bary``)."""
     vertices, faces = as_mesh_arrays(vertices, faces)
     zbuf = np.full((camera.height, camera.width), np.inf)
     if len(faces):
-        _rasterize_kernel(*_projected(vertices, camera), faces, face_id, bary, zbuf)
+        _rasterize_kernel(*_projected(vertices, camera), faces, face_id, bary, zbuf, front_only)
     return zbuf
 
 
