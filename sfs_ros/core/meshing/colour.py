@@ -164,6 +164,21 @@ def _weigh_view(u, v, z, cos, image, edge_px, zbuf, min_cos, angle_power, edge_r
             colours[i, c] = w * _bilinear_at(image, u[i], v[i], c) if w > 0.0 else 0.0
 
 
+@njit(cache=True, nogil=True)
+def _add_view(idx, weights, weighted, hidden, total, weight_sum, n_views, n_hidden):
+    """Add one view's part (from :func:`_weigh_view`, the vertices ``idx`` it blends into,
+    each once, and those it would but the mesh hides) to the running sums: the same
+    additions as ``total[idx] += weighted`` and so on, in one pass."""
+    for k in range(idx.size):
+        i = idx[k]
+        for c in range(3):
+            total[i, c] += weighted[k, c]
+        weight_sum[i] += weights[k]
+        n_views[i] += 1
+    for k in range(hidden.size):
+        n_hidden[hidden[k]] += 1
+
+
 def _edge_distance_px(zbuf: np.ndarray | None, mask: np.ndarray | None,
                       camera: Camera) -> np.ndarray | None:
     """(H, W) float32 distance (pixels) of each pixel to the nearest edge pixel.
@@ -393,10 +408,7 @@ def vertex_colours(vertices, faces, images: Sequence, cameras: Sequence[Camera],
     for idx, w, weighted, hidden, covered in map_in_threads(one_view,
                                                            zip(images, cameras, masks)):
         covers.append(covered)
-        n_hidden[hidden] += 1
-        total[idx] += weighted
-        weight_sum[idx] += w
-        n_views[idx] += 1
+        _add_view(idx, w, weighted, hidden, total, weight_sum, n_views, n_hidden)
 
     seen = weight_sum > 0
     if not seen.any():
