@@ -339,3 +339,33 @@ def test_the_backdrop_band_is_read_in_the_order_of_its_mask(shape, fraction):
     image = np.random.default_rng(1).integers(0, 256, (*shape, 3), dtype=np.uint8)
     np.testing.assert_array_equal(_band_pixels(image, fraction),
                                   image[border_band(*shape, fraction)])
+
+
+def test_backdrop_distance_is_the_smallest_mahalanobis_distance():
+    # Closed form in float64 against the float32 kernels: r^T A r for r up to 255 grey
+    # levels and A up to 1/16 (the 4-level noise floor) is below 1.3e4; float32 keeps
+    # about 7 digits, so 1e-5 relative plus 1e-3 of a standard deviation bounds the
+    # rounding of a handful of operations.
+    from sfs_ros.core.backdrop import BackdropModel
+
+    rng = np.random.default_rng(7)
+    means = rng.uniform(0, 255, (4, 3))
+    roots = rng.normal(0, 0.1, (4, 3, 3))
+    inverses = roots @ roots.transpose(0, 2, 1) + np.eye(3) / 400.0  # symmetric, positive
+    model = BackdropModel(means, inverses)
+    image = rng.integers(0, 256, (37, 53, 3), dtype=np.uint8)
+    r = image.reshape(-1, 1, 3).astype(np.float64) - model.means.astype(np.float64)
+    squared = np.einsum("nki,kij,nkj->nk", r, model.inverse_covariances.astype(np.float64), r)
+    truth = np.sqrt(squared.min(axis=1)).reshape(37, 53)
+    distance = model.distance(image)
+    assert distance.shape == (37, 53) and distance.dtype == np.float32
+    np.testing.assert_allclose(distance, truth, rtol=1e-5, atol=1e-3)
+    nearest, index = model.nearest(image)
+    np.testing.assert_allclose(nearest, truth, rtol=1e-5, atol=1e-3)
+    ordered = np.sort(squared, axis=1)
+    clear = (ordered[:, 1] - ordered[:, 0] > 1e-3 * ordered[:, 1]).reshape(37, 53)
+    assert clear.mean() > 0.9
+    np.testing.assert_array_equal(index[clear], squared.argmin(axis=1).reshape(37, 53)[clear])
+    # (n, 3) pixels and a strided view read the same colours
+    np.testing.assert_array_equal(model.distance(image.reshape(-1, 3)), distance.ravel())
+    np.testing.assert_array_equal(model.distance(image[:, ::2]), distance[:, ::2])
