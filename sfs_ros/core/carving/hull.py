@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
-from scipy import ndimage
+from numba import njit
 
 __all__ = ["drop_specks"]
 
@@ -13,7 +13,8 @@ def drop_specks(occupancy: np.ndarray, *, min_fraction: float = 0.01) -> tuple[n
 
     A visual hull can hold small phantom pieces where the viewing cones of a
     few views happen to overlap away from the object; a real second object on
-    the turntable is large and is kept.
+    the turntable is large and is kept. Voxels are connected through faces,
+    edges and corners (26 neighbours).
 
     Parameters
     ----------
@@ -28,11 +29,96 @@ def drop_specks(occupancy: np.ndarray, *, min_fraction: float = 0.01) -> tuple[n
     """
     if not 0.0 <= min_fraction <= 1.0:
         raise ValueError(f"min_fraction must be in [0, 1], got {min_fraction}")
-    labels, n = ndimage.label(occupancy, structure=np.ones((3, 3, 3), bool))
+    occ = np.ascontiguousarray(occupancy, dtype=bool)
+    if occ.ndim != 3:
+        raise ValueError(f"occupancy must be an (nx, ny, nz) array, got shape {occ.shape}")
+    column_start, run_lo, run_hi = _column_runs(occ)
+    part = _run_parts(column_start, run_lo, run_hi, occ.shape[1])
+    sizes = np.bincount(part, weights=run_hi - run_lo + 1).astype(np.int64)
+    n = np.count_nonzero(sizes)
     if n <= 1:
         return occupancy, 0
-    sizes = np.bincount(labels.ravel())
-    sizes[0] = 0
-    keep = sizes >= min_fraction * sizes.max()
-    keep[0] = False
-    return keep[labels], int(n - keep[1:].sum())
+    drop = sizes < min_fraction * sizes.max()
+    drop[sizes == 0] = False  # (not a part's representative)
+    if not drop.any():
+        return occupancy, 0
+    cleaned = occ.copy()
+    _clear_runs(cleaned, column_start, run_lo, run_hi, drop[part])
+    return cleaned, int(np.count_nonzero(drop))
+
+
+@njit(cache=True)
+def _column_runs(occ):
+    """The occupied runs along z of every (i, j) column: column ``c = i * ny + j`` holds
+    runs ``column_start[c]:column_start[c + 1]``, run r covering ``z = run_lo[r] ..
+    run_hi[r]`` (inclusive), in increasing z."""
+    nx, ny, nz = occ.shape
+    column_start = np.zeros(nx * ny + 1, np.int64)
+    n = 0
+    for i in range(nx):
+        for j in range(ny):
+            for k in range(nz):
+                if occ[i, j, k] and (k == 0 or not occ[i, j, k - 1]):
+                    n += 1
+            column_start[i * ny + j + 1] = n
+    run_lo = np.empty(n, np.int64)
+    run_hi = np.empty(n, np.int64)
+    r = 0
+    for i in range(nx):
+        for j in range(ny):
+            for k in range(nz):
+                if occ[i, j, k]:
+                    if k == 0 or not occ[i, j, k - 1]:
+                        run_lo[r] = k
+                    if k == nz - 1 or not occ[i, j, k + 1]:
+                        run_hi[r] = k
+                        r += 1
+    return column_start, run_lo, run_hi
+
+
+@njit(cache=True)
+def _find(parent, x):
+    while parent[x] != x:     # path halving
+        parent[x] = parent[parent[x]]
+        x = parent[x]
+    return x
+
+
+@njit(cache=True)
+def _run_parts(column_start, run_lo, run_hi, ny):
+    """(n_runs,) int64: the connected part of each run, named by its first run. Two runs
+    in neighbouring columns (the 8 around) touch when their z ranges overlap or meet
+    corner to corner (within 1); runs of one column are apart by a gap."""
+    parent = np.arange(run_lo.size)
+    n_columns = column_start.size - 1
+    for c in range(n_columns):
+        i, j = c // ny, c % ny
+        # each pair of columns once: the neighbours before this one in (i, j) order
+        for di, dj in ((-1, -1), (-1, 0), (-1, 1), (0, -1)):
+            if i + di < 0 or j + dj < 0 or j + dj >= ny:
+                continue
+            d = (i + di) * ny + (j + dj)
+            a, a_end = column_start[c], column_start[c + 1]
+            b, b_end = column_start[d], column_start[d + 1]
+            while a < a_end and b < b_end:
+                if run_lo[a] <= run_hi[b] + 1 and run_lo[b] <= run_hi[a] + 1:
+                    x, y = _find(parent, a), _find(parent, b)
+                    if x != y:
+                        parent[max(x, y)] = min(x, y)
+                if run_hi[a] < run_hi[b]:  # the run that ends first can touch no later one
+                    a += 1
+                else:
+                    b += 1
+    for r in range(parent.size):   # roots come first: one pass settles every run
+        parent[r] = parent[parent[r]]
+    return parent
+
+
+@njit(cache=True)
+def _clear_runs(occ, column_start, run_lo, run_hi, drop):
+    """Empty the voxels of the runs marked in ``drop``."""
+    ny = occ.shape[1]
+    for c in range(column_start.size - 1):
+        for r in range(column_start[c], column_start[c + 1]):
+            if drop[r]:
+                occ[c // ny, c % ny, run_lo[r]:run_hi[r] + 1] = False
