@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 
 from ..exchange.files import write_atomic
+from ..workers import map_in_threads
 from .preview import png_bytes
 
 __all__ = ["OUTLINE_RGB", "WARNING_RGB", "FRAME_RGB", "BACKGROUND_RGB", "SheetLayout",
@@ -244,16 +245,20 @@ def contact_sheet(images, masks, names, angles_rad, ious, *, rejected=None, colu
         cv2.putText(image, _fit(text, width, scale), (pad, row * line + lay.baseline_px),
                     _FONT, scale, rgb, 1, cv2.LINE_AA)
 
-    for k, (image, mask, name, angles, iou, reason) in enumerate(
-            zip(images, masks, names, angles_rad, ious, rejected)):
+    # The thumbnails in threads (OpenCV scales and draws outside Python's lock).
+    thumbnails = map_in_threads(
+        lambda view: None if view[0] is None
+        else _thumbnail(*view, tile_px, lay.box_h, max(1, tile_px // 200)), zip(images, masks))
+    for k, (thumbnail, name, angles, iou, reason) in enumerate(
+            zip(thumbnails, names, angles_rad, ious, rejected)):
         bad = reason is not None or iou is None or iou < bad_iou
         tile = np.full((lay.tile_h, lay.tile_w, 3), WARNING_RGB if bad else FRAME_RGB, np.uint8)
         box = tile[pad:pad + lay.box_h, pad:pad + tile_px]
-        if image is None:
+        if thumbnail is None:
             box[:] = _NO_IMAGE_RGB
             put(box, "no image", lay.box_h // (2 * line), _TEXT_RGB)
         else:
-            box[:] = _thumbnail(image, mask, tile_px, lay.box_h, max(1, tile_px // 200))
+            box[:] = thumbnail
         band = tile[pad + lay.box_h:-pad, pad:-pad]
         band[:] = _BAD_BAND_RGB if bad else BACKGROUND_RGB
         put(band, name, 0, _TEXT_RGB)
