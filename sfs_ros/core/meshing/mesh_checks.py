@@ -119,7 +119,7 @@ def check_mesh(vertices, faces) -> MeshReport:
     key = lo * n + hi
     order = np.argsort(key, kind="stable")
     skey = key[order]
-    first = np.r_[True, skey[1:] != skey[:-1]]
+    first = np.concatenate(([True], skey[1:] != skey[:-1]))
     edge_of_sorted = np.cumsum(first) - 1
     counts = np.bincount(edge_of_sorted)
     n_edges = len(counts)
@@ -194,8 +194,8 @@ def _single_fans(f, start, end, order, pair, n) -> bool:
     corner_lo = np.where(low_first, corner_start, corner_end)[order]
     corner_hi = np.where(low_first, corner_end, corner_start)[order]
     # Consecutive sorted half-edges of the same undirected edge are its two faces.
-    a = np.r_[corner_lo[:-1][pair], corner_hi[:-1][pair]]
-    b = np.r_[corner_lo[1:][pair], corner_hi[1:][pair]]
+    a = np.concatenate((corner_lo[:-1][pair], corner_hi[:-1][pair]))
+    b = np.concatenate((corner_lo[1:][pair], corner_hi[1:][pair]))
     # Corners are only linked to corners of the same vertex, so every fan belongs to
     # one vertex: single fans when there are as many fans as referenced vertices.
     n_fans = _count_roots(_roots(n_corners, a, b), np.arange(n_corners))
@@ -206,7 +206,7 @@ def _count_loops(lo, hi, n) -> int:
     """Connected pieces of the graph of boundary edges ``(lo[i], hi[i])``."""
     if len(lo) == 0:
         return 0
-    return _count_roots(_roots(n, lo, hi), np.r_[lo, hi])
+    return _count_roots(_roots(n, lo, hi), np.concatenate((lo, hi)))
 
 
 @njit(cache=True)
@@ -229,9 +229,17 @@ def _roots(n, a, b):
     return parent
 
 
+@njit(cache=True)
 def _count_roots(roots, nodes) -> int:
     """Connected components among ``nodes`` (int indices), given :func:`_roots`."""
-    return int(np.count_nonzero(np.bincount(roots[nodes], minlength=len(roots))))
+    seen = np.zeros(roots.size, np.bool_)
+    count = 0
+    for x in nodes:
+        r = roots[x]
+        if not seen[r]:
+            seen[r] = True
+            count += 1
+    return count
 
 
 def _count_duplicate_rows(rows, n) -> int:
