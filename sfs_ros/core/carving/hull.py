@@ -78,7 +78,8 @@ def _column_runs(occ):
 
 @njit(cache=True)
 def _find(parent, x):
-    while parent[x] != x:     # path halving
+    """The root of ``x`` in the union-find forest ``parent``, halving the path on the way."""
+    while parent[x] != x:
         parent[x] = parent[parent[x]]
         x = parent[x]
     return x
