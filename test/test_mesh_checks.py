@@ -121,6 +121,22 @@ def test_duplicate_and_degenerate_faces_are_counted():
     assert r.degenerate_faces == 2
 
 
+
+def test_duplicates_are_counted_in_any_vertex_order():
+    # Every face of a fan around vertex 0 (one large group of faces sharing their
+    # smallest index), each repeated in the other five orders of its three indices: the
+    # count is what a set of sorted index triples gives.
+    rng = np.random.default_rng(3)
+    rim = 1 + rng.permutation(400)
+    fan = np.column_stack([np.zeros(400, np.int64), rim, np.roll(rim, 1)])
+    orders = [[0, 2, 1], [1, 0, 2], [1, 2, 0], [2, 0, 1], [2, 1, 0]]
+    faces = np.vstack([fan] + [fan[rng.permutation(400)][:, order] for order in orders]
+                      + [fan[:7]])
+    vertices = rng.normal(size=(401, 3))
+    expected = len(faces) - len({tuple(sorted(face)) for face in faces.tolist()})
+    assert expected == 5 * 400 + 7
+    assert check_mesh(vertices, faces).duplicate_faces == expected
+
 def test_torus_genus_one_and_agrees_with_trimesh():
     mesh = trimesh.creation.torus(major_radius=0.05, minor_radius=0.012)
     r = check_mesh(mesh.vertices, mesh.faces)

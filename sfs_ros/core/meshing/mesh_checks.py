@@ -144,17 +144,13 @@ def check_mesh(vertices, faces) -> MeshReport:
     boundary = counts[edge_of_sorted] == 1
     n_boundary_loops = _count_loops(lo[order][boundary], hi[order][boundary], n)
 
-    p0, p1, p2 = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
-    cross = np.cross(p1 - p0, p2 - p0)
-    double_area = np.sqrt(np.einsum("ij,ij->i", cross, cross))
+    double_area, six_volume = _face_measures(v, f)
     area = 0.5 * float(double_area.sum())
-    # p0 . (p1 x p2) = p0 . ((p1 - p0) x (p2 - p0)): six times the signed
-    # volume of the tetrahedron (origin, p0, p1, p2).
-    volume = float(np.einsum("ij,ij->", p0, cross)) / 6.0
+    volume = float(six_volume.sum()) / 6.0
     extent = float(np.max(np.ptp(v[referenced], axis=0)))
     repeated = (f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 2] == f[:, 0])
     degenerate = repeated | (double_area <= DEGENERATE_REL_AREA * extent * extent)
-    duplicates = _count_duplicate_rows(np.sort(f, axis=1), n)
+    duplicates = _count_duplicate_faces(f, n)
 
     closed = watertight and consistently_oriented
     genus = None
@@ -186,20 +182,55 @@ def _single_fans(f, start, end, order, pair, n) -> bool:
     share an edge through that vertex; a vertex is a single fan when its
     corners form one connected component. Assumes an edge-manifold mesh.
     """
-    n_corners = 3 * len(f)
-    corner_start = np.arange(n_corners)
-    corner_end = (corner_start // 3) * 3 + (corner_start % 3 + 1) % 3
-    # For each half-edge, the corner at its lower and at its higher vertex.
-    low_first = start < end
-    corner_lo = np.where(low_first, corner_start, corner_end)[order]
-    corner_hi = np.where(low_first, corner_end, corner_start)[order]
-    # Consecutive sorted half-edges of the same undirected edge are its two faces.
-    a = np.concatenate((corner_lo[:-1][pair], corner_hi[:-1][pair]))
-    b = np.concatenate((corner_lo[1:][pair], corner_hi[1:][pair]))
     # Corners are only linked to corners of the same vertex, so every fan belongs to
     # one vertex: single fans when there are as many fans as referenced vertices.
-    n_fans = _count_roots(_roots(n_corners, a, b), np.arange(n_corners))
+    n_fans = _count_fans(start, end, order, pair)
     return n_fans == np.count_nonzero(np.bincount(f.reshape(-1), minlength=n))
+
+
+@njit(cache=True)
+def _count_fans(start, end, order, pair):
+    """Connected pieces of the graph of corners (``3 t + k``: face t, slot k) in which
+    consecutive sorted half-edges of one undirected edge (``pair[p]``: the half-edges
+    ``order[p]`` and ``order[p + 1]``) link their corners at the lower vertex, and those
+    at the higher vertex (union-find)."""
+    parent = np.arange(start.size)
+    for p in range(pair.size):
+        if pair[p]:
+            low_a, high_a = _corners(start, end, order[p])
+            low_b, high_b = _corners(start, end, order[p + 1])
+            _join(parent, low_a, low_b)
+            _join(parent, high_a, high_b)
+    count = 0
+    for x in range(parent.size):
+        if parent[x] == x:
+            count += 1
+    return count
+
+
+@njit(cache=True, inline="always")
+def _corners(start, end, h):
+    """The corners at the lower and at the higher vertex of half-edge ``h = 3 t + k``,
+    which runs from corner ``h`` to corner ``3 t + (k + 1) % 3``."""
+    other = h - h % 3 + (h % 3 + 1) % 3
+    return (h, other) if start[h] < end[h] else (other, h)
+
+
+@njit(cache=True, inline="always")
+def _join(parent, x, y):
+    """Union of the sets of ``x`` and ``y``; the smaller root becomes the root."""
+    x, y = _root(parent, x), _root(parent, y)
+    if x != y:
+        parent[max(x, y)] = min(x, y)
+
+
+@njit(cache=True)
+def _root(parent, x):
+    """The root of ``x`` in the union-find forest ``parent``, halving the path on the way."""
+    while parent[x] != x:
+        parent[x] = parent[parent[x]]
+        x = parent[x]
+    return x
 
 
 def _count_loops(lo, hi, n) -> int:
@@ -215,13 +246,7 @@ def _roots(n, a, b):
     undirected graph of ``n`` nodes and edges ``(a[i], b[i])`` (union-find)."""
     parent = np.arange(n)
     for i in range(a.shape[0]):
-        x, y = a[i], b[i]
-        while parent[x] != x:           # path halving
-            parent[x] = parent[parent[x]]
-            x = parent[x]
-        while parent[y] != y:
-            parent[y] = parent[parent[y]]
-            y = parent[y]
+        x, y = _root(parent, a[i]), _root(parent, b[i])
         if x != y:
             parent[max(x, y)] = min(x, y)
     for x in range(n):                  # every node to its root (roots come first)
@@ -242,8 +267,57 @@ def _count_roots(roots, nodes) -> int:
     return count
 
 
-def _count_duplicate_rows(rows, n) -> int:
-    """Rows of a (m, 3) int64 array (values in [0, n)) equal to an earlier row."""
-    order = np.lexsort((rows[:, 2], rows[:, 0] * n + rows[:, 1]))
-    s = rows[order]
-    return int(np.count_nonzero(np.all(s[1:] == s[:-1], axis=1)))
+@njit(cache=True)
+def _face_measures(v, f):
+    """Per face t: twice its area, ``|(p1 - p0) x (p2 - p0)|``, and six times the signed
+    volume of the tetrahedron (origin, p0, p1, p2), ``p0 . ((p1 - p0) x (p2 - p0))``
+    (= ``p0 . (p1 x p2)``), metres; (m,) float64 each."""
+    double_area = np.empty(f.shape[0])
+    six_volume = np.empty(f.shape[0])
+    for t in range(f.shape[0]):
+        a, b, c = f[t, 0], f[t, 1], f[t, 2]
+        e0, e1, e2 = v[b, 0] - v[a, 0], v[b, 1] - v[a, 1], v[b, 2] - v[a, 2]
+        g0, g1, g2 = v[c, 0] - v[a, 0], v[c, 1] - v[a, 1], v[c, 2] - v[a, 2]
+        x = e1 * g2 - e2 * g1
+        y = e2 * g0 - e0 * g2
+        z = e0 * g1 - e1 * g0
+        double_area[t] = np.sqrt(x * x + y * y + z * z)
+        six_volume[t] = v[a, 0] * x + v[a, 1] * y + v[a, 2] * z
+    return double_area, six_volume
+
+
+@njit(cache=True)
+def _count_duplicate_faces(f, n) -> int:
+    """Faces with the same three vertex indices as an earlier face (in any order): the
+    faces grouped by their smallest index (a counting sort), each group sorted by the
+    other two."""
+    m = f.shape[0]
+    low = np.empty(m, np.int64)
+    rest = np.empty(m, np.int64)   # the other two indices, sorted, as one key
+    for t in range(m):
+        a, b, c = f[t, 0], f[t, 1], f[t, 2]
+        if a > b:
+            a, b = b, a
+        if b > c:
+            b, c = c, b
+        if a > b:
+            a, b = b, a
+        low[t] = a
+        rest[t] = b * n + c
+    start = np.zeros(n + 1, np.int64)
+    for t in range(m):
+        start[low[t] + 1] += 1
+    for i in range(n):
+        start[i + 1] += start[i]
+    grouped = np.empty(m, np.int64)
+    fill = start[:-1].copy()
+    for t in range(m):
+        grouped[fill[low[t]]] = rest[t]
+        fill[low[t]] += 1
+    duplicates = 0
+    for i in range(n):
+        group = np.sort(grouped[start[i]:start[i + 1]])
+        for j in range(1, group.size):
+            if group[j] == group[j - 1]:
+                duplicates += 1
+    return duplicates
