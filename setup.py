@@ -44,6 +44,7 @@ setup(
             "sfs-reconstruct = sfs_ros.cli.reconstruct:main",
             "sfs-demo = sfs_ros.cli.demo:main",
             "sfs-simulate = sfs_ros.cli.simulate:main",
+            "sfs-warm-up = sfs_ros.cli.warm_up:main",
             "sfs-export = sfs_ros.cli.export:main",
             "sfs-calibrate = sfs_ros.cli.calibrate:main",
             "sfs-cell = sfs_ros.cli.cell:main",

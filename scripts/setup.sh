@@ -34,4 +34,7 @@ extras=""
     echo "error: rclpy does not import in $venv" >&2
     exit 1
 }
+# The compiled kernels are cached beside the installed modules: the first scan need not
+# compile them (about a minute on 2 cores the first time, seconds after).
+"$venv/bin/sfs-warm-up"
 echo "environment ready: $venv"
