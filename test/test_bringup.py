@@ -17,7 +17,14 @@ from pathlib import Path
 import pytest
 from std_srvs.srv import Trigger
 
-from sfs_ros.cli.bringup import DDS_ENVIRONMENT, Cell, cell_nodes, default_config_dir
+import sfs_ros
+from sfs_ros.cli.bringup import (
+    DDS_ENVIRONMENT,
+    Cell,
+    cell_nodes,
+    default_config_dir,
+    node_environment,
+)
 from sfs_ros.ros.names import NAMESPACE as NAMESPACE_DEFAULT
 from sfs_ros.ros.names import SERVICES
 
@@ -72,11 +79,31 @@ def test_cell_nodes_in_start_order_with_their_files_and_overrides(mock, tmp_path
 
     scan = specs[-1]
     assert scan.command("/cell1") == [
-        sys.executable, "-m", "sfs_ros.nodes.scan_node", "--ros-args", "-r", "__ns:=/cell1",
+        sys.executable, "-P", "-m", "sfs_ros.nodes.scan_node", "--ros-args", "-r", "__ns:=/cell1",
         "--params-file", str(config / "scan.yaml"),
         "--params-file", str(config / "overrides.yaml"),
         "-p", f"plan_file:={config / 'scan_plan.yaml'}",
         "-p", f"progress_dir:={output / 'scan_progress'}"]
+
+
+
+def test_the_nodes_import_the_sfs_ros_that_starts_them(tmp_path):
+    # A working folder holding another sfs_ros (a source tree beside an installed
+    # package): a plain ``python -m`` would import that one, a node started like the
+    # cell's imports the running one, whichever it is.
+    decoy = tmp_path / "sfs_ros"
+    decoy.mkdir()
+    (decoy / "__init__.py").write_text("raise ImportError('the working folder\'s copy')\n")
+    show = "import sfs_ros; print(sfs_ros.__file__)"
+    env = dict(os.environ)
+    env.pop("PYTHONPATH", None)
+    plain = subprocess.run([sys.executable, "-c", show], cwd=tmp_path, env=env,
+                           capture_output=True, text=True, timeout=60)
+    assert "the working folder's copy" in plain.stderr
+    node = subprocess.run([sys.executable, "-P", "-c", show], cwd=tmp_path,
+                          env=node_environment(env), capture_output=True, text=True, timeout=60)
+    assert node.returncode == 0, node.stderr
+    assert Path(node.stdout.strip()).resolve() == Path(sfs_ros.__file__).resolve()
 
 
 def test_real_cell_options_port_camera_device_camera_topic_and_site_params(tmp_path):
@@ -97,7 +124,7 @@ def test_real_cell_options_port_camera_device_camera_topic_and_site_params(tmp_p
                                        "scan"]
     scan = other[-1]
     assert scan.overrides["camera_trigger"] == "stream"
-    assert scan.command("/sfs")[4:8] == ["-r", "__ns:=/sfs", "-r",
+    assert scan.command("/sfs")[5:9] == ["-r", "__ns:=/sfs", "-r",
                                          "image_raw:=/usb_cam/image_raw"]
 
 

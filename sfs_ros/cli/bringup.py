@@ -1,7 +1,8 @@
 """Starting and stopping the cell's nodes as separate processes (no ``ros2 launch`` on PyPI).
 
-:class:`Cell` starts each node as ``python -m sfs_ros.nodes.<module>
---ros-args --params-file ...`` with the YAML files of a config folder, in its
+:class:`Cell` starts each node as ``python -P -m sfs_ros.nodes.<module>
+--ros-args --params-file ...`` with the YAML files of a config folder, importing the
+same ``sfs_ros`` as the process that starts it (:func:`node_environment`), in its
 own process group (so a Ctrl-C in the terminal reaches the bring-up, which
 then stops the nodes in order), copies their output to the terminal with the
 node's name in front, and stops them with SIGINT, in reverse order, then
@@ -26,6 +27,7 @@ from __future__ import annotations
 
 import os
 import signal
+import site
 import subprocess
 import sys
 import threading
@@ -36,7 +38,7 @@ from pathlib import Path
 from sfs_ros.ros.names import NAMESPACE
 
 __all__ = ["NodeSpec", "Cell", "DDS_ENVIRONMENT", "RestartPolicy", "cell_nodes",
-           "default_config_dir", "wait_until_signal"]
+           "default_config_dir", "node_environment", "wait_until_signal"]
 
 #: Middleware settings of the node processes (a variable already set is left as it is).
 #: Fast DDS's shared-memory transport can leave a restarted process deaf to the peers that
@@ -47,6 +49,19 @@ DDS_ENVIRONMENT = {"FASTDDS_BUILTIN_TRANSPORTS": "UDPv4"}
 
 #: Seconds a node gets to stop after SIGINT (then SIGTERM, then SIGKILL).
 STOP_GRACE_S = 10.0
+
+
+def node_environment(env: dict) -> dict:
+    """``env`` for a node process started as ``python -P -m sfs_ros.nodes...``, in which it
+    imports the ``sfs_ros`` this process runs: ``-P`` keeps the working folder off the
+    module path (a source tree there would win over the installed package), and the folder
+    holding this ``sfs_ros`` goes first on ``PYTHONPATH`` unless it is a site-packages
+    folder, which the child searches anyway. One copy of the code then runs in every
+    process of a cell, and its compiled kernels are the ones cached (``sfs-warm-up``)."""
+    root = str(Path(__file__).resolve().parents[2])
+    if root in {str(Path(p).resolve()) for p in site.getsitepackages()}:
+        return dict(env)
+    return dict(env, PYTHONPATH=os.pathsep.join(filter(None, [root, env.get("PYTHONPATH")])))
 
 
 def default_config_dir() -> Path:
@@ -77,7 +92,7 @@ class NodeSpec:
     remaps: dict[str, str] = field(default_factory=dict)
 
     def command(self, namespace: str = "") -> list[str]:
-        args = [sys.executable, "-m", f"sfs_ros.nodes.{self.module}", "--ros-args"]
+        args = [sys.executable, "-P", "-m", f"sfs_ros.nodes.{self.module}", "--ros-args"]
         if namespace:
             args += ["-r", f"__ns:={namespace}"]
         for name, target in self.remaps.items():
@@ -169,7 +184,8 @@ class Cell:
         Where the nodes' output lines go, prefixed with ``[name]``; None = discarded.
     env : dict, optional
         Environment of the processes (default: this process's), plus
-        :data:`DDS_ENVIRONMENT` where it does not set those variables.
+        :data:`DDS_ENVIRONMENT` where it does not set those variables, and the module
+        path of :func:`node_environment`.
     """
 
     def __init__(self, specs: list[NodeSpec], *, namespace: str = NAMESPACE, log=sys.stdout,
@@ -177,8 +193,8 @@ class Cell:
         self.specs = specs
         self.namespace = "/" + namespace.strip("/") if namespace.strip("/") else ""
         self._log = log
-        self._env = dict(DDS_ENVIRONMENT) | dict(os.environ if env is None else env,
-                                                 PYTHONUNBUFFERED="1")
+        self._env = node_environment(dict(DDS_ENVIRONMENT) | dict(
+            os.environ if env is None else env, PYTHONUNBUFFERED="1"))
         self._log_lock = threading.Lock()
         self.processes: dict[str, subprocess.Popen] = {}
         self._readers: list[threading.Thread] = []
