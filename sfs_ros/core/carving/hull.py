@@ -5,6 +5,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from ..union_find import join, settle
+
 __all__ = ["drop_specks"]
 
 
@@ -77,15 +79,6 @@ def _column_runs(occ):
 
 
 @njit(cache=True)
-def _find(parent, x):
-    """The root of ``x`` in the union-find forest ``parent``, halving the path on the way."""
-    while parent[x] != x:
-        parent[x] = parent[parent[x]]
-        x = parent[x]
-    return x
-
-
-@njit(cache=True)
 def _run_parts(column_start, run_lo, run_hi, ny):
     """(n_runs,) int64: the connected part of each run, named by its first run. Two runs
     in neighbouring columns (the 8 around) touch when their z ranges overlap or meet
@@ -103,15 +96,12 @@ def _run_parts(column_start, run_lo, run_hi, ny):
             b, b_end = column_start[d], column_start[d + 1]
             while a < a_end and b < b_end:
                 if run_lo[a] <= run_hi[b] + 1 and run_lo[b] <= run_hi[a] + 1:
-                    x, y = _find(parent, a), _find(parent, b)
-                    if x != y:
-                        parent[max(x, y)] = min(x, y)
+                    join(parent, a, b)
                 if run_hi[a] < run_hi[b]:  # the run that ends first can touch no later one
                     a += 1
                 else:
                     b += 1
-    for r in range(parent.size):   # roots come first: one pass settles every run
-        parent[r] = parent[parent[r]]
+    settle(parent)
     return parent
 
 

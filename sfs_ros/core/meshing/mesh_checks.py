@@ -11,6 +11,8 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from numba import njit
 
+from ..union_find import join, settle
+
 __all__ = ["MeshReport", "check_mesh"]
 
 #: A face is degenerate when twice its area is below this times the squared
@@ -199,8 +201,8 @@ def _count_fans(start, end, order, pair):
         if pair[p]:
             low_a, high_a = _corners(start, end, order[p])
             low_b, high_b = _corners(start, end, order[p + 1])
-            _join(parent, low_a, low_b)
-            _join(parent, high_a, high_b)
+            join(parent, low_a, low_b)
+            join(parent, high_a, high_b)
     count = 0
     for x in range(parent.size):
         if parent[x] == x:
@@ -216,23 +218,6 @@ def _corners(start, end, h):
     return (h, other) if start[h] < end[h] else (other, h)
 
 
-@njit(cache=True, inline="always")
-def _join(parent, x, y):
-    """Union of the sets of ``x`` and ``y``; the smaller root becomes the root."""
-    x, y = _root(parent, x), _root(parent, y)
-    if x != y:
-        parent[max(x, y)] = min(x, y)
-
-
-@njit(cache=True)
-def _root(parent, x):
-    """The root of ``x`` in the union-find forest ``parent``, halving the path on the way."""
-    while parent[x] != x:
-        parent[x] = parent[parent[x]]
-        x = parent[x]
-    return x
-
-
 def _count_loops(lo, hi, n) -> int:
     """Connected pieces of the graph of boundary edges ``(lo[i], hi[i])``."""
     if len(lo) == 0:
@@ -246,11 +231,8 @@ def _roots(n, a, b):
     undirected graph of ``n`` nodes and edges ``(a[i], b[i])`` (union-find)."""
     parent = np.arange(n)
     for i in range(a.shape[0]):
-        x, y = _root(parent, a[i]), _root(parent, b[i])
-        if x != y:
-            parent[max(x, y)] = min(x, y)
-    for x in range(n):                  # every node to its root (roots come first)
-        parent[x] = parent[parent[x]]
+        join(parent, a[i], b[i])
+    settle(parent)
     return parent
 
 
