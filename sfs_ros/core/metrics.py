@@ -14,6 +14,7 @@ from .geometry.grid import VoxelGrid
 from .render import (
     FRONT_FACING,
     as_mesh_arrays,
+    centre_box,
     covered_point,
     edge_tuple,
     face_orientation,
@@ -84,17 +85,14 @@ def _view_coverage(vertices, faces, P, heights, widths, masks, moff, front_only,
     for f in range(faces.shape[0]):
         a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
         if h[a, 2] > 0.0 and h[b, 2] > 0.0 and h[c, 2] > 0.0:
-            # render.pixel_box, from the projections computed once per vertex: most
-            # faces of a fine mesh hold no pixel centre (and some lie off the image)
-            u0 = max(0.0, np.ceil(min(uv[a, 0], uv[b, 0], uv[c, 0]) - 1e-6))
-            u1 = min(W - 1.0, np.floor(max(uv[a, 0], uv[b, 0], uv[c, 0]) + 1e-6))
-            v0 = max(0.0, np.ceil(min(uv[a, 1], uv[b, 1], uv[c, 1]) - 1e-6))
-            v1 = min(H - 1.0, np.floor(max(uv[a, 1], uv[b, 1], uv[c, 1]) + 1e-6))
-            if u0 > u1 or v0 > v1:
-                continue
-            c0, c1, r0, r1 = int(u0), int(u1), int(v0), int(v1)
+            # render.pixel_box, from the projections computed once per vertex
+            c0, c1, r0, r1 = centre_box(
+                min(uv[a, 0], uv[b, 0], uv[c, 0]), max(uv[a, 0], uv[b, 0], uv[c, 0]),
+                min(uv[a, 1], uv[b, 1], uv[c, 1]), max(uv[a, 1], uv[b, 1], uv[c, 1]), W, H)
         else:
             c0, c1, r0, r1 = pixel_box(h, faces, f, W, H)
+        if c0 > c1 or r0 > r1:
+            continue  # most faces of a fine mesh hold no pixel centre (some lie off the image)
         if front_only and face_orientation(h, faces, f) != FRONT_FACING:
             continue  # (the edges of a back face are not needed)
         if triangle_edges(h, faces, f, coef) == 0.0:

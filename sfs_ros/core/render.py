@@ -156,6 +156,23 @@ def covered_point(edges, u, v):
     return e0, e1, e2, (0.0 if total <= 0.0 else total)
 
 
+@njit(cache=True, inline="always")
+def centre_box(umin, umax, vmin, vmax, width, height):
+    """Inclusive pixel bounds (c0, c1, r0, r1) of the image's pixel centres in the box
+    ``[umin, umax] x [vmin, vmax]`` (pixels); (0, -1, 0, -1) if none.
+
+    The box only bounds the work (the edge tests decide); its margin of 1e-6 px
+    dwarfs the rounding of u, v (~1e-13 px) so no centre is lost.
+    """
+    c0 = max(0.0, np.ceil(umin - 1e-6))
+    c1 = min(width - 1.0, np.floor(umax + 1e-6))
+    r0 = max(0.0, np.ceil(vmin - 1e-6))
+    r1 = min(height - 1.0, np.floor(vmax + 1e-6))
+    if c0 > c1 or r0 > r1:
+        return 0, -1, 0, -1
+    return int(c0), int(c1), int(r0), int(r1)
+
+
 @njit(cache=True)
 def pixel_box(h, faces, f, width, height):
     """Inclusive pixel bounds (c0, c1, r0, r1) that may hold covered centres; c0 > c1 if none."""
@@ -169,13 +186,7 @@ def pixel_box(h, faces, f, width, height):
             v = h[i, 1] / h[i, 2]
             umin, umax = min(umin, u), max(umax, u)
             vmin, vmax = min(vmin, v), max(vmax, v)
-        # The box only bounds the work (the edge tests decide); its margin of
-        # 1e-6 px dwarfs the rounding of u, v (~1e-13 px) so no centre is lost.
-        c0 = max(0.0, np.ceil(umin - 1e-6))
-        c1 = min(width - 1.0, np.floor(umax + 1e-6))
-        r0 = max(0.0, np.ceil(vmin - 1e-6))
-        r1 = min(height - 1.0, np.floor(vmax + 1e-6))
-        return int(c0), int(c1), int(r0), int(r1)
+        return centre_box(umin, umax, vmin, vmax, width, height)
     if w0 <= 0.0 and w1 <= 0.0 and w2 <= 0.0:  # wholly behind a pinhole camera
         return 0, -1, 0, -1
     # crosses the camera plane: its image is unbounded, test the whole frame
