@@ -177,7 +177,13 @@ def _kill_each_node_mid_scan(supervised) -> set:
         assert f"node {name} ended by itself (exit status -9)" in log, name
     assert "took up scan 1 (running)" in log        # the scan node resumed, not restarted
     assert "took up the open scan" in log            # so did the reconstruction
-    return _delivered_once(output, scan, summary)
+    stamps = _delivered_once(output, scan, summary)
+    # The captures sent again are still on their way when the scan node logs that it sends
+    # them: stopping the cell then could close the bag before they are in. The recorder
+    # writes each message through (an open bag reads up to its last one): wait for them.
+    wait(lambda: stamps <= _bag_stamps(output / "bags"),
+         what="every capture of the scan in the bags", timeout=deadline - time.monotonic())
+    return stamps
 
 
 #: Size of the small filesystem: room for a scan (captures of 320 x 240 RGB, about 0.25 MB
