@@ -126,8 +126,10 @@ PARAMS: list[Param] = [
     Param("parameter_nodes", ["reconstruction", "segmentation", "scan", "camera"], "Nodes "
           "(names relative to this node's namespace) whose parameters each bag stores.",
           read_only=True),
-    Param("parameter_timeout_s", 5.0, "Longest wait for the parameters of all parameter_nodes, "
-          "s.", bounds=(0.1, 600.0), read_only=True),
+    Param("parameter_timeout_s", 20.0, "Longest wait for the parameters of all parameter_nodes, "
+          "s (they come in milliseconds; a loaded machine can take seconds, and a bag "
+          "without them cannot be reconstructed offline).", bounds=(0.1, 600.0),
+          read_only=True),
     Param("queue_depth", 100, "Depth of the reliable capture topics; at least the number of "
           "views of a scan.", bounds=(1, 100000), read_only=True),
 ]
