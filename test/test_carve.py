@@ -6,6 +6,7 @@ import math
 import numpy as np
 import pytest
 
+from sfs_ros.core.carving.bounds import seen_by
 from sfs_ros.core.carving.carve import Carver, PreparedMasks, carve, view_coefficients
 from sfs_ros.core.geometry.camera import Camera
 from sfs_ros.core.geometry.grid import VoxelGrid
@@ -103,6 +104,43 @@ def test_prepared_masks_carve_every_grid_as_the_masks_do(name):
                                           carve(grid, cams, masks, max_misses=max_misses))
     with pytest.raises(ValueError, match="other cameras"):
         carve(SMALL_GRID, cams[:-1], prepared)
+
+
+@pytest.mark.parametrize("name", ["pinhole", "orthographic-oblique"])
+@pytest.mark.parametrize("max_misses", [0, 3])
+def test_a_mask_shared_by_views_is_tabled_once_and_carves_as_copies(name, max_misses):
+    make, _ = CAMERA_SETS[name]
+    cams = make()
+    own = [sphere_mask(c, SPHERE_C, SPHERE_R) for c in cams]
+    # Every other view shares one of two arrays (as seen_by's full frames do); the rest
+    # keep their own masks, so shared and distinct tables sit side by side.
+    a, b = own[0], own[1]
+    shared = [a if v % 4 == 0 else b if v % 4 == 2 else m for v, m in enumerate(own)]
+    copies = [m.copy() for m in shared]
+    for outside_image in ("keep", "carve"):
+        got = carve(SMALL_GRID, cams, shared, max_misses=max_misses, outside_image=outside_image)
+        np.testing.assert_array_equal(got, naive_carve(SMALL_GRID, cams, copies, max_misses,
+                                                       outside_image == "keep"))
+    _, flat, moff, _, ioff, boxes, _, _ = PreparedMasks(cams, shared).block_tables()
+    n_distinct = len(cams) - sum(1 for v in range(len(cams)) if v % 2 == 0 and v > 1)
+    assert flat.size == n_distinct * cams[0].height * cams[0].width
+    assert moff[4] == moff[0] and ioff[6] == ioff[2] and (boxes[8] == boxes[0]).all()
+
+
+def test_seen_by_counts_the_views_whose_image_holds_the_voxel_centre():
+    cams = rig_set("pinhole")  # the grid sticks out of some images
+    centres = SMALL_GRID.index_to_world(np.argwhere(np.ones(SMALL_GRID.shape, bool)))
+    inside = np.zeros(len(centres), np.int64)
+    for c in cams:
+        uv = c.project(centres)
+        # The carving's pixel test: the nearest pixel centre lies in the image.
+        inside += (c.depth(centres) > 0) & (np.floor(uv[:, 0] + 0.5) >= 0) \
+            & (np.floor(uv[:, 0] + 0.5) < c.width) & (np.floor(uv[:, 1] + 0.5) >= 0) \
+            & (np.floor(uv[:, 1] + 0.5) < c.height)
+    for n_views in (1, 9, len(cams)):
+        want = (inside >= n_views).reshape(SMALL_GRID.shape)
+        assert 0 < want.sum() < want.size or n_views == 1
+        np.testing.assert_array_equal(seen_by(SMALL_GRID, cams, n_views), want)
 
 
 def test_outside_image_matters_on_this_grid():

@@ -150,5 +150,8 @@ def seen_by(grid: VoxelGrid, cameras: list[Camera], n_views: int) -> np.ndarray:
     every frame)."""
     if box_in_frame(cameras, [grid.bounds_min, grid.bounds_max]):
         return np.ones(grid.shape, dtype=bool)
-    return carve(grid, cameras, [np.ones((c.height, c.width), bool) for c in cameras],
+    frames: dict[tuple[int, int], np.ndarray] = {}   # one full frame per image size, shared
+    return carve(grid, cameras,
+                 [frames.setdefault((c.height, c.width), np.ones((c.height, c.width), bool))
+                  for c in cameras],
                  max_misses=len(cameras) - int(n_views), outside_image="carve")

@@ -168,20 +168,26 @@ def _mask_boxes(masks) -> np.ndarray:
 
 def _flat_views(cameras, masks):
     """Masks, flattened for the block path, and the summed-area tables of their
-    foreground's bounding boxes (a few times smaller than the images)."""
+    foreground's bounding boxes (a few times smaller than the images). One mask
+    array given for several views (e.g. :func:`~.bounds.seen_by`'s full frames) is
+    stored and tabled once; those views' offsets point at it."""
     heights = np.array([c.height for c in cameras], np.int64)
     widths = np.array([c.width for c in cameras], np.int64)
-    moff = np.zeros(len(cameras), np.int64)
-    moff[1:] = np.cumsum(heights * widths)[:-1]
-    boxes = _mask_boxes(masks)
+    slot: dict[int, int] = {}   # id of a mask array -> its place among the distinct ones
+    first = np.array([slot.setdefault(id(m), v) for v, m in enumerate(masks)], np.int64)
+    distinct = np.flatnonzero(first == np.arange(len(masks)))
+    boxes = _mask_boxes([masks[v] for v in distinct])
     sizes = (boxes[:, 2] + 1) * (boxes[:, 3] + 1)
-    ioff = np.zeros(len(cameras), np.int64)
+    moff = np.zeros(len(distinct), np.int64)
+    moff[1:] = np.cumsum((heights * widths)[distinct])[:-1]
+    ioff = np.zeros(len(distinct), np.int64)
     ioff[1:] = np.cumsum(sizes)[:-1]
-    flat = np.concatenate([m.ravel() for m in masks]).view(np.uint8)
+    flat = np.concatenate([masks[v].ravel() for v in distinct]).view(np.uint8)
     integ = np.empty(int(np.sum(sizes)), np.int32)
-    _k.integral_images(flat, moff, widths, boxes, ioff, integ)
+    _k.integral_images(flat, moff, widths[distinct], boxes, ioff, integ)
+    index = np.searchsorted(distinct, first)  # each view's mask among the distinct ones
     ortho = np.array([c.orthographic for c in cameras])
-    return ortho, flat, moff, integ, ioff, boxes, heights, widths
+    return ortho, flat, moff[index], integ, ioff[index], boxes[index], heights, widths
 
 
 class PreparedMasks:
