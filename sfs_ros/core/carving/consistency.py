@@ -113,7 +113,7 @@ def hull_silhouettes(grid: VoxelGrid, occupancy: np.ndarray,
     half = np.zeros(len(cameras))
     _splat(view_coefficients(grid, cameras), _surface_voxels(occupancy), heights, widths,
            offsets, flat, half)
-    images = [flat[o:o + h * w].reshape(h, w).astype(bool)
+    images = [flat[o:o + h * w].reshape(h, w).view(bool)   # the 0/1 bytes, not a copy
               for o, h, w in zip(offsets, heights, widths)]
     return images, half
 
