@@ -328,57 +328,6 @@ def test_graph_cut_runs_only_where_something_is_left_to_decide(monkeypatch):
     assert cuts == [1]
 
 
-def test_graph_cut_box_is_the_undecided_pixels_grown_by_the_margin():
-    import cv2
-
-    import sfs_ros.core.segment as seg
-
-    labels = np.full((200, 200), cv2.GC_BGD, np.uint8)
-    labels[50:80, 60:100] = cv2.GC_PR_FGD
-    labels[90, 120] = cv2.GC_PR_BGD  # undecided backdrop counts too
-    m = round(seg._GRABCUT_MARGIN * np.hypot(200, 200))  # 28 px
-    assert seg._cut_box(labels) == np.s_[50 - m:90 + m + 1, 60 - m:120 + m + 1]
-    # Grown past the frame (the object, or clutter, near the edge): the whole image, so
-    # what reaches the frame is weighed against all of the sure backdrop.
-    labels[200 - m + 5, 120] = cv2.GC_PR_BGD
-    assert seg._cut_box(labels) == np.s_[:, :]
-
-
-def test_graph_cut_on_its_box_gives_the_whole_image_cut(monkeypatch):
-    import sfs_ros.core.segment as seg
-
-    shapes = []
-    real = seg.cv2.grabCut
-
-    def recorded(image, *args):
-        shapes.append(image.shape[:2])
-        return real(image, *args)
-
-    monkeypatch.setattr(seg.cv2, "grabCut", recorded)
-    monkeypatch.setattr(seg, "_DECIDED_FRACTION", -1.0)  # always cut
-    # The object (and its handle's hole) in a quarter of the frame. (Specks of noise
-    # strewn over the backdrop are undecided pixels too: their box is the whole image.)
-    big = {"shape": (2 * H, 2 * W), "centre": (W, H), "specks": False}
-    images = [render((245, 245, 240), gradient=0.0, **big)[::2],
-              render((245, 245, 240), gradient=12.0, **big)[::2],
-              render((12, 12, 16), **big)[::2]]
-    for image, truth in images:
-        on_box = segment(image).mask
-        monkeypatch.setattr(seg, "_GRABCUT_MARGIN", 10.0)  # grown past the frame
-        whole = segment(image).mask
-        monkeypatch.setattr(seg, "_GRABCUT_MARGIN", 0.1)
-        # The ring of sure backdrop around the undecided pixels teaches GrabCut the
-        # backdrop's colours as the whole image does: the same cut up to single pixels
-        # along the outline (measured: 4, 82 and 28 of the object's 14 300), and at least
-        # as close to the truth (937 / 941, 1870 / 1952 and 1979 / 2007 pixels wrong, box /
-        # whole, all of them along the outline).
-        assert np.count_nonzero(on_box ^ whole) <= 0.01 * truth.sum()
-        assert np.count_nonzero(on_box ^ truth) <= np.count_nonzero(whole ^ truth)
-    work = seg._WORK_PIXELS
-    assert all(box[0] * box[1] < 0.4 * work for box in shapes[::2])  # a part of the image
-    assert all(abs(whole[0] * whole[1] - work) < 0.01 * work for whole in shapes[1::2])
-
-
 @pytest.mark.parametrize("shape", [(800, 800), (480, 640), (101, 57), (9, 9), (5, 30), (3, 3)])
 @pytest.mark.parametrize("fraction", [0.0, 0.02, 0.3, 0.5])
 def test_the_backdrop_band_is_read_in_the_order_of_its_mask(shape, fraction):
