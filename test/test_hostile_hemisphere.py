@@ -1,0 +1,59 @@
+"""The default reconstruction (no options) of a harder hostile cell, scored against exact
+silhouettes: 48 views of 640 x 480 on four rings up to 75 degrees.
+
+The cell of :mod:`sfs_ros.core.simulation.hostile` (turntable plate, cast shadow, dark
+cloth, highlights, dark dashes, a quarter of the views partly out of frame), seen as a
+hemisphere scan sees it: from 15 degrees the whole plate fits in the frame, from 75 the
+mug's dark side lies next to its cast shadow on the plate. The figures move with the
+segmentation's every choice, and a whole ring can be wrong the same way (the fusion
+cannot outvote twelve views), so this set guards them: a change that scored the same
+on the smaller scene of ``test_segment_scene.py`` took this mesh from 0.969 to 0.914.
+"""
+
+import cv2
+import pytest
+
+from sfs_ros.core.exchange.views import View, ViewSet
+from sfs_ros.core.geometry.rig import RigCalibration
+from sfs_ros.core.metrics import reprojection_ious
+from sfs_ros.core.pipeline import reconstruct
+from sfs_ros.core.simulation.hostile import simulate_hostile_scan
+from sfs_ros.core.simulation.objects import make_object
+from sfs_ros.core.simulation.plan import ring_plan
+
+#: Pinhole at 0.6 m, aimed 45 mm above the plate: the mug is ~200 px tall.
+RIG = RigCalibration(width=640, height=480, projection="pinhole", fx=1300.0, fy=1300.0,
+                     camera_distance_m=0.6, aim_point_m=(0.0, 0.0, 0.045))
+PLAN = ring_plan([15.0, 35.0, 55.0, 75.0], 12)
+
+#: Mean IoU of the mesh against the exact silhouettes, measured: 0.969 on black (worst
+#: view 0.916) and 0.890 on white (worst 0.800). Everything is deterministic (a seeded
+#: scene, seeded k-means and GrabCut), so the bars sit 0.014 under the measurements, as
+#: in ``test_segment_scene.py``, for library versions. White is short of the 0.97 a
+#: scanner should reach: from 15 degrees the plate, wholly in the frame, is taken as
+#: object, and from 75 degrees the mug's dark side goes with its cast shadow; the hull of
+#: the other rings repairs most of it, not all (doc/accuracy.md).
+MESH_IOU_MIN = {"black": 0.955, "white": 0.876}
+
+
+@pytest.fixture(scope="module", params=["black", "white"])
+def scan(request, tmp_path_factory):
+    """The scene's views written as images with their cameras, reconstructed with the
+    default parameters (box estimated from the views)."""
+    backdrop = request.param
+    captures = simulate_hostile_scan(make_object("mug"), RIG, PLAN, backdrop=backdrop, seed=3)
+    folder = tmp_path_factory.mktemp(f"hemisphere_{backdrop}")
+    views = []
+    for c in captures:
+        cv2.imwrite(str(folder / c.name), cv2.cvtColor(c.image, cv2.COLOR_RGB2BGR))
+        views.append(View(c.name, folder / c.name, c.camera))
+    return backdrop, captures, reconstruct(ViewSet(views=views, source="session"))
+
+
+def test_default_reconstruction_of_the_hostile_hemisphere(scan):
+    backdrop, captures, result = scan
+    ious = reprojection_ious(result.vertices, result.faces, [c.camera for c in captures],
+                             [c.object_mask for c in captures])
+    print(f"{backdrop}: mesh IoU {ious.mean():.4f} (worst {ious.min():.3f})")
+    assert result.report["views"]["rejected"] == []
+    assert ious.mean() >= MESH_IOU_MIN[backdrop]
