@@ -7,7 +7,8 @@ hemisphere scan sees it: from 15 degrees the whole plate fits in the frame, from
 mug's dark side lies next to its cast shadow on the plate. The figures move with the
 segmentation's every choice, and a whole ring can be wrong the same way (the fusion
 cannot outvote twelve views), so this set guards them: a change that scored the same
-on the smaller scene of ``test_segment_scene.py`` took this mesh from 0.969 to 0.914.
+on the smaller scene of ``test_segment_scene.py`` took this mesh on black from 0.969 to
+0.914.
 """
 
 import cv2
@@ -26,14 +27,15 @@ RIG = RigCalibration(width=640, height=480, projection="pinhole", fx=1300.0, fy=
                      camera_distance_m=0.6, aim_point_m=(0.0, 0.0, 0.045))
 PLAN = ring_plan([15.0, 35.0, 55.0, 75.0], 12)
 
-#: Mean IoU of the mesh against the exact silhouettes, measured: 0.969 on black (worst
-#: view 0.916) and 0.890 on white (worst 0.800). Everything is deterministic (a seeded
+#: Mean IoU of the mesh against the exact silhouettes, measured: 0.975 on black (worst
+#: view 0.929) and 0.972 on white (worst 0.936). Everything is deterministic (a seeded
 #: scene, seeded k-means and GrabCut), so the bars sit 0.014 under the measurements, as
-#: in ``test_segment_scene.py``, for library versions. White is short of the 0.97 a
-#: scanner should reach: from 15 degrees the plate, wholly in the frame, is taken as
-#: object, and from 75 degrees the mug's dark side goes with its cast shadow; the hull of
-#: the other rings repairs most of it, not all (doc/accuracy.md).
-MESH_IOU_MIN = {"black": 0.955, "white": 0.876}
+#: in ``test_segment_scene.py``, for library versions. Before the consensus cut the views
+#: not settled with a prior that tolerates misses by a tenth of the views, white scored
+#: 0.890 (worst 0.800): from 75 degrees the mug's dark side went with its cast shadow in
+#: most views of the ring, the strict prior lost it, and the views from 55 degrees were
+#: cut to match.
+MESH_IOU_MIN = {"black": 0.961, "white": 0.958}
 
 
 @pytest.fixture(scope="module", params=["black", "white"])
