@@ -7,9 +7,9 @@ frame covers little of it (the Middlebury dino, partly out of frame, covers
 at most 6 % of its border band). So the backdrop is modelled as the largest
 colour clusters (k-means) of the border band that together hold most of it
 (90 %), every cluster with its mean and covariance. How far a pixel is from
-the backdrop is its smallest Mahalanobis distance to a cluster, where the
-cluster's colour may also be darkened (a cast shadow darkens a surface but
-keeps its hue).
+the backdrop is its smallest Mahalanobis distance to a cluster. Shading is not
+modelled: a cast shadow is near the backdrop only where its colours are near a
+cluster's (the graph cut decides the rest).
 """
 
 from __future__ import annotations
