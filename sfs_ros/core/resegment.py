@@ -241,7 +241,7 @@ def settled(prior: np.ndarray, mask: np.ndarray, footprint_px: float) -> bool:
 
 
 def _prior(grid: VoxelGrid, cameras: list, prepared: PreparedMasks, misses: int,
-           into: list) -> tuple[list, np.ndarray]:
+           into: Sequence[int]) -> tuple[list, np.ndarray]:
     """Projections into the views ``into`` (indices; (H, W) bool each) and their footprint
     half-sizes (px) of the hull that keeps the voxels at most ``misses`` of the views
     miss, of those more views see."""
