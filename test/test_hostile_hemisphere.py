@@ -11,13 +11,10 @@ on the smaller scene of ``test_segment_scene.py`` took this mesh on black from 0
 0.914.
 """
 
-import cv2
 import pytest
+from written_scan import exact_ious, reconstruct_written
 
-from sfs_ros.core.exchange.views import View, ViewSet
 from sfs_ros.core.geometry.rig import RigCalibration
-from sfs_ros.core.metrics import reprojection_ious
-from sfs_ros.core.pipeline import reconstruct
 from sfs_ros.core.simulation.hostile import simulate_hostile_scan
 from sfs_ros.core.simulation.objects import make_object
 from sfs_ros.core.simulation.plan import ring_plan
@@ -45,17 +42,12 @@ def scan(request, tmp_path_factory):
     backdrop = request.param
     captures = simulate_hostile_scan(make_object("mug"), RIG, PLAN, backdrop=backdrop, seed=3)
     folder = tmp_path_factory.mktemp(f"hemisphere_{backdrop}")
-    views = []
-    for c in captures:
-        cv2.imwrite(str(folder / c.name), cv2.cvtColor(c.image, cv2.COLOR_RGB2BGR))
-        views.append(View(c.name, folder / c.name, c.camera))
-    return backdrop, captures, reconstruct(ViewSet(views=views, source="session"))
+    return backdrop, captures, reconstruct_written(captures, folder)
 
 
 def test_default_reconstruction_of_the_hostile_hemisphere(scan):
     backdrop, captures, result = scan
-    ious = reprojection_ious(result.vertices, result.faces, [c.camera for c in captures],
-                             [c.object_mask for c in captures])
+    ious = exact_ious(result, captures)
     print(f"{backdrop}: mesh IoU {ious.mean():.4f} (worst {ious.min():.3f})")
     assert result.report["views"]["rejected"] == []
     assert ious.mean() >= MESH_IOU_MIN[backdrop]

@@ -12,12 +12,12 @@ import json
 import cv2
 import numpy as np
 import pytest
+from written_scan import exact_ious, reconstruct_written
 
 from sfs_ros.cli.reconstruct import _segmentation, build_parser
 from sfs_ros.core.exchange.nerf import read_transforms
-from sfs_ros.core.exchange.views import View, ViewSet, read_image
+from sfs_ros.core.exchange.views import read_image
 from sfs_ros.core.geometry.rig import RigCalibration
-from sfs_ros.core.metrics import reprojection_ious
 from sfs_ros.core.pipeline import ReconstructionParams, reconstruct
 from sfs_ros.core.render import rasterize_silhouette
 from sfs_ros.core.segment import SegmentationParams, segment
@@ -103,17 +103,12 @@ def reconstructed(scene, tmp_path_factory):
     the default parameters (the box estimated from the views)."""
     backdrop, captures = scene
     folder = tmp_path_factory.mktemp(f"hostile_{backdrop}")
-    views = []
-    for c in captures:
-        cv2.imwrite(str(folder / c.name), cv2.cvtColor(c.image, cv2.COLOR_RGB2BGR))
-        views.append(View(c.name, folder / c.name, c.camera))
-    return backdrop, captures, reconstruct(ViewSet(views=views, source="session"))
+    return backdrop, captures, reconstruct_written(captures, folder)
 
 
 def test_default_reconstruction_of_the_hostile_scene(reconstructed):
     backdrop, captures, result = reconstructed
-    mesh = reprojection_ious(result.vertices, result.faces, [c.camera for c in captures],
-                             [c.object_mask for c in captures])
+    mesh = exact_ious(result, captures)
     masks = [iou(result.masks[c.name], c.object_mask) for c in captures]
     print(f"{backdrop}: mesh IoU {mesh.mean():.4f} per view " + " ".join(f"{v:.3f}" for v in mesh)
           + f"; masks carved with {np.mean(masks):.4f} per view "
