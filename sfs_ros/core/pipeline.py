@@ -441,9 +441,8 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
         progress("evaluation", 0.0)
         used_names = {views[i].name for i in used}
         # The coloured views' silhouettes of the mesh came with the colour's z-buffers (the
-        # same pixel-centre rule); the other views' are drawn here. Both skip a closed
-        # mesh's faces turned away, which cover no pixel centre that a face turned to the
-        # camera does not, exact ties on the outline aside.
+        # same pixel-centre rule); the other views' are found here, a closed mesh's from
+        # its outline. Both agree with drawing every face, exact ties on the outline aside.
         ious = np.empty(len(views))
         drawn = [i for i in range(len(views)) if i not in covered]
         if drawn:

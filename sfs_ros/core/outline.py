@@ -1,0 +1,168 @@
+"""The silhouette of a closed mesh from its outline edges, without drawing its faces.
+
+A closed, consistently oriented mesh covers a pixel centre when a face turned
+towards the camera covers it, and the faces turned towards the camera all wind
+the same way round in the image. So the number of them over a point is, up to
+its sign, the winding number there of their boundary; and the edges two such
+faces share cancel out of it, leaving the *outline* edges, those between a face
+turned towards the camera and one turned away. A pixel centre is covered when
+the outline winds round it: the crossings of the outline with the centre's row,
+left of the centre, do not sum to zero.
+
+That draws a view in time proportional to its outline (a few thousand edges of
+a mesh of a million faces), plus one test per face for which way it turns and
+one pass over the image, instead of a visit to every face's pixel box. A row
+counts the crossings of an edge whose ends lie at heights ``y0 < y1`` for
+``y0 <= row < y1``, at the column where it crosses the row, and a centre exactly
+on that column lies right of it and is not covered by it; the rasteriser's
+tie rule for a centre exactly on an outline edge is another (see
+:func:`sfs_ros.core.render.triangle_edges`), so the two can differ there.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from .render import FRONT_FACING, face_orientation
+
+__all__ = ["edge_faces", "outline_cover"]
+
+
+@njit(cache=True)
+def _pair_half_edges(faces, n):
+    """Undirected edges ``(a, b, f_ab, f_ba)``, ``a < b`` vertex indices, ``f_ab`` the
+    face whose corner runs from ``a`` to ``b`` and ``f_ba`` the one that runs back; and
+    whether every half-edge found exactly one running back (a closed, consistently
+    oriented, edge-manifold mesh without repeated corners). Half-edges are grouped by
+    their lower vertex (a counting sort), then matched within each group."""
+    m = faces.shape[0]
+    start = np.zeros(n + 1, np.int64)
+    for t in range(m):
+        for k in range(3):
+            start[min(faces[t, k], faces[t, (k + 1) % 3]) + 1] += 1
+    for i in range(n):
+        start[i + 1] += start[i]
+    grouped = np.empty(3 * m, np.int64)   # half-edge 3 t + k runs from corner k of face t
+    fill = start[:-1].copy()
+    for t in range(m):
+        for k in range(3):
+            low = min(faces[t, k], faces[t, (k + 1) % 3])
+            grouped[fill[low]] = 3 * t + k
+            fill[low] += 1
+    edges = np.empty(((3 * m) // 2, 4), np.int64)
+    if (3 * m) % 2:
+        return edges, False
+    count = 0
+    for i in range(n):
+        for p in range(start[i], start[i + 1]):
+            hp = grouped[p]
+            if hp < 0:
+                continue   # matched already
+            tail, head = faces[hp // 3, hp % 3], faces[hp // 3, (hp % 3 + 1) % 3]
+            if tail == head:
+                return edges, False
+            match = -1
+            for q in range(p + 1, start[i + 1]):
+                hq = grouped[q]
+                if hq < 0:
+                    continue
+                other_tail = faces[hq // 3, hq % 3]
+                other_head = faces[hq // 3, (hq % 3 + 1) % 3]
+                if max(other_tail, other_head) != max(tail, head):
+                    continue
+                if match >= 0 or other_tail != head or other_head != tail:
+                    return edges, False   # a third use, or the same way round
+                match = q
+            if match < 0 or count == edges.shape[0]:
+                return edges, False       # a boundary edge
+            forward, backward = (hp, grouped[match]) if tail < head else (grouped[match], hp)
+            edges[count, 0], edges[count, 1] = min(tail, head), max(tail, head)
+            edges[count, 2], edges[count, 3] = forward // 3, backward // 3
+            grouped[match] = -1
+            count += 1
+    return edges, count == edges.shape[0]
+
+
+def edge_faces(faces: np.ndarray, n_vertices: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """The edges of a closed mesh and the two faces that share each.
+
+    Parameters
+    ----------
+    faces : (m, 3) int
+        Vertex indices.
+    n_vertices : int
+        Vertices of the mesh.
+
+    Returns
+    -------
+    (ends, sides) : two (3 m / 2, 2) int32, or None
+        Per edge, ``ends = (a, b)``: its vertices, ``a < b``; ``sides = (f_ab,
+        f_ba)``: the face that runs from ``a`` to ``b`` and the one that runs
+        back. None unless every edge is used by exactly two faces, once each way
+        (closed, consistently oriented, no corner repeated in a face).
+    """
+    edges, closed = _pair_half_edges(np.ascontiguousarray(faces, np.int64), int(n_vertices))
+    if not closed:
+        return None
+    return (np.ascontiguousarray(edges[:, :2], np.int32),
+            np.ascontiguousarray(edges[:, 2:], np.int32))
+
+
+@njit(cache=True, inline="always")
+def outline_cover(h, uv, faces, ends, sides, width, height, front, outline, crossings, cover):
+    """Coverage of a closed mesh at the pixel centres, from its outline.
+
+    ``h`` (n, 3): the homogeneous pixels of the vertices, all in front of the
+    camera (third coordinate > 0); ``uv`` (n, 2): the pixels ``h[:, :2] / h[:,
+    2:]``; ``ends``, ``sides``: :func:`edge_faces`. Fills ``cover[row * width +
+    col]`` (>= height * width uint8) with 1 where covered, 0 where not, inside the
+    returned box ``(r0, r1, c0, c1)`` (inclusive; nothing is covered outside it,
+    where ``cover`` is left as it was; ``r0 > r1`` when nothing is covered).
+    Scratch: ``front`` (m,) bool, ``outline`` (3 m / 2,) int64, ``crossings`` (>=
+    height * width) int32. Inlined where called.
+    """
+    for f in range(faces.shape[0]):
+        front[f] = face_orientation(h, faces, f) == FRONT_FACING
+    n_outline = 0
+    umin = vmin = np.inf
+    umax = vmax = -np.inf
+    for e in range(sides.shape[0]):
+        if front[sides[e, 0]] != front[sides[e, 1]]:
+            outline[n_outline] = e
+            n_outline += 1
+            for a in (ends[e, 0], ends[e, 1]):
+                umin, umax = min(umin, uv[a, 0]), max(umax, uv[a, 0])
+                vmin, vmax = min(vmin, uv[a, 1]), max(vmax, uv[a, 1])
+    if n_outline == 0:
+        return 0, -1, 0, -1
+    # Covered centres lie right of a crossing (col > umin) and left of one (col < umax).
+    r0 = max(0, int(np.ceil(max(vmin, -1.0))))
+    r1 = min(height - 1, int(np.ceil(min(vmax, float(height)))) - 1)
+    c0 = max(0, int(np.floor(max(umin, -1.0))) + 1)
+    c1 = min(width - 1, int(np.floor(min(umax, float(width)))))
+    if r0 > r1 or c0 > c1:
+        return 0, -1, 0, -1
+    span = c1 - c0 + 1
+    crossings[:(r1 - r0 + 1) * span] = 0
+    for k in range(n_outline):
+        e = outline[k]
+        a, b = ends[e, 0], ends[e, 1]
+        xa, ya, xb, yb = uv[a, 0], uv[a, 1], uv[b, 0], uv[b, 1]
+        if ya == yb:
+            continue   # crosses no row
+        # Run as in the face turned towards the camera: a to b when it is f_ab.
+        step = 1 if (yb > ya) == front[sides[e, 0]] else -1
+        slope = (xb - xa) / (yb - ya)
+        for row in range(max(r0, int(np.ceil(min(ya, yb)))),
+                         min(r1, int(np.ceil(max(ya, yb))) - 1) + 1):
+            x = min(max(xa + (row - ya) * slope, -1.0), float(width))  # (clamped for int)
+            col = max(c0, int(np.floor(x)) + 1)   # the first centre right of the crossing
+            if col <= c1:
+                crossings[(row - r0) * span + col - c0] += step
+    for row in range(r0, r1 + 1):
+        winding = 0
+        for col in range(c0, c1 + 1):
+            winding += crossings[(row - r0) * span + col - c0]
+            cover[row * width + col] = 1 if winding != 0 else 0
+    return r0, r1, c0, c1
