@@ -14,7 +14,7 @@ from scipy.spatial import cKDTree
 
 from sfs_ros.core.exchange.export import export_mesh, load_mesh
 from sfs_ros.core.geometry.camera import Camera
-from sfs_ros.core.meshing.colour import vertex_colours, vertex_normals
+from sfs_ros.core.meshing.colour import spread_views, vertex_colours, vertex_normals
 from sfs_ros.core.pipeline import ReconstructionParams, reconstruct
 from sfs_ros.core.render import rasterize_silhouette, render_image
 from sfs_ros.core.segment import segment
@@ -138,6 +138,18 @@ def test_unseen_vertices_take_the_colour_of_their_neighbours():
     assert np.all(unseen[len(vertices):]) and unseen[:len(vertices)].sum() > len(vertices) // 2
     assert result.stats["filled"] == unseen.sum()
     assert np.abs(result.colours.astype(int) - BLUE).max() <= ROUNDING
+
+
+def test_spread_views_takes_the_farthest_directions_first():
+    ring = [look_at((np.cos(a), np.sin(a), 0.5)) for a in np.radians(np.arange(0, 360, 45))]
+    # From view 0 the farthest is the opposite one (4), then the two at 90 degrees
+    # from both (2 and 6, the lower index first): every other view of the ring.
+    assert spread_views(ring, 4) == [0, 2, 4, 6]
+    assert spread_views(ring, 8) == spread_views(ring, 20) == list(range(8))
+    same = [look_at((1.0, 0.0, 0.5))] * 3       # no view is picked twice
+    assert spread_views(same, 2) == [0, 1]
+    with pytest.raises(ValueError, match="at least 1"):
+        spread_views(ring, 0)
 
 
 def test_invalid_arguments():

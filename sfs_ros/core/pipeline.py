@@ -26,7 +26,7 @@ from .geometry.grid import VoxelGrid
 from .geometry.lens import distort_mask, ideal_camera, undistort_image, undistort_mask
 from .meshing.advancing_front import advancing_front
 from .meshing.cloud import cloud_of_points
-from .meshing.colour import vertex_colours
+from .meshing.colour import MAX_COLOUR_VIEWS, spread_views, vertex_colours
 from .meshing.hull_distance import HullDistance
 from .meshing.marching import hull_marching_cubes_mesh
 from .meshing.mesh_checks import check_mesh
@@ -98,7 +98,8 @@ class ReconstructionParams:
     colour : bool
         Colour the mesh's vertices from the images of the views used
         (:func:`sfs_ros.core.meshing.colour.vertex_colours`: the views that see each
-        point, blended).
+        point, blended), at most
+        :data:`~sfs_ros.core.meshing.colour.MAX_COLOUR_VIEWS` of them, spread out.
     """
 
     resolution: int | None = None
@@ -424,9 +425,11 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
     if params.colour:
         with _timed(timings, "colour"):
             progress("colour", 0.0)
-            # The used views with an image to colour from: all of them, from their files,
-            # unless the caller gives the images.
+            # The used views with an image to colour from (all of them, from their files,
+            # unless the caller gives the images), at most MAX_COLOUR_VIEWS spread out.
             coloured = [n for n, i in enumerate(used) if images is None or views[i].name in images]
+            coloured = [coloured[k] for k in spread_views([cameras[n] for n in coloured],
+                                                          MAX_COLOUR_VIEWS)] if coloured else []
             if coloured:
                 colours = vertex_colours(
                     vertices, faces,

@@ -50,7 +50,8 @@ from ..geometry.camera import Camera
 from ..render import as_mesh_arrays, rasterize_depth
 from ..workers import map_in_threads
 
-__all__ = ["VertexColours", "vertex_colours", "vertex_normals"]
+__all__ = ["MAX_COLOUR_VIEWS", "VertexColours", "spread_views", "vertex_colours",
+           "vertex_normals"]
 
 #: A z-buffer step between neighbouring pixels of more than this many pixel
 #: footprints is a depth discontinuity (a smooth surface only steps that much
@@ -58,6 +59,12 @@ __all__ = ["VertexColours", "vertex_colours", "vertex_normals"]
 DEPTH_STEP_FOOTPRINTS = 4.0
 #: Distance (pixels) to an edge pixel below which the edge ramp is zero.
 EDGE_MARGIN_PX = 1.5
+#: Most views a reconstruction colours its mesh from (:func:`spread_views` picks them). A
+#: vertex takes colour from the views within 78 degrees of its normal (the default
+#: ``min_cos``); 24 views spread over a hemisphere, some 30 degrees apart, leave about
+#: eight of them to each vertex, which the view-angle weights blend: more views cost a
+#: z-buffer each and change the blend little.
+MAX_COLOUR_VIEWS = 24
 
 
 @dataclass(frozen=True)
@@ -89,6 +96,27 @@ class VertexColours:
     n_hidden: np.ndarray
     stats: dict
     coverage: list | None = None
+
+
+def spread_views(cameras: Sequence[Camera], limit: int) -> list[int]:
+    """Indices (ascending) of at most ``limit`` of ``cameras`` whose viewing directions
+    spread evenly: farthest-point order from the first, each next view the one whose
+    direction lies farthest (in angle) from those taken; all of them when there are no
+    more than ``limit``."""
+    if limit < 1:
+        raise ValueError(f"limit must be at least 1 view, got {limit}")
+    if len(cameras) <= limit:
+        return list(range(len(cameras)))
+    directions = np.array([c.R[2] for c in cameras])   # optical axes, object frame
+    nearest = directions @ directions[0]               # cosine to the nearest taken view
+    nearest[0] = np.inf                                # (taken: never picked again)
+    taken = [0]
+    for _ in range(limit - 1):
+        pick = int(np.argmin(nearest))
+        taken.append(pick)
+        nearest = np.maximum(nearest, directions @ directions[pick])
+        nearest[pick] = np.inf
+    return sorted(taken)
 
 
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -276,22 +304,34 @@ def _fill_from_neighbours(colours: np.ndarray, seen: np.ndarray, faces: np.ndarr
 
     Solves ``deg(i) c_i = sum of c_j over the neighbours j`` for every unseen
     vertex ``i``, the seen ones fixed. A connected component with no seen vertex
-    takes the mean colour of all seen vertices.
+    takes the mean colour of all seen vertices. Only the unseen vertices' rows
+    of the adjacency are built: the unknowns are a small part of a mesh.
     """
     n = len(colours)
     ends = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
-    adjacency = sparse.coo_matrix((np.ones(len(ends)), (ends[:, 0], ends[:, 1])), shape=(n, n))
-    adjacency = ((adjacency + adjacency.T) > 0).astype(np.float64).tocsr()
+    ends = np.concatenate([ends, ends[:, ::-1]])
+    ends = ends[~seen[ends[:, 0]]]
+    pairs = np.unique(ends[:, 0] * n + ends[:, 1])      # each edge once per unseen end
+    ends_i, ends_j = pairs // n, pairs % n
+    unknown = np.flatnonzero(~seen)
+    index = np.full(n, -1, np.int64)
+    index[unknown] = np.arange(len(unknown))
+    row, inner = index[ends_i], ~seen[ends_j]
+    adjacency = sparse.csr_matrix((np.ones(int(inner.sum())), (row[inner], index[ends_j[inner]])),
+                                  shape=(len(unknown), len(unknown)))
+    degree = np.bincount(row, minlength=len(unknown)).astype(np.float64)
+    known_sum = np.stack([np.bincount(row[~inner], weights=colours[ends_j[~inner], c],
+                                      minlength=len(unknown)) for c in range(3)], axis=1)
+    # A component of the unseen vertices that touches no seen one lies in a component
+    # of the mesh with no seen vertex.
     n_components, label = csgraph.connected_components(adjacency, directed=False)
-    orphan = (np.bincount(label, weights=seen, minlength=n_components) == 0)[label]
+    orphan = (np.bincount(label[row[~inner]], minlength=n_components) == 0)[label]
     out = colours.copy()
-    out[orphan] = colours[seen].mean(axis=0)
-    known = seen | orphan
-    unknown = np.flatnonzero(~known)
-    if unknown.size:
-        rows = adjacency[unknown]
-        laplacian = sparse.diags(np.asarray(rows.sum(axis=1)).ravel()) - rows[:, unknown]
-        out[unknown] = splu(laplacian.tocsc()).solve(rows[:, known] @ out[known])
+    out[unknown[orphan]] = colours[seen].mean(axis=0)
+    solve = np.flatnonzero(~orphan)
+    if solve.size:
+        laplacian = sparse.diags(degree[solve]) - adjacency[solve][:, solve]
+        out[unknown[solve]] = splu(laplacian.tocsc()).solve(known_sum[solve])
     return out
 
 
