@@ -139,19 +139,20 @@ def hull_marching_cubes_mesh(occupancy, grid: VoxelGrid, hull: HullDistance, *,
     pad = band + 1
     crop = np.pad(occ[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]], pad)
     near = _cube_grow(crop, band, dilate=True) & ~_cube_grow(crop, band, dilate=False)
-    # Signed distance in voxels, positive outside; negated below, as for the
-    # occupancy, larger means more inside.
-    volume = np.where(crop, np.float32(-pad), np.float32(pad))
+    # The signed distance in voxels (positive outside) negated: as for the occupancy,
+    # larger means more inside.
+    volume = np.where(crop, np.float32(pad), np.float32(-pad))
     corner = lo - pad
     # Below -pad voxels the value is clipped anyway: the floor spares the views that
     # see a group of points deep inside their silhouette.
     distance = hull(grid.index_to_world(np.argwhere(near) + corner),
                     floor_m=-pad * grid.voxel_size) / grid.voxel_size
-    volume[near] = np.clip(distance, -pad, pad)
+    distance = np.clip(distance, -pad, pad).astype(np.float32)
     # A sample exactly on the level makes Lewiner's ambiguity tests tie (see
-    # LEVEL); counting it as just outside (by 1e-6 voxel) breaks the tie.
-    volume[volume == 0.0] = np.float32(1e-6)
-    np.negative(volume, out=volume)
+    # LEVEL); counting it as just outside (by 1e-6 voxel) breaks the tie. (Off the
+    # band the values are +-pad.)
+    distance[distance == 0.0] = np.float32(1e-6)
+    volume[near] = -distance
     return _contour(volume, 0.0, corner, grid)
 
 

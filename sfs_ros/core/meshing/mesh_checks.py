@@ -298,8 +298,15 @@ def _count_duplicate_faces(f, n) -> int:
         fill[low[t]] += 1
     duplicates = 0
     for i in range(n):
-        group = np.sort(grouped[start[i]:start[i + 1]])
-        for j in range(1, group.size):
-            if group[j] == group[j - 1]:
+        # Insertion sort of the group in place: a vertex's faces are a handful.
+        for j in range(start[i] + 1, start[i + 1]):
+            key = grouped[j]
+            k = j - 1
+            while k >= start[i] and grouped[k] > key:
+                grouped[k + 1] = grouped[k]
+                k -= 1
+            grouped[k + 1] = key
+        for j in range(start[i] + 1, start[i + 1]):
+            if grouped[j] == grouped[j - 1]:
                 duplicates += 1
     return duplicates
