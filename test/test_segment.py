@@ -215,6 +215,17 @@ def test_dilation_is_conservative():
     assert extra == 0
 
 
+def test_graph_cut_opens_an_enclosed_hole_on_a_plain_backdrop():
+    # Noise-free, on black: every label is decided but the handle's hole, backdrop
+    # colour enclosed by object, which the cut must decide (in a window around the
+    # object). The hole stays open; the outline within the 1-pixel band.
+    image, _, _ = render((12, 12, 12), object_rgb=(200, 200, 200), noise=0.0)
+    mask = segment(image).mask
+    _, filled_truth = ground_truth()
+    assert iou(mask, filled_truth) > IOU_MIN
+    assert not mask[_disk((H, W), BIG_HOLE[0], BIG_HOLE[1] - BAND_PX - 0.5)].any()
+
+
 def test_grey_input_matches_rgb():
     image, _, _ = render((12, 12, 12), object_rgb=(200, 200, 200), noise=0.0)
     grey = image[:, :, 0]
