@@ -78,16 +78,19 @@ def _view_coverage(vertices, faces, ends, sides, P, heights, widths, masks, moff
     W = widths[v]
     in_front = True
     for i in range(vertices.shape[0]):
-        for r in range(3):
-            h[i, r] = (P[v, r, 0] * vertices[i, 0] + P[v, r, 1] * vertices[i, 1]
-                       + P[v, r, 2] * vertices[i, 2] + P[v, r, 3])
-        uv[i, 0] = h[i, 0] / h[i, 2]
-        uv[i, 1] = h[i, 1] / h[i, 2]
-        in_front = in_front and h[i, 2] > 0.0
+        x, y, z = vertices[i, 0], vertices[i, 1], vertices[i, 2]
+        w = P[v, 2, 0] * x + P[v, 2, 1] * y + P[v, 2, 2] * z + P[v, 2, 3]
+        uv[i, 0] = (P[v, 0, 0] * x + P[v, 0, 1] * y + P[v, 0, 2] * z + P[v, 0, 3]) / w
+        uv[i, 1] = (P[v, 1, 0] * x + P[v, 1, 1] * y + P[v, 1, 2] * z + P[v, 1, 3]) / w
+        in_front = in_front and w > 0.0
     if sides.shape[0] > 0 and in_front:
-        r0, r1, c0, c1 = outline_cover(h, uv, faces, ends, sides, W, H, front, outline,
-                                       crossings, cover)
+        r0, r1, c0, c1 = outline_cover(uv, faces, ends, sides, W, H, front, outline, crossings,
+                                       cover)
     else:
+        for i in range(vertices.shape[0]):
+            for r in range(3):
+                h[i, r] = (P[v, r, 0] * vertices[i, 0] + P[v, r, 1] * vertices[i, 1]
+                           + P[v, r, 2] * vertices[i, 2] + P[v, r, 3])
         _drawn_coverage(faces, h, uv, H, W, front_only, cover, coef)
         r0, r1, c0, c1 = 0, H - 1, 0, W - 1
     both = 0
@@ -187,8 +190,10 @@ def reprojection_ious(vertices, faces, cameras, masks, *, closed: bool = False) 
         none = np.zeros((0, 2), np.int32)
         ends, sides = (edge_faces(faces, len(vertices)) if closed else None) or (none, none)
         mask_px = np.array([np.count_nonzero(m) for m in masks], np.int64)
-        _coverage_overlap(vertices, faces, ends, sides, P, heights, widths, flat, moff, mask_px,
-                          bool(closed), min(len(cameras), numba.get_num_threads()), counts)
+        # (32-bit indices: half the memory each view reads)
+        _coverage_overlap(vertices, faces.astype(np.int32), ends, sides, P, heights, widths,
+                          flat, moff, mask_px, bool(closed),
+                          min(len(cameras), numba.get_num_threads()), counts)
     else:
         counts[:, 1] = [np.count_nonzero(m) for m in masks]
     union = np.maximum(counts[:, 1], 1)

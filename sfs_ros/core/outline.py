@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .render import FRONT_FACING, face_orientation
+from .render import FRONT_FACING
 
 __all__ = ["edge_faces", "outline_cover"]
 
@@ -110,12 +110,11 @@ def edge_faces(faces: np.ndarray, n_vertices: int) -> tuple[np.ndarray, np.ndarr
 
 
 @njit(cache=True, inline="always")
-def outline_cover(h, uv, faces, ends, sides, width, height, front, outline, crossings, cover):
+def outline_cover(uv, faces, ends, sides, width, height, front, outline, crossings, cover):
     """Coverage of a closed mesh at the pixel centres, from its outline.
 
-    ``h`` (n, 3): the homogeneous pixels of the vertices, all in front of the
-    camera (third coordinate > 0); ``uv`` (n, 2): the pixels ``h[:, :2] / h[:,
-    2:]``; ``ends``, ``sides``: :func:`edge_faces`. Fills ``cover[row * width +
+    ``uv`` (n, 2): the pixels of the vertices, all in front of the camera;
+    ``ends``, ``sides``: :func:`edge_faces`. Fills ``cover[row * width +
     col]`` (>= height * width uint8) with 1 where covered, 0 where not, inside the
     returned box ``(r0, r1, c0, c1)`` (inclusive; nothing is covered outside it,
     where ``cover`` is left as it was; ``r0 > r1`` when nothing is covered).
@@ -123,7 +122,12 @@ def outline_cover(h, uv, faces, ends, sides, width, height, front, outline, cros
     height * width) int32. Inlined where called.
     """
     for f in range(faces.shape[0]):
-        front[f] = face_orientation(h, faces, f) == FRONT_FACING
+        # The sign of the face's area in the image: that of face_orientation, all three
+        # corners being in front of the camera, but where the corners' products round.
+        a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
+        area = ((uv[b, 0] - uv[a, 0]) * (uv[c, 1] - uv[a, 1])
+                - (uv[b, 1] - uv[a, 1]) * (uv[c, 0] - uv[a, 0]))
+        front[f] = area * FRONT_FACING > 0.0
     n_outline = 0
     umin = vmin = np.inf
     umax = vmax = -np.inf
