@@ -153,7 +153,10 @@ def hull_marching_cubes_mesh(occupancy, grid: VoxelGrid, hull: HullDistance, *,
     # band the values are +-pad.)
     distance[distance == 0.0] = np.float32(1e-6)
     volume[near] = -distance
-    return _contour(volume, 0.0, corner, grid)
+    # The level crosses only cubes with a corner in the band (off it the values keep the
+    # occupancy's sign, and a cube whose corners differ there has them on its boundary):
+    # only those are visited, the same mesh for half the work.
+    return _contour(volume, 0.0, corner, grid, cubes=_cubes_with_a_corner_in(near))
 
 
 def _cube_grow(volume: np.ndarray, steps: int, *, dilate: bool) -> np.ndarray:
@@ -190,10 +193,27 @@ def _check_occupancy(occupancy, grid: VoxelGrid) -> np.ndarray:
     return occ.astype(bool, copy=False)
 
 
-def _contour(volume: np.ndarray, level: float, corner: np.ndarray, grid: VoxelGrid):
-    """Mesh of ``volume`` (larger = inside) at ``level``; its ``[0, 0, 0]`` is voxel ``corner``."""
+def _cubes_with_a_corner_in(voxels: np.ndarray) -> np.ndarray:
+    """scikit-image's marching-cubes mask of the cubes with a corner in ``voxels`` (3-D
+    bool): it visits the cube of corners ``p .. p + 1`` when the mask holds at ``p + 1``,
+    so each voxel marks itself and its neighbours ahead along every axis."""
+    cubes = voxels.copy()
+    for axis in range(3):
+        ahead = [slice(None)] * 3
+        behind = [slice(None)] * 3
+        ahead[axis], behind[axis] = slice(1, None), slice(None, -1)
+        cubes[tuple(ahead)] |= cubes[tuple(behind)].copy()
+    return cubes
+
+
+def _contour(volume: np.ndarray, level: float, corner: np.ndarray, grid: VoxelGrid, *,
+             cubes: np.ndarray | None = None):
+    """Mesh of ``volume`` (larger = inside) at ``level``; its ``[0, 0, 0]`` is voxel ``corner``.
+    ``cubes``: :func:`_cubes_with_a_corner_in` the voxels where the level may be crossed
+    (None: every cube is visited)."""
     # Vertices come back as float32 voxel indices of the volume; scale in float64.
-    verts, faces, _, _ = measure.marching_cubes(volume, level, allow_degenerate=False)
+    verts, faces, _, _ = measure.marching_cubes(volume, level, allow_degenerate=False,
+                                                mask=cubes)
     vertices = grid.origin + (verts.astype(np.float64) + corner) * grid.voxel_size
     faces = faces.astype(np.int64)
     if _signed_volume(vertices, faces) < 0:
