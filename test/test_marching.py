@@ -5,7 +5,13 @@ import pytest
 from scipy import ndimage
 
 from sfs_ros.core.geometry.grid import VoxelGrid
-from sfs_ros.core.meshing.marching import LEVEL, _cube_grow, marching_cubes_mesh
+from sfs_ros.core.meshing.marching import (
+    LEVEL,
+    _contour,
+    _cube_grow,
+    _cubes_with_a_corner_in,
+    marching_cubes_mesh,
+)
 from sfs_ros.core.meshing.mesh_checks import check_mesh
 
 from tolerances import ROUND_OFF
@@ -148,3 +154,23 @@ def test_cube_grow_is_scipy_binary_dilation_and_erosion(steps):
         np.testing.assert_array_equal(
             _cube_grow(volume, steps, dilate=False),
             ndimage.binary_erosion(volume, cube, iterations=steps, border_value=0))
+
+
+def test_contouring_only_the_cubes_with_a_corner_in_the_band_gives_the_same_mesh():
+    # A distance field clipped at +-2 voxels off a band 1.5 voxels wide, as the hull
+    # mesher builds it: the level crosses only cubes with a corner in the band.
+    grid = VoxelGrid.cube([-0.05] * 3, [0.05] * 3, 40)
+    ijk = np.indices(grid.shape).reshape(3, -1).T
+    depth = (0.031 - np.linalg.norm(grid.index_to_world(ijk), axis=1)) / grid.voxel_size
+    depth = depth.reshape(grid.shape)
+    band = np.abs(depth) < 1.5
+    volume = np.where(band, depth, np.sign(depth) * 2.0).astype(np.float32)
+    whole = _contour(volume, 0.0, np.zeros(3, np.int64), grid)
+    banded = _contour(volume, 0.0, np.zeros(3, np.int64), grid,
+                      cubes=_cubes_with_a_corner_in(band))
+    assert len(whole[1]) > 1000
+    for a, b in zip(whole, banded):
+        np.testing.assert_array_equal(a, b)
+    # Too small a mask loses faces: the mask is read at each cube's far corner.
+    partial = _contour(volume, 0.0, np.zeros(3, np.int64), grid, cubes=band)
+    assert len(partial[1]) < len(whole[1])
