@@ -186,16 +186,16 @@ def reprojection_ious(vertices, faces, cameras, masks, *, closed: bool = False) 
     flat = np.concatenate([np.asarray(m).ravel() for m in masks]).view(np.uint8)
     P = np.ascontiguousarray([c.projection_matrix for c in cameras], dtype=np.float64)
     counts = np.zeros((len(cameras), 2), np.int64)
+    mask_px = np.array([np.count_nonzero(m) for m in masks], np.int64)
     if len(faces):
         none = np.zeros((0, 2), np.int32)
         ends, sides = (edge_faces(faces, len(vertices)) if closed else None) or (none, none)
-        mask_px = np.array([np.count_nonzero(m) for m in masks], np.int64)
         # (32-bit indices: half the memory each view reads)
         _coverage_overlap(vertices, faces.astype(np.int32), ends, sides, P, heights, widths,
                           flat, moff, mask_px, bool(closed),
                           min(len(cameras), numba.get_num_threads()), counts)
     else:
-        counts[:, 1] = [np.count_nonzero(m) for m in masks]
+        counts[:, 1] = mask_px
     union = np.maximum(counts[:, 1], 1)
     return np.where(counts[:, 1] == 0, 1.0, counts[:, 0] / union)
 
