@@ -122,8 +122,8 @@ def outline_cover(uv, faces, ends, sides, width, height, front, outline, crossin
     height * width) int32. Inlined where called.
     """
     for f in range(faces.shape[0]):
-        # The sign of the face's area in the image: that of face_orientation, all three
-        # corners being in front of the camera, but where the corners' products round.
+        # The sign of the face's area in the image: face_orientation's, all three corners
+        # being in front of the camera (but where rounding decides an edge-on face).
         a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
         area = ((uv[b, 0] - uv[a, 0]) * (uv[c, 1] - uv[a, 1])
                 - (uv[b, 1] - uv[a, 1]) * (uv[c, 0] - uv[a, 0]))
@@ -158,8 +158,8 @@ def outline_cover(uv, faces, ends, sides, width, height, front, outline, crossin
         # Run as in the face turned towards the camera: a to b when it is f_ab.
         step = 1 if (yb > ya) == front[sides[e, 0]] else -1
         slope = (xb - xa) / (yb - ya)
-        for row in range(max(r0, int(np.ceil(min(ya, yb)))),
-                         min(r1, int(np.ceil(max(ya, yb))) - 1) + 1):
+        for row in range(max(r0, int(np.ceil(max(min(ya, yb), -1.0)))),   # (clamped for int)
+                         min(r1, int(np.ceil(min(max(ya, yb), float(height)))) - 1) + 1):
             x = min(max(xa + (row - ya) * slope, -1.0), float(width))  # (clamped for int)
             col = max(c0, int(np.floor(x)) + 1)   # the first centre right of the crossing
             if col <= c1:
