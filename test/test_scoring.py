@@ -49,19 +49,37 @@ def test_a_closed_mesh_is_covered_from_its_outline_as_drawn(mug, scored):
     assert np.all(reprojection_ious(v, f, cameras, drawn, closed=True) == 1.0)
 
 
-def test_a_view_with_the_mesh_partly_behind_it_is_drawn():
-    # A bar along y from -0.1 to 5 m, the camera 1 m above it at y = 0.5 looking
-    # along -y, 60 degrees down: the bar's far end lies behind the camera, where the
-    # outline's projection would be meaningless; the faces are drawn instead.
-    bar = trimesh.creation.box(bounds=[[-0.1, -0.1, -0.1], [0.1, 5.0, 0.1]])
+def _bar_and_camera(far_end_m: float):
+    """A bar along y from -0.1 m to ``far_end_m``, and a camera 1 m above it at y = 0.5
+    looking along -y, 60 degrees down: the bar's far end runs towards the camera's plane
+    (its top corners cross it at y = 2.06 m)."""
+    bar = trimesh.creation.box(bounds=[[-0.1, -0.1, -0.1], [0.1, far_end_m, 0.1]])
     down = np.radians(60.0)
     R = np.array([[-1.0, 0.0, 0.0],                        # x: right in the image
                   [0.0, np.sin(down), -np.cos(down)],     # y: down in the image
                   [0.0, -np.cos(down), -np.sin(down)]])   # z: forward, along -y and down
     camera = Camera(K=np.array([[300.0, 0, 160], [0, 300.0, 120], [0, 0, 1]]), R=R,
                     t=-R @ np.array([0.0, 0.5, 1.0]), width=320, height=240)
-    v, f = np.asarray(bar.vertices), np.asarray(bar.faces)
+    return np.asarray(bar.vertices), np.asarray(bar.faces), camera
+
+
+def test_a_view_with_the_mesh_partly_behind_it_is_drawn():
+    # The far end behind the camera, where the outline's projection would be
+    # meaningless: the faces are drawn instead.
+    v, f, camera = _bar_and_camera(5.0)
     assert camera.depth(v).min() < 0 < camera.depth(v).max()
+    drawn = rasterize_silhouette(v, f, camera)
+    assert 0 < drawn.sum() < drawn.size
+    assert reprojection_ious(v, f, [camera], [drawn], closed=True)[0] == 1.0
+
+
+def test_an_outline_reaching_far_out_of_the_image_covers_it_as_drawn():
+    # The far end a micrometre in front of the camera's plane: its corners project
+    # about 1e8 pixels away, the outline's edges cross the image steeply.
+    top_crossing_m = 0.5 + 2.0 * np.sin(np.radians(60.0)) * 0.9
+    v, f, camera = _bar_and_camera(top_crossing_m - 1e-6)
+    assert 0 < camera.depth(v).min() < 1e-5
+    assert np.abs(camera.project(v)).max() > 1e7
     drawn = rasterize_silhouette(v, f, camera)
     assert 0 < drawn.sum() < drawn.size
     assert reprojection_ious(v, f, [camera], [drawn], closed=True)[0] == 1.0
