@@ -2,7 +2,9 @@
 
 import csv
 import errno
+import json
 import math
+import os
 
 import cv2
 import numpy as np
@@ -206,6 +208,27 @@ def test_masks_survive_png_and_segmentation_unchanged(tmp_path, box):
     stored = read_image(live.session_dir / "images" / "view_000_speckled.png")
     np.testing.assert_array_equal(stored, mask_to_rgb(mask))
     np.testing.assert_array_equal(segment(stored, MASK_SEGMENTATION).mask, mask)
+
+
+def test_pictures_put_off_are_written_later_and_then_named_in_the_report(tmp_path, box, masks):
+    live = small_live(tmp_path, box)
+    for n in range(0, len(PLAN), 6):
+        live.add_view(n, masks[n], *PLAN[n])
+    result = live.reconstruct("quick.ply", pictures=False)
+    report = json.loads(open(result["report_path"]).read())
+    pictures = {"preview": result["preview_path"], "html": result["html_path"],
+                "contact_sheet": result["contact_sheet_path"]}
+    # The mesh and its report now; no picture yet, and the report names none.
+    assert os.path.isfile(result["path"]) and not set(pictures) & set(report)
+    assert not any(os.path.exists(path) for path in pictures.values())
+    mesh_bytes = open(result["path"], "rb").read()
+    live.reset()                      # a new scan does not lose the last one's pictures
+    assert live.write_pictures() is True
+    report_after = json.loads(open(result["report_path"]).read())
+    assert report_after == {**report, **pictures}
+    assert all(os.path.isfile(path) for path in pictures.values())
+    assert open(result["path"], "rb").read() == mesh_bytes
+    assert live.write_pictures() is False           # once only
 
 
 # ------------------------------------------------------------------ scan state

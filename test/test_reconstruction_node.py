@@ -22,6 +22,7 @@ from sfs_ros.core.simulation.objects import make_object
 from sfs_ros.core.simulation.plan import ring_plan
 from sfs_ros.core.simulation.synthetic import carving_box, score_against_truth
 from sfs_ros.ros import capture_qos, result_qos
+from sfs_ros.ros.cell_client import wait_for_pictures
 from sfs_ros.ros.convert import cloud_to_points, image_to_msg, joint_state, shape_to_mesh
 from sfs_ros.ros.names import DIAGNOSTICS, SERVICES
 
@@ -146,6 +147,7 @@ def test_reconstruct_writes_the_mug_inside_output_dir(scan, mug, out_dir):
     assert path.is_file() and report.is_file()
     assert path.resolve().is_relative_to(out_dir.resolve())
     assert report.resolve().is_relative_to(out_dir.resolve())
+    wait_for_pictures(summary, timeout_s=60.0)      # they follow the answer
     preview = Path(summary["preview_path"])
     assert preview.is_file() and preview.resolve().is_relative_to(out_dir.resolve())
     assert summary["views_received"] == summary["views_used"] == len(PLAN)

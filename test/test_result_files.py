@@ -11,7 +11,7 @@ import trimesh
 
 import sfs_ros.core.exchange.files as files_module
 from sfs_ros.core.exchange.export import load_mesh
-from sfs_ros.core.result_files import SheetViews, report_path_for, write_result
+from sfs_ros.core.result_files import SheetViews, add_pictures, report_path_for, write_result
 
 #: PLY stores float32 coordinates: below 0.1 m, rounding is < 1e-8 m.
 ATOL_M = 1e-8
@@ -63,6 +63,29 @@ def test_without_options_only_the_mesh_and_report_are_written(tmp_path, result):
     assert not {"preview", "html", "contact_sheet"} & set(written.document)
     vertices, _ = load_mesh(written.mesh, units="mm")
     assert np.allclose(vertices, result.vertices, atol=1e-6)   # OBJ: 8 decimals of mm
+
+
+def test_pictures_added_later_come_before_the_report_that_names_them(tmp_path, result,
+                                                                     monkeypatch):
+    first = write_result(result, tmp_path / "m.ply", extra={"session": "s"})
+    mesh_bytes = first.mesh.read_bytes()
+    order = []
+    real_replace = os.replace
+    monkeypatch.setattr(files_module.os, "replace",
+                        lambda src, dst, **dir_fds: (order.append(os.path.basename(dst)),
+                                                     real_replace(src, dst, **dir_fds)))
+    later = add_pictures(first, result, preview=tmp_path / "m.png", html=tmp_path / "m.html",
+                         contact_sheet=tmp_path / "m.views.png", sheet_views=sheet_views())
+    # The pictures, then the report again; the mesh is left as it was.
+    assert order == ["m.png", "m.html", "m.views.png", "m.report.json"]
+    assert first.mesh.read_bytes() == mesh_bytes and later.mesh == first.mesh
+    document = json.loads(first.report.read_text())
+    assert document == later.document == {**first.document, "preview": str(tmp_path / "m.png"),
+                                          "html": str(tmp_path / "m.html"),
+                                          "contact_sheet": str(tmp_path / "m.views.png")}
+    assert later.preview.is_file() and later.html.is_file() and later.contact_sheet.is_file()
+    with pytest.raises(ValueError, match="sheet_views"):
+        add_pictures(first, result, contact_sheet=tmp_path / "x.png")
 
 
 def test_the_report_is_renamed_into_place_before_the_mesh(tmp_path, result, monkeypatch):

@@ -44,12 +44,14 @@ import re
 import shutil
 import time
 from dataclasses import dataclass, replace
+from functools import partial
 from pathlib import Path
 
 import cv2
 import numpy as np
 
 from ..core.carving.carve import Carver
+from ..core.carving.resolution import BYTES_PER_VOXEL
 from ..core.exchange.export import SUPPORTED_SUFFIXES
 from ..core.exchange.inputs import load_views
 from ..core.exchange.session import append_view, read_session, write_session
@@ -58,7 +60,7 @@ from ..core.geometry.grid import VoxelGrid
 from ..core.geometry.lens import ideal_camera, undistort_mask
 from ..core.geometry.rig import RigCalibration, rig_camera
 from ..core.pipeline import ReconstructionParams, reconstruct
-from ..core.result_files import SheetViews, write_result
+from ..core.result_files import SheetViews, add_pictures, write_result
 from ..core.segment import SegmentationParams
 from .paths import confined_path
 
@@ -81,6 +83,10 @@ _UNSAFE = re.compile(r"[^A-Za-z0-9_.-]")
 _NAMED_KEY = re.compile(r"view_\d{3,}_([A-Za-z0-9_.-]{1,64})\.png")
 #: The file that marks the session folder of the scan being received.
 OPEN_MARKER = ".open"
+#: A reconstruction's working memory (see :attr:`LiveReconstruction.working_memory_bytes`):
+#: bytes per voxel of the live grid, and bytes besides.
+WORKING_MEMORY_PER_VOXEL = 3 * BYTES_PER_VOXEL
+WORKING_MEMORY_BASE = 64 << 20
 
 
 class DuplicateViewError(ValueError):
@@ -240,6 +246,7 @@ class LiveReconstruction:
         self.grid = VoxelGrid.cube(self.bounds_m[0], self.bounds_m[1], resolution)
         self.output_dir = Path(output_dir)
         self.output_dir.mkdir(parents=True, exist_ok=True)
+        self._pictures_due = None   # the last reconstruction's pictures, when deferred
         self.reset(scan_name)
 
     # ------------------------------------------------------------ state
@@ -261,6 +268,16 @@ class LiveReconstruction:
         self._colour_images: dict[str, np.ndarray] = {}
         self._mesh: tuple[np.ndarray, np.ndarray] | None = None
         self._colours: np.ndarray | None = None
+
+    @property
+    def working_memory_bytes(self) -> int:
+        """Memory a scan and its reconstruction are expected to take at their peak, bytes:
+        :data:`WORKING_MEMORY_PER_VOXEL` per voxel of the live grid and
+        :data:`WORKING_MEMORY_BASE`. Measured in the cell's node (72 views of 640 x 480,
+        a live grid of 5.0 M voxels at resolution 192): its heap reached 266 MB by the
+        end of the first reconstruction; this gives 293 MiB. The final grid is the tight
+        box at the same resolution: at most the live grid's voxels."""
+        return WORKING_MEMORY_BASE + WORKING_MEMORY_PER_VOXEL * int(np.prod(self.grid.shape))
 
     @property
     def n_views(self) -> int:
@@ -441,6 +458,16 @@ class LiveReconstruction:
         return SheetViews(names=[v.name for v in received], images=images, masks=masks,
                           angles_rad=[(v.theta_rad, v.phi_rad) for v in received])
 
+    def write_pictures(self) -> bool:
+        """Write the pictures of the last :meth:`reconstruct` made with ``pictures=False``
+        (then its report again, naming them); whether there were any to write. OSError
+        if they cannot be written (the mesh and report stay; not tried again)."""
+        due, self._pictures_due = self._pictures_due, None
+        if due is None:
+            return False
+        due()
+        return True
+
     def hull_points(self, max_points: int = 100_000) -> np.ndarray:
         """(n, 3) float64 surface voxel centres of the live hull, metres (see
         :func:`surface_points`); empty (0, 3) until a non-empty mask has carved."""
@@ -450,7 +477,7 @@ class LiveReconstruction:
 
     # ------------------------------------------------------------ final mesh
 
-    def reconstruct(self, name: str | None = None) -> dict:
+    def reconstruct(self, name: str | None = None, *, pictures: bool = True) -> dict:
         """Run the full pipeline on the views received so far and write the mesh.
 
         Parameters
@@ -462,12 +489,17 @@ class LiveReconstruction:
             as ``<stem>.report.json``, a picture of the mesh as ``<stem>.png``, a
             viewer as ``<stem>.html`` and a contact sheet as ``<stem>.views.png``.
             Existing files are replaced.
+        pictures : bool, keyword-only
+            Write the picture, viewer and contact sheet now (the default); False:
+            only the mesh and its report, the pictures when :meth:`write_pictures`
+            is called (the report then names them).
 
         Returns
         -------
         dict
             JSON-ready summary: ``path``, ``report_path``, ``preview_path``,
-            ``html_path``, ``contact_sheet_path``, ``session``,
+            ``html_path``, ``contact_sheet_path`` (where the pictures are, or will be
+            with ``pictures=False``), ``session``,
             ``views_received``, ``views_used``, ``views_rejected`` (list of
             ``{view, reason}``), ``n_vertices``, ``n_faces``, ``watertight``,
             ``volume_m3``, ``area_m2``, ``silhouette_iou_mean``,
@@ -506,10 +538,13 @@ class LiveReconstruction:
                              images=images)
         colours = result.vertex_colors
         coloured = result.report["colour"]["views"] if "colour" in result.report else 0
-        write_result(result, path, vertex_colors=colours, report=report_path,
-                     extra={"session": str(self._session)}, preview=preview_path,
-                     html=html_path, contact_sheet=sheet_path, sheet_views=self._sheet_views(masks),
-                     within=root)
+        picture_files = dict(preview=preview_path, html=html_path, contact_sheet=sheet_path,
+                             sheet_views=self._sheet_views(masks), within=root)
+        written = write_result(result, path, vertex_colors=colours, report=report_path,
+                               extra={"session": str(self._session)},
+                               **(picture_files if pictures else {"within": root}))
+        self._pictures_due = None if pictures else partial(
+            add_pictures, written, result, vertex_colors=colours, **picture_files)
         self._mesh, self._colours = (result.vertices, result.faces), colours
         mesh, views = result.report["mesh"], result.report["views"]
         mean_iou = result.report["silhouette_iou"]["mean_used"]

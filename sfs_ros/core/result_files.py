@@ -8,7 +8,8 @@
   ``preview`` / ``html`` / ``contact_sheet`` (paths of those written);
 * on request a PNG picture of the mesh, a self-contained HTML viewer, and a
   contact sheet of the views (mask outlines, angles, silhouette IoU, reasons
-  for rejection).
+  for rejection); or later, by :func:`add_pictures`, for a caller that wants
+  the mesh out first (in the cell the pictures take a quarter of a reconstruction).
 
 Every file is written atomically, all in one batch
 (:func:`sfs_ros.core.exchange.files.write_atomic_all`): all are staged on disk
@@ -23,7 +24,7 @@ With ``within``, no symbolic link below that folder is followed while writing.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from .exchange.export import mesh_bytes
@@ -32,7 +33,7 @@ from .pictures.contact_sheet import contact_sheet
 from .pictures.html_viewer import html_viewer
 from .pictures.preview import png_bytes, preview_image
 
-__all__ = ["SheetViews", "WrittenResult", "report_path_for", "write_result"]
+__all__ = ["SheetViews", "WrittenResult", "add_pictures", "report_path_for", "write_result"]
 
 REPORT_SUFFIX = ".report.json"
 
@@ -128,6 +129,45 @@ def write_result(result, mesh_path, *, units: str = "m", vertex_colors=None,
     mesh_data = mesh_bytes(result.vertices, result.faces, mesh_path,
                            vertex_colors=vertex_colors, units=units)
     document = {"output": str(mesh_path), "units": units, **(extra or {}), **result.report}
+    pictures = _pictures(result, mesh_path, vertex_colors, preview, html, contact_sheet,
+                         sheet_views)
+    document.update({key: str(path) for key, (path, _) in pictures.items()})
+    files = [*pictures.values(), (report_path, json.dumps(document, indent=2).encode("utf-8")),
+             (mesh_path, mesh_data)]
+    _write(files, within)
+    return WrittenResult(mesh=mesh_path, report=report_path,
+                         preview=pictures.get("preview", (None,))[0],
+                         html=pictures.get("html", (None,))[0],
+                         contact_sheet=pictures.get("contact_sheet", (None,))[0],
+                         document=document)
+
+
+def add_pictures(written: WrittenResult, result, *, vertex_colors=None, preview=None,
+                 html=None, contact_sheet=None, sheet_views: SheetViews | None = None,
+                 within=None) -> WrittenResult:
+    """Write the pictures of a result :func:`write_result` wrote without them, then its
+    report again, naming them (the mesh is not touched).
+
+    ``written`` is what :func:`write_result` returned for ``result``; the other
+    arguments are as there (``vertex_colors`` those of the mesh). The pictures
+    are renamed into place before the report, so the report names only pictures
+    that exist. Returns the new :class:`WrittenResult`; ValueError and OSError
+    as :func:`write_result` (the report then stays as it was).
+    """
+    if contact_sheet is not None and sheet_views is None:
+        raise ValueError("a contact sheet needs sheet_views: the images and masks it shows")
+    pictures = _pictures(result, written.mesh, vertex_colors, preview, html, contact_sheet,
+                         sheet_views)
+    document = {**written.document, **{key: str(path) for key, (path, _) in pictures.items()}}
+    _write([*pictures.values(),
+            (written.report, json.dumps(document, indent=2).encode("utf-8"))], within)
+    return replace(written, document=document,
+                   **{key: path for key, (path, _) in pictures.items()})
+
+
+def _pictures(result, mesh_path: Path, vertex_colors, preview, html, contact_sheet,
+              sheet_views) -> dict:
+    """{"preview" | "html" | "contact_sheet": (path, bytes)} of the pictures asked for."""
     pictures = {}
     if preview is not None:
         pictures["preview"] = (Path(preview), png_bytes(preview_image(
@@ -139,18 +179,15 @@ def write_result(result, mesh_path, *, units: str = "m", vertex_colors=None,
     if contact_sheet is not None:
         pictures["contact_sheet"] = (Path(contact_sheet),
                                      png_bytes(_sheet(result.report, sheet_views)))
-    document.update({key: str(path) for key, (path, _) in pictures.items()})
-    files = [*pictures.values(), (report_path, json.dumps(document, indent=2).encode("utf-8")),
-             (mesh_path, mesh_data)]
+    return pictures
+
+
+def _write(files: list, within) -> None:
+    """Write ``files`` ([(path, bytes)]) atomically, in one batch, in this order."""
     if within is None:
         for path, _ in files:
             path.parent.mkdir(parents=True, exist_ok=True)
     write_atomic_all(files, within=within)
-    return WrittenResult(mesh=mesh_path, report=report_path,
-                         preview=pictures.get("preview", (None,))[0],
-                         html=pictures.get("html", (None,))[0],
-                         contact_sheet=pictures.get("contact_sheet", (None,))[0],
-                         document=document)
 
 
 def _sheet(report: dict, views: SheetViews):

@@ -38,11 +38,14 @@ answers services; one worker thread owns the ``LiveReconstruction`` and
 takes, in arrival order, views, ``reconstruct`` and ``reset`` requests. A
 reconstruction therefore uses exactly the views that arrived before the
 request, and messages keep being received (and queued for the worker) while
-it runs. ``reconstruct`` answers once the mesh, its report and its picture are
-written: ``success`` and the JSON of :meth:`LiveReconstruction.reconstruct`
-(path, report_path, preview_path, views used / rejected, watertight,
-volume_m3, seconds, ...); the ``mesh`` and ``mesh_shape`` messages follow (building
-and serialising them takes seconds for a large mesh, and the files are the result);
+it runs. ``reconstruct`` answers once the mesh and its report are written:
+``success`` and the JSON of :meth:`LiveReconstruction.reconstruct` (path,
+report_path, preview_path, views used / rejected, watertight, volume_m3,
+seconds, ...). The picture, viewer and contact sheet follow (the report is
+written again naming them once they are on disk: wait for that, as
+:meth:`sfs_ros.ros.cell_client.CellClient.reconstruct` does), then the ``mesh``
+and ``mesh_shape`` messages (building and serialising them takes seconds for a
+large mesh, and the files are the result);
 ``success=False`` with the reason when there are no views or no mesh can be
 made. ``reset`` starts a new scan (new session folder on the next view) and
 publishes an empty hull; the last mesh stays on ``mesh`` until the next one.
@@ -116,6 +119,7 @@ from sfs_ros.core.carving.resolution import (
 from sfs_ros.core.exchange.views import as_bounds
 from sfs_ros.core.geometry.rig import rig_camera
 from sfs_ros.core.pipeline import MESHERS
+from sfs_ros.core.resident_memory import keep_freed_memory, prefault
 from sfs_ros.nodes.entry import run_node
 from sfs_ros.ros import capture_qos, result_qos
 from sfs_ros.ros.convert import (
@@ -314,6 +318,7 @@ class ReconstructionNode(Node):
             f"reconstructing into {self._live.output_dir} (box {self._live.bounds_m.tolist()}, "
             f"resolution {values['resolution']}, {values['mesher']}, queue depth {depth})")
         self._submit("reopen", self._reopen)
+        self._submit("prefault", self._prefault)
 
     def destroy_node(self) -> None:
         """Finish the queued work, stop the worker thread, then destroy the node."""
@@ -396,6 +401,14 @@ class ReconstructionNode(Node):
             self._publish_poses()
             self._hull_dirty = True
 
+    def _prefault(self) -> None:
+        """Touch the heap a reconstruction will need, once, before the first one (see
+        :mod:`sfs_ros.core.resident_memory`); no more than the memory budget."""
+        reserve = 0 if self._live is None else min(self._live.working_memory_bytes,
+                                                    self._budget)
+        if prefault(reserve):
+            self.get_logger().info(f"{reserve >> 20} MiB of working memory made resident")
+
     def _retry_unstored(self) -> None:
         """Timer: store again the views a full disk refused (in the worker)."""
         if self._unstored:
@@ -458,6 +471,7 @@ class ReconstructionNode(Node):
                     self._calibration, _bounds(values), output_dir=values["output_dir"],
                     resolution=values["resolution"], mesher=values["mesher"], scan_name=name)
                 self._scan_settings, self._refusal = settings, ""
+                self._prefault()
                 self.get_logger().info(f"new scan settings: box {values['bounds_m']}, "
                                        f"resolution {values['resolution']}, {values['mesher']}")
             else:
@@ -536,7 +550,7 @@ class ReconstructionNode(Node):
         if self._live is None:
             return False, self._refusal
         try:
-            summary = self._live.reconstruct()
+            summary = self._live.reconstruct(pictures=False)
         except (ValueError, OSError) as exc:
             self._count("reconstruction_failures")
             reason = str(exc)
@@ -551,8 +565,10 @@ class ReconstructionNode(Node):
                                f"views, {summary['n_faces']} faces, "
                                f"{summary['seconds']:.1f} s)")
         self._publish_diagnostics()
-        # The answer goes out now, the mesh being on disk; its messages (seconds of building
-        # and serialising for a few 100 000 faces) follow as the worker's next job.
+        # The answer goes out now, the mesh and its report being on disk; the pictures (a
+        # quarter of the time) and the mesh messages (seconds of building and serialising
+        # for a few 100 000 faces) follow as the worker's next jobs.
+        self._submit("pictures", self._live.write_pictures)
         self._submit("publish the mesh", self._publish_mesh, *self._live.last_mesh,
                      self._live.last_colours)
         return True, json.dumps(summary)
@@ -601,7 +617,11 @@ class ReconstructionNode(Node):
 
 def main(args=None) -> None:
     """Entry point ``sfs-reconstruction``
-    (``--ros-args --params-file config/reconstruction.yaml``, with ``output_dir`` set)."""
+    (``--ros-args --params-file config/reconstruction.yaml``, with ``output_dir`` set).
+
+    The process keeps the memory it frees (:func:`~sfs_ros.core.resident_memory.
+    keep_freed_memory`), so a reconstruction does not fault in its working memory anew."""
+    keep_freed_memory()
     run_node("sfs-reconstruction", ReconstructionNode, args, threads=3)
 
 

@@ -23,6 +23,7 @@ import json
 import re
 import threading
 import time
+from pathlib import Path
 from typing import Callable
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
@@ -32,18 +33,42 @@ from sfs_ros.cell.messages import status_namespace
 from sfs_ros.ros.names import DIAGNOSTICS, NAMESPACE, SERVICES
 from sfs_ros.ros.services import ServiceError, call
 
-__all__ = ["CellClient", "ScanFailed", "ScanStatus", "SERVICES", "READY"]
+__all__ = ["CellClient", "ScanFailed", "ScanStatus", "SERVICES", "READY", "wait_for_pictures"]
 
 #: The services that must answer before :meth:`CellClient.wait_ready` returns.
 READY = ("scan/start", "scan/cancel", "scan/resume", "reconstruct", "reset")
 
 
+#: How often :func:`wait_for_pictures` reads the report, s.
+PICTURE_POLL_S = 0.05
 #: States in which a scan is not under way (it waits for ``scan/resume``).
 _STOPPED = ("paused", "cancelled")
 
 
 class ScanFailed(RuntimeError):
     """The scan paused on a fault, or the reconstruction failed; the text says why."""
+
+
+def wait_for_pictures(summary: dict, *, timeout_s: float = 120.0) -> None:
+    """Until the report of a ``reconstruct`` answer (``summary``, its JSON) names the
+    picture, viewer and contact sheet the answer gives: the node writes them after its
+    answer, then the report again. Polls the report file; TimeoutError after
+    ``timeout_s`` (the node's diagnostics say why: a full disk, say)."""
+    report = Path(summary["report_path"])
+    wanted = {"preview": summary["preview_path"], "html": summary["html_path"],
+              "contact_sheet": summary["contact_sheet_path"]}
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            named = json.loads(report.read_text())
+        except (OSError, ValueError):
+            named = {}          # replaced just now, or not there: read again
+        if all(named.get(key) == path for key, path in wanted.items()):
+            return
+        if time.monotonic() >= deadline:
+            raise TimeoutError(f"the pictures of {summary['path']} were not written within "
+                               f"{timeout_s:g} s (the report {report} does not name them)")
+        time.sleep(PICTURE_POLL_S)
 
 
 class ScanStatus:
@@ -188,12 +213,20 @@ class CellClient:
         return self.wait_scan(scan, lambda s: s.complete, timeout_s=timeout_s,
                               progress=progress)
 
-    def reconstruct(self, timeout_s: float = 600.0) -> dict:
-        """Call ``reconstruct``; its JSON summary, or ScanFailed with the node's reason."""
+    def reconstruct(self, timeout_s: float = 600.0, *, pictures: bool = True) -> dict:
+        """Call ``reconstruct``; its JSON summary, or ScanFailed with the node's reason.
+
+        The node answers once the mesh and its report are written; with ``pictures``
+        this also waits (within ``timeout_s`` in all) until the picture, viewer and
+        contact sheet are (:func:`wait_for_pictures`)."""
+        deadline = time.monotonic() + timeout_s
         answer = self.call("reconstruct", timeout_s=timeout_s)
         if not answer.success:
             raise ScanFailed(answer.message)
-        return json.loads(answer.message)
+        summary = json.loads(answer.message)
+        if pictures:
+            wait_for_pictures(summary, timeout_s=max(0.0, deadline - time.monotonic()))
+        return summary
 
     def close(self) -> None:
         self._executor.shutdown()
