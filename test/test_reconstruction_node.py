@@ -140,7 +140,7 @@ def scan(cell, masks):
     return cell.call("reconstruct")
 
 
-def test_reconstruct_writes_the_mug_inside_output_dir(scan, mug, out_dir):
+def test_reconstruct_writes_the_mug_inside_output_dir(scan, mug, out_dir, cell):
     assert scan.success, scan.message
     summary = json.loads(scan.message)
     path, report = Path(summary["path"]), Path(summary["report_path"])
@@ -150,6 +150,9 @@ def test_reconstruct_writes_the_mug_inside_output_dir(scan, mug, out_dir):
     wait_for_pictures(summary, timeout_s=60.0)      # they follow the answer
     preview = Path(summary["preview_path"])
     assert preview.is_file() and preview.resolve().is_relative_to(out_dir.resolve())
+    # The rehearsal at start ran before the first view, in a folder removed after it.
+    assert "rehearsal reconstruction done" in cell.process.output()
+    assert not [p.name for p in out_dir.iterdir() if p.name.startswith(".rehearsal")]
     assert summary["views_received"] == summary["views_used"] == len(PLAN)
     assert summary["views_rejected"] == [] and summary["watertight"]
     assert summary["seconds"] > 0 and summary["volume_m3"] > 0

@@ -93,6 +93,7 @@ from __future__ import annotations
 
 import json
 import os
+import tempfile
 import threading
 import time
 import traceback
@@ -110,6 +111,7 @@ from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker
 
 from sfs_ros.cell.live import DuplicateViewError, LiveReconstruction, check_scan_name
+from sfs_ros.cell.rehearsal import rehearse
 from sfs_ros.core.carving.resolution import (
     default_memory_budget,
     grid_shape,
@@ -177,6 +179,9 @@ PARAMS: list[Param] = [
     Param("max_memory", "", "Working memory the voxel grid may take, e.g. 2G or 512M; a "
           "resolution that needs more is refused.", read_only=True,
           constraints="empty = a quarter of the machine's memory"),
+    Param("rehearse", True, "At start, receive and reconstruct a small simulated scan (in a "
+          "folder in output_dir, removed after) so that the first real reconstruction finds "
+          "its code loaded: 0.2-0.4 s less from the last view to the mesh.", read_only=True),
 ]
 #: How often views that could not be stored (a full disk) are tried again, s.
 STORE_RETRY_S = 1.0
@@ -319,6 +324,8 @@ class ReconstructionNode(Node):
             f"resolution {values['resolution']}, {values['mesher']}, queue depth {depth})")
         self._submit("reopen", self._reopen)
         self._submit("prefault", self._prefault)
+        if values["rehearse"]:
+            self._submit("rehearsal", self._rehearse)
 
     def destroy_node(self) -> None:
         """Finish the queued work, stop the worker thread, then destroy the node."""
@@ -408,6 +415,22 @@ class ReconstructionNode(Node):
                                                     self._budget)
         if prefault(reserve):
             self.get_logger().info(f"{reserve >> 20} MiB of working memory made resident")
+
+    def _rehearse(self) -> None:
+        """Reconstruct a small simulated scan in a folder of ``output_dir`` that is removed
+        after (:func:`sfs_ros.cell.rehearsal.rehearse`); a failure (a full disk) is logged
+        and changes nothing else."""
+        start = time.perf_counter()
+        try:
+            with tempfile.TemporaryDirectory(prefix=".rehearsal_",
+                                             dir=self._live.output_dir) as folder:
+                rehearse(folder)
+        except (ValueError, OSError) as exc:
+            self.get_logger().warning(f"rehearsal reconstruction failed ({exc}); the first "
+                                      "scan's reconstruction loads its code itself")
+            return
+        self.get_logger().info(f"rehearsal reconstruction done in "
+                               f"{time.perf_counter() - start:.2f} s")
 
     def _retry_unstored(self) -> None:
         """Timer: store again the views a full disk refused (in the worker)."""
@@ -574,10 +597,15 @@ class ReconstructionNode(Node):
         return True, json.dumps(summary)
 
     def _publish_mesh(self, vertices, faces, colours) -> None:
-        stamp = self.get_clock().now().to_msg()
-        self._marker_pub.publish(mesh_to_marker(vertices, faces, stamp=stamp, frame_id=FRAME_ID,
-                                                vertex_colors=colours))
-        self._shape_pub.publish(mesh_to_shape(vertices, faces))
+        try:
+            stamp = self.get_clock().now().to_msg()
+            self._marker_pub.publish(mesh_to_marker(vertices, faces, stamp=stamp,
+                                                    frame_id=FRAME_ID, vertex_colors=colours))
+            self._shape_pub.publish(mesh_to_shape(vertices, faces))
+        except Exception:  # noqa: BLE001 -- rclpy's RCLError, once the node is stopping
+            if self.context.ok():
+                raise
+            # Stopped while the messages were built (seconds): the mesh is in its file.
 
     def _publish_poses(self) -> None:
         self._poses_pub.publish(camera_poses(self._cameras, stamp=self.get_clock().now().to_msg(),
