@@ -54,9 +54,8 @@ def test_without_prefault_the_same_arrays_fault_their_pages():
 
 
 def test_prefault_only_after_keep_and_refuses_bad_sizes():
-    # This process never called keep_freed_memory: freed pages would go back, so none
-    # are touched.
-    assert prefault(1 << 20) is False
+    # Without keep_freed_memory, freed pages would go back at once: none are touched.
+    assert _child("prefault")[:2] == (False, False)
     for bad in (-1, True, 1.5, "1M"):
         with pytest.raises(ValueError, match="reserve_bytes"):
             prefault(bad)
