@@ -3,12 +3,13 @@
 The first reconstruction in a process pays for loading what it uses: its
 compiled kernels from numba's disk cache, the code pages of OpenCV, SciPy and
 scikit-image, the worker threads. In the cell's reconstruction node that was
-0.2 to 0.4 s of the latency from the last view to the mesh (``bench_cell``).
+about 0.2 s of the latency from the last view to the mesh (``bench_cell``:
+1.10-1.28 s with a rehearsal, 1.14-1.62 s without, alternated three times).
 :func:`rehearse` does it once beforehand, on a scan of 13 views of 160 x 120
 at 48^3: every stage of :meth:`~sfs_ros.cell.live.LiveReconstruction.reconstruct`
 (carving, fusion, meshing, colour, evaluation, the files and pictures) on
-arrays of the types a real scan has. ``sfs-warm-up`` runs it too, after
-compiling the kernels.
+arrays of the types a real scan has. ``sfs-warm-up`` runs it too, where it
+compiles the live path's kernels.
 """
 
 from __future__ import annotations

@@ -93,6 +93,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import tempfile
 import threading
 import time
@@ -181,8 +182,12 @@ PARAMS: list[Param] = [
           constraints="empty = a quarter of the machine's memory"),
     Param("rehearse", True, "At start, receive and reconstruct a small simulated scan (in a "
           "folder in output_dir, removed after) so that the first real reconstruction finds "
-          "its code loaded: 0.2-0.4 s less from the last view to the mesh.", read_only=True),
+          "its code loaded (about 0.2 s less from the last view to the mesh).", read_only=True),
 ]
+#: Folder name prefix of the rehearsal's scan in ``output_dir``.
+REHEARSAL_PREFIX = ".rehearsal_"
+#: How long stopping the node waits for a rehearsal still running, s.
+REHEARSAL_JOIN_S = 2.0
 #: How often views that could not be stored (a full disk) are tried again, s.
 STORE_RETRY_S = 1.0
 #: Views of earlier scans remembered by their keys, so that a late copy of one (a resend
@@ -242,6 +247,7 @@ class ReconstructionNode(Node):
 
     def __init__(self, **kwargs):
         self._worker = None  # started last; a node refused at start-up has none to stop
+        self._rehearsal = None
         super().__init__(NODE_NAME, **kwargs)
         values = declare(self, PARAMS)
         if not values["output_dir"].strip():
@@ -325,13 +331,21 @@ class ReconstructionNode(Node):
         self._submit("reopen", self._reopen)
         self._submit("prefault", self._prefault)
         if values["rehearse"]:
-            self._submit("rehearsal", self._rehearse)
+            # Beside the worker, not on it: with kernels still to compile (a fresh install)
+            # it takes minutes, and views and resets must not wait for it.
+            self._rehearsal = threading.Thread(target=self._rehearse, name="rehearsal",
+                                               daemon=True)
+            self._rehearsal.start()
 
     def destroy_node(self) -> None:
-        """Finish the queued work, stop the worker thread, then destroy the node."""
+        """Finish the queued work, stop the worker thread, then destroy the node (a
+        rehearsal still running after :data:`REHEARSAL_JOIN_S` is left to end with the
+        process; its folder goes at the next start)."""
         if self._worker is not None:
             self._worker.stop()
             self._worker.join()
+        if self._rehearsal is not None:
+            self._rehearsal.join(timeout=REHEARSAL_JOIN_S)
         super().destroy_node()
 
     # -- inputs (executor threads) -----------------------------------------------------------
@@ -417,20 +431,32 @@ class ReconstructionNode(Node):
             self.get_logger().info(f"{reserve >> 20} MiB of working memory made resident")
 
     def _rehearse(self) -> None:
-        """Reconstruct a small simulated scan in a folder of ``output_dir`` that is removed
-        after (:func:`sfs_ros.cell.rehearsal.rehearse`); a failure (a full disk) is logged
-        and changes nothing else."""
+        """Thread: reconstruct a small simulated scan in a folder of ``output_dir`` that is
+        removed after (:func:`sfs_ros.cell.rehearsal.rehearse`), once those a stopped
+        rehearsal left are removed; a failure (a full disk) is logged and changes nothing
+        else."""
         start = time.perf_counter()
+        for stale in self._live.output_dir.glob(f"{REHEARSAL_PREFIX}*"):
+            if stale.is_dir() and not stale.is_symlink():
+                shutil.rmtree(stale, ignore_errors=True)
         try:
-            with tempfile.TemporaryDirectory(prefix=".rehearsal_",
+            with tempfile.TemporaryDirectory(prefix=REHEARSAL_PREFIX,
                                              dir=self._live.output_dir) as folder:
                 rehearse(folder)
         except (ValueError, OSError) as exc:
-            self.get_logger().warning(f"rehearsal reconstruction failed ({exc}); the first "
-                                      "scan's reconstruction loads its code itself")
+            self._log_if_up("warning", f"rehearsal reconstruction failed ({exc}); the first "
+                            "scan's reconstruction loads its code itself")
             return
-        self.get_logger().info(f"rehearsal reconstruction done in "
-                               f"{time.perf_counter() - start:.2f} s")
+        self._log_if_up("info", f"rehearsal reconstruction done in "
+                        f"{time.perf_counter() - start:.2f} s")
+
+    def _log_if_up(self, level: str, text: str) -> None:
+        """Log from a thread that may outlive the node: nothing once it has stopped."""
+        try:
+            if self.context.ok():
+                getattr(self.get_logger(), level)(text)
+        except Exception:  # noqa: BLE001 -- stopped between the test and the call
+            return
 
     def _retry_unstored(self) -> None:
         """Timer: store again the views a full disk refused (in the worker)."""
@@ -591,10 +617,18 @@ class ReconstructionNode(Node):
         # The answer goes out now, the mesh and its report being on disk; the pictures (a
         # quarter of the time) and the mesh messages (seconds of building and serialising
         # for a few 100 000 faces) follow as the worker's next jobs.
-        self._submit("pictures", self._live.write_pictures)
+        self._submit("pictures", self._write_pictures, summary["path"])
         self._submit("publish the mesh", self._publish_mesh, *self._live.last_mesh,
                      self._live.last_colours)
         return True, json.dumps(summary)
+
+    def _write_pictures(self, mesh_path: str) -> None:
+        """The last reconstruction's picture, viewer and contact sheet, after its answer."""
+        try:
+            self._live.write_pictures()
+        except (ValueError, OSError) as exc:
+            self._report_problem(f"pictures of {mesh_path} not written (the mesh and its "
+                                 f"report are): {exc}")
 
     def _publish_mesh(self, vertices, faces, colours) -> None:
         try:
