@@ -7,14 +7,14 @@ every first touch of a page is a page fault. On the 2-core test machine a
 fault costs about 20 microseconds: the cell's first reconstruction took
 30 000 to 47 000 faults and 0.6 to 0.9 s of system time, a third of its time.
 
-:func:`keep_memory_resident` is the usual set-up of latency-bound processes
-(as ROS 2's real-time guides describe for their nodes): malloc keeps what it
+The usual set-up of latency-bound processes (as ROS 2's real-time guides
+describe for their nodes): :func:`keep_freed_memory` makes malloc keep what it
 was given (``M_TRIM_THRESHOLD`` off, ``M_MMAP_MAX`` 0: every block from the
-heap, none handed back), all threads share one arena (``M_ARENA_MAX`` 1:
-the thread that reconstructs reuses what the others touched), and a block
-of the expected working size is touched once and freed, so the heap holds
-faulted pages before the first job needs them. The cost is that the
-process keeps its largest footprint until it ends.
+heap, none handed back) and makes all threads share one arena (``M_ARENA_MAX``
+1: the thread that reconstructs reuses what the others touched); then
+:func:`prefault` touches a block of the expected working size once and frees
+it, so the heap holds faulted pages before the first job needs them. The cost
+is that the process keeps its largest footprint until it ends.
 
 glibc only: elsewhere (another C library) nothing is changed. Linux only for
 the fault counts in :func:`page_faults`.
