@@ -539,12 +539,12 @@ class LiveReconstruction:
         colours = result.vertex_colors
         coloured = result.report["colour"]["views"] if "colour" in result.report else 0
         picture_files = dict(preview=preview_path, html=html_path, contact_sheet=sheet_path,
-                             sheet_views=self._sheet_views(masks), within=root)
+                             sheet_views=self._sheet_views(masks))
         written = write_result(result, path, vertex_colors=colours, report=report_path,
-                               extra={"session": str(self._session)},
-                               **(picture_files if pictures else {"within": root}))
+                               extra={"session": str(self._session)}, within=root,
+                               **(picture_files if pictures else {}))
         self._pictures_due = None if pictures else partial(
-            add_pictures, written, result, vertex_colors=colours, **picture_files)
+            add_pictures, written, result, vertex_colors=colours, within=root, **picture_files)
         self._mesh, self._colours = (result.vertices, result.faces), colours
         mesh, views = result.report["mesh"], result.report["views"]
         mean_iou = result.report["silhouette_iou"]["mean_used"]

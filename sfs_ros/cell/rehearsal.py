@@ -16,8 +16,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
-
 from ..core.geometry.rig import RigCalibration, rig_camera
 from ..core.render import rasterize_silhouette
 from ..core.simulation.objects import make_object
@@ -63,7 +61,7 @@ def rehearse(folder, views=None) -> dict:
     live = LiveReconstruction(REHEARSAL_RIG, carving_box(mug), output_dir=Path(folder),
                               resolution=REHEARSAL_RESOLUTION)
     for n, ((mask, rgb), (theta, phi)) in enumerate(zip(views, REHEARSAL_PLAN)):
-        live.add_view(n, np.asarray(mask, bool), theta, phi)
+        live.add_view(n, mask, theta, phi)
         live.add_colour_image(n, rgb)
     summary = live.reconstruct(pictures=False)      # as the node does: the mesh, then
     live.write_pictures()                           # the pictures
