@@ -15,7 +15,7 @@ from sfs_ros.core.geometry.camera import Camera
 from sfs_ros.core.geometry.grid import VoxelGrid
 from sfs_ros.core.meshing.advancing_front import advancing_front
 from sfs_ros.core.meshing.cloud import cloud_of_points
-from sfs_ros.core.meshing.hull_distance import HullDistance
+from sfs_ros.core.meshing.hull_distance import DistanceImages, HullDistance
 from sfs_ros.core.meshing.marching import hull_marching_cubes_mesh, marching_cubes_mesh
 from sfs_ros.core.meshing.mesh_checks import check_mesh
 
@@ -291,3 +291,38 @@ def test_a_floor_must_be_a_negative_distance():
         with pytest.raises(ValueError, match="floor_m must be a finite distance < 0 metres"):
             hull(np.zeros((1, 3)), floor_m=floor)
     assert hull(np.zeros((0, 3)), floor_m=-0.001).shape == (0,)
+
+
+def test_distance_images_given_beforehand_give_the_same_hull():
+    """A live scan computes each mask's distance image as it arrives: the hull made with
+    them is the hull made without, bit for bit, and a mask that changed since (here one
+    with a hole punched) is computed anew rather than taken for the one kept."""
+    cameras = [looking_along(d, orthographic=True, scale=SPHERE_SCALE, width=SPHERE_IMAGE,
+                             height=SPHERE_IMAGE) for d in fibonacci_directions(SPHERE_VIEWS)]
+    # Off the cameras' common centre the sphere's disc lies elsewhere in every view.
+    centre = SPHERE_CENTRE_M + [0.004, -0.003, 0.002]
+    masks = [sphere_mask(c, centre, SPHERE_RADIUS_M) for c in cameras]
+    known = DistanceImages()
+    for mask in masks:
+        known.add(mask.copy())        # the same pixels in another array: found by content
+    known.add(masks[0])               # a mask given twice is kept once
+    assert len(known) == SPHERE_VIEWS
+    assert known.get(masks[5]) is known.get(masks[5].copy())   # found, not computed again
+    box = (centre - 0.035, centre + 0.035)
+    points = np.random.default_rng(3).uniform(box[0], box[1], (4000, 3))
+    expected = HullDistance(cameras, masks, bounds_m=box)(points)
+    assert np.array_equal(HullDistance(cameras, masks, bounds_m=box, known=known)(points),
+                          expected)
+
+    punched = [m.copy() for m in masks]
+    rows, cols = np.nonzero(punched[0])
+    middle = int(rows.mean()), int(cols.mean())
+    punched[0][middle[0] - 20:middle[0] + 20, middle[1] - 20:middle[1] + 20] = False
+    punched_expected = HullDistance(cameras, punched, bounds_m=box)(points)
+    assert np.array_equal(HullDistance(cameras, punched, bounds_m=box, known=known)(points),
+                          punched_expected)
+    assert not np.array_equal(punched_expected, expected)   # the hole is seen: can fail
+    known.clear()
+    assert len(known) == 0
+    with pytest.raises(ValueError, match="empty"):
+        known.add(np.zeros((SPHERE_IMAGE, SPHERE_IMAGE), bool))

@@ -59,6 +59,7 @@ from ..core.exchange.views import as_bounds
 from ..core.geometry.grid import VoxelGrid
 from ..core.geometry.lens import ideal_camera, undistort_mask
 from ..core.geometry.rig import RigCalibration, rig_camera
+from ..core.meshing.hull_distance import DistanceImages
 from ..core.pipeline import ReconstructionParams, reconstruct
 from ..core.result_files import SheetViews, add_pictures, write_result
 from ..core.segment import SegmentationParams
@@ -264,6 +265,7 @@ class LiveReconstruction:
             (self._session / OPEN_MARKER).unlink(missing_ok=True)
         self._session: Path | None = None
         self._carver = Carver(self.grid, max_misses=self.params.max_misses)
+        self._distances = DistanceImages()
         self._views: dict[str, _Received] = {}
         self._colour_images: dict[str, np.ndarray] = {}
         self._mesh: tuple[np.ndarray, np.ndarray] | None = None
@@ -394,12 +396,18 @@ class LiveReconstruction:
             append_view(self._session, name, rgb, theta, phi)
         carved = bool(mask.any())
         if carved:   # stored as taken; carved as the ideal pinhole (the mask undistorted once)
-            self._carver.add_view(ideal_camera(camera), undistort_mask(mask, camera))
+            self._take(camera, undistort_mask(mask, camera))
         self._views[key] = _Received(name, np.packbits(mask, axis=None), theta, phi)
         return AddedView(key=key, file=self._session / "images" / name, carved=carved,
                          reason="" if carved else "empty mask: no object to carve with",
                          n_views=len(self._views),
                          occupied_voxels=int(np.count_nonzero(self._carver.occupancy)))
+
+    def _take(self, camera, mask: np.ndarray) -> None:
+        """Carve the live hull with a non-empty mask on the ideal pinhole's pixel grid, and
+        compute its distance image for the final mesh (:class:`DistanceImages`)."""
+        self._carver.add_view(ideal_camera(camera), mask)
+        self._distances.add(mask)
 
     def reopen(self) -> str:
         """Take up the scan that was being received (the newest session folder marked open
@@ -428,7 +436,7 @@ class LiveReconstruction:
             mask = image > 127
             key = view_key_of(view.name)
             if mask.any():
-                self._carver.add_view(view.camera, mask)
+                self._take(view.camera, undistort_mask(mask, view.camera))
             self._views[key] = _Received(view.name, np.packbits(mask, axis=None),
                                          view.theta_rad, view.phi_rad)
         return f"took up the open scan {folder} with its {len(self._views)} views"
@@ -535,7 +543,7 @@ class LiveReconstruction:
         colour = bool(images) and path.suffix.lower() != ".stl"
         result = reconstruct(view_set, replace(self.params, colour=colour),
                              masks={self._views[key].name: m for key, m in masks.items()},
-                             images=images)
+                             images=images, distances=self._distances)
         colours = result.vertex_colors
         coloured = result.report["colour"]["views"] if "colour" in result.report else 0
         picture_files = dict(preview=preview_path, html=html_path, contact_sheet=sheet_path,

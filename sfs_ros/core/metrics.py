@@ -132,7 +132,7 @@ def _drawn_coverage(faces, h, uv, H, W, front_only, cover, coef):
                     cover[row * W + col] = 1
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, nogil=True)
 def _coverage_overlap(vertices, faces, ends, sides, P, heights, widths, masks, moff, mask_px,
                       front_only, lanes, out):
     """Per view v: out[v] = (pixels covered by the mesh and in the mask, in either), with

@@ -29,7 +29,7 @@ from .render import FRONT_FACING
 __all__ = ["edge_faces", "outline_cover"]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _pair_half_edges(faces, n):
     """Undirected edges ``(a, b, f_ab, f_ba)``, ``a < b`` vertex indices, ``f_ab`` the
     face whose corner runs from ``a`` to ``b`` and ``f_ba`` the one that runs back; and

@@ -10,6 +10,7 @@ from __future__ import annotations
 import os
 import time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, replace
 
@@ -27,7 +28,7 @@ from .geometry.lens import distort_mask, ideal_camera, undistort_image, undistor
 from .meshing.advancing_front import advancing_front
 from .meshing.cloud import cloud_of_points
 from .meshing.colour import MAX_COLOUR_VIEWS, spread_views, vertex_colours
-from .meshing.hull_distance import HullDistance
+from .meshing.hull_distance import DistanceImages, HullDistance
 from .meshing.marching import hull_marching_cubes_mesh
 from .meshing.mesh_checks import check_mesh
 from .metrics import reprojection_ious, silhouette_iou
@@ -217,10 +218,10 @@ def _fills_frame(mask: np.ndarray) -> bool:
 
 
 def _mesh(occupancy: np.ndarray, grid: VoxelGrid, params: ReconstructionParams, cameras,
-          masks) -> tuple:
+          masks, distances: DistanceImages | None) -> tuple:
     """Mesh the carved hull on the hull surface of the views that carved it (sub-voxel)."""
     hull = HullDistance(cameras, masks, max_misses=params.max_misses,
-                        bounds_m=(grid.bounds_min, grid.bounds_max))
+                        bounds_m=(grid.bounds_min, grid.bounds_max), known=distances)
     if params.mesher == "marching-cubes":
         vertices, faces = hull_marching_cubes_mesh(occupancy, grid, hull)
         return vertices, faces, {}
@@ -260,7 +261,8 @@ def _colour_image(view: View, images: dict | None) -> np.ndarray:
 
 def reconstruct(view_set: ViewSet, params: ReconstructionParams = ReconstructionParams(), *,
                 progress: Progress | None = None, masks: dict | None = None,
-                images: dict | None = None) -> Reconstruction:
+                images: dict | None = None,
+                distances: DistanceImages | None = None) -> Reconstruction:
     """Reconstruct the object seen in ``view_set``.
 
     ``masks`` ({view name: (H, W) bool}, optional) are silhouettes the caller already
@@ -268,7 +270,8 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
     ``images`` ({view name: (H, W, 3) uint8 RGB as taken, or the path of its file},
     optional): with ``params.colour``, the images that colour the mesh instead of the
     views' files (e.g. a live scan's or a bag's captures); a used view without one takes
-    no part.
+    no part. ``distances`` (optional): the masks' distance images, computed beforehand
+    (a live scan's, as its views arrive); the mesh is the same without.
 
     Views that cannot be read, have an empty silhouette or disagree with the
     others are rejected and reported, never silently used or dropped. Raises
@@ -416,29 +419,57 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
 
     with _timed(timings, "meshing"):
         progress("meshing", 0.0)
-        vertices, faces, mesher_stats = _mesh(occupancy, grid, params, cameras, used_masks)
+        vertices, faces, mesher_stats = _mesh(occupancy, grid, params, cameras, used_masks,
+                                              distances)
         progress("meshing", 1.0)
-    with _timed(timings, "mesh_checks"):
-        mesh_report = check_mesh(vertices, faces).as_dict()
-    closed = bool(mesh_report["watertight"] and mesh_report["outward"])
-    colours, covered = None, {}
-    if params.colour:
+    # The used views with an image to colour from (all of them, from their files, unless
+    # the caller gives the images), at most MAX_COLOUR_VIEWS spread out.
+    coloured = ([n for n, i in enumerate(used) if images is None or views[i].name in images]
+                if params.colour else [])
+    coloured = [coloured[k] for k in spread_views([cameras[n] for n in coloured],
+                                                  MAX_COLOUR_VIEWS)] if coloured else []
+    # The colour draws its views' silhouettes of the mesh with its z-buffers; the others
+    # are drawn for the evaluation.
+    drawn = sorted(set(range(len(views))) - {used[n] for n in coloured})
+
+    def colour(closed: bool):
         with _timed(timings, "colour"):
             progress("colour", 0.0)
-            # The used views with an image to colour from (all of them, from their files,
-            # unless the caller gives the images), at most MAX_COLOUR_VIEWS spread out.
-            coloured = [n for n, i in enumerate(used) if images is None or views[i].name in images]
-            coloured = [coloured[k] for k in spread_views([cameras[n] for n in coloured],
-                                                          MAX_COLOUR_VIEWS)] if coloured else []
-            if coloured:
-                colours = vertex_colours(
-                    vertices, faces,
-                    [undistort_image(_colour_image(views[used[n]], images),
-                                     lenses[views[used[n]].name]) for n in coloured],
-                    [cameras[n] for n in coloured], masks=[used_masks[n] for n in coloured],
-                    coverage=True, closed=closed)
-                covered = {used[n]: packed for n, packed in zip(coloured, colours.coverage)}
+            found = vertex_colours(
+                vertices, faces,
+                [undistort_image(_colour_image(views[used[n]], images),
+                                 lenses[views[used[n]].name]) for n in coloured],
+                [cameras[n] for n in coloured], masks=[used_masks[n] for n in coloured],
+                coverage=True, closed=closed) if coloured else None
             progress("colour", 1.0)
+        return found
+
+    def checks_and_drawn(closed: bool):
+        with _timed(timings, "mesh_checks"):
+            report = check_mesh(vertices, faces).as_dict()
+        with _timed(timings, "evaluation"):
+            ious = reprojection_ious(vertices, faces, [views[i].camera for i in drawn],
+                                     [masks[i] for i in drawn], closed=closed) if drawn else []
+        return report, ious
+
+    # A marching-cubes mesh is closed and outward by construction: the checks and the
+    # evaluation run beside the colour (both count on a closed mesh for half their
+    # drawing); should the checks find it otherwise, both are done again, the same as
+    # one after the other.
+    expect_closed = params.mesher == "marching-cubes"
+    with ThreadPoolExecutor(max_workers=1) as side:
+        beside = side.submit(checks_and_drawn, expect_closed)
+        try:
+            colours, failure = colour(expect_closed), None
+        except ValueError as exc:   # an error of a wrong guess is no error: see below
+            colours, failure = None, exc
+        mesh_report, drawn_ious = beside.result()
+    closed = bool(mesh_report["watertight"] and mesh_report["outward"])
+    if closed != expect_closed:
+        colours = colour(closed)
+        drawn_ious = checks_and_drawn(closed)[1]
+    elif failure is not None:
+        raise failure
 
     with _timed(timings, "evaluation"):
         progress("evaluation", 0.0)
@@ -447,15 +478,11 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
         # same pixel-centre rule); the other views' are found here, a closed mesh's from
         # its outline. Both agree with drawing every face, exact ties on the outline aside.
         ious = np.empty(len(views))
-        drawn = [i for i in range(len(views)) if i not in covered]
-        if drawn:
-            ious[drawn] = reprojection_ious(
-                vertices, faces, [views[i].camera for i in drawn], [masks[i] for i in drawn],
-                closed=closed)
-        for i, packed in covered.items():
-            ious[i] = silhouette_iou(
-                np.unpackbits(packed, count=masks[i].size).reshape(masks[i].shape).view(bool),
-                masks[i])
+        ious[drawn] = drawn_ious
+        for n, packed in zip(coloured, colours.coverage if colours is not None else []):
+            mask = masks[used[n]]
+            ious[used[n]] = silhouette_iou(
+                np.unpackbits(packed, count=mask.size).reshape(mask.shape).view(bool), mask)
         per_view = [{"view": view.name,
                      "role": ("used" if view.name in used_names
                               else "held-out" if view.name in params.holdout else "rejected"),

@@ -46,6 +46,7 @@ import numpy as np
 from ..geometry.camera import Camera
 from ..geometry.grid import VoxelGrid
 from ..metrics import silhouette_iou
+from ..workers import map_in_threads
 from .bounds import seen_by
 from .carve import PreparedMasks, carve
 from .consistency import hull_silhouettes
@@ -186,6 +187,37 @@ def deepest_cut_px(mask: np.ndarray, projection: np.ndarray) -> float:
     return float(_distance_to_mask(mask, projection)[outside].max())
 
 
+@dataclass(frozen=True)
+class _Look:
+    """One view's mask against the reference hull's projection, on the box around both:
+    ``box`` (rows, columns) slices; ``outside`` (h, w) bool, projected but not in the mask;
+    ``distance`` (h, w) float32 to the mask (pixels; None when nothing is outside);
+    ``cut_px``, the largest of it outside; ``n_proj``, projected pixels; ``iou``."""
+
+    box: tuple
+    outside: np.ndarray
+    distance: np.ndarray | None
+    cut_px: float
+    n_proj: int
+    iou: float
+
+
+def _look(pair: tuple[np.ndarray, np.ndarray]) -> _Look:
+    """:class:`_Look` of ``(mask, projection)``, two (H, W) bool images."""
+    mask, proj = pair
+    rows = np.flatnonzero(mask.any(axis=1) | proj.any(axis=1))
+    cols = np.flatnonzero(mask.any(axis=0) | proj.any(axis=0))
+    box = ((slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1)) if rows.size
+           else (slice(0, 0), slice(0, 0)))
+    mask, proj = mask[box], proj[box]
+    outside = proj & ~mask
+    distance = _distance_to_mask(mask, proj) if outside.any() else None
+    return _Look(box=box, outside=outside, distance=distance,
+                 cut_px=0.0 if distance is None else float(distance[outside].max()),
+                 n_proj=int(np.count_nonzero(proj)),
+                 iou=float(silhouette_iou(proj, mask)) if rows.size else 1.0)
+
+
 def fuse_silhouettes(grid: VoxelGrid, cameras: Sequence[Camera], masks, *,
                      max_missing: float = 0.35) -> Fusion:
     """Decide per view and pixel where a view's mask is outvoted by the others.
@@ -228,47 +260,52 @@ def fuse_silhouettes(grid: VoxelGrid, cameras: Sequence[Camera], masks, *,
     # tolerant hull, whatever the masks say: it is no evidence, leave it out.
     hull &= seen_by(grid, cameras, k + 1)
     projections, half_px = hull_silhouettes(grid, hull, cameras)
-    # How deep each view cuts into the reference hull, relative to its size.
-    radius_px = np.array([math.sqrt(np.count_nonzero(p) / math.pi) for p in projections])
-    cut_px = np.array([deepest_cut_px(m, p) for m, p in zip(masks, projections)])
+    # How deep each view cuts into the reference hull, relative to its size. Views in
+    # threads (OpenCV's distance transforms and numpy's counts release Python's lock),
+    # each on the box around its mask and projection (nothing of either lies outside).
+    looks = list(map_in_threads(_look, zip(masks, projections)))
+    radius_px = np.array([math.sqrt(look.n_proj / math.pi) for look in looks])
+    cut_px = np.array([look.cut_px for look in looks])
     typical = float(np.median(cut_px / np.maximum(radius_px, 1.0)))
-    repaired, verdicts = [], []
-    for v, (mask, proj) in enumerate(zip(masks, projections)):
-        n_proj = int(np.count_nonzero(proj))
-        iou = float(silhouette_iou(proj, mask))
+
+    def verdict(v: int) -> tuple[np.ndarray, ViewVerdict]:
+        """View ``v``'s repaired mask and verdict."""
+        look = looks[v]
         floor_px = max(_MIN_DEPTH_PX, half_px[v] + 1.0)
         threshold = floor_px + _FACET_SAFETY * radius_px[v] * max(
             typical, facet_depth_px(1.0, angle, 1))
-        fill, missing = np.zeros_like(mask), 0.0
-        depth = 0.0
+        n_fill, missing, depth = 0, 0.0, 0.0
         if cut_px[v] > floor_px:
-            outside = proj & ~mask
-            dist = _distance_to_mask(mask, proj)
-            missing = float(np.count_nonzero(outside & (dist > floor_px))) / max(1, n_proj)
+            outside, dist = look.outside, look.distance
+            missing = float(np.count_nonzero(outside & (dist > floor_px))) / max(1, look.n_proj)
             deep = outside & (dist > threshold)
-            if deep.any():
+            if deep.any() and missing <= max_missing:
                 # the whole gap around the deep pixels, down to the mask's edge
                 r = int(math.ceil(threshold)) + 1
                 disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
                 fill = outside & (cv2.dilate(deep.view(np.uint8), disk) > 0)
-                depth = float(dist[fill].max())
+                n_fill, depth = int(np.count_nonzero(fill)), float(dist[fill].max())
         dropped = missing > max_missing
-        n_fill = 0 if dropped else int(np.count_nonzero(fill))
         if dropped:
             reason = (f"silhouette inconsistent with the other views as a whole: "
                       f"{100 * missing:.1f}% of the hull they agree on is missing from it "
-                      f"(more than {100 * max_missing:.0f}%; IoU {iou:.3f})")
+                      f"(more than {100 * max_missing:.0f}%; IoU {look.iou:.3f})")
         elif n_fill:
             reason = (f"overruled on {n_fill} px: the hull all but {k} of the other {n - 1} "
                       f"views agree on lies up to {depth:.1f} px outside this mask, deeper "
                       f"than a correct view cuts ({threshold:.1f} px)")
         else:
             reason = None
-        repaired.append(mask | fill if n_fill else mask)
-        verdicts.append(ViewVerdict(index=v, iou=iou, missing_fraction=missing,
-                                    depth_threshold_px=float(threshold), overruled_pixels=n_fill,
-                                    overruled_depth_px=depth if n_fill else 0.0,
-                                    dropped=bool(dropped), reason=reason))
+        repaired = masks[v]
+        if n_fill:
+            repaired = repaired.copy()
+            repaired[look.box] |= fill
+        return repaired, ViewVerdict(
+            index=v, iou=look.iou, missing_fraction=missing, depth_threshold_px=float(threshold),
+            overruled_pixels=n_fill, overruled_depth_px=depth, dropped=bool(dropped),
+            reason=reason)
+
+    repaired, verdicts = map(list, zip(*map_in_threads(verdict, range(n))))
     median_iou = float(np.median([v.iou for v in verdicts]))
     if median_iou < MIN_MEDIAN_IOU:
         raise ValueError(

@@ -42,7 +42,7 @@ from ..carving.carve import validate_masks
 from ..geometry.camera import Camera
 from ..workers import map_in_threads
 
-__all__ = ["HullDistance"]
+__all__ = ["DistanceImages", "HullDistance"]
 
 #: Pixels kept around each silhouette's bounding box in the stored distance
 #: image; beyond them a lower bound of the outside distance is used (see
@@ -92,6 +92,48 @@ def _silhouette_distance(mask: np.ndarray) -> tuple[np.ndarray, int, int]:
     outside = cv2.distanceTransform(1 - crop, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
     distance = np.where(crop.astype(bool), 0.5 - inside, outside - 0.5)
     return np.clip(distance, -MAX_DISTANCE_PX, MAX_DISTANCE_PX).astype(np.float32), u0, v0
+
+
+class DistanceImages:
+    """Silhouettes' signed distance images (:func:`_silhouette_distance`), kept by content.
+
+    A scan received view by view computes each mask's image on arrival, while the
+    rig moves; :class:`HullDistance` given this store then finds them instead of
+    computing them again. Any mask is found by what it holds (its packed bits), so a
+    mask that was changed since (undistorted, repaired) is computed anew: the
+    same images either way.
+
+    Memory per mask kept: its packed bits (1 bit per pixel) and its distance
+    image (float32, the silhouette's bounding box plus ``CROP_MARGIN_PX``).
+    """
+
+    def __init__(self):
+        self._kept: dict[bytes, tuple[np.ndarray, int, int]] = {}
+
+    def __len__(self) -> int:
+        return len(self._kept)
+
+    @staticmethod
+    def _key(mask: np.ndarray) -> bytes:
+        return repr(mask.shape).encode() + np.packbits(mask, axis=None).tobytes()
+
+    def add(self, mask) -> None:
+        """Compute and keep the distance image of ``mask`` (H, W) bool; ValueError if it
+        is empty."""
+        mask = np.asarray(mask, dtype=bool)
+        key = self._key(mask)
+        if key not in self._kept:
+            self._kept[key] = _silhouette_distance(mask)
+
+    def get(self, mask: np.ndarray) -> tuple[np.ndarray, int, int]:
+        """What :func:`_silhouette_distance` returns for ``mask`` (H, W) bool: kept, else
+        computed now (and not kept)."""
+        found = self._kept.get(self._key(mask))
+        return found if found is not None else _silhouette_distance(mask)
+
+    def clear(self) -> None:
+        """Forget every image."""
+        self._kept.clear()
 
 
 @njit(cache=True, inline="always")
@@ -352,13 +394,15 @@ class HullDistance:
         with as many misses allowed as there are views, only the box bounds the hull).
     bounds_m : (2, 3) array-like or None, keyword-only
         The carving box ``[min, max]``, metres; the hull is cut by it. None: no box.
+    known : DistanceImages or None, keyword-only
+        Distance images computed beforehand; a mask not among them is computed here.
 
     Memory: one float32 distance image per view, cropped to the silhouette's
     bounding box plus ``CROP_MARGIN_PX``.
     """
 
     def __init__(self, cameras: Sequence[Camera], masks, *, max_misses: int = 0,
-                 bounds_m=None):
+                 bounds_m=None, known: DistanceImages | None = None):
         cameras = list(cameras)
         if not cameras:
             raise ValueError("need at least one camera and mask to define a hull")
@@ -374,7 +418,8 @@ class HullDistance:
                 raise ValueError(f"bounds_m must be [[xmin, ymin, zmin], [xmax, ymax, zmax]] "
                                  f"with min < max, got {box.tolist()}")
         images, crops, offset = [], [], 0
-        distances = map_in_threads(_silhouette_distance, masks)  # in order, in threads
+        distances = map_in_threads(_silhouette_distance if known is None else known.get,
+                                   masks)  # in order, in threads
         for index in range(len(masks)):
             try:
                 distance, u0, v0 = next(distances)

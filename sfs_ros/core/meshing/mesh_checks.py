@@ -190,7 +190,7 @@ def _single_fans(f, start, end, order, pair, n) -> bool:
     return n_fans == np.count_nonzero(np.bincount(f.reshape(-1), minlength=n))
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _count_fans(start, end, order, pair):
     """Connected pieces of the graph of corners (``3 t + k``: face t, slot k) in which
     consecutive sorted half-edges of one undirected edge (``pair[p]``: the half-edges
@@ -210,7 +210,7 @@ def _count_fans(start, end, order, pair):
     return count
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True, inline="always")
 def _corners(start, end, h):
     """The corners at the lower and at the higher vertex of half-edge ``h = 3 t + k``,
     which runs from corner ``h`` to corner ``3 t + (k + 1) % 3``."""
@@ -225,7 +225,7 @@ def _count_loops(lo, hi, n) -> int:
     return _count_roots(_roots(n, lo, hi), np.concatenate((lo, hi)))
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _roots(n, a, b):
     """(n,) int64: a representative node of each node's connected component, in the
     undirected graph of ``n`` nodes and edges ``(a[i], b[i])`` (union-find)."""
@@ -236,7 +236,7 @@ def _roots(n, a, b):
     return parent
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _count_roots(roots, nodes) -> int:
     """Connected components among ``nodes`` (int indices), given :func:`_roots`."""
     seen = np.zeros(roots.size, np.bool_)
@@ -249,7 +249,7 @@ def _count_roots(roots, nodes) -> int:
     return count
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _face_measures(v, f):
     """Per face t: twice its area, ``|(p1 - p0) x (p2 - p0)|``, and six times the signed
     volume of the tetrahedron (origin, p0, p1, p2), ``p0 . ((p1 - p0) x (p2 - p0))``
@@ -268,7 +268,7 @@ def _face_measures(v, f):
     return double_area, six_volume
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _count_duplicate_faces(f, n) -> int:
     """Faces with the same three vertex indices as an earlier face (in any order): the
     faces grouped by their smallest index (a counting sort), each group sorted by the
