@@ -203,10 +203,10 @@ def _rasterize_kernel(h, depth, faces, face_id, bary, zbuf, front_only):
     coef = np.empty((3, 4))
     for f in range(faces.shape[0]):
         # (the box first: most faces of a fine mesh hold no pixel centre)
+        if front_only and face_orientation(h, faces, f) != FRONT_FACING:
+            continue
         c0, c1, r0, r1 = pixel_box(h, faces, f, width, height)
         if c0 > c1 or r0 > r1:
-            continue
-        if front_only and face_orientation(h, faces, f) != FRONT_FACING:
             continue
         if triangle_edges(h, faces, f, coef) == 0.0:
             continue

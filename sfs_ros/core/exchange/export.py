@@ -100,6 +100,8 @@ def mesh_bytes(vertices, faces, path, *, vertex_colors=None, units: str = "m") -
         colors = _colors_uint8(vertex_colors, len(v))
 
     v = v * UNIT_SCALE[units]
+    if suffix == ".ply":
+        return _ply_bytes(v, f, colors)
     if suffix in Y_UP_SUFFIXES:
         v = np.column_stack((v[:, 0], v[:, 2], -v[:, 1]))
     mesh = trimesh.Trimesh(vertices=v, faces=f.astype(np.int64), vertex_colors=colors,
@@ -158,6 +160,32 @@ def _suffix(path: Path) -> str:
         raise ValueError(f"unsupported mesh file suffix {path.suffix!r} in {path.name!r}; "
                          f"supported: {', '.join(SUPPORTED_SUFFIXES)}")
     return suffix
+
+
+def _ply_bytes(vertices: np.ndarray, faces: np.ndarray, colors: np.ndarray | None) -> bytes:
+    """Binary little-endian PLY: vertices (n, 3) as float32 ``x y z`` (with colours (n, 3|4)
+    uint8, ``red green blue alpha``, alpha 255 where not given), faces (m, 3) as
+    ``list uchar int vertex_indices``: the layout trimesh writes, in one numpy pass."""
+    fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
+    if colors is not None:
+        fields += [(c, "u1") for c in ("red", "green", "blue", "alpha")]
+    vertex = np.empty(len(vertices), dtype=fields)
+    for k, axis in enumerate("xyz"):
+        vertex[axis] = vertices[:, k]
+    if colors is not None:
+        for k, channel in enumerate(("red", "green", "blue")):
+            vertex[channel] = colors[:, k]
+        vertex["alpha"] = colors[:, 3] if colors.shape[1] == 4 else 255
+    face = np.empty(len(faces), dtype=[("n", "u1"), ("corners", "<i4", (3,))])
+    face["n"] = 3
+    face["corners"] = faces
+    properties = "".join(f"property {'float' if kind == '<f4' else 'uchar'} {name}\n"
+                         for name, kind in fields)
+    header = ("ply\nformat binary_little_endian 1.0\ncomment sfs_ros\n"
+              f"element vertex {len(vertices)}\n{properties}"
+              f"element face {len(faces)}\nproperty list uchar int vertex_indices\n"
+              "end_header\n")
+    return header.encode("ascii") + vertex.tobytes() + face.tobytes()
 
 
 def _colors_uint8(colors, n: int) -> np.ndarray:
