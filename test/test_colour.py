@@ -138,6 +138,10 @@ def test_unseen_vertices_take_the_colour_of_their_neighbours():
     assert np.all(unseen[len(vertices):]) and unseen[:len(vertices)].sum() > len(vertices) // 2
     assert result.stats["filled"] == unseen.sum()
     assert np.abs(result.colours.astype(int) - BLUE).max() <= ROUNDING
+    # The caller hears once that every view is blended (the fill, one core's work, follows).
+    calls = []
+    again = vertex_colours(all_v, all_f, image, [camera], on_blended=lambda: calls.append(1))
+    assert calls == [1] and np.array_equal(again.colours, result.colours)
 
 
 def test_spread_views_takes_the_farthest_directions_first():

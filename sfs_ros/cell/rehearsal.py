@@ -5,10 +5,13 @@ compiled kernels from numba's disk cache, the code pages of OpenCV, SciPy and
 scikit-image, the worker threads. In the cell's reconstruction node that was
 about 0.2 s of the latency from the last view to the mesh (``bench_cell``:
 1.10-1.28 s with a rehearsal, 1.14-1.62 s without, alternated three times).
-:func:`rehearse` does it once beforehand, on a scan of 13 views of 160 x 120
+:func:`rehearse` does it once beforehand, on a scan of 25 views of 160 x 120
 at 48^3: every stage of :meth:`~sfs_ros.cell.live.LiveReconstruction.reconstruct`
 (carving, fusion, meshing, colour, evaluation, the files and pictures) on
-arrays of the types a real scan has. ``sfs-warm-up`` runs it too, where it
+arrays of the types a real scan has. It has more views than the colour takes
+(:data:`~sfs_ros.core.meshing.colour.MAX_COLOUR_VIEWS`), so the evaluation draws
+the others, as in a real scan (with 13 views it did not, and the first real
+reconstruction loaded the evaluation's kernels). ``sfs-warm-up`` runs it too, where it
 compiles the live path's kernels.
 """
 
@@ -28,8 +31,8 @@ __all__ = ["REHEARSAL_RIG", "REHEARSAL_PLAN", "REHEARSAL_RESOLUTION", "rehearse"
 #: A small camera: the kernels are loaded for the array types, not for the sizes.
 REHEARSAL_RIG = RigCalibration(width=160, height=120, projection="pinhole", fx=350.0, fy=350.0,
                                camera_distance_m=0.6, aim_point_m=(0.0, 0.0, 0.04))
-#: (theta, phi) of the 13 views, radians: two rings of 6 and one from above.
-REHEARSAL_PLAN = ring_plan([20.0, 50.0], 6, top_view=True)
+#: (theta, phi) of the 25 views, radians: two rings of 12 and one from above.
+REHEARSAL_PLAN = ring_plan([20.0, 50.0], 12, top_view=True)
 REHEARSAL_RESOLUTION = 48
 
 

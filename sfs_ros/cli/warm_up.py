@@ -29,7 +29,7 @@ from ..core.simulation.synthetic import simulate_scan
 
 
 def run(folder: Path) -> None:
-    """Reconstruct a 13-view simulated scan of the mug offline and live, in ``folder``."""
+    """Reconstruct a 25-view simulated scan of the mug offline and live, in ``folder``."""
     captures = simulate_scan(make_object("mug"), REHEARSAL_RIG, REHEARSAL_PLAN, seed=0)
     session = write_session(folder / "session", [(c.name, c.image) for c in captures],
                             [(c.theta_rad, c.phi_rad) for c in captures], REHEARSAL_RIG)

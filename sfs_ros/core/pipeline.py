@@ -8,6 +8,7 @@ cubes), mesh checks, colour (on request), reprojection of the mesh into every vi
 from __future__ import annotations
 
 import os
+import threading
 import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
@@ -432,21 +433,28 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
     # are drawn for the evaluation.
     drawn = sorted(set(range(len(views))) - {used[n] for n in coloured})
 
+    blended = threading.Event()     # the colour's views are blended: its fill is left
+
     def colour(closed: bool):
         with _timed(timings, "colour"):
             progress("colour", 0.0)
-            found = vertex_colours(
-                vertices, faces,
-                [undistort_image(_colour_image(views[used[n]], images),
-                                 lenses[views[used[n]].name]) for n in coloured],
-                [cameras[n] for n in coloured], masks=[used_masks[n] for n in coloured],
-                coverage=True, closed=closed) if coloured else None
+            try:
+                found = vertex_colours(
+                    vertices, faces,
+                    [undistort_image(_colour_image(views[used[n]], images),
+                                     lenses[views[used[n]].name]) for n in coloured],
+                    [cameras[n] for n in coloured], masks=[used_masks[n] for n in coloured],
+                    coverage=True, closed=closed, on_blended=blended.set) if coloured else None
+            finally:
+                blended.set()
             progress("colour", 1.0)
         return found
 
     def checks_and_drawn(closed: bool):
         with _timed(timings, "mesh_checks"):
             report = check_mesh(vertices, faces).as_dict()
+        # The evaluation (both cores) waits for the colour's fill (one core) to run beside.
+        blended.wait()
         with _timed(timings, "evaluation"):
             ious = reprojection_ious(vertices, faces, [views[i].camera for i in drawn],
                                      [masks[i] for i in drawn], closed=closed) if drawn else []

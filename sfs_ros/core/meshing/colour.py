@@ -35,7 +35,7 @@ interpolation, each such vertex the mean of its neighbours, the seen ones fixed.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -361,7 +361,8 @@ def vertex_colours(vertices, faces, images: Sequence, cameras: Sequence[Camera],
                    masks: Sequence | None = None, occlusion: bool = True,
                    angle_power: float = 2.0, min_cos: float = 0.2, edge_ramp_px: float = 3.0,
                    depth_tolerance_px: float = 1.0, coverage: bool = False,
-                   closed: bool = False) -> VertexColours:
+                   closed: bool = False, on_blended: Callable[[], None] | None = None
+                   ) -> VertexColours:
     """Colour every vertex of a closed mesh from the views that see it.
 
     Parameters
@@ -406,6 +407,9 @@ def vertex_colours(vertices, faces, images: Sequence, cameras: Sequence[Camera],
         watertight with a positive volume): the z-buffers draw only the faces
         turned towards the camera, the same depths for about half the work (see
         :func:`~sfs_ros.core.render.rasterize_depth`).
+    on_blended : callable or None
+        Called (no arguments) once every view is blended, before the vertices no view
+        sees are filled in, which takes one core: another thread may then use the rest.
 
     Returns
     -------
@@ -472,6 +476,8 @@ def vertex_colours(vertices, faces, images: Sequence, cameras: Sequence[Camera],
         covers.append(covered)
         _add_view(idx, w, weighted, hidden, total, weight_sum, n_views, n_hidden)
 
+    if on_blended is not None:
+        on_blended()
     seen = weight_sum > 0
     if not seen.any():
         raise ValueError("no vertex is seen by any view: check that the cameras look at the "
