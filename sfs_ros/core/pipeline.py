@@ -450,15 +450,17 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
             progress("colour", 1.0)
         return found
 
-    def checks_and_drawn(closed: bool):
-        with _timed(timings, "mesh_checks"):
-            report = check_mesh(vertices, faces).as_dict()
+    def draw(closed: bool):
         # The evaluation (both cores) waits for the colour's fill (one core) to run beside.
         blended.wait()
         with _timed(timings, "evaluation"):
-            ious = reprojection_ious(vertices, faces, [views[i].camera for i in drawn],
+            return reprojection_ious(vertices, faces, [views[i].camera for i in drawn],
                                      [masks[i] for i in drawn], closed=closed) if drawn else []
-        return report, ious
+
+    def checks_then_draw(closed: bool):
+        with _timed(timings, "mesh_checks"):
+            report = check_mesh(vertices, faces).as_dict()
+        return report, draw(closed)
 
     # A marching-cubes mesh is closed and outward by construction: the checks and the
     # evaluation run beside the colour (both count on a closed mesh for half their
@@ -466,7 +468,7 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
     # one after the other.
     expect_closed = params.mesher == "marching-cubes"
     with ThreadPoolExecutor(max_workers=1) as side:
-        beside = side.submit(checks_and_drawn, expect_closed)
+        beside = side.submit(checks_then_draw, expect_closed)
         try:
             colours, failure = colour(expect_closed), None
         except ValueError as exc:   # an error of a wrong guess is no error: see below
@@ -475,7 +477,7 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
     closed = bool(mesh_report["watertight"] and mesh_report["outward"])
     if closed != expect_closed:
         colours = colour(closed)
-        drawn_ious = checks_and_drawn(closed)[1]
+        drawn_ious = draw(closed)
     elif failure is not None:
         raise failure
 
