@@ -457,16 +457,25 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
             return reprojection_ious(vertices, faces, [views[i].camera for i in drawn],
                                      [masks[i] for i in drawn], closed=closed) if drawn else []
 
-    def checks_then_draw(closed: bool):
+    # A marching-cubes mesh is closed and outward by construction: its checks run beside
+    # the colour and the evaluation, which count on a closed mesh for half their drawing
+    # (should the checks find it otherwise, both are done again, the same as one after
+    # the other). Another mesher's mesh is checked first.
+    mesh_report = None
+    if params.mesher == "marching-cubes":
+        expect_closed = True
+    else:
         with _timed(timings, "mesh_checks"):
-            report = check_mesh(vertices, faces).as_dict()
+            mesh_report = check_mesh(vertices, faces).as_dict()
+        expect_closed = bool(mesh_report["watertight"] and mesh_report["outward"])
+
+    def checks_then_draw(closed: bool):
+        report = mesh_report
+        if report is None:
+            with _timed(timings, "mesh_checks"):
+                report = check_mesh(vertices, faces).as_dict()
         return report, draw(closed)
 
-    # A marching-cubes mesh is closed and outward by construction: the checks and the
-    # evaluation run beside the colour (both count on a closed mesh for half their
-    # drawing); should the checks find it otherwise, both are done again, the same as
-    # one after the other.
-    expect_closed = params.mesher == "marching-cubes"
     with ThreadPoolExecutor(max_workers=1) as side:
         beside = side.submit(checks_then_draw, expect_closed)
         try:
