@@ -202,7 +202,8 @@ def _rasterize_kernel(h, depth, faces, face_id, bary, zbuf, front_only):
     with_ids = face_id.shape[0] > 0
     coef = np.empty((3, 4))
     for f in range(faces.shape[0]):
-        # (the box first: most faces of a fine mesh hold no pixel centre)
+        # (a closed mesh's back faces first: half the faces, one determinant each; then the
+        # box, which most faces of a fine mesh fail: they hold no pixel centre)
         if front_only and face_orientation(h, faces, f) != FRONT_FACING:
             continue
         c0, c1, r0, r1 = pixel_box(h, faces, f, width, height)

@@ -131,10 +131,6 @@ class DistanceImages:
         found = self._kept.get(self._key(mask))
         return found if found is not None else _silhouette_distance(mask)
 
-    def clear(self) -> None:
-        """Forget every image."""
-        self._kept.clear()
-
 
 @njit(cache=True, inline="always")
 def _sample(images, offset, width, height, u0, v0, margin, u, v):
