@@ -182,6 +182,17 @@ def test_mesh_is_latched_for_late_subscribers(scan, cell):
     assert len(late[0].points) == len(marker.points)
 
 
+def test_reconstruct_called_again_at_once_answers_and_its_pictures_follow(scan, cell):
+    # The pictures and mesh messages after an answer wait until it is sent; a request that
+    # comes first must release them, not wait behind them.
+    assert scan.success
+    again = [cell.call("reconstruct") for _ in range(2)]
+    assert all(answer.success for answer in again), [a.message for a in again]
+    summaries = [json.loads(answer.message) for answer in again]
+    assert summaries[0]["n_faces"] == summaries[1]["n_faces"] == json.loads(scan.message)["n_faces"]
+    wait_for_pictures(summaries[1], timeout_s=60.0)
+
+
 def test_camera_poses_are_the_views_cameras(scan, cell):
     cell.probe.spin_until(lambda: cell.poses and len(cell.poses[-1].poses) >= len(PLAN),
                           what="camera poses of every view", process=cell.process)

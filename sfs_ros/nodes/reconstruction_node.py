@@ -141,7 +141,7 @@ from sfs_ros.ros.paired_input import PairedInput, Stream
 from sfs_ros.ros.pairing import format_stamp, stamp_key, view_key
 from sfs_ros.ros.params import Param, ParameterError, declare, read, validating_callback
 from sfs_ros.ros.rig_params import RIG_PARAMS, rig_calibration
-from sfs_ros.ros.worker import Worker
+from sfs_ros.ros.worker import Hold, Worker
 
 __all__ = ["ReconstructionNode", "PARAMS", "main"]
 
@@ -188,6 +188,9 @@ PARAMS: list[Param] = [
 REHEARSAL_PREFIX = ".rehearsal_"
 #: How long stopping the node waits for a rehearsal still running, s.
 REHEARSAL_JOIN_S = 2.0
+#: Period (s) of the timer that releases the jobs after a ``reconstruct`` answer (it runs
+#: once per answer, as soon as the answer is sent).
+ANSWER_CHECK_S = 0.001
 #: How often views that could not be stored (a full disk) are tried again, s.
 STORE_RETRY_S = 1.0
 #: Views of earlier scans remembered by their keys, so that a late copy of one (a resend
@@ -317,6 +320,15 @@ class ReconstructionNode(Node):
         self.create_service(Trigger, private("reset"), self._on_reset, callback_group=services)
         self.create_timer(1.0, self._publish_diagnostics, callback_group=inputs)
         self.create_timer(STORE_RETRY_S, self._retry_unstored, callback_group=inputs)
+        # The jobs after a reconstruction (pictures, mesh messages) wait on a hold until
+        # its answer is sent: released by this timer, armed by the service callback. In the
+        # services group it runs only once that callback is done, and rclpy sends the
+        # answer before that. (Started at once, the pictures took the answer's turns at the
+        # interpreter lock: it reached the caller 20 ms after the mesh was written.)
+        self._answered = self.create_timer(ANSWER_CHECK_S, self._release_after_answer,
+                                           callback_group=services)
+        self._answered.cancel()
+        self._after_answer: Hold | None = None   # taken by the worker, released by the timer
 
         self._last_hull = -float("inf")   # worker thread: when the hull was last published
         self._hull_dirty = False           # worker thread: carved since then
@@ -346,6 +358,8 @@ class ReconstructionNode(Node):
         rehearsal still running after :data:`REHEARSAL_JOIN_S` is left to end with the
         process; its folder goes at the next start)."""
         if self._worker is not None:
+            if self._after_answer is not None:   # the answer's timer will not run now
+                self._after_answer.release()
             self._worker.stop()
             self._worker.join()
         if self._rehearsal is not None:
@@ -379,13 +393,27 @@ class ReconstructionNode(Node):
         self._report_problem(text)
 
     def _on_reconstruct(self, _request, response):
-        return self._request("reconstruct", self._reconstruct, response)
+        response = self._request("reconstruct", self._reconstruct, response)
+        if self._after_answer is not None:
+            self._answered.reset()
+        return response
+
+    def _release_after_answer(self) -> None:
+        """Timer (services group), once the ``reconstruct`` answer is sent: the worker may
+        start the jobs that follow it."""
+        self._answered.cancel()
+        hold, self._after_answer = self._after_answer, None
+        if hold is not None:
+            hold.release()
 
     def _on_reset(self, _request, response):
         return self._request("reset", self._reset, response)
 
     def _request(self, name: str, job, response):
         """Run ``job`` (which answers ``(success, message)``) in the worker and answer with it."""
+        # The previous answer is out (this group ran one callback at a time): should its
+        # timer not have run yet, the jobs held for it must not hold this one up.
+        self._release_after_answer()
         try:
             response.success, response.message = self._submit(name, job).result()
         except Exception as exc:  # noqa: BLE001 -- the worker reported it; the caller gets it
@@ -620,7 +648,8 @@ class ReconstructionNode(Node):
         self._publish_diagnostics()
         # The answer goes out now, the mesh and its report being on disk; the pictures (a
         # quarter of the time) and the mesh messages (seconds of building and serialising
-        # for a few 100 000 faces) follow as the worker's next jobs.
+        # for a few 100 000 faces) follow as the worker's next jobs, once it is sent.
+        self._after_answer = self._worker.hold()
         self._submit("pictures", self._write_pictures, summary["path"])
         self._submit("publish the mesh", self._publish_mesh, *self._live.last_mesh,
                      self._live.last_colours)

@@ -7,7 +7,7 @@ from numba import njit
 
 from ..union_find import join, settle
 
-__all__ = ["drop_specks"]
+__all__ = ["drop_specks", "occupied_bounds"]
 
 
 def drop_specks(occupancy: np.ndarray, *, min_fraction: float = 0.01) -> tuple[np.ndarray, int]:
@@ -47,6 +47,21 @@ def drop_specks(occupancy: np.ndarray, *, min_fraction: float = 0.01) -> tuple[n
     cleaned = occ.copy()
     _clear_runs(cleaned, column_start, run_lo, run_hi, drop[part])
     return cleaned, int(np.count_nonzero(drop))
+
+
+def occupied_bounds(occ: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """Half-open index box ``[lo, hi)`` (two (3,) int64) around the occupied voxels of a
+    3-D bool ``occ``; None if there is none."""
+    column = occ.any(axis=2)
+    xs = np.flatnonzero(column.any(axis=1))
+    if xs.size == 0:
+        return None
+    ys = np.flatnonzero(column.any(axis=0))
+    x0, x1, y0, y1 = xs[0], xs[-1] + 1, ys[0], ys[-1] + 1
+    zs = np.flatnonzero(occ[x0:x1, y0:y1].any(axis=(0, 1)))
+    lo = np.array([x0, y0, zs[0]], dtype=np.int64)
+    hi = np.array([x1, y1, zs[-1] + 1], dtype=np.int64)
+    return lo, hi
 
 
 @njit(cache=True)

@@ -23,6 +23,7 @@ from numba import njit
 from scipy import ndimage
 from skimage import measure
 
+from ..carving.hull import occupied_bounds
 from ..geometry.grid import VoxelGrid
 from .hull_distance import HullDistance
 
@@ -193,6 +194,14 @@ def _check_occupancy(occupancy, grid: VoxelGrid) -> np.ndarray:
     return occ.astype(bool, copy=False)
 
 
+def _occupied_bounds(occ: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`.hull.occupied_bounds` of an occupancy to mesh; ValueError if it is empty."""
+    box = occupied_bounds(occ)
+    if box is None:
+        raise ValueError("occupancy is empty: no voxel is occupied, there is no surface to mesh")
+    return box
+
+
 def _cubes_with_a_corner_in(voxels: np.ndarray) -> np.ndarray:
     """scikit-image's marching-cubes mask of the cubes with a corner in ``voxels`` (3-D
     bool): it visits the cube of corners ``p .. p + 1`` when the mask holds at ``p + 1``,
@@ -219,20 +228,6 @@ def _contour(volume: np.ndarray, level: float, corner: np.ndarray, grid: VoxelGr
     if _signed_volume(vertices, faces) < 0:
         faces = faces[:, ::-1].copy()
     return vertices, faces
-
-
-def _occupied_bounds(occ: np.ndarray):
-    """Half-open index box ``[lo, hi)`` (two (3,) int64) around the occupied voxels."""
-    column = occ.any(axis=2)
-    xs = np.flatnonzero(column.any(axis=1))
-    if xs.size == 0:
-        raise ValueError("occupancy is empty: no voxel is occupied, there is no surface to mesh")
-    ys = np.flatnonzero(column.any(axis=0))
-    x0, x1, y0, y1 = xs[0], xs[-1] + 1, ys[0], ys[-1] + 1
-    zs = np.flatnonzero(occ[x0:x1, y0:y1].any(axis=(0, 1)))
-    lo = np.array([x0, y0, zs[0]], dtype=np.int64)
-    hi = np.array([x1, y1, zs[-1] + 1], dtype=np.int64)
-    return lo, hi
 
 
 @njit(cache=True, nogil=True)
