@@ -5,7 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from sfs_ros.core.carving.bounds import refine_bounds
+from sfs_ros.core.carving.bounds import BoxCarve, refine_bounds, seen_by
+from sfs_ros.core.carving.carve import carve
 from sfs_ros.core.carving.resolution import (
     BYTES_PER_VOXEL,
     choose_voxel_size,
@@ -13,6 +14,7 @@ from sfs_ros.core.carving.resolution import (
     parse_memory,
     pixel_footprints_m,
 )
+from sfs_ros.core.geometry.grid import VoxelGrid
 from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
 
 from analytic_masks import sphere_mask
@@ -99,3 +101,39 @@ def test_refined_box_holds_the_sphere_tightly():
     assert np.all(box[0] <= centre - radius) and np.all(box[1] >= centre + radius)
     assert np.all(box[0] >= centre - radius - 0.005 - 0.1 * radius)
     assert np.all(box[1] <= centre + radius + 0.005 + 0.1 * radius)
+
+
+def test_a_box_carve_kept_view_by_view_refines_to_the_same_box():
+    # BoxCarve counts, a view at a time, what refine_bounds carves at once: for the same
+    # views, in any order, the same voxels and so the same box, bit for bit. The box is
+    # wider than the frames (0.6 m away, 160 px / 1200 px = 0.08 m half-width), so the
+    # framing counts matter, and one mask lost a bite, so the miss counts do.
+    centre, radius = np.array([0.01, -0.005, 0.0]), 0.03
+    cameras = [rig_camera(t, math.radians(p), RIG) for p in (0, 40, 80)
+               for t in np.linspace(0, 2 * np.pi, 8, endpoint=False)]
+    masks = [sphere_mask(c, centre, radius) for c in cameras]
+    masks[5][:, :170] = False
+    loose = np.array([[-0.3, -0.3, -0.3], [0.3, 0.3, 0.3]])
+    known = BoxCarve(loose, resolution=64)
+    for i in np.random.default_rng(1).permutation(len(cameras)):
+        known.add(cameras[i], masks[i])
+    grid = VoxelGrid.cube(loose[0], loose[1], 64)
+    assert not seen_by(grid, cameras, 12).all()
+    for misses in (0, 1, 2):
+        expected = refine_bounds(cameras, masks, loose, resolution=64, max_misses=misses)
+        assert np.array_equal(refine_bounds(cameras, masks, loose, resolution=64,
+                                            max_misses=misses, known=known), expected)
+        held = known.carved(grid, cameras, masks, misses, 12)
+        assert np.array_equal(held, carve(grid, cameras, masks, max_misses=misses)
+                              & seen_by(grid, cameras, 12))
+    # Not these views, not this grid, more misses than it counts: it says so (None).
+    bitten = [m.copy() for m in masks]
+    bitten[3][100:, :] = False
+    assert known.carved(grid, cameras, bitten, 1, 12) is None
+    assert known.carved(grid, cameras[:-1], masks[:-1], 1, 12) is None
+    assert known.carved(VoxelGrid.cube(loose[0], loose[1], 65), cameras, masks, 1, 12) is None
+    assert known.carved(grid, cameras, masks, BoxCarve.MOST_MISSES + 1, 12) is None
+    # ... and refine_bounds then carves: the bitten masks' box, as without the store.
+    assert np.array_equal(
+        refine_bounds(cameras, bitten, loose, resolution=64, max_misses=1, known=known),
+        refine_bounds(cameras, bitten, loose, resolution=64, max_misses=1))

@@ -50,6 +50,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ..core.carving.bounds import BoxCarve
 from ..core.carving.carve import Carver
 from ..core.carving.hull import occupied_bounds
 from ..core.carving.resolution import BYTES_PER_VOXEL
@@ -61,7 +62,7 @@ from ..core.geometry.grid import VoxelGrid
 from ..core.geometry.lens import ideal_camera, undistort_mask
 from ..core.geometry.rig import RigCalibration, rig_camera
 from ..core.meshing.hull_distance import DistanceImages
-from ..core.pipeline import ReconstructionParams, reconstruct
+from ..core.pipeline import Precomputed, ReconstructionParams, reconstruct
 from ..core.result_files import SheetViews, add_pictures, write_result
 from ..core.segment import SegmentationParams
 from .paths import confined_path
@@ -275,7 +276,7 @@ class LiveReconstruction:
             (self._session / OPEN_MARKER).unlink(missing_ok=True)
         self._session: Path | None = None
         self._carver = Carver(self.grid, max_misses=self.params.max_misses)
-        self._distances = DistanceImages()
+        self._precomputed = Precomputed(distances=DistanceImages(), box=BoxCarve(self.bounds_m))
         self._views: dict[str, _Received] = {}
         self._colour_images: dict[str, np.ndarray] = {}
         self._mesh: tuple[np.ndarray, np.ndarray] | None = None
@@ -418,9 +419,12 @@ class LiveReconstruction:
 
     def _take(self, camera, mask: np.ndarray) -> None:
         """Carve the live hull with a non-empty mask on the ideal pinhole's pixel grid, and
-        compute its distance image for the final mesh (:class:`DistanceImages`)."""
-        self._carver.add_view(ideal_camera(camera), mask)
-        self._distances.add(mask)
+        compute what the final reconstruction will need of it (:class:`Precomputed`): its
+        distance image and its part in the coarse carve that refines the box."""
+        ideal = ideal_camera(camera)
+        self._carver.add_view(ideal, mask)
+        self._precomputed.distances.add(mask)
+        self._precomputed.box.add(ideal, mask)
 
     def reopen(self) -> str:
         """Take up the scan that was being received (the newest session folder marked open
@@ -556,7 +560,7 @@ class LiveReconstruction:
         colour = bool(images) and path.suffix.lower() != ".stl"
         result = reconstruct(view_set, replace(self.params, colour=colour),
                              masks={self._views[key].name: m for key, m in masks.items()},
-                             images=images, distances=self._distances)
+                             images=images, precomputed=self._precomputed)
         colours = result.vertex_colors
         coloured = result.report["colour"]["views"] if "colour" in result.report else 0
         picture_files = dict(preview=preview_path, html=html_path, contact_sheet=sheet_path,

@@ -17,7 +17,7 @@ from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
-from .carving.bounds import estimate_bounds, refine_bounds
+from .carving.bounds import BoxCarve, estimate_bounds, refine_bounds
 from .carving.carve import PreparedMasks, carve
 from .carving.consistency import bbox_clips_object
 from .carving.fusion import fuse_silhouettes, reference_misses
@@ -37,7 +37,7 @@ from .resegment import Consensus, consensus_masks
 from .segment import SegmentationParams, segment
 from .workers import map_in_threads
 
-__all__ = ["MESHERS", "ReconstructionParams", "Reconstruction", "reconstruct"]
+__all__ = ["MESHERS", "Precomputed", "ReconstructionParams", "Reconstruction", "reconstruct"]
 
 MESHERS = ("marching-cubes", "advancing-front")
 
@@ -156,6 +156,20 @@ class Reconstruction:
     masks: dict = field(default_factory=dict)
 
 
+@dataclass(frozen=True)
+class Precomputed:
+    """What a scan received view by view computed as its views arrived (while the rig
+    moved), for :func:`reconstruct` to find instead of computing it: the same result
+    either way. Each part is used only for the views it holds.
+
+    distances : the masks' distance images, for the mesh.
+    box : the coarse carve that refines an input box (:func:`.carving.bounds.refine_bounds`).
+    """
+
+    distances: DistanceImages | None = None
+    box: BoxCarve | None = None
+
+
 @contextmanager
 def _timed(seconds: dict[str, float], stage: str):
     """Add the wall time of the ``with`` block to ``seconds[stage]``."""
@@ -263,7 +277,7 @@ def _colour_image(view: View, images: dict | None) -> np.ndarray:
 def reconstruct(view_set: ViewSet, params: ReconstructionParams = ReconstructionParams(), *,
                 progress: Progress | None = None, masks: dict | None = None,
                 images: dict | None = None,
-                distances: DistanceImages | None = None) -> Reconstruction:
+                precomputed: Precomputed = Precomputed()) -> Reconstruction:
     """Reconstruct the object seen in ``view_set``.
 
     ``masks`` ({view name: (H, W) bool}, optional) are silhouettes the caller already
@@ -271,8 +285,8 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
     ``images`` ({view name: (H, W, 3) uint8 RGB as taken, or the path of its file},
     optional): with ``params.colour``, the images that colour the mesh instead of the
     views' files (e.g. a live scan's or a bag's captures); a used view without one takes
-    no part. ``distances`` (optional): the masks' distance images, computed beforehand
-    (a live scan's, as its views arrive); the mesh is the same without.
+    no part. ``precomputed`` (optional): what a live scan computed as its views arrived
+    (:class:`Precomputed`); the result is the same without.
 
     Views that cannot be read, have an empty silhouette or disagree with the
     others are rejected and reported, never silently used or dropped. Raises
@@ -339,7 +353,8 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
         refined = bounds_source != "given" and len(cameras) >= 3
         if refined:
             bounds = refine_bounds(cameras, prepared, bounds,
-                                   max_misses=reference_misses(len(cameras)))
+                                   max_misses=reference_misses(len(cameras)),
+                                   known=precomputed.box)
         choice = choose_voxel_size(bounds, cameras, resolution=params.resolution,
                                    voxel_size_m=params.voxel_size_m,
                                    max_memory_bytes=params.max_memory_bytes
@@ -421,7 +436,7 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
     with _timed(timings, "meshing"):
         progress("meshing", 0.0)
         vertices, faces, mesher_stats = _mesh(occupancy, grid, params, cameras, used_masks,
-                                              distances)
+                                              precomputed.distances)
         progress("meshing", 1.0)
     # The used views with an image to colour from (all of them, from their files, unless
     # the caller gives the images), at most MAX_COLOUR_VIEWS spread out.

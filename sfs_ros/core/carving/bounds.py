@@ -9,15 +9,20 @@ carve's hull plus a margin.
 
 from __future__ import annotations
 
+from collections import Counter
+
 import numpy as np
 
 from ..geometry.camera import Camera
 from ..geometry.grid import VoxelGrid
-from .carve import carve
-from .hull import drop_specks
+from .carve import Carver, PreparedMasks, carve
+from .hull import drop_specks, occupied_bounds
 
-__all__ = ["axes_meeting_point", "box_in_frame", "estimate_bounds", "refine_bounds",
-           "seen_by"]
+__all__ = ["BoxCarve", "axes_meeting_point", "box_in_frame", "estimate_bounds",
+           "refine_bounds", "seen_by"]
+
+#: Resolution of :func:`refine_bounds`'s carve.
+REFINE_RESOLUTION = 128
 
 
 def axes_meeting_point(cameras: list[Camera]) -> np.ndarray:
@@ -98,9 +103,81 @@ def estimate_bounds(cameras: list[Camera], masks: list[np.ndarray], *,
     return np.stack([points.min(axis=0) - pad, points.max(axis=0) + pad])
 
 
+class BoxCarve:
+    """:func:`refine_bounds`'s carve of a box, kept up to date as views arrive.
+
+    That carve counts, per voxel of a coarse grid over the box, the views whose
+    silhouette misses it and the views that do not frame it. Here both counts grow a
+    view at a time (:class:`.carve.Carver`, which counts as :func:`.carve.carve` does),
+    while the rig moves; :func:`refine_bounds` given this store, for the same box and
+    the same views (cameras and masks, in any order), takes the voxels from it instead
+    of carving: the same box either way. For other views it carves as without.
+
+    Parameters
+    ----------
+    bounds_m : (2, 3)
+        The box ``[min, max]``, metres.
+    resolution : int, keyword-only
+        Of the coarse grid, as :func:`refine_bounds`'s.
+
+    Memory: two bytes per voxel of the coarse grid (4 MiB at 128^3) and a key per view
+    (its camera and its packed mask).
+    """
+
+    #: Most misses a voxel may be allowed: :func:`.fusion.reference_misses` at most.
+    MOST_MISSES = 2
+    #: Most views that may be allowed not to frame a voxel (uint8 counts).
+    MOST_UNFRAMED = 254
+
+    def __init__(self, bounds_m, *, resolution: int = REFINE_RESOLUTION):
+        bounds = np.asarray(bounds_m, dtype=np.float64)
+        self.grid = VoxelGrid.cube(bounds[0], bounds[1], resolution)
+        self._misses = Carver(self.grid, max_misses=self.MOST_MISSES)
+        self._unframed = Carver(self.grid, max_misses=self.MOST_UNFRAMED,
+                                outside_image="carve")
+        self._views: Counter = Counter()
+
+    def add(self, camera: Camera, mask) -> None:
+        """Count one more view: ``mask`` (camera.height, camera.width) bool."""
+        self._misses.add_view(camera, mask)
+        self._unframed.add_view(camera, np.ones((camera.height, camera.width), bool))
+        self._views[_view_key(camera, mask)] += 1
+
+    def carved(self, grid: VoxelGrid, cameras: list[Camera], masks, max_misses: int,
+               framed_by: int) -> np.ndarray | None:
+        """(nx, ny, nz) bool: the voxels of ``grid`` at most ``max_misses`` of the views
+        miss and at least ``framed_by`` of them frame, if this store counted exactly
+        these views (``masks`` as :func:`.carve.carve` takes them) on this grid; else
+        None."""
+        unframed = len(cameras) - framed_by
+        if not _same_grid(grid, self.grid) or not 0 <= max_misses <= self.MOST_MISSES \
+                or not 0 <= unframed <= self.MOST_UNFRAMED:
+            return None
+        if isinstance(masks, PreparedMasks):
+            masks = masks.masks
+        if len(cameras) != sum(self._views.values()) or self._views != Counter(
+                _view_key(c, m) for c, m in zip(cameras, masks, strict=True)):
+            return None
+        return self._misses.tolerating(max_misses) & self._unframed.tolerating(unframed)
+
+
+def _same_grid(a: VoxelGrid, b: VoxelGrid) -> bool:
+    """Whether two grids have the same voxels."""
+    return a.shape == b.shape and a.voxel_size == b.voxel_size \
+        and bool(np.array_equal(a.bounds_min, b.bounds_min))
+
+
+def _view_key(camera: Camera, mask) -> tuple:
+    """What decides a view's carve: its camera's numbers and its mask's bits."""
+    distortion = None if camera.distortion is None else np.asarray(camera.distortion).tobytes()
+    return (camera.K.tobytes(), camera.R.tobytes(), camera.t.tobytes(), camera.width,
+            camera.height, bool(camera.orthographic), distortion,
+            np.packbits(np.asarray(mask, dtype=bool), axis=None).tobytes())
+
+
 def refine_bounds(cameras: list[Camera], masks: list[np.ndarray], bounds_m, *,
-                  resolution: int = 128, max_misses: int = 0,
-                  margin_voxels: float = 2.0) -> np.ndarray:
+                  resolution: int = REFINE_RESOLUTION, max_misses: int = 0,
+                  margin_voxels: float = 2.0, known: BoxCarve | None = None) -> np.ndarray:
     """(2, 3) box of the hull carved inside ``bounds_m`` (2, 3), grown by a margin, metres.
 
     Carves a ``resolution`` grid over ``bounds_m`` with ``max_misses`` tolerated
@@ -111,19 +188,24 @@ def refine_bounds(cameras: list[Camera], masks: list[np.ndarray], bounds_m, *,
     ``margin_voxels`` of that grid's voxels (a finer carve can occupy voxels
     whose coarse cell's centre was outside: half a voxel; the rest is room for
     the surface). The result never leaves ``bounds_m``; ``bounds_m`` itself is
-    returned when nothing survives.
+    returned when nothing survives. ``known``: the carve kept as the views arrived
+    (:class:`BoxCarve`), used when it holds these views on this grid.
     """
     bounds = np.asarray(bounds_m, dtype=np.float64)
     grid = VoxelGrid.cube(bounds[0], bounds[1], resolution)
-    occupancy = carve(grid, cameras, masks, max_misses=max_misses)
-    occupancy &= seen_by(grid, cameras, len(cameras) - len(cameras) // 2)
+    framed_by = len(cameras) - len(cameras) // 2
+    occupancy = None if known is None else known.carved(grid, cameras, masks, max_misses,
+                                                         framed_by)
+    if occupancy is None:
+        occupancy = carve(grid, cameras, masks, max_misses=max_misses)
+        occupancy &= seen_by(grid, cameras, framed_by)
     occupancy, _ = drop_specks(occupancy)
-    ijk = np.argwhere(occupancy)
-    if len(ijk) == 0:
+    box = occupied_bounds(occupancy)
+    if box is None:
         return bounds
     pad = (0.5 + margin_voxels) * grid.voxel_size
-    lo = grid.index_to_world(ijk.min(axis=0))[0] - pad
-    hi = grid.index_to_world(ijk.max(axis=0))[0] + pad
+    lo = grid.index_to_world(box[0])[0] - pad
+    hi = grid.index_to_world(box[1] - 1)[0] + pad
     return np.stack([np.maximum(lo, bounds[0]), np.minimum(hi, bounds[1])])
 
 

@@ -317,6 +317,15 @@ class Carver:
         """(nx, ny, nz) bool: the voxels that stay after the views added so far."""
         return self._misses <= self.max_misses
 
+    def tolerating(self, max_misses: int) -> np.ndarray:
+        """(nx, ny, nz) bool: the voxels that at most ``max_misses`` (<= the carver's) of
+        the views added so far miss, as :func:`carve` with that ``max_misses`` gives them
+        (the counts are exact up to the carver's ``max_misses`` + 1)."""
+        if not 0 <= max_misses <= self.max_misses:
+            raise ValueError(f"max_misses must lie in [0, {self.max_misses}] (the carver's), "
+                             f"got {max_misses}")
+        return self._misses <= max_misses
+
     def add_view(self, camera: Camera, mask) -> None:
         """Carve with one more view; ``mask`` (camera.height, camera.width) bool or 0/1."""
         mask = _check_mask(self._n_views, mask, camera)
