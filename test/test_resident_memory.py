@@ -25,11 +25,47 @@ arrays = [np.ones(1 << 20, np.uint8) for _ in range(32)]
 print(kept, touched, page_faults() - before)
 """
 FRESH_PAGES = 32 * (1 << 20) // 4096
+#: The child as the reconstruction node runs: its module imported first (which sets malloc
+#: up), rclpy's threads (a multi-threaded executor spinning), the heap touched in the main
+#: thread (the node's constructor), the arrays taken in another (its worker). Set up after
+#: rclpy's import instead, the worker took its own arena about every other run, and 8194
+#: faults.
+NODE_CHILD = """
+import threading
+import sfs_ros.nodes.reconstruction_node
+from sfs_ros.core import resident_memory
+kept = resident_memory._kept
+import numpy as np
+import rclpy
+from rclpy.executors import MultiThreadedExecutor
+from rclpy.node import Node
+from sfs_ros.core.resident_memory import page_faults, prefault
+rclpy.init()
+node = Node("resident_memory_probe")
+executor = MultiThreadedExecutor(num_threads=3)
+executor.add_node(node)
+spinning = threading.Thread(target=executor.spin)
+spinning.start()
+touched = prefault(64 << 20)
+faults = []
+def worker():
+    before = page_faults()
+    arrays = [np.ones(1 << 20, np.uint8) for _ in range(32)]
+    faults.append(page_faults() - before)
+thread = threading.Thread(target=worker)
+thread.start()
+thread.join()
+print(kept, touched, faults[0])
+executor.shutdown()
+spinning.join()
+node.destroy_node()
+rclpy.try_shutdown()
+"""
 
 
-def _child(*flags: str) -> tuple[bool, bool, int]:
-    out = subprocess.run([sys.executable, "-c", CHILD, *flags], capture_output=True, text=True,
-                         check=True, timeout=120).stdout.split()
+def _child(*flags: str, script: str = CHILD) -> tuple[bool, bool, int]:
+    out = subprocess.run([sys.executable, "-c", script, *flags], capture_output=True,
+                         text=True, check=True, timeout=120).stdout.split()
     return out[0] == "True", out[1] == "True", int(out[2])
 
 
@@ -59,3 +95,11 @@ def test_prefault_only_after_keep_and_refuses_bad_sizes():
     for bad in (-1, True, 1.5, "1M"):
         with pytest.raises(ValueError, match="reserve_bytes"):
             prefault(bad)
+
+
+def test_the_reconstruction_nodes_worker_thread_reuses_the_heap_its_constructor_touched():
+    # Importing the node's module sets malloc up before rclpy's import starts threads: all
+    # threads share the one arena, so the worker finds the pages the constructor touched.
+    kept, touched, faults = _child(script=NODE_CHILD)
+    assert kept and touched
+    assert faults < FRESH_PAGES // 10     # as in the single-threaded case above

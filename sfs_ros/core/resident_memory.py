@@ -52,9 +52,11 @@ def _mallopt():
 def keep_freed_memory() -> bool:
     """Make malloc keep what it frees (no trimming, no mmap) in one arena for all threads.
 
-    Call it first thing in the process, before threads start (an arena a
-    thread already has is kept). True when the settings took (glibc), False
-    when nothing was changed.
+    Call it first thing in the process, before threads start, and so before
+    importing rclpy, whose import starts some: a thread that took an arena of its
+    own keeps it, and the threads made later are dealt out among the arenas there
+    are, so a worker may allocate in another arena than the one the memory was
+    touched in. True when the settings took (glibc), False when nothing was changed.
     """
     global _kept
     mallopt = _mallopt()

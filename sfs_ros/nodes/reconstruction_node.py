@@ -91,6 +91,16 @@ required. Output files stay inside ``output_dir``.
 
 from __future__ import annotations
 
+# First, before anything starts a thread: malloc keeps what it frees, in one arena for all
+# threads (:mod:`sfs_ros.core.resident_memory`). rclpy's import starts threads, and a thread
+# that took an arena of its own keeps it: called in main(), after the imports, the worker
+# thread reconstructed in another arena than the one its memory was touched in, whose big
+# blocks malloc maps and unmaps, and a reconstruction after a scan paced by the rig
+# faulted 33 000-37 000 pages in anew (0.4-0.5 s of system time).
+from sfs_ros.core.resident_memory import keep_freed_memory, prefault
+
+keep_freed_memory()
+
 import json
 import os
 import shutil
@@ -122,7 +132,6 @@ from sfs_ros.core.carving.resolution import (
 from sfs_ros.core.exchange.views import as_bounds
 from sfs_ros.core.geometry.rig import rig_camera
 from sfs_ros.core.pipeline import MESHERS
-from sfs_ros.core.resident_memory import keep_freed_memory, prefault
 from sfs_ros.nodes.entry import run_node
 from sfs_ros.ros import capture_qos, result_qos
 from sfs_ros.ros.convert import (
@@ -341,10 +350,7 @@ class ReconstructionNode(Node):
             f"reconstructing into {self._live.output_dir} (box {self._live.bounds_m.tolist()}, "
             f"resolution {values['resolution']}, {values['mesher']}, queue depth {depth})")
         self._submit("reopen", self._reopen)
-        # Here, before the rehearsal thread allocates. (Touched by the worker thread while
-        # the rehearsal ran, the block was not kept: glibc's mallinfo2 counted 100 MB of
-        # heap after a 523 MiB block was touched, and the first reconstruction took
-        # 26 000-37 000 page faults, 0.5 s of system time.)
+        # Before the rehearsal thread allocates, so that it finds the pages touched too.
         self._prefault()
         if values["rehearse"]:
             # Beside the worker, not on it: with kernels still to compile (a fresh install)
@@ -715,8 +721,8 @@ def main(args=None) -> None:
     (``--ros-args --params-file config/reconstruction.yaml``, with ``output_dir`` set).
 
     The process keeps the memory it frees (:func:`~sfs_ros.core.resident_memory.
-    keep_freed_memory`), so a reconstruction does not fault in its working memory anew."""
-    keep_freed_memory()
+    keep_freed_memory`, set as this module is imported, before rclpy's), so a
+    reconstruction does not fault in its working memory anew."""
     run_node("sfs-reconstruction", ReconstructionNode, args, threads=3)
 
 
