@@ -41,8 +41,8 @@ request, and messages keep being received (and queued for the worker) while
 it runs. ``reconstruct`` answers once the mesh and its report are written:
 ``success`` and the JSON of :meth:`LiveReconstruction.reconstruct` (path,
 report_path, preview_path, views used / rejected, watertight, volume_m3,
-seconds, ...). The picture, viewer and contact sheet follow (the report is
-written again naming them once they are on disk: wait for that, as
+seconds, ...). Once the answer is sent, the picture, viewer and contact sheet
+follow (the report is written again naming them once they are on disk: wait for that, as
 :meth:`sfs_ros.ros.cell_client.CellClient.reconstruct` does), then the ``mesh``
 and ``mesh_shape`` messages (building and serialising them takes seconds for a
 large mesh, and the files are the result);
