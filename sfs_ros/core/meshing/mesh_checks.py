@@ -117,22 +117,14 @@ def check_mesh(vertices, faces) -> MeshReport:
     # Half-edges: face t, corner k goes from f[t, k] to f[t, (k + 1) % 3].
     start = f.reshape(-1)
     end = f[:, [1, 2, 0]].reshape(-1)
-    lo, hi = np.minimum(start, end), np.maximum(start, end)
-    key = lo * n + hi
-    order = np.argsort(key, kind="stable")
-    skey = key[order]
-    first = np.concatenate(([True], skey[1:] != skey[:-1]))
-    edge_of_sorted = np.cumsum(first) - 1
-    counts = np.bincount(edge_of_sorted)
+    order, edge_of_sorted, counts, opposite, lo, hi = _sorted_half_edges(start, end, n)
     n_edges = len(counts)
 
     watertight = bool(np.all(counts == 2))
     edge_manifold = bool(np.all(counts <= 2))
-    # On an edge-manifold mesh, consecutive sorted half-edges with the same key
-    # are the two uses of an interior edge: they must start at different ends.
-    pair = ~first[1:]
-    sstart = start[order]
-    opposite = bool(np.all(sstart[1:][pair] != sstart[:-1][pair]))
+    # On an edge-manifold mesh, consecutive sorted half-edges of the same edge are the two
+    # uses of an interior edge: they must start at different ends (``opposite``).
+    pair = edge_of_sorted[1:] == edge_of_sorted[:-1]
     consistently_oriented = edge_manifold and opposite
     vertex_manifold = edge_manifold and _single_fans(f, start, end, order, pair, n)
 
@@ -143,8 +135,10 @@ def check_mesh(vertices, faces) -> MeshReport:
 
     n_components = _count_roots(_roots(n, start, end), start)
 
-    boundary = counts[edge_of_sorted] == 1
-    n_boundary_loops = _count_loops(lo[order][boundary], hi[order][boundary], n)
+    n_boundary_loops = 0
+    if not watertight:
+        boundary = counts[edge_of_sorted] == 1
+        n_boundary_loops = _count_loops(lo[order][boundary], hi[order][boundary], n)
 
     double_area, six_volume = _face_measures(v, f)
     area = 0.5 * float(double_area.sum())
@@ -176,6 +170,59 @@ def check_mesh(vertices, faces) -> MeshReport:
         degenerate_faces=int(degenerate.sum()),
         duplicate_faces=int(duplicates),
     )
+
+
+@njit(cache=True, nogil=True)
+def _sorted_half_edges(start, end, n):
+    """The half-edges ``start[h] -> end[h]`` in the order of their undirected edge (lower
+    vertex, then higher; ties in index order: a stable argsort of ``lo * n + hi``), by a
+    counting sort on the lower vertex and an insertion sort of each vertex's few.
+
+    Returns ``order`` (h,), the edge number of each sorted half-edge (h,), the half-edges
+    of each edge (e,), whether every two consecutive sorted half-edges of one edge start
+    at different vertices, and ``lo``, ``hi`` (h,): each half-edge's lower and higher
+    vertex (all int64 but the flag)."""
+    h = start.size
+    lo = np.empty(h, np.int64)
+    hi = np.empty(h, np.int64)
+    bucket = np.zeros(n + 1, np.int64)
+    for i in range(h):
+        a, b = start[i], end[i]
+        if a > b:
+            a, b = b, a
+        lo[i], hi[i] = a, b
+        bucket[a + 1] += 1
+    for v in range(n):
+        bucket[v + 1] += bucket[v]
+    order = np.empty(h, np.int64)
+    upper = np.empty(h, np.int64)   # hi of the sorted half-edges (read in order, not scattered)
+    fill = bucket[:-1].copy()
+    for i in range(h):
+        p = fill[lo[i]]
+        order[p], upper[p] = i, hi[i]
+        fill[lo[i]] += 1
+    for v in range(n):
+        for j in range(bucket[v] + 1, bucket[v + 1]):
+            x, key = order[j], upper[j]
+            k = j - 1
+            while k >= bucket[v] and upper[k] > key:
+                order[k + 1], upper[k + 1] = order[k], upper[k]
+                k -= 1
+            order[k + 1], upper[k + 1] = x, key
+    edge_of_sorted = np.empty(h, np.int64)
+    opposite = True
+    e = -1
+    for v in range(n):
+        for p in range(bucket[v], bucket[v + 1]):
+            if p == bucket[v] or upper[p] != upper[p - 1]:
+                e += 1
+            elif start[order[p]] == start[order[p - 1]]:
+                opposite = False
+            edge_of_sorted[p] = e
+    counts = np.zeros(e + 1, np.int64)
+    for p in range(h):
+        counts[edge_of_sorted[p]] += 1
+    return order, edge_of_sorted, counts, opposite, lo, hi
 
 
 def _single_fans(f, start, end, order, pair, n) -> bool:
