@@ -52,7 +52,7 @@ import numpy as np
 
 from ..core.carving.bounds import BoxCarve
 from ..core.carving.carve import Carver
-from ..core.carving.hull import occupied_bounds
+from ..core.carving.hull import surface_voxels
 from ..core.carving.resolution import BYTES_PER_VOXEL
 from ..core.exchange.export import SUPPORTED_SUFFIXES
 from ..core.exchange.inputs import load_views
@@ -167,21 +167,7 @@ def surface_points(occupancy: np.ndarray, grid: VoxelGrid, max_points: int) -> n
     occ = np.asarray(occupancy, dtype=bool)
     if occ.shape != grid.shape:
         raise ValueError(f"occupancy has shape {occ.shape}, expected the grid's {grid.shape}")
-    box = occupied_bounds(occ)
-    if box is None:
-        return np.zeros((0, 3))
-    # Within the occupied box, padded with free voxels: outside it every voxel is free.
-    lo, hi = box
-    crop = occ[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]]
-    padded = np.pad(crop, 1)
-    inner = np.s_[1:-1]
-    interior = crop.copy()
-    for ahead, behind in ((np.s_[2:, inner, inner], np.s_[:-2, inner, inner]),
-                          (np.s_[inner, 2:, inner], np.s_[inner, :-2, inner]),
-                          (np.s_[inner, inner, 2:], np.s_[inner, inner, :-2])):
-        interior &= padded[ahead]
-        interior &= padded[behind]
-    ijk = np.argwhere(crop & ~interior) + lo
+    ijk = surface_voxels(occ)
     if len(ijk) > max_points:
         ijk = ijk[np.linspace(0, len(ijk) - 1, int(max_points)).round().astype(np.int64)]
     return grid.index_to_world(ijk)

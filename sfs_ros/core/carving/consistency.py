@@ -18,6 +18,7 @@ from numba import njit, prange
 from ..geometry.camera import Camera
 from ..geometry.grid import VoxelGrid
 from .carve import validate_masks, view_coefficients
+from .hull import surface_voxels
 
 __all__ = ["hull_silhouettes", "bbox_clips_object"]
 
@@ -68,21 +69,6 @@ def _splat(coef, voxels, heights, widths, offsets, out, half_max):
         half_max[v] = hmax
 
 
-def _surface_voxels(occupancy: np.ndarray) -> np.ndarray:
-    """(n, 3) int64 indices of occupied voxels with an empty 6-neighbour (or on
-    the grid border): their projection equals that of the whole volume."""
-    occ = np.asarray(occupancy, dtype=bool)
-    inner = np.zeros_like(occ)
-    core = occ[1:-1, 1:-1, 1:-1].copy()
-    for axis in range(3):
-        for step in (-1, 1):
-            sl = [slice(1, -1)] * 3
-            sl[axis] = slice(1 + step, occ.shape[axis] - 1 + step)
-            core &= occ[tuple(sl)]
-    inner[1:-1, 1:-1, 1:-1] = core
-    return np.argwhere(occ & ~inner)
-
-
 def hull_silhouettes(grid: VoxelGrid, occupancy: np.ndarray,
                      cameras: Sequence[Camera]) -> tuple[list, np.ndarray]:
     """Project a voxel volume into each camera.
@@ -111,7 +97,7 @@ def hull_silhouettes(grid: VoxelGrid, occupancy: np.ndarray,
     offsets[1:] = np.cumsum(heights * widths)[:-1]
     flat = np.zeros(int(np.sum(heights * widths)), np.uint8)
     half = np.zeros(len(cameras))
-    _splat(view_coefficients(grid, cameras), _surface_voxels(occupancy), heights, widths,
+    _splat(view_coefficients(grid, cameras), surface_voxels(occupancy), heights, widths,
            offsets, flat, half)
     images = [flat[o:o + h * w].reshape(h, w).view(bool)   # the 0/1 bytes, not a copy
               for o, h, w in zip(offsets, heights, widths)]

@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from ..union_find import join, settle
 
-__all__ = ["drop_specks", "occupied_bounds"]
+__all__ = ["drop_specks", "occupied_bounds", "surface_voxels"]
 
 
 def drop_specks(occupancy: np.ndarray, *, min_fraction: float = 0.01) -> tuple[np.ndarray, int]:
@@ -62,6 +62,49 @@ def occupied_bounds(occ: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     lo = np.array([x0, y0, zs[0]], dtype=np.int64)
     hi = np.array([x1, y1, zs[-1] + 1], dtype=np.int64)
     return lo, hi
+
+
+def surface_voxels(occupancy: np.ndarray) -> np.ndarray:
+    """(n, 3) int64 indices, in C order, of the occupied voxels of a 3-D bool
+    ``occupancy`` with an empty 6-neighbour (beyond the array counts as empty, so occupied
+    voxels on its border are surface voxels). Within the occupied box, in compiled passes
+    over its x-planes: a count, then the indices."""
+    occ = np.ascontiguousarray(occupancy, dtype=bool)
+    box = occupied_bounds(occ)
+    if box is None:
+        return np.zeros((0, 3), np.int64)
+    lo, hi = box
+    counts = np.zeros(int(hi[0] - lo[0]) + 1, np.int64)
+    _surface_pass(occ, lo, hi, counts, np.zeros((0, 3), np.int64))
+    np.cumsum(counts, out=counts)    # counts[i + 1] - counts[i]: the voxels of plane i
+    out = np.empty((counts[-1], 3), np.int64)
+    _surface_pass(occ, lo, hi, counts, out)
+    return out
+
+
+@njit(parallel=True, cache=True, nogil=True)
+def _surface_pass(occ, lo, hi, counts, out):
+    """With an empty ``out``: ``counts[1 + p]`` = the surface voxels of x-plane ``lo[0] +
+    p``. Else (``counts`` their running sum from 0): their indices into ``out`` from row
+    ``counts[p]``, in C order."""
+    nx, ny, nz = occ.shape
+    fill = out.shape[0] > 0
+    for p in prange(hi[0] - lo[0]):
+        i = lo[0] + p
+        row = counts[p] if fill else 0
+        for j in range(lo[1], hi[1]):
+            for k in range(lo[2], hi[2]):
+                if not occ[i, j, k]:
+                    continue
+                if (i > 0 and occ[i - 1, j, k] and i < nx - 1 and occ[i + 1, j, k]
+                        and j > 0 and occ[i, j - 1, k] and j < ny - 1 and occ[i, j + 1, k]
+                        and k > 0 and occ[i, j, k - 1] and k < nz - 1 and occ[i, j, k + 1]):
+                    continue
+                if fill:
+                    out[row, 0], out[row, 1], out[row, 2] = i, j, k
+                row += 1
+        if not fill:
+            counts[1 + p] = row
 
 
 @njit(cache=True)

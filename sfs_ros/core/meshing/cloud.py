@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..carving.hull import surface_voxels as hull_surface_voxels
 from ..geometry.grid import VoxelGrid
 
 __all__ = ["CloudOfPoints", "surface_voxels", "cloud_of_points"]
@@ -46,25 +47,6 @@ def _check_occupancy(occupancy) -> np.ndarray:
     return occ
 
 
-def _interior_mask(occ: np.ndarray) -> np.ndarray:
-    """Occupied voxels whose six neighbours are all occupied (outside the volume counts as empty)."""
-    inner = occ.copy()
-    for axis in range(3):
-        lo = [slice(None)] * 3
-        hi = [slice(None)] * 3
-        lo[axis] = slice(0, -1)
-        hi[axis] = slice(1, None)
-        inner[tuple(hi)] &= occ[tuple(lo)]
-        inner[tuple(lo)] &= occ[tuple(hi)]
-        first = [slice(None)] * 3
-        last = [slice(None)] * 3
-        first[axis] = 0
-        last[axis] = -1
-        inner[tuple(first)] = False
-        inner[tuple(last)] = False
-    return inner
-
-
 def surface_voxels(occupancy) -> np.ndarray:
     """Indices of occupied voxels with at least one empty 6-neighbour.
 
@@ -77,10 +59,10 @@ def surface_voxels(occupancy) -> np.ndarray:
     Returns
     -------
     (n, 3) int64
-        Voxel indices ``(i, j, k)``, in C order of the volume.
+        Voxel indices ``(i, j, k)``, in C order of the volume
+        (:func:`.carving.hull.surface_voxels`).
     """
-    occ = _check_occupancy(occupancy)
-    return np.argwhere(occ & ~_interior_mask(occ)).astype(np.int64)
+    return hull_surface_voxels(_check_occupancy(occupancy))
 
 
 def _gaussian_derivative_kernels(sigma: float) -> tuple[np.ndarray, np.ndarray]:
