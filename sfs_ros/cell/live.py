@@ -88,7 +88,7 @@ _NAMED_KEY = re.compile(r"view_\d{3,}_([A-Za-z0-9_.-]{1,64})\.png")
 OPEN_MARKER = ".open"
 #: A reconstruction's working memory (see :attr:`LiveReconstruction.working_memory_bytes`):
 #: bytes per voxel of the live grid, and bytes besides.
-WORKING_MEMORY_PER_VOXEL = 6 * BYTES_PER_VOXEL
+WORKING_MEMORY_PER_VOXEL = 3 * BYTES_PER_VOXEL
 WORKING_MEMORY_BASE = 64 << 20
 
 
@@ -274,11 +274,10 @@ class LiveReconstruction:
         :data:`WORKING_MEMORY_PER_VOXEL` per voxel of the live grid and
         :data:`WORKING_MEMORY_BASE`. Measured in the cell's node (72 views of 640 x 480,
         a live grid of 5.0 M voxels at resolution 192, the colour beside the checks and
-        the evaluation): with 293 MiB touched at start (48 B per voxel) the heap held
-        423 MB before the first reconstruction, which grew it by 139 MB (18 000 page
-        faults); with the 523 MiB this gives, 655 MB, grown by 14 MB (3 700 faults).
-        The final grid is the tight box at the same resolution: at most the live grid's
-        voxels."""
+        the evaluation): with the 293 MiB this gives, the first reconstruction after the
+        scan took 1 300-2 400 page faults and the node held 580-590 MB; with twice that,
+        94 faults and 817 MB, no faster. The final grid is the tight box at the same
+        resolution: at most the live grid's voxels."""
         return WORKING_MEMORY_BASE + WORKING_MEMORY_PER_VOXEL * int(np.prod(self.grid.shape))
 
     @property
