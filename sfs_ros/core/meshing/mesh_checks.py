@@ -178,8 +178,8 @@ def _sorted_half_edges(start, end, n):
     vertex, then higher; ties in index order: a stable argsort of ``lo * n + hi``), by a
     counting sort on the lower vertex and an insertion sort of each vertex's few.
 
-    Returns ``order`` (h,), the edge number of each sorted half-edge (h,), the half-edges
-    of each edge (e,), whether every two consecutive sorted half-edges of one edge start
+    Returns ``order`` (h,), the edge number of each sorted half-edge (h,), the number of
+    half-edges of each edge (e,), whether every two consecutive sorted half-edges of one edge start
     at different vertices, and ``lo``, ``hi`` (h,): each half-edge's lower and higher
     vertex (all int64 but the flag)."""
     h = start.size
