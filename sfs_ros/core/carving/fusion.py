@@ -179,12 +179,19 @@ def _distance_to_mask(mask: np.ndarray, projection: np.ndarray) -> np.ndarray:
     return out
 
 
-def deepest_cut_px(mask: np.ndarray, projection: np.ndarray) -> float:
-    """Largest distance from ``mask`` of a pixel of ``projection`` outside it, pixels."""
+def _cut(mask: np.ndarray, projection: np.ndarray) -> tuple:
+    """Where ``projection`` lies outside ``mask`` (bool), the distance to the mask there
+    (:func:`_distance_to_mask`; None when nowhere) and its largest value (pixels; 0)."""
     outside = projection & ~mask
     if not outside.any():
-        return 0.0
-    return float(_distance_to_mask(mask, projection)[outside].max())
+        return outside, None, 0.0
+    distance = _distance_to_mask(mask, projection)
+    return outside, distance, float(distance[outside].max())
+
+
+def deepest_cut_px(mask: np.ndarray, projection: np.ndarray) -> float:
+    """Largest distance from ``mask`` of a pixel of ``projection`` outside it, pixels."""
+    return _cut(mask, projection)[2]
 
 
 @dataclass(frozen=True)
@@ -210,10 +217,8 @@ def _look(pair: tuple[np.ndarray, np.ndarray]) -> _Look:
     box = ((slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1)) if rows.size
            else (slice(0, 0), slice(0, 0)))
     mask, proj = mask[box], proj[box]
-    outside = proj & ~mask
-    distance = _distance_to_mask(mask, proj) if outside.any() else None
-    return _Look(box=box, outside=outside, distance=distance,
-                 cut_px=0.0 if distance is None else float(distance[outside].max()),
+    outside, distance, cut_px = _cut(mask, proj)
+    return _Look(box=box, outside=outside, distance=distance, cut_px=cut_px,
                  n_proj=int(np.count_nonzero(proj)),
                  iou=float(silhouette_iou(proj, mask)) if rows.size else 1.0)
 
