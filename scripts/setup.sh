@@ -2,7 +2,8 @@
 # Set up a virtual environment with sfs_ros and its dependencies on a fresh
 # Debian machine with Python 3.11, including ROS 2 Kilted's Python packages
 # from PyPI (requirements-ros.txt; a colcon build in a ROS install uses the
-# install's packages instead). Usage: scripts/setup.sh [--test]
+# install's packages instead) and the interface packages built from source
+# (scripts/build_interfaces.sh). Usage: scripts/setup.sh [--test]
 #   --test  also install what the tests need (pytest; Debian's assimp-utils,
 #           an independent mesh reader the export tests open files with, and
 #           chromium, the headless browser the HTML viewer is tested in).
@@ -34,6 +35,8 @@ extras=""
     echo "error: rclpy does not import in $venv" >&2
     exit 1
 }
+# The cell's typed interfaces (and tf2_msgs, which has no wheel), built with cmake.
+SFS_VENV="$venv" bash scripts/build_interfaces.sh
 # The compiled kernels are cached beside the installed modules: the first scan need not
 # compile them (about a minute on 2 cores the first time, seconds after).
 "$venv/bin/sfs-warm-up"
