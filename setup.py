@@ -14,7 +14,7 @@ setup(
         ("share/" + package_name, ["package.xml"]),
         ("share/" + package_name + "/config", glob("config/*.yaml")),
         ("share/" + package_name + "/launch", glob("launch/*.launch.py")),
-        ("share/" + package_name + "/urdf", glob("urdf/*.urdf")),
+        ("share/" + package_name + "/urdf", glob("urdf/*.urdf") + glob("urdf/*.urdf.xacro")),
     ],
     python_requires=">=3.10",
     # Lower bounds: the versions of requirements-min.txt, with which the tests pass
@@ -33,7 +33,7 @@ setup(
         "pillow>=10.2.0",
         "rosbags>=0.11.9",
     ],
-    extras_require={"test": ["pytest>=8", "ruff>=0.6"]},
+    extras_require={"test": ["pytest>=8", "ruff>=0.6", "xacro>=2.1.1"]},
     zip_safe=True,
     maintainer="sfs_ros maintainers",
     maintainer_email="maintainers@sfs-ros.invalid",
@@ -48,6 +48,7 @@ setup(
             "sfs-export = sfs_ros.cli.export:main",
             "sfs-calibrate = sfs_ros.cli.calibrate:main",
             "sfs-cell = sfs_ros.cli.cell:main",
+            "sfs-ctl = sfs_ros.cli.ctl:main",
             "sfs-camera = sfs_ros.nodes.camera_node:main",
             "sfs-scan = sfs_ros.nodes.scan_node:main",
             "sfs-recorder = sfs_ros.nodes.recorder_node:main",
@@ -56,6 +57,7 @@ setup(
             "sfs-motor = sfs_ros.nodes.motor_node:main",
             "sfs-mock-hardware = sfs_ros.nodes.mock_hardware_node:main",
             "sfs-reconstruction = sfs_ros.nodes.reconstruction_node:main",
+            "sfs-state-publisher = sfs_ros.nodes.tf_node:main",
         ],
     },
 )

@@ -32,7 +32,8 @@ from sfs_ros.cli.bringup import Cell, cell_nodes
 
 CONFIG = Path(__file__).resolve().parent.parent / "config"
 #: Values that differ from the repository's config: a small camera and grid, fast axes.
-_SMALL = {"rig.yaml": {"width": 320, "height": 240, "fx": 700.0, "fy": 700.0},
+_CAMERA = {"width": 320, "height": 240, "fx": 700.0, "fy": 700.0}
+_SMALL = {"rig.yaml": _CAMERA,
           "mock_hardware.yaml": {"max_speed_deg_s": [720.0, 360.0],
                                  "accel_deg_s2": [7200.0, 3600.0], "homing_speed_deg_s": 600.0},
           "reconstruction.yaml": {"resolution": 64}}
@@ -44,6 +45,8 @@ def _small_config(folder: Path) -> Path:
         data = yaml.safe_load(path.read_text())
         if path.name in _SMALL:
             data["/**"]["ros__parameters"].update(_SMALL[path.name])
+        if path.name == "mock_hardware.yaml":      # the mock's world: the same camera
+            data["/**"]["ros__parameters"]["world_rig"].update(_CAMERA)
         if path.name == "scan_plan.yaml":
             data = {"rings": {"phi_deg": [35], "per_ring": 8, "top_view": False}}
         (folder / path.name).write_text(yaml.safe_dump(data))

@@ -5,14 +5,13 @@
         [params_file:=my_cell.yaml]
 
 The same nodes, params files and overrides as ``sfs-cell -o OUTPUT_DIR``
-(``sfs_ros.cli.bringup.cell_nodes(..., mock=False)``), plus robot_state_publisher
-(the TF of ``urdf/sfs_cell.urdf``; it is not on PyPI, so ``sfs-cell`` has no TF).
+(``sfs_ros.cli.bringup.cell_nodes(..., mock=False)``); the state publisher
+(``sfs-state-publisher``) publishes the cell's TF.
 With ``camera_topic`` another driver's frames are the views: our camera node
 is not started and the scan node streams from that topic.
 """
 
 import os
-from pathlib import Path
 
 from ament_index_python.packages import get_package_share_directory
 from launch.actions import DeclareLaunchArgument, SetEnvironmentVariable
@@ -35,7 +34,6 @@ RESPAWN_DELAY_S = 2.0
 def generate_launch_description():
     share = get_package_share_directory('sfs_ros')
     config = os.path.join(share, 'config')
-    robot_description = Path(os.path.join(share, 'urdf', 'sfs_cell.urdf')).read_text()
     output_dir = LaunchConfiguration('output_dir')
     namespace = LaunchConfiguration('namespace')
     params_file = LaunchConfiguration('params_file')
@@ -65,18 +63,25 @@ def generate_launch_description():
                                           "started and the scan takes that topic's frames"),
         Node(package='sfs_ros', executable='sfs-camera', name='camera', namespace=namespace,
              output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S, condition=own_camera,
-             parameters=[os.path.join(config, 'rig.yaml'), os.path.join(config, 'camera.yaml'),
-                         params_file, {'device': LaunchConfiguration('camera_device')}]),
+             parameters=[os.path.join(config, 'rig.yaml'), os.path.join(config, 'frames.yaml'),
+                         os.path.join(config, 'camera.yaml'), params_file,
+                         {'device': LaunchConfiguration('camera_device')}]),
         Node(package='sfs_ros', executable='sfs-motor', name='motor', namespace=namespace,
              output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
              parameters=[os.path.join(config, 'motor.yaml'), params_file,
                          {'port': LaunchConfiguration('port')}]),
+        # The cell's TF (/tf, /tf_static) and URDF (robot_description) from the motor node's
+        # joint_states, the rig and the frames (config/frames.yaml).
+        Node(package='sfs_ros', executable='sfs-state-publisher', name='state_publisher',
+             namespace=namespace, output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
+             parameters=[os.path.join(config, 'rig.yaml'), os.path.join(config, 'frames.yaml'),
+                         params_file]),
         Node(package='sfs_ros', executable='sfs-segmentation', name='segmentation',
              namespace=namespace, output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
              parameters=[os.path.join(config, 'segmentation.yaml'), params_file]),
         Node(package='sfs_ros', executable='sfs-reconstruction', name='reconstruction',
              namespace=namespace, output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
-             parameters=[os.path.join(config, 'rig.yaml'),
+             parameters=[os.path.join(config, 'rig.yaml'), os.path.join(config, 'frames.yaml'),
                          os.path.join(config, 'reconstruction.yaml'), params_file,
                          {'output_dir': output_dir}]),
         Node(package='sfs_ros', executable='sfs-recorder', name='recorder',
@@ -96,10 +101,4 @@ def generate_launch_description():
                          {'plan_file': os.path.join(config, 'scan_plan.yaml'),
                           'camera_trigger': 'stream',
                           'progress_dir': PathJoinSubstitution([output_dir, 'scan_progress'])}]),
-        # TF of the cell (base_link, turntable, carriage, camera_optical) from the motor
-        # node's joint_states; the URDF is made from config/rig.yaml's defaults.
-        Node(package='robot_state_publisher', executable='robot_state_publisher',
-             name='robot_state_publisher', namespace=namespace, output='screen',
-             respawn=True, respawn_delay=RESPAWN_DELAY_S,
-             parameters=[{'robot_description': robot_description}]),
     ])

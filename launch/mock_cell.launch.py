@@ -5,13 +5,11 @@
 
 The same nodes, params files and overrides as ``sfs-cell --mock -o OUTPUT_DIR``
 (``sfs_ros.cli.bringup.cell_nodes(..., mock=True)``): the motor node opens
-the simulated controller through the link ``OUTPUT_DIR/ttyMOCK``. Plus
-robot_state_publisher (the TF of ``urdf/sfs_cell.urdf``; it is not on PyPI, so
-``sfs-cell`` has no TF).
+the simulated controller through the link ``OUTPUT_DIR/ttyMOCK``; the state
+publisher (``sfs-state-publisher``) publishes the cell's TF.
 """
 
 import os
-from pathlib import Path
 
 from ament_index_python.packages import get_package_share_directory
 from launch.actions import DeclareLaunchArgument, OpaqueFunction, SetEnvironmentVariable
@@ -37,7 +35,6 @@ def make_output_dir(context):
 def generate_launch_description():
     share = get_package_share_directory('sfs_ros')
     config = os.path.join(share, 'config')
-    robot_description = Path(os.path.join(share, 'urdf', 'sfs_cell.urdf')).read_text()
     output_dir = LaunchConfiguration('output_dir')
     namespace = LaunchConfiguration('namespace')
     params_file = LaunchConfiguration('params_file')
@@ -58,18 +55,25 @@ def generate_launch_description():
         # One process, two nodes (mock_hardware and camera): no name, which would rename both.
         Node(package='sfs_ros', executable='sfs-mock-hardware', namespace=namespace,
              output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
-             parameters=[os.path.join(config, 'rig.yaml'), os.path.join(config, 'camera.yaml'),
+             parameters=[os.path.join(config, 'rig.yaml'), os.path.join(config, 'frames.yaml'),
+                         os.path.join(config, 'camera.yaml'),
                          os.path.join(config, 'mock_hardware.yaml'), params_file,
                          {'port_link': port}]),
         Node(package='sfs_ros', executable='sfs-motor', name='motor', namespace=namespace,
              output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
              parameters=[os.path.join(config, 'motor.yaml'), params_file, {'port': port}]),
+        # The cell's TF (/tf, /tf_static) and URDF (robot_description) from the motor node's
+        # joint_states, the rig and the frames (config/frames.yaml).
+        Node(package='sfs_ros', executable='sfs-state-publisher', name='state_publisher',
+             namespace=namespace, output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
+             parameters=[os.path.join(config, 'rig.yaml'), os.path.join(config, 'frames.yaml'),
+                         params_file]),
         Node(package='sfs_ros', executable='sfs-segmentation', name='segmentation',
              namespace=namespace, output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
              parameters=[os.path.join(config, 'segmentation.yaml'), params_file]),
         Node(package='sfs_ros', executable='sfs-reconstruction', name='reconstruction',
              namespace=namespace, output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
-             parameters=[os.path.join(config, 'rig.yaml'),
+             parameters=[os.path.join(config, 'rig.yaml'), os.path.join(config, 'frames.yaml'),
                          os.path.join(config, 'reconstruction.yaml'), params_file,
                          {'output_dir': output_dir}]),
         Node(package='sfs_ros', executable='sfs-recorder', name='recorder',
@@ -81,10 +85,4 @@ def generate_launch_description():
              parameters=[os.path.join(config, 'scan.yaml'), params_file,
                          {'plan_file': os.path.join(config, 'scan_plan.yaml'),
                           'progress_dir': PathJoinSubstitution([output_dir, 'scan_progress'])}]),
-        # TF of the cell (base_link, turntable, carriage, camera_optical) from the motor
-        # node's joint_states; the URDF is made from config/rig.yaml's defaults.
-        Node(package='robot_state_publisher', executable='robot_state_publisher',
-             name='robot_state_publisher', namespace=namespace, output='screen',
-             respawn=True, respawn_delay=RESPAWN_DELAY_S,
-             parameters=[{'robot_description': robot_description}]),
     ])

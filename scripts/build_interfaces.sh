@@ -24,30 +24,9 @@ fi
 "$python" -m pip install -q -r requirements-ros-build.txt
 
 # The wheels' exported *__rosidl_generator_py targets name an include directory of the
-# machine that built them, and cmake refuses a target whose include directory does not
-# exist. This file, given as CMAKE_PROJECT_INCLUDE, drops such directories from the imported
-# targets once the package's CMakeLists.txt has been read (the packages stay as they would
-# be in a ROS workspace).
-filter="$(mktemp "${TMPDIR:-/tmp}/sfs_drop_missing_includes.XXXXXX.cmake")"
-trap 'rm -f "$filter"' EXIT
-cat > "$filter" <<'CMAKE'
-function(sfs_drop_missing_includes)
-  get_property(targets DIRECTORY "${CMAKE_SOURCE_DIR}" PROPERTY IMPORTED_TARGETS)
-  foreach(target IN LISTS targets)
-    get_target_property(dirs ${target} INTERFACE_INCLUDE_DIRECTORIES)
-    if(dirs)
-      set(kept)
-      foreach(dir IN LISTS dirs)
-        if(EXISTS "${dir}" OR dir MATCHES "^[$]<")
-          list(APPEND kept "${dir}")
-        endif()
-      endforeach()
-      set_target_properties(${target} PROPERTIES INTERFACE_INCLUDE_DIRECTORIES "${kept}")
-    endif()
-  endforeach()
-endfunction()
-cmake_language(DEFER DIRECTORY "${CMAKE_SOURCE_DIR}" CALL sfs_drop_missing_includes)
-CMAKE
+# machine that built them, which cmake refuses: scripts/cmake/drop_missing_includes.cmake,
+# given as CMAKE_PROJECT_INCLUDE, drops the missing ones (shared with scripts/colcon_check.sh).
+filter="$repo/scripts/cmake/drop_missing_includes.cmake"
 
 # A package is built when its definitions differ from those installed (or none are).
 build() {

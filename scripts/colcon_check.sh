@@ -1,11 +1,16 @@
 #!/usr/bin/env bash
-# Build sfs_ros with colcon in a temporary workspace, as a ROS workspace would, and
-# check what a ROS install needs: an executable lib/sfs_ros/<script> for every console
-# script of setup.py, share/sfs_ros/{launch,config,urdf} with the repository's files,
-# package.xml and the ament index entry; then run two commands from the install.
-# Uses the environment of scripts/setup.sh ($SFS_VENV, default .venv) and installs
-# colcon-common-extensions (PyPI) into it when missing. Exits non-zero on any failure;
-# the workspace is removed in any case. Usage: scripts/colcon_check.sh
+# Build sfs_ros and sfs_ros_interfaces with colcon in a temporary workspace, the way
+# doc/ros_workspace.md tells a ROS workspace to (the repository cloned as src/sfs_ros, the
+# nested interface package named as a second base path), and check what a ROS install
+# needs: colcon finds exactly these two packages (not third_party/tf2_msgs), an executable
+# lib/sfs_ros/<script> for every console script of setup.py, share/sfs_ros/{launch,config,
+# urdf} with the repository's files, package.xml and the ament index entries; then, from
+# the sourced install, two commands run and the interfaces (sfs_ros_interfaces.action.Scan)
+# import and serialise from the workspace's install, not from the environment.
+# Uses the environment of scripts/setup.sh ($SFS_VENV, default .venv) as the underlay (its
+# ROS 2 wheels stand in for a ROS install) and installs colcon-common-extensions (PyPI)
+# into it when missing. Exits non-zero on any failure; the workspace is removed in any
+# case. Usage: scripts/colcon_check.sh
 set -euo pipefail
 cd "$(dirname "$0")/.."
 repo="$PWD"
@@ -25,16 +30,43 @@ tar -C "$repo" --exclude=./.venv --exclude=./.git --exclude=./build --exclude=./
     --exclude=./log --exclude='__pycache__' --exclude='*.egg-info' -cf - . |
     tar -C "$ws/src/sfs_ros" -xf -
 
+# As doc/ros_workspace.md says: colcon stops descending at a package, so the interface
+# package nested in the repository is named as a base path of its own.
+base_paths=(src src/sfs_ros/sfs_ros_interfaces)
 # colcon runs setup.py with the Python it runs under: the venv's, as in a sourced ROS install.
-(cd "$ws" && PATH="$venv/bin:$PATH" colcon build --event-handlers console_direct- \
-    --base-paths src > "$ws/build.log" 2>&1) || {
+colcon() { (cd "$ws" && PATH="$venv/bin:$PATH" "$venv/bin/colcon" "$@"); }
+found=$(colcon list --names-only --base-paths src | sort | xargs)
+[[ "$found" == "sfs_ros" ]] || {
+    echo "error: colcon finds '$found' in src, not sfs_ros alone (doc/ros_workspace.md)" >&2
+    exit 1
+}
+# Exactly the two packages (the repository's third_party/tf2_msgs is not one), in order.
+found=$(colcon list --names-only --topological-order --base-paths "${base_paths[@]}" | xargs)
+[[ "$found" == "sfs_ros_interfaces sfs_ros" ]] || {
+    echo "error: colcon finds '$found', not sfs_ros_interfaces then sfs_ros" >&2
+    exit 1
+}
+# The interface package is built against the environment's PyPI wheels: their cmake
+# packages are found through AMENT_PREFIX_PATH and CMAKE_PREFIX_PATH (what a sourced ROS
+# install sets), and scripts/cmake/drop_missing_includes.cmake (as in
+# scripts/build_interfaces.sh) drops the include directory the wheels' generator targets
+# name but do not ship. A ROS install needs neither.
+started=$SECONDS
+AMENT_PREFIX_PATH="$venv" CMAKE_PREFIX_PATH="$venv" \
+    colcon build --event-handlers console_direct- --base-paths "${base_paths[@]}" \
+    --packages-up-to sfs_ros --cmake-args -DPython3_EXECUTABLE="$python" \
+    -DCMAKE_PROJECT_INCLUDE="$repo/scripts/cmake/drop_missing_includes.cmake" \
+    -DBUILD_TESTING=OFF > "$ws/build.log" 2>&1 || {
     cat "$ws/build.log" >&2
     echo "error: colcon build failed" >&2
     exit 1
 }
+echo "colcon build of sfs_ros_interfaces and sfs_ros: $((SECONDS - started)) s"
 
 prefix="$ws/install/sfs_ros"
 failures=0
+# What follows compares the install with the sources colcon built (their copy in src/).
+cd "$ws/src/sfs_ros"
 fail() { echo "error: $*" >&2; failures=$((failures + 1)); }
 
 scripts=$("$python" - <<'EOF'
@@ -53,7 +85,7 @@ for script in $scripts; do
 done
 
 share="$prefix/share/sfs_ros"
-for pattern in "launch/*.launch.py" "config/*.yaml" "urdf/*.urdf"; do
+for pattern in "launch/*.launch.py" "config/*.yaml" "urdf/*.urdf" "urdf/*.urdf.xacro"; do
     files=( $pattern )
     [[ -e "${files[0]}" ]] || fail "the repository has no $pattern"
     for file in "${files[@]}"; do
@@ -64,8 +96,28 @@ cmp -s package.xml "$share/package.xml" || fail "share/sfs_ros/package.xml is mi
 [[ -f "$prefix/share/ament_index/resource_index/packages/sfs_ros" ]] ||
     fail "no ament index entry share/ament_index/resource_index/packages/sfs_ros"
 
+# The interface package: its definitions, package.xml and index entries installed; the
+# repository's third_party/tf2_msgs is not a package of the workspace (a ROS install has its own).
+iprefix="$ws/install/sfs_ros_interfaces"
+ishare="$iprefix/share/sfs_ros_interfaces"
+isource="$ws/src/sfs_ros/sfs_ros_interfaces"
+definitions=( $(cd "$isource" && echo msg/*.msg srv/*.srv action/*.action) )
+[[ -e "$isource/${definitions[0]}" ]] || fail "the repository has no interface definitions"
+for file in "${definitions[@]}" package.xml; do
+    cmp -s "$isource/$file" "$ishare/$file" ||
+        fail "share/sfs_ros_interfaces/$file is missing or differs"
+done
+for resource in packages rosidl_interfaces; do
+    [[ -f "$iprefix/share/ament_index/resource_index/$resource/sfs_ros_interfaces" ]] ||
+        fail "no ament index entry share/ament_index/resource_index/$resource/sfs_ros_interfaces"
+done
+[[ ! -e "$ws/install/tf2_msgs" && ! -e "$ws/build/tf2_msgs" ]] ||
+    fail "third_party/tf2_msgs was built in the workspace"
+
 # From the install, with the workspace sourced and outside the source tree: the
-# commands start, the bag reader imports (rosbags), the share folder is found.
+# commands start, the bag reader imports (rosbags), the share folder is found, and every
+# interface type imports and serialises from the workspace's install: its Python modules
+# and every shared library of sfs_ros_interfaces the process maps.
 (
     set +u
     # shellcheck disable=SC1091
@@ -79,10 +131,48 @@ assert sfs_ros.__file__.startswith('$ws/install/'), sfs_ros.__file__"
     found=$(python -c "from ament_index_python.packages import get_package_share_directory as g; \
 print(g('sfs_ros'))")
     [[ "$found" == "$share" ]] || { echo "ament index gives $found, not $share" >&2; exit 1; }
-) || fail "the installed package does not run (above)"
+    # The wheels' start-up hook (ros_wheels_bootstrapper) would put the environment's
+    # library folders on LD_LIBRARY_PATH in no fixed order, the environment's own build of
+    # sfs_ros_interfaces among them: here they follow the workspace's, as an underlay's do.
+    libs=("$venv/lib" "$venv"/lib/python3.*/site-packages/ros_*.libs)
+    LD_LIBRARY_PATH="${LD_LIBRARY_PATH:+$LD_LIBRARY_PATH:}$(IFS=:; echo "${libs[*]}")" \
+        _ROS_WHEELS_BOOTSTRAP_COMPLETE=1 python - "$iprefix/" "${definitions[@]}" <<'EOF'
+import importlib
+import sys
+from pathlib import Path
+
+from rclpy.serialization import deserialize_message, serialize_message
+
+import sfs_ros_interfaces
+
+install, definitions = sys.argv[1], sys.argv[2:]
+assert sfs_ros_interfaces.__file__.startswith(install), sfs_ros_interfaces.__file__
+# Every type of every definition (sfs_ros_interfaces.action.Scan: its goal, result,
+# feedback and the action's services and feedback message) survives a round trip.
+parts = {"msg": [""], "srv": ["Request", "Response"],
+         "action": ["Goal", "Result", "Feedback", "Impl.SendGoalService.Request",
+                    "Impl.GetResultService.Response", "Impl.FeedbackMessage"]}
+for definition in map(Path, definitions):
+    kind = definition.suffix[1:]
+    interface = getattr(importlib.import_module(f"sfs_ros_interfaces.{kind}"), definition.stem)
+    for part in parts[kind]:
+        message_type = interface
+        for name in filter(None, part.split(".")):
+            message_type = getattr(message_type, name)
+        message = message_type()
+        assert deserialize_message(serialize_message(message), message_type) == message, \
+            (definition, part)
+with open("/proc/self/maps") as maps:
+    mapped = {line.split()[-1] for line in maps if "sfs_ros_interfaces" in line}
+assert mapped, "no library of sfs_ros_interfaces is mapped"
+elsewhere = sorted(path for path in mapped if not path.startswith(install))
+assert not elsewhere, f"mapped from outside {install}: {elsewhere}"
+EOF
+) || fail "the installed packages do not run (above)"
 
 if ((failures)); then
     echo "colcon check: $failures failure(s)" >&2
     exit 1
 fi
-echo "colcon check passed: $(echo "$scripts" | wc -w) executables, share/sfs_ros/{launch,config,urdf}"
+echo "colcon check passed: $(echo "$scripts" | wc -w) executables, share/sfs_ros/{launch,config,urdf}," \
+    "${#definitions[@]} interfaces of sfs_ros_interfaces (${SECONDS} s in all)"

@@ -27,11 +27,14 @@ PLAN = ScanPlan.from_rings(RINGS_DEG, PER_RING, True)         # 17 views
 RESOLUTION = 64
 SCAN_TIMEOUT_S = 180.0
 
-#: Values that differ from the repository's config files.
+#: The small camera: the cell's rig, and the mock's world built the same.
+SMALL_CAMERA = {"width": 320, "height": 240, "fx": 700.0, "fy": 700.0}
+#: Values that differ from the repository's config files (a mapping in a value is merged
+#: with the file's, as ``world_rig``).
 OVERRIDES = {
-    "rig.yaml": {"width": 320, "height": 240, "fx": 700.0, "fy": 700.0},
+    "rig.yaml": SMALL_CAMERA,
     "mock_hardware.yaml": {"max_speed_deg_s": [720.0, 360.0], "accel_deg_s2": [7200.0, 3600.0],
-                           "homing_speed_deg_s": 600.0, "seed": 7},
+                           "homing_speed_deg_s": 600.0, "seed": 7, "world_rig": SMALL_CAMERA},
     "motor.yaml": {"status_rate_hz": 20.0, "reconnect_period_s": 0.5, "move_timeout_s": 5.0},
     "reconstruction.yaml": {"resolution": RESOLUTION, "hull_rate_hz": 1.0,
                             "bounds_m": carving_box(make_object("mug")).ravel().tolist()},
@@ -51,11 +54,20 @@ def write_config(folder: Path, more: dict | None = None, *, plan: dict | None = 
         data = yaml.safe_load(path.read_text())
         for changes in (OVERRIDES, more or {}):
             if path.name in changes:
-                data["/**"]["ros__parameters"].update(changes[path.name])
+                _merge(data["/**"]["ros__parameters"], changes[path.name])
         (folder / path.name).write_text(yaml.safe_dump(data))
     plan = plan or {"rings": {"phi_deg": RINGS_DEG, "per_ring": PER_RING, "top_view": True}}
     (folder / "scan_plan.yaml").write_text(yaml.safe_dump(plan))
     return folder
+
+
+def _merge(values: dict, changes: dict) -> None:
+    """Update ``values`` with ``changes``, merging a mapping into the mapping it replaces."""
+    for key, value in changes.items():
+        if isinstance(value, dict) and isinstance(values.get(key), dict):
+            values[key] = {**values[key], **value}
+        else:
+            values[key] = value
 
 
 @contextmanager

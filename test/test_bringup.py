@@ -36,12 +36,14 @@ CONFIG = REPO / "config"
 CELL_UP_TIMEOUT_S = 120.0
 #: sfs-cell stops its nodes one after the other, each with SIGINT.
 CELL_STOP_TIMEOUT_S = 30.0
-MOCK = [("mock_hardware", "mock_hardware_node", ["rig.yaml", "camera.yaml", "mock_hardware.yaml"]),
+MOCK = [("mock_hardware", "mock_hardware_node",
+         ["rig.yaml", "frames.yaml", "camera.yaml", "mock_hardware.yaml"]),
         ("motor", "motor_node", ["motor.yaml"])]
-REAL = [("camera", "camera_node", ["rig.yaml", "camera.yaml"]),
+REAL = [("camera", "camera_node", ["rig.yaml", "frames.yaml", "camera.yaml"]),
         ("motor", "motor_node", ["motor.yaml"])]
-REST = [("segmentation", "segmentation_node", ["segmentation.yaml"]),
-        ("reconstruction", "reconstruction_node", ["rig.yaml", "reconstruction.yaml"]),
+REST = [("state_publisher", "tf_node", ["rig.yaml", "frames.yaml"]),
+        ("segmentation", "segmentation_node", ["segmentation.yaml"]),
+        ("reconstruction", "reconstruction_node", ["rig.yaml", "frames.yaml", "reconstruction.yaml"]),
         ("recorder", "recorder_node", ["recorder.yaml"]),
         ("scan", "scan_node", ["scan.yaml"])]
 
@@ -70,7 +72,7 @@ def test_cell_nodes_in_start_order_with_their_files_and_overrides(mock, tmp_path
     output = tmp_path.resolve() / "out"                    # made absolute
     hardware = [{"port_link": str(output / "ttyMOCK")}, {"port": str(output / "ttyMOCK")}]
     assert [s.overrides for s in specs] == (hardware if mock else [{}, {}]) + [
-        {}, {"output_dir": str(output)}, {"output_dir": str(output)},
+        {}, {}, {"output_dir": str(output)}, {"output_dir": str(output)},
         {"plan_file": str(config / "scan_plan.yaml"),
          "progress_dir": str(output / "scan_progress")}]
     recording = cell_nodes(config, "out", mock=mock, record=True)
@@ -120,8 +122,8 @@ def test_real_cell_options_port_camera_device_camera_topic_and_site_params(tmp_p
 
     # Another driver's camera: no camera node; the scan node streams from its topic.
     other = cell_nodes(config, tmp_path / "out", mock=False, camera_topic="/usb_cam/image_raw")
-    assert [s.name for s in other] == ["motor", "segmentation", "reconstruction", "recorder",
-                                       "scan"]
+    assert [s.name for s in other] == ["motor", "state_publisher", "segmentation",
+                                       "reconstruction", "recorder", "scan"]
     scan = other[-1]
     assert scan.overrides["camera_trigger"] == "stream"
     assert scan.command("/sfs")[5:9] == ["-r", "__ns:=/sfs", "-r",

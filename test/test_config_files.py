@@ -34,6 +34,17 @@ def _values(name: str) -> dict:
     return yaml.safe_load((CONFIG / name).read_text())["/**"]["ros__parameters"]
 
 
+def _flat(values: dict, prefix: str = "") -> dict:
+    """``{name: value}`` with nested mappings as ROS names them (``world_rig.fx``)."""
+    flat = {}
+    for key, value in values.items():
+        if isinstance(value, dict):
+            flat.update(_flat(value, f"{prefix}{key}."))
+        else:
+            flat[f"{prefix}{key}"] = value
+    return flat
+
+
 def test_rig_file_holds_exactly_the_rig_parameters():
     assert set(_values("rig.yaml")) == RIG_NAMES
 
@@ -41,7 +52,13 @@ def test_rig_file_holds_exactly_the_rig_parameters():
 @pytest.mark.parametrize("module, name", NODES, ids=[n for _, n in NODES])
 def test_config_file_lists_every_parameter_of_its_node(module, name):
     own = {p.name for p in module.PARAMS} - RIG_NAMES
-    assert set(_values(name)) == own
+    assert set(_flat(_values(name))) == own
+
+
+def test_the_mock_is_built_as_rig_yaml_says():
+    # The mock's world (what it renders) is its own; by default the cell it simulates is the
+    # one config/rig.yaml describes.
+    assert _values("mock_hardware.yaml")["world_rig"] == _values("rig.yaml")
 
 
 def test_segmentation_file_names_every_parameter():

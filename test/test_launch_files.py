@@ -9,9 +9,8 @@ whose condition is false is not started),
 ``get_package_share_directory``, ``Path(...).read_text()``); anything else fails
 the test, naming the line, rather than being skipped. The package share folder
 is a temporary copy of the repository's ``config/*.yaml`` and ``urdf/``, so the
-comparison with ``cell_nodes`` is of full paths and values. Besides the nodes of
-``cell_nodes``, each file starts robot_state_publisher (the cell's TF), which
-``sfs-cell`` cannot (not on PyPI).
+comparison with ``cell_nodes`` is of full paths and values, the cell's state
+publisher (its TF) among them.
 """
 
 import ast
@@ -19,13 +18,11 @@ import importlib
 import os
 import re
 import shutil
-import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import pytest
 import yaml
 
-from sfs_ros.cell.messages import JOINT_NAMES
 from sfs_ros.cli.bringup import DDS_ENVIRONMENT, cell_nodes
 from sfs_ros.ros.names import NAMESPACE
 
@@ -238,25 +235,22 @@ def test_every_executable_is_a_console_script(share):
 
 @pytest.mark.parametrize("filename", LAUNCH_FILES)
 @pytest.mark.parametrize("namespace", [None, "/cell1"])
-def test_robot_state_publisher_gets_the_installed_urdf(filename, namespace, share):
+def test_our_state_publisher_gives_the_tf_in_the_configured_frames(filename, namespace, share):
     arguments = {"output_dir": "out"} | ({} if namespace is None else {"namespace": namespace})
     launch = LaunchFile(REPO / "launch" / filename, arguments=arguments, share=share)
-    # The cell's nodes first, then robot_state_publisher, once.
-    assert launch.packages()[-1] == "robot_state_publisher"
-    assert launch.packages().count("robot_state_publisher") == 1
-    assert set(launch.packages()) == {"sfs_ros", "robot_state_publisher"}
-    (node,) = launch.nodes("robot_state_publisher")
-    assert node["executable"] == "robot_state_publisher"
+    # No robot_state_publisher (not on PyPI): the cell's own, as sfs-cell starts it.
+    assert set(launch.packages()) == {"sfs_ros"}
+    (node,) = [n for n in launch.nodes() if n["executable"] == "sfs-state-publisher"]
+    assert console_scripts()["sfs-state-publisher"] == "sfs_ros.nodes.tf_node:main"
     # In the cell's namespace, so its relative joint_states is the motor node's.
     assert node["namespace"] == (namespace or NAMESPACE)
-    assert node["respawn"] is True and node["respawn_delay"] > 0
-    (parameters,) = node["parameters"]
-    assert set(parameters) == {"robot_description"}
-    description = parameters["robot_description"]
-    assert description == (share / "urdf" / "sfs_cell.urdf").read_text()
-    # The description's moving joints are the ones the motor node publishes.
-    joints = ET.fromstring(description).findall("joint")
-    assert {j.get("name") for j in joints if j.get("type") != "fixed"} == set(JOINT_NAMES)
+    assert node["parameters"][:2] == [str(share / "config" / "rig.yaml"),
+                                      str(share / "config" / "frames.yaml")]
+    # Every node that stamps a frame reads the same frames file.
+    stamping = [n for n in launch.nodes() if n["executable"] in
+                {"sfs-state-publisher", "sfs-reconstruction", "sfs-camera", "sfs-mock-hardware"}]
+    assert len(stamping) == 3
+    assert all(str(share / "config" / "frames.yaml") in n["parameters"] for n in stamping)
 
 
 def test_installed_share_folders_are_the_ones_the_launch_files_read():

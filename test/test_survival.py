@@ -113,7 +113,7 @@ def _delivered_once(output, scan: int, summary: dict) -> set:
     stamps = {tuple(c["stamp"]) for c in progress["captures"]}
     assert len(stamps) == total
 
-    session = read_session(summary["session"])
+    session = read_session(summary["session_dir"])
     names = [v.name for v in session.views]
     assert len(names) == len(set(names)) == total          # no view stored twice
     assert {n.split("_", 2)[2].removesuffix(".png") for n in names} == \

@@ -137,8 +137,13 @@ def test_tree_links_and_joint_names():
     assert float(limit.get("upper")) == pytest.approx(NON_IDEAL.phi_zero_rad + math.pi / 2)
     # The reconstruction publishes in the object frame, the camera in its optical frame.
     text = (REPO / "sfs_ros" / "nodes" / "reconstruction_node.py").read_text()
-    assert 'FRAME_ID = "turntable"' in text
-    assert '"frame_id", "camera_optical"' in (REPO / "sfs_ros" / "nodes" / "camera_node.py").read_text()
+    assert "frame_names(declare(self, FRAME_PARAMS)).turntable_frame" in text
+    text = (REPO / "sfs_ros" / "nodes" / "camera_node.py").read_text()
+    assert "frame_names(values).camera_frame" in text
+    from sfs_ros.ros.frames import FRAME_PARAMS  # ROS: only here (the rest needs none)
+
+    defaults = {p.name: p.default for p in FRAME_PARAMS}
+    assert (defaults["turntable_frame"], defaults["camera_frame"]) == (OBJECT_FRAME, CAMERA_FRAME)
 
 
 def test_installed_urdf_is_made_from_config_rig_yaml():

@@ -65,7 +65,7 @@ from ..core.meshing.hull_distance import DistanceImages
 from ..core.pipeline import Precomputed, ReconstructionParams, reconstruct
 from ..core.result_files import SheetViews, add_pictures, write_result
 from ..core.segment import SegmentationParams
-from .paths import confined_path
+from .paths import check_scan_name_format, confined_path
 
 __all__ = ["MASK_SEGMENTATION", "DuplicateViewError", "AddedView", "LiveReconstruction",
            "surface_points", "mask_to_rgb", "check_scan_name", "view_key_of"]
@@ -79,7 +79,6 @@ MASK_SEGMENTATION = SegmentationParams(
 
 #: Longest accepted view key, characters.
 MAX_KEY_CHARS = 200
-_SCAN_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,99}")
 _AUTO_SCAN = re.compile(r"scan_(\d{3,})")
 _KEY_AS_FILE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,95}\.png")
 _UNSAFE = re.compile(r"[^A-Za-z0-9_.-]")
@@ -125,9 +124,7 @@ class _Received:
 def check_scan_name(output_dir, scan_name: str) -> None:
     """ValueError unless ``scan_name`` can name a new scan folder in ``output_dir``: 1-100
     letters, digits, ``_``, ``-`` or ``.`` (not first) and no such folder yet."""
-    if not isinstance(scan_name, str) or not _SCAN_NAME.fullmatch(scan_name):
-        raise ValueError(f"scan name {scan_name!r} must be 1-100 letters, digits, "
-                         "'_', '-' or '.', not starting with '.', '_' or '-'")
+    check_scan_name_format(scan_name)
     if (Path(output_dir) / scan_name).exists():
         raise ValueError(f"scan folder {Path(output_dir) / scan_name} already exists; "
                          "choose a new scan name")
@@ -487,7 +484,9 @@ class LiveReconstruction:
 
     # ------------------------------------------------------------ final mesh
 
-    def reconstruct(self, name: str | None = None, *, pictures: bool = True) -> dict:
+    def reconstruct(self, name: str | None = None, *, pictures: bool = True,
+                    resolution: int | None = None, bounds_m=None, mesher: str | None = None,
+                    colour: bool | None = None) -> dict:
         """Run the full pipeline on the views received so far and write the mesh.
 
         Parameters
@@ -503,6 +502,14 @@ class LiveReconstruction:
             Write the picture, viewer and contact sheet now (the default); False:
             only the mesh and its report, the pictures when :meth:`write_pictures`
             is called (the report then names them).
+        resolution, bounds_m, mesher : keyword-only, None = this scan's
+            For this mesh only: voxels along the box's longest side, the carving box
+            (2, 3) metres, the mesher. The views stored are carved again at that grid;
+            what the live scan computed as the views arrived is used where it applies
+            (the same mesh either way, only slower for another box).
+        colour : bool or None, keyword-only
+            False: no colour; None or True: coloured when images were kept (not into
+            an .stl).
 
         Returns
         -------
@@ -513,8 +520,9 @@ class LiveReconstruction:
             ``views_received``, ``views_used``, ``views_rejected`` (list of
             ``{view, reason}``), ``n_vertices``, ``n_faces``, ``watertight``,
             ``volume_m3``, ``area_m2``, ``silhouette_iou_mean``,
-            ``voxel_size_m``, ``coloured_from_views`` (how many views coloured the
-            mesh, 0 without images: see :meth:`add_colour_image`), ``seconds``.
+            ``holdout_iou`` (None: no views held out), ``voxel_size_m``,
+            ``coloured_from_views`` (how many views coloured the mesh, 0 without
+            images: see :meth:`add_colour_image`), ``seconds``.
 
         Raises
         ------
@@ -535,6 +543,10 @@ class LiveReconstruction:
         html_path = confined_path(root, stem + ".html", suffixes=(".html",))
         sheet_path = confined_path(root, stem + ".views.png", suffixes=(".png",))
         view_set = load_views(self._session)
+        if bounds_m is not None:
+            view_set = replace(view_set, bounds_m=as_bounds(bounds_m, what="bounds_m"))
+        params = replace(self.params, resolution=resolution or self.params.resolution,
+                         mesher=mesher or self.params.mesher)
         # The masks received are what segmenting their stored images gives
         # (MASK_SEGMENTATION): the pipeline takes them as they are.
         masks = {key: mask for key, mask, _, _ in self.views()}
@@ -542,8 +554,8 @@ class LiveReconstruction:
         # colours); a view whose image never came takes no part.
         images = {self._views[key].name: rgb for key, rgb in self._colour_images.items()
                   if key in self._views}
-        colour = bool(images) and path.suffix.lower() != ".stl"
-        result = reconstruct(view_set, replace(self.params, colour=colour),
+        colour = bool(images) and path.suffix.lower() != ".stl" and colour is not False
+        result = reconstruct(view_set, replace(params, colour=colour),
                              masks={self._views[key].name: m for key, m in masks.items()},
                              images=images, precomputed=self._precomputed)
         colours = result.vertex_colors
@@ -558,6 +570,7 @@ class LiveReconstruction:
         self._mesh, self._colours = (result.vertices, result.faces), colours
         mesh, views = result.report["mesh"], result.report["views"]
         mean_iou = result.report["silhouette_iou"]["mean_used"]
+        held_out = result.report["silhouette_iou"]["mean_held_out"]
         return {"path": str(path), "report_path": str(report_path),
                 "preview_path": str(preview_path), "html_path": str(html_path),
                 "contact_sheet_path": str(sheet_path),
@@ -568,5 +581,7 @@ class LiveReconstruction:
                 "area_m2": mesh["area_m2"],
                 "silhouette_iou_mean": None if mean_iou is None or math.isnan(mean_iou)
                 else float(mean_iou),
+                "holdout_iou": None if held_out is None or math.isnan(held_out)
+                else float(held_out),
                 "voxel_size_m": result.grid.voxel_size, "coloured_from_views": coloured,
                 "seconds": time.perf_counter() - start}

@@ -8,14 +8,38 @@ folder.
 
 from __future__ import annotations
 
+import re
 from pathlib import Path, PurePosixPath
 
-__all__ = ["MAX_NAME_BYTES", "MAX_COMPONENT_BYTES", "confined_path"]
+__all__ = ["APPLIED_RIG", "MAX_NAME_BYTES", "MAX_COMPONENT_BYTES", "check_scan_name_format",
+           "confined_path", "plain_file_name"]
 
 #: Longest accepted requested name, bytes of UTF-8.
 MAX_NAME_BYTES = 1024
 #: Longest accepted file or folder name (POSIX NAME_MAX), bytes of UTF-8.
 MAX_COMPONENT_BYTES = 255
+#: The rig applied last to a running cell, relative to its output folder: written by
+#: :func:`sfs_ros.ros.rig_apply.apply_rig`, given to the nodes that hold the rig by
+#: ``sfs-cell`` whenever it starts one.
+APPLIED_RIG = PurePosixPath("calibration/rig.yaml")
+_SCAN_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,99}")
+
+
+def check_scan_name_format(scan_name: str) -> None:
+    """ValueError unless ``scan_name`` can name a scan folder: 1-100 letters, digits, ``_``,
+    ``-`` or ``.``, not starting with ``.``, ``_`` or ``-``."""
+    if not isinstance(scan_name, str) or not _SCAN_NAME.fullmatch(scan_name):
+        raise ValueError(f"scan name {scan_name!r} must be 1-100 letters, digits, "
+                         "'_', '-' or '.', not starting with '.', '_' or '-'")
+
+
+def plain_file_name(root, requested_name: str, *, suffixes) -> Path:
+    """:func:`confined_path` of a name without folders (``"part.obj"``, not ``"a/part.obj"``);
+    ValueError naming what is wrong."""
+    if "/" in requested_name:
+        raise ValueError(f"output name {requested_name!r} has a folder; expected a file name "
+                         f"such as 'part{tuple(suffixes)[0]}' (written in the output folder)")
+    return confined_path(root, requested_name, suffixes=suffixes)
 
 
 def _relative_parts(name: str) -> tuple[str, ...]:

@@ -111,6 +111,16 @@ def _nanoseconds(stamp: Stamp) -> int:
     return stamp[0] * 1_000_000_000 + stamp[1]
 
 
+def _checked_views(views_rad) -> np.ndarray:
+    """(n, 2) float64 views; ValueError unless a non-empty array of finite angles."""
+    views = np.asarray(views_rad, dtype=np.float64)
+    if views.ndim != 2 or views.shape[1] != 2 or len(views) == 0 \
+            or not np.all(np.isfinite(views)):
+        raise ValueError(f"views_rad must be a non-empty (n, 2) array of finite angles, "
+                         f"got shape {views.shape}")
+    return views
+
+
 class StepFailed(Exception):
     """A step of the scan failed this time (it may be retried); the text says why."""
 
@@ -282,12 +292,7 @@ class ScanSequence:
 
     def __init__(self, views_rad, ports: ScanPorts, settings: ScanSettings,
                  progress: ScanProgress | None = None):
-        views = np.asarray(views_rad, dtype=np.float64)
-        if views.ndim != 2 or views.shape[1] != 2 or len(views) == 0 \
-                or not np.all(np.isfinite(views)):
-            raise ValueError(f"views_rad must be a non-empty (n, 2) array of finite angles, "
-                             f"got shape {views.shape}")
-        self.views_rad = views
+        self.views_rad = self.plan_views = _checked_views(views_rad)
         self.settings = settings
         self._ports = ports
         self.cancelled = threading.Event()
@@ -393,16 +398,22 @@ class ScanSequence:
         """Whether a run is under way (or about to start)."""
         return self._state in _ACTIVE
 
-    def start(self, settings: ScanSettings | None = None) -> tuple[bool, str]:
+    def start(self, settings: ScanSettings | None = None,
+              views_rad=None) -> tuple[bool, str]:
         """A new scan from the first view (captures of the last one forgotten), with
-        ``settings`` from now on if given (a resume keeps them); call :meth:`run` next when
-        accepted."""
+        ``settings`` from now on if given (a resume keeps them), of the views ``views_rad``
+        ((n, 2) radians, this scan only) or else of the plan given at construction; call
+        :meth:`run` next when accepted. ValueError for bad ``views_rad``."""
+        views = self.plan_views if views_rad is None else _checked_views(views_rad)
         with self._cv:
             if self.active:
                 return False, (f"a scan is running (view {self._view + 1} of {len(self)}); "
                                "call scan/cancel first")
             if settings is not None:
                 self.settings = settings
+            self.views_rad = views
+            if self._progress is not None:
+                self._progress.plan_rad = views
             self._ledger = self._new_ledger()
             self._counts = self._new_counts()
             self._problem = self._warning = ""

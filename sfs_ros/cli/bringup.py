@@ -10,8 +10,10 @@ SIGTERM and SIGKILL only for a node that ignores it (a node killed outright
 leaves Fast DDS shared-memory files behind).
 
 The recorder node (:mod:`sfs_ros.nodes.recorder_node`) writes its bags to
-``OUTPUT_DIR/bags/``. With ``mock=True`` the hardware is the mock hardware node (simulated
-controller + mock camera), whose pseudo-terminal is linked at
+``OUTPUT_DIR/bags/``; the state publisher (:mod:`sfs_ros.nodes.tf_node`) publishes the
+cell's TF in the frames of ``frames.yaml``, which the nodes that stamp frames read too.
+With ``mock=True`` the hardware is the mock hardware node (simulated controller + mock
+camera), whose pseudo-terminal is linked at
 ``OUTPUT_DIR/ttyMOCK`` for the motor node; otherwise the camera node and the
 motor node's ``port`` from ``motor.yaml``, or, with ``camera_topic``, the
 frames of any camera driver the user runs (the camera node is then not
@@ -19,7 +21,11 @@ started; the scan node takes the streamed frames, ``camera_trigger`` stream).
 
 Every node gets ``params_file`` last among its files (default
 ``overrides.yaml`` of the config folder, which sets nothing): a site's own
-values, without editing the installed files. The cell runs in the namespace
+values, without editing the installed files. A node that holds the rig
+(``rig.yaml`` among its files) also gets, after all of them, the rig applied
+last to the running cell (:data:`sfs_ros.cell.paths.APPLIED_RIG` in the output
+folder, :func:`sfs_ros.ros.rig_apply.apply_rig`) whenever it is started and the
+file exists, so a node started again keeps the applied rig; the start says so. The cell runs in the namespace
 :data:`sfs_ros.ros.names.NAMESPACE` unless told otherwise.
 """
 
@@ -35,10 +41,11 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from sfs_ros.cell.paths import APPLIED_RIG
 from sfs_ros.ros.names import NAMESPACE
 
 __all__ = ["NodeSpec", "Cell", "DDS_ENVIRONMENT", "RestartPolicy", "cell_nodes",
-           "default_config_dir", "node_environment", "wait_until_signal"]
+           "default_config_dir", "node_environment", "select_nodes", "wait_until_signal"]
 
 #: Middleware settings of the node processes (a variable already set is left as it is).
 #: Fast DDS's shared-memory transport can leave a restarted process deaf to the peers that
@@ -83,13 +90,20 @@ def default_config_dir() -> Path:
 @dataclass
 class NodeSpec:
     """One node process: ``module`` under ``sfs_ros.nodes``, its params files (in order,
-    later ones win), ``-p name:=value`` overrides and ``-r from:=to`` topic remaps."""
+    later ones win), ``-p name:=value`` overrides, ``-r from:=to`` topic remaps, and
+    ``applied_rig``, a params file given after the others when it exists at the start
+    ("" = none)."""
 
     name: str
     module: str
     params_files: list[str]
     overrides: dict[str, str] = field(default_factory=dict)
     remaps: dict[str, str] = field(default_factory=dict)
+    applied_rig: str = ""
+
+    def applied_rig_file(self) -> str:
+        """``applied_rig`` if it exists now, else ""."""
+        return self.applied_rig if self.applied_rig and Path(self.applied_rig).is_file() else ""
 
     def command(self, namespace: str = "") -> list[str]:
         args = [sys.executable, "-P", "-m", f"sfs_ros.nodes.{self.module}", "--ros-args"]
@@ -97,8 +111,9 @@ class NodeSpec:
             args += ["-r", f"__ns:={namespace}"]
         for name, target in self.remaps.items():
             args += ["-r", f"{name}:={target}"]
-        for path in self.params_files:
-            args += ["--params-file", path]
+        for path in [*self.params_files, self.applied_rig_file()]:
+            if path:
+                args += ["--params-file", path]
         for name, value in self.overrides.items():
             args += ["-p", f"{name}:={value}"]
         return args
@@ -145,25 +160,28 @@ def cell_nodes(config_dir, output_dir, *, mock: bool, record: bool = False,
         raise FileNotFoundError(f"params file missing: {site}")
 
     def spec(name: str, module: str, names: list[str], overrides=None, remaps=None):
-        return NodeSpec(name, module, files(*names) + [site], overrides or {}, remaps or {})
+        return NodeSpec(name, module, files(*names) + [site], overrides or {}, remaps or {},
+                        str(output / APPLIED_RIG) if "rig.yaml" in names else "")
 
     link = output / "ttyMOCK"
     if mock:
         hardware = [spec("mock_hardware", "mock_hardware_node",
-                         ["rig.yaml", "camera.yaml", "mock_hardware.yaml"],
+                         ["rig.yaml", "frames.yaml", "camera.yaml", "mock_hardware.yaml"],
                          {"port_link": str(link)}),
                     spec("motor", "motor_node", ["motor.yaml"], {"port": str(link)})]
     else:
         camera = [] if camera_topic else [
-            spec("camera", "camera_node", ["rig.yaml", "camera.yaml"],
+            spec("camera", "camera_node", ["rig.yaml", "frames.yaml", "camera.yaml"],
                  {"device": camera_device} if camera_device else {})]
         hardware = camera + [spec("motor", "motor_node", ["motor.yaml"],
                                   {"port": port} if port else {})]
     stream = ({"camera_trigger": "stream"}, {"image_raw": camera_topic}) if camera_topic \
         else ({}, {})
     return hardware + [
+        spec("state_publisher", "tf_node", ["rig.yaml", "frames.yaml"]),
         spec("segmentation", "segmentation_node", ["segmentation.yaml"]),
-        spec("reconstruction", "reconstruction_node", ["rig.yaml", "reconstruction.yaml"],
+        spec("reconstruction", "reconstruction_node",
+             ["rig.yaml", "frames.yaml", "reconstruction.yaml"],
              {"output_dir": str(output)}),
         spec("recorder", "recorder_node", ["recorder.yaml"],
              {"output_dir": str(output), **({"with_scan": "true"} if record else {})}),
@@ -171,6 +189,36 @@ def cell_nodes(config_dir, output_dir, *, mock: bool, record: bool = False,
              {"plan_file": files("scan_plan.yaml")[0],
               "progress_dir": str(output / "scan_progress"), **stream[0]}, stream[1]),
     ]
+
+
+#: Nodes that must run on the same host: the mock hardware's pseudo-terminal
+#: (``OUTPUT_DIR/ttyMOCK``) is the motor node's serial port.
+SAME_HOST = (("mock_hardware", "motor"),)
+
+
+def select_nodes(specs: list[NodeSpec], *, only=(), without=()) -> list[NodeSpec]:
+    """The part of ``specs`` to run on this host, in their order: the nodes named in
+    ``only`` (all if empty), less those in ``without``.
+
+    ValueError naming the valid nodes for a name not among ``specs``, for ``only`` and
+    ``without`` together or a selection left empty, and for a pair of :data:`SAME_HOST`
+    split between hosts."""
+    names = [s.name for s in specs]
+    unknown = [n for n in [*only, *without] if n not in names]
+    if unknown:
+        raise ValueError(f"no node {', '.join(unknown)} in this cell; its nodes are "
+                         f"{', '.join(names)}")
+    if only and without:
+        raise ValueError("only and without: one or the other")
+    chosen = [s for s in specs if (not only or s.name in only) and s.name not in without]
+    if not chosen:
+        raise ValueError(f"no node left to start (the cell's nodes are {', '.join(names)})")
+    picked = {s.name for s in chosen}
+    for pair in SAME_HOST:
+        if set(pair) <= set(names) and len(set(pair) & picked) == 1:
+            raise ValueError(f"{' and '.join(pair)} run on the same host (the motor node's "
+                             "port is the mock's pseudo-terminal): start both or neither")
+    return chosen
 
 
 class Cell:
@@ -207,6 +255,11 @@ class Cell:
     def start_node(self, name: str) -> None:
         """Start (or start again) the node called ``name``."""
         spec = next(s for s in self.specs if s.name == name)
+        if spec.applied_rig_file() and self._log is not None:
+            with self._log_lock:
+                self._log.write(f"sfs-cell: {name} starts with the rig applied last, "
+                                f"{spec.applied_rig_file()}\n")
+                self._log.flush()
         process = subprocess.Popen(spec.command(self.namespace), stdin=subprocess.DEVNULL,
                                    stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                    env=self._env, start_new_session=True)

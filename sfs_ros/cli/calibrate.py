@@ -2,6 +2,7 @@
 
     sfs-calibrate INPUT -o OUTDIR [--board 7x5] [--square-m 0.03] [--marker-m 0.022]
                   [--dictionary DICT_5X5_100] [--radial-terms 2] [--max-view-rms-px 1.0]
+                  [--apply [--namespace /sfs]]
 
 INPUT is a session folder (``session.yaml`` + ``views.csv`` with
 ``image,theta_rad,phi_rad`` + ``images/``) of the board standing on the
@@ -12,6 +13,8 @@ hand-measured start. OUTDIR receives ``rig.yaml`` (the cell's rig
 parameters, for ``--params-file``), ``camera_info.yaml`` (ROS
 camera_calibration_parsers format) and ``calibration_report.yaml`` (RMS and
 per-view residuals, uncertainties, rejected views, fixed parameters).
+``--apply`` then sets ``rig.yaml`` on the running cell in ``--namespace``
+and keeps it there for restarts (:func:`sfs_ros.ros.rig_apply.apply_rig`).
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ from pathlib import Path
 import yaml
 
 from ..core.calibration import BoardSpec, calibrate_views, write_camera_info, write_rig_yaml
+from ..ros.names import NAMESPACE
 from .common import load_input, run_reporting_errors
 
 PROG = "sfs-calibrate"
@@ -58,6 +62,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="reject a view whose corners miss by more than this RMS, pixels "
                         "(default %(default)s)")
     p.add_argument("--camera-name", default="camera", help="camera_name in camera_info.yaml")
+    p.add_argument("--apply", action="store_true",
+                   help="then set rig.yaml on every node of the running cell that holds the rig "
+                        "(between scans) and keep it in the cell's output folder for restarts")
+    p.add_argument("--namespace", default=NAMESPACE,
+                   help=f"--apply: the cell's ROS namespace (default {NAMESPACE})")
     return p
 
 
@@ -80,7 +89,17 @@ def run(args) -> dict:
                              "offset_m": [float(v) for v in fit.board.offset_m]}}
     (args.output / "calibration_report.yaml").write_text(
         yaml.safe_dump(report, sort_keys=False, width=100), encoding="utf-8")
-    return {"fit": fit, "output": args.output}
+    applied = _apply(args.output / "rig.yaml", args.namespace) if args.apply else None
+    return {"fit": fit, "output": args.output, "applied": applied}
+
+
+def _apply(path: Path, namespace: str):
+    """Set ``path`` on the running cell in ``namespace`` (:func:`apply_rig`); what it did."""
+    from ..ros.cell_client import CellClient
+    from ..ros.rig_apply import apply_rig
+
+    with CellClient(namespace, name="sfs_calibrate") as cell:
+        return apply_rig(cell.node, path)
 
 
 def main(argv=None) -> int:
@@ -98,6 +117,10 @@ def main(argv=None) -> int:
     for name, reason in fit.rejected:
         print(f"rejected {name}: {reason}")
     print(f"wrote {result['output']}/rig.yaml, camera_info.yaml, calibration_report.yaml")
+    applied = result["applied"]
+    if applied is not None:
+        print(f"applied to {', '.join(applied.nodes)} (from their next scan); kept in "
+              f"{applied.persisted} for restarts")
     return 0
 
 

@@ -3,11 +3,14 @@
     sfs-cell --mock -o out/cell          # simulated hardware
     sfs-cell -o /data/scans --port /dev/ttyUSB0 --camera-device /dev/video2
     sfs-cell -o /data/scans --camera-topic /usb_cam/image_raw   # another camera driver
+    sfs-cell --mock -o out/cell --only reconstruction,recorder     # this host's part
 
 The nodes read the YAML files of ``--config`` (default: the installed
 ``share/sfs_ros/config``), then ``--params-file`` (a site's own values);
 files and meshes go to ``--output-dir``. The nodes run in the namespace
-``/sfs`` (``--namespace``). Then,
+``/sfs`` (``--namespace``). ``--only`` / ``--without`` start part of the
+cell, the rest running on another host in the same ROS domain and namespace
+(doc/cell.md, "The reconstruction on another machine"). Then,
 from another terminal or a program: ``scan/start``, and ``reconstruct``
 once the scan is done (see the README). Ctrl-C (SIGINT) or SIGTERM stops
 the nodes, the last started first. A node that ends by itself is started
@@ -18,12 +21,13 @@ within two minutes stops the cell with exit status 1.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
 from sfs_ros.ros.names import NAMESPACE
 
-from .bringup import Cell, cell_nodes, default_config_dir, wait_until_signal
+from .bringup import Cell, cell_nodes, default_config_dir, select_nodes, wait_until_signal
 
 PROG = "sfs-cell"
 
@@ -56,7 +60,35 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--record", action="store_true",
                    help="record every scan as a rosbag2 in OUTPUT_DIR/bags (the recorder "
                         "also takes recorder/start and recorder/stop at any time)")
+    part = p.add_mutually_exclusive_group()
+    part.add_argument("--only", type=_names, default=[], metavar="NODE,...",
+                      help="start only these nodes (the rest run on another host), e.g. "
+                           "reconstruction,recorder")
+    part.add_argument("--without", type=_names, default=[], metavar="NODE,...",
+                      help="start all nodes but these (they run on another host)")
     return p
+
+
+def _names(text: str) -> list[str]:
+    """A comma-separated list of node names."""
+    return [name.strip() for name in text.split(",") if name.strip()]
+
+
+#: Discovery ranges in which nodes on other hosts are not found.
+_HOST_ONLY_RANGES = ("LOCALHOST", "OFF")
+
+
+def _elsewhere(left_out: list[str], namespace: str) -> str:
+    """What the nodes started here need from the other host's: ``left_out`` running in
+    the same domain and namespace, found over the network."""
+    domain = os.environ.get("ROS_DOMAIN_ID", "0")
+    text = (f"{PROG}: expecting {', '.join(left_out)} on another host (ROS_DOMAIN_ID={domain}, "
+            f"namespace /{namespace.strip('/')})")
+    found = os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "").upper()
+    if found in _HOST_ONLY_RANGES:
+        text += (f"; ROS_AUTOMATIC_DISCOVERY_RANGE={found} finds no node on another host "
+                 "(SUBNET or ROS_STATIC_PEERS does)")
+    return text
 
 
 def main(argv=None) -> int:
@@ -67,12 +99,16 @@ def main(argv=None) -> int:
         specs = cell_nodes(config, args.output_dir, mock=args.mock, record=args.record,
                            params_file=args.params_file, port=args.port,
                            camera_device=args.camera_device, camera_topic=args.camera_topic)
+        chosen = select_nodes(specs, only=args.only, without=args.without)
     except (ValueError, OSError) as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
-    print(f"{PROG}: starting {', '.join(s.name for s in specs)} (config {config}); "
+    left_out = [s.name for s in specs if s not in chosen]
+    if left_out:
+        print(_elsewhere(left_out, args.namespace), flush=True)
+    print(f"{PROG}: starting {', '.join(s.name for s in chosen)} (config {config}); "
           "Ctrl-C stops", flush=True)
-    return wait_until_signal(Cell(specs, namespace=args.namespace).start())
+    return wait_until_signal(Cell(chosen, namespace=args.namespace).start())
 
 
 if __name__ == "__main__":

@@ -1,9 +1,9 @@
 """What the mock camera sees: the scene on the plate and the cell it is seen through.
 
 The mock hardware renders a scene (a known object, or the ChArUco calibration
-board standing on the plate) through a *world* rig that may differ from the
-rig the rest of the cell believes in (``config/rig.yaml``): ``"perfect"`` is
-that rig as given, ``"wrong"`` adds the errors of
+board standing on the plate) through a *world* rig made from the cell as built
+(the mock hardware's own ``world_rig`` parameters, whatever rig the rest of the
+cell believes in): ``"perfect"`` is that rig as given, ``"wrong"`` adds the errors of
 :func:`~sfs_ros.core.simulation.calibration_scene.wrong_world` (a tilted,
 off-centre turntable axis, a barrel lens, other intrinsics, radius and camera
 mounting, and the axes' true zeros away from the nominal ones). The camera
@@ -43,14 +43,14 @@ def mock_scene(name: str, *, background_rgb=(255, 255, 255)) -> SyntheticObject 
     return make_object(name)
 
 
-def world_rig(believed: RigCalibration, world: str) -> RigCalibration:
-    """The rig the mock camera renders through, given the rig the cell ``believed`` in.
+def world_rig(built: RigCalibration, world: str) -> RigCalibration:
+    """The rig the mock camera renders through, given the cell as ``built``.
 
     Raises ``ValueError`` for an unknown world, or ``"wrong"`` with a rig it cannot
     spoil (not pinhole, not ``physical``, or not ideal already).
     """
     if world == "perfect":
-        return believed
+        return built
     if world == "wrong":
-        return wrong_world(believed)
+        return wrong_world(built)
     raise ValueError(f"unknown mock world {world!r}; expected one of {WORLDS}")

@@ -12,7 +12,7 @@
 best-effort viewers still match a reliable publisher.
 
 ``capture`` reads the node clock, grabs a frame (:mod:`sfs_ros.hardware.cameras`)
-and publishes it on ``image_raw`` with that stamp and ``frame_id``, together
+and publishes it on ``image_raw`` with that stamp and the camera frame, together
 with its ``camera_info`` under the same header, then answers ``success`` and
 ``{"stamp": [sec, nanosec], "width": W, "height": H, "frame": n}`` (n = frames
 published so far). With ``rate_hz`` > 0 a timer also takes frames at that rate.
@@ -24,11 +24,15 @@ file) or whose size is not the rig's publishes nothing: ``capture`` answers
 ``success=False`` with the reason, the failure is logged and counted, and the
 diagnostics stay ERROR until the next good frame; the node carries on.
 
-Parameters: :data:`PARAMS` (all read-only) and the rig calibration
-:data:`sfs_ros.ros.rig_params.RIG_PARAMS` (``config/rig.yaml``), whose
+Parameters: :data:`PARAMS` (all read-only), the rig calibration
+:data:`sfs_ros.ros.rig_params.WRITABLE_RIG_PARAMS` (``config/rig.yaml``), whose
 ``width`` x ``height`` every frame must have and whose intrinsics fill
-``camera_info``. ``backend`` "mock" is served by ``sfs-mock-hardware``,
-which runs this node in its own process with a
+``camera_info`` (settable between scans, not the size, checked as one rig by
+:class:`sfs_ros.ros.rig_params.RigParameters`: the next frame's ``camera_info``
+carries it), and the frames :data:`sfs_ros.ros.frames.FRAME_PARAMS`
+(``config/frames.yaml``): the images' ``frame_id`` is the prefixed camera
+frame. ``backend`` "mock" is served by ``sfs-mock-hardware``, which runs
+this node in its own process with a
 :class:`~sfs_ros.hardware.cameras.RenderedSource` (it renders at the
 simulated controller's angles); started alone with "mock", the node refuses.
 """
@@ -50,16 +54,17 @@ from sfs_ros.hardware.cameras import CameraSource, FolderSource, FrameUnavailabl
 from sfs_ros.nodes.entry import run_node
 from sfs_ros.ros import capture_qos
 from sfs_ros.ros.convert import camera_info, diagnostic_array, image_to_msg
+from sfs_ros.ros.frames import FRAME_PARAMS, frame_names
 from sfs_ros.ros.names import DIAGNOSTICS, private, status_name
 from sfs_ros.ros.pairing import stamp_key
 from sfs_ros.ros.params import Param, ParameterError, declare
-from sfs_ros.ros.rig_params import RIG_PARAMS, rig_calibration
+from sfs_ros.ros.rig_params import WRITABLE_RIG_PARAMS, RigParameters
 
 __all__ = ["CameraNode", "PARAMS", "main"]
 
 NODE_NAME = "camera"
 
-#: The node's own parameters (all read-only); the rig calibration comes from RIG_PARAMS.
+#: The node's own parameters (all read-only); the rig calibration from WRITABLE_RIG_PARAMS.
 PARAMS: list[Param] = [
     Param("backend", "opencv", "Frame source: opencv (a camera, video file or stream), folder "
           "(the images of a folder in name order) or mock (served by sfs-mock-hardware).",
@@ -73,8 +78,6 @@ PARAMS: list[Param] = [
     Param("flush_frames", 0, "opencv: frames discarded before each grab, so that a capture "
           "returns a fresh frame rather than one buffered by the driver.", bounds=(0, 100),
           read_only=True),
-    Param("frame_id", "camera_optical", "Frame id of image_raw and camera_info (the camera's "
-          "optical frame).", read_only=True),
     Param("rate_hz", 0.0, "Frames per second streamed without capture calls.",
           bounds=(0.0, 120.0), read_only=True, constraints="0 = frames on capture only"),
 ]
@@ -115,15 +118,16 @@ class CameraNode(Node):
     def __init__(self, source: CameraSource | None = None, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
         try:
-            values = declare(self, [*PARAMS, *RIG_PARAMS])
-            calibration = rig_calibration(values)
+            values = declare(self, [*PARAMS, *WRITABLE_RIG_PARAMS, *FRAME_PARAMS])
+            self._rig = RigParameters(self, on_change=self._new_rig)
+            calibration = self._rig.calibration
+            self._frame_id = frame_names(values).camera_frame
             self._source = source if source is not None else _open_source(values)
         except ParameterError:
             if source is not None:
                 source.close()
             super().destroy_node()         # no source of ours to release
             raise
-        self._frame_id = values["frame_id"]
         self._size = (calibration.width, calibration.height)
         self._camera = rig_camera(0.0, 0.0, calibration)   # only its intrinsics are published
 
@@ -146,9 +150,21 @@ class CameraNode(Node):
         self.get_logger().info(f"{self._source.name}, {self._size[0]}x{self._size[1]} rgb8, "
                                f"{rate}")
 
+    @property
+    def size(self) -> tuple[int, int]:
+        """(width, height) of the frames, pixels: the rig's."""
+        return self._size
+
     def destroy_node(self) -> None:
         self._source.close()
         super().destroy_node()
+
+    def _new_rig(self, rig) -> None:
+        """A new rig was set: the next frames' ``camera_info`` carries its intrinsics."""
+        self._camera = rig_camera(0.0, 0.0, rig)
+        self.get_logger().info(f"new rig: camera_info from the next frame on, f = "
+                               f"({rig.fx:.2f}, {rig.fy:.2f}) px, distortion "
+                               f"{list(rig.distortion)}")
 
     def _on_capture(self, _request, response):
         response.success, response.message = self._take()

@@ -26,11 +26,15 @@ closed and the link removed. The link leads through this process's open
 descriptor (``/proc/<pid>/fd/<n>``), so after a SIGKILL it leads nowhere
 rather than to the next process that gets the same pty number.
 
-Parameters: :data:`PARAMS` (all read-only), the camera's, and the rig
-calibration (``config/rig.yaml``), with which the object is rendered: as given
-(``world`` "perfect"), or with the errors of
-:mod:`sfs_ros.hardware.mock_world` (``world``
-"wrong": the cell believes ``rig.yaml``, the camera sees another cell).
+Parameters: :data:`PARAMS` (all read-only) and the camera's. What the
+mock camera truly renders through is the mock's own: the simulated cell as
+built, ``world_rig.<name>`` for each rig parameter (``world_rig:`` in
+``config/mock_hardware.yaml``, the values of ``config/rig.yaml``), as given
+(``world`` "perfect") or with the errors of :mod:`sfs_ros.hardware.mock_world`
+(``world`` "wrong": the camera sees another cell than the one built). The rig
+the cell believes (``config/rig.yaml``, or a calibration's ``rig.yaml``) is
+the camera node's: it fills ``camera_info`` and may change between scans,
+and never changes what is rendered.
 ``object`` "board" puts the ChArUco calibration board on the plate
 (``config/mock_wrong_world.yaml`` and ``config/calibration_plan.yaml``: a
 calibration scan, see ``doc/calibration.md``).
@@ -39,6 +43,7 @@ calibration scan, see ``doc/calibration.md``).
 from __future__ import annotations
 
 import os
+from dataclasses import replace
 from pathlib import Path
 
 from rclpy.node import Node
@@ -55,7 +60,10 @@ from sfs_ros.ros import result_qos
 from sfs_ros.ros.params import Param, ParameterError, declare
 from sfs_ros.ros.rig_params import RIG_PARAMS, rig_calibration
 
-__all__ = ["MockHardwareNode", "PARAMS", "main", "make_nodes"]
+#: Prefix of the parameters of the simulated cell as built (``world_rig.fx``, ...).
+WORLD_RIG = "world_rig"
+
+__all__ = ["MockHardwareNode", "PARAMS", "WORLD_RIG", "main", "make_nodes", "world_rig_values"]
 
 NODE_NAME = "mock_hardware"
 
@@ -90,7 +98,16 @@ PARAMS: list[Param] = [
           bounds=(0, 255), read_only=True, constraints="three values"),
     Param("seed", -1, "Seed of the encoder and image noise.", bounds=(-1, 2 ** 31 - 1),
           read_only=True, constraints="-1 = random"),
+    *(replace(p, name=f"{WORLD_RIG}.{p.name}", read_only=True,
+              description=f"The simulated cell as built (before the world's errors): "
+                          f"{p.description}") for p in RIG_PARAMS),
 ]
+
+
+def world_rig_values(values: dict) -> dict:
+    """The rig parameters of the simulated cell as built, ``{name: value}``, from the
+    node's parameter values (``world_rig.<name>``)."""
+    return {p.name: values[f"{WORLD_RIG}.{p.name}"] for p in RIG_PARAMS}
 
 
 class MockHardwareNode(Node):
@@ -104,7 +121,7 @@ class MockHardwareNode(Node):
     def __init__(self, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
         try:
-            p = declare(self, [*PARAMS, *RIG_PARAMS])
+            p = declare(self, PARAMS)
             low, high = p["carriage_limits_deg"]
             if not low < high:
                 raise ParameterError("carriage_limits_deg",
@@ -112,12 +129,15 @@ class MockHardwareNode(Node):
             if len(p["background_rgb"]) != 3:
                 raise ParameterError("background_rgb", f"got {p['background_rgb']}, expected "
                                      "three values r, g, b")
-            calibration = rig_calibration(p)
+            try:
+                calibration = rig_calibration(world_rig_values(p))
+            except ParameterError as err:
+                raise ParameterError(f"{WORLD_RIG}.{err.name}", err.reason) from None
             try:
                 calibration = world_rig(calibration, p["world"])
             except ValueError as err:
-                raise ParameterError("world", f"got {p['world']!r} with this rig: {err}") \
-                    from None
+                raise ParameterError("world", f"got {p['world']!r} with this {WORLD_RIG}: "
+                                     f"{err}") from None
             link = Path(p["port_link"]) if p["port_link"] else None
             if link is not None and not link.parent.is_dir():
                 raise ParameterError("port_link", f"got {p['port_link']!r}: its folder does not "
@@ -207,6 +227,14 @@ def make_nodes() -> list[Node]:
     except ParameterError:
         hardware.destroy_node()
         raise
+    world = hardware.camera_source.calibration
+    if camera.size != (world.width, world.height):
+        camera.destroy_node()
+        hardware.destroy_node()
+        raise ParameterError(f"{WORLD_RIG}.width", f"the mock renders {world.width}x"
+                             f"{world.height} frames, expected the camera's {camera.size[0]}x"
+                             f"{camera.size[1]} (width, height of rig.yaml): give both the "
+                             "same size")
     return [hardware, camera]
 
 
@@ -214,7 +242,7 @@ def main(args=None) -> None:
     """Entry point ``sfs-mock-hardware``.
 
     ``sfs-mock-hardware --ros-args --params-file config/rig.yaml --params-file
-    config/mock_hardware.yaml``
+    config/camera.yaml --params-file config/mock_hardware.yaml``
     """
     run_node("sfs-mock-hardware", make_nodes, args, threads=2)
 

@@ -6,17 +6,31 @@
 | sub | ``capture/mask_joint_state`` | sensor_msgs/JointState | same stamp as its mask |
 | sub | ``capture/image`` | sensor_msgs/Image | the captured images, to colour the mesh (``colour``) |
 | pub | ``capture/stored`` | std_msgs/Header | a view's stamp once stored (or rejected): its receipt |
-| pub | ``hull`` | sensor_msgs/PointCloud2 | surface voxels of the live hull, frame "turntable" |
-| pub | ``camera_poses`` | geometry_msgs/PoseArray | the cameras of this scan's views, frame "turntable" |
+| pub | ``hull`` | sensor_msgs/PointCloud2 | surface voxels of the live hull, turntable frame |
+| pub | ``camera_poses`` | geometry_msgs/PoseArray | the cameras of this scan's views, turntable frame |
 | pub | ``mesh`` | visualization_msgs/Marker | TRIANGLE_LIST of the last reconstruction |
 | pub | ``mesh_shape`` | shape_msgs/Mesh | the same mesh |
 | pub | ``/diagnostics`` | diagnostic_msgs/DiagnosticArray | per event and at 1 Hz |
-| srv | ``~/reconstruct`` | std_srvs/Trigger | message: JSON summary of the written mesh |
-| srv | ``~/reset`` | std_srvs/Trigger | start a new scan |
+| pub | ``~/status`` | sfs_ros_interfaces/ReconstructionStatus | on every change; transient local |
+| srv | ``~/reconstruct_mesh`` | sfs_ros_interfaces/Reconstruct | per-call options, typed answer |
+| srv | ``~/reconstruct`` | std_srvs/Trigger | alias of ``reconstruct_mesh``, defaults; JSON answer |
+| srv | ``~/new_scan`` | sfs_ros_interfaces/NewScan | start a new scan, optionally naming it |
+| srv | ``~/reset`` | std_srvs/Trigger | alias of ``new_scan`` with the ``scan_name`` parameter |
 
 One node does both carving and meshing: both work on the same
 :class:`sfs_ros.cell.live.LiveReconstruction` (live hull, views persisted in a
 session folder under ``output_dir``), which two processes would duplicate.
+
+``reconstruct_mesh`` takes, for that mesh only, a ``resolution``, a carving box
+(``bounds_m``), a ``mesher``, ``colour`` and an ``output_name`` (a file name with a mesh
+suffix, no folders, written in ``output_dir``); each left empty is the node's parameter. A
+bad option, or a grid that does not fit ``max_memory``, is refused at once with the reason.
+Another resolution or box carves the stored views again at that grid (seconds); the node's
+own settings use what the live scan computed as the views arrived. With
+``wait_for_pictures`` the answer comes once the picture, viewer and contact sheet are
+written too. ``~/status`` (reliable, transient local, depth 1) gives this scan's session
+folder, views stored, views rejected (``view at stamp S (theta T rad, phi P rad): reason``),
+the reconstructions made, the last mesh and the problem, on every change.
 
 Mask, joint state and receipt topics: reliable, volatile, depth ``queue_depth``
 (:func:`sfs_ros.ros.capture_qos`); masks and joint states are paired by
@@ -85,8 +99,17 @@ calls), so a scan is carved and meshed with one set of values. A
 ``scan_name`` whose folder exists by then makes that ``reset`` fail with the
 reason (the scan pauses on it): choose a new one, or "" for ``scan_NNN``.
 
+The rig (:data:`sfs_ros.ros.rig_params.WRITABLE_RIG_PARAMS`, a calibration's
+``rig.yaml``) can be set at run time too, between scans: checked as one rig
+(:class:`sfs_ros.ros.rig_params.RigParameters`; refused with the reason while
+the scan node reports a scan under way, and for another image size), it makes
+the next ``reset`` start the scan with a new :class:`LiveReconstruction` of
+that rig.
+
 Parameters: see :data:`PARAMS` (the others read-only); ``output_dir`` is
-required. Output files stay inside ``output_dir``.
+required. Output files stay inside ``output_dir``. The frames
+(:data:`sfs_ros.ros.frames.FRAME_PARAMS`, ``config/frames.yaml``, read-only)
+name the turntable frame ``hull``, ``mesh`` and ``camera_poses`` are stamped with.
 """
 
 from __future__ import annotations
@@ -122,6 +145,7 @@ from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker
 
 from sfs_ros.cell.live import DuplicateViewError, LiveReconstruction, check_scan_name
+from sfs_ros.cell.mesh_options import MeshOptions, mesh_options
 from sfs_ros.cell.rehearsal import rehearse
 from sfs_ros.core.carving.resolution import (
     default_memory_budget,
@@ -145,23 +169,25 @@ from sfs_ros.ros.convert import (
     msg_to_image,
     points_to_cloud,
 )
-from sfs_ros.ros.names import DIAGNOSTICS, private, status_name
+from sfs_ros.ros.frames import FRAME_PARAMS, frame_names
+from sfs_ros.ros.names import DIAGNOSTICS, RECONSTRUCTION_STATUS, private, status_name
 from sfs_ros.ros.paired_input import PairedInput, Stream
 from sfs_ros.ros.pairing import format_stamp, stamp_key, view_key
 from sfs_ros.ros.params import Param, ParameterError, declare, read, validating_callback
-from sfs_ros.ros.rig_params import RIG_PARAMS, rig_calibration
+from sfs_ros.ros.rig_params import WRITABLE_RIG_PARAMS, RigParameters, rig_calibration
+from sfs_ros.ros.typed import fill_reconstruct_response
 from sfs_ros.ros.worker import Hold, Worker
+from sfs_ros_interfaces.msg import ReconstructionStatus
+from sfs_ros_interfaces.srv import NewScan, Reconstruct
 
 __all__ = ["ReconstructionNode", "PARAMS", "main"]
 
 NODE_NAME = "reconstruction"
-#: Frame of the hull and the mesh: the object frame on the turntable.
-FRAME_ID = "turntable"
 
 #: The node's parameters: the rig calibration, then the scan's own (the per-scan settings
 #: settable at run time, see the module's description).
 PARAMS: list[Param] = [
-    *RIG_PARAMS,
+    *WRITABLE_RIG_PARAMS,
     Param("bounds_m", [-0.1, -0.1, 0.0, 0.1, 0.1, 0.2], "Carving box [xmin, ymin, zmin, xmax, "
           "ymax, zmax], metres, object frame.",
           constraints="six values, min < max on each axis; from the next reset"),
@@ -230,8 +256,10 @@ def _store_problem(stamp, live: LiveReconstruction, exc: OSError, waiting: int) 
 
 
 def _scan_settings(values: dict) -> tuple:
-    """The settings that need a new :class:`LiveReconstruction` when they change."""
-    return tuple(values["bounds_m"]), values["resolution"], values["mesher"]
+    """The settings that need a new :class:`LiveReconstruction` when they change (the
+    rig among them)."""
+    return (tuple(values["bounds_m"]), values["resolution"], values["mesher"],
+            rig_calibration(values))
 
 
 def _internal_error(job: str, exc: Exception) -> str:
@@ -262,6 +290,8 @@ class ReconstructionNode(Node):
         self._rehearsal = None
         super().__init__(NODE_NAME, **kwargs)
         values = declare(self, PARAMS)
+        # Frame of the hull, mesh and camera poses: the object frame on the turntable.
+        self._frame_id = frame_names(declare(self, FRAME_PARAMS)).turntable_frame
         if not values["output_dir"].strip():
             raise ParameterError("output_dir", "is required: the folder for scans and meshes")
         calibration = rig_calibration(values)
@@ -272,7 +302,6 @@ class ReconstructionNode(Node):
         except ValueError as exc:
             raise ParameterError("max_memory", str(exc)) from None
         self._budget = budget
-        self._calibration = calibration
         self._live = None
         # Why no reconstruction can be held (the node stays up; a reset with a resolution
         # that fits ends it).
@@ -291,6 +320,7 @@ class ReconstructionNode(Node):
         self._scan_settings = _scan_settings(values)
         self.add_on_set_parameters_callback(validating_callback(self, PARAMS,
                                                                 self._check_scan_settings))
+        RigParameters(self, on_change=self._new_rig)
         self._hull_period = 0.0 if values["hull_rate_hz"] == 0 else 1.0 / values["hull_rate_hz"]
         self._max_hull_points = values["max_hull_points"]
         depth = values["queue_depth"]
@@ -304,6 +334,8 @@ class ReconstructionNode(Node):
         self._earlier: dict = {}    # keys of views stored in earlier scans (worker thread)
         self._problem = self._refusal
         self._warning = ""
+        self._rejected: list[str] = []   # this scan's rejected views, named
+        self._mesh_path = ""             # the last mesh written
 
         inputs = MutuallyExclusiveCallbackGroup()     # pairer, timers
         services = MutuallyExclusiveCallbackGroup()   # one request at a time, waits on the worker
@@ -315,6 +347,9 @@ class ReconstructionNode(Node):
         self._marker_pub = self.create_publisher(Marker, "mesh", result_qos())
         self._shape_pub = self.create_publisher(Mesh, "mesh_shape", result_qos())
         self._diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
+        self._status_pub = self.create_publisher(ReconstructionStatus,
+                                                 "~/" + RECONSTRUCTION_STATUS.split("/", 1)[1],
+                                                 result_qos())
         self._input = PairedInput(
             self, Stream(Image, "capture/mask", "mask", _decode_mask),
             Stream(JointState, "capture/mask_joint_state", "joint state",
@@ -326,7 +361,11 @@ class ReconstructionNode(Node):
                                      callback_group=inputs)
         self.create_service(Trigger, private("reconstruct"), self._on_reconstruct,
                             callback_group=services)
+        self.create_service(Reconstruct, private("reconstruct_mesh"), self._on_reconstruct_mesh,
+                            callback_group=services)
         self.create_service(Trigger, private("reset"), self._on_reset, callback_group=services)
+        self.create_service(NewScan, private("new_scan"), self._on_new_scan,
+                            callback_group=services)
         self.create_timer(1.0, self._publish_diagnostics, callback_group=inputs)
         self.create_timer(STORE_RETRY_S, self._retry_unstored, callback_group=inputs)
         # The jobs after a reconstruction (pictures, mesh messages) wait on a hold until
@@ -342,6 +381,7 @@ class ReconstructionNode(Node):
         self._last_hull = -float("inf")   # worker thread: when the hull was last published
         self._hull_dirty = False           # worker thread: carved since then
         self._worker = Worker("reconstruction", on_error=self._job_failed)
+        self._publish_status()
         if self._refusal:
             self.get_logger().error(f"{self._refusal}; the node receipts no view and "
                                     "reconstructs nothing until started with another one")
@@ -399,10 +439,49 @@ class ReconstructionNode(Node):
         self._report_problem(text)
 
     def _on_reconstruct(self, _request, response):
-        response = self._request("reconstruct", self._reconstruct, response)
+        response.success, response.message, _ = self._answer_reconstruct(MeshOptions())
+        return response
+
+    def _on_reconstruct_mesh(self, request, response):
+        """The typed ``reconstruct_mesh``: options checked here (refused at once with the
+        reason), the mesh made in the worker."""
+        try:
+            options = mesh_options(
+                self._live.output_dir if self._live is not None
+                else self.get_parameter("output_dir").value,
+                resolution=request.resolution, bounds_m=list(request.bounds_m),
+                mesher=request.mesher, colour=request.colour, output_name=request.output_name,
+                wait_for_pictures=request.wait_for_pictures)
+        except ValueError as exc:
+            response.success, response.message = False, f"request refused: {exc}"
+            return response
+        grid = dict(read(self, PARAMS))
+        if options.resolution is not None:
+            grid["resolution"] = options.resolution
+        if options.bounds_m is not None:
+            grid["bounds_m"] = options.bounds_m.ravel().tolist()
+        refusal = self._grid_refusal(grid) if grid != read(self, PARAMS) else ""
+        if refusal:
+            response.success, response.message = False, f"request {refusal}"
+            return response
+        response.success, response.message, summary = self._answer_reconstruct(options)
+        if summary is not None:
+            fill_reconstruct_response(response, summary, frame_id=self._frame_id)
+        return response
+
+    def _answer_reconstruct(self, options: MeshOptions) -> tuple[bool, str, dict | None]:
+        """Reconstruct in the worker with ``options``: ``(success, JSON summary or the
+        reason, summary or None)``; the jobs after it are held until the answer is out."""
+        # The previous answer is out (this group ran one callback at a time): should its
+        # timer not have run yet, the jobs held for it must not hold this one up.
+        self._release_after_answer()
+        try:
+            answer = self._submit("reconstruct", self._reconstruct, options).result()
+        except Exception as exc:  # noqa: BLE001 -- the worker reported it; the caller gets it
+            answer = False, _internal_error("reconstruct", exc), None
         if self._after_answer is not None:
             self._answered.reset()
-        return response
+        return answer
 
     def _release_after_answer(self) -> None:
         """Timer (services group), once the ``reconstruct`` answer is sent: the worker may
@@ -414,6 +493,9 @@ class ReconstructionNode(Node):
 
     def _on_reset(self, _request, response):
         return self._request("reset", self._reset, response)
+
+    def _on_new_scan(self, request, response):
+        return self._request("reset", partial(self._reset, request.scan_name), response)
 
     def _request(self, name: str, job, response):
         """Run ``job`` (which answers ``(success, message)``) in the worker and answer with it."""
@@ -459,6 +541,7 @@ class ReconstructionNode(Node):
         if self._cameras:
             self._publish_poses()
             self._hull_dirty = True
+        self._publish_status()
 
     def _prefault(self) -> None:
         """Touch the heap a reconstruction will need, once, before the first one (see
@@ -541,12 +624,12 @@ class ReconstructionNode(Node):
             except ValueError as exc:
                 raise ParameterError("scan_name", str(exc)) from None
 
-    def _reset(self) -> tuple[bool, str]:
-        """Start a new scan with the per-scan settings as they are now; publishes an empty
-        hull. (False, the reason) if the scan name is taken or the grid does not fit in
-        memory: nothing changes."""
+    def _reset(self, scan_name: str = "") -> tuple[bool, str]:
+        """Start a new scan with the per-scan settings as they are now, named ``scan_name``
+        ("" = the ``scan_name`` parameter); publishes an empty hull. (False, the reason) if
+        the scan name is taken or the grid does not fit in memory: nothing changes."""
         values = read(self, PARAMS)
-        settings, name = _scan_settings(values), values["scan_name"] or None
+        settings, name = _scan_settings(values), scan_name or values["scan_name"] or None
         refusal = self._grid_refusal(values)
         if refusal:
             self.get_logger().error(refusal)
@@ -555,12 +638,13 @@ class ReconstructionNode(Node):
         try:
             if self._live is None or settings != self._scan_settings:
                 self._live = LiveReconstruction(
-                    self._calibration, _bounds(values), output_dir=values["output_dir"],
+                    rig_calibration(values), _bounds(values), output_dir=values["output_dir"],
                     resolution=values["resolution"], mesher=values["mesher"], scan_name=name)
                 self._scan_settings, self._refusal = settings, ""
                 self._prefault()
                 self.get_logger().info(f"new scan settings: box {values['bounds_m']}, "
-                                       f"resolution {values['resolution']}, {values['mesher']}")
+                                       f"resolution {values['resolution']}, {values['mesher']}, "
+                                       f"rig f = ({values['fx']}, {values['fy']}) px")
             else:
                 self._live.reset(name)
         except ValueError as exc:
@@ -575,9 +659,16 @@ class ReconstructionNode(Node):
             self._counts["scan_views"] = 0
             self._carve_s = 0.0
             self._problem = self._warning = ""
+            self._rejected = []
         self.get_logger().info("reset: the next view starts a new scan")
+        self._publish_status()
         self._hull_dirty = True
         return True, "new scan: no views yet"
+
+    def _new_rig(self, rig) -> None:
+        """A new rig was set (a parameter thread): the next reset uses it."""
+        self.get_logger().info(f"new rig (f = ({rig.fx:.2f}, {rig.fy:.2f}) px, distortion "
+                               f"{list(rig.distortion)}): the next scan (reset) uses it")
 
     def _remember_earlier(self, keys: list) -> None:
         """Remember the keys of a finished scan's views (at most :data:`EARLIER_VIEWS_KEPT`)."""
@@ -615,6 +706,9 @@ class ReconstructionNode(Node):
             return
         except ValueError as exc:
             self._count("rejected")
+            with self._stats_lock:
+                self._rejected.append(f"view at stamp {format_stamp(stamp)} (theta {theta:.6g} "
+                                      f"rad, phi {phi:.6g} rad): {exc}")
             self._stored_pub.publish(receipt)      # resending cannot make it usable
             self._report_problem(f"view at stamp {format_stamp(stamp)} rejected: {exc}")
             return
@@ -632,12 +726,17 @@ class ReconstructionNode(Node):
         if self._warning:
             self.get_logger().warning(self._warning)
         self._publish_diagnostics()
+        self._publish_status()
 
-    def _reconstruct(self) -> tuple[bool, str]:
+    def _reconstruct(self, options: MeshOptions) -> tuple[bool, str, dict | None]:
+        """The mesh of the views received, with ``options``: ``(success, JSON summary or the
+        reason, summary or None)``."""
         if self._live is None:
-            return False, self._refusal
+            return False, self._refusal, None
         try:
-            summary = self._live.reconstruct(pictures=False)
+            summary = self._live.reconstruct(
+                options.output_name, pictures=False, resolution=options.resolution,
+                bounds_m=options.bounds_m, mesher=options.mesher, colour=options.colour)
         except (ValueError, OSError) as exc:
             self._count("reconstruction_failures")
             reason = str(exc)
@@ -646,23 +745,30 @@ class ReconstructionNode(Node):
             text = f"reconstruction failed: {reason}"
             self.get_logger().error(text)
             self._publish_diagnostics()
-            return False, text
+            return False, text, None
         self._count("reconstructions")
+        with self._stats_lock:
+            self._mesh_path = summary["path"]
         self.get_logger().info(f"mesh written to {summary['path']} ({summary['views_used']} "
                                f"views, {summary['n_faces']} faces, "
                                f"{summary['seconds']:.1f} s)")
         self._publish_diagnostics()
+        self._publish_status()
         # The answer goes out now, the mesh and its report being on disk; the pictures (a
         # quarter of the time) and the mesh messages (seconds of building and serialising
-        # for a few 100 000 faces) follow as the worker's next jobs, once it is sent.
+        # for a few 100 000 faces) follow as the worker's next jobs, once it is sent (the
+        # pictures before it when the request waits for them).
+        if options.wait_for_pictures:
+            self._write_pictures(summary["path"])
         self._after_answer = self._worker.hold()
-        self._submit("pictures", self._write_pictures, summary["path"])
+        if not options.wait_for_pictures:
+            self._submit("pictures", self._write_pictures, summary["path"])
         self._submit("publish the mesh", self._publish_mesh, *self._live.last_mesh,
                      self._live.last_colours)
-        return True, json.dumps(summary)
+        return True, json.dumps(summary), summary
 
     def _write_pictures(self, mesh_path: str) -> None:
-        """The last reconstruction's picture, viewer and contact sheet, after its answer."""
+        """The last reconstruction's picture, viewer and contact sheet."""
         try:
             self._live.write_pictures()
         except (ValueError, OSError) as exc:
@@ -673,7 +779,8 @@ class ReconstructionNode(Node):
         try:
             stamp = self.get_clock().now().to_msg()
             self._marker_pub.publish(mesh_to_marker(vertices, faces, stamp=stamp,
-                                                    frame_id=FRAME_ID, vertex_colors=colours))
+                                                    frame_id=self._frame_id,
+                                                    vertex_colors=colours))
             self._shape_pub.publish(mesh_to_shape(vertices, faces))
         except Exception:  # noqa: BLE001 -- rclpy's RCLError, once the node is stopping
             if self.context.ok():
@@ -682,14 +789,14 @@ class ReconstructionNode(Node):
 
     def _publish_poses(self) -> None:
         self._poses_pub.publish(camera_poses(self._cameras, stamp=self.get_clock().now().to_msg(),
-                                             frame_id=FRAME_ID))
+                                             frame_id=self._frame_id))
 
     def _publish_hull(self) -> None:
         if self._live is None:
             return
         points = self._live.hull_points(self._max_hull_points)
         stamp = self.get_clock().now().to_msg()
-        self._hull_pub.publish(points_to_cloud(points, stamp=stamp, frame_id=FRAME_ID))
+        self._hull_pub.publish(points_to_cloud(points, stamp=stamp, frame_id=self._frame_id))
 
     # -- diagnostics (any thread) ------------------------------------------------------------
 
@@ -702,6 +809,22 @@ class ReconstructionNode(Node):
             self._problem = text
         self.get_logger().error(text)
         self._publish_diagnostics()
+        self._publish_status()
+
+    def _publish_status(self) -> None:
+        """``~/status``: this scan's session folder, views stored and rejected, the
+        reconstructions made, the last mesh, the problem (any thread)."""
+        live = self._live
+        with self._stats_lock:
+            msg = ReconstructionStatus(
+                session_dir=str(live.session_dir or "") if live is not None else "",
+                views_stored=live.n_views if live is not None else 0,
+                views_rejected=list(self._rejected),
+                reconstructions=self._counts["reconstructions"], mesh_path=self._mesh_path,
+                problem=self._problem)
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.header.frame_id = self._frame_id
+        self._status_pub.publish(msg)
 
     def _publish_diagnostics(self) -> None:
         with self._stats_lock:

@@ -9,16 +9,37 @@
 | pub | ``capture/joint_state`` | sensor_msgs/JointState | encoder angles at the shutter, same stamp |
 | sub | ``capture/stored`` | std_msgs/Header | receipts of the reconstruction node |
 | pub | ``/diagnostics`` | diagnostic_msgs/DiagnosticArray | progress, at 1 Hz and on every event |
-| srv | ``~/start`` | std_srvs/Trigger | a new scan from the first view |
+| pub | ``status`` | sfs_ros_interfaces/CellStatus | the same, typed; 1 Hz and on every change |
+| act | ``scan`` | sfs_ros_interfaces/Scan | a scan: feedback, cancel, result |
+| srv | ``~/start`` | std_srvs/Trigger | alias: a default ``scan`` goal, not followed |
 | srv | ``~/cancel`` | std_srvs/Trigger | stop the axes, keep what was captured |
 | srv | ``~/resume`` | std_srvs/Trigger | go on with the views not yet captured |
+| sub | ``reconstruction/status`` | sfs_ros_interfaces/ReconstructionStatus | for the result |
 | cli | ``motor/home``, ``motor/stop`` | std_srvs/Trigger | the motor node's |
 | cli | ``camera/capture`` | std_srvs/Trigger | our camera's shutter (trigger ``shutter``) |
-| cli | ``reconstruction/reset`` | std_srvs/Trigger | the reconstruction node's: a new scan |
+| cli | ``reconstruction/new_scan`` | sfs_ros_interfaces/NewScan | the reconstruction's reset |
 
 Names: :mod:`sfs_ros.ros.names` (the node is ``scan``, so ``~/start`` is
-``scan/start`` in the cell's namespace). A camera driver publishing
-elsewhere is connected by a remap (``-r image_raw:=/my_camera/image_raw``).
+``scan/start`` in the cell's namespace; the action is ``<namespace>/scan`` and the status
+``<namespace>/status``). A camera driver publishing elsewhere is connected by a remap
+(``-r image_raw:=/my_camera/image_raw``).
+
+The ``scan`` action: a goal scans the configured plan, or the goal's own (``plan_file``,
+or ``theta_rad`` / ``phi_rad`` lists visited in the order given: this scan only; a
+restarted node does not take such a scan up), and names the scan's folder in the
+reconstruction (``scan_name``, passed with its reset, ``reconstruction/new_scan``). One
+goal at a time: a goal while a scan runs is rejected. A goal that cannot be scanned (lists
+of different lengths, angles not finite or outside the carriage's range, a plan file that
+does not load, too many views, a bad name) is accepted, then aborted at once with the
+reason in the result's ``message`` (a rejection carries no reason). Feedback follows every
+change of ``status``. A cancel request stops the axes; the goal ends canceled with what
+was captured (``scan/resume`` goes on with it). The result comes once every view is
+captured and receipted: success, the scan's number, and from the reconstruction's
+``status`` its session folder and the views it stored and rejected; a scan that pauses on
+a fault aborts the goal with the reason (``scan/resume`` goes on outside the action).
+``status`` (sfs_ros_interfaces/CellStatus; reliable, transient local, depth 1) carries
+what the diagnostics carry and the last encoder angles, ``axes_connected`` meaning that
+readings came within :data:`AXES_SILENT_S`.
 
 Capture topics and receipts: reliable, volatile, depth ``queue_depth``
 (:func:`sfs_ros.ros.capture_qos`): no view may be dropped. ``image_raw``:
@@ -87,8 +108,10 @@ import json
 import math
 import struct
 import threading
+import time
 
 from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.node import Node
 from rclpy.qos import ReliabilityPolicy
@@ -99,6 +122,7 @@ from std_srvs.srv import Trigger
 
 from sfs_ros.cell.capture_ledger import EncoderReading
 from sfs_ros.cell.messages import ForeignJointState
+from sfs_ros.cell.scan_goal import goal_plan
 from sfs_ros.cell.scan_plan import ScanPlan, load_plan
 from sfs_ros.cell.scan_progress import ScanProgress
 from sfs_ros.cell.scan_sequence import (
@@ -109,12 +133,26 @@ from sfs_ros.cell.scan_sequence import (
     StepFailed,
 )
 from sfs_ros.nodes.entry import run_node
-from sfs_ros.ros import capture_qos
+from sfs_ros.ros import capture_qos, result_qos
 from sfs_ros.ros.convert import angles_from_joint_state, diagnostic_array, health, joint_state
-from sfs_ros.ros.names import DIAGNOSTICS, RECORDER_NODE, SERVICES, private, status_name
+from sfs_ros.ros.names import (
+    CELL_STATUS,
+    DIAGNOSTICS,
+    RECONSTRUCTION_STATUS,
+    RECORDER_NODE,
+    SCAN_ACTION,
+    SERVICES,
+    TYPED_SERVICES,
+    private,
+    status_name,
+)
 from sfs_ros.ros.pairing import stamp_key
 from sfs_ros.ros.params import Param, ParameterError, declare, read, validating_callback
 from sfs_ros.ros.services import ServiceError, call
+from sfs_ros.ros.typed import cell_status, scan_feedback
+from sfs_ros_interfaces.action import Scan
+from sfs_ros_interfaces.msg import CellStatus, ReconstructionStatus
+from sfs_ros_interfaces.srv import NewScan
 
 __all__ = ["ScanNode", "PARAMS", "main"]
 
@@ -122,6 +160,12 @@ NODE_NAME = "scan"
 #: A shutter call unanswered this long is sent again (a response lost in the middleware;
 #: a second frame is harmless: the first answer's frame is the one used).
 _RESEND_AFTER_S = 2.0
+#: The axes count as disconnected when no encoder reading came for this long, s.
+AXES_SILENT_S = 2.0
+#: How often a running goal looks for a cancel request, s.
+_GOAL_POLL_S = 0.1
+#: States in which a scan's run has ended.
+_ENDED = ("done", "paused", "cancelled")
 
 PARAMS: list[Param] = [
     Param("plan_file", "", "YAML scan plan (format: sfs_ros/cell/scan_plan.py); empty = the "
@@ -231,7 +275,10 @@ class _RosPorts(MonotonicClock):
             # Both steps may be asked twice (a reset before the scan's first view; a home
             # that comes while homing joins it): sent again when the answer is late, as the
             # shutter is (services.call: a lost answer).
-            answer = call(self._node.peers[step], Trigger.Request(), timeout_s=timeout_s,
+            client, request = ((self._node.new_scan, NewScan.Request(
+                scan_name=self._node.scan_name)) if step == "reset"
+                else (self._node.peers[step], Trigger.Request()))
+            answer = call(client, request, timeout_s=timeout_s,
                           cancelled=cancelled, resend_after_s=_RESEND_AFTER_S)
         except ServiceError as exc:
             raise StepFailed(str(exc)) from None
@@ -292,6 +339,7 @@ class _RosPorts(MonotonicClock):
 
     def changed(self) -> None:
         self._node.publish_diagnostics()
+        self._node.publish_status()
 
 
 class ScanNode(Node):
@@ -324,6 +372,15 @@ class ScanNode(Node):
         self._sequence = ScanSequence(self.plan.views, _RosPorts(self), scan_settings(self._p),
                                       progress)
         self._receivers: set[bytes] = set()   # every publisher of receipts seen (by GID)
+        self.scan_name = ""                   # the reconstruction's name of the next scan
+        self._reading = (math.nan, math.nan)  # the last encoder reading, rad
+        self._reading_at = -math.inf          # when it came, time.monotonic()
+        self._changed = threading.Condition() # notified with every status published
+        self._status_lock = threading.Lock()  # one status published at a time, newest last
+        self._status: CellStatus | None = None
+        self._reconstruction = ReconstructionStatus()
+        self._goal_lock = threading.Lock()
+        self._goal_busy = False
         self._foreign_seen = False            # a joint state of another machine was logged
         self.add_on_set_parameters_callback(validating_callback(self, PARAMS, lambda _: None))
 
@@ -345,7 +402,17 @@ class ScanNode(Node):
         self._receipt_sub = self.create_subscription(Header, "capture/stored", self._on_receipt,
                                                      qos, callback_group=inputs)
         self.peers = {name: self.create_client(Trigger, SERVICES[name], callback_group=clients)
-                      for name in ("home", "stop", "capture", "reset")}
+                      for name in ("home", "stop", "capture")}
+        self.new_scan = self.create_client(NewScan, TYPED_SERVICES["new_scan"],
+                                           callback_group=clients)
+        self._status_pub = self.create_publisher(CellStatus, CELL_STATUS, result_qos())
+        self.create_subscription(ReconstructionStatus, RECONSTRUCTION_STATUS,
+                                 self._on_reconstruction_status, result_qos(),
+                                 callback_group=inputs)
+        self._action = ActionServer(self, Scan, SCAN_ACTION, self._execute,
+                                    goal_callback=self._on_goal,
+                                    cancel_callback=self._on_cancel_goal,
+                                    callback_group=ReentrantCallbackGroup())
         for name, handler in (("start", self._on_start), ("cancel", self._on_cancel),
                               ("resume", self._on_resume)):
             self.create_service(Trigger, private(f"scan/{name}"), handler, callback_group=services)
@@ -364,6 +431,7 @@ class ScanNode(Node):
         if self._worker is not None:
             self._sequence.cancel(stop_axes=False)
             self._worker.join(timeout=10.0)
+        self._action.destroy()
         super().destroy_node()
 
     # -- inputs (executor) -------------------------------------------------------------------
@@ -372,6 +440,7 @@ class ScanNode(Node):
         try:
             theta, phi = angles_from_joint_state(msg)
             self._sequence.encoder_reading(stamp_key(msg.header.stamp), theta, phi)
+            self._reading, self._reading_at = (theta, phi), time.monotonic()
         except ForeignJointState as exc:
             if not self._foreign_seen:
                 self._foreign_seen = True
@@ -394,7 +463,13 @@ class ScanNode(Node):
         except ValueError as exc:
             self._malformed(f"receipt ignored: {exc}")
             return
-        self._sequence.receipt(stamp)
+        if self._sequence.receipt(stamp):
+            self.publish_status()
+
+    def _on_reconstruction_status(self, msg: ReconstructionStatus) -> None:
+        with self._changed:
+            self._reconstruction = msg
+            self._changed.notify_all()
 
     def _malformed(self, text: str) -> None:
         self._sequence.count_malformed()
@@ -411,12 +486,18 @@ class ScanNode(Node):
                      and info.node_namespace == self.get_namespace()]
         self._sequence.tick({bytes(info.endpoint_gid) for info in receipts + recorders})
         self.publish_diagnostics()
+        self.publish_status()
 
     # -- services (executor) -----------------------------------------------------------------
 
     def _on_start(self, _request, response):
-        response.success, response.message = self._sequence.start(
-            scan_settings(read(self, PARAMS)))
+        with self._goal_lock:
+            if self._goal_busy:
+                response.success, response.message = False, "a scan goal is running"
+                return response
+            self.scan_name = ""
+            response.success, response.message = self._sequence.start(
+                scan_settings(read(self, PARAMS)))
         if response.success:
             self._launch()
         return response
@@ -437,6 +518,99 @@ class ScanNode(Node):
         self._worker = threading.Thread(target=self._sequence.run, name="scan", daemon=True)
         self._worker.start()
 
+    # -- the scan action (executor) ----------------------------------------------------------
+
+    def _on_goal(self, _goal) -> GoalResponse:
+        """One goal at a time, and none while a scan runs (a bad goal is accepted, then
+        aborted with the reason: a rejection carries none)."""
+        with self._goal_lock:
+            if self._goal_busy or self._sequence.active:
+                self.get_logger().info("scan goal rejected: a scan is running")
+                return GoalResponse.REJECT
+            self._goal_busy = True
+        return GoalResponse.ACCEPT
+
+    @staticmethod
+    def _on_cancel_goal(_goal_handle) -> CancelResponse:
+        return CancelResponse.ACCEPT
+
+    def _execute(self, goal_handle) -> Scan.Result:
+        try:
+            return self._run_goal(goal_handle)
+        finally:
+            with self._goal_lock:
+                self._goal_busy = False
+
+    def _run_goal(self, goal_handle) -> Scan.Result:
+        """Start the goal's scan and follow it to its result."""
+        goal = goal_handle.request
+        try:
+            plan = goal_plan(goal.plan_file, goal.theta_rad, goal.phi_rad, goal.scan_name,
+                             max_views=self._p["queue_depth"])
+        except ValueError as exc:
+            return self._end_goal(goal_handle, False, f"goal refused: {exc}")
+        with self._goal_lock:
+            self.scan_name = goal.scan_name
+            ok, message = self._sequence.start(scan_settings(read(self, PARAMS)),
+                                               None if plan is None else plan.views)
+        if not ok:
+            return self._end_goal(goal_handle, False, f"goal refused: {message}")
+        self.get_logger().info(f"scan goal: {message}")
+        self._launch()
+        return self._follow(goal_handle, self._sequence.status().values["scan"])
+
+    def _follow(self, goal_handle, scan: int) -> Scan.Result:
+        """Feedback with every status until the scan's run ends and (done) every view is
+        receipted; then the goal's end."""
+        sent, cancelling = None, False
+        while True:
+            with self._changed:
+                self._changed.wait_for(lambda: self._status is not sent, _GOAL_POLL_S)
+                status = self._status
+            if goal_handle.is_cancel_requested and not cancelling:
+                cancelling = True
+                self._sequence.cancel()
+            if status is not None and status is not sent and status.scan == scan:
+                goal_handle.publish_feedback(scan_feedback(status))
+            sent = status
+            values = self._sequence.status().values
+            if values["scan"] != scan or values["state"] not in _ENDED:
+                continue
+            if values["state"] == "done" and values["receipted"] + \
+                    values["lost_in_transport"] < values["total"]:
+                continue                                 # receipts still to come
+            success = values["state"] == "done" and values["lost_in_transport"] == 0
+            return self._end_goal(goal_handle, success, status.message, values)
+
+    def _end_goal(self, goal_handle, success: bool, message: str,
+                  values: dict | None = None) -> Scan.Result:
+        """End the goal (succeeded; canceled when asked; else aborted) with its result; a
+        scan that ended done waits (``service_timeout_s`` at most) for the reconstruction's
+        status to count its views."""
+        result = Scan.Result(success=success, message=message)
+        if values is not None:
+            if success:
+                with self._changed:
+                    self._changed.wait_for(
+                        lambda: self._reconstruction.views_stored
+                        + len(self._reconstruction.views_rejected) >= values["total"],
+                        self._p["service_timeout_s"])
+            with self._changed:
+                reconstruction = self._reconstruction
+            result.scan, result.views_total = values["scan"], values["total"]
+            result.views_captured = values["captured"]
+            result.session_dir = reconstruction.session_dir
+            result.views_stored = reconstruction.views_stored
+            result.views_rejected = list(reconstruction.views_rejected)
+        if success:
+            goal_handle.succeed()
+        elif goal_handle.is_cancel_requested:
+            goal_handle.canceled()
+        else:
+            goal_handle.abort()
+        self.get_logger().info(f"scan goal ended: {'succeeded' if success else message}")
+        return result
+
     # -- diagnostics (any thread) ------------------------------------------------------------
 
     def publish_diagnostics(self) -> None:
@@ -445,6 +619,17 @@ class ScanNode(Node):
         self._diag_pub.publish(diagnostic_array(status_name(self, "scan"), level, message,
                                                 status.values,
                                                 stamp=self.get_clock().now().to_msg()))
+
+    def publish_status(self) -> None:
+        """``status`` now (and wake the goal that follows it)."""
+        with self._status_lock:
+            connected = time.monotonic() - self._reading_at <= AXES_SILENT_S
+            msg = cell_status(self._sequence.status(), self._reading, connected,
+                              stamp=self.get_clock().now().to_msg())
+            with self._changed:
+                self._status = msg
+                self._changed.notify_all()
+            self._status_pub.publish(msg)
 
 
 def main(args=None) -> None:

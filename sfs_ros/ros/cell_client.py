@@ -1,20 +1,23 @@
-"""A program's handle on a running cell: start a scan, follow it, reconstruct.
+"""A program's handle on a running cell: scan, follow, reconstruct, through typed interfaces.
 
-What a robot cell's controller (or ``sfs-demo``) does over ROS: call
-``scan/start``, follow the scan node's progress on ``/diagnostics``, and call
-``reconstruct`` once every view is stored. Services go by their short names
-(``"reset"``, ``"home"``, ...), which :data:`sfs_ros.ros.names.SERVICES` maps to
-the node's own (``reconstruction/reset``, ``motor/home``, ...) in the cell's
-namespace (default :data:`sfs_ros.ros.names.NAMESPACE`); only the statuses
-of that namespace's nodes are followed. :class:`CellClient` runs its own
-node in a private rclpy context, spun by a background thread, so it can be
-used from plain synchronous code::
+What a robot cell's controller (``sfs-demo``, ``sfs-ctl``) does over ROS: send a
+``Scan`` goal to the scan node's action (feedback, cancel, result), follow the
+scan node's ``CellStatus`` topic, and call the reconstruction's typed ``Reconstruct``
+service (``sfs_ros_interfaces``). The std_srvs/Trigger services stay reachable by
+their short names (``"reset"``, ``"home"``, ``"scan/start"``, ...), which
+:data:`sfs_ros.ros.names.SERVICES` maps to the node's own (``reconstruction/reset``,
+``motor/home``, ...) in the cell's namespace (default
+:data:`sfs_ros.ros.names.NAMESPACE`). :class:`CellClient` runs its own node in a
+private rclpy context, spun by a background thread, so it can be used from plain
+synchronous code::
 
     with CellClient() as cell:
         cell.wait_ready()
-        scan = cell.start_scan()
-        cell.wait_scan_done(scan)
-        summary = cell.reconstruct()      # {"path": ..., "preview_path": ..., ...}
+        result = cell.scan(feedback=print)          # Scan.Result: session_dir, views_stored
+        mesh = cell.reconstruct(resolution=128)     # {"mesh_path": ..., "n_faces": ...}
+
+``start_scan`` / ``wait_scan_done`` (the ``scan/start`` alias and the status topic)
+drive a scan without the action, as a scan resumed after a fault is followed.
 """
 
 from __future__ import annotations
@@ -26,34 +29,58 @@ import time
 from pathlib import Path
 from typing import Callable
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from rclpy.action import ActionClient
 from std_srvs.srv import Trigger
 
-from sfs_ros.cell.messages import status_namespace
-from sfs_ros.ros.names import DIAGNOSTICS, NAMESPACE, SERVICES
+from sfs_ros.ros import result_qos
+from sfs_ros.ros.names import CELL_STATUS, NAMESPACE, SCAN_ACTION, SERVICES, TYPED_SERVICES
 from sfs_ros.ros.services import ServiceError, call
+from sfs_ros_interfaces.action import Scan
+from sfs_ros_interfaces.msg import CellStatus
+from sfs_ros_interfaces.srv import Reconstruct
 
-__all__ = ["CellClient", "ScanFailed", "ScanStatus", "SERVICES", "READY", "wait_for_pictures"]
+__all__ = ["CellClient", "ScanFailed", "ScanGoal", "ScanStatus", "SERVICES", "READY",
+           "mesh_summary", "wait_for_pictures"]
 
-#: The services that must answer before :meth:`CellClient.wait_ready` returns.
+#: The Trigger services that must answer before :meth:`CellClient.wait_ready` returns
+#: (besides the action and the typed service).
 READY = ("scan/start", "scan/cancel", "scan/resume", "reconstruct", "reset")
 
 
+#: Longest wait for the spinning thread to end at :meth:`CellClient.close`, s.
+CLOSE_S = 10.0
 #: How often :func:`wait_for_pictures` reads the report, s.
 PICTURE_POLL_S = 0.05
 #: States in which a scan is not under way (it waits for ``scan/resume``).
 _STOPPED = ("paused", "cancelled")
+#: The goal states a result comes with (action_msgs/GoalStatus).
+_SUCCEEDED, _CANCELED = 4, 5
 
 
 class ScanFailed(RuntimeError):
-    """The scan paused on a fault, or the reconstruction failed; the text says why."""
+    """The scan was refused, paused on a fault or was cancelled, or the reconstruction
+    failed; the text says why. ``result``: the Scan.Result, when the goal ended with one."""
+
+    def __init__(self, message: str, result: Scan.Result | None = None):
+        super().__init__(message)
+        self.result = result
+
+
+def mesh_summary(response: Reconstruct.Response) -> dict:
+    """A ``Reconstruct`` answer as a dict (JSON-ready): its fields, and ``path`` (the mesh,
+    as ``mesh_path``) and ``views_received`` (used + rejected)."""
+    summary = {name: getattr(response, name) for name in response.get_fields_and_field_types()}
+    summary.update(path=response.mesh_path,
+                   views_received=response.views_used + response.views_rejected)
+    return summary
 
 
 def wait_for_pictures(summary: dict, *, timeout_s: float = 120.0) -> None:
-    """Until the report of a ``reconstruct`` answer (``summary``, its JSON) names the
-    picture, viewer and contact sheet the answer gives: the node writes them after its
-    answer, then the report again. Polls the report file; TimeoutError after
-    ``timeout_s`` (the node's diagnostics say why: a full disk, say)."""
+    """Until the report of a reconstruction (``summary``: its ``report_path``,
+    ``preview_path``, ``html_path``, ``contact_sheet_path`` and ``path``) names the
+    picture, viewer and contact sheet: the node writes them after its answer, then the
+    report again. Polls the report file; TimeoutError after ``timeout_s`` (the node's
+    diagnostics say why: a full disk, say)."""
     report = Path(summary["report_path"])
     wanted = {"preview": summary["preview_path"], "html": summary["html_path"],
               "contact_sheet": summary["contact_sheet_path"]}
@@ -72,30 +99,85 @@ def wait_for_pictures(summary: dict, *, timeout_s: float = 120.0) -> None:
 
 
 class ScanStatus:
-    """The scan node's latest progress: ``level``, ``message`` and ``values`` (str -> str)."""
+    """The scan node's latest ``CellStatus``: ``state``, ``message``, ``values`` (field ->
+    value: scan, state, view, total, captured, receipted, theta_rad, phi_rad,
+    axes_connected, message) and ``msg`` itself."""
 
-    def __init__(self, status: DiagnosticStatus):
-        self.level = status.level
-        self.message = status.message
-        self.values = {kv.key: kv.value for kv in status.values}
+    FIELDS = ("scan", "state", "view", "total", "captured", "receipted", "theta_rad",
+              "phi_rad", "axes_connected", "message")
+
+    def __init__(self, msg: CellStatus):
+        self.msg = msg
+        self.values = {name: getattr(msg, name) for name in self.FIELDS}
 
     @property
     def state(self) -> str:
-        return self.values.get("state", "")
+        return self.msg.state
+
+    @property
+    def message(self) -> str:
+        return self.msg.message
 
     def count(self, key: str) -> int:
-        return int(self.values.get(key, "0"))
+        return int(self.values[key])
 
     @property
     def complete(self) -> bool:
         """Every planned view captured and receipted by the reconstruction."""
-        total = self.count("total")
-        return self.state == "done" and total > 0 and self.count("receipted") == total
+        total = self.msg.total
+        return self.state == "done" and total > 0 and self.msg.receipted == total
+
+
+def _wait_future(future, timeout_s: float, what: str):
+    """The result of an rclpy future (the node spun elsewhere); TimeoutError naming
+    ``what``."""
+    done = threading.Event()
+    future.add_done_callback(lambda _f: done.set())
+    if not done.wait(timeout_s):
+        raise TimeoutError(f"{what}: no answer within {timeout_s:g} s")
+    return future.result()
+
+
+class ScanGoal:
+    """A ``Scan`` goal (:meth:`CellClient.send_scan`): :meth:`wait` for its result,
+    :meth:`cancel` it. ``feedback``: the latest Scan.Feedback (None before one); each is
+    also handed to ``on_feedback``."""
+
+    def __init__(self, on_feedback: Callable[[Scan.Feedback], None] | None = None):
+        self.feedback: Scan.Feedback | None = None
+        self._on_feedback = on_feedback
+        self._handle = self._result = None
+
+    def feedback_message(self, msg) -> None:
+        """The action client's feedback callback."""
+        self.feedback = msg.feedback
+        if self._on_feedback is not None:
+            self._on_feedback(msg.feedback)
+
+    def accepted(self, handle) -> None:
+        """The goal's handle, once the scan node accepted it."""
+        self._handle = handle
+        self._result = handle.get_result_async()
+
+    def cancel(self, timeout_s: float = 30.0) -> None:
+        """Ask the scan node to cancel the goal (it stops the axes; :meth:`wait` then ends
+        with ScanFailed, the goal canceled); TimeoutError if it does not answer."""
+        _wait_future(self._handle.cancel_goal_async(), timeout_s, "cancel of the scan goal")
+
+    def wait(self, timeout_s: float = 1800.0) -> Scan.Result:
+        """The result of a scan that succeeded; ScanFailed with the reason (and the result)
+        if it was aborted or canceled; TimeoutError after ``timeout_s``."""
+        answer = _wait_future(self._result, timeout_s, "the scan goal's result")
+        result = answer.result
+        if answer.status != _SUCCEEDED:
+            how = "cancelled" if answer.status == _CANCELED else "failed"
+            raise ScanFailed(f"scan {how}: {result.message}", result)
+        return result
 
 
 class CellClient:
-    """Service calls and scan progress of a cell in ``namespace`` ("" or "/" = the root);
-    call :meth:`close`."""
+    """The scan action, the status and the services of a cell in ``namespace`` ("" or "/"
+    = the root); call :meth:`close`."""
 
     def __init__(self, namespace: str = NAMESPACE, *, name: str = "cell_client"):
         import rclpy
@@ -108,30 +190,24 @@ class CellClient:
         self._lock = threading.Lock()
         self._scan: ScanStatus | None = None
         self._resumed: int | None = None      # scan resumed, until a report of it running
-        self._motor_connected = False
         self._changed = threading.Condition(self._lock)
-        self.node.create_subscription(DiagnosticArray, DIAGNOSTICS, self._on_diagnostics, 50)
+        self.node.create_subscription(CellStatus, CELL_STATUS, self._on_status, result_qos())
         self._clients = {n: self.node.create_client(Trigger, name) for n, name in
                          SERVICES.items()}
+        self._reconstruct = self.node.create_client(Reconstruct,
+                                                    TYPED_SERVICES["reconstruct_mesh"])
+        self._action = ActionClient(self.node, Scan, SCAN_ACTION)
         self._executor = MultiThreadedExecutor(num_threads=2, context=self._context)
         self._executor.add_node(self.node)
         self._spinner = threading.Thread(target=self._executor.spin, daemon=True)
         self._spinner.start()
 
-    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
-        for status in msg.status:
-            if status_namespace(status.name) != self.node.get_namespace():
-                continue                     # another cell's, or a robot's
-            if status.name.endswith(": scan"):
-                with self._changed:
-                    self._scan = ScanStatus(status)
-                    if self._scan.count("scan") == self._resumed and \
-                            self._scan.state not in _STOPPED:
-                        self._resumed = None
-                    self._changed.notify_all()
-            elif status.name.endswith(": motor"):
-                self._motor_connected = any(kv.key == "connected" and kv.value == "True"
-                                            for kv in status.values)
+    def _on_status(self, msg: CellStatus) -> None:
+        with self._changed:
+            self._scan = ScanStatus(msg)
+            if msg.scan == self._resumed and msg.state not in _STOPPED:
+                self._resumed = None
+            self._changed.notify_all()
 
     @property
     def scan(self) -> ScanStatus | None:
@@ -139,16 +215,30 @@ class CellClient:
         with self._lock:
             return self._scan
 
+    def next_status(self, after: ScanStatus | None, *, timeout_s: float) -> ScanStatus:
+        """The first status other than ``after`` (None: the latest, or the first to come);
+        TimeoutError after ``timeout_s``."""
+        with self._changed:
+            if not self._changed.wait_for(lambda: self._scan is not None
+                                          and self._scan is not after, timeout_s):
+                raise TimeoutError(f"no status from the scan node within {timeout_s:g} s")
+            return self._scan
+
     def wait_ready(self, timeout_s: float = 60.0) -> None:
-        """Until every service of the cell answers, the scan node reports and the motor node
-        is connected to its controller; ServiceError."""
+        """Until the scan action, the typed reconstruct service and the Trigger services
+        answer, and the scan node's status says the axes are connected; ServiceError."""
         deadline = time.monotonic() + timeout_s
         while True:
             missing = [SERVICES[n] for n in READY if not self._clients[n].service_is_ready()]
-            if self.scan is None:
-                missing.append("scan progress")
-            if not self._motor_connected:
-                missing.append("a connected motor controller")
+            if not self._action.server_is_ready():
+                missing.append(f"the {SCAN_ACTION} action")
+            if not self._reconstruct.service_is_ready():
+                missing.append(TYPED_SERVICES["reconstruct_mesh"])
+            status = self.scan
+            if status is None:
+                missing.append("the scan node's status")
+            elif not status.msg.axes_connected:
+                missing.append("encoder readings (a connected motor controller)")
             if not missing:
                 return
             if time.monotonic() > deadline:
@@ -198,8 +288,35 @@ class CellClient:
                 self._resumed = None
             raise ScanFailed(f"scan/resume refused: {answer.message}")
 
+    def send_scan(self, *, plan_file: str = "", theta_rad=(), phi_rad=(), scan_name: str = "",
+                  feedback: Callable[[Scan.Feedback], None] | None = None,
+                  timeout_s: float = 30.0) -> ScanGoal:
+        """Send a ``Scan`` goal (all empty: the configured plan); the accepted goal, or
+        ScanFailed when the scan node rejects it (a scan is running). ``feedback`` sees
+        every Scan.Feedback (in the client's spinning thread)."""
+        goal = ScanGoal(feedback)
+        request = Scan.Goal(plan_file=plan_file, theta_rad=[float(v) for v in theta_rad],
+                            phi_rad=[float(v) for v in phi_rad], scan_name=scan_name)
+        if not self._action.wait_for_server(timeout_sec=timeout_s):
+            raise ServiceError(f"the {SCAN_ACTION} action is not available "
+                               f"(waited {timeout_s:g} s): is the scan node running?")
+        handle = _wait_future(self._action.send_goal_async(request,
+                                                           feedback_callback=goal.feedback_message),
+                              timeout_s, "the scan goal")
+        if not handle.accepted:
+            raise ScanFailed("scan goal rejected: a scan is running (cancel it first)")
+        goal.accepted(handle)
+        return goal
+
+    def scan_goal(self, *, timeout_s: float = 1800.0, **goal) -> Scan.Result:
+        """Scan (:meth:`send_scan` with ``goal``) to the end; the result of a scan that
+        succeeded, ScanFailed with the reason otherwise."""
+        return self.send_scan(**goal).wait(timeout_s)
+
     def start_scan(self) -> int:
-        """Call ``scan/start``; the number of the new scan, or ScanFailed with the reason."""
+        """Call ``scan/start`` (the Trigger alias: the scan is followed on the status topic,
+        :meth:`wait_scan_done`); the number of the new scan, or ScanFailed with the
+        reason."""
         answer = self.call("scan/start")
         found = re.match(r"scan (\d+) started", answer.message)
         if not answer.success or found is None:
@@ -213,23 +330,25 @@ class CellClient:
         return self.wait_scan(scan, lambda s: s.complete, timeout_s=timeout_s,
                               progress=progress)
 
-    def reconstruct(self, timeout_s: float = 600.0, *, pictures: bool = True) -> dict:
-        """Call ``reconstruct``; its JSON summary, or ScanFailed with the node's reason.
+    def reconstruct(self, timeout_s: float = 600.0, *, pictures: bool = True,
+                    **options) -> dict:
+        """Call the typed ``reconstruct_mesh``; its answer as :func:`mesh_summary`, or
+        ScanFailed with the node's reason.
 
-        The node answers once the mesh and its report are written; with ``pictures``
-        this also waits (within ``timeout_s`` in all) until the picture, viewer and
-        contact sheet are (:func:`wait_for_pictures`)."""
-        deadline = time.monotonic() + timeout_s
-        answer = self.call("reconstruct", timeout_s=timeout_s)
+        ``options``: the request's ``resolution``, ``bounds_m``, ``mesher``, ``colour``
+        ("yes" / "no"), ``output_name`` (each left out: the node's). With ``pictures`` the
+        node answers once the picture, viewer and contact sheet are written too; without,
+        once the mesh and its report are (:func:`wait_for_pictures` waits for the rest)."""
+        request = Reconstruct.Request(wait_for_pictures=pictures, **options)
+        answer = call(self._reconstruct, request, timeout_s=timeout_s)
         if not answer.success:
             raise ScanFailed(answer.message)
-        summary = json.loads(answer.message)
-        if pictures:
-            wait_for_pictures(summary, timeout_s=max(0.0, deadline - time.monotonic()))
-        return summary
+        return mesh_summary(answer)
 
     def close(self) -> None:
         self._executor.shutdown()
+        self._spinner.join(timeout=CLOSE_S)
+        self._action.destroy()
         self.node.destroy_node()
         self._context.try_shutdown()
 

@@ -18,7 +18,8 @@ is reached by remapping these.
 
 from __future__ import annotations
 
-__all__ = ["NAMESPACE", "DIAGNOSTICS", "RECORDER_NODE", "SERVICES", "private", "status_name"]
+__all__ = ["NAMESPACE", "DIAGNOSTICS", "RECORDER_NODE", "SERVICES", "TYPED_SERVICES",
+           "SCAN_ACTION", "CELL_STATUS", "RECONSTRUCTION_STATUS", "private", "status_name"]
 
 #: Namespace of the cell when started by ``sfs-cell`` or the launch files.
 NAMESPACE = "/sfs"
@@ -44,10 +45,27 @@ SERVICES: dict[str, str] = {
 }
 
 
+#: Short name -> typed service (``sfs_ros_interfaces/srv``) relative to the namespace:
+#: ``reconstruct_mesh`` (Reconstruct: per-call options, typed answer; ``reconstruct`` is its
+#: Trigger alias) and ``new_scan`` (NewScan: a reset naming the scan; ``reset`` is its
+#: Trigger alias).
+TYPED_SERVICES: dict[str, str] = {
+    "reconstruct_mesh": "reconstruction/reconstruct_mesh",
+    "new_scan": "reconstruction/new_scan",
+}
+
+#: The scan node's action (``sfs_ros_interfaces/action/Scan``): ``<namespace>/scan``.
+SCAN_ACTION = "scan"
+#: The scan node's status (``sfs_ros_interfaces/msg/CellStatus``): ``<namespace>/status``.
+CELL_STATUS = "status"
+#: The reconstruction node's status (``sfs_ros_interfaces/msg/ReconstructionStatus``).
+RECONSTRUCTION_STATUS = "reconstruction/status"
+
+
 def private(service: str) -> str:
-    """The name a node gives its own service ``<node>/<service>`` of :data:`SERVICES`:
-    ``~/<service>``."""
-    return "~/" + SERVICES[service].split("/", 1)[1]
+    """The name a node gives its own service ``<node>/<service>`` of :data:`SERVICES` or
+    :data:`TYPED_SERVICES`: ``~/<service>``."""
+    return "~/" + {**SERVICES, **TYPED_SERVICES}[service].split("/", 1)[1]
 
 
 def status_name(node, kind: str) -> str:

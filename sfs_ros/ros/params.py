@@ -38,6 +38,7 @@ class ParameterError(ValueError):
     def __init__(self, name: str, message: str):
         super().__init__(f"invalid parameter '{name}': {message}")
         self.name = name
+        self.reason = message
 
 
 @dataclass(frozen=True)

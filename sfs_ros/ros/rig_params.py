@@ -4,14 +4,35 @@ The reconstruction node turns encoder angles into cameras with it, the camera
 node publishes its intrinsics as ``CameraInfo``, and the mock camera renders
 with it. One file, ``config/rig.yaml`` (``/**:`` so every node reads it),
 holds the values for the whole cell.
+
+:data:`RIG_PARAMS` defines them (names, defaults, ranges). A node that takes a
+new calibration while it runs declares :data:`WRITABLE_RIG_PARAMS` (the same
+parameters, settable) and keeps a :class:`RigParameters`: a change is checked
+as the whole :class:`RigCalibration` it would give (several parameters set at
+once, ``SetParametersAtomically``, are checked together), the image size stays
+the one the node started with, and nothing changes while the cell's scan node
+reports a scan under way (``starting``, ``running``, ``waiting`` or
+``paused``, on ``/diagnostics``); a refusal gives the reason and keeps the old
+rig.
 """
 
 from __future__ import annotations
 
-from sfs_ros.core.geometry.rig import CONVENTIONS, RigCalibration
-from sfs_ros.ros.params import Param, ParameterError
+import threading
+from dataclasses import replace
+from typing import Callable
 
-__all__ = ["RIG_PARAMS", "rig_calibration"]
+from diagnostic_msgs.msg import DiagnosticArray
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.node import Node
+
+from sfs_ros.cell.messages import scan_report
+from sfs_ros.core.geometry.rig import CONVENTIONS, RigCalibration
+from sfs_ros.ros.names import DIAGNOSTICS
+from sfs_ros.ros.params import Param, ParameterError, check, read
+
+__all__ = ["RIG_PARAMS", "WRITABLE_RIG_PARAMS", "FIXED_WHILE_RUNNING", "SCANNING_STATES",
+           "RigParameters", "rig_calibration"]
 
 _RIG = RigCalibration()
 
@@ -50,6 +71,19 @@ RIG_PARAMS: list[Param] = [
           "on its carriage, radians.", read_only=True, constraints="three values"),
 ]
 
+#: Rig parameters a running node keeps at their start-up values: its frames have that size.
+FIXED_WHILE_RUNNING = ("width", "height")
+
+#: :data:`RIG_PARAMS` settable at run time, between scans (:class:`RigParameters`).
+WRITABLE_RIG_PARAMS: list[Param] = [
+    replace(p, read_only=False, constraints="; ".join(filter(None, [
+        p.constraints, "fixed while the node runs" if p.name in FIXED_WHILE_RUNNING else
+        "between scans, checked with the other rig parameters as one rig"])))
+    for p in RIG_PARAMS]
+
+#: States of the scan node (its diagnostics' ``state``) in which the rig may not change.
+SCANNING_STATES = ("starting", "running", "waiting", "paused")
+
 
 def rig_calibration(values: dict) -> RigCalibration:
     """:class:`RigCalibration` from the values of :data:`RIG_PARAMS`; :class:`ParameterError`."""
@@ -72,3 +106,101 @@ def rig_calibration(values: dict) -> RigCalibration:
             mount_rotation_rad=tuple(values["mount_rotation_rad"]))
     except ValueError as exc:
         raise ParameterError("calibration", str(exc)) from None
+
+
+class RigParameters:
+    """The rig of a running node that declared :data:`WRITABLE_RIG_PARAMS`: checks changes
+    to them as one rig and keeps the current :class:`RigCalibration`.
+
+    node : Node
+        Its rig parameters declared already (e.g. ``declare(node, [..., *WRITABLE_RIG_PARAMS])``).
+    on_change : callable, optional
+        Called with the new :class:`RigCalibration` once a change is accepted (in the thread
+        that set it).
+
+    A change is refused, with the reason and the old rig kept, when a value is
+    invalid (type, range, choices), the rig it would give is invalid, ``width`` or
+    ``height`` differs from the start-up value, or the scan node of the node's
+    namespace reports a scan in one of :data:`SCANNING_STATES` (``/diagnostics``; before
+    its first report, none is assumed). Setting the current values again is always
+    accepted. Raises :class:`ParameterError` if the declared values do not make a rig.
+    """
+
+    def __init__(self, node: Node, *, on_change: Callable[[RigCalibration], None] | None = None):
+        self._node = node
+        self._by_name = {p.name: p for p in WRITABLE_RIG_PARAMS}
+        self._lock = threading.Lock()
+        self._calibration = rig_calibration(read(node, WRITABLE_RIG_PARAMS))
+        self._started = {name: getattr(self._calibration, name) for name in FIXED_WHILE_RUNNING}
+        self._on_change = on_change
+        self._scan: tuple[int, str] | None = None      # (scan number, state) last reported
+        node.create_subscription(DiagnosticArray, DIAGNOSTICS, self._on_diagnostics, 10)
+        node.add_on_set_parameters_callback(self._check)
+        node.add_post_set_parameters_callback(self._changed)
+
+    @property
+    def calibration(self) -> RigCalibration:
+        """The current rig."""
+        with self._lock:
+            return self._calibration
+
+    def scanning(self) -> str:
+        """Why the rig may not change now (the scan under way), or ""."""
+        with self._lock:
+            scan = self._scan
+        if scan is None or scan[1] not in SCANNING_STATES:
+            return ""
+        return (f"the scan node reports scan {scan[0]} {scan[1]}: the rig changes between "
+                "scans (once the scan is done or cancelled), for the next one")
+
+    def _on_diagnostics(self, array: DiagnosticArray) -> None:
+        report = scan_report(array, self._node.get_namespace())
+        if report is not None:
+            with self._lock:
+                self._scan = report
+
+    def _check(self, changes: list) -> SetParametersResult:
+        """Set-parameters callback: the refusal of a change to the rig, if any."""
+        values = read(self._node, WRITABLE_RIG_PARAMS)
+        changed = False
+        for change in changes:
+            param = self._by_name.get(change.name)
+            if param is None:
+                continue
+            value = list(change.value) if isinstance(param.default, list) else change.value
+            reason = check(param, value)
+            if reason is not None:
+                return _refused(str(ParameterError(param.name, reason)))
+            changed |= value != values[param.name]
+            values[param.name] = value
+        if not changed:
+            return SetParametersResult(successful=True)
+        try:
+            rig = rig_calibration(values)
+        except ParameterError as exc:
+            return _refused(f"rig refused: {exc}")
+        for name, started in self._started.items():
+            if values[name] != started:
+                return _refused(f"rig refused: invalid parameter '{name}': got {values[name]}, "
+                                f"expected {started}: fixed while the node runs (its frames "
+                                "have that size); start the node with the new size")
+        busy = self.scanning()
+        if busy and rig != self.calibration:
+            return _refused(f"rig refused: {busy}")
+        return SetParametersResult(successful=True)
+
+    def _changed(self, changes: list) -> None:
+        """Post-set callback: take the rig the accepted change gives."""
+        if not any(change.name in self._by_name for change in changes):
+            return
+        rig = rig_calibration(read(self._node, WRITABLE_RIG_PARAMS))
+        with self._lock:
+            if rig == self._calibration:
+                return
+            self._calibration = rig
+        if self._on_change is not None:
+            self._on_change(rig)
+
+
+def _refused(reason: str) -> SetParametersResult:
+    return SetParametersResult(successful=False, reason=reason)

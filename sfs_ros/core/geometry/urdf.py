@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
@@ -39,8 +40,9 @@ from .rig import (
     rotation_z,
 )
 
-__all__ = ["BASE_FRAME", "OBJECT_FRAME", "CARRIAGE_FRAME", "CAMERA_FRAME", "TURNTABLE_JOINT",
-           "CARRIAGE_JOINT", "cell_urdf", "rpy_from_matrix", "rig_from_parameters"]
+__all__ = ["BASE_FRAME", "OBJECT_FRAME", "CARRIAGE_FRAME", "CAMERA_FRAME", "LINKS",
+           "TURNTABLE_JOINT", "CARRIAGE_JOINT", "CAMERA_JOINT", "Joint", "cell_joints",
+           "XACRO_MACRO", "cell_urdf", "cell_xacro", "rpy_from_matrix", "rig_from_parameters"]
 
 BASE_FRAME = "base_link"
 OBJECT_FRAME = "turntable"
@@ -49,6 +51,10 @@ CAMERA_FRAME = "camera_optical"
 TURNTABLE_JOINT = "turntable"
 CARRIAGE_JOINT = "carriage"
 CAMERA_JOINT = "camera_mount"
+#: The cell's links, root first.
+LINKS = (BASE_FRAME, OBJECT_FRAME, CARRIAGE_FRAME, CAMERA_FRAME)
+#: Name of the xacro macro of :func:`cell_xacro`.
+XACRO_MACRO = "sfs_cell"
 
 #: Below this ``cos(pitch)`` roll and yaw are one rotation (gimbal lock); see rpy_from_matrix.
 _GIMBAL_LOCK = 1e-9
@@ -84,13 +90,37 @@ def _origin(xyz, R) -> str:
     return f'<origin xyz="{xyz}" rpy="{rpy}"/>'
 
 
-def cell_urdf(calibration: RigCalibration, *, name: str = "sfs_cell") -> str:
-    """URDF (XML text) of the cell for ``calibration`` (module docstring).
+@dataclass(frozen=True)
+class Joint:
+    """One joint of the cell: ``X_parent = R (Rot(axis, position) X_child) + xyz``.
 
-    For every encoder reading ``(theta, phi)`` the pose of ``camera_optical`` relative
-    to ``turntable`` is ``rig_camera(theta, phi, calibration)``'s ``R``, ``t`` (object
-    -> camera), inverted. Raises ``ValueError`` for the ``paper`` convention.
+    name, kind : str
+        Joint name and URDF type (``continuous``, ``revolute`` or ``fixed``).
+    parent, child : str
+        Link names (:data:`BASE_FRAME`, ...).
+    xyz : (3,) tuple of float
+        Origin of the child in the parent at position 0, metres.
+    rotation : (3, 3) ndarray
+        Orientation of the child in the parent at position 0.
+    axis : (3,) tuple of float or None
+        Unit axis of a moving joint in the child's frame; None for a fixed joint.
+    limits : (lower, upper) radians or None
+        Range of a revolute joint.
     """
+
+    name: str
+    kind: str
+    parent: str
+    child: str
+    xyz: tuple
+    rotation: np.ndarray
+    axis: tuple | None = None
+    limits: tuple | None = None
+
+
+def cell_joints(calibration: RigCalibration) -> list[Joint]:
+    """The three joints of the cell for ``calibration`` (module docstring): turntable,
+    carriage, camera mount. Raises ``ValueError`` for the ``paper`` convention."""
     if not isinstance(calibration, RigCalibration):
         raise ValueError(f"expected a RigCalibration, got {type(calibration).__name__}")
     if calibration.convention != "physical":
@@ -104,36 +134,81 @@ def cell_urdf(calibration: RigCalibration, *, name: str = "sfs_cell") -> str:
     # axis -X. Camera: X_cam = M (T(phi) (X_lab - aim) + d e_z) with T(phi) = T(0) Rx(phi),
     # so Y = (0, -d, 0) + T(0)^T M^T X_cam.
     mount = camera_tilt(0.0).T @ rotation_from_vector(c.mount_rotation_rad).T
-    lower, upper = c.phi_zero_rad - math.pi / 2, c.phi_zero_rad + math.pi / 2
+    return [
+        Joint(TURNTABLE_JOINT, "continuous", BASE_FRAME, OBJECT_FRAME,
+              (*c.axis_point_m, 0.0), axis, axis=(0.0, 0.0, 1.0)),
+        Joint(CARRIAGE_JOINT, "revolute", BASE_FRAME, CARRIAGE_FRAME, tuple(c.aim_point_m),
+              rotation_x(c.phi_zero_rad), axis=(-1.0, 0.0, 0.0),
+              limits=(c.phi_zero_rad - math.pi / 2, c.phi_zero_rad + math.pi / 2)),
+        Joint(CAMERA_JOINT, "fixed", CARRIAGE_FRAME, CAMERA_FRAME,
+              (0.0, -c.camera_distance_m, 0.0), mount),
+    ]
+
+
+def _joint_xml(joint: Joint, links: dict, name: str) -> list[str]:
+    lines = [f"  <joint name={quoteattr(name)} type=\"{joint.kind}\">",
+             f"    <parent link={quoteattr(links[joint.parent])}/>",
+             f"    <child link={quoteattr(links[joint.child])}/>",
+             f"    {_origin(joint.xyz, joint.rotation)}"]
+    if joint.axis is not None:
+        lines.append(f'    <axis xyz="{" ".join(f"{v:g}" for v in joint.axis)}"/>')
+    if joint.limits is not None:
+        # The cell is driven by the motor node, not through this description: no effort
+        # or speed is claimed (URDF requires the attributes of a revolute joint).
+        lower, upper = (_number(v) for v in joint.limits)
+        lines.append(f'    <limit lower="{lower}" upper="{upper}" effort="0" velocity="0"/>')
+    return lines + ["  </joint>"]
+
+
+def cell_urdf(calibration: RigCalibration, *, name: str = "sfs_cell",
+              links: dict[str, str] | None = None) -> str:
+    """URDF (XML text) of the cell for ``calibration`` (module docstring).
+
+    For every encoder reading ``(theta, phi)`` the pose of ``camera_optical`` relative
+    to ``turntable`` is ``rig_camera(theta, phi, calibration)``'s ``R``, ``t`` (object
+    -> camera), inverted. ``links`` renames links (``{"base_link": "cell1/base_link",
+    ...}``, :meth:`sfs_ros.core.geometry.frames.FrameNames.links`); joint names stay.
+    Raises ``ValueError`` for the ``paper`` convention.
+    """
+    joints = cell_joints(calibration)
+    links = {link: link for link in LINKS} | dict(links or {})
     return "\n".join([
         '<?xml version="1.0"?>',
         "<!-- The turntable + C-arm cell of sfs_ros, made by sfs_ros.core.geometry.urdf."
         " Joint positions are encoder readings, radians. -->",
         f"<robot name={quoteattr(name)}>",
-        f'  <link name="{BASE_FRAME}"/>',
-        f'  <link name="{OBJECT_FRAME}"/>',
-        f'  <link name="{CARRIAGE_FRAME}"/>',
-        f'  <link name="{CAMERA_FRAME}"/>',
-        f'  <joint name="{TURNTABLE_JOINT}" type="continuous">',
-        f'    <parent link="{BASE_FRAME}"/>',
-        f'    <child link="{OBJECT_FRAME}"/>',
-        f"    {_origin((*c.axis_point_m, 0.0), axis)}",
-        '    <axis xyz="0 0 1"/>',
-        "  </joint>",
-        f'  <joint name="{CARRIAGE_JOINT}" type="revolute">',
-        f'    <parent link="{BASE_FRAME}"/>',
-        f'    <child link="{CARRIAGE_FRAME}"/>',
-        f"    {_origin(c.aim_point_m, rotation_x(c.phi_zero_rad))}",
-        '    <axis xyz="-1 0 0"/>',
-        # The cell is driven by the motor node, not through this description: no effort
-        # or speed is claimed (URDF requires the attributes of a revolute joint).
-        f'    <limit lower="{_number(lower)}" upper="{_number(upper)}" effort="0" velocity="0"/>',
-        "  </joint>",
-        f'  <joint name="{CAMERA_JOINT}" type="fixed">',
-        f'    <parent link="{CARRIAGE_FRAME}"/>',
-        f'    <child link="{CAMERA_FRAME}"/>',
-        f"    {_origin((0.0, -c.camera_distance_m, 0.0), mount)}",
-        "  </joint>",
+        *(f"  <link name={quoteattr(links[link])}/>" for link in LINKS),
+        *(line for joint in joints for line in _joint_xml(joint, links, joint.name)),
+        "</robot>",
+        "",
+    ])
+
+
+def cell_xacro(calibration: RigCalibration, *, macro: str = XACRO_MACRO) -> str:
+    """A xacro macro (XML text) of the cell for a robot's description: ``<xacro:sfs_cell
+    prefix="cell1/" parent="world"><origin .../></xacro:sfs_cell>`` adds the links and
+    joints of :func:`cell_urdf` with ``prefix`` in front of every link and joint name,
+    and a fixed joint ``${prefix}base_joint`` placing the base in ``parent`` at the
+    ``origin`` block. Raises ``ValueError`` for the ``paper`` convention.
+    """
+    joints = cell_joints(calibration)
+    links = {link: "${prefix}" + link for link in LINKS}
+    attach = ["  <joint name=\"${prefix}base_joint\" type=\"fixed\">",
+              "    <parent link=\"${parent}\"/>",
+              f"    <child link={quoteattr(links[BASE_FRAME])}/>",
+              "    <xacro:insert_block name=\"origin\"/>",
+              "  </joint>"]
+    body = [*(f"  <link name={quoteattr(links[link])}/>" for link in LINKS), *attach,
+            *(line for joint in joints
+              for line in _joint_xml(joint, links, "${prefix}" + joint.name))]
+    return "\n".join([
+        '<?xml version="1.0"?>',
+        "<!-- The turntable + C-arm cell of sfs_ros as a xacro macro, made by"
+        " sfs_ros.core.geometry.urdf. Joint positions are encoder readings, radians. -->",
+        '<robot xmlns:xacro="http://www.ros.org/wiki/xacro">',
+        f"  <xacro:macro name={quoteattr(macro)} params=\"prefix:='' parent *origin\">",
+        *("  " + line for line in body),
+        "  </xacro:macro>",
         "</robot>",
         "",
     ])
@@ -150,22 +225,25 @@ def rig_from_parameters(values: dict) -> RigCalibration:
 
 
 def main(argv=None) -> int:
-    """``python -m sfs_ros.core.geometry.urdf RIG_YAML``: print the cell's URDF."""
+    """``python -m sfs_ros.core.geometry.urdf [--xacro] RIG_YAML``: print the cell's URDF
+    (with ``--xacro``: its xacro macro, :func:`cell_xacro`)."""
     import yaml
 
-    argv = sys.argv[1:] if argv is None else argv
+    argv = list(sys.argv[1:] if argv is None else argv)
+    make = cell_xacro if argv[:1] == ["--xacro"] else cell_urdf
+    argv = argv[1:] if make is cell_xacro else argv
     if len(argv) != 1:
-        print("usage: python -m sfs_ros.core.geometry.urdf RIG_YAML > sfs_cell.urdf",
+        print("usage: python -m sfs_ros.core.geometry.urdf RIG_YAML > sfs_cell.urdf\n"
+              "       python -m sfs_ros.core.geometry.urdf --xacro RIG_YAML > sfs_cell.urdf.xacro",
               file=sys.stderr)
         return 2
     try:
         parameters = yaml.safe_load(Path(argv[0]).read_text())["/**"]["ros__parameters"]
-        sys.stdout.write(cell_urdf(rig_from_parameters(parameters)))
+        sys.stdout.write(make(rig_from_parameters(parameters)))
     except (OSError, KeyError, TypeError, ValueError, yaml.YAMLError) as exc:
         print(f"error: {argv[0]}: {exc}", file=sys.stderr)
         return 1
     return 0
-
 
 if __name__ == "__main__":
     sys.exit(main())

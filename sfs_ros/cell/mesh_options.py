@@ -1,0 +1,83 @@
+"""The options of one reconstruction request, checked before it is queued (no ROS).
+
+A ``Reconstruct`` request (``sfs_ros_interfaces/srv/Reconstruct``) may set, for that one
+mesh, the resolution, the carving box, the mesher, the colour and the mesh's file name;
+each left empty takes the reconstruction node's setting. :func:`mesh_options` turns the
+request's fields into :class:`MeshOptions` (None = the node's setting) or a ValueError
+naming the field, what it was and what was expected. The file name is confined to the
+output folder: a plain name with a mesh suffix (:func:`sfs_ros.cell.paths.plain_file_name`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..core.exchange.export import SUPPORTED_SUFFIXES
+from ..core.exchange.views import as_bounds
+from ..core.pipeline import MESHERS
+from .paths import plain_file_name
+
+__all__ = ["COLOUR_CHOICES", "RESOLUTION_RANGE", "MeshOptions", "mesh_options"]
+
+#: Accepted ``colour`` values: "" (the node's setting), then yes / no.
+COLOUR_CHOICES = {"": None, "yes": True, "no": False, "true": True, "false": False}
+#: Voxels along the box's longest side a request may ask for (the node parameter's range).
+RESOLUTION_RANGE = (8, 2048)
+
+
+@dataclass(frozen=True)
+class MeshOptions:
+    """One request's choices; None = the node's setting.
+
+    resolution : int, voxels along the box's longest side
+    bounds_m : (2, 3) float64, the carving box ``[min, max]``, metres, object frame
+    mesher : str, one of :data:`sfs_ros.core.pipeline.MESHERS`
+    colour : bool
+    output_name : str, a file name in the output folder (with its suffix)
+    wait_for_pictures : bool, answer once the pictures are written too
+    """
+
+    resolution: int | None = None
+    bounds_m: np.ndarray | None = None
+    mesher: str | None = None
+    colour: bool | None = None
+    output_name: str | None = None
+    wait_for_pictures: bool = False
+
+
+def mesh_options(output_dir, *, resolution: int = 0, bounds_m=(), mesher: str = "",
+                 colour: str = "", output_name: str = "",
+                 wait_for_pictures: bool = False) -> MeshOptions:
+    """:class:`MeshOptions` of a request's fields (0, empty = the node's setting);
+    ValueError naming the field that is wrong and what was expected.
+
+    ``bounds_m``: 6 numbers ``[xmin, ymin, zmin, xmax, ymax, zmax]``, metres.
+    ``output_name``: a file name ending in .ply, .obj, .stl or .glb, no folders,
+    written inside ``output_dir``.
+    """
+    low, high = RESOLUTION_RANGE
+    if resolution and not low <= resolution <= high:
+        raise ValueError(f"resolution {resolution} is outside [{low}, {high}] (0 = the node's)")
+    box = None
+    if len(bounds_m):
+        try:
+            if len(bounds_m) != 6:
+                raise ValueError(f"got {len(bounds_m)} values")
+            box = as_bounds(np.reshape(np.asarray(bounds_m, dtype=np.float64), (2, 3)),
+                            what="bounds_m")
+        except ValueError:
+            raise ValueError(f"bounds_m {list(bounds_m)} is not [xmin, ymin, zmin, xmax, ymax, "
+                             "zmax] with finite min < max (empty = the node's)") from None
+    if mesher and mesher not in MESHERS:
+        raise ValueError(f"mesher {mesher!r} is not one of {', '.join(MESHERS)} "
+                         "(empty = the node's)")
+    if colour.lower() not in COLOUR_CHOICES:
+        raise ValueError(f"colour {colour!r} is not 'yes' or 'no' (empty = the node's)")
+    if output_name:
+        plain_file_name(Path(output_dir), output_name, suffixes=SUPPORTED_SUFFIXES)
+    return MeshOptions(resolution=resolution or None, bounds_m=box, mesher=mesher or None,
+                       colour=COLOUR_CHOICES[colour.lower()], output_name=output_name or None,
+                       wait_for_pictures=bool(wait_for_pictures))
