@@ -173,7 +173,7 @@ def test_the_bag_exports_its_captures_for_other_tools(recorded, tmp_path):
     image = read_image(plain.views[0].image_path)
     assert len(np.unique(image)) > 16 and np.any(image[..., 0] != image[..., 2])
     # Tagged with the encoder angles the reconstruction node stored for the same captures.
-    live = read_session(recorded["summary"]["session"])
+    live = read_session(recorded["summary"]["session_dir"])
     assert sorted((v.theta_rad, v.phi_rad) for v in plain.views) == \
         sorted((v.theta_rad, v.phi_rad) for v in live.views)
     assert len(read_transforms(out / "transforms.json").views) == 17

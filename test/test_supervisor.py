@@ -25,6 +25,9 @@ class ScriptSpec:
     def command(self, namespace: str = "") -> list[str]:
         return list(self.argv)
 
+    def applied_rig_file(self) -> str:
+        return ""
+
 
 def poll(condition, what: str):
     deadline = time.monotonic() + DEADLINE_S

@@ -26,7 +26,9 @@ values, without editing the installed files. A node that holds the rig
 last to the running cell (:data:`sfs_ros.cell.paths.APPLIED_RIG` in the output
 folder, :func:`sfs_ros.ros.rig_apply.apply_rig`) whenever it is started and the
 file exists, so a node started again keeps the applied rig; the start says so. The cell runs in the namespace
-:data:`sfs_ros.ros.names.NAMESPACE` unless told otherwise.
+:data:`sfs_ros.ros.names.NAMESPACE` unless told otherwise. :func:`select_nodes`
+picks the part of the cell one host runs, the rest running on another host in the
+same ROS domain and namespace.
 """
 
 from __future__ import annotations

@@ -70,8 +70,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _names(text: str) -> list[str]:
-    """A comma-separated list of node names."""
-    return [name.strip() for name in text.split(",") if name.strip()]
+    """A comma-separated list of node names (at least one)."""
+    names = [name.strip() for name in text.split(",") if name.strip()]
+    if not names:
+        raise argparse.ArgumentTypeError(f"no node names in {text!r}")
+    return names
 
 
 #: Discovery ranges in which nodes on other hosts are not found.
