@@ -58,6 +58,7 @@ setup(
             "sfs-mock-hardware = sfs_ros.nodes.mock_hardware_node:main",
             "sfs-reconstruction = sfs_ros.nodes.reconstruction_node:main",
             "sfs-state-publisher = sfs_ros.nodes.tf_node:main",
+            "sfs-calibration = sfs_ros.nodes.calibration_node:main",
         ],
     },
 )

@@ -45,6 +45,7 @@ REST = [("state_publisher", "tf_node", ["rig.yaml", "frames.yaml"]),
         ("segmentation", "segmentation_node", ["segmentation.yaml"]),
         ("reconstruction", "reconstruction_node", ["rig.yaml", "frames.yaml", "reconstruction.yaml"]),
         ("recorder", "recorder_node", ["recorder.yaml"]),
+        ("calibration", "calibration_node", ["calibration.yaml"]),
         ("scan", "scan_node", ["scan.yaml"])]
 
 
@@ -73,11 +74,12 @@ def test_cell_nodes_in_start_order_with_their_files_and_overrides(mock, tmp_path
     hardware = [{"port_link": str(output / "ttyMOCK")}, {"port": str(output / "ttyMOCK")}]
     assert [s.overrides for s in specs] == (hardware if mock else [{}, {}]) + [
         {}, {}, {"output_dir": str(output)}, {"output_dir": str(output)},
+        {"output_dir": str(output), "plan_file": str(config / "calibration_plan.yaml")},
         {"plan_file": str(config / "scan_plan.yaml"),
          "progress_dir": str(output / "scan_progress")}]
     recording = cell_nodes(config, "out", mock=mock, record=True)
     assert [s.name for s in recording] == [s.name for s in specs]
-    assert recording[-2].overrides == {"output_dir": str(output), "with_scan": "true"}
+    assert recording[-3].overrides == {"output_dir": str(output), "with_scan": "true"}
 
     scan = specs[-1]
     assert scan.command("/cell1") == [
@@ -123,7 +125,7 @@ def test_real_cell_options_port_camera_device_camera_topic_and_site_params(tmp_p
     # Another driver's camera: no camera node; the scan node streams from its topic.
     other = cell_nodes(config, tmp_path / "out", mock=False, camera_topic="/usb_cam/image_raw")
     assert [s.name for s in other] == ["motor", "state_publisher", "segmentation",
-                                       "reconstruction", "recorder", "scan"]
+                                       "reconstruction", "recorder", "calibration", "scan"]
     scan = other[-1]
     assert scan.overrides["camera_trigger"] == "stream"
     assert scan.command("/sfs")[5:9] == ["-r", "__ns:=/sfs", "-r",
@@ -159,7 +161,7 @@ def test_cell_nodes_names_a_missing_site_params_file(tmp_path):
 
 
 #: Config files the cell does not start with: overlays and plans a user chooses to add.
-OPTIONAL = {"mock_wrong_world.yaml", "calibration_plan.yaml"}
+OPTIONAL = {"mock_wrong_world.yaml"}
 
 
 @pytest.mark.parametrize("missing", sorted(p.name for p in CONFIG.glob("*.yaml")

@@ -4,7 +4,8 @@ The ``sh`` blocks of the doc's section "A calibration scan in the cell" run as t
 stand, in a temporary folder holding a copy of the repository's ``config`` and the venv
 (``.venv``, its ``bin`` also on ``PATH``): the first brings the mock cell up in the wrong
 world with the board on the plate and the recorder recording (its ``sfs-cell`` line in
-the background); the scan is started through :class:`CellClient`, as the doc says; the
+the background); the board's scan (object ``board``: on ``calibration/*``, which
+``sfs-calibrate BAG`` reads) is a Scan goal through :class:`CellClient`, as the doc says; the
 second block calibrates from the recorded bag and applies the result to the running cell
 (``--apply``).
 
@@ -146,7 +147,7 @@ def calibration(tmp_path_factory):
     try:
         with CellClient(NAMESPACE, name="calibration_cell_client") as client:
             client.wait_ready(timeout_s=STARTUP_TIMEOUT_S)
-            client.wait_scan_done(client.start_scan(), timeout_s=SCAN_TIMEOUT_S)
+            client.scan_goal(object="board", timeout_s=SCAN_TIMEOUT_S)   # the doc's
             scanned = len(log_path.read_text())
             done = subprocess.run(["bash", "-ec", "\n".join(calibrate)], cwd=root, env=env,
                                   capture_output=True, text=True, timeout=COMMAND_TIMEOUT_S)

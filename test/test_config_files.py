@@ -11,6 +11,7 @@ import pytest
 import yaml
 
 from sfs_ros.nodes import (
+    calibration_node,
     camera_node,
     mock_hardware_node,
     motor_node,
@@ -27,7 +28,8 @@ RIG_NAMES = {p.name for p in RIG_PARAMS}
 # (module, its config file): the rig parameters live in rig.yaml, the rest in the node's file.
 NODES = [(camera_node, "camera.yaml"), (mock_hardware_node, "mock_hardware.yaml"),
          (motor_node, "motor.yaml"), (reconstruction_node, "reconstruction.yaml"),
-         (recorder_node, "recorder.yaml"), (scan_node, "scan.yaml")]
+         (recorder_node, "recorder.yaml"), (scan_node, "scan.yaml"),
+         (calibration_node, "calibration.yaml")]
 
 
 def _values(name: str) -> dict:

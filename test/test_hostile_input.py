@@ -21,6 +21,7 @@ from pathlib import Path
 import cv2
 import pytest
 import yaml
+from test_hostile_round_three import bomb_bags, zstd_bomb
 
 from sfs_ros.core.exchange.pose_export import write_nerf_transforms
 from sfs_ros.core.exchange.session import read_session, write_session
@@ -305,6 +306,18 @@ def build_cases(root: Path, base: Path, secret: Path) -> Cases:
         extra=lambda f: (f / "metadata.yaml").write_text(alias_bomb()))
     bag("bag: mcap file replaced by text",
         extra=lambda f: (f / "bag.mcap").write_text("not a bag"))
+    # A chunk of 98 KB of zstd expanding to 3 GiB, declaring that or a few bytes (issue 29).
+    for case, folder in bomb_bags(c.folder(), zstd_bomb()).items():
+        c.add(f"bag: zstd bomb chunk {case}", [folder])
+        c.add(f"sfs-export of a bag: zstd bomb chunk {case}",
+              [folder, "--colmap", root / "out" / "bomb_export"], tool="export")
+    # A COLMAP model whose images/ is a link outside (as a session's is refused).
+    model = c.folder() / "sparse" / "0"
+    model.mkdir(parents=True)
+    (model / "cameras.txt").write_text("1 PINHOLE 96 72 160 160 48 36\n")
+    (model / "images.txt").write_text("1 1 0 0 0 0 0 0.5 1 outside.png\n\n")
+    os.symlink(secret, model / "images")
+    c.add("colmap: images/ is a link outside", [model])
 
     # ---- output clashes: no input file is ever written, no output overwrites another
     out = root / "clash"
@@ -337,6 +350,41 @@ def build_cases(root: Path, base: Path, secret: Path) -> Cases:
     return c
 
 
+def failures(cases: list[dict], results: list[dict]) -> list[str]:
+    """What each case did wrong against the rules of the module docstring and its
+    ``expect``: one line per failure."""
+    found = []
+    for case, r in zip(cases, results):
+        lines = r["stderr"].splitlines()
+        expect = case["expect"]
+        if r["traceback"]:
+            found.append(f"{r['id']}: traceback\n{r['traceback']}")
+            continue
+        if "Traceback" in r["stderr"] or "\x1b" in r["stderr"]:
+            found.append(f"{r['id']}: raw traceback or escape code on stderr")
+        if r["status"] == 2 and (len(lines) != 1 or ": error: " not in lines[0]):
+            # One line saying what was wrong; "internal error" is a bug, not an answer.
+            found.append(f"{r['id']}: {len(lines)} lines on stderr: {r['stderr'][:500]!r}")
+        if r["status"] == 0 and len(lines) > 1:
+            # At most one warning (e.g. "the bag was cut; N whole messages read").
+            found.append(f"{r['id']}: exit 0 with stderr {r['stderr'][:300]!r}")
+        if expect == REFUSED and r["status"] != 2:
+            found.append(f"{r['id']}: expected a refusal (exit 2), got exit {r['status']}")
+        elif expect == OK and r["status"] != 0:
+            found.append(f"{r['id']}: expected a mesh, got exit {r['status']}: {r['stderr']}")
+        elif expect not in (REFUSED, OK):
+            if r["status"] == 0:
+                out = Path(case["argv"][case["argv"].index("-o") + 1])
+                rejected = json.loads(out.with_name(out.stem + ".report.json").read_text())
+                if expect not in {v["view"] for v in rejected["views"]["rejected"]}:
+                    found.append(f"{r['id']}: exit 0 without naming {expect} as rejected")
+            elif r["status"] != 2:
+                found.append(f"{r['id']}: exit {r['status']}")
+        if r["opened"]:
+            found.append(f"{r['id']}: {r['opened']}")
+    return found
+
+
 def test_every_hostile_case_ends_cleanly_and_stays_inside_its_input(base, tmp_path):
     secret = tmp_path / "secret"
     secret.mkdir()
@@ -356,36 +404,8 @@ def test_every_hostile_case_ends_cleanly_and_stays_inside_its_input(base, tmp_pa
     assert done.returncode == 0, done.stderr[-3000:]
     report = json.loads(results_path.read_text())
 
-    failures = []
-    for case, r in zip(cases.cases, report["results"]):
-        lines = r["stderr"].splitlines()
-        expect = case["expect"]
-        if r["traceback"]:
-            failures.append(f"{r['id']}: traceback\n{r['traceback']}")
-            continue
-        if "Traceback" in r["stderr"] or "\x1b" in r["stderr"]:
-            failures.append(f"{r['id']}: raw traceback or escape code on stderr")
-        if r["status"] == 2 and (len(lines) != 1 or ": error: " not in lines[0]):
-            # One line saying what was wrong; "internal error" is a bug, not an answer.
-            failures.append(f"{r['id']}: {len(lines)} lines on stderr: {r['stderr'][:500]!r}")
-        if r["status"] == 0 and len(lines) > 1:
-            # At most one warning (e.g. "the bag was cut; N whole messages read").
-            failures.append(f"{r['id']}: exit 0 with stderr {r['stderr'][:300]!r}")
-        if expect == REFUSED and r["status"] != 2:
-            failures.append(f"{r['id']}: expected a refusal (exit 2), got exit {r['status']}")
-        elif expect == OK and r["status"] != 0:
-            failures.append(f"{r['id']}: expected a mesh, got exit {r['status']}: {r['stderr']}")
-        elif expect not in (REFUSED, OK):
-            if r["status"] == 0:
-                out = Path(case["argv"][case["argv"].index("-o") + 1])
-                rejected = json.loads(out.with_name(out.stem + ".report.json").read_text())
-                if expect not in {v["view"] for v in rejected["views"]["rejected"]}:
-                    failures.append(f"{r['id']}: exit 0 without naming {expect} as rejected")
-            elif r["status"] != 2:
-                failures.append(f"{r['id']}: exit {r['status']}")
-        if r["opened"]:
-            failures.append(f"{r['id']}: {r['opened']}")
-    assert not failures, f"{len(failures)} of {len(cases.cases)} cases:\n" + "\n".join(failures)
+    found = failures(cases.cases, report["results"])
+    assert not found, f"{len(found)} of {len(cases.cases)} cases:\n" + "\n".join(found)
     assert report["peak_rss_mib"] < MAX_PEAK_MIB
     changed = [str(p) for p, data in before.items() if not p.is_file() or p.read_bytes() != data]
     assert not changed, f"input files written: {changed[:5]}"

@@ -264,7 +264,8 @@ def test_reset_starts_a_new_scan_and_keeps_the_old_one(tmp_path, box, masks):
     live = small_live(tmp_path, box)
     with pytest.raises(ValueError, match="no views received yet"):
         live.reconstruct()
-    live.add_view("a", masks[0], *PLAN[0])
+    for key, n in (("a", 0), ("e", 4), ("i", 8)):    # three directions: a hull with a shape
+        live.add_view(key, masks[n], *PLAN[n])
     first = live.session_dir
     assert first.name == "scan_001"
     assert live.reconstruct()["path"].endswith("scan_001.ply") and live.last_mesh is not None
@@ -276,7 +277,7 @@ def test_reset_starts_a_new_scan_and_keeps_the_old_one(tmp_path, box, masks):
         live.reconstruct()
     live.add_view("a", masks[0], *PLAN[0])  # the same key is new in a new scan
     assert live.session_dir.name == "scan_002"
-    assert len(load_views(first).views) == 1 and len(load_views(live.session_dir).views) == 1
+    assert len(load_views(first).views) == 3 and len(load_views(live.session_dir).views) == 1
     live.reset("named")
     live.add_view("b", masks[1], *PLAN[1])
     assert live.session_dir.name == "named"

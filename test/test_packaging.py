@@ -40,6 +40,10 @@ THIRD_PARTY = {
     "trimesh": ("python3-trimesh-pip", "trimesh"),
     "yaml": ("python3-yaml", "pyyaml"),
 }
+#: The decompressors rosbags reads bags with (its own requirements: lz4, and zstd from the
+#: standard library's ``compression`` from Python 3.14, ``backports.zstd`` before): the bag
+#: reader caps what they expand, so it calls them itself; rosbags brings them.
+WITH_ROSBAGS = {"lz4", "compression", "backports"}
 #: ROS 2 packages imported by the package (rosdep key = package name).
 ROS_PACKAGES = {"rclpy", "ament_index_python", "builtin_interfaces", "rcl_interfaces",
                 "std_msgs", "std_srvs", "sensor_msgs", "geometry_msgs", "shape_msgs",
@@ -114,9 +118,16 @@ def requirement_bounds() -> dict[str, str]:
 
 
 def test_every_import_is_known_here():
-    unknown = imported_top_levels() - set(THIRD_PARTY) - ROS_PACKAGES
+    unknown = imported_top_levels() - set(THIRD_PARTY) - ROS_PACKAGES - WITH_ROSBAGS
     assert not unknown, f"new third-party imports {sorted(unknown)}: declare them in " \
                         "package.xml and setup.py, then add them to THIRD_PARTY"
+
+
+def test_the_decompressors_come_with_rosbags():
+    from importlib.metadata import requires
+
+    wanted = {re.split(r"[ ;<>=!~\[]", r, maxsplit=1)[0].lower() for r in requires("rosbags")}
+    assert {"lz4", "backports.zstd"} <= wanted, wanted
 
 
 def test_package_xml_declares_every_import_with_a_rosdep_key():

@@ -184,6 +184,26 @@ def test_rig_parameters_set_at_run_time_move_the_static_transforms(cell):
     assert_camera_is_the_rig_model(static + cell.moving_tree(0.7, 0.4, (400, 0)), moved, 0.7, 0.4)
 
 
+def test_the_cell_moves_in_its_parent_at_run_time_but_keeps_its_frame_names(cell):
+    moved = [1.5, 0.25, 0.0, 0.0, 0.0, -0.4]
+    result = cell.set_atomically({"parent_pose": moved})
+    assert result.successful, result.reason
+
+    def base():
+        found = [T for p, c, T in ours_static(cell) if p == PARENT]
+        return found[0] if found else None
+    cell.probe.spin_until(lambda: base() is not None
+                          and np.abs(base()[:3, 3] - moved[:3]).max() < POSE_TOL,
+                          what="/tf_static of the moved cell", process=cell.process)
+    # Every node that stamps a frame read its name at start: a new name would part them.
+    refused = cell.set_atomically({"frame_prefix": "elsewhere/"})
+    assert not refused.successful and "frame_prefix" in refused.reason, refused.reason
+
+
+def ours_static(cell) -> list:
+    return [(p, c, T) for p, c, T, _ in ours(cell.static[-1:])]
+
+
 def test_tf_message_type_is_upstreams(cell):
     """The TFMessage built into the environment has tf2_msgs' Kilted type hash, so our /tf
     meets other machines' tf2 listeners and recorders."""

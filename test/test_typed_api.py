@@ -4,7 +4,8 @@ One cell for the module (:mod:`mock_cell`); scans are small (six views given in 
 to keep the time down. A client finds the Scan action and the Reconstruct service by
 their types, scans with feedback and a result, cancels mid-scan and scans again, is
 refused a bad goal and a bad output name with the reason; ``sfs-ctl`` runs as a process
-against the same cell.
+against the same cell. The cell's TF, as a robot's TF listener receives it, places the
+camera where the rig model does.
 """
 
 import os
@@ -12,24 +13,36 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 from rclpy.action import get_action_names_and_types
 
+from sfs_ros.core.geometry.rig import rig_camera
 from sfs_ros.ros.cell_client import ScanFailed
+from sfs_ros.ros.rig_params import rig_calibration
 
 from mock_cell import SCAN_TIMEOUT_S, running_cell
 from ros_harness import NAMESPACE, SOURCE_ROOT, wait
+from test_frames import chain
+from tf_watch import TfWatch, camera_pose
 
 #: Six views, visited in this order (radians).
 SMALL = {"theta_rad": [0.0, 2.1, 4.2, 1.0, 3.1, 5.2],
          "phi_rad": [0.35, 0.35, 0.35, 0.96, 0.96, 0.96]}
 CTL_TIMEOUT_S = 300.0
+#: The cell's frames carry this run's prefix: /tf is global, shared with any test run in
+#: the same ROS domain.
+PREFIX = NAMESPACE.strip("/") + "/"
+#: Pose agreement, metres and rotation-matrix entries: float64 translations and
+#: quaternions in the messages (round-off ~1e-15); the bound is far above it.
+POSE_TOL = 1e-6
 
 
 @pytest.fixture(scope="module")
 def cell(tmp_path_factory):
-    with running_cell(tmp_path_factory.mktemp("typed"), "typed_api_client") as up:
+    with running_cell(tmp_path_factory.mktemp("typed"), "typed_api_client",
+                      {"frames.yaml": {"frame_prefix": PREFIX}}) as up:
         yield up
 
 
@@ -68,8 +81,36 @@ def test_reconstruct_with_a_default_request_writes_the_mesh(scanned, cell):
     assert mesh["success"] and Path(mesh["mesh_path"]).is_file()
     assert Path(mesh["preview_path"]).is_file()        # wait_for_pictures: written already
     assert mesh["views_used"] == 6 and mesh["session_dir"] == scanned[0].session_dir
-    assert mesh["n_faces"] > 0 and mesh["frame_id"]
+    assert mesh["n_faces"] > 0 and mesh["frame_id"] == PREFIX + "turntable"
     assert mesh["holdout_iou"] != mesh["holdout_iou"]  # NaN: no views held out
+
+
+def test_tf_places_the_camera_where_the_rig_model_does(scanned, cell):
+    """/tf and /tf_static, found by their types, hold the cell's chain from its root to
+    the camera, stamped with the joint states; at the last of them the camera's pose in
+    the turntable frame is rig_camera's at those encoder readings."""
+    node = cell["client"].node
+    tf = ("tf2_msgs/msg/TFMessage",)
+    wait(lambda: {("/tf", tf), ("/tf_static", tf)} <= {
+        (name, tuple(types)) for name, types in node.get_topic_names_and_types()},
+        what="/tf and /tf_static in the graph")
+    watch = TfWatch(node, [PREFIX], {PREFIX: f"{NAMESPACE}/joint_states"})
+    try:
+        wait(lambda: watch.tree_at_last_joint_state(PREFIX) is not None
+             and any(c == PREFIX + "camera_optical" for _, c, _ in watch.static),
+             what="/tf at a joint state and /tf_static", timeout=SCAN_TIMEOUT_S)
+        theta, phi, tree = watch.tree_at_last_joint_state(PREFIX)
+        moving, static = watch.frames()
+    finally:
+        watch.close()
+    base, turntable, camera = (PREFIX + f for f in ("base_link", "turntable", "camera_optical"))
+    assert moving == {(base, turntable), (base, PREFIX + "carriage")}
+    assert static == {(PREFIX + "carriage", camera)}        # no parent_frame: base is a root
+    in_turntable = np.linalg.inv(chain(tree, base, turntable)) @ chain(tree, base, camera)
+    values = yaml.safe_load((cell["output"].parent / "config" / "rig.yaml").read_text())
+    expected = camera_pose(rig_camera(theta, phi, rig_calibration(
+        values["/**"]["ros__parameters"])))
+    assert np.abs(in_turntable - expected).max() < POSE_TOL, (theta, phi)
 
 
 def test_reconstruct_options_and_confined_names(scanned, cell):

@@ -56,6 +56,7 @@ from ..core.carving.hull import surface_voxels
 from ..core.carving.resolution import BYTES_PER_VOXEL
 from ..core.exchange.export import SUPPORTED_SUFFIXES
 from ..core.exchange.inputs import load_views
+from ..core.exchange.limits import MAX_WAITING_BYTES
 from ..core.exchange.session import append_view, read_session, write_session
 from ..core.exchange.views import as_bounds
 from ..core.geometry.grid import VoxelGrid
@@ -255,15 +256,21 @@ class LiveReconstruction:
         if scan_name is not None:
             check_scan_name(self.output_dir, scan_name)
         self._requested_name = scan_name
-        if getattr(self, "_session", None) is not None:
-            (self._session / OPEN_MARKER).unlink(missing_ok=True)
-        self._session: Path | None = None
+        self.close()
         self._carver = Carver(self.grid, max_misses=self.params.max_misses)
         self._precomputed = Precomputed(distances=DistanceImages(), box=BoxCarve(self.bounds_m))
         self._views: dict[str, _Received] = {}
         self._colour_images: dict[str, np.ndarray] = {}
+        self._colour_waiting: dict[str, int] = {}   # keys of images without a view yet, oldest first
         self._mesh: tuple[np.ndarray, np.ndarray] | None = None
         self._colours: np.ndarray | None = None
+
+    def close(self) -> None:
+        """End the scan being received: its session folder (if any) is no longer marked
+        open, so no later start takes it up again; the next view opens a new one."""
+        if getattr(self, "_session", None) is not None:
+            (self._session / OPEN_MARKER).unlink(missing_ok=True)
+        self._session: Path | None = None
 
     @property
     def working_memory_bytes(self) -> int:
@@ -394,6 +401,7 @@ class LiveReconstruction:
         if carved:   # stored as taken; carved as the ideal pinhole (the mask undistorted once)
             self._take(camera, undistort_mask(mask, camera))
         self._views[key] = _Received(name, np.packbits(mask, axis=None), theta, phi)
+        self._colour_waiting.pop(key, None)        # its image, if it came first, is a view's
         return AddedView(key=key, file=self._session / "images" / name, carved=carved,
                          reason="" if carved else "empty mask: no object to carve with",
                          n_views=len(self._views),
@@ -445,7 +453,10 @@ class LiveReconstruction:
         mesh is coloured from the images of the views it used.
 
         rgb : (H, W, 3) uint8, the rig's size. Kept in memory for this scan (a
-        restarted node gets the captures again from the scan node's resends).
+        restarted node gets the captures again from the scan node's resends). Images
+        whose view has not come are kept up to
+        :data:`~sfs_ros.core.exchange.limits.MAX_WAITING_BYTES` together: past that the
+        oldest of them is given up (its view, when it comes, is coloured by the others).
         """
         key = _check_key(key)
         rgb = np.asarray(rgb)
@@ -454,6 +465,16 @@ class LiveReconstruction:
             raise ValueError(f"image of view {key!r} is {rgb.shape} {rgb.dtype}, expected "
                              f"{expected} uint8 RGB (the rig's size)")
         self._colour_images[key] = rgb
+        if key in self._views:
+            return
+        self._colour_waiting.pop(key, None)
+        self._colour_waiting[key] = rgb.nbytes
+        waiting = sum(self._colour_waiting.values())
+        for old in list(self._colour_waiting):
+            if waiting <= MAX_WAITING_BYTES:
+                break
+            waiting -= self._colour_waiting.pop(old)
+            del self._colour_images[old]
 
     def _sheet_views(self, masks: dict) -> SheetViews:
         """Every view received: its captured image (the mask where none was kept) and mask

@@ -17,15 +17,13 @@ import numpy as np
 
 from ..core.exchange.export import SUPPORTED_SUFFIXES
 from ..core.exchange.views import as_bounds
-from ..core.pipeline import MESHERS
+from ..core.pipeline import MESHERS, RESOLUTION_RANGE
 from .paths import plain_file_name
 
 __all__ = ["COLOUR_CHOICES", "RESOLUTION_RANGE", "MeshOptions", "mesh_options"]
 
 #: Accepted ``colour`` values: "" (the node's setting), then yes / no.
 COLOUR_CHOICES = {"": None, "yes": True, "no": False, "true": True, "false": False}
-#: Voxels along the box's longest side a request may ask for (the node parameter's range).
-RESOLUTION_RANGE = (8, 2048)
 
 
 @dataclass(frozen=True)

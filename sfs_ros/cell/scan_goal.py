@@ -3,7 +3,8 @@
 A scan goal (``sfs_ros_interfaces/action/Scan``) names its views in one of three ways:
 a plan file (the format of :mod:`sfs_ros.cell.scan_plan`), explicit views as two
 equal-length lists of encoder targets in radians (visited in the order given), or
-neither (the node's configured plan); and optionally the scan's name. :func:`goal_plan`
+neither (the node's configured plan); optionally the scan's name; and what stands on the
+plate (:func:`goal_object`: the object to scan, or a calibration board). :func:`goal_plan`
 turns that into the plan to scan or a :class:`ValueError` naming what was wrong and what
 was expected, so that a bad goal never reaches the axes.
 """
@@ -17,7 +18,11 @@ import numpy as np
 from .paths import check_scan_name_format
 from .scan_plan import ScanPlan, load_plan
 
-__all__ = ["PHI_LIMIT_RAD", "goal_plan"]
+__all__ = ["OBJECTS", "PHI_LIMIT_RAD", "goal_object", "goal_plan"]
+
+#: What a scan is of: ``object`` (scanned for its shape; the default) or ``board`` (a
+#: calibration board: its captures go to the calibration, not the reconstruction).
+OBJECTS = ("object", "board")
 
 #: The carriage's range, |phi| at most this, radians (a plan file's [-90, 90] degrees).
 PHI_LIMIT_RAD = math.pi / 2
@@ -44,6 +49,16 @@ def _explicit_plan(theta_rad, phi_rad) -> ScanPlan:
                          f"[-{PHI_LIMIT_RAD:.6f}, {PHI_LIMIT_RAD:.6f}] rad")
     degrees = np.column_stack([np.degrees(theta), np.clip(np.degrees(phi), -90.0, 90.0)])
     return ScanPlan.from_views(degrees, reorder=False)
+
+
+def goal_object(value: str) -> str:
+    """The scan's object of a goal's ``object`` field ("" = ``object``); ValueError naming
+    the value and the choices."""
+    value = value.strip() or OBJECTS[0]
+    if value not in OBJECTS:
+        raise ValueError(f"object {value!r} is not one of {list(OBJECTS)} (\"\" = "
+                         f"{OBJECTS[0]!r})")
+    return value
 
 
 def goal_plan(plan_file: str, theta_rad, phi_rad, scan_name: str, *,

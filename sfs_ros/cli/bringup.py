@@ -44,7 +44,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from sfs_ros.cell.paths import APPLIED_RIG
-from sfs_ros.ros.names import NAMESPACE
+from sfs_ros.ros.names import CONFIGURATION_ERROR, NAMESPACE
 
 __all__ = ["NodeSpec", "Cell", "DDS_ENVIRONMENT", "RestartPolicy", "cell_nodes",
            "default_config_dir", "node_environment", "select_nodes", "wait_until_signal"]
@@ -187,6 +187,8 @@ def cell_nodes(config_dir, output_dir, *, mock: bool, record: bool = False,
              {"output_dir": str(output)}),
         spec("recorder", "recorder_node", ["recorder.yaml"],
              {"output_dir": str(output), **({"with_scan": "true"} if record else {})}),
+        spec("calibration", "calibration_node", ["calibration.yaml"],
+             {"output_dir": str(output), "plan_file": files("calibration_plan.yaml")[0]}),
         spec("scan", "scan_node", ["scan.yaml"],
              {"plan_file": files("scan_plan.yaml")[0],
               "progress_dir": str(output / "scan_progress"), **stream[0]}, stream[1]),
@@ -335,13 +337,20 @@ class RestartPolicy:
 
 
 def _supervise(cell: Cell, stopping: threading.Event, policy: RestartPolicy, log) -> int:
-    """Restart nodes that end by themselves until ``stopping`` is set; 1 after a crash loop."""
+    """Restart nodes that end by themselves until ``stopping`` is set; 1 after a crash loop,
+    :data:`~sfs_ros.ros.names.CONFIGURATION_ERROR` when a node ended refusing its
+    configuration (started again, it would refuse it again)."""
     pending: dict[str, float] = {}  # name -> monotonic time of the restart
     while not stopping.wait(0.2):
         now = time.monotonic()
         for name, code in cell.exited().items():
             if name in pending:
                 continue
+            if code == CONFIGURATION_ERROR:
+                print(f"sfs-cell: node {name} refused its configuration (exit status {code}, "
+                      "its reason above); not restarting it, stopping the cell", file=log,
+                      flush=True)
+                return CONFIGURATION_ERROR
             wait = policy.delay(name, now)
             if wait is None:
                 print(f"sfs-cell: node {name} ended {policy.max_restarts} times within "
@@ -365,7 +374,9 @@ def wait_until_signal(cell: Cell, *, policy: RestartPolicy | None = None,
     A node that ends by itself is started again after a back-off
     (:class:`RestartPolicy`); a restarted segmentation or reconstruction node
     gets every capture without a receipt again (the scan node resends them). A
-    crash loop stops the cell with status 1.
+    crash loop stops the cell with status 1; a node that exits with
+    :data:`~sfs_ros.ros.names.CONFIGURATION_ERROR` (its parameters refused) is not started again: the cell
+    stops with that status.
     """
     stopping = stopping or threading.Event()
     if threading.current_thread() is threading.main_thread():

@@ -24,10 +24,16 @@ import math
 import sys
 from pathlib import Path
 
-import yaml
-
-from ..core.calibration import BoardSpec, calibrate_views, write_camera_info, write_rig_yaml
+from ..core.calibration import (
+    BoardSpec,
+    calibrate_views,
+    camera_info_yaml,
+    rig_yaml,
+    yaml_document,
+)
+from ..core.exchange.files import write_atomic_all
 from ..ros.names import NAMESPACE
+from ..ros.params_file import check_params_file
 from .common import load_input, run_reporting_errors
 
 PROG = "sfs-calibrate"
@@ -78,19 +84,28 @@ def run(args) -> dict:
                           max_view_rms_px=args.max_view_rms_px)
     header = (f"Calibrated by {PROG} from {args.input.name}: {len(fit.view_rms_px)} views, "
               f"{fit.corners} corners, RMS {fit.rms_px:.3f} px")
-    write_rig_yaml(fit.rig, args.output / "rig.yaml", header=header)
-    write_camera_info(fit.rig, args.output / "camera_info.yaml", camera_name=args.camera_name,
-                      header=header)
     report = {"rms_px": fit.rms_px, "corners": fit.corners, "view_rms_px": fit.view_rms_px,
               "rejected": {name: reason for name, reason in fit.rejected},
               "uncertainty": fit.uncertainty, "fixed": fit.fixed,
               "board_pose": {"tilt_x_rad": float(fit.board.tilt_x_rad),
                              "tilt_y_rad": float(fit.board.tilt_y_rad),
                              "offset_m": [float(v) for v in fit.board.offset_m]}}
-    (args.output / "calibration_report.yaml").write_text(
-        yaml.safe_dump(report, sort_keys=False, width=100), encoding="utf-8")
+    _write(args.output, {
+        "camera_info.yaml": camera_info_yaml(fit.rig, camera_name=args.camera_name,
+                                             header=header),
+        "calibration_report.yaml": yaml_document(report, what="calibration_report.yaml"),
+        "rig.yaml": rig_yaml(fit.rig, header=header)})
     applied = _apply(args.output / "rig.yaml", args.namespace) if args.apply else None
     return {"fit": fit, "output": args.output, "applied": applied}
+
+
+def _write(output: Path, files: dict[str, bytes]) -> None:
+    """Write ``files`` ({name: text}) into ``output`` (created if needed), each atomically,
+    ``rig.yaml`` last, once every text reads back (``rig.yaml`` also by rcl): a link
+    in their place is replaced, not followed, and a failure leaves the old files whole."""
+    check_params_file(files["rig.yaml"], "rig.yaml")
+    output.mkdir(parents=True, exist_ok=True)
+    write_atomic_all([(output / name, data) for name, data in files.items()], within=output)
 
 
 def _apply(path: Path, namespace: str):

@@ -1,14 +1,20 @@
 """``sfs-ctl``: drive a running cell from the command line, without ros2cli.
 
-    sfs-ctl [--namespace NS] scan [--plan FILE] [--name NAME] [--wait]
+    sfs-ctl [--namespace NS] scan [--plan FILE] [--name NAME] [--object board] [--wait]
+    sfs-ctl calibrate [--plan FILE] [--apply] [--wait]
+    sfs-ctl rig apply FILE
     sfs-ctl cancel | home | status [--follow]
     sfs-ctl reconstruct [--resolution N] [--mesher M] [--output NAME] [--no-colour] [--wait-pictures]
     sfs-ctl param get NODE NAME | param set NODE NAME VALUE
 
 Through the typed interfaces (:class:`sfs_ros.ros.cell_client.CellClient`): ``scan``
 sends a Scan goal (``--wait``: prints each feedback line until the result; Ctrl-C cancels
-the goal), ``cancel`` and ``home`` call ``scan/cancel`` and ``motor/home``, ``status``
-prints the scan node's CellStatus (``--follow``: every one until Ctrl-C),
+the goal), ``calibrate`` sends a Calibrate goal to the calibration node (``--wait``: its
+feedback lines, then the result; Ctrl-C cancels it), ``rig apply`` sets a calibration's
+``rig.yaml`` on every node of the running cell that holds the rig and keeps it for
+restarts (:func:`sfs_ros.ros.rig_apply.apply_rig`), ``cancel`` and ``home`` call
+``scan/cancel`` and ``motor/home``, ``status`` prints the scan node's CellStatus
+(``--follow``: every one until Ctrl-C),
 ``reconstruct`` calls ``reconstruction/reconstruct_mesh``, ``param`` gets or sets a
 node's parameter through its rcl_interfaces services (VALUE parsed as YAML: ``256``,
 ``true``, ``[0.1, 0.2]``, ``bracket_07``). Exit status 0 on success, 1 on failure (the
@@ -41,7 +47,23 @@ def build_parser() -> argparse.ArgumentParser:
     scan.add_argument("--name", default="", help="the scan's folder and mesh name")
     scan.add_argument("--wait", action="store_true", help="print feedback until the result; "
                       "Ctrl-C cancels the scan")
+    scan.add_argument("--object", default="", choices=("", "object", "board"),
+                      help="board: a calibration board's scan (default: the object)")
     scan.add_argument("--timeout", type=float, default=3600.0, help="longest scan, s")
+    cal = sub.add_parser("calibrate", help="calibrate the cell from the board on the plate "
+                         "(a Calibrate goal)")
+    cal.add_argument("--plan", default="", help="YAML calibration plan (default: the node's)")
+    cal.add_argument("--apply", action="store_true", help="set the calibrated rig on the "
+                     "running cell and keep it for restarts")
+    cal.add_argument("--wait", action="store_true", help="print feedback until the result; "
+                     "Ctrl-C cancels the calibration")
+    cal.add_argument("--timeout", type=float, default=3600.0, help="longest calibration, s")
+    rig = sub.add_parser("rig", help="the cell's rig")
+    rig_what = rig.add_subparsers(dest="action", required=True)
+    rig_apply = rig_what.add_parser("apply", help="set a rig.yaml on every node that holds "
+                                    "the rig (between scans) and keep it for restarts")
+    rig_apply.add_argument("file", help="a rig.yaml (sfs-calibrate's or the Calibrate "
+                           "action's)")
     sub.add_parser("cancel", help="cancel the scan (scan/cancel)")
     sub.add_parser("home", help="home the axes (motor/home)")
     status = sub.add_parser("status", help="print the scan node's status")
@@ -81,7 +103,7 @@ def _line(status) -> str:
 def _scan(client, args) -> int:
     from ..ros.cell_client import ScanFailed
     goal = client.send_scan(plan_file=os.path.abspath(args.plan) if args.plan else "",
-                            scan_name=args.name,
+                            scan_name=args.name, object=args.object,
                             feedback=(lambda f: print(_line(f), flush=True)) if args.wait
                             else None, timeout_s=ANSWER_S)
     if not args.wait:
@@ -101,6 +123,42 @@ def _scan(client, args) -> int:
           f"{len(result.views_rejected)} rejected")
     for line in result.views_rejected:
         print(f"  rejected: {line}")
+    return 0
+
+
+def _calibrate(client, args) -> int:
+    from ..ros.cell_client import ScanFailed
+    goal = client.send_calibrate(
+        plan_file=os.path.abspath(args.plan) if args.plan else "", apply=args.apply,
+        feedback=(lambda f: print(f"{f.phase}: {f.views_captured} of {f.views_total} views, "
+                                  f"{f.boards_detected} boards detected; {f.message}",
+                                  flush=True)) if args.wait else None, timeout_s=ANSWER_S)
+    if not args.wait:
+        print("calibrate goal accepted")
+        return 0
+    try:
+        result = goal.wait(args.timeout)
+    except KeyboardInterrupt:
+        goal.cancel(ANSWER_S)
+        try:
+            goal.wait(ANSWER_S * 4)
+        except ScanFailed as exc:
+            print(f"{PROG}: {exc}", file=sys.stderr)
+        return 1
+    print(f"calibrated: {result.views_used} views, RMS {result.rms_px:.3f} px; "
+          f"{result.rig_file}, report {result.report_file}")
+    for line in result.views_rejected:
+        print(f"  rejected: {line}")
+    if result.applied:
+        print(f"applied to {', '.join(result.applied_nodes)}")
+    return 0
+
+
+def _rig(client, args) -> int:
+    from ..ros.rig_apply import apply_rig
+    applied = apply_rig(client.node, os.path.abspath(args.file), timeout_s=ANSWER_S * 2)
+    print(f"applied to {', '.join(applied.nodes)} (from their next scan); kept in "
+          f"{applied.persisted} for restarts")
     return 0
 
 
@@ -181,6 +239,10 @@ def run(args) -> int:
             return _reconstruct(client, args)
         if args.command == "param":
             return _param(client, args)
+        if args.command == "calibrate":
+            return _calibrate(client, args)
+        if args.command == "rig":
+            return _rig(client, args)
         return _trigger(client, {"cancel": "scan/cancel", "home": "home"}[args.command])
 
 

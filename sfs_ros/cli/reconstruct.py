@@ -21,7 +21,7 @@ from ..cell.live import view_key_of
 from ..core.carving.resolution import parse_memory
 from ..core.exchange.export import SUPPORTED_SUFFIXES
 from ..core.exchange.views import ViewSet, read_image
-from ..core.pipeline import MESHERS, ReconstructionParams, reconstruct
+from ..core.pipeline import MESHERS, RESOLUTION_RANGE, ReconstructionParams, reconstruct
 from ..core.resident_memory import keep_freed_memory
 from ..core.result_files import SheetViews, report_path_for, write_result
 from ..core.segment import PRESETS, SegmentationParams
@@ -45,7 +45,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"mesh file, format from the suffix: {', '.join(SUPPORTED_SUFFIXES)}")
     size = p.add_mutually_exclusive_group()
     size.add_argument("-r", "--resolution", type=int,
-                      help="voxels along the longest side of the bounding box (default: a "
+                      help=f"voxels along the longest side of the bounding box, "
+                           f"{RESOLUTION_RANGE[0]}..{RESOLUTION_RANGE[1]} (default: a "
                            "bag's recorded one, else the finest pixel footprint at the object, "
                            "within --max-memory)")
     size.add_argument("--voxel-size", type=float, metavar="METRES", help="voxel edge in metres")
@@ -152,6 +153,12 @@ def run(args) -> dict:
     if suffix not in SUPPORTED_SUFFIXES:
         raise ValueError(f"output {args.output} has an unsupported suffix {suffix!r}; "
                          f"expected one of {', '.join(SUPPORTED_SUFFIXES)}")
+    for option, path, suffixes in (("--preview", args.preview, (".png",)),
+                                   ("--contact-sheet", args.contact_sheet, (".png",)),
+                                   ("--html", args.html, (".html", ".htm"))):
+        if path is not None and path.suffix.lower() not in suffixes:
+            raise ValueError(f"{option} {path} must end in {' or '.join(suffixes)}: that is "
+                             "the format written")
     if args.colour and suffix == ".stl":
         raise ValueError("--colour needs a format that stores vertex colours (.ply, .obj, "
                          ".glb); STL has none")

@@ -20,12 +20,20 @@ import numpy as np
 from .carving.bounds import BoxCarve, estimate_bounds, refine_bounds
 from .carving.carve import PreparedMasks, carve
 from .carving.consistency import bbox_clips_object
+from .carving.directions import check_directions
 from .carving.fusion import fuse_silhouettes, reference_misses
 from .carving.hull import drop_specks
 from .carving.resolution import choose_voxel_size, default_memory_budget
-from .exchange.views import View, ViewSet, read_image
+from .exchange.views import View, ViewSet, as_bounds, read_image
 from .geometry.grid import VoxelGrid
-from .geometry.lens import distort_mask, ideal_camera, undistort_image, undistort_mask
+from .geometry.lens import (
+    distort_mask,
+    ideal_camera,
+    is_distorted,
+    lens_problem,
+    undistort_image,
+    undistort_mask,
+)
 from .meshing.advancing_front import advancing_front
 from .meshing.cloud import cloud_of_points
 from .meshing.colour import MAX_COLOUR_VIEWS, spread_views, vertex_colours
@@ -37,9 +45,14 @@ from .resegment import Consensus, consensus_masks
 from .segment import SegmentationParams, segment
 from .workers import map_in_threads
 
-__all__ = ["MESHERS", "Precomputed", "ReconstructionParams", "Reconstruction", "reconstruct"]
+__all__ = ["MESHERS", "RESOLUTION_RANGE", "Precomputed", "ReconstructionParams", "Reconstruction",
+           "reconstruct"]
 
 MESHERS = ("marching-cubes", "advancing-front")
+#: Voxels along the box's longest side a reconstruction may be asked for, inclusive: one
+#: range for the command line, the reconstruction node's parameter and its requests (the
+#: memory budget then decides whether a grid fits).
+RESOLUTION_RANGE = (8, 2048)
 
 #: What the report's silhouette IoU is, written into every report beside it.
 SILHOUETTE_IOU_MEANING = (
@@ -121,8 +134,9 @@ class ReconstructionParams:
     def __post_init__(self) -> None:
         if self.mesher not in MESHERS:
             raise ValueError(f"mesher must be one of {MESHERS}, got {self.mesher!r}")
-        if self.resolution is not None and not 8 <= int(self.resolution) <= 1024:
-            raise ValueError(f"resolution must be 8..1024 voxels, got {self.resolution}")
+        low, high = RESOLUTION_RANGE
+        if self.resolution is not None and not low <= int(self.resolution) <= high:
+            raise ValueError(f"resolution must be {low}..{high} voxels, got {self.resolution}")
         if self.voxel_size_m is not None and not self.voxel_size_m > 0:
             raise ValueError(f"voxel size must be > 0 metres, got {self.voxel_size_m}")
         if self.max_memory_bytes is not None and not int(self.max_memory_bytes) > 0:
@@ -227,6 +241,28 @@ def _some(names: list[str], limit: int = 3) -> str:
                                        if len(names) > limit else "")
 
 
+def _check_lenses(views: list[View]) -> None:
+    """ValueError naming the first view whose lens cannot be its camera's
+    (:func:`.geometry.lens.lens_problem`)."""
+    for view in views:
+        camera = view.camera
+        if is_distorted(camera):
+            problem = lens_problem(camera.K, camera.distortion, camera.width, camera.height)
+            if problem:
+                raise ValueError(f"view {view.name}: {problem}")
+
+
+def _box_centre(box) -> np.ndarray | None:
+    """(3,) centre of a ``[min, max]`` box, metres; None if there is none or it is not a
+    box (:func:`.exchange.views.as_bounds`; refused with the reason where it is used)."""
+    if box is None:
+        return None
+    try:
+        return as_bounds(box, what="bounding box").mean(axis=0)
+    except ValueError:
+        return None
+
+
 def _fills_frame(mask: np.ndarray) -> bool:
     """Whether the silhouette touches two opposite sides of its image."""
     return bool((mask[:, 0].any() and mask[:, -1].any()) or (mask[0].any() and mask[-1].any()))
@@ -291,7 +327,10 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
     Views that cannot be read, have an empty silhouette or disagree with the
     others are rejected and reported, never silently used or dropped. Raises
     ``ValueError`` with a one-line reason when no mesh can be made (no usable
-    view, a bounding box that misses the object, an empty hull).
+    view, views from fewer than three distinct directions
+    (:mod:`.carving.directions`), a lens that does not map its image onto itself
+    (:func:`.geometry.lens.lens_problem`), a bounding box that misses the object,
+    an empty hull).
     """
     progress = progress or (lambda stage, fraction: None)
     timings: dict[str, float] = {}
@@ -303,6 +342,7 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
     if unknown:
         raise ValueError(f"held-out views {unknown} are not in the input (views: {names[:5]}...)")
 
+    _check_lenses(view_set.views)
     with _timed(timings, "segmentation"):
         views, masks, taken = _segment_views(view_set.views, seg_params, progress, rejected,
                                              masks or {})
@@ -314,6 +354,8 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
             f"{len(params.holdout)} held out")
     cameras = [views[i].camera for i in used]
     used_masks = [masks[i] for i in used]
+    box = params.bounds_m if params.bounds_m is not None else view_set.bounds_m
+    check_directions(cameras, [views[i].name for i in used], _box_centre(box))
 
     with _timed(timings, "bounds"):
         # The masks' carving tables, built once for every carve of these views.
@@ -326,9 +368,7 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
             bounds, bounds_source = estimate_bounds(
                 cameras, prepared, max_misses=reference_misses(len(cameras))
                 if len(cameras) >= 3 else 0), "estimated"
-        if bounds.shape != (2, 3) or not np.all(np.isfinite(bounds)) or np.any(bounds[1] <= bounds[0]):
-            raise ValueError(f"bounding box must be [[xmin, ymin, zmin], [xmax, ymax, zmax]] "
-                             f"with min < max, got {bounds.tolist()}")
+        bounds = as_bounds(bounds, what=f"the {bounds_source} bounding box")
         clipped = [views[used[i]].name
                    for i in bbox_clips_object(VoxelGrid.cube(bounds[0], bounds[1], 2), cameras,
                                               prepared)]
@@ -360,6 +400,10 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
                                    max_memory_bytes=params.max_memory_bytes
                                    or default_memory_budget())
         grid = VoxelGrid(bounds[0], bounds[1], choice.voxel_size_m)
+        if params.mesher == "advancing-front" and params.block > max(1, max(grid.shape) // 4):
+            raise ValueError(
+                f"block (M) {params.block} leaves fewer than 4 blocks along the grid's longest "
+                f"side ({tuple(grid.shape)} voxels); expected 1..{max(1, max(grid.shape) // 4)}")
 
     resegmentation = None
     if params.consensus and len(cameras) >= 3 and seg_params.method == "graph-cut":
@@ -418,6 +462,7 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
     if not used:
         raise ValueError(f"no usable view: all {len(rejected)} views were rejected "
                          f"(first: {rejected[0]['view']}: {rejected[0]['reason']})")
+    check_directions(cameras, [views[i].name for i in used], bounds.mean(axis=0))
     if params.max_misses >= len(cameras):
         raise ValueError(
             f"max_misses {params.max_misses} lets every one of the {len(cameras)} views left "

@@ -25,6 +25,8 @@ from typing import Callable
 import cv2
 import numpy as np
 
+from sfs_ros.core.exchange.errors import ViewError
+from sfs_ros.core.exchange.limits import image_header
 from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
 from sfs_ros.core.render import render_image
 from sfs_ros.core.simulation.calibration_scene import BoardPicture
@@ -143,7 +145,10 @@ class FolderSource(CameraSource):
     paths : list of Path, the images in the order they are returned.
     taken : int, grabs so far that consumed a file (an unreadable file counts).
 
-    Raises ``ValueError`` when the folder is missing or holds no image.
+    Raises ``ValueError`` when the folder is missing or holds no image. A file is
+    decoded only once its header is within the readers' limits
+    (:func:`sfs_ros.core.exchange.limits.image_header`); one that is not raises
+    :class:`FrameUnavailable` naming it and the limit.
     """
 
     def __init__(self, folder, *, loop: bool = False):
@@ -168,6 +173,10 @@ class FolderSource(CameraSource):
                                    "taken (loop is off)")
         path = self.paths[self.taken % n]
         self.taken += 1
+        try:
+            image_header(path)     # the readers' limits, from the header, before decoding
+        except ViewError as exc:
+            raise FrameUnavailable(str(exc)) from None
         image = cv2.imread(str(path), cv2.IMREAD_COLOR)
         if image is None:
             raise FrameUnavailable(f"image file '{path}' cannot be read (missing, corrupt or "
@@ -204,15 +213,20 @@ class RenderedSource(CameraSource):
         self.angles_rad = angles_rad
         self.background_rgb = tuple(background_rgb)
         self.noise_sigma = float(noise_sigma)
-        self.name = f"rendered {obj.name}"
-        self._board = obj if isinstance(obj, BoardPicture) else None
-        if self._board is None:
-            self._vertices = np.asarray(obj.mesh.vertices, dtype=np.float64)
-            self._faces = np.asarray(obj.mesh.faces)
-            self._colors = obj.color_at(self._vertices)
         self._rng = np.random.default_rng(seed)
         self._failures = 0
         self._lock = threading.Lock()
+        self.set_scene(obj)
+
+    def set_scene(self, obj: SyntheticObject | BoardPicture) -> None:
+        """Put ``obj`` on the plate instead, from the next grab (any thread)."""
+        if isinstance(obj, BoardPicture):
+            scene = (obj, None)
+        else:
+            vertices = np.asarray(obj.mesh.vertices, dtype=np.float64)
+            scene = (None, (vertices, np.asarray(obj.mesh.faces), obj.color_at(vertices)))
+        with self._lock:
+            self._scene, self.name = scene, f"rendered {obj.name}"
 
     def fail_next(self, n: int) -> None:
         """Make the next ``n`` grabs raise :class:`FrameUnavailable` (0 cancels)."""
@@ -229,13 +243,15 @@ class RenderedSource(CameraSource):
                 self._failures -= 1
             else:
                 noise_seed = int(self._rng.integers(2**31))
+            board, mesh = self._scene
         if fail:
             raise FrameUnavailable(f"frame missing: {self.name} dropped this frame "
                                    "(injected fault)")
         theta, phi = self.angles_rad()
         camera = rig_camera(float(theta), float(phi), self.calibration)
-        if self._board is not None:
-            return self._board.render(camera, noise=self.noise_sigma, seed=noise_seed)
-        return render_image(self._vertices, self._faces, camera, vertex_colors=self._colors,
+        if board is not None:
+            return board.render(camera, noise=self.noise_sigma, seed=noise_seed)
+        vertices, faces, colors = mesh
+        return render_image(vertices, faces, camera, vertex_colors=colors,
                             background_rgb=self.background_rgb, noise_sigma=self.noise_sigma,
                             seed=noise_seed)

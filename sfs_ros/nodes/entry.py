@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import faulthandler
+import os
+import re
 import signal
 import sys
+import tempfile
 from collections.abc import Callable
 
 import rclpy
@@ -12,6 +15,7 @@ from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, Si
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
+from sfs_ros.ros.names import CONFIGURATION_ERROR
 from sfs_ros.ros.params import ParameterError
 
 __all__ = ["run_node"]
@@ -48,8 +52,9 @@ def run_node(prog: str, make_node: Callable[[], Node | list[Node]], args=None, *
     """Initialise rclpy, build the node (or nodes, composed in one process) and spin until
     SIGINT, SIGTERM or shutdown.
 
-    A parameter refused at start-up prints one line ``prog: reason`` and exits
-    with status 2. ``threads`` > 1 spins a multi-threaded executor (for nodes
+    A parameter refused at start-up, or arguments rcl cannot parse (a parameters file
+    it cannot read), print one line ``prog: reason`` and exit with status
+    :data:`~sfs_ros.ros.names.CONFIGURATION_ERROR`. ``threads`` > 1 spins a multi-threaded executor (for nodes
     whose services wait on worker threads). On a stop signal rcl is shut down,
     then the executor, then the nodes are destroyed (in reverse order), all in
     the main thread: rclpy's own signal handling shuts rcl down from a thread
@@ -60,14 +65,14 @@ def run_node(prog: str, make_node: Callable[[], Node | list[Node]], args=None, *
     before the process dies, so a crash in native code names where it happened.
     """
     faulthandler.enable()
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    _init_rclpy(prog, args)
     stop = _StopSignals()     # from here on: a signal during the start-up ends it cleanly too
     try:
         made = make_node()
     except ParameterError as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
         rclpy.try_shutdown()
-        sys.exit(2)
+        sys.exit(CONFIGURATION_ERROR)
     nodes = made if isinstance(made, list) else [made]
     executor = MultiThreadedExecutor(num_threads=threads) if threads > 1 else SingleThreadedExecutor()
     for node in nodes:
@@ -84,6 +89,42 @@ def run_node(prog: str, make_node: Callable[[], Node | list[Node]], args=None, *
         for node in reversed(nodes):
             node.destroy_node()
         stop.restore()
+
+
+def _init_rclpy(prog: str, args) -> None:
+    """``rclpy.init`` with ``args``; arguments rcl cannot parse (a parameters file that is
+    not valid, a bad ``--ros-args`` option) print one line ``prog: configuration error: ...``
+    and exit with :data:`~sfs_ros.ros.names.CONFIGURATION_ERROR`. rcl logs its own lines about them to the
+    process's stderr (file descriptor 2): held back while it parses, given back if it
+    succeeds."""
+    error = None
+    with tempfile.TemporaryFile() as held:
+        sys.stderr.flush()
+        saved = os.dup(2)
+        os.dup2(held.fileno(), 2)
+        try:
+            rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+        except RuntimeError as exc:     # rclpy's RCLError
+            error = exc
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        if error is None:
+            held.seek(0)
+            sys.stderr.write(held.read().decode("utf-8", "replace"))
+            return
+    print(f"{prog}: configuration error: {_rcl_reason(error)}", file=sys.stderr)
+    sys.exit(CONFIGURATION_ERROR)
+
+
+def _rcl_reason(error: Exception) -> str:
+    """rcl's error text on one line, without its source locations (``at parse.c:835``)."""
+    text = re.sub(r",?\s*at \S+\.c:\d+", "", str(error))
+    text = re.sub(r"^failed to initialize rcl:\s*", "", " ".join(text.split()))
+    if "params file" not in text:
+        return f"ROS arguments rcl cannot read: {text}"
+    return text.rstrip(" ,.") + " (expected a parameters file of the form "\
+        "'NODE: {ros__parameters: {NAME: VALUE}}', each list of one type)"
 
 
 def _shut_down_rcl() -> None:

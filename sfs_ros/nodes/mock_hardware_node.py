@@ -26,7 +26,7 @@ closed and the link removed. The link leads through this process's open
 descriptor (``/proc/<pid>/fd/<n>``), so after a SIGKILL it leads nowhere
 rather than to the next process that gets the same pty number.
 
-Parameters: :data:`PARAMS` (all read-only) and the camera's. What the
+Parameters: :data:`PARAMS` (read-only but ``object``) and the camera's. What the
 mock camera truly renders through is the mock's own: the simulated cell as
 built, ``world_rig.<name>`` for each rig parameter (``world_rig:`` in
 ``config/mock_hardware.yaml``, the values of ``config/rig.yaml``), as given
@@ -37,7 +37,9 @@ the camera node's: it fills ``camera_info`` and may change between scans,
 and never changes what is rendered.
 ``object`` "board" puts the ChArUco calibration board on the plate
 (``config/mock_wrong_world.yaml`` and ``config/calibration_plan.yaml``: a
-calibration scan, see ``doc/calibration.md``).
+calibration scan, see ``doc/calibration.md``); ``object`` can be set at run time
+(``sfs-ctl param set mock_hardware object board``), as an operator puts the board on the
+plate and takes it off again.
 """
 
 from __future__ import annotations
@@ -57,7 +59,7 @@ from sfs_ros.hardware.simulator import SimulatedGrbl
 from sfs_ros.nodes.camera_node import CameraNode
 from sfs_ros.nodes.entry import run_node
 from sfs_ros.ros import result_qos
-from sfs_ros.ros.params import Param, ParameterError, declare
+from sfs_ros.ros.params import Param, ParameterError, declare, validating_callback
 from sfs_ros.ros.rig_params import RIG_PARAMS, rig_calibration
 
 #: Prefix of the parameters of the simulated cell as built (``world_rig.fx``, ...).
@@ -87,7 +89,8 @@ PARAMS: list[Param] = [
           read_only=True),
     Param("object", "mug", "Known object on the turntable, rendered by the mock camera; "
           "'board' is a 9x7 ChArUco board standing on the plate (sfs-calibrate --board 9x7).",
-          choices=SCENES, read_only=True),
+          choices=SCENES, constraints="settable at run time: another object put on the plate, "
+          "rendered from the next frame"),
     Param("world", "perfect", "The cell the mock camera sees: 'perfect' is the rig parameters "
           "as given; 'wrong' adds a tilted, off-centre turntable axis, lens distortion, other "
           "intrinsics, radius, camera mounting and axis zeros (what sfs-calibrate recovers).",
@@ -157,6 +160,10 @@ class MockHardwareNode(Node):
             scene, calibration, self.simulator.true_position_rad,
             background_rgb=p["background_rgb"], noise_sigma=p["image_noise"], seed=seed)
         self._link = link
+        self._background = p["background_rgb"]
+        objects = [q for q in PARAMS if q.name == "object"]
+        self.add_on_set_parameters_callback(validating_callback(self, objects, lambda _: None))
+        self.add_post_set_parameters_callback(self._on_object)
         self._port_pub = self.create_publisher(String, "mock/port", result_qos())
         self.create_service(SetBool, "mock/unplug", self._on_unplug)
         self.create_service(SetBool, "mock/hang", self._on_hang)
@@ -166,6 +173,14 @@ class MockHardwareNode(Node):
                                f"{f' (link {self._link})' if self._link else ''}, speeds "
                                f"{p['max_speed_deg_s']} deg/s; mock camera renders the "
                                f"{scene.name} in the {p['world']} world")
+
+    def _on_object(self, parameters: list) -> None:
+        """Post-set callback: another object on the plate (``object`` set at run time)."""
+        for parameter in parameters:
+            if parameter.name == "object":
+                self.camera_source.set_scene(mock_scene(parameter.value,
+                                                        background_rgb=self._background))
+                self.get_logger().info(f"the mock camera now renders the {parameter.value}")
 
     def _plugged_in(self) -> None:
         port = self.simulator.port

@@ -106,6 +106,12 @@ the scan node reports a scan under way, and for another image size), it makes
 the next ``reset`` start the scan with a new :class:`LiveReconstruction` of
 that rig.
 
+A ``reset`` (or ``new_scan``) is refused with the reason while the scan node reports its
+scan ``running``, ``waiting`` or ``paused`` (:data:`~sfs_ros.ros.rig_params.CAPTURING_STATES`):
+its views belong to the scan open now (cancel the scan first). The scan node's own
+``new_scan`` comes while it reports ``starting``. A scan that ends (a reset, new settings)
+leaves its session folder no longer marked open.
+
 Parameters: see :data:`PARAMS` (the others read-only); ``output_dir`` is
 required. Output files stay inside ``output_dir``. The frames
 (:data:`sfs_ros.ros.frames.FRAME_PARAMS`, ``config/frames.yaml``, read-only)
@@ -145,7 +151,7 @@ from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker
 
 from sfs_ros.cell.live import DuplicateViewError, LiveReconstruction, check_scan_name
-from sfs_ros.cell.mesh_options import MeshOptions, mesh_options
+from sfs_ros.cell.mesh_options import RESOLUTION_RANGE, MeshOptions, mesh_options
 from sfs_ros.cell.rehearsal import rehearse
 from sfs_ros.core.carving.resolution import (
     default_memory_budget,
@@ -174,7 +180,12 @@ from sfs_ros.ros.names import DIAGNOSTICS, RECONSTRUCTION_STATUS, private, statu
 from sfs_ros.ros.paired_input import PairedInput, Stream
 from sfs_ros.ros.pairing import format_stamp, stamp_key, view_key
 from sfs_ros.ros.params import Param, ParameterError, declare, read, validating_callback
-from sfs_ros.ros.rig_params import WRITABLE_RIG_PARAMS, RigParameters, rig_calibration
+from sfs_ros.ros.rig_params import (
+    CAPTURING_STATES,
+    WRITABLE_RIG_PARAMS,
+    RigParameters,
+    rig_calibration,
+)
 from sfs_ros.ros.typed import fill_reconstruct_response
 from sfs_ros.ros.worker import Hold, Worker
 from sfs_ros_interfaces.msg import ReconstructionStatus
@@ -192,7 +203,7 @@ PARAMS: list[Param] = [
           "ymax, zmax], metres, object frame.",
           constraints="six values, min < max on each axis; from the next reset"),
     Param("resolution", 192, "Voxels along the longest side of the box (live hull and final "
-          "reconstruction).", bounds=(8, 2048), constraints="from the next reset"),
+          "reconstruction).", bounds=RESOLUTION_RANGE, constraints="from the next reset"),
     Param("mesher", MESHERS[0], "Surface extraction of the final reconstruction.",
           choices=MESHERS, constraints="from the next reset"),
     Param("scan_name", "", "Name of the next scan's folder in output_dir and of its mesh "
@@ -233,9 +244,18 @@ STORE_RETRY_S = 1.0
 EARLIER_VIEWS_KEPT = 10_000
 
 
-def _decode_mask(msg: Image) -> tuple[np.ndarray, str]:
-    """A mono8 mask (a copy) and its frame id; ValueError for another encoding or a bad
-    layout."""
+def _check_size(msg: Image, size: tuple[int, int], what: str) -> None:
+    """ValueError unless the image ``msg`` is ``size`` (width, height) pixels, the rig's
+    (checked before its pixels are looked at or kept)."""
+    if (msg.width, msg.height) != size:
+        raise ValueError(f"{what} is {msg.width}x{msg.height} pixels, expected the rig's "
+                         f"{size[0]}x{size[1]} (width x height)")
+
+
+def _decode_mask(msg: Image, size: tuple[int, int]) -> tuple[np.ndarray, str]:
+    """A mono8 mask (a copy) and its frame id; ValueError for another size than ``size``
+    (the rig's width, height), another encoding or a bad layout."""
+    _check_size(msg, size, "mask")
     if msg.encoding != "mono8":
         raise ValueError(f"mask encoding is {msg.encoding!r}, expected 'mono8'")
     return msg_to_image(msg).copy(), msg.header.frame_id
@@ -320,7 +340,7 @@ class ReconstructionNode(Node):
         self._scan_settings = _scan_settings(values)
         self.add_on_set_parameters_callback(validating_callback(self, PARAMS,
                                                                 self._check_scan_settings))
-        RigParameters(self, on_change=self._new_rig)
+        self._rig = RigParameters(self, on_change=self._new_rig)
         self._hull_period = 0.0 if values["hull_rate_hz"] == 0 else 1.0 / values["hull_rate_hz"]
         self._max_hull_points = values["max_hull_points"]
         depth = values["queue_depth"]
@@ -350,8 +370,12 @@ class ReconstructionNode(Node):
         self._status_pub = self.create_publisher(ReconstructionStatus,
                                                  "~/" + RECONSTRUCTION_STATUS.split("/", 1)[1],
                                                  result_qos())
+        # The image size is fixed while the node runs (RigParameters): anything else is
+        # refused before it is kept.
+        self._size = (calibration.width, calibration.height)
         self._input = PairedInput(
-            self, Stream(Image, "capture/mask", "mask", _decode_mask),
+            self, Stream(Image, "capture/mask", "mask",
+                         lambda msg: _decode_mask(msg, self._size)),
             Stream(JointState, "capture/mask_joint_state", "joint state",
                    angles_from_joint_state),
             depth, qos, unit="view", on_pair=self._on_view, on_problem=self._dropped,
@@ -418,6 +442,7 @@ class ReconstructionNode(Node):
         """A captured image, kept to colour the mesh (its view may come before or after)."""
         try:
             stamp = stamp_key(msg.header.stamp)
+            _check_size(msg, self._size, "captured image")
             image = msg_to_image(msg)
             if image.ndim != 3 or image.dtype != np.uint8:
                 raise ValueError(f"encoding {msg.encoding!r}, expected rgb8 or bgr8")
@@ -496,6 +521,15 @@ class ReconstructionNode(Node):
 
     def _on_new_scan(self, request, response):
         return self._request("reset", partial(self._reset, request.scan_name), response)
+
+    def _capturing(self) -> str:
+        """Why no new scan may start now (the scan node is taking views: a new scan would
+        split its views over two session folders), or ""."""
+        scan = self._rig.scan_in(CAPTURING_STATES)
+        if scan is None:
+            return ""
+        return (f"reset refused: the scan node reports scan {scan[0]} {scan[1]}; its views go "
+                "to the scan open now (cancel it first: scan/cancel, then reset)")
 
     def _request(self, name: str, job, response):
         """Run ``job`` (which answers ``(success, message)``) in the worker and answer with it."""
@@ -630,13 +664,15 @@ class ReconstructionNode(Node):
         the scan name is taken or the grid does not fit in memory: nothing changes."""
         values = read(self, PARAMS)
         settings, name = _scan_settings(values), scan_name or values["scan_name"] or None
-        refusal = self._grid_refusal(values)
+        refusal = self._capturing() or self._grid_refusal(values)
         if refusal:
             self.get_logger().error(refusal)
             return False, refusal
         earlier = [] if self._live is None else self._live.view_keys()
         try:
             if self._live is None or settings != self._scan_settings:
+                if self._live is not None:
+                    self._live.close()
                 self._live = LiveReconstruction(
                     rig_calibration(values), _bounds(values), output_dir=values["output_dir"],
                     resolution=values["resolution"], mesher=values["mesher"], scan_name=name)

@@ -4,6 +4,7 @@
 |---|---|---|---|
 | sub | ``capture/image``, ``capture/mask`` | sensor_msgs/Image | captures QoS |
 | sub | ``capture/joint_state``, ``capture/mask_joint_state`` | sensor_msgs/JointState | captures |
+| sub | ``calibration/image``, ``calibration/joint_state`` | Image, JointState | a board scan's; captures |
 | sub | ``capture/stored`` | std_msgs/Header | captures QoS |
 | sub | ``joint_states``, ``camera_info`` | sensor_msgs/JointState, CameraInfo | depth 10 |
 | sub | ``/diagnostics`` | diagnostic_msgs/DiagnosticArray | in the bag as ``<ns>/diagnostics`` |

@@ -7,7 +7,8 @@
 | sub | ``image_raw`` | sensor_msgs/Image | the camera's frames (any driver); QoS: see below |
 | pub | ``capture/image`` | sensor_msgs/Image | each view's frame, its shutter stamp |
 | pub | ``capture/joint_state`` | sensor_msgs/JointState | encoder angles at the shutter, same stamp |
-| sub | ``capture/stored`` | std_msgs/Header | receipts of the reconstruction node |
+| pub | ``calibration/image``, ``calibration/joint_state`` | as ``capture/*`` | a board scan's |
+| sub | ``capture/stored`` | std_msgs/Header | receipts (reconstruction, calibration node) |
 | pub | ``/diagnostics`` | diagnostic_msgs/DiagnosticArray | progress, at 1 Hz and on every event |
 | pub | ``status`` | sfs_ros_interfaces/CellStatus | the same, typed; 1 Hz and on every change |
 | act | ``scan`` | sfs_ros_interfaces/Scan | a scan: feedback, cancel, result |
@@ -37,8 +38,12 @@ was captured (``scan/resume`` goes on with it). The result comes once every view
 captured and receipted: success, the scan's number, and from the reconstruction's
 ``status`` its session folder and the views it stored and rejected; a scan that pauses on
 a fault aborts the goal with the reason (``scan/resume`` goes on outside the action).
+A goal's ``object`` "board" is a calibration scan: its captures go to
+``calibration/image`` + ``calibration/joint_state`` instead (segmentation and
+reconstruction never see them; the calibration node stores and receipts them), the
+reconstruction is not reset, and the result's ``views_stored`` counts the receipts.
 ``status`` (sfs_ros_interfaces/CellStatus; reliable, transient local, depth 1) carries
-what the diagnostics carry and the last encoder angles, ``axes_connected`` meaning that
+what the diagnostics carry, the scan's ``object`` and the last encoder angles, ``axes_connected`` meaning that
 readings came within :data:`AXES_SILENT_S`.
 
 Capture topics and receipts: reliable, volatile, depth ``queue_depth``
@@ -122,7 +127,7 @@ from std_srvs.srv import Trigger
 
 from sfs_ros.cell.capture_ledger import EncoderReading
 from sfs_ros.cell.messages import ForeignJointState
-from sfs_ros.cell.scan_goal import goal_plan
+from sfs_ros.cell.scan_goal import OBJECTS, goal_object, goal_plan
 from sfs_ros.cell.scan_plan import ScanPlan, load_plan
 from sfs_ros.cell.scan_progress import ScanProgress
 from sfs_ros.cell.scan_sequence import (
@@ -239,9 +244,11 @@ def scan_plan(values: dict) -> ScanPlan:
         raise ParameterError("rings_phi_deg", str(exc)) from None
 
 
-def scan_settings(values: dict) -> ScanSettings:
-    """The sequence's settings from the node's parameter values."""
-    steps = [("reset", values["reset_reconstruction"], values["service_timeout_s"]),
+def scan_settings(values: dict, *, board: bool = False) -> ScanSettings:
+    """The sequence's settings from the node's parameter values (``board``: a calibration
+    scan, which leaves the reconstruction as it is)."""
+    steps = [("reset", values["reset_reconstruction"] and not board,
+              values["service_timeout_s"]),
              ("home", values["home_before_scan"], values["home_timeout_s"])]
     return ScanSettings(
         settle_tolerance_rad=math.radians(values["settle_tolerance_deg"]),
@@ -307,8 +314,9 @@ class _RosPorts(MonotonicClock):
 
     def send(self, capture) -> None:
         frame, joints = capture
-        self._node.image_pub.publish(frame)
-        self._node.joints_pub.publish(joints)
+        image_pub, joints_pub = self._node.outputs[self._node.scan_object]
+        image_pub.publish(frame)
+        joints_pub.publish(joints)
 
     def encode_capture(self, capture) -> bytes:
         frame, joints = (serialize_message(m) for m in capture)
@@ -373,6 +381,7 @@ class ScanNode(Node):
                                       progress)
         self._receivers: set[bytes] = set()   # every publisher of receipts seen (by GID)
         self.scan_name = ""                   # the reconstruction's name of the next scan
+        self.scan_object = OBJECTS[0]         # what this scan is of (its captures' topics)
         self._reading = (math.nan, math.nan)  # the last encoder reading, rad
         self._reading_at = -math.inf          # when it came, time.monotonic()
         self._changed = threading.Condition() # notified with every status published
@@ -391,6 +400,10 @@ class ScanNode(Node):
         self.command_pub = self.create_publisher(JointState, "joint_command", 10)
         self.image_pub = self.create_publisher(Image, "capture/image", qos)
         self.joints_pub = self.create_publisher(JointState, "capture/joint_state", qos)
+        self.outputs = {"object": (self.image_pub, self.joints_pub),
+                        "board": (self.create_publisher(Image, "calibration/image", qos),
+                                  self.create_publisher(JointState, "calibration/joint_state",
+                                                        qos))}
         self._diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
         self.create_subscription(JointState, "joint_states", self._on_joint_state, 10,
                                  callback_group=inputs)
@@ -495,7 +508,7 @@ class ScanNode(Node):
             if self._goal_busy:
                 response.success, response.message = False, "a scan goal is running"
                 return response
-            self.scan_name = ""
+            self.scan_name, self.scan_object = "", OBJECTS[0]
             response.success, response.message = self._sequence.start(
                 scan_settings(read(self, PARAMS)))
         if response.success:
@@ -547,15 +560,17 @@ class ScanNode(Node):
         try:
             plan = goal_plan(goal.plan_file, goal.theta_rad, goal.phi_rad, goal.scan_name,
                              max_views=self._p["queue_depth"])
+            scan_object = goal_object(goal.object)
         except ValueError as exc:
             return self._end_goal(goal_handle, False, f"goal refused: {exc}")
         with self._goal_lock:
-            self.scan_name = goal.scan_name
-            ok, message = self._sequence.start(scan_settings(read(self, PARAMS)),
-                                               None if plan is None else plan.views)
+            self.scan_name, self.scan_object = goal.scan_name, scan_object
+            ok, message = self._sequence.start(
+                scan_settings(read(self, PARAMS), board=scan_object == "board"),
+                None if plan is None else plan.views)
         if not ok:
             return self._end_goal(goal_handle, False, f"goal refused: {message}")
-        self.get_logger().info(f"scan goal: {message}")
+        self.get_logger().info(f"scan goal ({scan_object}): {message}")
         self._launch()
         return self._follow(goal_handle, self._sequence.status().values["scan"])
 
@@ -588,7 +603,11 @@ class ScanNode(Node):
         scan that ended done waits (``service_timeout_s`` at most) for the reconstruction's
         status to count its views."""
         result = Scan.Result(success=success, message=message)
-        if values is not None:
+        if values is not None and self.scan_object == "board":
+            result.scan, result.views_total = values["scan"], values["total"]
+            result.views_captured = values["captured"]
+            result.views_stored = values["receipted"]      # by the calibration node
+        elif values is not None:
             if success:
                 with self._changed:
                     self._changed.wait_for(
@@ -625,7 +644,8 @@ class ScanNode(Node):
         with self._status_lock:
             connected = time.monotonic() - self._reading_at <= AXES_SILENT_S
             msg = cell_status(self._sequence.status(), self._reading, connected,
-                              stamp=self.get_clock().now().to_msg())
+                              stamp=self.get_clock().now().to_msg(),
+                              scan_object=self.scan_object)
             with self._changed:
                 self._status = msg
                 self._changed.notify_all()

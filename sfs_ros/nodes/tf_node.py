@@ -17,12 +17,15 @@ in the frames of :data:`sfs_ros.ros.frames.FRAME_PARAMS` (``config/frames.yaml``
 A joint state with none of the cell's joints (another machine's) is ignored, said
 once; a malformed one is logged and ignored.
 
-Parameters: the rig calibration (:data:`sfs_ros.ros.rig_params.RIG_PARAMS`,
-``config/rig.yaml``) and the frames, all settable at run time on this node (a new
-calibration from ``sfs-calibrate``, the cell moved on the robot): a set is checked
-as a whole (a set that gives no valid rig or frames is refused with the reason,
-the old values kept), then ``/tf_static`` and ``robot_description`` are published
-again at once.
+Parameters: the rig calibration (:data:`sfs_ros.ros.rig_params.WRITABLE_RIG_PARAMS`,
+``config/rig.yaml``) and the cell's place in its parent frame (:data:`PLACEMENT`), settable
+at run time (a new calibration, the cell moved on the robot); the frames' names are read
+at start, as every node that stamps them does. The rig follows the rules of every node that
+holds it (:class:`sfs_ros.ros.rig_params.RigParameters`: checked as one rig, the image
+size fixed, refused while the scan node reports a scan under way); a set is also checked
+with the frames as one model (a set that gives no valid frames or no chain of joints is
+refused with the reason, the old values kept); then ``/tf_static`` and
+``robot_description`` are published again at once.
 """
 
 from __future__ import annotations
@@ -42,7 +45,7 @@ from sfs_ros.ros import capture_qos, result_qos
 from sfs_ros.ros.convert import angles_from_joint_state
 from sfs_ros.ros.frames import FRAME_PARAMS, frame_names, tf_message
 from sfs_ros.ros.params import Param, ParameterError, declare, read, validating_callback
-from sfs_ros.ros.rig_params import RIG_PARAMS, rig_calibration
+from sfs_ros.ros.rig_params import WRITABLE_RIG_PARAMS, RigParameters, rig_calibration
 
 __all__ = ["StatePublisherNode", "PARAMS", "main"]
 
@@ -50,9 +53,13 @@ NODE_NAME = "state_publisher"
 #: The global TF topics.
 TF_TOPIC = "/tf"
 TF_STATIC_TOPIC = "/tf_static"
+#: The frame parameters that may change at run time: where the cell stands in its parent.
+PLACEMENT = ("parent_frame", "parent_pose")
 
-#: The rig and frame parameters, writable here (the shared lists stay read-only).
-PARAMS: list[Param] = [replace(p, read_only=False) for p in (*RIG_PARAMS, *FRAME_PARAMS)]
+#: The rig (writable, as on every node that holds it) and the frames (writable here; the
+#: shared list stays read-only).
+PARAMS: list[Param] = [*WRITABLE_RIG_PARAMS,
+                       *(replace(p, read_only=p.name not in PLACEMENT) for p in FRAME_PARAMS)]
 
 
 def _model(values: dict):
@@ -76,6 +83,7 @@ class StatePublisherNode(Node):
         super().__init__(NODE_NAME, **kwargs)
         try:
             self._calibration, self._names = _model(declare(self, PARAMS))
+            RigParameters(self)
         except ParameterError:
             super().destroy_node()
             raise

@@ -16,6 +16,8 @@ synchronous code::
         result = cell.scan(feedback=print)          # Scan.Result: session_dir, views_stored
         mesh = cell.reconstruct(resolution=128)     # {"mesh_path": ..., "n_faces": ...}
 
+``calibrate`` sends a ``Calibrate`` goal to the calibration node (a board scan, the fit,
+and with ``apply`` the rig set on the running cell).
 ``start_scan`` / ``wait_scan_done`` (the ``scan/start`` alias and the status topic)
 drive a scan without the action, as a scan resumed after a fault is followed.
 """
@@ -33,13 +35,20 @@ from rclpy.action import ActionClient
 from std_srvs.srv import Trigger
 
 from sfs_ros.ros import result_qos
-from sfs_ros.ros.names import CELL_STATUS, NAMESPACE, SCAN_ACTION, SERVICES, TYPED_SERVICES
+from sfs_ros.ros.names import (
+    CALIBRATE_ACTION,
+    CELL_STATUS,
+    NAMESPACE,
+    SCAN_ACTION,
+    SERVICES,
+    TYPED_SERVICES,
+)
 from sfs_ros.ros.services import ServiceError, call
-from sfs_ros_interfaces.action import Scan
+from sfs_ros_interfaces.action import Calibrate, Scan
 from sfs_ros_interfaces.msg import CellStatus
 from sfs_ros_interfaces.srv import Reconstruct
 
-__all__ = ["CellClient", "ScanFailed", "ScanGoal", "ScanStatus", "SERVICES", "READY",
+__all__ = ["CalibrateGoal", "CellClient", "ScanFailed", "ScanGoal", "ScanStatus", "SERVICES", "READY",
            "mesh_summary", "wait_for_pictures"]
 
 #: The Trigger services that must answer before :meth:`CellClient.wait_ready` returns
@@ -143,6 +152,9 @@ class ScanGoal:
     :meth:`cancel` it. ``feedback``: the latest Scan.Feedback (None before one); each is
     also handed to ``on_feedback``."""
 
+    #: What the goal does, in messages.
+    WHAT = "scan"
+
     def __init__(self, on_feedback: Callable[[Scan.Feedback], None] | None = None):
         self.feedback: Scan.Feedback | None = None
         self._on_feedback = on_feedback
@@ -167,12 +179,20 @@ class ScanGoal:
     def wait(self, timeout_s: float = 1800.0) -> Scan.Result:
         """The result of a scan that succeeded; ScanFailed with the reason (and the result)
         if it was aborted or canceled; TimeoutError after ``timeout_s``."""
-        answer = _wait_future(self._result, timeout_s, "the scan goal's result")
+        answer = _wait_future(self._result, timeout_s, f"the {self.WHAT} goal's result")
         result = answer.result
         if answer.status != _SUCCEEDED:
             how = "cancelled" if answer.status == _CANCELED else "failed"
-            raise ScanFailed(f"scan {how}: {result.message}", result)
+            raise ScanFailed(f"{self.WHAT} {how}: {result.message}", result)
         return result
+
+
+class CalibrateGoal(ScanGoal):
+    """A ``Calibrate`` goal (:meth:`CellClient.send_calibrate`), as :class:`ScanGoal`:
+    ``feedback`` the latest Calibrate.Feedback, :meth:`wait` its Calibrate.Result
+    (ScanFailed with the reason if it failed or was cancelled)."""
+
+    WHAT = "calibration"
 
 
 class CellClient:
@@ -197,6 +217,7 @@ class CellClient:
         self._reconstruct = self.node.create_client(Reconstruct,
                                                     TYPED_SERVICES["reconstruct_mesh"])
         self._action = ActionClient(self.node, Scan, SCAN_ACTION)
+        self._calibrate = ActionClient(self.node, Calibrate, CALIBRATE_ACTION)
         self._executor = MultiThreadedExecutor(num_threads=2, context=self._context)
         self._executor.add_node(self.node)
         self._spinner = threading.Thread(target=self._executor.spin, daemon=True)
@@ -289,14 +310,16 @@ class CellClient:
             raise ScanFailed(f"scan/resume refused: {answer.message}")
 
     def send_scan(self, *, plan_file: str = "", theta_rad=(), phi_rad=(), scan_name: str = "",
-                  feedback: Callable[[Scan.Feedback], None] | None = None,
+                  object: str = "", feedback: Callable[[Scan.Feedback], None] | None = None,
                   timeout_s: float = 30.0) -> ScanGoal:
-        """Send a ``Scan`` goal (all empty: the configured plan); the accepted goal, or
+        """Send a ``Scan`` goal (all empty: the configured plan, of the object; ``object``
+        "board": a calibration board's scan); the accepted goal, or
         ScanFailed when the scan node rejects it (a scan is running). ``feedback`` sees
         every Scan.Feedback (in the client's spinning thread)."""
         goal = ScanGoal(feedback)
         request = Scan.Goal(plan_file=plan_file, theta_rad=[float(v) for v in theta_rad],
-                            phi_rad=[float(v) for v in phi_rad], scan_name=scan_name)
+                            phi_rad=[float(v) for v in phi_rad], scan_name=scan_name,
+                            object=object)
         if not self._action.wait_for_server(timeout_sec=timeout_s):
             raise ServiceError(f"the {SCAN_ACTION} action is not available "
                                f"(waited {timeout_s:g} s): is the scan node running?")
@@ -307,6 +330,30 @@ class CellClient:
             raise ScanFailed("scan goal rejected: a scan is running (cancel it first)")
         goal.accepted(handle)
         return goal
+
+    def send_calibrate(self, *, plan_file: str = "", apply: bool = False,
+                       feedback: Callable[[Calibrate.Feedback], None] | None = None,
+                       timeout_s: float = 30.0, **board) -> CalibrateGoal:
+        """Send a ``Calibrate`` goal to the calibration node (``plan_file`` "": its plan;
+        ``board``: ``columns``, ``rows``, ``square_m``, ``marker_m``, ``dictionary``, each
+        left out: its parameter); the accepted goal, or ScanFailed when rejected (a
+        calibration is running). ``feedback`` sees every Calibrate.Feedback."""
+        goal = CalibrateGoal(feedback)
+        request = Calibrate.Goal(plan_file=plan_file, apply=bool(apply), **board)
+        if not self._calibrate.wait_for_server(timeout_sec=timeout_s):
+            raise ServiceError(f"the {CALIBRATE_ACTION} action is not available (waited "
+                               f"{timeout_s:g} s): is the calibration node running?")
+        handle = _wait_future(self._calibrate.send_goal_async(
+            request, feedback_callback=goal.feedback_message), timeout_s, "the calibrate goal")
+        if not handle.accepted:
+            raise ScanFailed("calibrate goal rejected: a calibration is running")
+        goal.accepted(handle)
+        return goal
+
+    def calibrate(self, *, timeout_s: float = 3600.0, **goal) -> Calibrate.Result:
+        """Calibrate (:meth:`send_calibrate` with ``goal``) to the end; the result of a
+        calibration that succeeded, ScanFailed with the reason otherwise."""
+        return self.send_calibrate(**goal).wait(timeout_s)
 
     def scan_goal(self, *, timeout_s: float = 1800.0, **goal) -> Scan.Result:
         """Scan (:meth:`send_scan` with ``goal``) to the end; the result of a scan that
@@ -349,6 +396,7 @@ class CellClient:
         self._executor.shutdown()
         self._spinner.join(timeout=CLOSE_S)
         self._action.destroy()
+        self._calibrate.destroy()
         self.node.destroy_node()
         self._context.try_shutdown()
 

@@ -19,12 +19,17 @@ is reached by remapping these.
 from __future__ import annotations
 
 __all__ = ["NAMESPACE", "DIAGNOSTICS", "RECORDER_NODE", "SERVICES", "TYPED_SERVICES",
-           "SCAN_ACTION", "CELL_STATUS", "RECONSTRUCTION_STATUS", "private", "status_name"]
+           "SCAN_ACTION", "CALIBRATE_ACTION", "CELL_STATUS", "RECONSTRUCTION_STATUS",
+           "CONFIGURATION_ERROR",
+           "private", "status_name"]
 
 #: Namespace of the cell when started by ``sfs-cell`` or the launch files.
 NAMESPACE = "/sfs"
 #: The diagnostics topic of every node: absolute, the standard aggregator's.
 DIAGNOSTICS = "/diagnostics"
+#: Exit status of a node that refused its configuration (a parameter, a parameters file
+#: rcl cannot read): ``sfs-cell`` does not start it again.
+CONFIGURATION_ERROR = 2
 
 #: The recorder's node name: the scan node knows a restarted recorder by it (and sends it
 #: the scan's captures again, so that its new bag holds them).
@@ -56,6 +61,9 @@ TYPED_SERVICES: dict[str, str] = {
 
 #: The scan node's action (``sfs_ros_interfaces/action/Scan``): ``<namespace>/scan``.
 SCAN_ACTION = "scan"
+#: The calibration node's action (``sfs_ros_interfaces/action/Calibrate``):
+#: ``<namespace>/calibrate``.
+CALIBRATE_ACTION = "calibrate"
 #: The scan node's status (``sfs_ros_interfaces/msg/CellStatus``): ``<namespace>/status``.
 CELL_STATUS = "status"
 #: The reconstruction node's status (``sfs_ros_interfaces/msg/ReconstructionStatus``).

@@ -7,7 +7,9 @@ The segmentation node pairs (image, joint state), the reconstruction node
 * a message whose stamp is bad is dropped (its partner, with the same bad
   stamp, will be too); one whose content is bad gives up its whole capture
   (:meth:`StampPairer.reject`: the partner is dropped too, waiting or to come);
-* a half whose partner never comes is dropped once the buffer is full;
+* a half whose partner never comes is dropped once the buffer is full, in
+  count (``depth``) or in bytes (``max_bytes``, the messages' ``data``); one
+  larger than ``max_bytes`` by itself is dropped as it comes;
 * every drop is reported through ``on_problem(kind, text)``, ``kind``
   ``"malformed"`` or ``"unpaired_dropped"`` (the nodes' diagnostics counters),
   and the node carries on;
@@ -22,6 +24,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, Callable
 
+from sfs_ros.core.exchange.limits import MAX_WAITING_BYTES
 from sfs_ros.ros.pairing import Stamp, StampPairer, format_stamp, stamp_key
 
 __all__ = ["PairedInput", "Stream"]
@@ -58,6 +61,9 @@ class PairedInput:
         The two halves; pairs are handed out as ``(first item, second item)``.
     depth : int
         Buffer of unpaired halves per stream (:class:`StampPairer` capacity).
+    max_bytes : int, keyword-only
+        Bytes of unpaired halves per stream (the length of their ``data``), at most
+        (default :data:`~sfs_ros.core.exchange.limits.MAX_WAITING_BYTES`).
     qos : QoSProfile or int
         Of both subscriptions.
     unit : str, keyword-only
@@ -71,13 +77,13 @@ class PairedInput:
     """
 
     def __init__(self, node, first: Stream, second: Stream, depth: int, qos, *, unit: str,
-                 on_pair: Callable[[Stamp, Any, Any], None],
+                 max_bytes: int = MAX_WAITING_BYTES, on_pair: Callable[[Stamp, Any, Any], None],
                  on_problem: Callable[[str, str], None], callback_group=None):
         self._streams = {"a": first, "b": second}
         self._unit = unit
         self._on_pair = on_pair
         self._on_problem = on_problem
-        self.pairer = StampPairer(depth, on_evict=self._given_up)
+        self.pairer = StampPairer(depth, max_bytes=max_bytes, on_evict=self._given_up)
         for add, stream in ((self.pairer.add_a, first), (self.pairer.add_b, second)):
             node.create_subscription(
                 stream.msg_type, stream.topic,
@@ -99,7 +105,7 @@ class PairedInput:
         except ValueError as exc:
             self.malformed(stamp, stream.what, exc)
             return
-        pair = add(stamp, item)
+        pair = add(stamp, item, len(getattr(msg, "data", b"")))
         if pair is not None:
             self._on_pair(stamp, *pair)
 
@@ -111,7 +117,8 @@ class PairedInput:
                                       f"dropped with its {self._unit}: {exc}")
 
     def _given_up(self, stream: str, stamp: Stamp, _item, reason: str) -> None:
-        why = ("no partner arrived before the buffer filled" if reason == "evicted"
-               else "its partner was malformed")
+        why = {"evicted": "no partner arrived before the buffer filled",
+               "too large": f"larger than the {self.pairer.max_bytes >> 20} MiB its buffer "
+                            "holds"}.get(reason, "its partner was malformed")
         self._on_problem("unpaired_dropped", f"{self._streams[stream].what} at stamp "
                                              f"{format_stamp(stamp)} dropped: {why}")

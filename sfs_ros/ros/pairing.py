@@ -7,9 +7,11 @@ partner arrives, and hands out the pair when its second half comes:
 
 * stamps must be identical (``sec``, ``nanosec``): no "nearest" matching,
   which could give a view another view's angles;
-* buffers are bounded: when ``capacity`` items of one stream wait, the one
-  that has waited longest is evicted (counted, and reported through
-  ``on_evict``);
+* buffers are bounded in count and in bytes: when ``capacity`` items of one
+  stream wait, or their sizes add up to more than ``max_bytes``, those that
+  have waited longest are evicted (counted, and reported through
+  ``on_evict``); an item larger than ``max_bytes`` by itself is given up as it
+  comes (reason "too large");
 * a stamp may come again (senders deliver at least once, resending what
   was not receipted): a copy of a half that is still waiting replaces it,
   and a capture already paired is paired afresh when its halves come
@@ -39,21 +41,27 @@ class StampPairer:
     capacity : int >= 1
         Most items waiting per stream; also how many finished stamps are
         remembered (rejected ones stay rejected, paired ones count as repeats).
+    max_bytes : int or None
+        Most bytes waiting per stream (the ``nbytes`` given with each item); None:
+        no bound.
     on_evict : callable(stream, stamp, item, reason), optional
         Called for every item given up: ``stream`` "a" or "b", ``stamp``
-        (sec, nanosec), ``reason`` "evicted" (full buffer) or "rejected"
-        (its capture was marked by :meth:`reject`).
+        (sec, nanosec), ``reason`` "evicted" (full buffer), "too large" (over
+        ``max_bytes`` alone) or "rejected" (its capture was marked by :meth:`reject`).
 
     Counters: ``pairs``, ``evicted`` ({"a": n, "b": n}), ``repeated`` (halves
     that came again), ``rejected`` (captures marked by :meth:`reject`),
     ``dropped`` (halves discarded because their capture was rejected).
     """
 
-    def __init__(self, capacity: int, *,
+    def __init__(self, capacity: int, *, max_bytes: int | None = None,
                  on_evict: Callable[[str, Stamp, Any, str], None] | None = None):
         if isinstance(capacity, bool) or not isinstance(capacity, int) or capacity < 1:
             raise ValueError(f"capacity must be an integer >= 1, got {capacity!r}")
         self.capacity = capacity
+        self.max_bytes = max_bytes
+        self._bytes = {"a": 0, "b": 0}
+        self._sizes: dict[str, dict[Stamp, int]] = {"a": {}, "b": {}}
         self.repeated = 0
         self._on_evict = on_evict
         self._pending: dict[str, OrderedDict[Stamp, Any]] = {"a": OrderedDict(), "b": OrderedDict()}
@@ -63,13 +71,15 @@ class StampPairer:
         self.rejected = 0
         self.dropped = 0
 
-    def add_a(self, stamp, item) -> tuple[Any, Any] | None:
-        """Add an item of stream a; ``(item_a, item_b)`` when it completes a pair, else None."""
-        return self._add("a", "b", stamp_key(stamp), item)
+    def add_a(self, stamp, item, nbytes: int = 0) -> tuple[Any, Any] | None:
+        """Add an item of stream a (``nbytes`` its size, bytes); ``(item_a, item_b)`` when
+        it completes a pair, else None."""
+        return self._add("a", "b", stamp_key(stamp), item, nbytes)
 
-    def add_b(self, stamp, item) -> tuple[Any, Any] | None:
-        """Add an item of stream b; ``(item_a, item_b)`` when it completes a pair, else None."""
-        pair = self._add("b", "a", stamp_key(stamp), item)
+    def add_b(self, stamp, item, nbytes: int = 0) -> tuple[Any, Any] | None:
+        """Add an item of stream b (``nbytes`` its size, bytes); ``(item_a, item_b)`` when
+        it completes a pair, else None."""
+        pair = self._add("b", "a", stamp_key(stamp), item, nbytes)
         return None if pair is None else (pair[1], pair[0])
 
     def reject(self, stamp) -> None:
@@ -80,14 +90,18 @@ class StampPairer:
         self.rejected += 1
         for stream in ("a", "b"):
             if key in self._pending[stream]:
-                self._drop(stream, key, self._pending[stream].pop(key))
+                self._drop(stream, key, self._take(stream, key))
         self._finish(key, "rejected")
+
+    def pending_bytes(self, stream: str) -> int:
+        """Bytes of the items of ``stream`` ("a" or "b") waiting for a partner."""
+        return self._bytes[stream]
 
     def pending(self, stream: str) -> int:
         """Number of items of ``stream`` ("a" or "b") waiting for a partner."""
         return len(self._pending[stream])
 
-    def _add(self, own: str, other: str, key: Stamp, item):
+    def _add(self, own: str, other: str, key: Stamp, item, nbytes: int):
         state = self._finished.get(key)
         if state == "rejected":
             self._drop(own, key, item)
@@ -96,21 +110,34 @@ class StampPairer:
             del self._finished[key]
             self.repeated += 1
         elif key in self._pending[own]:          # the newer copy replaces the waiting one
-            del self._pending[own][key]
+            self._take(own, key)
             self.repeated += 1
         if key in self._pending[other]:
-            partner = self._pending[other].pop(key)
+            partner = self._take(other, key)
             self._finish(key, "paired")
             self.pairs += 1
             return item, partner
-        buffer = self._pending[own]
-        buffer[key] = item
-        if len(buffer) > self.capacity:
-            old_key, old_item = buffer.popitem(last=False)
-            self.evicted[own] += 1
-            if self._on_evict is not None:
-                self._on_evict(own, old_key, old_item, "evicted")
+        if self.max_bytes is not None and nbytes > self.max_bytes:
+            self._give_up(own, key, item, "too large")
+            return None
+        self._pending[own][key] = item
+        self._sizes[own][key] = nbytes
+        self._bytes[own] += nbytes
+        while len(self._pending[own]) > self.capacity or (
+                self.max_bytes is not None and self._bytes[own] > self.max_bytes):
+            old_key = next(iter(self._pending[own]))
+            self._give_up(own, old_key, self._take(own, old_key), "evicted")
         return None
+
+    def _take(self, stream: str, key: Stamp):
+        """Remove the waiting item ``key`` of ``stream``; the item."""
+        self._bytes[stream] -= self._sizes[stream].pop(key)
+        return self._pending[stream].pop(key)
+
+    def _give_up(self, stream: str, key: Stamp, item, reason: str) -> None:
+        self.evicted[stream] += 1
+        if self._on_evict is not None:
+            self._on_evict(stream, key, item, reason)
 
     def _drop(self, stream: str, key: Stamp, item) -> None:
         self.dropped += 1

@@ -26,13 +26,14 @@ from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.parameter_client import AsyncParameterClient
 
 from sfs_ros.cell.paths import APPLIED_RIG
+from sfs_ros.core.calibration.outputs import yaml_document
 from sfs_ros.core.exchange.files import write_atomic
 from sfs_ros.core.geometry.rig import RigCalibration
 from sfs_ros.ros.names import SERVICES
 from sfs_ros.ros.params import ParameterError, check
 from sfs_ros.ros.rig_params import RIG_PARAMS, rig_calibration
 
-__all__ = ["AppliedRig", "HOLDER_PARAMETER", "apply_rig", "read_rig_file"]
+__all__ = ["AppliedRig", "HOLDER_PARAMETER", "apply_rig", "cell_rig", "read_rig_file"]
 
 #: A node holds the rig if it declares this parameter.
 HOLDER_PARAMETER = "camera_distance_m"
@@ -123,6 +124,24 @@ def apply_rig(node: Node, path, namespace: str | None = None, *,
     return AppliedRig(rig_calibration(values), list(holders), persisted)
 
 
+def cell_rig(node: Node, namespace: str | None = None, *,
+             timeout_s: float = 30.0) -> RigCalibration:
+    """The rig the cell's reconstruction node in ``namespace`` (default: ``node``'s) holds
+    now (the one its next scan is carved with). ``node`` must be spun by another thread.
+    TimeoutError when it does not answer within ``timeout_s`` s, ValueError if its values
+    make no rig."""
+    namespace = "/" + (namespace if namespace is not None else node.get_namespace()).strip("/")
+    full_name = _join(namespace, RECONSTRUCTION_NODE)
+    client = AsyncParameterClient(node, full_name)
+    values = _get(client, [p.name for p in RIG_PARAMS], full_name,
+                  time.monotonic() + timeout_s)
+    try:
+        return rig_calibration({name: list(v) if isinstance(v, (list, tuple))
+                                or hasattr(v, "tolist") else v for name, v in values.items()})
+    except ParameterError as exc:
+        raise ValueError(f"{full_name} holds no valid rig: {exc}") from None
+
+
 def _join(namespace: str, name: str) -> str:
     return f"{namespace.rstrip('/')}/{name}"
 
@@ -196,8 +215,7 @@ def _check_deadline(deadline: float, message: str) -> None:
 
 def _rig_text(values: dict, source) -> bytes:
     """The kept ``rig.yaml``: the rig parameters set, under a line naming their file."""
-    header = (f"# The rig applied last to the running cell, from {Path(source).resolve()}; "
-              "sfs-cell gives it to the nodes that hold the rig at every start.\n")
-    text = yaml.safe_dump({"/**": {"ros__parameters": values}}, sort_keys=False,
-                          default_flow_style=None, width=100)
-    return (header + text).encode("utf-8")
+    header = (f"The rig applied last to the running cell, from {Path(source).resolve()}; "
+              "sfs-cell gives it to the nodes that hold the rig at every start.")
+    return yaml_document({"/**": {"ros__parameters": values}}, header=header,
+                         what=str(APPLIED_RIG))

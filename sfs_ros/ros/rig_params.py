@@ -83,6 +83,9 @@ WRITABLE_RIG_PARAMS: list[Param] = [
 
 #: States of the scan node (its diagnostics' ``state``) in which the rig may not change.
 SCANNING_STATES = ("starting", "running", "waiting", "paused")
+#: States in which the scan node has views of its scan captured or to come (``starting``
+#: is not one: it asks the reconstruction for its new scan then).
+CAPTURING_STATES = ("running", "waiting", "paused")
 
 
 def rig_calibration(values: dict) -> RigCalibration:
@@ -146,12 +149,18 @@ class RigParameters:
 
     def scanning(self) -> str:
         """Why the rig may not change now (the scan under way), or ""."""
-        with self._lock:
-            scan = self._scan
-        if scan is None or scan[1] not in SCANNING_STATES:
+        scan = self.scan_in(SCANNING_STATES)
+        if scan is None:
             return ""
         return (f"the scan node reports scan {scan[0]} {scan[1]}: the rig changes between "
                 "scans (once the scan is done or cancelled), for the next one")
+
+    def scan_in(self, states: tuple) -> tuple[int, str] | None:
+        """``(scan number, state)`` the scan node last reported if its state is one of
+        ``states``, else None (also before its first report)."""
+        with self._lock:
+            scan = self._scan
+        return scan if scan is not None and scan[1] in states else None
 
     def _on_diagnostics(self, array: DiagnosticArray) -> None:
         report = scan_report(array, self._node.get_namespace())

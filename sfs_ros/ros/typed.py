@@ -24,12 +24,14 @@ def status_line(status: ScanStatus) -> str:
 
 
 def cell_status(status: ScanStatus, reading: tuple[float, float], connected: bool, *,
-                stamp) -> CellStatus:
+                stamp, scan_object: str = "object") -> CellStatus:
     """The ``CellStatus`` of the scan now; ``reading``: the last encoder ``(theta, phi)``,
-    rad (NaN before one); ``connected``: readings arrive."""
+    rad (NaN before one); ``connected``: readings arrive; ``scan_object``: what the scan
+    is of ("object" or "board")."""
     v = status.values
-    msg = CellStatus(scan=v["scan"], state=v["state"], view=v["view"] if v["state"] != "idle"
-                     else 0, total=v["total"], captured=v["captured"],
+    msg = CellStatus(scan=v["scan"], state=v["state"], object=scan_object,
+                     view=v["view"] if v["state"] != "idle" else 0, total=v["total"],
+                     captured=v["captured"],
                      receipted=v["receipted"], theta_rad=float(reading[0]),
                      phi_rad=float(reading[1]), axes_connected=bool(connected),
                      message=status_line(status))

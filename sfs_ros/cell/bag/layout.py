@@ -7,6 +7,8 @@ Recorded topics (:data:`TOPICS`, names relative to the cell's namespace):
 |---|---|---|
 | ``capture/image``, ``capture/mask`` | sensor_msgs/Image | capture |
 | ``capture/joint_state``, ``capture/mask_joint_state`` | sensor_msgs/JointState | capture |
+| ``calibration/image`` | sensor_msgs/Image | capture |
+| ``calibration/joint_state`` | sensor_msgs/JointState | capture |
 | ``capture/stored`` | std_msgs/Header | capture |
 | ``joint_states`` | sensor_msgs/JointState | default |
 | ``diagnostics`` | diagnostic_msgs/DiagnosticArray (from the absolute ``/diagnostics``) | default |
@@ -66,6 +68,8 @@ TOPICS: dict[str, tuple[str, str]] = {
     "capture/joint_state": ("sensor_msgs/msg/JointState", CAPTURE),
     "capture/mask": ("sensor_msgs/msg/Image", CAPTURE),
     "capture/mask_joint_state": ("sensor_msgs/msg/JointState", CAPTURE),
+    "calibration/image": ("sensor_msgs/msg/Image", CAPTURE),
+    "calibration/joint_state": ("sensor_msgs/msg/JointState", CAPTURE),
     "capture/stored": ("std_msgs/msg/Header", CAPTURE),
     "joint_states": ("sensor_msgs/msg/JointState", DEFAULT),
     "diagnostics": ("diagnostic_msgs/msg/DiagnosticArray", DEFAULT),

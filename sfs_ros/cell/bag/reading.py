@@ -3,6 +3,8 @@
 :func:`open_bag` reads closed bags with rosbags; an MCAP file that rosbags
 refuses because it was not closed or was cut is read by :mod:`.salvage` up to
 its last whole message, with one warning (``logging``) saying where it ends.
+No record is read or expanded past the limits of :mod:`.bounds`: a bag that
+has one is refused, naming the bag and the limit.
 """
 
 from __future__ import annotations
@@ -16,12 +18,14 @@ from pathlib import Path
 from rosbags.rosbag2 import Reader, ReaderError
 
 from ...core.exchange.views import ViewError
+from .bounds import RecordTooLarge, check_storage, install
 from .layout import BAG_SUFFIXES, TOPICS
 from .salvage import McapRecords
 
 __all__ = ["BagMessage", "Bag", "open_bag"]
 
 _log = logging.getLogger(__name__)
+install()   # rosbags expands MCAP chunks within MAX_BAG_RECORD_BYTES (.bounds)
 
 
 @dataclass(frozen=True)
@@ -83,12 +87,16 @@ class Bag:
                 if topic and (wanted is None or topic in wanted):
                     yield BagMessage(topic, msgtype, log_time, bytes(data))
             return
-        with Reader(self._reader_path) as reader:
-            connections = [c for c in reader.connections if wanted is None or c.topic in wanted]
-            if not connections:
-                return
-            for connection, log_time, data in reader.messages(connections):
-                yield BagMessage(connection.topic, connection.msgtype, log_time, bytes(data))
+        try:
+            with Reader(self._reader_path) as reader:
+                connections = [c for c in reader.connections
+                               if wanted is None or c.topic in wanted]
+                if not connections:
+                    return
+                for connection, log_time, data in reader.messages(connections):
+                    yield BagMessage(connection.topic, connection.msgtype, log_time, bytes(data))
+        except RecordTooLarge as exc:
+            raise ViewError(f"bag {self.path}: {exc}") from None
 
 
 def _storage_files(folder: Path) -> list[Path]:
@@ -122,11 +130,18 @@ def open_bag(path) -> Bag:
         raise ViewError(f"{path} is not a rosbag2 storage file: expected a folder or a file "
                         f"ending in {' or '.join(BAG_SUFFIXES)}")
     try:
+        check_storage(path if path.is_dir() else None, files)
+    except RecordTooLarge as exc:
+        raise ViewError(f"bag {path}: {exc}") from None
+    try:
         with Reader(target) as reader:
             topics = {c.topic: c.msgtype for c in reader.connections}
             counts = {t: sum(c.msgcount for c in reader.connections if c.topic == t)
                       for t in topics}
-    except (ReaderError, ValueError, struct.error, EOFError, KeyError, IndexError) as exc:
+    except RecordTooLarge as exc:
+        raise ViewError(f"bag {path}: {exc}") from None
+    except (ReaderError, ValueError, struct.error, EOFError, KeyError, IndexError, TypeError,
+            AttributeError) as exc:   # metadata.yaml of an unexpected shape among them
         if len(files) != 1 or files[0].suffix != ".mcap":
             raise ViewError(f"cannot read bag {path}: {exc}") from None
         error = exc

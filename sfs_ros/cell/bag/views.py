@@ -32,6 +32,7 @@ import numpy as np
 from ...core.exchange.session import read_session, write_session
 from ...core.exchange.views import ViewError, ViewSet
 from ...core.geometry.rig import RigCalibration
+from ...core.pipeline import RESOLUTION_RANGE
 from ...core.segment import SegmentationParams, segment
 from ..live import DuplicateViewError, LiveReconstruction
 from ..messages import angles_from_joint_state, msg_to_image, scan_report, stamp_key, view_key
@@ -56,9 +57,15 @@ class BagViewSet(ViewSet):
 
 
 def _decode(message: BagMessage, expected: str):
+    """The message deserialized; ValueError if it is of another type or its bytes are not
+    a valid CDR message of its type."""
     if message.msgtype != expected:
         raise ValueError(f"type {message.msgtype}, expected {expected}")
-    return STORE.deserialize_cdr(message.data, message.msgtype)
+    try:
+        return STORE.deserialize_cdr(message.data, message.msgtype)
+    except Exception as exc:  # noqa: BLE001 - corrupt bytes: SerdeError, IndexError, SystemError...
+        raise ValueError(f"its {len(message.data)} bytes are not a valid {expected} message "
+                         f"({type(exc).__name__}: {str(exc)[:120]})") from None
 
 
 def _parameters(bag: Bag) -> dict:
@@ -81,6 +88,16 @@ def _parameters(bag: Bag) -> dict:
         raise ViewError(f"bag {bag.path} has no parameters of the reconstruction node ({why}); "
                         "expected them to place the cameras")
     return document
+
+
+def _check_resolution(value) -> None:
+    """TypeError / ValueError unless ``value`` is a resolution the reconstruction node takes
+    (an int in :data:`~sfs_ros.core.pipeline.RESOLUTION_RANGE`)."""
+    low, high = RESOLUTION_RANGE
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise TypeError(f"reconstruction resolution is {value!r}, not an integer")
+    if not low <= value <= high:
+        raise ValueError(f"reconstruction resolution {value} is outside {low}..{high}")
 
 
 def _image(msg, encodings: tuple[str, ...]) -> np.ndarray:
@@ -108,8 +125,11 @@ class _Views:
             if pair[0] == "capture/image" and not captures:
                 self.segmentation = SegmentationParams.from_dict(session["segmentation"]) \
                     if session.get("segmentation") is not None else SegmentationParams()
+            _check_resolution(recon["resolution"])
+            # The live grid only stores the views here (the reconstruction is made from the
+            # session folder at the resolution asked for): the smallest there is.
             self.live = LiveReconstruction(calibration, session["bounds_m"], output_dir=folder,
-                                           resolution=recon["resolution"],
+                                           resolution=RESOLUTION_RANGE[0],
                                            mesher=recon["mesher"])
         except (KeyError, TypeError, ValueError, AttributeError) as exc:
             # Recorded parameters of the wrong shape (not mappings where mappings belong).
@@ -243,10 +263,24 @@ def _view_topics(bag: Bag) -> tuple[str, str]:
                     f"{', '.join(sorted(bag.topics)) or 'none'})")
 
 
+def _capture_topics(bag: Bag) -> tuple[str, str]:
+    """``(images, joint states)`` relative topics of the captured images: a board scan's
+    (``calibration/*``), else the object's (``capture/*``; a board scanned as an object in
+    bags recorded before board scans had their own topics)."""
+    for pair in (("calibration/image", "calibration/joint_state"),
+                 ("capture/image", "capture/joint_state")):
+        if _checked(bag, pair[0]) is not None:
+            return pair
+    raise ViewError(f"bag {bag.path} holds no captured images on calibration/image nor "
+                    "capture/image")
+
+
 def read_bag(path, *, captures: bool = False) -> BagViewSet:
     """The views of the bag at ``path`` (a rosbag2 folder, or its .mcap / .db3 file), as
     the reconstruction node received them (module docstring); with ``captures``, the
-    last scan's captured images with their angles instead (for export to other tools).
+    last scan's captured images with their angles instead (for calibration and export
+    to other tools): a board scan's on ``calibration/image`` when the bag has them, else
+    those on ``capture/image``.
 
     Returns
     -------
@@ -270,9 +304,7 @@ def read_bag(path, *, captures: bool = False) -> BagViewSet:
             _log.warning(f"bag {bag.path}: topic {topic} has type {msgtype}, unknown here: "
                          "skipped")
     document = _parameters(bag)
-    pair = ("capture/image", "capture/joint_state") if captures else _view_topics(bag)
-    if captures and _checked(bag, pair[0]) is None:
-        raise ViewError(f"bag {bag.path} holds no captured images on {pair[0]}")
+    pair = _capture_topics(bag) if captures else _view_topics(bag)
     # Scans are told apart by the sfs/scan records; in bags without them, by diagnostics.
     scans = SCAN_TOPIC if _checked(bag, SCAN_TOPIC) else "diagnostics"
     names = [*pair, scans] if _checked(bag, scans) else list(pair)

@@ -13,7 +13,13 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-__all__ = ["BoardSpec", "Detection", "detect_board"]
+__all__ = ["BoardSpec", "Detection", "detect_board", "MIN_SQUARE_M", "MAX_SQUARE_M",
+           "MAX_SQUARES"]
+
+#: Range of a chessboard square's side, metres: a printed board on a turntable.
+MIN_SQUARE_M, MAX_SQUARE_M = 1e-4, 1.0
+#: Most squares along a side of the board.
+MAX_SQUARES = 100
 
 
 @dataclass(frozen=True)
@@ -23,9 +29,9 @@ class BoardSpec:
     Attributes
     ----------
     squares_x, squares_y : int
-        Chessboard squares along x and y (at least 3 each).
+        Chessboard squares along x and y (3 to :data:`MAX_SQUARES` each).
     square_m : float
-        Side of a chessboard square, metres.
+        Side of a chessboard square, metres (:data:`MIN_SQUARE_M` to :data:`MAX_SQUARE_M`).
     marker_m : float
         Side of an ArUco marker, metres (smaller than ``square_m``).
     dictionary : str
@@ -44,6 +50,12 @@ class BoardSpec:
                              f"detector); this is OpenCV {cv2.__version__}")
         if int(self.squares_x) < 3 or int(self.squares_y) < 3:
             raise ValueError(f"board needs at least 3x3 squares, got "
+                             f"{self.squares_x}x{self.squares_y}")
+        if not MIN_SQUARE_M <= self.square_m <= MAX_SQUARE_M:
+            raise ValueError(f"board square_m must be {MIN_SQUARE_M}..{MAX_SQUARE_M} metres, got "
+                             f"{self.square_m}")
+        if int(self.squares_x) > MAX_SQUARES or int(self.squares_y) > MAX_SQUARES:
+            raise ValueError(f"board needs at most {MAX_SQUARES} squares a side, got "
                              f"{self.squares_x}x{self.squares_y}")
         if not (0 < self.marker_m < self.square_m):
             raise ValueError(f"board needs 0 < marker_m < square_m, got marker_m={self.marker_m}, "

@@ -15,15 +15,19 @@ valid pixels).
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import cv2
 import numpy as np
 import yaml
 
+from ..exchange.files import write_atomic
+from ..exchange.limits import brief, printable
 from ..geometry.rig import RigCalibration
 
-__all__ = ["rig_parameters", "camera_info", "write_rig_yaml", "write_camera_info"]
+__all__ = ["rig_parameters", "camera_info", "yaml_document", "rig_yaml", "camera_info_yaml",
+           "write_rig_yaml", "write_camera_info"]
 
 
 def rig_parameters(rig: RigCalibration) -> dict:
@@ -57,21 +61,52 @@ def camera_info(rig: RigCalibration, *, camera_name: str = "camera") -> dict:
             "projection_matrix": _matrix(np.hstack([new_K, np.zeros((3, 1))]))}
 
 
-def _write(path: Path, header: str, data: dict) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    text = yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=100)
-    path.write_text("".join(f"# {line}\n" for line in header.splitlines()) + text,
-                    encoding="utf-8")
-    return path
+def yaml_document(data: dict, *, header: str = "", what: str = "document") -> bytes:
+    """``data`` as UTF-8 YAML under ``header`` as comment lines, checked to read back.
+
+    Control characters in ``header`` (a folder's name, say) are written escaped
+    (``\\x01``), so the comment stays a comment that YAML and rcl accept. The text
+    is parsed again and must give ``data``: ValueError naming ``what`` if not.
+    """
+    comments = "".join(f"# {printable(line, limit=sys.maxsize)}\n"
+                       for line in header.splitlines())
+    text = comments + yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=100)
+    try:
+        back = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ValueError(f"{what} would not be valid YAML ({brief(str(exc))}); "
+                         "nothing written") from None
+    if back != data:
+        raise ValueError(f"{what} would not read back as written; nothing written")
+    return text.encode("utf-8")
+
+
+def rig_yaml(rig: RigCalibration, *, header: str = "") -> bytes:
+    """The text of ``rig.yaml`` (module docstring) with ``header`` as comment lines."""
+    return yaml_document(rig_parameters(rig), header=header, what="rig.yaml")
+
+
+def camera_info_yaml(rig: RigCalibration, *, camera_name: str = "camera",
+                     header: str = "") -> bytes:
+    """The text of the rig camera's ``camera_info`` YAML with ``header`` as comment lines."""
+    return yaml_document(camera_info(rig, camera_name=camera_name), header=header,
+                         what="camera_info")
 
 
 def write_rig_yaml(rig: RigCalibration, path, *, header: str = "") -> Path:
-    """Write ``rig.yaml`` (module docstring) with ``header`` as comment lines; returns the path."""
-    return _write(path, header, rig_parameters(rig))
+    """Write ``rig.yaml`` (:func:`rig_yaml`) atomically (a link at ``path`` is replaced,
+    not followed); returns the path."""
+    return _write(path, rig_yaml(rig, header=header))
 
 
 def write_camera_info(rig: RigCalibration, path, *, camera_name: str = "camera",
                       header: str = "") -> Path:
-    """Write the ``camera_info`` YAML of the rig's camera; returns the path."""
-    return _write(path, header, camera_info(rig, camera_name=camera_name))
+    """Write the ``camera_info`` YAML of the rig's camera (:func:`camera_info_yaml`)
+    atomically; returns the path."""
+    return _write(path, camera_info_yaml(rig, camera_name=camera_name, header=header))
+
+
+def _write(path, data: bytes) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return write_atomic(path, data)

@@ -21,6 +21,7 @@ by plain least squares; a view whose corners then miss by more than
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass, replace
 
@@ -32,7 +33,15 @@ from ..geometry.rig import RigCalibration, rig_camera, rotation_from_vector
 from .board import BoardSpec, Detection
 from .model import STANDING, BoardPose, euler_zyx
 
-__all__ = ["PARAMETERS", "FIXED", "RigFit", "calibrate_rig"]
+__all__ = ["PARAMETERS", "FIXED", "RADIUS_WARNING_FACTOR", "RADIUS_ERROR_FACTOR", "RigFit",
+           "calibrate_rig"]
+
+_log = logging.getLogger(__name__)
+
+#: The fitted C-arm radius may differ from the hand-measured one by this factor (either
+#: way) without a warning, and by :data:`RADIUS_ERROR_FACTOR` at most: the board's size
+#: sets the scale of every length the fit finds, so a wrong ``square_m`` scales the radius.
+RADIUS_WARNING_FACTOR, RADIUS_ERROR_FACTOR = 1.1, 1.5
 
 #: Every parameter the solver can estimate, in the order of its vector.
 PARAMETERS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3",
@@ -78,6 +87,8 @@ class RigFit:
         Parameters held fixed and why.
     corners : int
         Number of corners used.
+    warnings : tuple of str
+        What the fit found doubtful (a radius far from the hand-measured one).
     """
 
     rig: RigCalibration
@@ -88,6 +99,7 @@ class RigFit:
     uncertainty: dict
     fixed: dict
     corners: int
+    warnings: tuple = ()
 
 
 @dataclass(frozen=True)
@@ -228,21 +240,26 @@ def calibrate_rig(detections: list[tuple[str, float, float, Detection]], board: 
         2 (``k3`` held at 0, as most calibrations of mild lenses do) or 3.
     max_view_rms_px : float, keyword-only
         A view whose RMS reprojection error after the fit exceeds this, pixels,
-        is rejected (worst first, refitting after each).
+        is rejected (worst first, refitting after each); finite, > 0.
     min_views : int, keyword-only
         Fewer usable views than this is an error.
 
     Raises
     ------
     ValueError
-        Too few usable views, a rig that is not pinhole / ``physical``, or views
-        that cannot determine a parameter.
+        Too few usable views, a rig that is not pinhole / ``physical``, views
+        that cannot determine a parameter, or a fitted C-arm radius more than
+        :data:`RADIUS_ERROR_FACTOR` times from the hand-measured one (beyond
+        :data:`RADIUS_WARNING_FACTOR`: a warning, logged and in the result).
     """
     if nominal.projection != "pinhole" or nominal.convention != "physical":
         raise ValueError("calibration needs a pinhole rig with the 'physical' convention, got "
                          f"{nominal.projection!r}, {nominal.convention!r}")
     if radial_terms not in (2, 3):
         raise ValueError(f"radial_terms must be 2 or 3, got {radial_terms}")
+    if not (math.isfinite(max_view_rms_px) and max_view_rms_px > 0):
+        raise ValueError(f"max_view_rms_px must be a number of pixels > 0, got "
+                         f"{max_view_rms_px}")
     rejected = list(rejected or [])
     views = [_View(name, float(theta), float(phi), det) for name, theta, phi, det in detections]
     fixed = dict(FIXED)
@@ -276,7 +293,25 @@ def calibrate_rig(detections: list[tuple[str, float, float, Detection]], board: 
         check_count()
         x = result.x
     rig, pose = _unpack(result.x, free, template, nominal)
+    warnings = _radius_warnings(rig.camera_distance_m, nominal.camera_distance_m, board)
     return RigFit(rig=rig, board=pose, rms_px=float(np.sqrt(np.mean(result.fun ** 2))),
                   view_rms_px={v.name: float(r) for v, r in zip(views, rms)},
                   rejected=rejected, uncertainty=_uncertainty(result, free), fixed=fixed,
-                  corners=sum(len(v.detection.ids) for v in views))
+                  corners=sum(len(v.detection.ids) for v in views), warnings=warnings)
+
+
+def _radius_warnings(fitted_m: float, measured_m: float, board: BoardSpec) -> tuple:
+    """The warning when the fitted C-arm radius is more than :data:`RADIUS_WARNING_FACTOR`
+    from the hand-measured one (logged too); ValueError beyond :data:`RADIUS_ERROR_FACTOR`."""
+    factor = fitted_m / measured_m
+    if max(factor, 1 / factor) <= RADIUS_WARNING_FACTOR:
+        return ()
+    text = (f"the fitted C-arm radius camera_distance_m {fitted_m:.4f} m is {factor:.3g} times "
+            f"the hand-measured {measured_m:.4f} m: check the board's size (square_m "
+            f"{board.square_m} m, marker_m {board.marker_m} m; a board {factor:.3g} times "
+            "that size would agree) and the measured radius")
+    if max(factor, 1 / factor) > RADIUS_ERROR_FACTOR:
+        raise ValueError(f"{text}; more than {RADIUS_ERROR_FACTOR} times apart, the fit is "
+                         "not used")
+    _log.warning(text)
+    return (text,)

@@ -134,19 +134,20 @@ def _fits(shape, max_memory_bytes: int) -> bool:
 
 
 def _describe(shape) -> str:
+    """The grid ``shape``, its voxels and memory; the voxel cap when that is what it exceeds."""
     voxels = int(np.prod(shape))
+    cap = "" if voxels <= MAX_VOXELS else \
+        f" and has more than the {MAX_VOXELS / 1e6:.0f} M voxels a grid may have"
     return (f"grid {tuple(shape)} = {voxels / 1e6:.0f} M voxels needs "
-            f"{voxels * BYTES_PER_VOXEL / (1 << 30):.2f} GiB")
+            f"{voxels * BYTES_PER_VOXEL / (1 << 30):.2f} GiB{cap}")
 
 
 def refuse_unfit_grid(shape, max_memory_bytes: int, what: str) -> None:
     """ValueError naming ``what``, the memory the grid ``shape`` (voxels per axis) needs and
     the budget ``max_memory_bytes`` when it does not fit (nothing is allocated)."""
     if not _fits(shape, max_memory_bytes):
-        cap = "" if int(np.prod(shape)) <= MAX_VOXELS \
-            else f" and a grid has at most {MAX_VOXELS / 1e6:.0f} M voxels"
         raise ValueError(f"{what} is more than this machine may hold: {_describe(shape)}, "
-                         f"the budget is {max_memory_bytes / (1 << 30):.2f} GiB{cap}; choose "
+                         f"the budget is {max_memory_bytes / (1 << 30):.2f} GiB; choose "
                          "a coarser resolution")
 
 

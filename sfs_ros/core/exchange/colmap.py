@@ -20,9 +20,13 @@ Read (COLMAP's documented text format; ``#`` lines are comments):
 * ``images.txt``: two lines per image, ``IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID
   NAME`` (the world-to-camera rotation as a unit quaternion and translation, in
   OpenCV axes, as ours) and the image's 2-D points (ignored, may be empty).
+  Lines are told apart by their structure: a line of ``X Y POINT3D_ID`` number
+  triples (or a blank one) is an image's points, any other line an image, so a
+  points line left out or a stray blank line moves no image to another line.
 * the images: ``NAME`` relative to an ``images/`` folder beside the text files,
   or beside their folder or its parent (COLMAP's ``sparse/0`` layout), the first
-  that exists.
+  that exists; read only from inside the folder that holds ``images/`` (neither
+  ``images/`` nor an image may be a symbolic link leading out of it).
 
 ``points3D.txt`` is not read. Units are COLMAP's: the model's own scale and frame
 (give ``--bounds`` in them, or let the box be estimated). Lens distortion is
@@ -38,6 +42,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..geometry.camera import Camera
+from ..geometry.lens import lens_problem
 from .limits import brief, confined_path, read_text
 from .views import View, ViewError, ViewSet
 
@@ -97,16 +102,41 @@ def _cameras(path: Path) -> dict[str, tuple[int, int, np.ndarray, tuple]]:
         lens = tuple(float(p.get(k, 0.0)) for k in ("k1", "k2", "p1", "p2")) + (0.0,)
         if camera_id in cameras:
             raise ViewError(f"{where}: camera {brief(camera_id)} is defined twice")
+        problem = lens_problem(K, lens, int(size[0]), int(size[1]))
+        if problem:
+            raise ViewError(f"{where}: {model} camera {brief(camera_id)}: {problem}")
         cameras[camera_id] = (int(size[0]), int(size[1]), K, lens)
     if not cameras:
         raise ViewError(f"{path} defines no camera")
     return cameras
 
 
-def _image_folder(model: Path) -> Path:
-    for folder in (model / "images", model.parent / "images", model.parent.parent / "images"):
-        if folder.is_dir():
-            return folder
+def _is_points_line(fields: list[str]) -> bool:
+    """Whether ``fields`` are an image's 2-D points: ``X Y POINT3D_ID`` triples of numbers
+    (none at all for an image without points)."""
+    if len(fields) % 3:
+        return False
+    try:
+        for value in fields:
+            float(value)
+    except ValueError:
+        return False
+    return True
+
+
+def _image_lines(lines: list[tuple[int, str]]) -> list[tuple[int, str]]:
+    """The image lines of ``images.txt`` told by their structure, not their position: every
+    line that is not blank nor an image's 2-D points (:func:`_is_points_line`), so a
+    missing points line or a stray blank line moves no image."""
+    return [(n, line) for n, line in lines if not _is_points_line(line.split())]
+
+
+def _image_root(model: Path) -> Path:
+    """The folder whose ``images/`` holds the model's images: ``model``, its parent or its
+    grandparent, the first that has one."""
+    for root in (model, model.parent, model.parent.parent):
+        if (root / "images").is_dir():
+            return root
     raise ViewError(f"no images/ folder beside the COLMAP model {model} (looked in {model}, "
                     f"{model.parent} and {model.parent.parent})")
 
@@ -134,14 +164,10 @@ def read_colmap(folder: Path | str) -> ViewSet:
                             f"{IMAGES_FILE} (the text model: colmap model_converter "
                             "--output_type TXT)")
     cameras = _cameras(folder / CAMERAS_FILE)
-    lines = _lines(folder / IMAGES_FILE)
-    while lines and not lines[0][1]:
-        lines.pop(0)
-    images = _image_folder(folder)
+    lines = _image_lines(_lines(folder / IMAGES_FILE))
+    root = _image_root(folder)
     views, rejected, seen = [], [], set()
-    for (n, line), _points in zip(lines[::2], lines[1::2] + [(0, "")]):
-        if not line:
-            continue
+    for n, line in lines:
         where = f"{folder / IMAGES_FILE} line {n}"
         fields = line.split()
         if len(fields) < 10:
@@ -155,7 +181,9 @@ def read_colmap(folder: Path | str) -> ViewSet:
         if name in seen:
             raise ViewError(f"{where}: image {brief(name)} is listed twice")
         seen.add(name)
-        path = confined_path(images, name, where)
+        # Confined to the folder images/ is in, as a session's: neither images/ nor an
+        # image may be a link to a place outside it.
+        path = confined_path(root, f"images/{name}", where)
         if not path.is_file():
             raise ViewError(f"{where}: image {path} does not exist")
         q = values[:4]

@@ -47,24 +47,38 @@ def write_atomic_all(files, *, within=None) -> list[Path]:
     Returns
     -------
     list of Path
-        The written paths, in order.
+        The written paths, in order. An OSError while staging or renaming a file
+        names that file (its ``filename``).
     """
     files = [(Path(path), data) for path, data in files]
     with contextlib.ExitStack() as folders:
         targets = [(_folder_fd(path, within, folders), path.name, data) for path, data in files]
         staged: list[tuple[int, str, str]] = []    # (folder fd, temporary, final name)
         try:
-            for fd, name, data in targets:
-                staged.append((fd, _stage(fd, name, data), name))
+            for (fd, name, data), (path, _) in zip(targets, files):
+                with _naming(path):
+                    staged.append((fd, _stage(fd, name, data), name))
             while staged:
                 fd, tmp, name = staged[0]
-                os.replace(tmp, name, src_dir_fd=fd, dst_dir_fd=fd)
+                with _naming(files[len(files) - len(staged)][0]):
+                    os.replace(tmp, name, src_dir_fd=fd, dst_dir_fd=fd)
                 staged.pop(0)
         finally:
             for fd, tmp, _ in staged:   # (one may be renamed already if interrupted just then)
                 with contextlib.suppress(FileNotFoundError):
                     os.unlink(tmp, dir_fd=fd)
     return [path for path, _ in files]
+
+
+@contextlib.contextmanager
+def _naming(path: Path):
+    """An OSError raised inside names ``path`` (its ``filename``) when it names no file."""
+    try:
+        yield
+    except OSError as exc:
+        if exc.filename is not None or exc.errno is None:
+            raise
+        raise OSError(exc.errno, exc.strerror, str(path)) from None
 
 
 def _folder_fd(path: Path, within, folders: contextlib.ExitStack) -> int:

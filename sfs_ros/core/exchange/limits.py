@@ -11,6 +11,8 @@ Limits (module constants, stated in the README):
   :data:`MAX_IMAGE_PIXELS` pixels, checked from its header before decoding;
 * a text file (session YAML, views table, Middlebury parameters, NeRF JSON) is
   at most :data:`MAX_TEXT_FILE_BYTES`;
+* a record of a bag (an MCAP chunk, declared and expanded; an sqlite3 row) is
+  at most :data:`MAX_BAG_RECORD_BYTES`;
 * a YAML or JSON document nests at most :data:`MAX_DOCUMENT_DEPTH` levels and a
   YAML document has no anchors or aliases (the project never writes them, and
   aliases are how a few hundred bytes expand into gigabytes).
@@ -29,7 +31,9 @@ from PIL import Image, UnidentifiedImageError
 from .errors import ViewError
 
 __all__ = ["MAX_IMAGE_FILE_BYTES", "MAX_IMAGE_PIXELS", "MAX_TEXT_FILE_BYTES",
-           "MAX_DOCUMENT_DEPTH", "check_file_size", "image_header", "read_text", "load_yaml",
+           "MAX_DOCUMENT_DEPTH", "MAX_BAG_RECORD_BYTES", "MAX_WAITING_BYTES",
+           "check_file_size", "image_header",
+           "read_text", "load_yaml",
            "load_json", "brief", "printable", "confined_path"]
 
 #: Largest image file read, bytes (a 100-megapixel 16-bit RGBA PNG stays below).
@@ -40,6 +44,13 @@ MAX_IMAGE_PIXELS = 100_000_000
 MAX_TEXT_FILE_BYTES = 64 << 20
 #: Deepest nesting of a YAML or JSON document, levels.
 MAX_DOCUMENT_DEPTH = 32
+#: Largest record read from a bag, bytes: an MCAP chunk as it declares and as it expands,
+#: an sqlite3 message row. Room for one message of a :data:`MAX_IMAGE_PIXELS` 8-bit RGB
+#: image (a chunk holds at least one message).
+MAX_BAG_RECORD_BYTES = 512 << 20
+#: Most bytes of messages a node keeps waiting for their partner, per topic: a capture
+#: waiting for its joint state, a mask for its view, an image for colour.
+MAX_WAITING_BYTES = 512 << 20
 
 
 def check_file_size(path: Path, limit: int, what: str) -> int:
@@ -70,7 +81,10 @@ def image_header(path: Path) -> tuple[int, int]:
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)
             with Image.open(path) as image:  # reads the header only
                 width, height = image.size
-    except (UnidentifiedImageError, Image.DecompressionBombError, OSError, ValueError,
+    except Image.DecompressionBombError:
+        raise ViewError(f"image {path} declares more pixels than Pillow opens; at most "
+                        f"{MAX_IMAGE_PIXELS / 1e6:.0f} megapixels are read") from None
+    except (UnidentifiedImageError, OSError, ValueError,
             SyntaxError):  # Pillow reports some malformed headers as SyntaxError
         raise ViewError(f"image {path} is not a readable image (empty, corrupt or an "
                         "unsupported format; expected e.g. PNG, JPEG, TIFF, BMP)") from None

@@ -16,10 +16,10 @@ import numpy as np
 from ..geometry.camera import Camera
 from ..geometry.rig import RigCalibration
 from .errors import ViewError
-from .limits import image_header
+from .limits import brief, image_header
 
 __all__ = ["SOURCES", "IMAGE_SUFFIXES", "ViewError", "View", "ViewSet", "read_image", "image_size",
-           "as_bounds", "nearest_rotation"]
+           "as_bounds", "BOX_SIDE_RANGE", "MAX_BOX_COORDINATE", "nearest_rotation"]
 
 #: Input formats a :class:`ViewSet` can come from.
 SOURCES = ("session", "middlebury", "nerf", "colmap")
@@ -159,15 +159,27 @@ def image_size(path: Path | str) -> tuple[int, int]:
     return image_header(Path(path))
 
 
+#: Sides of a carving box, metres (or a COLMAP or NeRF model's own units), and the
+#: largest coordinate of a corner: beyond them no voxel grid of the box is meaningful.
+BOX_SIDE_RANGE, MAX_BOX_COORDINATE = (1e-6, 1e6), 1e6
+
+
 def as_bounds(value, *, what: str) -> np.ndarray:
-    """``value`` as a (2, 3) float64 box ``[min, max]``; ViewError (naming ``what``) otherwise."""
+    """``value`` as a (2, 3) float64 box ``[min, max]``; ViewError (naming ``what``) unless
+    it is finite, min < max, each side within :data:`BOX_SIDE_RANGE` and each corner
+    within :data:`MAX_BOX_COORDINATE` of the origin."""
     try:
         bounds = np.array(value, dtype=np.float64)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         bounds = np.zeros(0)
     if bounds.shape != (2, 3) or not np.all(np.isfinite(bounds)) or np.any(bounds[1] <= bounds[0]):
         raise ViewError(f"{what} must be [[xmin, ymin, zmin], [xmax, ymax, zmax]] with finite "
-                        f"min < max, got {value!r}")
+                        f"min < max, got {brief(value, 200)}")
+    (low, high), sides = BOX_SIDE_RANGE, bounds[1] - bounds[0]
+    if np.any(sides < low) or np.any(sides > high) or np.abs(bounds).max() > MAX_BOX_COORDINATE:
+        raise ViewError(f"{what} {bounds.tolist()} has sides {sides.tolist()}; expected sides "
+                        f"of {low:g}..{high:g} metres and corners within {MAX_BOX_COORDINATE:g} "
+                        "of the origin")
     return bounds
 
 

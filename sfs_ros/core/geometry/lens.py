@@ -38,10 +38,16 @@ import numpy as np
 from .camera import Camera, distort_normalized
 
 __all__ = ["ideal_camera", "is_distorted", "undistort_image", "undistort_mask", "distort_mask",
-           "render_through_lens"]
+           "render_through_lens", "lens_problem", "MAX_LENS_SCALE"]
 
 #: Extra canvas around the lens's field of view, pixels (room for interpolation).
 _CANVAS_MARGIN_PX = 2
+#: Farthest a lens may move a point of the image's border from the principal point, as a
+#: factor of its ideal distance (and nearest, as its inverse): a lens beyond that is not
+#: a ``plumb_bob`` lens of a camera that sees its image (fisheyes are refused anyway).
+MAX_LENS_SCALE = 2.0
+#: Samples along each side of the image where the lens is checked.
+_LENS_SAMPLES = 41
 
 
 def is_distorted(camera: Camera) -> bool:
@@ -54,6 +60,49 @@ def ideal_camera(camera: Camera) -> Camera:
     if not is_distorted(camera):
         return camera
     return replace(camera, distortion=None)
+
+
+def lens_problem(K: np.ndarray, distortion, width: int, height: int) -> str:
+    """Why the lens ``distortion`` (``plumb_bob``) of a pinhole with ``K`` and a
+    ``width`` x ``height`` image cannot be that camera's, or "".
+
+    A lens maps the ideal image onto the image as taken one to one: over the image's
+    extent (sampled on a grid, its border included) the map's Jacobian must have a
+    positive determinant (no fold, no mirror), and no point of the border may move
+    farther than :data:`MAX_LENS_SCALE` times (nor nearer than its inverse) from the
+    principal point.
+    """
+    return _lens_problem((tuple(np.asarray(K, dtype=np.float64).ravel().tolist()),
+                          tuple(float(d) for d in distortion), int(width), int(height)))
+
+
+@lru_cache(maxsize=32)
+def _lens_problem(lens: tuple) -> str:
+    K = np.asarray(lens[0]).reshape(3, 3)
+    width, height = lens[2], lens[3]
+    u, v = np.meshgrid(np.linspace(-0.5, width - 0.5, _LENS_SAMPLES),
+                       np.linspace(-0.5, height - 0.5, _LENS_SAMPLES))
+    pixels = np.stack([u.ravel(), v.ravel(), np.ones(u.size)], axis=1)
+    xy = (pixels @ np.linalg.inv(K).T)[:, :2]
+    step = 1e-6 * max(float(np.abs(xy).max()), 1e-9)
+    with np.errstate(all="ignore"):
+        dx = distort_normalized(xy + [step, 0.0], lens[1]) - distort_normalized(xy - [step, 0.0], lens[1])
+        dy = distort_normalized(xy + [0.0, step], lens[1]) - distort_normalized(xy - [0.0, step], lens[1])
+        det = dx[:, 0] * dy[:, 1] - dx[:, 1] * dy[:, 0]
+        border = (u.ravel() <= 0) | (u.ravel() >= width - 1) | (v.ravel() <= 0) | \
+            (v.ravel() >= height - 1)
+        ideal = np.hypot(*xy[border].T)
+        scale = np.hypot(*distort_normalized(xy[border], lens[1]).T) / np.maximum(ideal, 1e-300)
+    if not np.all(det > 0):
+        return (f"the lens distortion {list(lens[1])} folds the image over (not one to one "
+                f"within the {width}x{height} image); expected a lens that maps the image "
+                "onto itself")
+    worst = float(scale[np.argmax(np.abs(np.log(scale)))])
+    if not 1 / MAX_LENS_SCALE <= worst <= MAX_LENS_SCALE:
+        return (f"the lens distortion {list(lens[1])} moves the image's border {worst:.3g} "
+                f"times its distance from the principal point; expected within "
+                f"{1 / MAX_LENS_SCALE:g}..{MAX_LENS_SCALE:g}")
+    return ""
 
 
 def _lens(camera: Camera) -> tuple:

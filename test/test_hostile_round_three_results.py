@@ -1,0 +1,419 @@
+"""Hostile input, round three: results that were silently wrong, crashes, tracebacks and
+unclear answers (issue 29, classes 8-19). One test per class, named after it; the cases
+that are command lines also run through the fuzz driver (``fuzz_driver.py``) with the
+other hostile cases' rules: exit 0 or 2, one line on stderr, no traceback.
+"""
+
+import io
+import json
+import os
+import shutil
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+import test_hostile_input
+import yaml
+from test_hostile_input import FAST, OK, Cases, failures
+from test_supervisor import ScriptSpec
+
+from sfs_ros.cell.bag import read_bag
+from sfs_ros.cli.bringup import Cell, RestartPolicy, wait_until_signal
+from sfs_ros.cli.reconstruct import main as reconstruct_main
+from sfs_ros.core.calibration import BoardSpec
+from sfs_ros.core.exchange.colmap import read_colmap
+from sfs_ros.core.exchange.pose_export import write_colmap
+from sfs_ros.core.exchange.session import read_session
+from sfs_ros.core.exchange.views import ViewError, as_bounds
+from sfs_ros.core.pipeline import RESOLUTION_RANGE, ReconstructionParams
+
+from test_bag import (
+    PARAMETERS_TOPIC,
+    document,
+    mask_messages,
+    parameters_message,
+    sphere_views,
+    write_bag,
+)
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+ENV = dict(os.environ, PYTHONPATH=str(ROOT))
+#: The fixture: a 13-view session of a 5 cm sphere on a 96 x 72 camera.
+base = test_hostile_input.base
+
+
+def reconstruct(argv) -> tuple[int, list[str], dict | None]:
+    """``sfs-reconstruct argv`` in this process: exit status, stderr lines, the report."""
+    err = io.StringIO()
+    stdout, stderr = sys.stdout, sys.stderr
+    sys.stdout, sys.stderr = io.StringIO(), err
+    try:
+        status = reconstruct_main([str(a) for a in argv])
+    finally:
+        sys.stdout, sys.stderr = stdout, stderr
+    out = Path(argv[argv.index("-o") + 1])
+    report = out.with_name(out.stem + ".report.json")
+    return status, err.getvalue().splitlines(), \
+        json.loads(report.read_text()) if status == 0 else None
+
+
+def bag(folder: Path, views, edit=None) -> Path:
+    """A bag of ``views`` (``sphere_views()`` items) with its recorded parameters."""
+    doc = document()
+    if edit is not None:
+        edit(doc)
+    write_bag(folder, [(PARAMETERS_TOPIC, parameters_message(doc)), *mask_messages(views)])
+    return folder
+
+
+def session_of(base: Path, folder: Path, names: list[str]) -> Path:
+    """A copy of the session ``base`` holding only the views ``names`` (repeats allowed)."""
+    shutil.copytree(base, folder)
+    table = (folder / "views.csv").read_text().splitlines()
+    rows = {row.split(",")[0]: row for row in table[1:]}
+    for path in (folder / "images").iterdir():
+        path.unlink()
+    lines = [table[0]]
+    for n, name in enumerate(names):
+        copy = f"copy_{n:02d}_{name}"
+        shutil.copy(base / "images" / name, folder / "images" / copy)
+        lines.append(copy + rows[name][len(name):])
+    (folder / "views.csv").write_text("\n".join(lines) + "\n")
+    return folder
+
+
+# ---- class 8: too little to see a shape -------------------------------------------------
+
+def test_class_8_too_few_viewing_directions_is_an_error(base, tmp_path):
+    names = [v.name for v in read_session(base).views]
+    cases = {"one view": session_of(base, tmp_path / "one", names[:1]),
+             "thirteen copies of one view": session_of(base, tmp_path / "copies", names[:1] * 13),
+             "two views": session_of(base, tmp_path / "two", names[:2]),
+             "a bag whose last scan has two views": bag(tmp_path / "bag", sphere_views()[-2:])}
+    for case, folder in cases.items():
+        status, lines, _ = reconstruct([folder, "-o", tmp_path / "m.ply", *FAST])
+        assert status == 2 and len(lines) == 1, (case, lines)
+        assert "distinct direction" in lines[0] and "at least 3" in lines[0], (case, lines)
+    held = ",".join(str(n) for n in range(1, len(names)))
+    status, lines, _ = reconstruct([base, "-o", tmp_path / "h.ply", "--holdout", held, *FAST])
+    assert status == 2 and "1 distinct direction" in lines[0], lines
+    # Three directions 120 degrees apart bound the hull: a mesh.
+    three = session_of(base, tmp_path / "three", names[0:12:4])
+    status, lines, report = reconstruct([three, "-o", tmp_path / "t.ply", *FAST])
+    assert status == 0 and len(report["views"]["used"]) == 3, lines
+
+
+# ---- class 9: calibration with the wrong board size --------------------------------------
+
+@pytest.fixture(scope="module")
+def board_session(tmp_path_factory) -> Path:
+    """Every other view of the calibration scene (a 7 x 5 board of 30 mm squares)."""
+    from sfs_ros.core.exchange.session import write_session
+    from sfs_ros.core.simulation.calibration_scene import board_scene, nominal_rig
+
+    scene = board_scene()
+    chosen = range(0, len(scene.images), 2)
+    folder = tmp_path_factory.mktemp("board") / "session"
+    write_session(folder, [(f"view_{i:03d}.png", scene.images[i]) for i in chosen],
+                  [scene.angles[i] for i in chosen], nominal_rig())
+    return folder
+
+
+def calibrate(argv) -> tuple[int, list[str]]:
+    """``sfs-calibrate argv`` in this process: exit status and stderr lines."""
+    from sfs_ros.cli.calibrate import main
+
+    err = io.StringIO()
+    stdout, stderr = sys.stdout, sys.stderr
+    sys.stdout, sys.stderr = io.StringIO(), err
+    try:
+        status = main([str(a) for a in argv])
+    finally:
+        sys.stdout, sys.stderr = stdout, stderr
+    return status, err.getvalue().splitlines()
+
+
+def test_class_9_a_board_of_the_wrong_size_is_named_with_both_radii(board_session, tmp_path,
+                                                                    caplog):
+    from sfs_ros.core.simulation.calibration_scene import nominal_rig
+
+    measured = f"{nominal_rig().camera_distance_m:.4f} m"
+    status, lines = calibrate([board_session, "-o", tmp_path / "twice", "--square-m", "0.06",
+                               "--marker-m", "0.044"])
+    assert status == 2 and len(lines) == 1, lines
+    assert "radius" in lines[0] and measured in lines[0] and "square_m 0.06" in lines[0]
+    assert not (tmp_path / "twice" / "rig.yaml").exists()
+    # 20 % off: a warning naming both, the fit kept.
+    with caplog.at_level("WARNING"):
+        status, lines = calibrate([board_session, "-o", tmp_path / "fifth", "--square-m",
+                                   "0.036", "--marker-m", "0.0264"])
+    assert status == 0, lines
+    assert any("radius" in r.message and measured in r.message for r in caplog.records)
+    for value in ("nan", "-1"):
+        status, lines = calibrate([board_session, "-o", tmp_path / "rms",
+                                   "--max-view-rms-px", value])
+        assert status == 2 and "max_view_rms_px" in lines[0], lines
+
+
+# ---- class 11: COLMAP images.txt read by structure ---------------------------------------
+
+def colmap_model(base: Path, folder: Path) -> Path:
+    """The session ``base`` exported as a COLMAP text model (with its images) in ``folder``."""
+    write_colmap(read_session(base), folder)
+    shutil.copytree(base / "images", folder / "images")
+    return folder
+
+
+def test_class_11_colmap_images_are_read_by_structure(base, tmp_path):
+    reference = read_colmap(colmap_model(base, tmp_path / "reference"))
+    count = len(reference.views)
+    edits = {"no points lines": lambda lines: [x for x in lines if not x or x[0] == "#"
+                                               or len(x.split()) >= 10],
+             "a stray blank line": lambda lines: lines[:5] + [""] + lines[5:],
+             "blank lines everywhere": lambda lines: [y for x in lines for y in (x, "")]}
+    for case, edit in edits.items():
+        folder = colmap_model(base, tmp_path / case.replace(" ", "_"))
+        path = folder / "images.txt"
+        path.write_text("\n".join(edit(path.read_text().splitlines())) + "\n")
+        views = read_colmap(folder)
+        assert [v.name for v in views.views] == [v.name for v in reference.views], case
+        assert len(views.views) == count and not views.rejected, case
+
+
+# ---- class 12: implausible lenses ---------------------------------------------------------
+
+@pytest.mark.parametrize("k1", [999.0, -999.0])
+def test_class_12_a_lens_that_does_not_map_the_image_onto_itself_is_refused(base, tmp_path, k1):
+    folder = colmap_model(base, tmp_path / "model")
+    cameras = folder / "cameras.txt"
+    lines = cameras.read_text().splitlines()
+    fields = lines[-1].split()
+    fx, fy, cx, cy = fields[4:8] if fields[1] == "PINHOLE" else (fields[4], fields[4],
+                                                                  *fields[5:7])
+    lines[-1] = " ".join([fields[0], "OPENCV", *fields[2:4], fx, fy, cx, cy, str(k1), "0", "0",
+                          "0"])
+    cameras.write_text("\n".join(lines) + "\n")
+    with pytest.raises(ViewError, match=f"OPENCV camera {fields[0]!r}.*(folds|moves)"):
+        read_colmap(folder)
+    status, lines, _ = reconstruct([folder, "-o", tmp_path / "m.ply", *FAST])
+    assert status == 2 and "camera" in lines[0] and "lens distortion" in lines[0], lines
+
+
+# ---- class 13: reset during a scan ---------------------------------------------------------
+
+def test_class_13_a_reset_during_a_scan_is_refused_and_no_open_marker_is_left(tmp_path):
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.parameter import Parameter
+    from std_srvs.srv import Trigger
+    from test_rig_runtime import _scan_report
+
+    from sfs_ros.cell.live import OPEN_MARKER
+    from sfs_ros.nodes.reconstruction_node import ReconstructionNode
+    from sfs_ros.ros.names import DIAGNOSTICS, SERVICES
+
+    from ros_harness import NAMESPACE, RosProbe
+
+    probe = RosProbe("round_three_probe")
+    node = ReconstructionNode(context=probe.context, namespace=NAMESPACE, parameter_overrides=[
+        Parameter("output_dir", value=str(tmp_path / "out")),
+        Parameter("resolution", value=16), Parameter("hull_rate_hz", value=0.0)])
+    probe.executor.add_node(node)
+    try:
+        reports = probe.node.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
+        reset = probe.node.create_client(Trigger, SERVICES["reset"])
+
+        def call_reset():
+            probe.spin_until(reset.service_is_ready, what="reset service")
+            future = reset.call_async(Trigger.Request())
+            probe.spin_until(future.done, what="reset answer")
+            return future.result()
+
+        def report(state):
+            def reported():
+                reports.publish(_scan_report(state))
+                return node._rig.scan_in((state,)) is not None
+            probe.spin_until(reported, what=f"scan {state}")
+
+        # A scan's first view opens its folder, marked open.
+        rig = node._live.calibration
+        node._submit("view", node._live.add_view, "v0", np.ones((rig.height, rig.width), bool),
+                     0.0, 0.3).result()
+        folder = node._live.session_dir
+        assert (folder / OPEN_MARKER).exists()
+        for state in ("running", "waiting", "paused"):
+            report(state)
+            answer = call_reset()
+            assert not answer.success and f"scan 4 {state}" in answer.message, answer.message
+            assert node._live.session_dir == folder and node._live.n_views == 1
+        report("done")
+        # New per-scan settings: the reset builds a new live reconstruction; the old scan's
+        # folder is no longer marked open.
+        assert node.set_parameters([Parameter("resolution", value=20)])[0].successful
+        assert call_reset().success
+        assert not (folder / OPEN_MARKER).exists()
+        assert not list((tmp_path / "out").glob(f"*/{OPEN_MARKER}"))
+        # Class 18 too: a box is checked when it is set, the old one kept.
+        for box in ([-1e300, -1e300, 0.0, 1e300, 1e300, 1e300],
+                    [0.0, 0.0, 0.0, 1e-300, 1e-300, 1e-300]):
+            result = node.set_parameters([Parameter("bounds_m", value=box)])[0]
+            assert not result.successful and "bounds_m" in result.reason, result.reason
+        assert node.get_parameter("bounds_m").value == [-0.1, -0.1, 0.0, 0.1, 0.1, 0.2]
+    finally:
+        probe.executor.remove_node(node)
+        node.destroy_node()
+        probe.close()
+
+
+# ---- class 14: a parameters file rcl cannot parse ----------------------------------------
+
+@pytest.mark.parametrize("text", ["a: [unclosed\n  b: :\n",
+                                  "/**:\n  ros__parameters:\n    fx: [1, \"a\"]\n"])
+def test_class_14_a_parameters_file_rcl_cannot_parse_is_one_line_and_no_restart(tmp_path, text):
+    path = tmp_path / "params.yaml"
+    path.write_text(text)
+    done = subprocess.run([sys.executable, "-m", "sfs_ros.nodes.motor_node", "--ros-args",
+                           "--params-file", str(path)], capture_output=True, text=True,
+                          env=ENV, cwd=tmp_path, timeout=120)
+    lines = done.stderr.splitlines()
+    assert done.returncode == 2 and len(lines) == 1, done.stderr
+    assert ": configuration error: " in lines[0]
+    assert str(path) in lines[0] and "parse.c" not in lines[0]
+    # The supervisor does not start a node again that refused its configuration.
+    cell = Cell([ScriptSpec("refuser", [sys.executable, "-c", "raise SystemExit(2)"])],
+                log=None).start()
+    log = io.StringIO()
+    status = wait_until_signal(cell, policy=RestartPolicy(first_delay_s=0.01),
+                               stopping=threading.Event(), log=log)
+    assert status == 2 and "restarting it in" not in log.getvalue()
+    assert "node refuser refused its configuration" in log.getvalue()
+
+
+# ---- class 15: CellClient without a cell ---------------------------------------------------
+
+def test_class_15_a_cell_client_closes_cleanly_without_a_cell():
+    code = ("from sfs_ros.ros.cell_client import CellClient\n"
+            f"with CellClient(namespace='/round_three_{os.getpid()}'):\n    pass\n"
+            "print('closed')\n")
+    for _ in range(3):
+        done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                              env=ENV, timeout=120)
+        assert done.returncode == 0 and done.stdout == "closed\n", done.stderr[-2000:]
+        assert "terminate called" not in done.stderr
+
+
+# ---- class 16: a bad message is a rejected view; metadata; a huge board square -----------
+
+def test_class_16_a_corrupt_message_is_a_rejected_view_and_the_rest_is_used(tmp_path):
+    messages = mask_messages(sphere_views())
+    for n, corrupt in enumerate([lambda d: d[:20], lambda d: b"\x00\x01\x00\x00" + d[4:30],
+                                 lambda d: b""]):
+        edited = list(messages)
+        edited[4] = (edited[4][0], corrupt(edited[4][1]))
+        folder = tmp_path / f"bag{n}"
+        write_bag(folder, [(PARAMETERS_TOPIC, parameters_message(document())), *edited])
+        views = read_bag(folder)
+        assert len(views.views) == len(sphere_views()) - 1
+        reasons = dict(views.rejected)
+        assert any(name.startswith("capture/mask at ") and "not a valid" in reason
+                   for name, reason in reasons.items()), reasons
+    folder = tmp_path / "bag0"
+    meta = yaml.safe_load((folder / "metadata.yaml").read_text())
+    meta["rosbag2_bagfile_information"]["files"] = {"a": 1}
+    (folder / "metadata.yaml").write_text(yaml.safe_dump(meta))
+    assert len(read_bag(folder).views) == len(sphere_views()) - 1
+    for square in (1e300, float("inf"), 1e-300):
+        with pytest.raises(ValueError, match="square_m"):
+            BoardSpec(square_m=square, marker_m=min(square / 2, 0.01))
+
+
+# ---- class 17: -r overrides a bag's resolution; one range --------------------------------
+
+def test_class_17_the_command_line_resolution_overrides_the_bags_within_one_range(tmp_path):
+    from sfs_ros.cell.mesh_options import RESOLUTION_RANGE as REQUESTS
+    from sfs_ros.nodes.reconstruction_node import PARAMS
+
+    node_range = next(p.bounds for p in PARAMS if p.name == "resolution")
+    assert tuple(node_range) == RESOLUTION_RANGE == REQUESTS
+    with pytest.raises(ValueError, match=f"{RESOLUTION_RANGE[0]}..{RESOLUTION_RANGE[1]}"):
+        ReconstructionParams(resolution=RESOLUTION_RANGE[1] + 1)
+    high = RESOLUTION_RANGE[1]
+    folder = bag(tmp_path / "bag", sphere_views(),
+                 lambda d: d["reconstruction"].update(resolution=high))
+    status, lines, report = reconstruct([folder, "-o", tmp_path / "m.ply", "-r", "24", "-q"])
+    assert status == 0, lines
+    assert max(report["grid"]["shape"]) <= 26
+
+
+# ---- class 18: boxes checked when set -----------------------------------------------------
+
+@pytest.mark.parametrize("box", [[[-1e300] * 3, [1e300] * 3], [[0.0] * 3, [1e-300] * 3],
+                                 [[1e7, 0, 0], [1e7 + 1, 1, 1]]])
+def test_class_18_a_box_beyond_any_grid_is_refused_when_set(box):
+    with pytest.raises(ViewError, match="expected sides"):
+        as_bounds(box, what="bounds_m")
+
+
+# ---- class 19: unclear answers --------------------------------------------------------------
+
+def test_class_19_options_that_cannot_be_met_are_named(base, tmp_path):
+    cases = {("--block", "100000", "-m", "advancing-front"): "block (M) 100000",
+             ("--preview", tmp_path / "p.jpg"): "--preview",
+             ("--contact-sheet", tmp_path / "s.jpeg"): "--contact-sheet",
+             ("--html", tmp_path / "v.png"): "--html"}
+    for options, words in cases.items():
+        status, lines, _ = reconstruct([base, "-o", tmp_path / "m.ply", *options, *FAST])
+        assert status == 2 and len(lines) == 1 and words in lines[0], (options, lines)
+    assert not (tmp_path / "p.jpg").exists() and not (tmp_path / "m.ply").exists()
+
+
+# ---- the fuzz suite: COLMAP models and bags --------------------------------------------------
+
+def test_round_three_cases_through_the_fuzz_driver(base, tmp_path):
+    c = Cases(tmp_path / "cases", base)
+    names = [v.name for v in read_session(base).views]
+    c.add("8: one view", [session_of(base, c.folder(), names[:1])])
+    c.add("8: copies of one view", [session_of(base, c.folder(), names[:1] * 13)])
+    c.add("8: bag, last scan two views", [bag(c.folder() / "bag", sphere_views()[-2:])])
+    c.add("8: holdout leaving one", [c.session(), "--holdout",
+                                     ",".join(str(n) for n in range(1, len(names)))])
+    for case, edit in {"11: no points lines": lambda ls: [x for x in ls if len(x.split()) >= 10],
+                       "11: stray blank line": lambda ls: ls[:3] + [""] + ls[3:]}.items():
+        folder = colmap_model(base, c.folder())
+        path = folder / "images.txt"
+        path.write_text("\n".join(edit(path.read_text().splitlines())) + "\n")
+        c.add(case, [folder], expect=OK)
+    for k1 in ("999", "-999", "nan"):
+        folder = colmap_model(base, c.folder())
+        cameras = folder / "cameras.txt"
+        fields = cameras.read_text().splitlines()[-1].split()
+        cameras.write_text(" ".join([fields[0], "OPENCV", *fields[2:4], fields[4], fields[4],
+                                     *fields[5:7], k1, "0", "0", "0"]) + "\n")
+        c.add(f"12: OPENCV k1 {k1}", [folder])
+    messages = mask_messages(sphere_views())
+    edited = list(messages)
+    edited[4] = (edited[4][0], edited[4][1][:20])
+    folder = c.folder() / "bag"
+    write_bag(folder, [(PARAMETERS_TOPIC, parameters_message(document())), *edited])
+    c.add("16: a corrupt message", [folder], expect=OK)
+    c.add("17: bag at the highest resolution, -r 24",
+          [bag(c.folder() / "bag", sphere_views(),
+               lambda d: d["reconstruction"].update(resolution=RESOLUTION_RANGE[1]))],
+          expect=OK)
+    for box in (["0", "0", "0", "1e300", "1e300", "1e300"],
+                ["0", "0", "0", "1e-300", "1e-300", "1e-300"]):
+        c.add(f"18: --bounds {box[3]}", [c.session(), "--bounds", *box])
+    c.add("19: --block 100000", [c.session(), "--block", "100000", "-m", "advancing-front"])
+    c.add("19: --preview p.jpg", [c.session(), "--preview", tmp_path / "p.jpg"])
+    spec = tmp_path / "cases.json"
+    inputs = sorted(str(p) for p in (tmp_path / "cases").glob("case*"))
+    spec.write_text(json.dumps({"watched": [], "inputs": inputs, "cases": c.cases}))
+    results = tmp_path / "results.json"
+    done = subprocess.run([sys.executable, str(HERE / "fuzz_driver.py"), str(spec), str(results)],
+                          cwd=ROOT, capture_output=True, text=True, env=ENV, timeout=900)
+    assert done.returncode == 0, done.stderr[-3000:]
+    found = failures(c.cases, json.loads(results.read_text())["results"])
+    assert not found, "\n".join(found)
