@@ -27,8 +27,9 @@ from sfs_ros.core.exchange.limits import MAX_BAG_RECORD_BYTES, MAX_IMAGE_PIXELS,
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 #: Peak memory of a tool refusing a bomb, MiB: its start-up (numba, OpenCV, SciPy, rclpy)
-#: takes about 300 of it; a bomb expanded would take gigabytes.
-MAX_REFUSAL_MIB = 700
+#: takes about 300 of it, up to 750 when numba compiles kernels whose cache is cold; the
+#: bomb expanded takes 3 GiB more.
+MAX_REFUSAL_MIB = 1500
 #: Longest a refusal may take, s (start-up included).
 MAX_REFUSAL_S = 60
 

@@ -105,7 +105,9 @@ def test_a_view_refused_by_a_full_disk_is_stored_and_receipted_once_space_return
     disk = tmp_path / "disk"
     disk.mkdir()
     with small_disk(disk, "2m"):
-        node = start_node(ReconstructionNode, _params(tmp_path, disk / "out"))
+        # No rehearsal: its scan, refused by the small disk, would free its space again
+        # whenever its clean-up runs, maybe after the disk is filled below.
+        node = start_node(ReconstructionNode, _params(tmp_path, disk / "out", rehearse=False))
         node.send(0)
         node.probe.spin_until(lambda: node.receipted() == [0], what="view 0's receipt",
                               process=node.process)
