@@ -99,18 +99,17 @@ def test_the_motor_opens_its_port_on_configure_and_publishes_only_when_active(si
     motor.probe.node.create_subscription(JointState, "joint_states", joints.append, 10)
     home = motor.probe.node.create_client(Trigger, SERVICES["home"])
     assert motor.state() == "unconfigured" and not _opened(pid, simulator.port)
-    refused = motor.answer(home, Trigger.Request())
-    assert not refused.success and "unconfigured" in refused.message
 
     assert motor.transition(Transition.TRANSITION_CONFIGURE)
     assert motor.state() == "inactive" and _opened(pid, simulator.port)
     motor.probe.spin_for(QUIET_S)
-    assert joints == []                                  # inactive: no readings
+    assert joints == [] and not home.service_is_ready()  # inactive: no readings, no commands
 
     assert motor.transition(Transition.TRANSITION_ACTIVATE)
     assert motor.state() == "active"
     motor.probe.spin_until(lambda: len(joints) >= 3, what="joint_states",
                            process=motor.process)
+    motor.probe.spin_until(home.service_is_ready, what="home", process=motor.process)
     assert motor.answer(home, Trigger.Request()).success
 
     assert motor.transition(Transition.TRANSITION_DEACTIVATE)
@@ -118,6 +117,8 @@ def test_the_motor_opens_its_port_on_configure_and_publishes_only_when_active(si
     assert motor.state() == "inactive" and _opened(pid, simulator.port)
     motor.probe.spin_for(QUIET_S)
     assert not [j for j in joints if _stamp_s(j) > deactivated_s]
+    motor.probe.spin_until(lambda: not home.service_is_ready(), what="home withdrawn",
+                           process=motor.process)
 
     assert motor.transition(Transition.TRANSITION_CLEANUP)
     assert motor.state() == "unconfigured"
@@ -134,24 +135,24 @@ def test_the_camera_opens_on_configure_and_captures_only_when_active(tmp_path, s
         autostart=False))
     capture = camera.probe.node.create_client(Trigger, SERVICES["capture"])
     assert camera.state() == "unconfigured"
-    answer = camera.answer(capture, Trigger.Request())
-    assert not answer.success and "unconfigured" in answer.message
-
     assert camera.transition(Transition.TRANSITION_CONFIGURE)
     assert camera.state() == "inactive"
-    assert not camera.answer(capture, Trigger.Request()).success
+    camera.probe.spin_for(QUIET_S)
+    assert not capture.service_is_ready()                # served only when active
     assert camera.transition(Transition.TRANSITION_ACTIVATE)
+    camera.probe.spin_until(capture.service_is_ready, what="capture", process=camera.process)
     answer = camera.answer(capture, Trigger.Request())
     assert answer.success, answer.message
 
     assert camera.transition(Transition.TRANSITION_DEACTIVATE)
-    answer = camera.answer(capture, Trigger.Request())
-    assert not answer.success and "inactive" in answer.message
+    camera.probe.spin_until(lambda: not capture.service_is_ready(), what="capture withdrawn",
+                            process=camera.process)
     assert camera.transition(Transition.TRANSITION_CLEANUP)
     assert camera.state() == "unconfigured"
     # Configured again, the folder is opened again and serves from its first frame.
     assert camera.transition(Transition.TRANSITION_CONFIGURE)
     assert camera.transition(Transition.TRANSITION_ACTIVATE)
+    camera.probe.spin_until(capture.service_is_ready, what="capture", process=camera.process)
     assert camera.answer(capture, Trigger.Request()).success
     assert camera.transition(Transition.TRANSITION_ACTIVE_SHUTDOWN)
     assert camera.state() == "finalized"

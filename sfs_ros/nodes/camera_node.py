@@ -14,8 +14,9 @@ best-effort viewers still match a reliable publisher.
 A managed (lifecycle) node (:mod:`sfs_ros.ros.lifecycle`): ``configure`` opens
 the camera (it fails, the node staying unconfigured, when it cannot be opened),
 ``activate`` serves ``capture`` and starts the ``rate_hz`` stream,
-``deactivate`` stops them (``capture`` then answers ``success=False`` saying
-so), ``cleanup`` closes the camera, ``shutdown`` does both from any state. With
+``deactivate`` stops them (a caller of ``capture`` waits for the service as for
+a node not started yet), ``cleanup`` closes the camera, ``shutdown`` does all
+from any state. With
 ``autostart`` (the default) the node brings itself up at start-up, and a camera
 that cannot be opened then stops it with one line (exit status 2).
 
@@ -148,6 +149,7 @@ class CameraNode(LifecycleNode):
         self._source: CameraSource | None = source
         self._lifecycle = "unconfigured"
         self._stream = None                # the rate_hz timer, while active
+        self._capture = None               # the capture service, while active
         self._size = (calibration.width, calibration.height)
         self._camera = rig_camera(0.0, 0.0, calibration)   # only its intrinsics are published
 
@@ -161,8 +163,6 @@ class CameraNode(LifecycleNode):
         self._info_pub = self.create_publisher(CameraInfo, "camera_info", qos)
         self._diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
         self._grabs = MutuallyExclusiveCallbackGroup()
-        self.create_service(Trigger, private("capture"), self._on_capture,
-                            callback_group=self._grabs)
         self.create_timer(1.0, self._publish_diagnostics)
         self._opening_error: ParameterError | None = None
         if values["autostart"] and not bring_up(self):
@@ -188,6 +188,8 @@ class CameraNode(LifecycleNode):
         return self._now("inactive")
 
     def on_activate(self, _state):
+        self._capture = self.create_service(Trigger, private("capture"), self._on_capture,
+                                            callback_group=self._grabs)
         rate_hz = self._values["rate_hz"]
         if rate_hz > 0:
             self._stream = self.create_timer(1.0 / rate_hz, self._take,
@@ -215,9 +217,13 @@ class CameraNode(LifecycleNode):
         return SUCCESS
 
     def _stop_stream(self) -> None:
+        """Take the stream and the ``capture`` service away."""
         if self._stream is not None:
             self.destroy_timer(self._stream)
             self._stream = None
+        if self._capture is not None:
+            self.destroy_service(self._capture)
+            self._capture = None
 
     def _close_own(self) -> None:
         """Close the source the node opened (an injected one stays open for the next
@@ -254,9 +260,6 @@ class CameraNode(LifecycleNode):
 
     def _take(self) -> tuple[bool, str]:
         """Grab, check and publish one frame; (success, JSON summary or the reason)."""
-        if self._lifecycle != "active":
-            return False, (f"the camera node is {self._lifecycle}: activate it (lifecycle "
-                           "change_state)")
         stamp = self.get_clock().now().to_msg()
         width, height = self._size
         try:

@@ -12,10 +12,11 @@ Behaviour
 ---------
 * A managed (lifecycle) node (:mod:`sfs_ros.ros.lifecycle`): ``configure`` opens
   the port (it fails, the node staying unconfigured, when the port cannot be
-  opened), ``activate`` starts the polling and takes commands, ``deactivate``
-  stops the axes and the polling, ``cleanup`` closes the port, ``shutdown``
-  does both from any state. ``home``, ``stop`` and ``joint_command`` are
-  refused while the node is not active. With ``autostart`` the node brings
+  opened), ``activate`` starts the polling and serves ``home``, ``stop`` and
+  ``joint_command``, ``deactivate`` stops the axes, the polling and those
+  interfaces, ``cleanup`` closes the port, ``shutdown`` does all from any state.
+  While the node is not active its command interfaces are not there: a caller
+  waits for them as for a node not started yet. With ``autostart`` the node brings
   itself up at start-up, trying the port again every ``reconnect_period_s``
   (INFO) until it opens.
 * ``joint_states`` is published at ``status_rate_hz`` from a timer that polls
@@ -66,6 +67,7 @@ from functools import partial
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.lifecycle import LifecycleNode
+from rclpy.service import Service
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
@@ -158,13 +160,10 @@ class MotorNode(LifecycleNode):
 
         self._joints_pub = self.create_publisher(JointState, "joint_states", 10)
         self._diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
-        reentrant = ReentrantCallbackGroup()
+        self._reentrant = ReentrantCallbackGroup()
         self._polling = MutuallyExclusiveCallbackGroup()
-        self.create_subscription(JointState, "joint_command", self._on_command, 10,
-                                 callback_group=reentrant)
-        self.create_service(Trigger, private("home"), self._on_home, callback_group=reentrant)
-        self.create_service(Trigger, private("stop"), self._on_stop, callback_group=reentrant)
-        self.create_timer(1.0, self._publish_diagnostics, callback_group=reentrant)
+        self._commands = []                # joint_command, home, stop: while active
+        self.create_timer(1.0, self._publish_diagnostics, callback_group=self._reentrant)
         self.get_logger().info(f"motor controller on {self._p['port']}, joint_states at "
                                f"{self._p['status_rate_hz']} Hz when active")
         self._autostart = None
@@ -191,6 +190,12 @@ class MotorNode(LifecycleNode):
         self._answered_at = time.monotonic()
         self._timers.append(self.create_timer(1.0 / self._p["status_rate_hz"], self._poll,
                                               callback_group=self._polling))
+        group = self._reentrant
+        self._commands = [
+            self.create_subscription(JointState, "joint_command", self._on_command, 10,
+                                     callback_group=group),
+            self.create_service(Trigger, private("home"), self._on_home, callback_group=group),
+            self.create_service(Trigger, private("stop"), self._on_stop, callback_group=group)]
         state = self._now(_ACTIVE)
         if self._home_on_start:            # the first activation only
             self._home_on_start = False
@@ -198,6 +203,7 @@ class MotorNode(LifecycleNode):
         return state
 
     def on_deactivate(self, _state):
+        self._withdraw()
         self._halt()
         self._destroy_timers(keep=1)       # the reconnect timer stays
         return self._now("inactive")
@@ -208,6 +214,7 @@ class MotorNode(LifecycleNode):
         return self._now("unconfigured")
 
     def on_shutdown(self, _state):
+        self._withdraw()
         self._destroy_timers()
         self._release()
         return self._now("finalized")
@@ -218,6 +225,15 @@ class MotorNode(LifecycleNode):
         self.get_logger().info(f"motor node {state}")
         self._publish_diagnostics()
         return SUCCESS
+
+    def _withdraw(self) -> None:
+        """Take the command interfaces away (``joint_command``, ``home``, ``stop``)."""
+        for entity in self._commands:
+            if isinstance(entity, Service):
+                self.destroy_service(entity)
+            else:
+                self.destroy_subscription(entity)
+        self._commands = []
 
     def _destroy_timers(self, keep: int = 0) -> None:
         while len(self._timers) > keep:
@@ -345,17 +361,7 @@ class MotorNode(LifecycleNode):
 
     # -- commands --------------------------------------------------------------------------
 
-    def _inactive(self) -> str:
-        """Why commands are refused now ("" when the node is active)."""
-        if self._lifecycle == _ACTIVE:
-            return ""
-        return f"the motor node is {self._lifecycle}: activate it (lifecycle change_state)"
-
     def _on_command(self, msg: JointState) -> None:
-        if self._inactive():
-            self._refused += 1
-            self.get_logger().warning(f"joint_command refused: {self._inactive()}")
-            return
         try:
             target = angles_from_joint_state(msg)
         except ValueError as exc:
@@ -365,9 +371,6 @@ class MotorNode(LifecycleNode):
         self._submit("move", partial(self._move, *target))
 
     def _on_home(self, _request, response):
-        if self._inactive():
-            response.success, response.message = False, self._inactive()
-            return response
         try:
             error = self._join_homing().result()
         except JobCancelled as exc:       # superseded, stopped, shutting down
@@ -379,9 +382,6 @@ class MotorNode(LifecycleNode):
         return response
 
     def _on_stop(self, _request, response):
-        if self._inactive():
-            response.success, response.message = False, self._inactive()
-            return response
         hold = self._worker.hold()
         self._worker.cancel_pending("cancelled by stop")
         client = self._client
@@ -512,7 +512,8 @@ class MotorNode(LifecycleNode):
         someone (a node not active, the alarm lock of power-up, a late report), else OK."""
         if self._lifecycle != _ACTIVE:
             closed = "" if client is not None else " (port closed)"
-            return DiagnosticStatus.WARN, self._inactive() + closed
+            return DiagnosticStatus.WARN, (f"the motor node is {self._lifecycle}: activate it "
+                                           f"(lifecycle change_state){closed}")
         problem = (self._connection_error or "not connected") if client is None else (
             self._fault or (self._alarm if self._alarm != LOCKED else ""))
         return health(problem, self._alarm or self._late, f"state {self._state}")
