@@ -59,6 +59,7 @@ setup(
             "sfs-reconstruction = sfs_ros.nodes.reconstruction_node:main",
             "sfs-state-publisher = sfs_ros.nodes.tf_node:main",
             "sfs-calibration = sfs_ros.nodes.calibration_node:main",
+            "sfs-lifecycle-manager = sfs_ros.nodes.lifecycle_manager_node:main",
         ],
     },
 )

@@ -8,7 +8,10 @@ The same nodes, params files and overrides as ``sfs-cell -o OUTPUT_DIR``
 (``sfs_ros.cli.bringup.cell_nodes(..., mock=False)``); the state publisher
 (``sfs-state-publisher``) publishes the cell's TF.
 With ``camera_topic`` another driver's frames are the views: our camera node
-is not started and the scan node streams from that topic.
+is not started and the scan node streams from that topic. The motor and camera
+are managed (lifecycle) nodes started unconfigured (``autostart`` false); the
+lifecycle manager (``sfs-lifecycle-manager``) configures and activates them in
+order, the motor first, and again when one is respawned.
 """
 
 import os
@@ -65,11 +68,17 @@ def generate_launch_description():
              output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S, condition=own_camera,
              parameters=[os.path.join(config, 'rig.yaml'), os.path.join(config, 'frames.yaml'),
                          os.path.join(config, 'camera.yaml'), params_file,
-                         {'device': LaunchConfiguration('camera_device')}]),
+                         {'device': LaunchConfiguration('camera_device'), 'autostart': False}]),
         Node(package='sfs_ros', executable='sfs-motor', name='motor', namespace=namespace,
              output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
              parameters=[os.path.join(config, 'motor.yaml'), params_file,
-                         {'port': LaunchConfiguration('port')}]),
+                         {'port': LaunchConfiguration('port'), 'autostart': False}]),
+        Node(package='sfs_ros', executable='sfs-lifecycle-manager', name='lifecycle_manager',
+             namespace=namespace, output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
+             condition=own_camera, parameters=[params_file, {'nodes': ['motor', 'camera']}]),
+        Node(package='sfs_ros', executable='sfs-lifecycle-manager', name='lifecycle_manager',
+             namespace=namespace, output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
+             condition=other_camera, parameters=[params_file, {'nodes': ['motor']}]),
         # The cell's TF (/tf, /tf_static) and URDF (robot_description) from the motor node's
         # joint_states, the rig and the frames (config/frames.yaml).
         Node(package='sfs_ros', executable='sfs-state-publisher', name='state_publisher',

@@ -6,7 +6,11 @@
 The same nodes, params files and overrides as ``sfs-cell --mock -o OUTPUT_DIR``
 (``sfs_ros.cli.bringup.cell_nodes(..., mock=True)``): the motor node opens
 the simulated controller through the link ``OUTPUT_DIR/ttyMOCK``; the state
-publisher (``sfs-state-publisher``) publishes the cell's TF.
+publisher (``sfs-state-publisher``) publishes the cell's TF. The motor and
+the mock's camera are managed (lifecycle) nodes started unconfigured
+(``autostart`` false); the lifecycle manager (``sfs-lifecycle-manager``)
+configures and activates them in order, the camera (whose process has made the
+controller's port by then) first, and again when one is respawned.
 """
 
 import os
@@ -58,10 +62,14 @@ def generate_launch_description():
              parameters=[os.path.join(config, 'rig.yaml'), os.path.join(config, 'frames.yaml'),
                          os.path.join(config, 'camera.yaml'),
                          os.path.join(config, 'mock_hardware.yaml'), params_file,
-                         {'port_link': port}]),
+                         {'port_link': port, 'autostart': False}]),
         Node(package='sfs_ros', executable='sfs-motor', name='motor', namespace=namespace,
              output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
-             parameters=[os.path.join(config, 'motor.yaml'), params_file, {'port': port}]),
+             parameters=[os.path.join(config, 'motor.yaml'), params_file,
+                         {'port': port, 'autostart': False}]),
+        Node(package='sfs_ros', executable='sfs-lifecycle-manager', name='lifecycle_manager',
+             namespace=namespace, output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
+             parameters=[params_file, {'nodes': ['camera', 'motor']}]),
         # The cell's TF (/tf, /tf_static) and URDF (robot_description) from the motor node's
         # joint_states, the rig and the frames (config/frames.yaml).
         Node(package='sfs_ros', executable='sfs-state-publisher', name='state_publisher',

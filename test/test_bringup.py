@@ -41,6 +41,8 @@ MOCK = [("mock_hardware", "mock_hardware_node",
         ("motor", "motor_node", ["motor.yaml"])]
 REAL = [("camera", "camera_node", ["rig.yaml", "frames.yaml", "camera.yaml"]),
         ("motor", "motor_node", ["motor.yaml"])]
+#: After the hardware: the node that brings the managed ones (motor, camera) up in order.
+MANAGER = [("lifecycle_manager", "lifecycle_manager_node", [])]
 REST = [("state_publisher", "tf_node", ["rig.yaml", "frames.yaml"]),
         ("segmentation", "segmentation_node", ["segmentation.yaml"]),
         ("reconstruction", "reconstruction_node", ["rig.yaml", "frames.yaml", "reconstruction.yaml"]),
@@ -67,12 +69,16 @@ def test_cell_nodes_in_start_order_with_their_files_and_overrides(mock, tmp_path
     # Each node's own files, then the site's (by default overrides.yaml, which sets nothing).
     assert [(s.name, s.module, [Path(p).name for p in s.params_files]) for s in specs] == \
         [(name, module, files + ["overrides.yaml"]) for name, module, files in
-         (MOCK if mock else REAL) + REST]
+         (MOCK if mock else REAL) + MANAGER + REST]
     assert all(Path(p).parent == config for s in specs for p in s.params_files)
 
     output = tmp_path.resolve() / "out"                    # made absolute
-    hardware = [{"port_link": str(output / "ttyMOCK")}, {"port": str(output / "ttyMOCK")}]
-    assert [s.overrides for s in specs] == (hardware if mock else [{}, {}]) + [
+    # The managed nodes wait unconfigured; the manager brings them up, in its order.
+    managed = {"autostart": "false"}
+    hardware = [{"port_link": str(output / "ttyMOCK"), **managed},
+                {"port": str(output / "ttyMOCK"), **managed}, {"nodes": "[camera,motor]"}]
+    assert [s.overrides for s in specs] == (
+        hardware if mock else [managed, managed, {"nodes": "[motor,camera]"}]) + [
         {}, {}, {"output_dir": str(output)}, {"output_dir": str(output)},
         {"output_dir": str(output), "plan_file": str(config / "calibration_plan.yaml")},
         {"plan_file": str(config / "scan_plan.yaml"),
@@ -118,14 +124,20 @@ def test_real_cell_options_port_camera_device_camera_topic_and_site_params(tmp_p
                                            params_file=site, port="/dev/ttyUSB3",
                                            camera_device="/dev/video2")}
     assert all(s.params_files[-1] == str(site) for s in specs.values())
-    assert specs["motor"].overrides == {"port": "/dev/ttyUSB3"}
-    assert specs["camera"].overrides == {"device": "/dev/video2"}
+    assert specs["motor"].overrides == {"port": "/dev/ttyUSB3", "autostart": "false"}
+    assert specs["camera"].overrides == {"device": "/dev/video2", "autostart": "false"}
     assert specs["scan"].remaps == {}
 
     # Another driver's camera: no camera node; the scan node streams from its topic.
     other = cell_nodes(config, tmp_path / "out", mock=False, camera_topic="/usb_cam/image_raw")
-    assert [s.name for s in other] == ["motor", "state_publisher", "segmentation",
-                                       "reconstruction", "recorder", "calibration", "scan"]
+    assert [s.name for s in other] == ["motor", "lifecycle_manager", "state_publisher",
+                                       "segmentation", "reconstruction", "recorder",
+                                       "calibration", "scan"]
+    assert other[1].overrides == {"nodes": "[motor]"}
+    # An integrator's own launch drives the transitions: no manager.
+    manual = cell_nodes(config, tmp_path / "out", mock=False, manual_lifecycle=True)
+    assert "lifecycle_manager" not in [s.name for s in manual]
+    assert all(s.overrides["autostart"] == "false" for s in manual[:2])
     scan = other[-1]
     assert scan.overrides["camera_trigger"] == "stream"
     assert scan.command("/sfs")[5:9] == ["-r", "__ns:=/sfs", "-r",
@@ -233,7 +245,7 @@ def _processes_in(namespace: str) -> dict[int, list[str]]:
 class MockCell:
     """``sfs-cell --mock`` in a namespace of its own, its output in a file."""
 
-    NODES = [name for name, _, _ in MOCK + REST]
+    NODES = [name for name, _, _ in MOCK + MANAGER + REST]
 
     def __init__(self, tmp_path: Path, name: str):
         self.namespace = f"{NAMESPACE}_{name}"

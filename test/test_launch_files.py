@@ -168,7 +168,7 @@ def test_launch_file_starts_the_nodes_of_cell_nodes(filename, mock, case, namesp
     started = [(n["executable"], n["parameters"], dict(n.get("remappings", [])))
                for n in launch.nodes()]
     assert started == [(script[f"sfs_ros.nodes.{spec.module}:main"],
-                        spec.params_files + ([spec.overrides] if spec.overrides else []),
+                        spec.params_files + ([_typed(spec.overrides)] if spec.overrides else []),
                         spec.remaps) for spec in specs]
 
     for spec, node in zip(specs, launch.nodes()):
@@ -189,6 +189,13 @@ def test_launch_file_starts_the_nodes_of_cell_nodes(filename, mock, case, namesp
     if "camera_topic" in given:     # no camera node of ours; the scan streams the driver's
         assert "camera" not in [n.get("name") for n in launch.nodes()]
         assert specs[-1].overrides["camera_trigger"] == "stream"
+
+
+def _typed(overrides: dict[str, str]) -> dict:
+    """``-p`` overrides as a launch file's parameters give them: the lifecycle's
+    ``autostart`` a bool, the manager's ``nodes`` a list (the others strings in both)."""
+    return {name: yaml.safe_load(value) if name in ("autostart", "nodes") else value
+            for name, value in overrides.items()}
 
 
 #: Launch arguments each file declares; only output_dir is required.

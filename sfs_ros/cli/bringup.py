@@ -19,6 +19,15 @@ motor node's ``port`` from ``motor.yaml``, or, with ``camera_topic``, the
 frames of any camera driver the user runs (the camera node is then not
 started; the scan node takes the streamed frames, ``camera_trigger`` stream).
 
+The motor and camera nodes are managed (lifecycle) nodes started with ``autostart``
+false; the lifecycle manager (:mod:`sfs_ros.nodes.lifecycle_manager_node`), started
+right after them, configures and activates them in order through their
+``change_state`` services (the mock's camera first, whose process has made the
+controller's port by then, then the motor; for the real hardware the motor, then the
+camera), and again whenever one is started again. With ``manual_lifecycle`` no manager
+is started: the nodes stay unconfigured until an integrator's own launch or program
+drives their transitions.
+
 Every node gets ``params_file`` last among its files (default
 ``overrides.yaml`` of the config folder, which sets nothing): a site's own
 values, without editing the installed files. A node that holds the rig
@@ -127,7 +136,8 @@ OVERRIDES_FILE = "overrides.yaml"
 
 def cell_nodes(config_dir, output_dir, *, mock: bool, record: bool = False,
                params_file=None, port: str | None = None, camera_device: str | None = None,
-               camera_topic: str | None = None) -> list[NodeSpec]:
+               camera_topic: str | None = None,
+               manual_lifecycle: bool = False) -> list[NodeSpec]:
     """The cell's node processes in start order (hardware first, the scan node last).
 
     The recorder is always there (idle until ``recorder/start``); ``record``
@@ -137,7 +147,8 @@ def cell_nodes(config_dir, output_dir, *, mock: bool, record: bool = False,
     ``port``, the motor controller's serial port (default: motor.yaml's);
     ``camera_device``, the camera node's ``device`` (default: camera.yaml's);
     ``camera_topic``, the image topic of another camera driver: no camera
-    node, the scan node takes that topic's streamed frames.
+    node, the scan node takes that topic's streamed frames. ``manual_lifecycle``: no lifecycle
+    manager; the managed nodes wait unconfigured for their transitions.
     """
     config = Path(config_dir)
     output = Path(output_dir).resolve()
@@ -166,17 +177,23 @@ def cell_nodes(config_dir, output_dir, *, mock: bool, record: bool = False,
                         str(output / APPLIED_RIG) if "rig.yaml" in names else "")
 
     link = output / "ttyMOCK"
+    managed = {"autostart": "false"}
     if mock:
         hardware = [spec("mock_hardware", "mock_hardware_node",
                          ["rig.yaml", "frames.yaml", "camera.yaml", "mock_hardware.yaml"],
-                         {"port_link": str(link)}),
-                    spec("motor", "motor_node", ["motor.yaml"], {"port": str(link)})]
+                         {"port_link": str(link), **managed}),
+                    spec("motor", "motor_node", ["motor.yaml"], {"port": str(link), **managed})]
+        order = ["camera", "motor"]
     else:
         camera = [] if camera_topic else [
             spec("camera", "camera_node", ["rig.yaml", "frames.yaml", "camera.yaml"],
-                 {"device": camera_device} if camera_device else {})]
+                 {"device": camera_device, **managed} if camera_device else managed)]
         hardware = camera + [spec("motor", "motor_node", ["motor.yaml"],
-                                  {"port": port} if port else {})]
+                                  {"port": port, **managed} if port else managed)]
+        order = ["motor"] + ([] if camera_topic else ["camera"])
+    if not manual_lifecycle:
+        hardware.append(spec("lifecycle_manager", "lifecycle_manager_node", [],
+                             {"nodes": f"[{','.join(order)}]"}))
     stream = ({"camera_trigger": "stream"}, {"image_raw": camera_topic}) if camera_topic \
         else ({}, {})
     return hardware + [

@@ -12,7 +12,11 @@ files and meshes go to ``--output-dir``. The nodes run in the namespace
 cell, the rest running on another host in the same ROS domain and namespace
 (doc/cell.md, "The reconstruction on another machine"). Then,
 from another terminal or a program: ``scan/start``, and ``reconstruct``
-once the scan is done (see the README). Ctrl-C (SIGINT) or SIGTERM stops
+once the scan is done (see the README). The motor and camera are managed
+(lifecycle) nodes, brought to active in order by the lifecycle manager;
+``--manual-lifecycle`` leaves them unconfigured for an integrator's own
+launch to configure and activate (their ``change_state`` services,
+doc/cell.md). Ctrl-C (SIGINT) or SIGTERM stops
 the nodes, the last started first. A node that ends by itself is started
 again after a back-off (0.5 s, doubling up to 30 s); one that ends five times
 within two minutes stops the cell with exit status 1.
@@ -60,6 +64,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--record", action="store_true",
                    help="record every scan as a rosbag2 in OUTPUT_DIR/bags (the recorder "
                         "also takes recorder/start and recorder/stop at any time)")
+    p.add_argument("--manual-lifecycle", action="store_true",
+                   help="start no lifecycle manager: the motor and camera nodes stay "
+                        "unconfigured until told through their lifecycle services "
+                        "(NODE/change_state)")
     part = p.add_mutually_exclusive_group()
     part.add_argument("--only", type=_names, default=[], metavar="NODE,...",
                       help="start only these nodes (the rest run on another host), e.g. "
@@ -101,7 +109,8 @@ def main(argv=None) -> int:
         args.output_dir.mkdir(parents=True, exist_ok=True)
         specs = cell_nodes(config, args.output_dir, mock=args.mock, record=args.record,
                            params_file=args.params_file, port=args.port,
-                           camera_device=args.camera_device, camera_topic=args.camera_topic)
+                           camera_device=args.camera_device, camera_topic=args.camera_topic,
+                           manual_lifecycle=args.manual_lifecycle)
         chosen = select_nodes(specs, only=args.only, without=args.without)
     except (ValueError, OSError) as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)

@@ -11,6 +11,15 @@
 (:func:`sfs_ros.ros.capture_qos`): a triggered frame must not be dropped, and
 best-effort viewers still match a reliable publisher.
 
+A managed (lifecycle) node (:mod:`sfs_ros.ros.lifecycle`): ``configure`` opens
+the camera (it fails, the node staying unconfigured, when it cannot be opened),
+``activate`` serves ``capture`` and starts the ``rate_hz`` stream,
+``deactivate`` stops them (a caller of ``capture`` waits for the service as for
+a node not started yet), ``cleanup`` closes the camera, ``shutdown`` does all
+from any state. With
+``autostart`` (the default) the node brings itself up at start-up, and a camera
+that cannot be opened then stops it with one line (exit status 2).
+
 ``capture`` reads the node clock, grabs a frame (:mod:`sfs_ros.hardware.cameras`)
 and publishes it on ``image_raw`` with that stamp and the camera frame, together
 with its ``camera_info`` under the same header, then answers ``success`` and
@@ -45,7 +54,7 @@ import threading
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
-from rclpy.node import Node
+from rclpy.lifecycle import LifecycleNode
 from sensor_msgs.msg import CameraInfo, Image
 from std_srvs.srv import Trigger
 
@@ -55,6 +64,7 @@ from sfs_ros.nodes.entry import run_node
 from sfs_ros.ros import capture_qos
 from sfs_ros.ros.convert import camera_info, diagnostic_array, image_to_msg
 from sfs_ros.ros.frames import FRAME_PARAMS, frame_names
+from sfs_ros.ros.lifecycle import AUTOSTART, FAILURE, SUCCESS, bring_up
 from sfs_ros.ros.names import DIAGNOSTICS, private, status_name
 from sfs_ros.ros.pairing import stamp_key
 from sfs_ros.ros.params import Param, ParameterError, declare
@@ -80,19 +90,23 @@ PARAMS: list[Param] = [
           read_only=True),
     Param("rate_hz", 0.0, "Frames per second streamed without capture calls.",
           bounds=(0.0, 120.0), read_only=True, constraints="0 = frames on capture only"),
+    AUTOSTART,
 ]
+
+
+def _check_source(values: dict) -> None:
+    """:class:`ParameterError` for parameters that name no source the node can open."""
+    if values["backend"] == "mock":
+        raise ParameterError("backend", "'mock' is served by sfs-mock-hardware (it renders at "
+                             "the simulated controller's angles); expected opencv or folder")
+    if values["backend"] == "folder" and not values["folder"].strip():
+        raise ParameterError("folder", "is required for backend 'folder': the folder of "
+                             "images to serve")
 
 
 def _open_source(values: dict) -> CameraSource:
     """The source the parameters name; :class:`ParameterError` if it cannot be opened."""
-    backend = values["backend"]
-    if backend == "mock":
-        raise ParameterError("backend", "'mock' is served by sfs-mock-hardware (it renders at "
-                             "the simulated controller's angles); expected opencv or folder")
-    if backend == "folder":
-        if not values["folder"].strip():
-            raise ParameterError("folder", "is required for backend 'folder': the folder of "
-                                 "images to serve")
+    if values["backend"] == "folder":
         try:
             return FolderSource(values["folder"], loop=values["loop"])
         except ValueError as exc:
@@ -104,7 +118,7 @@ def _open_source(values: dict) -> CameraSource:
         raise ParameterError("device", str(exc)) from None
 
 
-class CameraNode(Node):
+class CameraNode(LifecycleNode):
     """Publishes frames of a :class:`CameraSource` on ``capture`` calls and at ``rate_hz``.
 
     source : CameraSource, optional
@@ -112,7 +126,8 @@ class CameraNode(Node):
         (the mock hardware injects its rendered camera); the node closes it in
         :meth:`destroy_node`, or at once if the parameters are refused.
 
-    Raises :class:`ParameterError` at construction for invalid parameters.
+    Raises :class:`ParameterError` at construction for invalid parameters, and with
+    ``autostart`` for a camera that cannot be opened.
     """
 
     def __init__(self, source: CameraSource | None = None, **kwargs):
@@ -122,12 +137,19 @@ class CameraNode(Node):
             self._rig = RigParameters(self, on_change=self._new_rig)
             calibration = self._rig.calibration
             self._frame_id = frame_names(values).camera_frame
-            self._source = source if source is not None else _open_source(values)
+            if source is None:
+                _check_source(values)
         except ParameterError:
             if source is not None:
                 source.close()
             super().destroy_node()         # no source of ours to release
             raise
+        self._values = values
+        self._injected = source
+        self._source: CameraSource | None = source
+        self._lifecycle = "unconfigured"
+        self._stream = None                # the rate_hz timer, while active
+        self._capture = None               # the capture service, while active
         self._size = (calibration.width, calibration.height)
         self._camera = rig_camera(0.0, 0.0, calibration)   # only its intrinsics are published
 
@@ -140,15 +162,78 @@ class CameraNode(Node):
         self._image_pub = self.create_publisher(Image, "image_raw", qos)
         self._info_pub = self.create_publisher(CameraInfo, "camera_info", qos)
         self._diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
-        grabs = MutuallyExclusiveCallbackGroup()
-        self.create_service(Trigger, private("capture"), self._on_capture, callback_group=grabs)
-        if values["rate_hz"] > 0:
-            self.create_timer(1.0 / values["rate_hz"], self._take, callback_group=grabs)
+        self._grabs = MutuallyExclusiveCallbackGroup()
         self.create_timer(1.0, self._publish_diagnostics)
+        self._opening_error: ParameterError | None = None
+        if values["autostart"] and not bring_up(self):
+            self.destroy_node()
+            raise self._opening_error or ParameterError("autostart", "the camera node did not "
+                                                        "become active")
         rate = f"streaming at {values['rate_hz']} Hz" if values["rate_hz"] > 0 \
             else "frames on capture"
-        self.get_logger().info(f"{self._source.name}, {self._size[0]}x{self._size[1]} rgb8, "
-                               f"{rate}")
+        self.get_logger().info(f"{self._name()}, {self._size[0]}x{self._size[1]} rgb8, "
+                               f"{rate} when active")
+
+    # -- lifecycle -----------------------------------------------------------------------------
+
+    def on_configure(self, _state):
+        if self._source is None:
+            try:
+                self._source = _open_source(self._values)
+            except ParameterError as exc:
+                self._opening_error = exc
+                if not self._values["autostart"]:      # autostart: the start-up says why
+                    self.get_logger().warning(f"configure failed: {exc}")
+                return FAILURE
+        return self._now("inactive")
+
+    def on_activate(self, _state):
+        self._capture = self.create_service(Trigger, private("capture"), self._on_capture,
+                                            callback_group=self._grabs)
+        rate_hz = self._values["rate_hz"]
+        if rate_hz > 0:
+            self._stream = self.create_timer(1.0 / rate_hz, self._take,
+                                             callback_group=self._grabs)
+        return self._now("active")
+
+    def on_deactivate(self, _state):
+        self._stop_stream()
+        return self._now("inactive")
+
+    def on_cleanup(self, _state):
+        self._close_own()
+        return self._now("unconfigured")
+
+    def on_shutdown(self, _state):
+        self._stop_stream()
+        self._close_own()
+        return self._now("finalized")
+
+    def _now(self, state: str):
+        """Enter lifecycle ``state`` (logged, in the diagnostics); SUCCESS."""
+        self._lifecycle = state
+        self.get_logger().info(f"camera node {state}")
+        self._publish_diagnostics()
+        return SUCCESS
+
+    def _stop_stream(self) -> None:
+        """Take the stream and the ``capture`` service away."""
+        if self._stream is not None:
+            self.destroy_timer(self._stream)
+            self._stream = None
+        if self._capture is not None:
+            self.destroy_service(self._capture)
+            self._capture = None
+
+    def _close_own(self) -> None:
+        """Close the source the node opened (an injected one stays open for the next
+        configure: its owner closes it through :meth:`destroy_node`)."""
+        if self._source is not None and self._source is not self._injected:
+            self._source.close()
+            self._source = None
+
+    def _name(self) -> str:
+        return self._source.name if self._source is not None else "no camera open"
 
     @property
     def size(self) -> tuple[int, int]:
@@ -156,7 +241,10 @@ class CameraNode(Node):
         return self._size
 
     def destroy_node(self) -> None:
-        self._source.close()
+        self._stop_stream()
+        self._close_own()
+        if self._injected is not None:
+            self._injected.close()
         super().destroy_node()
 
     def _new_rig(self, rig) -> None:
@@ -210,11 +298,13 @@ class CameraNode(Node):
             values["last_problem"] = self._last_problem
         level, message = ((DiagnosticStatus.ERROR, problem) if problem
                           else (DiagnosticStatus.OK, f"{values['frames']} frames"))
-        values.update(source=self._source.name,
+        if self._lifecycle != "active":
+            level, message = DiagnosticStatus.WARN, f"{self._lifecycle}: activate it"
+        values.update(lifecycle=self._lifecycle, source=self._name(),
                       size=f"{self._size[0]}x{self._size[1]}")
         self._diag_pub.publish(diagnostic_array(
             status_name(self, "camera"), level, message, values,
-            stamp=self.get_clock().now().to_msg(), hardware_id=self._source.name))
+            stamp=self.get_clock().now().to_msg(), hardware_id=self._name()))
 
 
 def main(args=None) -> None:

@@ -55,11 +55,14 @@ def run_node(prog: str, make_node: Callable[[], Node | list[Node]], args=None, *
     A parameter refused at start-up, or arguments rcl cannot parse (a parameters file
     it cannot read), print one line ``prog: reason`` and exit with status
     :data:`~sfs_ros.ros.names.CONFIGURATION_ERROR`. ``threads`` > 1 spins a multi-threaded executor (for nodes
-    whose services wait on worker threads). On a stop signal rcl is shut down,
-    then the executor, then the nodes are destroyed (in reverse order), all in
-    the main thread: rclpy's own signal handling shuts rcl down from a thread
-    of its own, which then triggers the executors' guard conditions, and that
-    raced the executor's shutdown (now and then a SIGSEGV in
+    whose services wait on worker threads). On a stop signal the executor is shut
+    down (the callbacks running end, none starts), then the nodes are destroyed
+    (in reverse order; a managed node's destroy releases its hardware from any
+    state) while rcl is still up, so that what they log on the way reaches
+    ``rosout``, then rcl is shut down: all in the main thread, one after the
+    other. rclpy's own signal handling would shut rcl down from a thread of its
+    own, which then triggers the executors' guard conditions, and that raced the
+    executor's shutdown (now and then a SIGSEGV in
     ``rcl_trigger_guard_condition`` as the node stopped). A fatal signal
     (SIGSEGV, SIGABRT, ...) prints every thread's Python stack to stderr
     before the process dies, so a crash in native code names where it happened.
@@ -74,7 +77,7 @@ def run_node(prog: str, make_node: Callable[[], Node | list[Node]], args=None, *
         rclpy.try_shutdown()
         sys.exit(CONFIGURATION_ERROR)
     nodes = made if isinstance(made, list) else [made]
-    executor = MultiThreadedExecutor(num_threads=threads) if threads > 1 else SingleThreadedExecutor()
+    executor = _Executor(num_threads=threads) if threads > 1 else SingleThreadedExecutor()
     for node in nodes:
         executor.add_node(node)
     try:
@@ -84,11 +87,24 @@ def run_node(prog: str, make_node: Callable[[], Node | list[Node]], args=None, *
     except ExternalShutdownException:
         pass
     finally:
-        _shut_down_rcl()
         executor.shutdown()
         for node in reversed(nodes):
             node.destroy_node()
+        rclpy.try_shutdown()
         stop.restore()
+
+
+class _Executor(MultiThreadedExecutor):
+    """A :class:`MultiThreadedExecutor` whose shutdown first runs to their end the callbacks
+    handed to its thread pool, while its guard condition exists. rclpy's destroys the
+    guard condition first, then lets the pool run what is queued: each such callback
+    then triggers the destroyed guard condition, an exception that no one retrieves ("The
+    following exception was never retrieved: cannot use Destroyable because destruction
+    was requested"); dropping them instead leaves their coroutines never awaited."""
+
+    def shutdown(self, timeout_sec: float | None = None, *, wait_for_threads: bool = True) -> bool:
+        self._executor.shutdown(wait=True)      # rclpy's thread pool: nothing new comes
+        return super().shutdown(timeout_sec, wait_for_threads=wait_for_threads)
 
 
 def _init_rclpy(prog: str, args) -> None:
@@ -125,14 +141,3 @@ def _rcl_reason(error: Exception) -> str:
         return f"ROS arguments rcl cannot read: {text}"
     return text.rstrip(" ,.") + " (expected a parameters file of the form "\
         "'NODE: {ros__parameters: {NAME: VALUE}}', each list of one type)"
-
-
-def _shut_down_rcl() -> None:
-    """Shut rcl down as rclpy's signal handler does: ``context.ok()`` turns False, so work
-    still waiting on rclpy ends, and the nodes are left for the caller to destroy in order
-    (``rclpy.try_shutdown()`` would destroy them itself, holding the context's lock that a
-    node's own clean-up thread may need)."""
-    handle = rclpy.get_default_context().handle
-    with handle:
-        if handle.ok():
-            handle.shutdown()

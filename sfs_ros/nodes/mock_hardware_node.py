@@ -14,7 +14,13 @@ offset and noise, as real ones do).
 | mock_hardware | srv | ``mock/unplug`` | std_srvs/SetBool | true: unplug the cable; false: plug it back |
 | mock_hardware | srv | ``mock/hang`` | std_srvs/SetBool | true: the controller stops answering |
 | mock_hardware | srv | ``mock/drop_frame`` | std_srvs/Trigger | the next shutter gives no frame |
-| camera | | | | as :mod:`sfs_ros.nodes.camera_node` (backend "mock") |
+| camera | | | | as :mod:`sfs_ros.nodes.camera_node` (backend "mock"; managed) |
+
+The controller's pty (and ``port_link``) is made before the camera node exists, so
+a lifecycle manager that has seen the camera finds the motor's port there. The
+camera is a managed (lifecycle) node: with ``autostart`` false (``sfs-cell``, the
+launch files) it waits unconfigured for its transitions; the rendered source is
+kept open across ``cleanup`` and closed when the node is destroyed.
 
 ``port_link`` (optional) is a stable device name kept pointing at the
 current pseudo-terminal, as a udev rule keeps ``/dev/serial/by-id/...``:

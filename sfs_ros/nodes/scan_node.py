@@ -60,6 +60,17 @@ reading) share the frame's stamp.
 ``scan/start`` first resets the reconstruction and homes the axes (each can
 be switched off).
 
+Before the first capture of a scan the node waits (at most ``listen_timeout_s``;
+one INFO line naming what it waits for) until the captures will be seen, as far as
+its view of the graph tells: every node of :data:`LISTENERS` that runs in its
+namespace (segmentation, reconstruction, recorder; a board scan's calibration node
+and recorder) has its subscriptions on the topics it must get, and every
+subscription to the scan's own capture topics is matched to its publishers. The
+reconstruction's mask subscriptions are matched to the segmentation's publishers,
+not to this node's: that they exist is what it can see. A node not running is not
+waited for (a scan node alone scans). When the time is up the scan pauses naming
+what is missing (``scan/resume`` goes on).
+
 The view's frame (``camera_trigger``): ``shutter`` calls our camera node's
 ``capture`` and waits for the frame it announces; ``stream`` takes the frame
 from any driver that streams ``image_raw`` (``usb_cam``, ``v4l2_camera``, a
@@ -171,6 +182,18 @@ AXES_SILENT_S = 2.0
 _GOAL_POLL_S = 0.1
 #: States in which a scan's run has ended.
 _ENDED = ("done", "paused", "cancelled")
+#: How often the graph is looked at while waiting for the capture subscriptions, s.
+_LISTEN_POLL_S = 0.1
+_CAPTURES = ("capture/image", "capture/joint_state")
+_MASKS = ("capture/mask", "capture/mask_joint_state")
+_BOARD = ("calibration/image", "calibration/joint_state")
+#: By the scan's object: the nodes whose subscriptions must be there before its first
+#: capture, and the topics of each.
+LISTENERS = {
+    "object": {"segmentation": _CAPTURES, "reconstruction": _MASKS,
+               RECORDER_NODE: _CAPTURES + _MASKS},
+    "board": {"calibration": _BOARD, RECORDER_NODE: _BOARD},
+}
 
 PARAMS: list[Param] = [
     Param("plan_file", "", "YAML scan plan (format: sfs_ros/cell/scan_plan.py); empty = the "
@@ -224,6 +247,8 @@ PARAMS: list[Param] = [
           "that a restarted node takes the scan up; empty = not kept.", read_only=True),
     Param("home_before_retry", False, "Home the axes before a failed move is commanded "
           "again.", read_only=True),
+    Param("listen_timeout_s", 30.0, "Longest wait before a scan's first capture for the "
+          "subscriptions that must see it, s.", bounds=(0.1, 3600.0), read_only=True),
 ]
 #: Bytes of the length of the first message in a capture's bytes (big-endian).
 _LENGTH = struct.Struct(">Q")
@@ -249,7 +274,8 @@ def scan_settings(values: dict, *, board: bool = False) -> ScanSettings:
     scan, which leaves the reconstruction as it is)."""
     steps = [("reset", values["reset_reconstruction"] and not board,
               values["service_timeout_s"]),
-             ("home", values["home_before_scan"], values["home_timeout_s"])]
+             ("home", values["home_before_scan"], values["home_timeout_s"]),
+             ("listeners", True, values["listen_timeout_s"])]
     return ScanSettings(
         settle_tolerance_rad=math.radians(values["settle_tolerance_deg"]),
         settle_samples=values["settle_samples"], move_timeout_s=values["move_timeout_s"],
@@ -278,6 +304,9 @@ class _RosPorts(MonotonicClock):
         self._node.peers["stop"].call_async(Trigger.Request())   # nobody waits for it
 
     def prepare(self, step: str, *, timeout_s: float, cancelled: threading.Event) -> None:
+        if step == "listeners":
+            self._node.wait_listeners(timeout_s, cancelled)
+            return
         try:
             # Both steps may be asked twice (a reset before the scan's first view; a home
             # that comes while homing joins it): sent again when the answer is late, as the
@@ -629,6 +658,46 @@ class ScanNode(Node):
             goal_handle.abort()
         self.get_logger().info(f"scan goal ended: {'succeeded' if success else message}")
         return result
+
+    # -- the graph (the scan's worker thread) ------------------------------------------------
+
+    def missing_listeners(self) -> list[str]:
+        """What keeps this scan's captures from being seen now: the subscriptions of
+        :data:`LISTENERS`' running nodes not in the graph, and subscriptions to the capture
+        topics not yet matched (empty: none)."""
+        namespace = self.get_namespace()
+        running = {name for name, space in self.get_node_names_and_namespaces()
+                   if space == namespace}
+        missing = []
+        for node, topics in LISTENERS[self.scan_object].items():
+            if node not in running:
+                continue
+            for topic in topics:
+                infos = self.get_subscriptions_info_by_topic(self.resolve_topic_name(topic))
+                if not any(i.node_name == node and i.node_namespace == namespace
+                           for i in infos):
+                    missing.append(f"{node}'s subscription to {topic}")
+        for publisher in self.outputs[self.scan_object]:
+            known = len(self.get_subscriptions_info_by_topic(publisher.topic_name))
+            if publisher.get_subscription_count() < known:
+                missing.append(f"a subscription to {publisher.topic_name} still matching")
+        return missing
+
+    def wait_listeners(self, timeout_s: float, cancelled: threading.Event) -> None:
+        """Until :meth:`missing_listeners` is empty (INFO once while waiting); StepFailed
+        naming what is missing after ``timeout_s``."""
+        deadline = time.monotonic() + timeout_s
+        said = False
+        while missing := self.missing_listeners():
+            if cancelled.is_set():
+                return
+            if time.monotonic() > deadline:
+                raise StepFailed(f"after {timeout_s:g} s the captures would still not be seen: "
+                                 f"no {', '.join(missing)}")
+            if not said:
+                said = True
+                self.get_logger().info(f"first capture waits for {', '.join(missing)}")
+            cancelled.wait(_LISTEN_POLL_S)
 
     # -- diagnostics (any thread) ------------------------------------------------------------
 
