@@ -5,6 +5,8 @@
 | pub | ``joint_command`` | sensor_msgs/JointState | the next viewpoint, rad (to the motor node) |
 | sub | ``joint_states`` | sensor_msgs/JointState | encoder read-back (from the motor node) |
 | sub | ``image_raw`` | sensor_msgs/Image | the camera's frames (any driver); QoS: see below |
+| sub | ``image_raw/compressed`` | sensor_msgs/CompressedImage | instead (``image_transport``) |
+| sub | ``<image ns>/camera_info`` | sensor_msgs/CameraInfo | the driver's intrinsics |
 | pub | ``capture/image`` | sensor_msgs/Image | each view's frame, its shutter stamp |
 | pub | ``capture/joint_state`` | sensor_msgs/JointState | encoder angles at the shutter, same stamp |
 | pub | ``calibration/image``, ``calibration/joint_state`` | as ``capture/*`` | a board scan's |
@@ -47,9 +49,12 @@ what the diagnostics carry, the scan's ``object`` and the last encoder angles, `
 readings came within :data:`AXES_SILENT_S`.
 
 Capture topics and receipts: reliable, volatile, depth ``queue_depth``
-(:func:`sfs_ros.ros.capture_qos`): no view may be dropped. ``image_raw``:
-depth 10, reliable, or best effort with ``image_reliability`` (a driver that
-publishes with the sensor-data QoS).
+(:func:`sfs_ros.ros.capture_qos`): no view may be dropped. The camera's frames
+(``image_raw``, or ``image_raw/compressed`` with ``image_transport`` compressed), their
+QoS following the publisher's (``image_reliability`` auto) and the driver's
+``camera_info``: :class:`sfs_ros.ros.driver_camera.DriverCamera`, which at each start of
+a streamed scan compares the driver's intrinsics with the rig or sets them on the
+reconstruction (``intrinsics_source``).
 
 A scan, view by view, in plan order (:class:`sfs_ros.cell.scan_plan.ScanPlan`,
 from ``plan_file`` or the ring parameters): command the viewpoint, wait until
