@@ -72,9 +72,10 @@ def _merge(values: dict, changes: dict) -> None:
 
 @contextmanager
 def running_cell(root: Path, client_name: str, overrides: dict | None = None, *,
-                 plan: dict | None = None):
+                 plan: dict | None = None, camera_topic: str | None = None):
     """``{"cell": Cell, "client": CellClient, "output": Path, "log": Path}`` of a cell up in
-    ``root`` (config: :func:`write_config` with ``overrides`` and ``plan``); the nodes are
+    ``root`` (config: :func:`write_config` with ``overrides`` and ``plan``; ``camera_topic``:
+    the frames of a driver on that topic, the mock's camera not started); the nodes are
     stopped (and checked to exit 0) when the block ends."""
     config = write_config(root / "config", overrides, plan=plan)
     output = root / "output"
@@ -82,7 +83,8 @@ def running_cell(root: Path, client_name: str, overrides: dict | None = None, *,
     log_path = root / "cell.log"
     env = dict(os.environ, PYTHONPATH=str(SOURCE_ROOT))
     with open(log_path, "w") as log:
-        cell = Cell(cell_nodes(config, output, mock=True), namespace=NAMESPACE, log=log,
+        cell = Cell(cell_nodes(config, output, mock=True, camera_topic=camera_topic),
+                    namespace=NAMESPACE, log=log,
                     env=env).start()
         client = CellClient(NAMESPACE, name=client_name)
         try:

@@ -144,9 +144,20 @@ def test_real_cell_options_port_camera_device_camera_topic_and_site_params(tmp_p
                                          "image_raw:=/usb_cam/image_raw"]
 
 
+def test_a_camera_topic_with_the_mock_cell_keeps_the_mock_controller_without_its_camera(
+        tmp_path):
+    specs = {s.name: s for s in cell_nodes(CONFIG, tmp_path / "out", mock=True,
+                                           camera_topic="/desk_cam/image_raw")}
+    assert specs["mock_hardware"].overrides["camera"] == "false"
+    assert "camera" not in specs
+    assert specs["scan"].overrides["camera_trigger"] == "stream"
+    assert specs["scan"].remaps == {"image_raw": "/desk_cam/image_raw"}
+    plain = {s.name: s for s in cell_nodes(CONFIG, tmp_path / "out", mock=True)}
+    assert "camera" not in plain["mock_hardware"].overrides
+
+
 @pytest.mark.parametrize("options, error", [
     ({"mock": True, "port": "/dev/ttyUSB0"}, "port: only for the real hardware"),
-    ({"mock": True, "camera_topic": "/cam/image_raw"}, "camera_topic: only for the real"),
     ({"mock": False, "camera_device": "1", "camera_topic": "/cam/image_raw"},
      "camera_device and camera_topic: one or the other"),
 ])

@@ -172,7 +172,9 @@ def test_mesh_is_latched_for_late_subscribers(scan, cell):
     summary = json.loads(scan.message)
     marker = cell.markers[-1]
     assert marker.type == Marker.TRIANGLE_LIST and marker.header.frame_id == "turntable"
-    assert len(marker.points) == 3 * summary["n_faces"]
+    display = 10000      # display_triangles' default: a larger mesh is simplified
+    assert len(marker.points) % 3 == 0 and len(marker.points) <= 3 * display
+    assert summary["n_faces"] > display or len(marker.points) == 3 * summary["n_faces"]
     vertices, faces = shape_to_mesh(cell.shapes[-1])
     assert len(faces) == summary["n_faces"] and len(vertices) == summary["n_vertices"]
     late = []

@@ -229,7 +229,8 @@ class ScanPorts(Protocol):
         clock). (``trigger`` ``stream`` only.)"""
 
     def make_capture(self, frame: Any, stamp: Stamp, reading: EncoderReading) -> Any:
-        """The capture to send (and keep for resending): ``frame`` tagged with ``reading``."""
+        """The capture to send (and keep for resending): ``frame`` tagged with ``reading``;
+        :class:`StepFailed` for a frame that cannot be read (it is retaken)."""
 
     def send(self, capture: Any) -> None:
         """Send (or send again) a capture made by :meth:`make_capture`."""
@@ -671,12 +672,12 @@ class ScanSequence:
             start = self._ports.now()
             try:
                 stamp, frame, reading = self._shoot()
+                capture = self._ports.make_capture(frame, stamp, reading)
             except StepFailed as exc:
                 self._check_cancel()
                 reason = str(exc)
                 self._retry("capture_retries", attempt, retries, reason)
                 continue
-            capture = self._ports.make_capture(frame, stamp, reading)
             self._keep(view, stamp, capture, reading)
             with self._cv:
                 self._counts["shutter_s"] += self._ports.now() - start

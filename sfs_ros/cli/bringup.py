@@ -16,8 +16,9 @@ With ``mock=True`` the hardware is the mock hardware node (simulated controller 
 camera), whose pseudo-terminal is linked at
 ``OUTPUT_DIR/ttyMOCK`` for the motor node; otherwise the camera node and the
 motor node's ``port`` from ``motor.yaml``, or, with ``camera_topic``, the
-frames of any camera driver the user runs (the camera node is then not
-started; the scan node takes the streamed frames, ``camera_trigger`` stream).
+frames of any camera driver the user runs (the camera node, or the mock's
+camera, is then not started; the scan node takes the streamed frames,
+``camera_trigger`` stream).
 
 The motor and camera nodes are managed (lifecycle) nodes started with ``autostart``
 false; the lifecycle manager (:mod:`sfs_ros.nodes.lifecycle_manager_node`), started
@@ -145,14 +146,16 @@ def cell_nodes(config_dir, output_dir, *, mock: bool, record: bool = False,
     every node after its own files (default ``overrides.yaml`` of
     ``config_dir``). The real hardware only (ValueError with ``mock``):
     ``port``, the motor controller's serial port (default: motor.yaml's);
-    ``camera_device``, the camera node's ``device`` (default: camera.yaml's);
+    ``camera_device``, the camera node's ``device`` (default: camera.yaml's).
     ``camera_topic``, the image topic of another camera driver: no camera
-    node, the scan node takes that topic's streamed frames. ``manual_lifecycle``: no lifecycle
-    manager; the managed nodes wait unconfigured for their transitions.
+    node (with ``mock``, the mock hardware without its camera: a real camera
+    with simulated motion), the scan node takes that topic's streamed frames.
+    ``manual_lifecycle``: no lifecycle manager; the managed nodes wait unconfigured for
+    their transitions.
     """
     config = Path(config_dir)
     output = Path(output_dir).resolve()
-    real_only = {"port": port, "camera_device": camera_device, "camera_topic": camera_topic}
+    real_only = {"port": port, "camera_device": camera_device}
     given = [name for name, value in real_only.items() if value]
     if mock and given:
         raise ValueError(f"{', '.join(given)}: only for the real hardware (the mock cell has "
@@ -181,9 +184,10 @@ def cell_nodes(config_dir, output_dir, *, mock: bool, record: bool = False,
     if mock:
         hardware = [spec("mock_hardware", "mock_hardware_node",
                          ["rig.yaml", "frames.yaml", "camera.yaml", "mock_hardware.yaml"],
-                         {"port_link": str(link), **managed}),
+                         {"port_link": str(link), **managed,
+                          **({"camera": "false"} if camera_topic else {})}),
                     spec("motor", "motor_node", ["motor.yaml"], {"port": str(link), **managed})]
-        order = ["camera", "motor"]
+        order = ([] if camera_topic else ["camera"]) + ["motor"]
     else:
         camera = [] if camera_topic else [
             spec("camera", "camera_node", ["rig.yaml", "frames.yaml", "camera.yaml"],

@@ -3,6 +3,7 @@
     sfs-cell --mock -o out/cell          # simulated hardware
     sfs-cell -o /data/scans --port /dev/ttyUSB0 --camera-device /dev/video2
     sfs-cell -o /data/scans --camera-topic /usb_cam/image_raw   # another camera driver
+    sfs-cell --mock -o out/desk --camera-topic /usb_cam/image_raw   # a real camera, mock motion
     sfs-cell --mock -o out/cell --only reconstruction,recorder     # this host's part
 
 The nodes read the YAML files of ``--config`` (default: the installed
@@ -58,9 +59,10 @@ def build_parser() -> argparse.ArgumentParser:
                         help="real hardware: our camera node's device, e.g. /dev/video2 "
                              "(default: camera.yaml's)")
     camera.add_argument("--camera-topic", default=None,
-                        help="real hardware: take the frames another camera driver streams on "
-                             "this image topic (usb_cam, v4l2_camera, GenICam) instead of "
-                             "starting our camera node")
+                        help="take the frames another camera driver streams on this image "
+                             "topic (usb_cam, v4l2_camera, GenICam) instead of starting our "
+                             "camera node (with --mock: the simulated controller, no mock "
+                             "camera)")
     p.add_argument("--record", action="store_true",
                    help="record every scan as a rosbag2 in OUTPUT_DIR/bags (the recorder "
                         "also takes recorder/start and recorder/stop at any time)")

@@ -107,6 +107,9 @@ PARAMS: list[Param] = [
           bounds=(0, 255), read_only=True, constraints="three values"),
     Param("seed", -1, "Seed of the encoder and image noise.", bounds=(-1, 2 ** 31 - 1),
           read_only=True, constraints="-1 = random"),
+    Param("camera", True, "Run the mock camera; false: only the simulated controller (a "
+          "real camera driver's frames with simulated motion, sfs-cell --mock --camera-topic).",
+          read_only=True),
     *(replace(p, name=f"{WORLD_RIG}.{p.name}", read_only=True,
               description=f"The simulated cell as built (before the world's errors): "
                           f"{p.description}") for p in RIG_PARAMS),
@@ -240,8 +243,11 @@ class MockHardwareNode(Node):
 
 
 def make_nodes() -> list[Node]:
-    """The mock hardware node and the camera node rendering from its simulator."""
+    """The mock hardware node and the camera node rendering from its simulator (the
+    hardware node alone with ``camera`` false)."""
     hardware = MockHardwareNode()
+    if not hardware.get_parameter("camera").value:
+        return [hardware]
     try:
         camera = CameraNode(source=hardware.camera_source,
                             parameter_overrides=[Parameter("backend", value="mock")])

@@ -8,8 +8,8 @@
 | pub | ``capture/stored`` | std_msgs/Header | a view's stamp once stored (or rejected): its receipt |
 | pub | ``hull`` | sensor_msgs/PointCloud2 | surface voxels of the live hull, turntable frame |
 | pub | ``camera_poses`` | geometry_msgs/PoseArray | the cameras of this scan's views, turntable frame |
-| pub | ``mesh`` | visualization_msgs/Marker | TRIANGLE_LIST of the last reconstruction |
-| pub | ``mesh_shape`` | shape_msgs/Mesh | the same mesh |
+| pub | ``mesh`` | visualization_msgs/Marker | TRIANGLE_LIST of the last mesh, ``display_triangles`` |
+| pub | ``mesh_shape`` | shape_msgs/Mesh | the full mesh, in the ``mesh`` marker's frame |
 | pub | ``/diagnostics`` | diagnostic_msgs/DiagnosticArray | per event and at 1 Hz |
 | pub | ``~/status`` | sfs_ros_interfaces/ReconstructionStatus | on every change; transient local |
 | srv | ``~/reconstruct_mesh`` | sfs_ros_interfaces/Reconstruct | per-call options, typed answer |
@@ -57,9 +57,12 @@ it runs. ``reconstruct`` answers once the mesh and its report are written:
 report_path, preview_path, views used / rejected, watertight, volume_m3,
 seconds, ...). Once the answer is sent, the picture, viewer and contact sheet
 follow (the report is written again naming them once they are on disk: wait for that, as
-:meth:`sfs_ros.ros.cell_client.CellClient.reconstruct` does), then the ``mesh``
-and ``mesh_shape`` messages (building and serialising them takes seconds for a
-large mesh, and the files are the result);
+:meth:`sfs_ros.ros.cell_client.CellClient.reconstruct` does), the ``mesh`` marker
+first: a copy within ``display_triangles`` (:func:`sfs_ros.core.meshing.decimate.decimate`,
+vertex clustering, colours averaged), small enough for RViz and quick to arrive; then
+``mesh_shape``, the full mesh (building and serialising it takes seconds for a large
+mesh, and the files are the result). ``shape_msgs/Mesh`` has no header: its vertices
+are in the turntable frame, the ``mesh`` marker's ``frame_id``;
 ``success=False`` with the reason when there are no views or no mesh can be
 made. ``reset`` starts a new scan (new session folder on the next view) and
 publishes an empty hull; the last mesh stays on ``mesh`` until the next one.
@@ -161,6 +164,7 @@ from sfs_ros.core.carving.resolution import (
 )
 from sfs_ros.core.exchange.views import as_bounds
 from sfs_ros.core.geometry.rig import rig_camera
+from sfs_ros.core.meshing.decimate import decimate
 from sfs_ros.core.pipeline import MESHERS
 from sfs_ros.nodes.entry import run_node
 from sfs_ros.ros import capture_qos, result_qos
@@ -216,6 +220,10 @@ PARAMS: list[Param] = [
     Param("hull_rate_hz", 2.0, "Most hull clouds per second; the latest is always published "
           "once the views received so far are carved.", bounds=(0.0, 1000.0), read_only=True,
           constraints="0 = after every view"),
+    Param("display_triangles", 10000, "Most triangles of the mesh marker (a simplified "
+          "copy by vertex clustering, 40 bytes a corner with its colour: 10 000 make 1.2 MB); "
+          "the file and mesh_shape keep the full mesh.", bounds=(100, 10_000_000),
+          constraints="used from the next reconstruction"),
     Param("max_hull_points", 100000, "Most points of a hull cloud (an evenly spaced subset "
           "of the surface voxels beyond that).", bounds=(1, 100_000_000), read_only=True),
     Param("queue_depth", 100, "Depth of the reliable mask topics and of the buffer of unpaired "
@@ -797,10 +805,12 @@ class ReconstructionNode(Node):
         if options.wait_for_pictures:
             self._write_pictures(summary["path"])
         self._after_answer = self._worker.hold()
+        vertices, faces = self._live.last_mesh
+        self._submit("publish the display mesh", self._publish_marker, vertices, faces,
+                     self._live.last_colours)
         if not options.wait_for_pictures:
             self._submit("pictures", self._write_pictures, summary["path"])
-        self._submit("publish the mesh", self._publish_mesh, *self._live.last_mesh,
-                     self._live.last_colours)
+        self._submit("publish the mesh", self._publish_shape, vertices, faces)
         return True, json.dumps(summary), summary
 
     def _write_pictures(self, mesh_path: str) -> None:
@@ -811,17 +821,25 @@ class ReconstructionNode(Node):
             self._report_problem(f"pictures of {mesh_path} not written (the mesh and its "
                                  f"report are): {exc}")
 
-    def _publish_mesh(self, vertices, faces, colours) -> None:
+    def _publish_marker(self, vertices, faces, colours) -> None:
+        """``mesh``: the display copy, within ``display_triangles``."""
+        budget = self.get_parameter("display_triangles").value
+        vertices, faces, colours = decimate(vertices, faces, budget, colours)
+        self._publish_quietly(self._marker_pub, lambda: mesh_to_marker(
+            vertices, faces, stamp=self.get_clock().now().to_msg(), frame_id=self._frame_id,
+            vertex_colors=colours))
+
+    def _publish_shape(self, vertices, faces) -> None:
+        """``mesh_shape``: the full mesh (in the turntable frame, as ``mesh``)."""
+        self._publish_quietly(self._shape_pub, lambda: mesh_to_shape(vertices, faces))
+
+    def _publish_quietly(self, publisher, build) -> None:
+        """Publish ``build()``; nothing once the node is stopping (the mesh is in its file)."""
         try:
-            stamp = self.get_clock().now().to_msg()
-            self._marker_pub.publish(mesh_to_marker(vertices, faces, stamp=stamp,
-                                                    frame_id=self._frame_id,
-                                                    vertex_colors=colours))
-            self._shape_pub.publish(mesh_to_shape(vertices, faces))
+            publisher.publish(build())
         except Exception:  # noqa: BLE001 -- rclpy's RCLError, once the node is stopping
             if self.context.ok():
                 raise
-            # Stopped while the messages were built (seconds): the mesh is in its file.
 
     def _publish_poses(self) -> None:
         self._poses_pub.publish(camera_poses(self._cameras, stamp=self.get_clock().now().to_msg(),

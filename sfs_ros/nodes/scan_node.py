@@ -5,6 +5,8 @@
 | pub | ``joint_command`` | sensor_msgs/JointState | the next viewpoint, rad (to the motor node) |
 | sub | ``joint_states`` | sensor_msgs/JointState | encoder read-back (from the motor node) |
 | sub | ``image_raw`` | sensor_msgs/Image | the camera's frames (any driver); QoS: see below |
+| sub | ``image_raw/compressed`` | sensor_msgs/CompressedImage | instead (``image_transport``) |
+| sub | ``<image ns>/camera_info`` | sensor_msgs/CameraInfo | the driver's intrinsics |
 | pub | ``capture/image`` | sensor_msgs/Image | each view's frame, its shutter stamp |
 | pub | ``capture/joint_state`` | sensor_msgs/JointState | encoder angles at the shutter, same stamp |
 | pub | ``calibration/image``, ``calibration/joint_state`` | as ``capture/*`` | a board scan's |
@@ -47,9 +49,12 @@ what the diagnostics carry, the scan's ``object`` and the last encoder angles, `
 readings came within :data:`AXES_SILENT_S`.
 
 Capture topics and receipts: reliable, volatile, depth ``queue_depth``
-(:func:`sfs_ros.ros.capture_qos`): no view may be dropped. ``image_raw``:
-depth 10, reliable, or best effort with ``image_reliability`` (a driver that
-publishes with the sensor-data QoS).
+(:func:`sfs_ros.ros.capture_qos`): no view may be dropped. The camera's frames
+(``image_raw``, or ``image_raw/compressed`` with ``image_transport`` compressed), their
+QoS following the publisher's (``image_reliability`` auto) and the driver's
+``camera_info``: :class:`sfs_ros.ros.driver_camera.DriverCamera`, which at each start of
+a streamed scan compares the driver's intrinsics with the rig or sets them on the
+reconstruction (``intrinsics_source``).
 
 A scan, view by view, in plan order (:class:`sfs_ros.cell.scan_plan.ScanPlan`,
 from ``plan_file`` or the ring parameters): command the viewpoint, wait until
@@ -130,7 +135,6 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.node import Node
-from rclpy.qos import ReliabilityPolicy
 from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import Image, JointState
 from std_msgs.msg import Header
@@ -150,7 +154,14 @@ from sfs_ros.cell.scan_sequence import (
 )
 from sfs_ros.nodes.entry import run_node
 from sfs_ros.ros import capture_qos, result_qos
-from sfs_ros.ros.convert import angles_from_joint_state, diagnostic_array, health, joint_state
+from sfs_ros.ros.convert import (
+    angles_from_joint_state,
+    diagnostic_array,
+    driver_frame,
+    health,
+    joint_state,
+)
+from sfs_ros.ros.driver_camera import DRIVER_PARAMS, DriverCamera
 from sfs_ros.ros.names import (
     CELL_STATUS,
     DIAGNOSTICS,
@@ -236,10 +247,6 @@ PARAMS: list[Param] = [
           "node's capture service) or stream (the first frame of image_raw stamped after the "
           "axes settled plus exposure_delay_s: any camera driver).", choices=TRIGGERS,
           constraints="takes effect at the next scan/start"),
-    Param("image_reliability", "reliable", "QoS reliability of the image_raw subscription: "
-          "reliable (our camera node, usb_cam) or best_effort (a driver publishing with the "
-          "sensor-data QoS, which a reliable subscription does not receive).",
-          choices=("reliable", "best_effort"), read_only=True),
     Param("exposure_delay_s", 0.0, "stream: the view's frame is stamped at least this long "
           "after the axes settled, s.", bounds=(0.0, 60.0),
           constraints="takes effect at the next scan/start"),
@@ -249,6 +256,7 @@ PARAMS: list[Param] = [
           "again.", read_only=True),
     Param("listen_timeout_s", 30.0, "Longest wait before a scan's first capture for the "
           "subscriptions that must see it, s.", bounds=(0.1, 3600.0), read_only=True),
+    *DRIVER_PARAMS,
 ]
 #: Bytes of the length of the first message in a capture's bytes (big-endian).
 _LENGTH = struct.Struct(">Q")
@@ -338,8 +346,12 @@ class _RosPorts(MonotonicClock):
             raise StepFailed(f"the camera's answer {answer.message!r} has no stamp; expected "
                              "JSON with \"stamp\": [sec, nanosec]") from None
 
-    def make_capture(self, frame: Image, stamp, reading: EncoderReading):
-        return frame, joint_state(reading.theta_rad, reading.phi_rad, stamp=stamp)
+    def make_capture(self, frame, stamp, reading: EncoderReading):
+        try:
+            image = driver_frame(frame)
+        except ValueError as exc:
+            raise StepFailed(f"the camera's frame cannot be read: {exc}") from None
+        return image, joint_state(reading.theta_rad, reading.phi_rad, stamp=stamp)
 
     def send(self, capture) -> None:
         frame, joints = capture
@@ -436,11 +448,7 @@ class ScanNode(Node):
         self._diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
         self.create_subscription(JointState, "joint_states", self._on_joint_state, 10,
                                  callback_group=inputs)
-        frames = capture_qos(10)
-        if self._p["image_reliability"] == "best_effort":
-            frames.reliability = ReliabilityPolicy.BEST_EFFORT
-        self.create_subscription(Image, "image_raw", self._on_frame, frames,
-                                 callback_group=inputs)
+        self.camera = DriverCamera(self, self._on_frame, inputs=inputs, clients=clients)
         self._receipt_sub = self.create_subscription(Header, "capture/stored", self._on_receipt,
                                                      qos, callback_group=inputs)
         self.peers = {name: self.create_client(Trigger, SERVICES[name], callback_group=clients)
@@ -491,7 +499,8 @@ class ScanNode(Node):
         except ValueError as exc:
             self._malformed(f"joint state ignored: {exc}")
 
-    def _on_frame(self, msg: Image) -> None:
+    def _on_frame(self, msg) -> None:
+        """A camera frame (``Image`` or ``CompressedImage``; converted once it is a view's)."""
         try:
             stamp = stamp_key(msg.header.stamp)
         except ValueError as exc:
@@ -527,6 +536,7 @@ class ScanNode(Node):
                      if info.node_name == RECORDER_NODE
                      and info.node_namespace == self.get_namespace()]
         self._sequence.tick({bytes(info.endpoint_gid) for info in receipts + recorders})
+        self.camera.update()
         self.publish_diagnostics()
         self.publish_status()
 
@@ -537,9 +547,13 @@ class ScanNode(Node):
             if self._goal_busy:
                 response.success, response.message = False, "a scan goal is running"
                 return response
+            values = read(self, PARAMS)
+            refusal = self._check_camera(values)
+            if refusal:
+                response.success, response.message = False, refusal
+                return response
             self.scan_name, self.scan_object = "", OBJECTS[0]
-            response.success, response.message = self._sequence.start(
-                scan_settings(read(self, PARAMS)))
+            response.success, response.message = self._sequence.start(scan_settings(values))
         if response.success:
             self._launch()
         return response
@@ -555,6 +569,19 @@ class ScanNode(Node):
         if response.success:
             self._worker.join(timeout=self._p["service_timeout_s"])
         return response
+
+    def _check_camera(self, values: dict) -> str:
+        """Before a streamed scan starts: the driver's intrinsics against the rig
+        (:meth:`DriverCamera.check_intrinsics`); the reason it may not start, or ""."""
+        if values["camera_trigger"] != "stream" or self._sequence.active:
+            return ""
+        refusal = self.camera.check_intrinsics(values["service_timeout_s"])
+        if refusal:
+            self.get_logger().error(refusal)
+        if self.camera.warning:
+            self.get_logger().warning(self.camera.warning)
+        self.publish_diagnostics()
+        return refusal
 
     def _launch(self) -> None:
         self._worker = threading.Thread(target=self._sequence.run, name="scan", daemon=True)
@@ -592,10 +619,14 @@ class ScanNode(Node):
             scan_object = goal_object(goal.object)
         except ValueError as exc:
             return self._end_goal(goal_handle, False, f"goal refused: {exc}")
+        values = read(self, PARAMS)
+        refusal = self._check_camera(values)
+        if refusal:
+            return self._end_goal(goal_handle, False, f"goal refused: {refusal}")
         with self._goal_lock:
             self.scan_name, self.scan_object = goal.scan_name, scan_object
             ok, message = self._sequence.start(
-                scan_settings(read(self, PARAMS), board=scan_object == "board"),
+                scan_settings(values, board=scan_object == "board"),
                 None if plan is None else plan.views)
         if not ok:
             return self._end_goal(goal_handle, False, f"goal refused: {message}")
@@ -703,9 +734,11 @@ class ScanNode(Node):
 
     def publish_diagnostics(self) -> None:
         status = self._sequence.status()
-        level, message = health(status.problem, status.warning, status.summary)
+        stream = self.get_parameter("camera_trigger").value == "stream"
+        level, message = health(status.problem, status.warning
+                                or (self.camera.warning if stream else ""), status.summary)
         self._diag_pub.publish(diagnostic_array(status_name(self, "scan"), level, message,
-                                                status.values,
+                                                {**status.values, **self.camera.values},
                                                 stamp=self.get_clock().now().to_msg()))
 
     def publish_status(self) -> None:

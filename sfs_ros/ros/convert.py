@@ -22,19 +22,31 @@ import numpy as np
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point, Pose, PoseArray, Quaternion
+from scipy.ndimage import convolve
 from scipy.spatial.transform import Rotation
-from sensor_msgs.msg import CameraInfo, Image, JointState, PointCloud2, PointField
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image, JointState, PointCloud2, PointField
 from shape_msgs.msg import Mesh, MeshTriangle
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker
 
-from sfs_ros.cell.messages import JOINT_NAMES, angles_from_joint_state, msg_to_image, stamp_key
+from sfs_ros.cell.intrinsics import DriverIntrinsics
+from sfs_ros.cell.messages import (
+    IMAGE_ENCODINGS,
+    JOINT_NAMES,
+    angles_from_joint_state,
+    msg_to_image,
+    stamp_key,
+)
+from sfs_ros.core.exchange.errors import ViewError
+from sfs_ros.core.exchange.limits import MAX_IMAGE_PIXELS, decode_image_bytes
 from sfs_ros.core.geometry.camera import Camera
 
 __all__ = [
     "JOINT_NAMES", "header", "image_to_msg", "msg_to_image", "joint_state",
     "angles_from_joint_state", "camera_info", "points_to_cloud", "cloud_to_points",
     "mesh_to_marker", "mesh_to_shape", "shape_to_mesh", "camera_poses", "health",
+    "DRIVER_ENCODINGS", "driver_frame", "bayer_to_rgb", "yuv422_to_rgb",
+    "camera_info_intrinsics",
 ]
 
 def header(*, stamp, frame_id: str) -> Header:
@@ -81,6 +93,147 @@ def image_to_msg(image, *, stamp, frame_id: str, encoding: str | None = None) ->
                 step=image.shape[1] * image.itemsize * (3 if image.ndim == 3 else 1))
     msg.data = _bytes_array(image.astype(image.dtype.newbyteorder("<"), copy=False))
     return msg
+
+
+#: Bayer encodings -> the colours of the 2 x 2 tile, row by row.
+_BAYER = {"bayer_rggb8": "rggb", "bayer_bggr8": "bggr", "bayer_gbrg8": "gbrg",
+          "bayer_grbg8": "grbg"}
+#: YUV 4:2:2 encodings -> byte order of a pair of pixels (ROS's ``yuv422`` is UYVY).
+_YUV422 = {"yuv422": "uyvy", "uyvy": "uyvy", "yuyv": "yuyv", "yuv422_yuy2": "yuyv"}
+#: Encodings with an alpha channel -> the order of their colour channels.
+_ALPHA = {"rgba8": (0, 1, 2), "bgra8": (2, 1, 0)}
+#: Every encoding :func:`driver_frame` takes (the cell's own, then the converted ones).
+DRIVER_ENCODINGS = (*IMAGE_ENCODINGS, *_ALPHA, *_BAYER, *_YUV422)
+#: Bilinear interpolation of a Bayer mosaic: each colour is the weighted mean of the
+#: samples of that colour in the 3 x 3 neighbourhood (normalised by the weights present).
+_BILINEAR = np.array([[1.0, 2.0, 1.0], [2.0, 4.0, 2.0], [1.0, 2.0, 1.0]])
+
+
+def _rows(msg: Image, bytes_per_pixel: int) -> np.ndarray:
+    """(H, W * bytes_per_pixel) uint8 view of an image's pixel bytes, row padding skipped;
+    ValueError when the sizes do not add up."""
+    h, w, step = int(msg.height), int(msg.width), int(msg.step)
+    row_bytes = w * bytes_per_pixel
+    if h == 0 or w == 0:
+        raise ValueError(f"image is empty ({w}x{h})")
+    if step < row_bytes:
+        raise ValueError(f"image step {step} is smaller than a row of {w} {msg.encoding} "
+                         f"pixels ({row_bytes} bytes)")
+    if len(msg.data) != h * step:
+        raise ValueError(f"image data has {len(msg.data)} bytes, expected height * step = "
+                         f"{h} * {step} = {h * step}")
+    return np.frombuffer(msg.data, np.uint8).reshape(h, step)[:, :row_bytes]
+
+
+def bayer_to_rgb(raw, pattern: str) -> np.ndarray:
+    """(H, W, 3) uint8 RGB of a Bayer mosaic, bilinear demosaicing.
+
+    raw : (H, W) uint8, one colour sample per pixel; pattern : the 2 x 2 tile's colours
+    row by row, ``"rggb"``, ``"bggr"``, ``"gbrg"`` or ``"grbg"``. A pixel keeps its own
+    sample; the other two colours are the mean of the nearest samples of that colour
+    (weights 2 beside, 1 diagonal), so a uniform colour comes back exactly.
+    """
+    raw = np.asarray(raw)
+    if raw.ndim != 2 or raw.dtype != np.uint8:
+        raise ValueError(f"a Bayer mosaic must be (H, W) uint8, got {raw.shape} {raw.dtype}")
+    if sorted(pattern) != sorted("rggb"):
+        raise ValueError(f"Bayer pattern must be one of rggb, bggr, gbrg, grbg, got {pattern!r}")
+    h, w = raw.shape
+    tile = np.array(list(pattern)).reshape(2, 2)
+    colours = np.tile(tile, ((h + 1) // 2, (w + 1) // 2))[:h, :w]
+    samples = raw.astype(np.float64)
+    out = np.empty((h, w, 3), dtype=np.uint8)
+    for channel, name in enumerate("rgb"):
+        where = (colours == name).astype(np.float64)
+        weight = convolve(where, _BILINEAR, mode="constant")
+        mean = convolve(samples * where, _BILINEAR, mode="constant") / np.maximum(weight, 1e-12)
+        value = np.where(where > 0, samples, mean)
+        out[:, :, channel] = np.clip(np.rint(value), 0, 255).astype(np.uint8)
+    return out
+
+
+def yuv422_to_rgb(pairs, order: str) -> np.ndarray:
+    """(H, W, 3) uint8 RGB of YUV 4:2:2 data, ITU-R BT.601 video range (Y 16..235, U and
+    V 16..240 around 128: what webcams send).
+
+    pairs : (H, W * 2) uint8, two bytes a pixel, W even; order : ``"uyvy"`` (U Y0 V Y1,
+    ROS's ``yuv422``) or ``"yuyv"`` (Y0 U Y1 V, ``yuv422_yuy2``); each U, V pair is shared
+    by two neighbouring pixels.
+    """
+    pairs = np.asarray(pairs)
+    if pairs.ndim != 2 or pairs.dtype != np.uint8 or pairs.shape[1] % 4:
+        raise ValueError(f"YUV 4:2:2 data must be (H, 2 W) uint8 with W even, got "
+                         f"{pairs.shape} {pairs.dtype}")
+    if order not in ("uyvy", "yuyv"):
+        raise ValueError(f"YUV 4:2:2 order must be uyvy or yuyv, got {order!r}")
+    groups = pairs.reshape(pairs.shape[0], -1, 4).astype(np.float64)
+    u, y0, v, y1 = (groups[..., i] for i in ((0, 1, 2, 3) if order == "uyvy" else (1, 0, 3, 2)))
+    y = np.stack([y0, y1], axis=-1).reshape(pairs.shape[0], -1) - 16.0
+    u = np.repeat(u, 2, axis=1) - 128.0
+    v = np.repeat(v, 2, axis=1) - 128.0
+    rgb = np.stack([1.164 * y + 1.596 * v, 1.164 * y - 0.392 * u - 0.813 * v,
+                    1.164 * y + 2.017 * u], axis=-1)
+    return np.clip(np.rint(rgb), 0, 255).astype(np.uint8)
+
+
+def driver_frame(msg, *, max_pixels: int = MAX_IMAGE_PIXELS) -> Image:
+    """A camera driver's frame as an ``Image`` the cell reads (rgb8, bgr8, mono8, mono16),
+    same header.
+
+    msg : ``sensor_msgs/Image`` in any of :data:`DRIVER_ENCODINGS` (rgb8, bgr8, mono8 and
+    mono16 are returned as they are; rgba8 / bgra8 lose their alpha; Bayer mosaics are
+    demosaiced and YUV 4:2:2 converted to rgb8), or ``sensor_msgs/CompressedImage`` (JPEG or
+    PNG, decoded within the readers' limits,
+    :func:`sfs_ros.core.exchange.limits.decode_image_bytes`: at most ``max_pixels``).
+    Raises ValueError naming what was wrong and what is expected.
+    """
+    if isinstance(msg, CompressedImage):
+        try:
+            pixels = decode_image_bytes(msg.data, f"compressed image (format {msg.format!r})",
+                                        max_pixels=max_pixels)
+        except ViewError as exc:
+            raise ValueError(str(exc)) from None
+        return image_to_msg(pixels, stamp=msg.header.stamp, frame_id=msg.header.frame_id)
+    encoding = msg.encoding
+    if encoding in IMAGE_ENCODINGS:
+        return msg
+    if int(msg.width) * int(msg.height) > max_pixels:
+        raise ValueError(f"image is {msg.width}x{msg.height} pixels; at most "
+                         f"{max_pixels / 1e6:g} megapixels are taken")
+    if encoding in _ALPHA:
+        pixels = _rows(msg, 4).reshape(msg.height, msg.width, 4)[:, :, list(_ALPHA[encoding])]
+    elif encoding in _BAYER:
+        pixels = bayer_to_rgb(_rows(msg, 1), _BAYER[encoding])
+    elif encoding in _YUV422:
+        if msg.width % 2:
+            raise ValueError(f"a {encoding} image must have an even width, got {msg.width}")
+        pixels = yuv422_to_rgb(_rows(msg, 2), _YUV422[encoding])
+    else:
+        raise ValueError(f"unsupported image encoding {encoding!r}; expected one of "
+                         f"{', '.join(DRIVER_ENCODINGS)}")
+    return image_to_msg(pixels, stamp=msg.header.stamp, frame_id=msg.header.frame_id)
+
+
+def camera_info_intrinsics(msg: CameraInfo) -> DriverIntrinsics:
+    """The intrinsics of a driver's ``sensor_msgs/CameraInfo``: size, ``K``, and ``D`` as
+    plumb_bob's five coefficients (``plumb_bob`` with 5, or ``rational_polynomial`` with
+    8 whose last three are 0; none = no distortion). ValueError naming the field."""
+    k = [float(v) for v in msg.k]
+    if len(k) != 9 or k[1] != 0.0 or k[3] != 0.0 or k[6:] != [0.0, 0.0, 1.0]:
+        raise ValueError(f"camera_info K must be [fx, 0, cx, 0, fy, cy, 0, 0, 1], got {k}")
+    d = [float(v) for v in msg.d]
+    model = msg.distortion_model
+    if not d:
+        d = [0.0] * 5
+    elif model == "plumb_bob" and len(d) == 5:
+        pass
+    elif model == "rational_polynomial" and len(d) == 8 and not any(d[5:]):
+        d = d[:5]
+    else:
+        raise ValueError(f"camera_info distortion {model!r} with {len(d)} coefficients "
+                         f"{d} is not one the rig holds; expected plumb_bob with 5 (k1, k2, "
+                         "p1, p2, k3), or rational_polynomial with k4 = k5 = k6 = 0")
+    return DriverIntrinsics(int(msg.width), int(msg.height), k[0], k[4], k[2], k[5], tuple(d))
 
 
 def joint_state(theta_rad: float, phi_rad: float, *, stamp) -> JointState:

@@ -20,11 +20,13 @@ Limits (module constants, stated in the README):
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import warnings
 from pathlib import Path, PurePosixPath
 
+import numpy as np
 import yaml
 from PIL import Image, UnidentifiedImageError
 
@@ -32,7 +34,7 @@ from .errors import ViewError
 
 __all__ = ["MAX_IMAGE_FILE_BYTES", "MAX_IMAGE_PIXELS", "MAX_TEXT_FILE_BYTES",
            "MAX_DOCUMENT_DEPTH", "MAX_BAG_RECORD_BYTES", "MAX_WAITING_BYTES",
-           "check_file_size", "image_header",
+           "check_file_size", "image_header", "decode_image_bytes",
            "read_text", "load_yaml",
            "load_json", "brief", "printable", "confined_path"]
 
@@ -92,6 +94,48 @@ def image_header(path: Path) -> tuple[int, int]:
         raise ViewError(f"image {path} declares {width}x{height} pixels; at most "
                         f"{MAX_IMAGE_PIXELS / 1e6:.0f} megapixels are read")
     return int(width), int(height)
+
+
+#: Formats :func:`decode_image_bytes` decodes (Pillow's names).
+DECODED_FORMATS = ("JPEG", "PNG")
+
+
+def decode_image_bytes(data: bytes, what: str, *, max_pixels: int = MAX_IMAGE_PIXELS):
+    """The pixels of a JPEG or PNG image held in memory (a ``CompressedImage``'s data).
+
+    Returns (H, W, 3) uint8 RGB, (H, W) uint8 (grey) or (H, W) uint16 (16-bit
+    grey). The size is checked from the header before anything is decoded:
+    at most :data:`MAX_IMAGE_FILE_BYTES` of data and ``max_pixels`` pixels
+    (default :data:`MAX_IMAGE_PIXELS`), so a small file declaring a huge image
+    (a decompression bomb) costs a header read. Raises ViewError naming
+    ``what``, what was wrong and what is expected.
+    """
+    if len(data) > MAX_IMAGE_FILE_BYTES:
+        raise ViewError(f"{what} is {len(data) / 2**20:.1f} MiB, more than the limit of "
+                        f"{MAX_IMAGE_FILE_BYTES / 2**20:.0f} MiB")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            with Image.open(io.BytesIO(bytes(data)), formats=DECODED_FORMATS) as image:
+                width, height = image.size
+                if width <= 0 or height <= 0 or width * height > max_pixels:
+                    raise ViewError(f"{what} declares {width}x{height} pixels; at most "
+                                    f"{max_pixels / 1e6:g} megapixels are decoded")
+                image.load()
+                mode = image.mode
+                if mode in ("I;16", "I;16B", "I;16L", "I"):
+                    return np.asarray(image, dtype=np.uint16)
+                if mode in ("L", "1"):
+                    return np.asarray(image.convert("L"), dtype=np.uint8)
+                return np.asarray(image.convert("RGB"), dtype=np.uint8)
+    except ViewError:
+        raise
+    except Image.DecompressionBombError:
+        raise ViewError(f"{what} declares more pixels than Pillow opens; at most "
+                        f"{max_pixels / 1e6:g} megapixels are decoded") from None
+    except (UnidentifiedImageError, OSError, ValueError, SyntaxError):
+        raise ViewError(f"{what} is not a readable image ({len(data)} bytes: empty, corrupt "
+                        f"or another format; expected {' or '.join(DECODED_FORMATS)})") from None
 
 
 def read_text(path: Path, what: str) -> str:
