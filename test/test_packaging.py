@@ -47,7 +47,7 @@ WITH_ROSBAGS = {"lz4", "compression", "backports"}
 #: ROS 2 packages imported by the package (rosdep key = package name).
 ROS_PACKAGES = {"rclpy", "ament_index_python", "builtin_interfaces", "rcl_interfaces",
                 "std_msgs", "std_srvs", "sensor_msgs", "geometry_msgs", "shape_msgs",
-                "visualization_msgs", "diagnostic_msgs", "tf2_msgs", "action_msgs",
+                "visualization_msgs", "diagnostic_msgs", "tf2_msgs", "action_msgs", "lifecycle_msgs",
                 "sfs_ros_interfaces"}
 #: Message packages the PyPI ``ros-kilted-rclpy`` wheel brings along.
 WITH_RCLPY = {"builtin_interfaces", "rcl_interfaces"}
