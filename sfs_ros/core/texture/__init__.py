@@ -6,6 +6,7 @@ face (:mod:`.selection`), the atlas (:mod:`.atlas`), levelling along the seams
 its views.
 """
 
+from .from_views import texture_reconstruction
 from .textured import TexturedMesh, texture_mesh
 
-__all__ = ["TexturedMesh", "texture_mesh"]
+__all__ = ["TexturedMesh", "texture_mesh", "texture_reconstruction"]

@@ -143,8 +143,8 @@ def _chart_corners(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray,
     unseen = np.flatnonzero((labels < 0) & ~alone)
     seen = labels >= 0
     if unseen.size and seen.any():
-        texel_area = 0.5 * np.abs(np.cross(corners[seen, 1] - corners[seen, 0],
-                                           corners[seen, 2] - corners[seen, 0]))
+        d1, d2 = corners[seen, 1] - corners[seen, 0], corners[seen, 2] - corners[seen, 0]
+        texel_area = 0.5 * np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])
         tri = vertices[faces[seen]]
         area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
         texels_per_m = 0.5 * float(np.median(np.sqrt(texel_area / np.maximum(area, 1e-300))))

@@ -25,26 +25,36 @@ from scipy.sparse.linalg import lsqr
 
 from ..geometry.camera import Camera
 
-__all__ = ["DARK", "MISMATCH", "corner_colours", "sample_image", "seam_edges", "view_gains"]
+__all__ = ["DARK", "MISMATCH", "bilinear", "corner_colours", "sample_image", "seam_edges", "view_gains"]
 
 #: Seam samples darker than this (grey levels, any channel) are not fitted: their ratio is
 #: mostly noise.
 DARK = 8.0
 #: Seam samples whose two views' colours differ by more than this factor are not fitted.
 MISMATCH = 2.0
+#: Width of the maps OpenCV samples points with.
+_REMAP_WIDTH = 4096
 #: Weight of the term holding each view's log gain to 0, per seam edge of that view.
 _PRIOR = 0.01
+
+
+def bilinear(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """(k, 3) float32 ``image`` (H, W, 3) float32 at the points ``x, y`` (k,) pixels (pixel
+    ``(r, c)``'s centre at ``(c, r)``), bilinear, the border repeated beyond it."""
+    k = len(x)
+    rows = max(1, -(-k // _REMAP_WIDTH))            # OpenCV's maps are below 32767 a side
+    maps = np.full((2, rows * _REMAP_WIDTH), -1.0, np.float32)
+    maps[0, :k], maps[1, :k] = x, y
+    out = cv2.remap(image, maps[0].reshape(rows, -1), maps[1].reshape(rows, -1),
+                    cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return out.reshape(-1, 3)[:k]
 
 
 def sample_image(image: np.ndarray, camera: Camera, points: np.ndarray) -> np.ndarray:
     """(k, 3) float32 colour of ``image`` (H, W, 3) float32 at the projections of ``points``
     (k, 3) metres, bilinear (the border repeated for points projecting outside)."""
-    if len(points) == 0:
-        return np.zeros((0, 3), np.float32)
-    uv = np.nan_to_num(camera.project(points), nan=-1.0).astype(np.float32)
-    out = cv2.remap(image, uv[None, :, 0], uv[None, :, 1], cv2.INTER_LINEAR,
-                    borderMode=cv2.BORDER_REPLICATE)
-    return out.reshape(-1, 3)
+    uv = np.nan_to_num(camera.project(points), nan=-1.0) if len(points) else np.zeros((0, 2))
+    return bilinear(image, uv[:, 0], uv[:, 1])
 
 
 def seam_edges(faces: np.ndarray, labels: np.ndarray, neighbours: np.ndarray) -> np.ndarray:

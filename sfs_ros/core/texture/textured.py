@@ -27,10 +27,13 @@ from ..meshing.colour import check_image, fill_from_neighbours
 from ..render import as_mesh_arrays
 from ..workers import map_in_threads
 from .atlas import Atlas, build_atlas
-from .levelling import corner_colours, sample_image, seam_edges, view_gains
+from .levelling import bilinear, corner_colours, sample_image, seam_edges, view_gains
 from .selection import SMOOTHNESS, face_neighbours, face_quality, label_faces, sharpness
 
-__all__ = ["TexturedMesh", "texture_mesh"]
+__all__ = ["LEVELLING_BLUR_PX", "TexturedMesh", "texture_mesh"]
+
+#: Standard deviation (pixels) of the Gaussian blur of the images the levelling compares.
+LEVELLING_BLUR_PX = 2.0
 
 
 @dataclass(frozen=True)
@@ -70,11 +73,8 @@ class TexturedMesh:
         with ``barycentric`` (k, 3) coordinates: what a renderer draws there."""
         uv = np.einsum("kc,kcd->kd", barycentric, self.uv[self.faces[face_index]])
         height, width = self.texture.shape[:2]
-        x = (uv[:, 0] * width - 0.5).astype(np.float32)
-        y = ((1.0 - uv[:, 1]) * height - 0.5).astype(np.float32)
-        out = cv2.remap(self.texture.astype(np.float32), x[None], y[None], cv2.INTER_LINEAR,
-                        borderMode=cv2.BORDER_REPLICATE)
-        return out.reshape(-1, 3)
+        return bilinear(self.texture.astype(np.float32), uv[:, 0] * width - 0.5,
+                        (1.0 - uv[:, 1]) * height - 0.5)
 
     def vertex_colours(self) -> np.ndarray:
         """(k, 3) uint8 the texture at each vertex (for drawings without textures)."""
@@ -130,9 +130,12 @@ def _split_by_chart(faces: np.ndarray, atlas: Atlas, n_vertices: int) -> tuple:
 def _levelled(images, cameras, vertices, faces, labels, seams, level: bool) -> tuple:
     """The gains (V, 3), seam offsets (m, 3, 3) and vertex colours (n, 3) (seen or
     interpolated) of :func:`texture_mesh`."""
-    gains = (view_gains(images, cameras, vertices, labels, seams) if level and len(seams)
+    # Exposure is what the views disagree on at a scale of pixels; finer detail that a
+    # fraction of a pixel of misregistration changes is blurred away before comparing.
+    smooth = [cv2.GaussianBlur(image, (0, 0), LEVELLING_BLUR_PX) for image in images]
+    gains = (view_gains(smooth, cameras, vertices, labels, seams) if level and len(seams)
              else np.ones((len(cameras), 3)))
-    corner, vertex, views = corner_colours(images, cameras, gains, vertices, faces, labels)
+    corner, vertex, views = corner_colours(smooth, cameras, gains, vertices, faces, labels)
     offsets = np.zeros_like(corner)
     if level:
         meeting = (views[faces] >= 2) & (labels[:, None] >= 0)
