@@ -12,6 +12,7 @@ import cv2
 import numpy as np
 import pytest
 import trimesh
+from test_html_viewer import dominant, project, screenshot
 
 from sfs_ros.cli.reconstruct import main as reconstruct_main
 from sfs_ros.core.exchange.export import export_textured_mesh
@@ -19,6 +20,7 @@ from sfs_ros.core.exchange.inputs import load_views
 from sfs_ros.core.exchange.session import write_session
 from sfs_ros.core.geometry.rig import rig_camera
 from sfs_ros.core.meshing.colour import spread_views
+from sfs_ros.core.pictures.html_viewer import write_html_viewer
 from sfs_ros.core.pipeline import ReconstructionParams, reconstruct
 from sfs_ros.core.render import rasterize_depth, rasterize_silhouette, render_image
 from sfs_ros.core.simulation.objects import fine_color_at
@@ -225,3 +227,25 @@ def test_cli_writes_a_textured_obj_with_its_viewer(tmp_path, scan):
 def test_cli_refuses_a_texture_in_ply(tmp_path, scan, capsys):
     assert reconstruct_main([str(scan[1]), "-o", str(tmp_path / "m.ply"), "--texture"]) == 2
     assert "--texture writes .glb or .obj" in capsys.readouterr().err
+
+
+def test_the_viewer_draws_the_texture(tmp_path):
+    """A sphere whose texture is red where x > 0 and blue elsewhere, its vertex colours
+    green: WebGL draws red and blue where the page's camera puts them, no green."""
+    ball = trimesh.creation.icosphere(subdivisions=4, radius=0.05)
+    vertices = np.asarray(ball.vertices)
+    texture = np.zeros((8, 8, 3), np.uint8)
+    texture[:, :4] = (220, 20, 20)
+    texture[:, 4:] = (20, 20, 220)
+    uv = np.column_stack([np.where(vertices[:, 0] > 0, 0.25, 0.75), np.full(len(vertices), 0.5)])
+    green = np.tile(np.array([20, 220, 20], np.uint8), (len(vertices), 1))
+    page = write_html_viewer(tmp_path / "ball.html", vertices, ball.faces, vertex_colors=green,
+                             uv=uv, texture=texture)
+    image = screenshot(page, "WebGL")
+    assert not dominant(image, 1).any()
+    # The points of the sphere facing the camera at x = +-3 cm: red and blue.
+    for x, channel in ((0.03, 0), (-0.03, 2)):
+        point = np.array([[x, -0.04, 0.0]])
+        point *= 0.05 / np.linalg.norm(point)
+        col, row = np.rint(project(point, vertices)[0]).astype(int)
+        assert dominant(image, channel)[row - 2:row + 3, col - 2:col + 3].all(), (x, channel)
