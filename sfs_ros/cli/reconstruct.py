@@ -15,16 +15,18 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 from pathlib import Path
 
 from ..cell.live import view_key_of
 from ..core.carving.resolution import parse_memory
-from ..core.exchange.export import SUPPORTED_SUFFIXES
+from ..core.exchange.export import SUPPORTED_SUFFIXES, TEXTURED_SUFFIXES
 from ..core.exchange.views import ViewSet, read_image
 from ..core.pipeline import MESHERS, RESOLUTION_RANGE, ReconstructionParams, reconstruct
 from ..core.resident_memory import keep_freed_memory
 from ..core.result_files import SheetViews, report_path_for, write_result
 from ..core.segment import PRESETS, SegmentationParams
+from ..core.texture import texture_reconstruction
 from .common import (
     ACCEPTED_INPUTS,
     StageProgress,
@@ -80,6 +82,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--colour", action="store_true",
                    help="colour the mesh's vertices from the images (the views that see each "
                         "point, blended); a bag's captured images colour it")
+    p.add_argument("--texture", action="store_true",
+                   help="texture the mesh from the images (each face from the view that sees "
+                        "it best, an atlas, colours levelled along the seams): a textured .glb, "
+                        "or .obj with its .mtl and .png; a bag's captured images texture it")
     p.add_argument("--preview", type=Path, metavar="PNG", help="also write a PNG picture of the mesh")
     p.add_argument("--html", type=Path, metavar="HTML",
                    help="also write a self-contained HTML page showing the mesh (orbit, zoom)")
@@ -162,13 +168,21 @@ def run(args) -> dict:
     if args.colour and suffix == ".stl":
         raise ValueError("--colour needs a format that stores vertex colours (.ply, .obj, "
                          ".glb); STL has none")
+    if args.texture and suffix not in TEXTURED_SUFFIXES:
+        raise ValueError(f"--texture writes {' or '.join(TEXTURED_SUFFIXES)}, not {suffix}: "
+                         "PLY and STL hold no texture (use --colour for vertex colours)")
     view_set, recorded = load_input(args.input)
     check_outputs({"-o": args.output, "report": report_path_for(args.output),
                    "--preview": args.preview, "--html": args.html,
-                   "--contact-sheet": args.contact_sheet}, input_files(args.input, view_set))
+                   "--contact-sheet": args.contact_sheet,
+                   **({"the texture atlas": args.output.with_suffix(".png"),
+                       "the material": args.output.with_suffix(".mtl")}
+                      if args.texture and suffix == ".obj" else {})},
+                  input_files(args.input, view_set))
     # A bag's views are the recorded masks; its captured images colour the mesh (their
     # files live as long as ``captures``).
-    captures = load_input(args.input, captures=True)[0] if args.colour and recorded else None
+    captures = (load_input(args.input, captures=True)[0]
+                if (args.colour or args.texture) and recorded else None)
     bag_images = None if captures is None else _by_view(captures, view_set)
     params = ReconstructionParams(
         resolution=recorded.get("resolution") if args.resolution is None else args.resolution,
@@ -186,8 +200,14 @@ def run(args) -> dict:
         result = reconstruct(view_set, params, progress=progress, images=bag_images)
     finally:
         progress.close()
+    textured = None
+    if args.texture:
+        start = time.perf_counter()
+        textured = texture_reconstruction(view_set, result, images=bag_images)
+        result.report["timings_s"]["texture"] = time.perf_counter() - start
     written = write_result(
         result, args.output, units=args.units, vertex_colors=result.vertex_colors,
+        textured=textured,
         preview=args.preview, html=args.html, contact_sheet=args.contact_sheet,
         sheet_views=None if args.contact_sheet is None else _sheet_views(view_set, result))
     return written.document

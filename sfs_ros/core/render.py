@@ -334,8 +334,10 @@ def corner_normals(vertices: np.ndarray, faces: np.ndarray, *, crease_deg: float
 
 
 @njit(cache=True, nogil=True)
-def _shade_kernel(face_id, bary, faces, normals, colors, light, ambient, background, image):
-    """``normals`` (m, 3, 3) per face corner, ``colors`` (n, 3) per vertex."""
+def _shade_kernel(face_id, bary, faces, normals, colors, pixel_rgb, light, ambient, background,
+                  image):
+    """``normals`` (m, 3, 3) per face corner, ``colors`` (n, 3) per vertex, or ``pixel_rgb``
+    (H, W, 3) per pixel unless it is empty (0, 0, 3)."""
     height, width = face_id.shape
     for r in range(height):
         for c in range(width):
@@ -355,6 +357,8 @@ def _shade_kernel(face_id, bary, faces, normals, colors, light, ambient, backgro
                 rgb0 += w * colors[i, 0]
                 rgb1 += w * colors[i, 1]
                 rgb2 += w * colors[i, 2]
+            if pixel_rgb.shape[0]:
+                rgb0, rgb1, rgb2 = pixel_rgb[r, c, 0], pixel_rgb[r, c, 1], pixel_rgb[r, c, 2]
             length = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
             lit = (n0 * light[0] + n1 * light[1] + n2 * light[2]) / length if length > 0 else 0.0
             shade = ambient + (1.0 - ambient) * max(lit, 0.0)
@@ -373,7 +377,7 @@ def _rgb(value, name: str) -> np.ndarray:
 def render_image(vertices, faces, camera: Camera, *, vertex_colors=None,
                  background_rgb=(255, 255, 255), color_rgb=(170, 120, 70), light_dir=None,
                  ambient: float = 0.25, noise_sigma: float = 2.0, seed=None,
-                 normals=None) -> np.ndarray:
+                 normals=None, pixel_colors=None) -> np.ndarray:
     """Render a z-buffered, Lambert-shaded, noisy RGB image of a mesh on a plain background.
 
     Shading is per pixel from interpolated corner normals (:func:`corner_normals`):
@@ -402,6 +406,11 @@ def render_image(vertices, faces, camera: Camera, *, vertex_colors=None,
     normals : (m, 3, 3) float64, optional
         The mesh's :func:`corner_normals`, computed when not given (pass them when
         rendering one mesh from several cameras).
+    pixel_colors : callable, optional
+        ``pixel_colors(face_index, barycentric)`` -> (k, 3) float in [0, 255]: the colour
+        of the visible point of each of k pixels, given its face (k,) int64 and its
+        barycentric coordinates in it (k, 3); replaces ``vertex_colors`` (a procedural
+        pattern finer than the faces, or a texture).
 
     Returns
     -------
@@ -439,8 +448,13 @@ def render_image(vertices, faces, camera: Camera, *, vertex_colors=None,
     def shade(ideal: Camera) -> np.ndarray:
         face_id, bary, _ = rasterize_faces(vertices, faces, ideal)
         image = np.empty((ideal.height, ideal.width, 3), dtype=np.float32)
-        _shade_kernel(face_id, bary, faces, normals, np.ascontiguousarray(colors), light,
-                      float(ambient), background, image)
+        per_pixel = np.zeros((0, 0, 3))
+        if pixel_colors is not None:
+            seen = face_id >= 0
+            per_pixel = np.zeros((ideal.height, ideal.width, 3))
+            per_pixel[seen] = pixel_colors(face_id[seen], bary[seen])
+        _shade_kernel(face_id, bary, faces, normals, np.ascontiguousarray(colors), per_pixel,
+                      light, float(ambient), background, image)
         return image
 
     image = render_through_lens(camera, shade)

@@ -3,7 +3,8 @@
 :func:`write_result` writes, for a :class:`~sfs_ros.core.pipeline.Reconstruction`:
 
 * the mesh (format from the suffix: .ply, .obj, .stl, .glb; vertex colours
-  when given), and beside it ``<stem>.report.json``: ``output`` (the mesh's
+  when given; with a texture, a textured .glb, or .obj with its .mtl and .png), and
+  beside it ``<stem>.report.json``: ``output`` (the mesh's
   path), ``units``, the caller's extra entries, the pipeline's report, and
   ``preview`` / ``html`` / ``contact_sheet`` (paths of those written);
 * on request a PNG picture of the mesh, a self-contained HTML viewer, and a
@@ -27,7 +28,7 @@ import json
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from .exchange.export import mesh_bytes
+from .exchange.export import mesh_bytes, textured_mesh_files
 from .exchange.files import write_atomic_all
 from .pictures.contact_sheet import contact_sheet
 from .pictures.html_viewer import html_viewer
@@ -84,7 +85,7 @@ def report_path_for(mesh_path) -> Path:
 def write_result(result, mesh_path, *, units: str = "m", vertex_colors=None,
                  report=None, extra: dict | None = None, preview=None, html=None,
                  contact_sheet=None, sheet_views: SheetViews | None = None,
-                 within=None) -> WrittenResult:
+                 within=None, textured=None) -> WrittenResult:
     """Write a reconstruction's mesh, its report and the pictures asked for.
 
     Parameters
@@ -109,6 +110,11 @@ def write_result(result, mesh_path, *, units: str = "m", vertex_colors=None,
     within : path-like or None
         A folder every file must lie in, written without following links below
         it (:func:`~sfs_ros.core.exchange.files.write_atomic_all`).
+    textured : sfs_ros.core.texture.TexturedMesh or None
+        The mesh with its texture: written instead of ``result``'s mesh (.glb or .obj,
+        :func:`~sfs_ros.core.exchange.export.textured_mesh_files`); the viewer shows the
+        texture, the preview the texture's colour at each vertex; the report gains
+        ``texture`` (its figures) and ``texture_files``.
 
     Returns
     -------
@@ -126,14 +132,19 @@ def write_result(result, mesh_path, *, units: str = "m", vertex_colors=None,
         raise ValueError("a contact sheet needs sheet_views: the images and masks it shows")
     mesh_path = Path(mesh_path)
     report_path = report_path_for(mesh_path) if report is None else Path(report)
-    mesh_data = mesh_bytes(result.vertices, result.faces, mesh_path,
-                           vertex_colors=vertex_colors, units=units)
+    if textured is None:
+        meshes = [(mesh_path, mesh_bytes(result.vertices, result.faces, mesh_path,
+                                         vertex_colors=vertex_colors, units=units))]
+    else:
+        meshes = textured_mesh_files(textured, mesh_path, units=units)
     document = {"output": str(mesh_path), "units": units, **(extra or {}), **result.report}
+    if textured is not None:
+        document.update(texture=textured.stats, texture_files=[str(p) for p, _ in meshes])
     pictures = _pictures(result, mesh_path, vertex_colors, preview, html, contact_sheet,
-                         sheet_views)
+                         sheet_views, textured)
     document.update({key: str(path) for key, (path, _) in pictures.items()})
     files = [*pictures.values(), (report_path, json.dumps(document, indent=2).encode("utf-8")),
-             (mesh_path, mesh_data)]
+             *meshes]
     _write(files, within)
     return WrittenResult(mesh=mesh_path, report=report_path,
                          preview=pictures.get("preview", (None,))[0],
@@ -166,16 +177,22 @@ def add_pictures(written: WrittenResult, result, *, vertex_colors=None, preview=
 
 
 def _pictures(result, mesh_path: Path, vertex_colors, preview, html, contact_sheet,
-              sheet_views) -> dict:
-    """{"preview" | "html" | "contact_sheet": (path, bytes)} of the pictures asked for."""
+              sheet_views, textured=None) -> dict:
+    """{"preview" | "html" | "contact_sheet": (path, bytes)} of the pictures asked for (of
+    the ``textured`` mesh when given)."""
     pictures = {}
+    shown = (result.vertices, result.faces, vertex_colors, {})
+    if textured is not None:
+        shown = (textured.vertices, textured.faces, textured.vertex_colours(),
+                 {"uv": textured.uv, "texture": textured.texture})
+    vertices, faces, colours, texture = shown
     if preview is not None:
         pictures["preview"] = (Path(preview), png_bytes(preview_image(
-            result.vertices, result.faces, vertex_colors=vertex_colors)))
+            vertices, faces, vertex_colors=colours)))
     if html is not None:
         pictures["html"] = (Path(html), html_viewer(
-            result.vertices, result.faces, vertex_colors=vertex_colors,
-            title=mesh_path.name).encode("utf-8"))
+            vertices, faces, vertex_colors=colours, title=mesh_path.name,
+            **texture).encode("utf-8"))
     if contact_sheet is not None:
         pictures["contact_sheet"] = (Path(contact_sheet),
                                      png_bytes(_sheet(result.report, sheet_views)))

@@ -22,26 +22,39 @@ Vertex colours (uint8 RGB/RGBA or float in [0, 1]) are kept by .ply
 Blender's and MeshLab's OBJ importers read); binary STL cannot hold them, so
 asking for colours in an .stl is an error rather than a silent loss.
 
+A textured mesh (:class:`~sfs_ros.core.texture.TexturedMesh`) is written by
+:func:`textured_mesh_files` / :func:`export_textured_mesh` as a binary glTF whose
+material's ``baseColorTexture`` is the atlas (PNG inside the .glb), or as an OBJ with
+``vt`` texture coordinates, an MTL beside it (``map_Kd``, diffuse colour 1) and the atlas
+as ``<stem>.png``; same axes and units as above.
+
 Files are written atomically: to a temporary file in the same folder, then
 renamed, so a crash never leaves a partial file under the final name.
 """
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
 import numpy as np
 import trimesh
+from PIL import Image
+from trimesh.visual import TextureVisuals
+from trimesh.visual.material import PBRMaterial
 
-from .files import write_atomic
+from .files import write_atomic, write_atomic_all
 
-__all__ = ["SUPPORTED_SUFFIXES", "export_mesh", "load_mesh", "mesh_bytes"]
+__all__ = ["SUPPORTED_SUFFIXES", "TEXTURED_SUFFIXES", "export_mesh", "export_textured_mesh",
+           "load_mesh", "mesh_bytes", "textured_mesh_files"]
 
 SUPPORTED_SUFFIXES = (".ply", ".obj", ".stl", ".glb")
 #: Metres -> file units.
 UNIT_SCALE = {"m": 1.0, "mm": 1000.0}
 #: Formats stored Y up (glTF by specification, OBJ by convention).
 Y_UP_SUFFIXES = (".glb", ".obj")
+#: Formats that carry a texture atlas.
+TEXTURED_SUFFIXES = (".glb", ".obj")
 #: trimesh file type for each suffix.
 _FILE_TYPE = {".ply": "ply", ".obj": "obj", ".stl": "stl", ".glb": "glb"}
 
@@ -200,3 +213,53 @@ def _colors_uint8(colors, n: int) -> np.ndarray:
             raise ValueError("float vertex_colors must lie in [0, 1]")
         return np.round(c * 255.0).astype(np.uint8)
     raise ValueError(f"vertex_colors must be uint8 or float in [0, 1], got dtype {c.dtype}")
+
+
+def _png(texture: np.ndarray) -> bytes:
+    out = io.BytesIO()
+    Image.fromarray(np.ascontiguousarray(texture, dtype=np.uint8)).save(out, format="PNG")
+    return out.getvalue()
+
+
+def _obj_text(vertices: np.ndarray, uv: np.ndarray, faces: np.ndarray, mtl: str) -> bytes:
+    """OBJ with one ``vt`` per vertex (``f a/a b/b c/c``), using material ``atlas``."""
+    corners = faces + 1
+    lines = [f"mtllib {mtl}", *(f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in vertices),
+             *(f"vt {u:.9g} {v:.9g}" for u, v in uv), "usemtl atlas",
+             *(f"f {a}/{a} {b}/{b} {c}/{c}" for a, b, c in corners)]
+    return ("\n".join(lines) + "\n").encode("ascii")
+
+
+def textured_mesh_files(textured, path, *, units: str = "m") -> list[tuple[Path, bytes]]:
+    """The files (path, bytes) of a textured mesh written to ``path`` (.glb: one file; .obj:
+    the OBJ, ``<stem>.mtl`` and ``<stem>.png`` beside it); nothing is written.
+
+    ``textured`` is a :class:`~sfs_ros.core.texture.TexturedMesh` (its ``vertices`` (k, 3)
+    metres, ``faces`` (m, 3), ``uv`` (k, 2) in [0, 1] v up, ``texture`` (H, W, 3) uint8);
+    ``units`` as :func:`export_mesh`'s. ValueError for another suffix.
+    """
+    path = Path(path)
+    suffix = _suffix(path)
+    if suffix not in TEXTURED_SUFFIXES:
+        raise ValueError(f"a texture needs .glb or .obj, not {path.suffix!r} ({path.name}); "
+                         "PLY and STL hold no texture (vertex colours: .ply)")
+    if units not in UNIT_SCALE or (suffix == ".glb" and units != "m"):
+        raise ValueError(f"units must be 'm' for .glb, 'm' or 'mm' for .obj, got {units!r}")
+    v = np.asarray(textured.vertices, dtype=np.float64) * UNIT_SCALE[units]
+    v = np.column_stack((v[:, 0], v[:, 2], -v[:, 1]))                # Y up
+    if suffix == ".obj":
+        mtl, png = path.with_suffix(".mtl"), path.with_suffix(".png")
+        material = (f"newmtl atlas\nKa 1 1 1\nKd 1 1 1\nKs 0 0 0\nillum 1\n"
+                    f"map_Kd {png.name}\n").encode("ascii")
+        return [(png, _png(textured.texture)), (mtl, material),
+                (path, _obj_text(v, textured.uv, textured.faces, mtl.name))]
+    material = PBRMaterial(baseColorTexture=Image.fromarray(textured.texture),
+                           metallicFactor=0.0, roughnessFactor=1.0, doubleSided=False)
+    mesh = trimesh.Trimesh(vertices=v, faces=textured.faces,
+                           visual=TextureVisuals(uv=textured.uv, material=material), process=False)
+    return [(path, mesh.export(file_type="glb"))]
+
+
+def export_textured_mesh(textured, path, *, units: str = "m") -> list[Path]:
+    """Write :func:`textured_mesh_files` atomically, the mesh last; returns the paths."""
+    return write_atomic_all(textured_mesh_files(textured, path, units=units))

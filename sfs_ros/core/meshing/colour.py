@@ -50,8 +50,8 @@ from ..geometry.camera import Camera
 from ..render import as_mesh_arrays, rasterize_depth
 from ..workers import map_in_threads
 
-__all__ = ["MAX_COLOUR_VIEWS", "VertexColours", "spread_views", "vertex_colours",
-           "vertex_normals"]
+__all__ = ["MAX_COLOUR_VIEWS", "VertexColours", "ViewSight", "check_image", "fill_from_neighbours",
+           "spread_views", "vertex_colours", "vertex_normals", "view_sight"]
 
 #: A z-buffer step between neighbouring pixels of more than this many pixel
 #: footprints is a depth discontinuity (a smooth surface only steps that much
@@ -177,21 +177,19 @@ def _bilinear_at(image, u, v, channel):
 
 
 @njit(cache=True, nogil=True)
-def _weigh_view(u, v, z, cos, image, edge_px, zbuf, min_cos, angle_power, edge_ramp_px,
-                depth_tolerance_px, footprint_per_m, footprint_constant, weights, colours,
-                hidden):
-    """One view's part in the blend, for the k vertices it may see.
+def _sight_weights(u, v, z, cos, edge_px, zbuf, min_cos, angle_power, edge_ramp_px,
+                   depth_tolerance_px, footprint_per_m, footprint_constant, weights, hidden):
+    """How well one view sees k points: their weights in a blend (module docstring).
 
-    u, v, z, cos : (k,) float64, the projection (pixels), depth (metres) and view
-    cosine; image (H, W, 3) uint8; edge_px (H, W, 1) float32 distance to an edge
-    pixel, or (0, 0, 1) for none; zbuf (H, W, 1) float64 z-buffer, or (0, 0, 1).
+    u, v, z, cos : (k,) float64, the projection (pixels, within the image), depth
+    (metres) and view cosine; edge_px (H, W, 1) float32 distance to an edge pixel,
+    or (0, 0, 1) for none; zbuf (H, W, 1) float64 z-buffer, or (0, 0, 1).
     A pixel's footprint at depth z is ``footprint_constant + z * footprint_per_m``, metres
     (:func:`_footprint_terms`).
-    Fills ``weights`` (k,) (0: not blended), ``colours`` (k, 3) (the weighted
-    colour) and ``hidden`` (k,) bool (the mesh hides the vertex).
+    Fills ``weights`` (k,) (0: not seen) and ``hidden`` (k,) bool (the mesh hides the point).
     """
     for i in range(u.size):
-        w = ((cos[i] - min_cos) / (1.0 - min_cos)) ** angle_power
+        w = ((cos[i] - min_cos) / (1.0 - min_cos)) ** angle_power if cos[i] > min_cos else 0.0
         if edge_px.shape[0]:
             w *= min(1.0, max(0.0, (_bilinear_at(edge_px, u[i], v[i], 0) - EDGE_MARGIN_PX)
                                 / edge_ramp_px))
@@ -204,6 +202,18 @@ def _weigh_view(u, v, z, cos, image, edge_px, zbuf, min_cos, angle_power, edge_r
                 hidden[i] = True
                 w = 0.0
         weights[i] = w
+
+
+@njit(cache=True, nogil=True)
+def _weigh_view(u, v, z, cos, image, edge_px, zbuf, min_cos, angle_power, edge_ramp_px,
+                depth_tolerance_px, footprint_per_m, footprint_constant, weights, colours,
+                hidden):
+    """One view's part in the blend, for the k vertices it may see: :func:`_sight_weights`,
+    and ``colours`` (k, 3) the weighted colour of ``image`` (H, W, 3) uint8 there."""
+    _sight_weights(u, v, z, cos, edge_px, zbuf, min_cos, angle_power, edge_ramp_px,
+                   depth_tolerance_px, footprint_per_m, footprint_constant, weights, hidden)
+    for i in range(u.size):
+        w = weights[i]
         for c in range(3):
             colours[i, c] = w * _bilinear_at(image, u[i], v[i], c) if w > 0.0 else 0.0
 
@@ -300,7 +310,50 @@ def _view_of(camera: Camera, vertices: np.ndarray, normals: np.ndarray) -> tuple
     return u, v, depth, cos
 
 
-def _check_image(index: int, image, camera: Camera) -> np.ndarray:
+def _in_image(u: np.ndarray, v: np.ndarray, camera: Camera) -> np.ndarray:
+    """(k,) bool: the projections ``u, v`` (pixels) lie where bilinear sampling reads the
+    image, [0, W-1] x [0, H-1] (NaN, behind a pinhole camera, does not)."""
+    return (u >= 0) & (u <= camera.width - 1) & (v >= 0) & (v <= camera.height - 1)
+
+
+@dataclass(frozen=True)
+class ViewSight:
+    """How one view sees k points (:func:`view_sight`): ``u, v`` (k,) float64 pixels, NaN
+    outside the image; ``weight`` (k,) float64 the colour blend's weight, 0 where the
+    view does not see the point (grazing, near an edge, outside the mask, hidden); and
+    ``hidden`` (k,) bool where the mesh hides it."""
+
+    u: np.ndarray
+    v: np.ndarray
+    weight: np.ndarray
+    hidden: np.ndarray
+
+
+def view_sight(camera: Camera, points: np.ndarray, normals: np.ndarray, zbuf: np.ndarray | None,
+               mask: np.ndarray | None, *, angle_power: float = 2.0, min_cos: float = 0.2,
+               edge_ramp_px: float = 3.0, depth_tolerance_px: float = 1.0) -> ViewSight:
+    """Which of ``points`` (k, 3) metres, with unit ``normals`` (k, 3), ``camera`` sees and
+    how well: the test and weight :func:`vertex_colours` blends with, against the mesh's
+    z-buffer ``zbuf`` (H, W) metres (:func:`~sfs_ros.core.render.rasterize_depth`; None:
+    no occlusion test) and the silhouette ``mask`` (H, W) bool (optional). The options
+    are :func:`vertex_colours`'s."""
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    u, v, z, cos = _view_of(camera, points, np.ascontiguousarray(normals, dtype=np.float64))
+    inside = _in_image(u, v, camera)
+    u, v = np.where(inside, u, np.nan), np.where(inside, v, np.nan)
+    idx = np.flatnonzero(inside & (cos > min_cos))
+    constant, per_metre = _footprint_terms(camera)
+    weights, hidden = np.zeros(len(points)), np.zeros(len(points), bool)
+    w, h = np.empty(len(idx)), np.empty(len(idx), bool)
+    _sight_weights(u[idx], v[idx], z[idx], cos[idx],
+                   _planes(_edge_distance_px(zbuf, mask, camera), np.float32),
+                   _planes(zbuf, np.float64), min_cos, angle_power, edge_ramp_px,
+                   depth_tolerance_px, per_metre, constant, w, h)
+    weights[idx], hidden[idx] = w, h
+    return ViewSight(u=u, v=v, weight=weights, hidden=hidden)
+
+
+def check_image(index: int, image, camera: Camera) -> np.ndarray:
     """``image`` as an array; ValueError unless (H, W, 3) uint8 for a camera of >= 2 x 2 px."""
     if not isinstance(camera, Camera):
         raise ValueError(f"camera of view {index} must be a Camera, got {type(camera).__name__}")
@@ -315,7 +368,7 @@ def _check_image(index: int, image, camera: Camera) -> np.ndarray:
     return image
 
 
-def _fill_from_neighbours(colours: np.ndarray, seen: np.ndarray, faces: np.ndarray) -> np.ndarray:
+def fill_from_neighbours(colours: np.ndarray, seen: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Colours (n, 3) float64 of the unseen vertices by harmonic interpolation along edges.
 
     Solves ``deg(i) c_i = sum of c_j over the neighbours j`` for every unseen
@@ -444,7 +497,7 @@ def vertex_colours(vertices, faces, images: Sequence, cameras: Sequence[Camera],
         raise ValueError("coverage comes from the occlusion test's z-buffers: it needs "
                          "occlusion=True")
 
-    images = [_check_image(i, image, c) for i, (image, c) in enumerate(zip(images, cameras))]
+    images = [check_image(i, image, c) for i, (image, c) in enumerate(zip(images, cameras))]
     normals = vertex_normals(vertices, faces)
     total = np.zeros((len(vertices), 3))
     weight_sum = np.zeros(len(vertices))
@@ -455,8 +508,7 @@ def vertex_colours(vertices, faces, images: Sequence, cameras: Sequence[Camera],
         vertices it would see but the mesh hides."""
         image, camera, mask = view
         u, v, z, cos = _view_of(camera, vertices, normals)
-        idx = np.flatnonzero((cos > min_cos) & (u >= 0) & (u <= camera.width - 1)
-                             & (v >= 0) & (v <= camera.height - 1))  # NaN (behind) fails
+        idx = np.flatnonzero(_in_image(u, v, camera) & (cos > min_cos))
         u, v, z, cos = u[idx], v[idx], z[idx], cos[idx]
         zbuf = rasterize_depth(vertices, faces, camera, closed=closed) if occlusion else None
         edge_px = _edge_distance_px(zbuf, mask, camera)
@@ -487,7 +539,7 @@ def vertex_colours(vertices, faces, images: Sequence, cameras: Sequence[Camera],
     colours = np.zeros((len(vertices), 3))
     colours[seen] = total[seen] / weight_sum[seen, None]
     if not seen.all():
-        colours = _fill_from_neighbours(colours, seen, faces)
+        colours = fill_from_neighbours(colours, seen, faces)
     stats = {"vertices": int(len(vertices)), "views": len(cameras), "seen": int(seen.sum()),
              "filled": int((~seen).sum()),
              "mean_views_per_seen_vertex": float(n_views[seen].mean()),

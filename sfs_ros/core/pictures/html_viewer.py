@@ -1,7 +1,9 @@
 """A self-contained HTML viewer of a mesh: one file that any browser opens, no network.
 
 The page embeds the mesh (base64 of little-endian float32 vertices, uint32 faces
-and optional uint8 RGB colours) and a short script that draws it with WebGL or,
+and optional uint8 RGB colours; for a textured mesh also float32 texture coordinates
+and the atlas as a PNG, which WebGL draws and the 2-D canvas replaces by the
+vertices' colours) and a short script that draws it with WebGL or,
 where WebGL is unavailable (no GPU and no software WebGL, or WebGL disabled),
 on a 2-D canvas with the painter's algorithm (triangles sorted back to front,
 flat shaded; a 200,000-face mesh takes about two seconds in software). The
@@ -21,6 +23,7 @@ from __future__ import annotations
 
 import base64
 import html
+import io
 import json
 import math
 from importlib.resources import files
@@ -28,6 +31,7 @@ from pathlib import Path
 from string import Template
 
 import numpy as np
+from PIL import Image
 
 from ..exchange.files import write_atomic
 from ..render import as_mesh_arrays
@@ -54,7 +58,19 @@ def _b64(array: np.ndarray) -> str:
     return base64.b64encode(np.ascontiguousarray(array).tobytes()).decode("ascii")
 
 
-def html_viewer(vertices, faces, *, vertex_colors=None, title: str = "sfs_ros mesh") -> str:
+def _png_b64(texture) -> str:
+    """Base64 of ``texture`` (H, W, 3) uint8 RGB as PNG; ValueError for another array."""
+    texture = np.asarray(texture)
+    if texture.ndim != 3 or texture.shape[2] != 3 or texture.dtype != np.uint8:
+        raise ValueError(f"texture must be (H, W, 3) uint8 RGB, got {texture.dtype} "
+                         f"{texture.shape}")
+    out = io.BytesIO()
+    Image.fromarray(texture).save(out, format="PNG")
+    return base64.b64encode(out.getvalue()).decode("ascii")
+
+
+def html_viewer(vertices, faces, *, vertex_colors=None, title: str = "sfs_ros mesh",
+                uv=None, texture=None) -> str:
     """The HTML text of a self-contained page that shows a triangle mesh (module docstring).
 
     Parameters
@@ -66,6 +82,9 @@ def html_viewer(vertices, faces, *, vertex_colors=None, title: str = "sfs_ros me
         face (2-D canvas); default a uniform tan.
     title : str
         Page title, also shown in the corner of the page.
+    uv, texture : (n, 2) float in [0, 1] (v up) and (H, W, 3) uint8 RGB, optional
+        Texture coordinates and atlas, drawn by WebGL instead of ``vertex_colors`` (which
+        the 2-D canvas keeps); both or neither.
 
     The page is about ``16 n + 16 m`` bytes (base64 of 12 bytes per vertex and
     per face, 4 more per coloured vertex).
@@ -79,11 +98,17 @@ def html_viewer(vertices, faces, *, vertex_colors=None, title: str = "sfs_ros me
     if colors is not None and (colors.shape != vertices.shape or colors.dtype != np.uint8):
         raise ValueError(f"vertex_colors must be ({len(vertices)}, 3) uint8 RGB, got shape "
                          f"{colors.shape} dtype {colors.dtype}")
+    if (uv is None) != (texture is None):
+        raise ValueError("a texture needs both uv and texture")
+    if uv is not None and np.shape(uv) != (len(vertices), 2):
+        raise ValueError(f"uv must be ({len(vertices)}, 2), got shape {np.shape(uv)}")
     center = (vertices.min(axis=0) + vertices.max(axis=0)) / 2
     data = {"center": center.tolist(),  # the bounding sphere, metres: orbit centre and framing
             "radius": max(float(np.linalg.norm(vertices - center, axis=1).max()), 1e-9),
             "vertices": _b64(vertices.astype("<f4")), "faces": _b64(faces.astype("<u4")),
             "colors": None if colors is None else _b64(colors),
+            "uv": None if uv is None else _b64(np.asarray(uv, dtype="<f4")),
+            "texture": None if texture is None else _png_b64(texture),
             "fov_rad": FOV_RAD, "fit": FIT, "azimuth_rad": HOME_AZIMUTH_RAD,
             "elevation_rad": HOME_ELEVATION_RAD, "ambient": AMBIENT,
             "background": BACKGROUND_RGB, "color": DEFAULT_RGB}

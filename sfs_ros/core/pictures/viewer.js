@@ -10,6 +10,7 @@ function decode(b64, Type) {
 }
 const V = decode(M.vertices, Float32Array), F = decode(M.faces, Uint32Array);
 const C = M.colors ? decode(M.colors, Uint8Array) : null;
+const T = M.uv ? decode(M.uv, Float32Array) : null;
 const nf = F.length / 3, view = Object.assign({}, HOME);
 const canvas = document.getElementById("view");
 
@@ -48,11 +49,15 @@ function webgl() {
   };
   const prog = gl.createProgram();
   gl.attachShader(prog, shader(gl.VERTEX_SHADER, `
-    attribute vec3 p, n, c; uniform mat4 mvp; varying vec3 vn, vc;
-    void main() { gl_Position = mvp * vec4(p, 1.0); vn = n; vc = c; }`));
+    attribute vec3 p, n, c; attribute vec2 t; uniform mat4 mvp; varying vec3 vn, vc; varying vec2 vt;
+    void main() { gl_Position = mvp * vec4(p, 1.0); vn = n; vc = c; vt = t; }`));
   gl.attachShader(prog, shader(gl.FRAGMENT_SHADER, `
-    precision mediump float; uniform vec3 light; uniform float ambient; varying vec3 vn, vc;
-    void main() { gl_FragColor = vec4(vc * (ambient + (1.0 - ambient) * abs(dot(normalize(vn), light))), 1.0); }`));
+    precision mediump float; uniform vec3 light; uniform float ambient, textured; uniform sampler2D atlas;
+    varying vec3 vn, vc; varying vec2 vt;
+    void main() {
+      vec3 albedo = textured > 0.5 ? texture2D(atlas, vt).rgb : vc;
+      gl_FragColor = vec4(albedo * (ambient + (1.0 - ambient) * abs(dot(normalize(vn), light))), 1.0);
+    }`));
   gl.linkProgram(prog);
   if (!gl.getProgramParameter(prog, gl.LINK_STATUS)) throw new Error(gl.getProgramInfoLog(prog));
   gl.useProgram(prog);
@@ -63,17 +68,34 @@ function webgl() {
                     [V[c] - V[a], V[c + 1] - V[a + 1], V[c + 2] - V[a + 2]]);
     for (const i of [a, b, c]) for (let k = 0; k < 3; k++) N[i + k] += n[k];
   }
-  const attribute = (name, data, type, normalized) => {
+  const attribute = (name, data, type, normalized, size = 3) => {
     const loc = gl.getAttribLocation(prog, name);
     gl.bindBuffer(gl.ARRAY_BUFFER, gl.createBuffer());
     gl.bufferData(gl.ARRAY_BUFFER, data, gl.STATIC_DRAW);
     gl.enableVertexAttribArray(loc);
-    gl.vertexAttribPointer(loc, 3, type, normalized, 0, 0);
+    gl.vertexAttribPointer(loc, size, type, normalized, 0, 0);
   };
   attribute("p", V, gl.FLOAT, false);
   attribute("n", N, gl.FLOAT, false);
   if (C) attribute("c", C, gl.UNSIGNED_BYTE, true);
   else gl.vertexAttrib3f(gl.getAttribLocation(prog, "c"), ...COLOR.map((v) => v / 255));
+  let textured = 0;
+  if (T) {  // the atlas: drawn once its PNG is decoded (until then, the vertex colours)
+    attribute("t", T, gl.FLOAT, false, 2);
+    const image = new Image();
+    image.onload = () => {
+      gl.bindTexture(gl.TEXTURE_2D, gl.createTexture());
+      gl.pixelStorei(gl.UNPACK_FLIP_Y_WEBGL, true);  // v up: row 0 of the PNG at v = 1
+      gl.texImage2D(gl.TEXTURE_2D, 0, gl.RGB, gl.RGB, gl.UNSIGNED_BYTE, image);
+      for (const [k, v] of [[gl.TEXTURE_MIN_FILTER, gl.LINEAR], [gl.TEXTURE_MAG_FILTER, gl.LINEAR],
+                            [gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE], [gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE]])
+        gl.texParameteri(gl.TEXTURE_2D, k, v);
+      textured = 1;
+      document.body.dataset.texture = "drawn";
+      redraw();
+    };
+    image.src = "data:image/png;base64," + M.texture;
+  } else gl.vertexAttrib2f(gl.getAttribLocation(prog, "t"), 0, 0);
   gl.bindBuffer(gl.ELEMENT_ARRAY_BUFFER, gl.createBuffer());
   gl.bufferData(gl.ELEMENT_ARRAY_BUFFER, F, gl.STATIC_DRAW);
   gl.enable(gl.DEPTH_TEST);
@@ -85,6 +107,7 @@ function webgl() {
     gl.uniformMatrix4fv(gl.getUniformLocation(prog, "mvp"), false, m);
     gl.uniform3fv(gl.getUniformLocation(prog, "light"), toEye);
     gl.uniform1f(gl.getUniformLocation(prog, "ambient"), AMBIENT);
+    gl.uniform1f(gl.getUniformLocation(prog, "textured"), textured);
     gl.drawElements(gl.TRIANGLES, F.length, gl.UNSIGNED_INT, 0);
   };
 }

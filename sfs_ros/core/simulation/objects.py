@@ -41,7 +41,8 @@ import numpy as np
 import trimesh
 from scipy import integrate
 
-__all__ = ["Sphere", "Cylinder", "Torus", "SyntheticObject", "OBJECT_NAMES", "make_object"]
+__all__ = ["Sphere", "Cylinder", "Torus", "SyntheticObject", "OBJECT_NAMES", "fine_color_at",
+           "make_object"]
 
 #: Names accepted by :func:`make_object`.
 OBJECT_NAMES = ("sphere", "torus", "mug")
@@ -325,6 +326,17 @@ class SyntheticObject:
         blue = np.clip((points[:, 2] - lo) / (hi - lo), 0.0, 1.0)
         rgb = 30.0 + 170.0 * np.column_stack([red, green, blue])
         return np.round(rgb).astype(np.uint8)
+
+
+def fine_color_at(points: np.ndarray, *, period_m: float = 0.005) -> np.ndarray:
+    """(n, 3) float64 RGB in [30, 200] of a fine 3-D pattern at points ``(n, 3)``, metres:
+    each channel a sine of period ``period_m`` along one axis (red X, green Y, blue Z),
+    phases apart. Finer than a reconstruction's faces, coarser than the pixels of a
+    scan's views: detail only a texture keeps.
+    """
+    points = _as_points(points)
+    phase = 2.0 * math.pi * points / period_m + np.array([0.0, 1.0, 2.0])
+    return 30.0 + 170.0 * (0.5 + 0.5 * np.sin(phase))
 
 
 def _ring_outside_cylinder_m3(body: Cylinder, ring: Torus) -> float:

@@ -56,16 +56,26 @@ def carving_box(obj: SyntheticObject, *, margin_m: float = 0.01) -> np.ndarray:
 
 def simulate_scan(obj: SyntheticObject, calibration: RigCalibration, plan: np.ndarray, *,
                   angle_error_rad: float = 0.003, noise_sigma: float = 2.0,
-                  background_rgb=(255, 255, 255), seed: int = 0) -> list[Capture]:
+                  background_rgb=(255, 255, 255), seed: int = 0, surface_color=None,
+                  ambient: float = 0.25) -> list[Capture]:
     """Render ``obj`` from every ``(theta_rad, phi_rad)`` row of ``plan`` (n, 2).
 
     ``angle_error_rad`` is the standard deviation of the positioning error of
-    each axis; phi stays within [-pi/2, pi/2].
+    each axis; phi stays within [-pi/2, pi/2]. ``surface_color`` (optional):
+    a function of points (k, 3), metres, to their RGB (k, 3) in [0, 255], drawn at
+    every pixel (e.g. :func:`.objects.fine_color_at`) instead of ``obj``'s smooth
+    pattern at the vertices; ``ambient`` as :func:`~sfs_ros.core.render.render_image`'s
+    (1: unshaded).
     """
     plan = np.asarray(plan, dtype=np.float64).reshape(-1, 2)
     rng = np.random.default_rng(seed)
     vertices, faces = obj.mesh.vertices, obj.mesh.faces
     colors = obj.color_at(vertices)
+    pixel_colors = None
+    if surface_color is not None:
+        def pixel_colors(face_index, barycentric):
+            corners = vertices[faces[face_index]]                 # (k, 3 corners, 3)
+            return surface_color(np.einsum("kc,kcd->kd", barycentric, corners))
     captures = []
     for n, (theta, phi) in enumerate(plan):
         actual_theta = float(theta + rng.normal(0.0, angle_error_rad))
@@ -73,7 +83,8 @@ def simulate_scan(obj: SyntheticObject, calibration: RigCalibration, plan: np.nd
         camera = rig_camera(actual_theta, actual_phi, calibration)
         image = render_image(vertices, faces, camera, vertex_colors=colors,
                              background_rgb=background_rgb, noise_sigma=noise_sigma,
-                             seed=int(rng.integers(2**31)))
+                             seed=int(rng.integers(2**31)), ambient=ambient,
+                             pixel_colors=pixel_colors)
         captures.append(Capture(name=f"view_{n:03d}.png", image=image, theta_rad=actual_theta,
                                 phi_rad=actual_phi, planned_rad=(float(theta), float(phi))))
     return captures

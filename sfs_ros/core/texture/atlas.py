@@ -1,0 +1,273 @@
+"""The texture atlas: charts of faces laid out in one image.
+
+A *chart* is a connected patch of faces that take their colour from the same view (the
+labelling of :mod:`.selection`), laid out as that view sees it: each corner at its
+projection in the view's image, in pixels, times ``texels_per_pixel``. The view sees
+every face of the patch unhidden and facing it, so the projection is one to one and the
+texture is the image itself, resampled only when ``texels_per_pixel`` is not 1 (texels
+per metre on the object as many as the view's pixels per metre there). Faces no view
+sees (the underside on the plate) are grouped by the axis (+-X, +-Y, +-Z) their normal
+is nearest, and each connected patch of one group is projected onto the plane across
+its mean normal when every face turns within 60 degrees of it, at half the seen charts' median
+texels per metre (its colours are interpolated, smooth); otherwise each of its faces is
+a chart of its own, a right triangle of :data:`UNSEEN_TEXELS` texels a leg. Faces that
+would still overlap another in the atlas (a patch seen partly hidden, a curved unseen
+patch) are made charts of their own and the atlas is laid out again.
+
+Charts are packed as rectangles on shelves (tallest first), ``2 * padding`` texels
+apart, into an atlas about as wide as high; when that exceeds ``max_size`` texels a
+side, the charts are scaled down to fit. Texel ``(r, c)``'s centre is the point
+``(c, r)`` of the atlas's coordinates (the renderer's pixel-centre convention, whose
+edge rule gives each texel centre to one face at most: :mod:`sfs_ros.core.render`), and
+a corner at ``(x, y)`` has the texture coordinates ``((x + 0.5) / W, 1 - (y + 0.5) / H)``
+(OBJ's and trimesh's convention: v up from the image's bottom row).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+from scipy import sparse
+from scipy.sparse import csgraph
+
+from ..geometry.camera import Camera
+from ..render import covered_point, edge_tuple, pixel_box, triangle_edges
+
+__all__ = ["UNSEEN_TEXELS", "Atlas", "build_atlas", "chart_of_faces"]
+
+#: Leg of the right triangle a face no view sees takes in the atlas, texels (its colour
+#: is interpolated from its corners: a few texels hold it).
+UNSEEN_TEXELS = 4.0
+#: Times the charts may be scaled down to fit ``max_size``.
+_FIT_TRIES = 6
+#: Times overlapping faces may be split off into charts of their own.
+_SPLIT_TRIES = 3
+#: A patch no view sees is projected onto a plane when its faces' normals are all within
+#: acos of this of their mean.
+_FLAT_COS = 0.5
+
+
+@dataclass(frozen=True)
+class Atlas:
+    """Where each face lies in the texture.
+
+    Attributes
+    ----------
+    shape : (H, W) texels
+    corners : (m, 3, 2) float64
+        Atlas coordinates ``(x, y)`` of each face's corners, texels (texel ``(r, c)``'s
+        centre is ``(c, r)``).
+    chart : (m,) int64
+        The chart of each face.
+    face_index : (H, W) int64
+        The face each texel centre lies in, -1 for none.
+    barycentric : (H, W, 3) float64
+        The texel centre's barycentric coordinates in that face (zero where none).
+    texels_per_pixel : float
+        Scale of the charts against their views' pixels (below the asked one when
+        scaled down to fit).
+    """
+
+    shape: tuple
+    corners: np.ndarray
+    chart: np.ndarray
+    face_index: np.ndarray
+    barycentric: np.ndarray
+    texels_per_pixel: float
+
+    @property
+    def uv(self) -> np.ndarray:
+        """(m, 3, 2) float64 texture coordinates of each face's corners, in [0, 1]."""
+        height, width = self.shape
+        return np.stack([(self.corners[..., 0] + 0.5) / width,
+                         1.0 - (self.corners[..., 1] + 0.5) / height], axis=-1)
+
+
+def chart_of_faces(labels: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
+    """(m,) int64 chart of each face: the connected patches (across edges, ``neighbours``
+    (m, 3)) of faces with one label (m,) (-1, unseen, being a label too)."""
+    m = len(labels)
+    f = np.repeat(np.arange(m), 3)
+    g = neighbours.ravel()
+    keep = (g >= 0) & (labels[f] == labels[np.maximum(g, 0)])
+    graph = sparse.csr_matrix((np.ones(int(keep.sum())), (f[keep], g[keep])), shape=(m, m))
+    return csgraph.connected_components(graph, directed=False)[1].astype(np.int64)
+
+
+def _nearest_axis(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(m,) int64 the axis +X, +Y, +Z, -X, -Y, -Z (0..5) nearest each face's normal."""
+    tri = vertices[faces]
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    return np.argmax(np.concatenate([normal, -normal], axis=1), axis=1).astype(np.int64)
+
+
+def _plane_corners(corners_3d: np.ndarray, chart: np.ndarray, unseen: np.ndarray,
+                   texels_per_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Corners (k, 3, 2) of the unseen faces ``unseen`` (k,) projected onto the plane
+    across their chart's mean normal, texels; and (k,) bool where the chart is flat
+    enough (:data:`_FLAT_COS`) for it."""
+    tri = corners_3d[unseen]
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])     # twice the area
+    _, local = np.unique(chart[unseen], return_inverse=True)
+    mean = np.zeros((local.max() + 1, 3))
+    np.add.at(mean, local, normal)
+    mean /= np.maximum(np.linalg.norm(mean, axis=1, keepdims=True), 1e-300)
+    axis_u = np.cross(mean, np.where(np.abs(mean[:, 2:]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0, 0]]))
+    axis_u /= np.linalg.norm(axis_u, axis=1, keepdims=True)
+    axis_v = np.cross(mean, axis_u)
+    cos = np.einsum("kd,kd->k", normal, mean[local]) / np.maximum(
+        np.linalg.norm(normal, axis=1), 1e-300)
+    flat = np.ones(len(mean), bool)
+    np.logical_and.at(flat, local, cos > _FLAT_COS)
+    plane = texels_per_m * np.stack([np.einsum("kcd,kd->kc", tri, axis_u[local]),
+                                     np.einsum("kcd,kd->kc", tri, axis_v[local])], axis=-1)
+    return plane, flat[local]
+
+
+def _chart_corners(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray,
+                   chart: np.ndarray, alone: np.ndarray, cameras: list[Camera],
+                   scale: float) -> np.ndarray:
+    """(m, 3, 2) corners of each face in its chart before packing: its view's pixels times
+    ``scale``; an unseen face's plane (:func:`_plane_corners`), or when it is ``alone``
+    (m,) bool or its patch is not flat, the unseen faces' triangle."""
+    corners = np.empty((len(faces), 3, 2))
+    corners[:] = [[0.0, 0.0], [UNSEEN_TEXELS, 0.0], [0.0, UNSEEN_TEXELS]]
+    for label, camera in enumerate(cameras):
+        mine = np.flatnonzero(labels == label)
+        if mine.size:
+            corners[mine] = scale * camera.project(vertices[faces[mine]].reshape(-1, 3)
+                                                   ).reshape(-1, 3, 2)
+    unseen = np.flatnonzero((labels < 0) & ~alone)
+    seen = labels >= 0
+    if unseen.size and seen.any():
+        d1, d2 = corners[seen, 1] - corners[seen, 0], corners[seen, 2] - corners[seen, 0]
+        texel_area = 0.5 * np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])
+        tri = vertices[faces[seen]]
+        area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+        texels_per_m = 0.5 * float(np.median(np.sqrt(texel_area / np.maximum(area, 1e-300))))
+        plane, flat = _plane_corners(vertices[faces], chart, unseen, texels_per_m)
+        corners[unseen[flat]] = plane[flat]
+    return corners
+
+
+def _shelves(sizes: np.ndarray, width: int) -> tuple[np.ndarray, int]:
+    """Shelf packing of rectangles ``sizes`` (k, 2) (width, height), tallest first, into a
+    strip ``width`` wide: (k, 2) their top-left corners and the strip's height."""
+    origin = np.zeros((len(sizes), 2))
+    x = y = shelf = 0.0
+    for k in np.argsort(-sizes[:, 1], kind="stable"):
+        w, h = sizes[k]
+        if x + w > width:
+            x, y, shelf = 0.0, y + shelf, 0.0
+        origin[k] = (x, y)
+        x, shelf = x + w, max(shelf, h)
+    return origin, int(math.ceil(y + shelf))
+
+
+def _pack(corners: np.ndarray, chart: np.ndarray, padding: int) -> tuple[np.ndarray, tuple]:
+    """Move each chart's corners (m, 3, 2) to its place in the atlas: returns them and the
+    atlas's shape (H, W), each a multiple of 4 texels."""
+    n = int(chart.max()) + 1
+    flat_chart = np.repeat(chart, 3)
+    points = corners.reshape(-1, 2)
+    low = np.full((n, 2), np.inf)
+    high = np.full((n, 2), -np.inf)
+    np.minimum.at(low, flat_chart, points)
+    np.maximum.at(high, flat_chart, points)
+    low = np.floor(low)                     # texel centres on whole coordinates
+    sizes = np.ceil(high - low) + 1 + 2 * padding
+    width = int(max(sizes[:, 0].max(), math.ceil(math.sqrt(1.05 * np.prod(sizes, axis=1).sum()))))
+    width = 4 * math.ceil(width / 4)
+    origin, height = _shelves(sizes, width)
+    moved = points - low[flat_chart] + origin[flat_chart] + padding
+    return moved.reshape(-1, 3, 2), (4 * math.ceil(height / 4), width)
+
+
+@njit(cache=True, nogil=True)
+def _claim_texels(h, tri, face_id, bary, overlapping):
+    """Rasterise the triangles ``tri`` (m, 3) of the homogeneous points ``h`` (3m, 3) into
+    ``face_id`` (H, W) and ``bary`` (H, W, 3); marks in ``overlapping`` (m,) bool both
+    faces of a texel claimed twice. Returns the count of such texels."""
+    height, width = face_id.shape
+    coef = np.empty((3, 4))
+    again = 0
+    for f in range(tri.shape[0]):
+        c0, c1, r0, r1 = pixel_box(h, tri, f, width, height)
+        if c0 > c1 or r0 > r1 or triangle_edges(h, tri, f, coef) == 0.0:
+            continue
+        edges = edge_tuple(coef)
+        for r in range(r0, r1 + 1):
+            for c in range(c0, c1 + 1):
+                e0, e1, e2, total = covered_point(edges, float(c), float(r))
+                if total == 0.0:
+                    continue
+                if face_id[r, c] >= 0:
+                    again += 1
+                    overlapping[f] = True
+                    overlapping[face_id[r, c]] = True
+                face_id[r, c] = f
+                bary[r, c, 0] = e0 / total
+                bary[r, c, 1] = e1 / total
+                bary[r, c, 2] = e2 / total
+    return again
+
+
+def rasterize_atlas(corners: np.ndarray, shape: tuple) -> tuple:
+    """The face (H, W) int64 (-1: none) and barycentric coordinates (H, W, 3) of every texel
+    centre of faces with atlas ``corners`` (m, 3, 2), the count of texels claimed twice,
+    and (m,) bool the faces that claim them."""
+    h = np.ones((corners.shape[0] * 3, 3))
+    h[:, :2] = corners.reshape(-1, 2)
+    tri = np.arange(len(h), dtype=np.int64).reshape(-1, 3)
+    face_id = np.full(shape, -1, np.int64)
+    bary = np.zeros((*shape, 3))
+    overlapping = np.zeros(len(corners), bool)
+    again = _claim_texels(h, tri, face_id, bary, overlapping)
+    return face_id, bary, again, overlapping
+
+
+def _layout(vertices, faces, labels, chart, alone, cameras, scale: float, padding: int,
+            max_size: int) -> tuple:
+    """Corners (m, 3, 2), shape and scale of the packed charts, scaled down to fit."""
+    for _ in range(_FIT_TRIES):
+        corners, shape = _pack(_chart_corners(vertices, faces, labels, chart, alone, cameras,
+                                              scale), chart, padding)
+        if max(shape) <= max_size:
+            return corners, shape, scale
+        scale *= 0.97 * max_size / max(shape)
+    raise ValueError(f"the charts do not fit a {max_size} texel atlas (too many faces "
+                     "for its padding): allow a larger max_size")
+
+
+def build_atlas(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray,
+                neighbours: np.ndarray, cameras: list[Camera], *, texels_per_pixel: float = 1.0,
+                max_size: int = 4096, padding: int = 2) -> Atlas:
+    """Lay out the charts of the labelled faces (module docstring).
+
+    ``vertices`` (n, 3) metres, ``faces`` (m, 3), ``labels`` (m,) the view of each face
+    (-1: none), ``neighbours`` (m, 3) (:func:`.selection.face_neighbours`), ``cameras``
+    the views; ``padding`` texels around each chart, ``max_size`` the largest side.
+    """
+    if not (math.isfinite(texels_per_pixel) and texels_per_pixel > 0):
+        raise ValueError(f"texels_per_pixel must be a finite number > 0, got {texels_per_pixel}")
+    if int(padding) < 1 or int(max_size) < 64:
+        raise ValueError(f"padding must be >= 1 texel and max_size >= 64, got {padding}, "
+                         f"{max_size}")
+    patch = chart_of_faces(np.where(labels >= 0, labels, -1 - _nearest_axis(vertices, faces)),
+                           neighbours)
+    alone = np.zeros(len(faces), bool)
+    for _ in range(_SPLIT_TRIES):
+        chart = np.where(alone, patch.max() + 1 + np.arange(len(faces)), patch)
+        chart = np.unique(chart, return_inverse=True)[1].astype(np.int64)
+        corners, shape, scale = _layout(vertices, faces, labels, chart, alone, cameras,
+                                        float(texels_per_pixel), int(padding), int(max_size))
+        face_id, bary, again, overlapping = rasterize_atlas(corners, shape)
+        if not again:
+            return Atlas(shape=shape, corners=corners, chart=chart, face_index=face_id,
+                         barycentric=bary, texels_per_pixel=scale)
+        alone |= overlapping
+    raise ValueError(f"{again} texels of the atlas are claimed by two faces after splitting "
+                     "the overlapping faces off: the mesh folds on itself")

@@ -1,0 +1,151 @@
+"""Which view colours each face of a mesh: the quality of every view for every face, and
+a labelling that trades quality against seams.
+
+A view *sees* a face when it sees four points of it (the centroid and the three corners
+pulled :data:`CORNER_PULL` of the way towards it) by the test the vertex colours use
+(:func:`~sfs_ros.core.meshing.colour.view_sight`): in the image, facing the camera,
+inside the silhouette, off its edges and depth steps, and not hidden by the mesh (its
+z-buffer). The face's quality in that view is
+
+    ``q = min(weights of the four points) * projected area (pixels^2) * sharpness``,
+
+the weight falling with the angle from the normal (frontal), the projected area growing
+as the camera comes nearer (``1 / depth^2``) and faces it, and ``sharpness`` the view's
+variance of the Laplacian inside its silhouette relative to the sharpest view's (a
+shot blurred by motion or focus loses to its neighbours).
+
+The labelling (in the spirit of Waechter, Moehrle and Goesele, "Let there be color!",
+2014) minimises ``sum_f cost(f, l_f) + smoothness * #{neighbouring faces with different
+labels}`` with ``cost(f, l) = 1 - q(f, l) / max_l q(f, l)`` (infinite where ``l`` does
+not see ``f``), by iterated conditional modes from the best view of each face: each
+face in turn takes the label that minimises its cost plus its seams, until no face
+changes. Faces no view sees get the label -1.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+from numba import njit
+
+from ..geometry.camera import Camera
+from ..meshing.colour import view_sight
+from ..render import rasterize_depth
+
+__all__ = ["CORNER_PULL", "SMOOTHNESS", "face_neighbours", "face_quality", "label_faces",
+           "sharpness"]
+
+#: The corners of a face are tested for visibility this fraction of the way towards its
+#: centroid: a corner itself lies on the edge of the faces around it, some of which the
+#: view may not see.
+CORNER_PULL = 0.2
+#: Cost of a seam (two neighbouring faces from different views) against the data cost in
+#: [0, 1] of a face (:func:`label_faces`); chosen by measurement (doc/benchmarks.md).
+SMOOTHNESS = 0.3
+#: Most sweeps of iterated conditional modes (it stops earlier when no face changes).
+MAX_SWEEPS = 20
+
+
+def face_samples(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The points a view must see to see a face: (m, 4, 3) metres (centroid, then the
+    corners pulled :data:`CORNER_PULL` towards it), and the unit face normals (m, 3)
+    (zero for a degenerate face)."""
+    corners = vertices[faces]                                       # (m, 3, 3)
+    centroid = corners.mean(axis=1, keepdims=True)
+    pulled = corners + CORNER_PULL * (centroid - corners)
+    normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    length = np.linalg.norm(normal, axis=1, keepdims=True)
+    normal = np.divide(normal, length, out=np.zeros_like(normal), where=length > 0)
+    return np.concatenate([centroid, pulled], axis=1), normal
+
+
+def sharpness(image: np.ndarray, mask: np.ndarray | None) -> float:
+    """Variance of the Laplacian of ``image`` (H, W, 3) uint8's grey levels inside ``mask``
+    (H, W) bool eroded by two pixels (the outline's own step left out), or over the
+    image without a mask; grey levels squared."""
+    grey = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY).astype(np.float32)
+    laplacian = cv2.Laplacian(grey, cv2.CV_32F)
+    if mask is None:
+        return float(laplacian.var())
+    inner = cv2.erode(mask.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+    return float(laplacian[inner].var()) if inner.sum() > 1 else 0.0
+
+
+def face_quality(vertices: np.ndarray, faces: np.ndarray, camera: Camera,
+                 mask: np.ndarray | None, *, closed: bool = False) -> np.ndarray:
+    """(m,) float64 quality of ``camera``'s view for each face (module docstring, without
+    the sharpness factor); 0 where the view does not see the face.
+
+    ``vertices`` (n, 3) metres and ``faces`` (m, 3) outward; ``mask`` (H, W) bool the
+    view's silhouette or None; ``closed``: the mesh is closed and outward (the z-buffer
+    draws the faces turned towards the camera only).
+    """
+    points, normals = face_samples(vertices, faces)
+    zbuf = rasterize_depth(vertices, faces, camera, closed=closed)
+    sight = view_sight(camera, points.reshape(-1, 3), np.repeat(normals, 4, axis=0), zbuf, mask)
+    weight = sight.weight.reshape(-1, 4).min(axis=1)
+    u, v = sight.u.reshape(-1, 4)[:, 1:], sight.v.reshape(-1, 4)[:, 1:]
+    area_px = 0.5 * np.abs((u[:, 1] - u[:, 0]) * (v[:, 2] - v[:, 0])
+                           - (u[:, 2] - u[:, 0]) * (v[:, 1] - v[:, 0])) / (1 - CORNER_PULL) ** 2
+    return np.where(weight > 0, weight * np.nan_to_num(area_px), 0.0)
+
+
+def face_neighbours(faces: np.ndarray) -> np.ndarray:
+    """(m, 3) int64: the face across each edge of each face (edge k joins corners k and
+    k + 1), -1 where the edge has no face or more than one across it."""
+    m = len(faces)
+    ends = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    key = np.sort(ends, axis=1)
+    key = key[:, 0] * (int(faces.max()) + 1) + key[:, 1]
+    order = np.argsort(key, kind="stable")
+    sorted_key = key[order]
+    starts = np.flatnonzero(np.concatenate([[True], sorted_key[1:] != sorted_key[:-1]]))
+    pair = starts[np.diff(np.append(starts, len(key))) == 2]   # edges of exactly two faces
+    a, b = order[pair], order[pair + 1]
+    neighbours = np.full(3 * m, -1, np.int64)
+    neighbours[a], neighbours[b] = b // 3, a // 3
+    return neighbours.reshape(m, 3)
+
+
+@njit(cache=True, nogil=True)
+def _icm(cost, neighbours, labels, smoothness, max_sweeps):
+    """Iterated conditional modes on ``labels`` (m,) in place; returns the sweeps made."""
+    m, n_views = cost.shape
+    for sweep in range(max_sweeps):
+        changed = 0
+        for f in range(m):
+            if labels[f] < 0:
+                continue
+            best, best_cost = labels[f], np.inf
+            for label in range(n_views):
+                c = cost[f, label]
+                if not np.isfinite(c):
+                    continue
+                for k in range(3):
+                    g = neighbours[f, k]
+                    if g >= 0 and labels[g] >= 0 and labels[g] != label:
+                        c += smoothness
+                if c < best_cost:
+                    best, best_cost = label, c
+            if best != labels[f]:
+                labels[f] = best
+                changed += 1
+        if changed == 0:
+            return sweep + 1
+    return max_sweeps
+
+
+def label_faces(quality: np.ndarray, neighbours: np.ndarray, *,
+                smoothness: float = SMOOTHNESS) -> tuple[np.ndarray, int]:
+    """The view of each face (module docstring): ``(labels (m,) int64, -1 where no view
+    sees the face; sweeps made)``, from ``quality`` (m, V) float (0: not seen) and
+    ``neighbours`` (m, 3) (:func:`face_neighbours`). ``smoothness`` 0: the best view of
+    each face."""
+    if not (np.isfinite(smoothness) and smoothness >= 0):
+        raise ValueError(f"smoothness must be a finite number >= 0, got {smoothness}")
+    best = quality.max(axis=1)
+    labels = np.where(best > 0, quality.argmax(axis=1), -1).astype(np.int64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cost = np.where(quality > 0, 1.0 - quality / best[:, None], np.inf)
+    sweeps = _icm(cost, neighbours, labels, float(smoothness), MAX_SWEEPS) if smoothness else 0
+    return labels, sweeps

@@ -1,0 +1,224 @@
+"""A texture for a mesh from calibrated views: :func:`texture_mesh`.
+
+Each face takes its colour from one view (:mod:`.selection`: seen unhidden, frontal,
+near and sharp, neighbours from the same view where quality allows), the faces of a view
+make charts laid out as the view sees them (:mod:`.atlas`), the views' colours are
+levelled along the seams (:mod:`.levelling`), and every texel takes the colour its view
+shows at the texel's point of the face (bilinear). Texels around each chart repeat its
+border's colours (``padding`` of them) so that filtering does not bleed across a seam;
+the rest of the atlas is the texture's mean colour. Faces no view sees (the underside
+on the plate) take colours interpolated from their corners, each corner's colour the mean
+of its seen faces' or, for corners no view sees, harmonic interpolation along the edges
+(as the vertex colours do).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from ..carving.carve import validate_masks
+from ..geometry.camera import Camera
+from ..meshing.colour import check_image, fill_from_neighbours
+from ..render import as_mesh_arrays
+from ..workers import map_in_threads
+from .atlas import Atlas, build_atlas
+from .levelling import bilinear, corner_colours, sample_image, seam_edges, view_gains
+from .selection import SMOOTHNESS, face_neighbours, face_quality, label_faces, sharpness
+
+__all__ = ["LEVELLING_BLUR_PX", "TexturedMesh", "texture_mesh"]
+
+#: Standard deviation (pixels) of the Gaussian blur of the images the levelling compares.
+LEVELLING_BLUR_PX = 2.0
+
+
+@dataclass(frozen=True)
+class TexturedMesh:
+    """A mesh with a texture (:func:`texture_mesh`).
+
+    Attributes
+    ----------
+    vertices : (k, 3) float64
+        Metres, object frame: the input's vertices, one copy per chart a vertex lies in.
+    faces : (m, 3) int64
+        The input's faces in its order, indexing ``vertices``.
+    uv : (k, 2) float64
+        Texture coordinates in [0, 1], v up from the texture's bottom row.
+    texture : (H, W, 3) uint8
+        RGB atlas.
+    source_vertex : (k,) int64
+        The input vertex each vertex copies.
+    face_view : (m,) int64
+        The view (index into the cameras given) each face's colour comes from; -1 for
+        faces no view sees.
+    stats : dict
+        JSON-ready figures: faces, views, charts, seam edges, atlas size and use,
+        gains, seconds per step.
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    uv: np.ndarray
+    texture: np.ndarray
+    source_vertex: np.ndarray
+    face_view: np.ndarray
+    stats: dict
+
+    def colour_at(self, face_index: np.ndarray, barycentric: np.ndarray) -> np.ndarray:
+        """(k, 3) float32 texture colour (bilinear) at points of faces ``face_index`` (k,)
+        with ``barycentric`` (k, 3) coordinates: what a renderer draws there."""
+        uv = np.einsum("kc,kcd->kd", barycentric, self.uv[self.faces[face_index]])
+        height, width = self.texture.shape[:2]
+        return bilinear(self.texture.astype(np.float32), uv[:, 0] * width - 0.5,
+                        (1.0 - uv[:, 1]) * height - 0.5)
+
+    def vertex_colours(self) -> np.ndarray:
+        """(k, 3) uint8 the texture at each vertex (for drawings without textures)."""
+        corner = np.zeros((len(self.vertices), 3), np.float32)
+        face = np.repeat(np.arange(len(self.faces)), 3)
+        corner[self.faces.ravel()] = self.colour_at(face, np.tile(np.eye(3), (len(self.faces), 1)))
+        return np.clip(np.rint(corner), 0, 255).astype(np.uint8)
+
+
+def _dilate(image: np.ndarray, filled: np.ndarray, steps: int) -> None:
+    """Grow the filled texels of ``image`` (H, W, 3) float32 by ``steps`` texels in place,
+    each new texel the mean of its filled 8-neighbours; then the rest the mean colour."""
+    kernel = np.ones((3, 3), np.uint8)
+    for _ in range(steps):
+        grown = cv2.dilate(filled.astype(np.uint8), kernel).astype(bool) & ~filled
+        if not grown.any():
+            break
+        total = cv2.boxFilter(image * filled[..., None], -1, (3, 3), normalize=False)
+        count = cv2.boxFilter(filled.astype(np.float32), -1, (3, 3), normalize=False)
+        image[grown] = total[grown] / count[grown, None]
+        filled |= grown
+    image[~filled] = image[filled].mean(axis=0) if filled.any() else 0.0
+
+
+def _texels(atlas: Atlas, vertices, faces, labels, images, cameras, gains, offsets,
+            vertex_colour) -> np.ndarray:
+    """(H, W, 3) float32 atlas: each texel of a face its view's colour at the texel's point,
+    times the view's gain plus the interpolated seam offsets (``offsets`` (m, 3, 3)); of
+    an unseen face, ``vertex_colour`` (n, 3) interpolated."""
+    image = np.zeros((*atlas.shape, 3), np.float32)
+    rows, cols = np.nonzero(atlas.face_index >= 0)
+    face = atlas.face_index[rows, cols]
+    bary = atlas.barycentric[rows, cols]
+    colour = np.einsum("kc,kcd->kd", bary, vertex_colour[faces[face]])
+    label = labels[face]
+    for view in np.unique(label[label >= 0]):
+        mine = np.flatnonzero(label == view)
+        points = np.einsum("kc,kcd->kd", bary[mine], vertices[faces[face[mine]]])
+        colour[mine] = (gains[view] * sample_image(images[view], cameras[view], points)
+                        + np.einsum("kc,kcd->kd", bary[mine], offsets[face[mine]]))
+    image[rows, cols] = colour
+    return image
+
+
+def _split_by_chart(faces: np.ndarray, atlas: Atlas, n_vertices: int) -> tuple:
+    """One vertex per (chart, vertex): (source vertex (k,), faces (m, 3), uv (k, 2))."""
+    key = (atlas.chart[:, None] * n_vertices + faces).ravel()
+    keys, first, inverse = np.unique(key, return_index=True, return_inverse=True)
+    uv = atlas.uv.reshape(-1, 2)[first]
+    return keys % n_vertices, inverse.reshape(-1, 3).astype(np.int64), uv
+
+
+def _levelled(images, cameras, vertices, faces, labels, seams, level: bool) -> tuple:
+    """The gains (V, 3), seam offsets (m, 3, 3) and vertex colours (n, 3) (seen or
+    interpolated) of :func:`texture_mesh`."""
+    # Exposure is what the views disagree on at a scale of pixels; finer detail that a
+    # fraction of a pixel of misregistration changes is blurred away before comparing.
+    smooth = [cv2.GaussianBlur(image, (0, 0), LEVELLING_BLUR_PX) for image in images]
+    gains = (view_gains(smooth, cameras, vertices, labels, seams) if level and len(seams)
+             else np.ones((len(cameras), 3)))
+    corner, vertex, views = corner_colours(smooth, cameras, gains, vertices, faces, labels)
+    offsets = np.zeros_like(corner)
+    if level:
+        meeting = (views[faces] >= 2) & (labels[:, None] >= 0)
+        offsets[meeting] = vertex[faces][meeting] - corner[meeting]
+    seen = views > 0
+    if not seen.all():
+        vertex = fill_from_neighbours(vertex, seen, faces)
+    return gains, offsets, vertex
+
+
+def _qualities(vertices, faces, images, cameras, masks, closed: bool) -> np.ndarray:
+    """(m, V) quality of each view for each face (:mod:`.selection`), sharpness included."""
+    def one(view):
+        image, camera, mask = view
+        return face_quality(vertices, faces, camera, mask, closed=closed), sharpness(image, mask)
+
+    found = list(map_in_threads(one, zip(images, cameras, masks)))
+    sharp = np.array([s for _, s in found])
+    relative = sharp / sharp.max() if sharp.max() > 0 else np.ones_like(sharp)
+    return np.stack([q * r for (q, _), r in zip(found, relative)], axis=1)
+
+
+def texture_mesh(vertices, faces, images: Sequence, cameras: Sequence[Camera], *,
+                 masks: Sequence | None = None, closed: bool = False, level: bool = True,
+                 smoothness: float = SMOOTHNESS, texels_per_pixel: float = 1.0,
+                 max_size: int = 4096, padding: int = 2) -> TexturedMesh:
+    """Texture a closed mesh from the views that see it (module docstring).
+
+    Parameters
+    ----------
+    vertices : (n, 3) float64, metres; faces : (m, 3) int, outward
+    images : sequence of (H, W, 3) uint8 RGB, each its camera's size (no lens: undistorted)
+    cameras : sequence of Camera
+    masks : sequence of (H, W) bool, optional
+        The silhouettes; a view does not colour a face outside its silhouette.
+    closed : bool
+        The mesh is closed and outward (its z-buffers draw the front faces only).
+    level : bool
+        Level the views' colours along the seams (:mod:`.levelling`).
+    smoothness : float >= 0
+        Cost of a seam against a face's quality (:func:`.selection.label_faces`).
+    texels_per_pixel : float > 0
+        Texels per pixel of a face's view (1: the views' pixels per metre on the object).
+    max_size, padding : int
+        Largest side of the atlas and texels between charts, each side.
+
+    Returns
+    -------
+    TexturedMesh
+    """
+    vertices, faces = as_mesh_arrays(vertices, faces)
+    cameras = list(cameras)
+    if not cameras or len(images) != len(cameras):
+        raise ValueError(f"need one image per camera and at least one, got {len(images)} "
+                         f"images and {len(cameras)} cameras")
+    masks = [None] * len(cameras) if masks is None else validate_masks(cameras, masks)
+    images = [check_image(i, image, c) for i, (image, c) in enumerate(zip(images, cameras))]
+    seconds, start = {}, time.perf_counter()
+    quality = _qualities(vertices, faces, images, cameras, masks, closed)
+    neighbours = face_neighbours(faces)
+    labels, sweeps = label_faces(quality, neighbours, smoothness=smoothness)
+    if (labels < 0).all():
+        raise ValueError("no face is seen by any view: check the cameras and the mesh")
+    seconds["selection"] = time.perf_counter() - start
+    atlas = build_atlas(vertices, faces, labels, neighbours, cameras,
+                        texels_per_pixel=texels_per_pixel, max_size=max_size, padding=padding)
+    seconds["atlas"] = time.perf_counter() - start - sum(seconds.values())
+    floats = [image.astype(np.float32) for image in images]
+    seams = seam_edges(faces, labels, neighbours)
+    gains, offsets, vertex = _levelled(floats, cameras, vertices, faces, labels, seams, level)
+    seconds["levelling"] = time.perf_counter() - start - sum(seconds.values())
+    image = _texels(atlas, vertices, faces, labels, floats, cameras, gains, offsets, vertex)
+    claimed = atlas.face_index >= 0
+    _dilate(image, claimed.copy(), int(padding))
+    source, new_faces, uv = _split_by_chart(faces, atlas, len(vertices))
+    seconds["texels"] = time.perf_counter() - start - sum(seconds.values())
+    stats = {"faces": int(len(faces)), "views": len(cameras), "unseen_faces": int((labels < 0).sum()),
+             "charts": int(atlas.chart.max()) + 1, "seam_edges": int(len(seams)),
+             "labelling_sweeps": int(sweeps), "smoothness": float(smoothness),
+             "atlas_size": [int(atlas.shape[1]), int(atlas.shape[0])],
+             "atlas_use": float(claimed.mean()), "texels_per_pixel": atlas.texels_per_pixel,
+             "levelled": bool(level), "gains": np.round(gains, 4).tolist(),
+             "seconds": seconds}
+    return TexturedMesh(vertices=vertices[source], faces=new_faces, uv=uv,
+                        texture=np.clip(np.rint(image), 0, 255).astype(np.uint8),
+                        source_vertex=source, face_view=labels, stats=stats)
