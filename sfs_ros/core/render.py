@@ -334,8 +334,10 @@ def corner_normals(vertices: np.ndarray, faces: np.ndarray, *, crease_deg: float
 
 
 @njit(cache=True, nogil=True)
-def _shade_kernel(face_id, bary, faces, normals, colors, light, ambient, background, image):
-    """``normals`` (m, 3, 3) per face corner, ``colors`` (n, 3) per vertex."""
+def _shade_kernel(face_id, bary, faces, normals, colors, albedo, light, ambient, background,
+                  image):
+    """``normals`` (m, 3, 3) per face corner, ``colors`` (n, 3) per vertex; ``albedo``
+    (H, W, 3) per pixel instead of them, unless it is empty (0, 0, 3)."""
     height, width = face_id.shape
     for r in range(height):
         for c in range(width):
@@ -355,6 +357,8 @@ def _shade_kernel(face_id, bary, faces, normals, colors, light, ambient, backgro
                 rgb0 += w * colors[i, 0]
                 rgb1 += w * colors[i, 1]
                 rgb2 += w * colors[i, 2]
+            if albedo.shape[0] > 0:
+                rgb0, rgb1, rgb2 = albedo[r, c, 0], albedo[r, c, 1], albedo[r, c, 2]
             length = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
             lit = (n0 * light[0] + n1 * light[1] + n2 * light[2]) / length if length > 0 else 0.0
             shade = ambient + (1.0 - ambient) * max(lit, 0.0)
@@ -373,7 +377,7 @@ def _rgb(value, name: str) -> np.ndarray:
 def render_image(vertices, faces, camera: Camera, *, vertex_colors=None,
                  background_rgb=(255, 255, 255), color_rgb=(170, 120, 70), light_dir=None,
                  ambient: float = 0.25, noise_sigma: float = 2.0, seed=None,
-                 normals=None) -> np.ndarray:
+                 normals=None, texture=None) -> np.ndarray:
     """Render a z-buffered, Lambert-shaded, noisy RGB image of a mesh on a plain background.
 
     Shading is per pixel from interpolated corner normals (:func:`corner_normals`):
@@ -402,6 +406,10 @@ def render_image(vertices, faces, camera: Camera, *, vertex_colors=None,
     normals : (m, 3, 3) float64, optional
         The mesh's :func:`corner_normals`, computed when not given (pass them when
         rendering one mesh from several cameras).
+    texture : callable, optional
+        ``texture(points)``: (k, 3) RGB in [0, 255] of the surface points (k, 3),
+        metres, object frame; evaluated at the point each pixel sees (a solid
+        texture, as fine as the pixels), in place of the vertex colours.
 
     Returns
     -------
@@ -439,8 +447,14 @@ def render_image(vertices, faces, camera: Camera, *, vertex_colors=None,
     def shade(ideal: Camera) -> np.ndarray:
         face_id, bary, _ = rasterize_faces(vertices, faces, ideal)
         image = np.empty((ideal.height, ideal.width, 3), dtype=np.float32)
-        _shade_kernel(face_id, bary, faces, normals, np.ascontiguousarray(colors), light,
-                      float(ambient), background, image)
+        albedo = np.zeros((0, 0, 3))
+        if texture is not None:
+            albedo = np.zeros((ideal.height, ideal.width, 3))
+            seen = face_id >= 0
+            corners = vertices[faces[face_id[seen]]]                  # (k, 3 corners, 3)
+            albedo[seen] = texture(np.einsum("kc,kcd->kd", bary[seen], corners))
+        _shade_kernel(face_id, bary, faces, normals, np.ascontiguousarray(colors), albedo,
+                      light, float(ambient), background, image)
         return image
 
     image = render_through_lens(camera, shade)
