@@ -77,6 +77,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="segment the colours of images with an alpha channel (default: alpha is "
                         "the silhouette)")
     p.add_argument("--units", choices=("m", "mm"), default="m", help="units of the mesh file")
+    p.add_argument("--no-refine", action="store_true",
+                   help="keep the visual hull: skip the refinement that carves what the "
+                        "colours show is empty (concavities no silhouette shows)")
     p.add_argument("--colour", action="store_true",
                    help="colour the mesh's vertices from the images (the views that see each "
                         "point, blended); a bag's captured images colour it")
@@ -180,7 +183,7 @@ def run(args) -> dict:
         consensus=not args.no_consensus,
         holdout=_holdout_names(args.holdout, [v.name for v in view_set.views]),
         segmentation=_segmentation(args, view_set.segmentation),
-        colour=args.colour)
+        colour=args.colour, refine=not args.no_refine)
     progress = StageProgress(quiet=args.quiet)
     try:
         result = reconstruct(view_set, params, progress=progress, images=bag_images)
