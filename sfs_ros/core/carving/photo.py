@@ -57,6 +57,7 @@ class RefineParams:
     depth_step_px : depths are swept in steps that move the point this many pixels in the
         nearest neighbour (at the hull's median depth), and never finer than half a voxel.
     min_ncc : a depth is kept when its score reaches this.
+    min_margin : ... and beats every depth off its peak by this much (unique).
     min_std : grey levels; a flatter patch is not swept (textureless: the hull holds).
     min_views : views that must vote at a voxel for it to be decided.
     truncation_voxels : the fused distance is truncated to this many voxels.
@@ -70,6 +71,7 @@ class RefineParams:
     stride_px: int = 2
     depth_step_px: float = 1.0
     min_ncc: float = 0.7
+    min_margin: float = 0.15
     min_std: float = 4.0
     min_views: int = 3
     truncation_voxels: float = 3.0
@@ -188,7 +190,8 @@ def _depth_map(n: int, cameras, greys, masks, fronts, backs, neighbours, voxel_m
     sweep_kernel(greys[n], inner, fronts[n] - step_m, backs[n] + step_m, _patch_offsets(params),
                  np.array([p[0] for p in parts]), np.array([p[1] for p in parts]),
                  np.stack([greys[j] for j in others]), float(step_m), params.stride_px,
-                 float(params.min_std), min(params.best_of, len(others)), depth, score)
+                 float(params.min_std), min(params.best_of, len(others)),
+                 float(params.min_margin), depth, score)
     depth[~(score >= params.min_ncc)] = np.nan
     return depth
 

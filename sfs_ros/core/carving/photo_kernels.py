@@ -13,6 +13,9 @@ import math
 import numpy as np
 from numba import njit, prange
 
+#: Steps either side of the best depth that belong to its peak (:func:`_sweep_pixel`).
+UNIQUE_STEPS = 3
+
 
 @njit(cache=True, inline="always")
 def _bilinear(image, u, v):
@@ -87,8 +90,10 @@ def _sweep_pixel(patch, offsets, u, v, near, far, step, Ms, ms, images, best_of,
                  scores):
     """Best depth (metres) on ``[near, far]`` in steps of ``step`` for one reference pixel
     and its score: the mean of the ``best_of`` highest neighbour NCCs, refined between the
-    steps by a parabola through the best and its two neighbours. ``scores`` (views,) scratch."""
+    steps by a parabola through the best and its two neighbours; and the best score more
+    than ``UNIQUE_STEPS`` steps from it (-1 if none). ``scores`` (views,) scratch."""
     steps = int((far - near) / step) + 1
+    track = np.empty(steps)
     best, best_depth, before, after, previous = -2.0, np.nan, -2.0, -2.0, -2.0
     for s in range(steps):
         depth = near + s * step
@@ -100,21 +105,30 @@ def _sweep_pixel(patch, offsets, u, v, near, far, step, Ms, ms, images, best_of,
         for j in range(best_of):
             score += scores[scores.shape[0] - 1 - j]
         score /= best_of
+        track[s] = score
         if score > best:
             best, best_depth, before, after = score, depth, previous, -2.0
         elif s > 0 and best_depth == near + (s - 1) * step:
             after = score
         previous = score
+    # The best score away from the peak (more than UNIQUE_STEPS steps): a patch that
+    # matches as well elsewhere along the ray (a smooth ramp, a repeated pattern) decides
+    # nothing.
+    at = int(round((best_depth - near) / step)) if steps else 0
+    rival = -1.0
+    for s in range(steps):
+        if abs(s - at) > UNIQUE_STEPS:
+            rival = max(rival, track[s])
     if before > -2.0 and after > -2.0:
         curvature = before - 2.0 * best + after
         if curvature < 0.0:
             best_depth += step * 0.5 * (before - after) / curvature
-    return best_depth, best
+    return best_depth, best, rival
 
 
 @njit(parallel=True, cache=True)
 def sweep_kernel(image, mask, front, back, offsets, Ms, ms, images, step, stride, min_std,
-                 best_of, depth_out, score_out):
+                 best_of, min_margin, depth_out, score_out):
     """Plane-sweep depth map of one reference view.
 
     ``image`` (H, W) float32 grey; ``mask`` (H, W) bool, pixels whose whole patch lies in
@@ -123,7 +137,8 @@ def sweep_kernel(image, mask, front, back, offsets, Ms, ms, images, step, stride
     (n, 3) homography parts of the ``n`` neighbours and ``images`` (n, H', W') float32
     their grey images. Fills ``depth_out`` and ``score_out`` (H // stride + 1, W // stride
     + 1) at pixels ``(row * stride, col * stride)``: NaN depth where not swept (off the
-    mask, or a patch flatter than ``min_std`` grey levels).
+    mask, or a patch flatter than ``min_std`` grey levels); score -1 where a depth more
+    than ``UNIQUE_STEPS`` steps from the best scores within ``min_margin`` of it.
     """
     rows, cols = depth_out.shape
     k = offsets.shape[0]
@@ -141,9 +156,11 @@ def sweep_kernel(image, mask, front, back, offsets, Ms, ms, images, step, stride
             if _reference_patch(image, r, c, offsets, patch) < min_std:
                 continue
             far = back[r, c] if np.isfinite(back[r, c]) else front[r, c]
-            depth_out[rr, cc], score_out[rr, cc] = _sweep_pixel(
+            depth, score, rival = _sweep_pixel(
                 patch, offsets, float(c), float(r), front[r, c], max(far, front[r, c]), step,
                 Ms, ms, images, best_of, samples, scores)
+            depth_out[rr, cc] = depth
+            score_out[rr, cc] = score if score - rival >= min_margin else -1.0
 
 
 @njit(parallel=True, cache=True)
