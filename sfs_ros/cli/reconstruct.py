@@ -79,6 +79,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="segment the colours of images with an alpha channel (default: alpha is "
                         "the silhouette)")
     p.add_argument("--units", choices=("m", "mm"), default="m", help="units of the mesh file")
+    p.add_argument("--refine", action="store_true",
+                   help="go below the visual hull where the colours show empty space "
+                        "(concavities no silhouette shows): a photo-consistent refinement of "
+                        "the hull, from views that carry colour; seconds more")
     p.add_argument("--colour", action="store_true",
                    help="colour the mesh's vertices from the images (the views that see each "
                         "point, blended); a bag's captured images colour it")
@@ -194,7 +198,7 @@ def run(args) -> dict:
         consensus=not args.no_consensus,
         holdout=_holdout_names(args.holdout, [v.name for v in view_set.views]),
         segmentation=_segmentation(args, view_set.segmentation),
-        colour=args.colour)
+        colour=args.colour, refine=args.refine)
     progress = StageProgress(quiet=args.quiet)
     try:
         result = reconstruct(view_set, params, progress=progress, images=bag_images)

@@ -1,8 +1,9 @@
 """The whole reconstruction: tagged images in, a checked mesh and a report out.
 
 Stages (each timed in the report): segmentation, bounding box, fusion of
-the silhouettes, carving, meshing (cloud of points + advancing front, or marching
-cubes), mesh checks, colour (on request), reprojection of the mesh into every view.
+the silhouettes, carving, refinement below the hull (on request), meshing (cloud
+of points + advancing front, or marching cubes), mesh checks, colour (on request),
+reprojection of the mesh into every view.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from .carving.consistency import bbox_clips_object
 from .carving.directions import check_directions
 from .carving.fusion import fuse_silhouettes, reference_misses
 from .carving.hull import drop_specks
+from .carving.photo import RefinedDistance, refine_hull
 from .carving.resolution import choose_voxel_size, default_memory_budget
 from .exchange.views import View, ViewSet, as_bounds, read_image
 from .geometry.grid import VoxelGrid
@@ -115,6 +117,11 @@ class ReconstructionParams:
         (:func:`sfs_ros.core.meshing.colour.vertex_colours`: the views that see each
         point, blended), at most
         :data:`~sfs_ros.core.meshing.colour.MAX_COLOUR_VIEWS` of them, spread out.
+    refine : bool
+        Go below the visual hull where the colours show empty space (stage
+        ``refinement``, :func:`sfs_ros.core.carving.photo.refine_hull`): concavities
+        no silhouette shows; the hull is kept where the images cannot tell. Needs
+        colour images and pinhole cameras (else skipped, with the reason in the report).
     """
 
     resolution: int | None = None
@@ -130,6 +137,7 @@ class ReconstructionParams:
     segmentation: SegmentationParams | None = None
     colour: bool = False
     consensus: bool = True
+    refine: bool = False
 
     def __post_init__(self) -> None:
         if self.mesher not in MESHERS:
@@ -268,11 +276,10 @@ def _fills_frame(mask: np.ndarray) -> bool:
     return bool((mask[:, 0].any() and mask[:, -1].any()) or (mask[0].any() and mask[-1].any()))
 
 
-def _mesh(occupancy: np.ndarray, grid: VoxelGrid, params: ReconstructionParams, cameras,
-          masks, distances: DistanceImages | None) -> tuple:
-    """Mesh the carved hull on the hull surface of the views that carved it (sub-voxel)."""
-    hull = HullDistance(cameras, masks, max_misses=params.max_misses,
-                        bounds_m=(grid.bounds_min, grid.bounds_max), known=distances)
+def _mesh(occupancy: np.ndarray, grid: VoxelGrid, params: ReconstructionParams,
+          hull: HullDistance | RefinedDistance) -> tuple:
+    """Mesh the carved shape on the zero level of ``hull``, the signed distance to the hull
+    of the views that carved it (or to the refined shape), sub-voxel."""
     if params.mesher == "marching-cubes":
         vertices, faces = hull_marching_cubes_mesh(occupancy, grid, hull)
         return vertices, faces, {}
@@ -308,6 +315,27 @@ def _colour_image(view: View, images: dict | None) -> np.ndarray:
     path), or the view's own file when ``images`` is None."""
     given = view.image_path if images is None else images[view.name]
     return read_image(given) if isinstance(given, (str, os.PathLike)) else given
+
+
+def _refine(occupancy: np.ndarray, grid: VoxelGrid, views: list[View], cameras, masks,
+            images: dict | None, lenses: dict, hull: HullDistance) -> tuple:
+    """The photo-consistent refinement (:func:`.carving.photo.refine_hull`) of the carved
+    hull: ``(occupancy, distance, report)``; the hull itself, with the reason in the
+    report, where the views cannot tell (orthographic cameras, images without colour)."""
+    def skipped(reason: str) -> tuple:
+        return occupancy, hull, {"applied": False, "reason": reason}
+
+    if any(c.orthographic for c in cameras):
+        return skipped("orthographic cameras: the plane sweep needs pinhole views")
+    if images is not None and any(v.name not in images for v in views):
+        return skipped("not every view used has an image")
+    rgb = [undistort_image(_colour_image(v, images), lenses[v.name]) for v in views]
+    if any(np.ndim(image) != 3 or np.shape(image)[2] != 3 for image in rgb):
+        return skipped("the views carry no colour")
+    result = refine_hull(occupancy, grid, cameras, masks, rgb, hull)
+    if not result.occupancy.any():
+        return skipped("the refinement carved everything: kept the hull")
+    return result.occupancy, result.distance, {"applied": True, **result.report}
 
 
 def reconstruct(view_set: ViewSet, params: ReconstructionParams = ReconstructionParams(), *,
@@ -478,10 +506,18 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
             "the visual hull is empty: the silhouettes have no common volume inside the "
             "bounding box (check the bounding box, the camera calibration and the masks)")
 
+    hull = HullDistance(cameras, used_masks, max_misses=params.max_misses,
+                        bounds_m=(grid.bounds_min, grid.bounds_max), known=precomputed.distances)
+    refinement = None
+    if params.refine:
+        with _timed(timings, "refinement"):
+            progress("refinement", 0.0)
+            occupancy, hull, refinement = _refine(occupancy, grid, [views[i] for i in used],
+                                                  cameras, used_masks, images, lenses, hull)
+            progress("refinement", 1.0)
     with _timed(timings, "meshing"):
         progress("meshing", 0.0)
-        vertices, faces, mesher_stats = _mesh(occupancy, grid, params, cameras, used_masks,
-                                              precomputed.distances)
+        vertices, faces, mesher_stats = _mesh(occupancy, grid, params, hull)
         progress("meshing", 1.0)
     # The used views with an image to colour from (all of them, from their files, unless
     # the caller gives the images), at most MAX_COLOUR_VIEWS spread out.
@@ -591,6 +627,7 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
         "resegmentation": resegmentation,
         "consistency": consistency,
         "fusion": fusion_report,
+        "refinement": refinement,
         "occupied_voxels": int(occupancy.sum()),
         "specks_removed": specks_removed,
         "mesher": {"name": params.mesher, **mesher_stats},

@@ -28,7 +28,8 @@ from numba import njit
 from .geometry.camera import Camera
 from .geometry.lens import render_through_lens
 
-__all__ = ["rasterize_depth", "rasterize_faces", "rasterize_silhouette", "render_image"]
+__all__ = ["rasterize_depth", "rasterize_faces", "rasterize_silhouette", "render_image",
+           "solid_colors"]
 
 
 def as_mesh_arrays(vertices, faces) -> tuple[np.ndarray, np.ndarray]:
@@ -372,6 +373,19 @@ def _rgb(value, name: str) -> np.ndarray:
     if rgb.shape != (3,) or not np.all((rgb >= 0) & (rgb <= 255)):
         raise ValueError(f"{name} must be 3 values in [0, 255], got {value!r}")
     return rgb
+
+
+def solid_colors(vertices, faces, color_of_points):
+    """A ``pixel_colors`` for :func:`render_image` that paints each pixel with
+    ``color_of_points(points)``: (k, 3) RGB in [0, 255] of the surface points (k, 3) the
+    pixels see, metres, in the mesh's frame (a solid texture, as fine as the pixels)."""
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
+
+    def pixel_colors(face_index, barycentric):
+        corners = vertices[faces[face_index]]                         # (k, 3 corners, 3)
+        return color_of_points(np.einsum("kc,kcd->kd", barycentric, corners))
+    return pixel_colors
 
 
 def render_image(vertices, faces, camera: Camera, *, vertex_colors=None,

@@ -30,6 +30,23 @@ Objects
     torus in the X-Z plane whose inner half lies inside the body. The handle's
     hole shows in side silhouettes (seen along Y), a concavity no convex hull
     has. Volume: body plus the part of the ring outside the body (quadrature).
+
+Concave objects (:data:`CONCAVE_OBJECT_NAMES`), whose visual hull is not the object, and a
+convex control, built from the parts of :mod:`.concave` (volumes exact):
+
+``cup``
+    Open cup: outer radius 40 mm, 90 mm tall, wall 5 mm, floor 12 mm (78 mm deep).
+``bowl``
+    Hemispherical shell: outer radius 50 mm, 5 mm thick, centre 49 mm above the plate,
+    cut flat where it meets the plate (a foot of radius 9.9 mm; floor 4 mm).
+``pocket_block``
+    Block 80 x 60 x 50 mm with a blind pocket 50 x 30 mm, 35 mm deep, in its top.
+``barrel``
+    Convex solid of revolution (radius 30 mm at both ends, 40 mm at mid-height, 90 mm
+    tall): its hull is itself, a control for methods that go below the hull.
+
+Every object also has a solid colour texture (:meth:`SyntheticObject.texture_at`) to be
+evaluated at the surface point each pixel sees (:func:`sfs_ros.core.render.render_image`).
 """
 
 from __future__ import annotations
@@ -41,11 +58,17 @@ import numpy as np
 import trimesh
 from scipy import integrate
 
-__all__ = ["Sphere", "Cylinder", "Torus", "SyntheticObject", "OBJECT_NAMES", "fine_color_at",
-           "make_object"]
+from .concave import PocketBlock, Revolved, solid_texture
 
-#: Names accepted by :func:`make_object`.
+__all__ = ["Sphere", "Cylinder", "Torus", "SyntheticObject", "OBJECT_NAMES",
+           "CONCAVE_OBJECT_NAMES", "ALL_OBJECT_NAMES", "fine_color_at", "make_object"]
+
+#: The solid objects, those whose visual hull is (nearly) the object.
 OBJECT_NAMES = ("sphere", "torus", "mug")
+#: Objects with concavities no silhouette shows, and a convex textured control.
+CONCAVE_OBJECT_NAMES = ("cup", "bowl", "pocket_block", "barrel")
+#: Names accepted by :func:`make_object`.
+ALL_OBJECT_NAMES = OBJECT_NAMES + CONCAVE_OBJECT_NAMES
 
 
 def _as_points(points) -> np.ndarray:
@@ -251,7 +274,7 @@ class SyntheticObject:
     Attributes
     ----------
     name : str
-    parts : tuple of Sphere | Cylinder | Torus
+    parts : tuple of Sphere | Cylinder | Torus | Revolved | PocketBlock
     volume_m3 : float
         Exact volume of the union, cubic metres.
     bounds : (2, 3) float64
@@ -310,6 +333,11 @@ class SyntheticObject:
                 kept.append(pts[~inside_other])
                 total += int(np.count_nonzero(~inside_other))
         return np.concatenate(kept)[:n] if kept else np.empty((0, 3))
+
+    def texture_at(self, points: np.ndarray) -> np.ndarray:
+        """(n, 3) uint8 RGB of the object's solid texture at points ``(n, 3)``, metres
+        (:func:`.concave.solid_texture`: a colour per 2.5 mm lattice cell)."""
+        return solid_texture(_as_points(points))
 
     def color_at(self, points: np.ndarray) -> np.ndarray:
         """(n, 3) uint8 RGB of the object's colour pattern at points ``(n, 3)``, metres.
@@ -379,8 +407,37 @@ def _ring_rotation_y() -> np.ndarray:
     return np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 
 
+def _arc(centre_z: float, radius: float, start_z: float, end_z: float,
+         segments: int) -> list:
+    """(segments + 1) profile points ``(r, z)`` on the circle of ``radius`` about
+    ``(0, centre_z)`` from height ``start_z`` to ``end_z`` (r >= 0), metres."""
+    a0, a1 = (math.asin(np.clip((z - centre_z) / radius, -1.0, 1.0)) for z in (start_z, end_z))
+    return [(abs(radius * math.cos(a)), centre_z + radius * math.sin(a))
+            for a in np.linspace(a0, a1, segments + 1)]
+
+
+def _concave_object(name: str) -> SyntheticObject:
+    """The object of :data:`CONCAVE_OBJECT_NAMES` called ``name``."""
+    if name == "cup":
+        part = Revolved(((0, 0), (0.04, 0), (0.04, 0.09), (0.035, 0.09), (0.035, 0.012),
+                         (0, 0.012)))
+    elif name == "bowl":
+        outer = _arc(0.049, 0.05, 0.0, 0.049, 64)
+        inner = _arc(0.049, 0.045, 0.049, 0.004, 64)
+        part = Revolved(((0, 0), *outer, *inner[:-1], (0, 0.004)))
+    elif name == "pocket_block":
+        part = PocketBlock((0.08, 0.06, 0.05), (0.05, 0.03, 0.035))
+    else:
+        heights = np.linspace(0.0, 0.09, 49)
+        part = Revolved(((0, 0), *[(0.03 + 0.01 * math.sin(math.pi * z / 0.09), z)
+                                   for z in heights], (0, 0.09)))
+    return SyntheticObject(name, [part], part.volume_m3)
+
+
 def make_object(name: str) -> SyntheticObject:
-    """The synthetic object called ``name`` (one of :data:`OBJECT_NAMES`)."""
+    """The synthetic object called ``name`` (one of :data:`ALL_OBJECT_NAMES`)."""
+    if name in CONCAVE_OBJECT_NAMES:
+        return _concave_object(name)
     if name == "sphere":
         radius = 0.05
         return SyntheticObject(name, [Sphere((0.0, 0.0, radius), radius)],
@@ -396,4 +453,4 @@ def make_object(name: str) -> SyntheticObject:
                      major_sections=256, minor_sections=48)
         volume = body.volume_m3 + _ring_outside_cylinder_m3(body, ring)
         return SyntheticObject(name, [body, ring], volume)
-    raise ValueError(f"unknown object {name!r}; expected one of {OBJECT_NAMES}")
+    raise ValueError(f"unknown object {name!r}; expected one of {ALL_OBJECT_NAMES}")
