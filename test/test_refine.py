@@ -1,4 +1,4 @@
-"""Refinement below the visual hull from the colours (:mod:`sfs_ros.core.carving.photo`),
+"""Refinement below the visual hull from the colours (:mod:`sfs_ros.core.refinement.photo`),
 on small textured renders: 48 views of 320 x 240 on rings at 20, 45 and 70 degrees."""
 
 import numpy as np
@@ -6,7 +6,7 @@ import pytest
 
 from sfs_ros.core.carving.carve import carve
 from sfs_ros.core.carving.hull import drop_specks
-from sfs_ros.core.carving.photo import refine_hull
+from sfs_ros.core.refinement.photo import refine_hull
 from sfs_ros.core.geometry.grid import VoxelGrid
 from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
 from sfs_ros.core.meshing.hull_distance import HullDistance

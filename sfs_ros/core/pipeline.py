@@ -24,7 +24,7 @@ from .carving.consistency import bbox_clips_object
 from .carving.directions import check_directions
 from .carving.fusion import fuse_silhouettes, reference_misses
 from .carving.hull import drop_specks
-from .carving.photo import RefinedDistance, refine_hull
+from .refinement import RefinedDistance, refine_hull
 from .carving.resolution import choose_voxel_size, default_memory_budget
 from .exchange.views import View, ViewSet, as_bounds, read_image
 from .geometry.grid import VoxelGrid
@@ -119,7 +119,7 @@ class ReconstructionParams:
         :data:`~sfs_ros.core.meshing.colour.MAX_COLOUR_VIEWS` of them, spread out.
     refine : bool
         Go below the visual hull where the colours show empty space (stage
-        ``refinement``, :func:`sfs_ros.core.carving.photo.refine_hull`): concavities
+        ``refinement``, :func:`sfs_ros.core.refinement.photo.refine_hull`): concavities
         no silhouette shows; the hull is kept where the images cannot tell. Needs
         colour images and pinhole cameras (else skipped, with the reason in the report).
     """
@@ -319,7 +319,7 @@ def _colour_image(view: View, images: dict | None) -> np.ndarray:
 
 def _refine(occupancy: np.ndarray, grid: VoxelGrid, views: list[View], cameras, masks,
             images: dict | None, lenses: dict, hull: HullDistance) -> tuple:
-    """The photo-consistent refinement (:func:`.carving.photo.refine_hull`) of the carved
+    """The photo-consistent refinement (:func:`.refinement.photo.refine_hull`) of the carved
     hull: ``(occupancy, distance, report)``; the hull itself, with the reason in the
     report, where the views cannot tell (orthographic cameras, images without colour)."""
     def skipped(reason: str) -> tuple:

@@ -36,11 +36,11 @@ from dataclasses import asdict, dataclass, field
 import cv2
 import numpy as np
 
+from ..carving.hull import drop_specks
 from ..geometry.camera import Camera
 from ..geometry.grid import VoxelGrid
 from ..meshing.marching import marching_cubes_mesh
 from ..render import rasterize_depth
-from .hull import drop_specks
 from .photo_kernels import fuse_kernel, sweep_kernel
 
 __all__ = ["RefineParams", "Refinement", "RefinedDistance", "neighbour_views", "refine_hull"]
