@@ -6,12 +6,12 @@ import pytest
 
 from sfs_ros.core.carving.carve import carve
 from sfs_ros.core.carving.hull import drop_specks
-from sfs_ros.core.refinement.photo import refine_hull
 from sfs_ros.core.geometry.grid import VoxelGrid
 from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
 from sfs_ros.core.meshing.hull_distance import HullDistance
 from sfs_ros.core.meshing.marching import hull_marching_cubes_mesh
 from sfs_ros.core.metrics import mesh_occupancy, occupancy_from_contains, volume_iou
+from sfs_ros.core.refinement.photo import refine_hull
 from sfs_ros.core.simulation.objects import make_object
 from sfs_ros.core.simulation.plan import ring_plan
 from sfs_ros.core.simulation.synthetic import carving_box, simulate_scan, surface_errors

@@ -24,7 +24,6 @@ from .carving.consistency import bbox_clips_object
 from .carving.directions import check_directions
 from .carving.fusion import fuse_silhouettes, reference_misses
 from .carving.hull import drop_specks
-from .refinement import RefinedDistance, refine_hull
 from .carving.resolution import choose_voxel_size, default_memory_budget
 from .exchange.views import View, ViewSet, as_bounds, read_image
 from .geometry.grid import VoxelGrid
@@ -43,6 +42,7 @@ from .meshing.hull_distance import DistanceImages, HullDistance
 from .meshing.marching import hull_marching_cubes_mesh
 from .meshing.mesh_checks import check_mesh
 from .metrics import reprojection_ious, silhouette_iou
+from .refinement import RefinedDistance, refine_hull
 from .resegment import Consensus, consensus_masks
 from .segment import SegmentationParams, segment
 from .workers import map_in_threads
