@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 
-__all__ = ["JOINT_NAMES", "IMAGE_ENCODINGS", "stamp_key", "format_stamp", "view_key",
+__all__ = ["JOINT_NAMES", "IMAGE_ENCODINGS", "image_rows", "stamp_key", "format_stamp", "view_key",
            "msg_to_image", "angles_from_joint_state", "ForeignJointState", "scan_report",
            "status_namespace"]
 
@@ -57,6 +57,22 @@ def view_key(stamp: Stamp) -> str:
     return f"{stamp[0]}_{stamp[1]:09d}"
 
 
+def image_rows(msg, bytes_per_pixel: int) -> np.ndarray:
+    """(H, W * bytes_per_pixel) uint8 view of an image message's pixel bytes, row padding
+    (``step`` > row size) skipped; ValueError when the sizes do not add up."""
+    h, w, step = int(msg.height), int(msg.width), int(msg.step)
+    row_bytes = w * bytes_per_pixel
+    if h == 0 or w == 0:
+        raise ValueError(f"image is empty ({w}x{h})")
+    if step < row_bytes:
+        raise ValueError(f"image step {step} is smaller than a row of {w} {msg.encoding} "
+                         f"pixels ({row_bytes} bytes)")
+    if len(msg.data) != h * step:
+        raise ValueError(f"image data has {len(msg.data)} bytes, expected height * step = "
+                         f"{h} * {step} = {h * step}")
+    return np.frombuffer(msg.data, np.uint8).reshape(h, step)[:, :row_bytes]
+
+
 def msg_to_image(msg) -> np.ndarray:
     """Array of a ``sensor_msgs/Image``: (H, W, 3) uint8 RGB for ``rgb8`` / ``bgr8``,
     (H, W) uint8 for ``mono8``, (H, W) uint16 for ``mono16``.
@@ -70,17 +86,8 @@ def msg_to_image(msg) -> np.ndarray:
         raise ValueError(f"unsupported image encoding {msg.encoding!r}; "
                          f"expected one of {sorted(IMAGE_ENCODINGS)}")
     channels, dtype = IMAGE_ENCODINGS[msg.encoding]
-    h, w, step = int(msg.height), int(msg.width), int(msg.step)
-    row_bytes = w * channels * np.dtype(dtype).itemsize
-    if h == 0 or w == 0:
-        raise ValueError(f"image is empty ({w}x{h})")
-    if step < row_bytes:
-        raise ValueError(f"image step {step} is smaller than a row of {w} {msg.encoding} "
-                         f"pixels ({row_bytes} bytes)")
-    if len(msg.data) != h * step:
-        raise ValueError(f"image data has {len(msg.data)} bytes, expected height * step = "
-                         f"{h} * {step} = {h * step}")
-    rows = np.frombuffer(msg.data, np.uint8).reshape(h, step)[:, :row_bytes]
+    h, w = int(msg.height), int(msg.width)
+    rows = image_rows(msg, channels * np.dtype(dtype).itemsize)
     if np.dtype(dtype).itemsize > 1:
         order = ">" if msg.is_bigendian else "<"
         rows = np.ascontiguousarray(rows).view(np.dtype(dtype).newbyteorder(order))

@@ -34,6 +34,7 @@ from sfs_ros.cell.messages import (
     IMAGE_ENCODINGS,
     JOINT_NAMES,
     angles_from_joint_state,
+    image_rows,
     msg_to_image,
     stamp_key,
 )
@@ -107,22 +108,6 @@ DRIVER_ENCODINGS = (*IMAGE_ENCODINGS, *_ALPHA, *_BAYER, *_YUV422)
 #: Bilinear interpolation of a Bayer mosaic: each colour is the weighted mean of the
 #: samples of that colour in the 3 x 3 neighbourhood (normalised by the weights present).
 _BILINEAR = np.array([[1.0, 2.0, 1.0], [2.0, 4.0, 2.0], [1.0, 2.0, 1.0]])
-
-
-def _rows(msg: Image, bytes_per_pixel: int) -> np.ndarray:
-    """(H, W * bytes_per_pixel) uint8 view of an image's pixel bytes, row padding skipped;
-    ValueError when the sizes do not add up."""
-    h, w, step = int(msg.height), int(msg.width), int(msg.step)
-    row_bytes = w * bytes_per_pixel
-    if h == 0 or w == 0:
-        raise ValueError(f"image is empty ({w}x{h})")
-    if step < row_bytes:
-        raise ValueError(f"image step {step} is smaller than a row of {w} {msg.encoding} "
-                         f"pixels ({row_bytes} bytes)")
-    if len(msg.data) != h * step:
-        raise ValueError(f"image data has {len(msg.data)} bytes, expected height * step = "
-                         f"{h} * {step} = {h * step}")
-    return np.frombuffer(msg.data, np.uint8).reshape(h, step)[:, :row_bytes]
 
 
 def bayer_to_rgb(raw, pattern: str) -> np.ndarray:
@@ -201,13 +186,13 @@ def driver_frame(msg, *, max_pixels: int = MAX_IMAGE_PIXELS) -> Image:
         raise ValueError(f"image is {msg.width}x{msg.height} pixels; at most "
                          f"{max_pixels / 1e6:g} megapixels are taken")
     if encoding in _ALPHA:
-        pixels = _rows(msg, 4).reshape(msg.height, msg.width, 4)[:, :, list(_ALPHA[encoding])]
+        pixels = image_rows(msg, 4).reshape(msg.height, msg.width, 4)[:, :, list(_ALPHA[encoding])]
     elif encoding in _BAYER:
-        pixels = bayer_to_rgb(_rows(msg, 1), _BAYER[encoding])
+        pixels = bayer_to_rgb(image_rows(msg, 1), _BAYER[encoding])
     elif encoding in _YUV422:
         if msg.width % 2:
             raise ValueError(f"a {encoding} image must have an even width, got {msg.width}")
-        pixels = yuv422_to_rgb(_rows(msg, 2), _YUV422[encoding])
+        pixels = yuv422_to_rgb(image_rows(msg, 2), _YUV422[encoding])
     else:
         raise ValueError(f"unsupported image encoding {encoding!r}; expected one of "
                          f"{', '.join(DRIVER_ENCODINGS)}")
