@@ -14,13 +14,9 @@ python="$venv/bin/python"
 debian=()
 command -v g++ >/dev/null || debian+=(g++)
 command -v make >/dev/null || debian+=(make)
-if ((${#debian[@]})); then
-    sudo=""
-    [[ $(id -u) -eq 0 ]] || sudo="sudo"
-    echo "installing Debian packages: ${debian[*]}"
-    $sudo apt-get update -qq
-    DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq "${debian[@]}" >/dev/null
-fi
+# shellcheck source=scripts/debian_packages.sh
+source scripts/debian_packages.sh
+install_debian "${debian[@]}"
 "$python" -m pip install -q -r requirements-ros-build.txt
 
 # The wheels' exported *__rosidl_generator_py targets name an include directory of the

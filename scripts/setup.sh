@@ -18,13 +18,9 @@ if [[ "${1:-}" == "--test" ]]; then
     command -v assimp >/dev/null || debian+=(assimp-utils)
     command -v chromium >/dev/null || debian+=(chromium)
 fi
-if ((${#debian[@]})); then
-    sudo=""
-    [[ $(id -u) -eq 0 ]] || sudo="sudo"
-    echo "installing Debian packages: ${debian[*]}"
-    $sudo apt-get update -qq
-    DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq "${debian[@]}" >/dev/null
-fi
+# shellcheck source=scripts/debian_packages.sh
+source scripts/debian_packages.sh
+install_debian "${debian[@]}"
 
 [[ -x "$venv/bin/python" ]] || python3 -m venv "$venv"
 "$venv/bin/python" -m pip install -q --upgrade pip
