@@ -100,24 +100,32 @@ def _line(status) -> str:
             f"{status.phi_rad:.4f} rad; {status.message}")
 
 
-def _scan(client, args) -> int:
+def _follow(goal, args, what: str, *, cancel_wait_s: float):
+    """The result of an accepted ``goal`` with ``--wait``; None without it (said so), or
+    when Ctrl-C cancelled it (the cancellation followed for ``cancel_wait_s``)."""
     from ..ros.cell_client import ScanFailed
+    if not args.wait:
+        print(f"{what} goal accepted")
+        return None
+    try:
+        return goal.wait(args.timeout)
+    except KeyboardInterrupt:
+        goal.cancel(ANSWER_S)
+        try:
+            goal.wait(cancel_wait_s)
+        except ScanFailed as exc:
+            print(f"{PROG}: {exc}", file=sys.stderr)
+        return None
+
+
+def _scan(client, args) -> int:
     goal = client.send_scan(plan_file=os.path.abspath(args.plan) if args.plan else "",
                             scan_name=args.name, object=args.object,
                             feedback=(lambda f: print(_line(f), flush=True)) if args.wait
                             else None, timeout_s=ANSWER_S)
-    if not args.wait:
-        print("scan goal accepted")
-        return 0
-    try:
-        result = goal.wait(args.timeout)
-    except KeyboardInterrupt:
-        goal.cancel(ANSWER_S)
-        try:
-            goal.wait(ANSWER_S)
-        except ScanFailed as exc:
-            print(f"{PROG}: {exc}", file=sys.stderr)
-        return 1
+    result = _follow(goal, args, "scan", cancel_wait_s=ANSWER_S)
+    if result is None:
+        return 0 if not args.wait else 1
     print(f"scan {result.scan} done: {result.views_captured} of {result.views_total} views "
           f"captured, {result.views_stored} stored in {result.session_dir}, "
           f"{len(result.views_rejected)} rejected")
@@ -127,24 +135,14 @@ def _scan(client, args) -> int:
 
 
 def _calibrate(client, args) -> int:
-    from ..ros.cell_client import ScanFailed
     goal = client.send_calibrate(
         plan_file=os.path.abspath(args.plan) if args.plan else "", apply=args.apply,
         feedback=(lambda f: print(f"{f.phase}: {f.views_captured} of {f.views_total} views, "
                                   f"{f.boards_detected} boards detected; {f.message}",
                                   flush=True)) if args.wait else None, timeout_s=ANSWER_S)
-    if not args.wait:
-        print("calibrate goal accepted")
-        return 0
-    try:
-        result = goal.wait(args.timeout)
-    except KeyboardInterrupt:
-        goal.cancel(ANSWER_S)
-        try:
-            goal.wait(ANSWER_S * 4)
-        except ScanFailed as exc:
-            print(f"{PROG}: {exc}", file=sys.stderr)
-        return 1
+    result = _follow(goal, args, "calibrate", cancel_wait_s=ANSWER_S * 4)
+    if result is None:
+        return 0 if not args.wait else 1
     print(f"calibrated: {result.views_used} views, RMS {result.rms_px:.3f} px; "
           f"{result.rig_file}, report {result.report_file}")
     for line in result.views_rejected:
