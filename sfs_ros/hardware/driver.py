@@ -53,6 +53,41 @@ _SLICE_S = 0.02                # longest single read while other threads may wan
 _MAX_LINE_BYTES = 256          # a "line" longer than this without a newline is noise
 
 
+class _TurnLock:
+    """A re-entrant lock that a thread looping on it hands over to the threads waiting.
+
+    CPython's locks are not fair: a thread that releases and at once re-acquires
+    a lock can keep it for as long as it loops, so a status query or a stop
+    from another thread during a long command (homing) could wait until the
+    command ended. The looping thread calls :meth:`let_waiters_in` between
+    two turns; it returns once every thread then waiting has had the lock.
+    """
+
+    def __init__(self):
+        self._lock = threading.RLock()
+        self._turn = threading.Condition()
+        self._waiting = 0
+
+    def __enter__(self) -> _TurnLock:
+        with self._turn:
+            self._waiting += 1
+        try:
+            self._lock.acquire()
+        finally:
+            with self._turn:
+                self._waiting -= 1
+                self._turn.notify_all()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._lock.release()
+
+    def let_waiters_in(self, timeout_s: float) -> None:
+        """Wait (at most ``timeout_s``) until no thread is waiting for the lock."""
+        with self._turn:
+            self._turn.wait_for(lambda: self._waiting == 0, timeout=max(timeout_s, 0.0))
+
+
 class MotorError(RuntimeError):
     """Base class of every error of the motor hardware layer."""
 
@@ -171,7 +206,7 @@ class GrblClient:
         if not isinstance(port, str) or not port:
             raise ValueError(f"port must be a device path or pyserial URL, got {port!r}")
         self.port = port
-        self._lock = threading.RLock()
+        self._lock = _TurnLock()
         self._rx = bytearray()
         self._pending: collections.deque[_Pending] = collections.deque()
         self._status: Status | None = None
@@ -511,6 +546,7 @@ class GrblClient:
                     pending.abandoned = True
                     raise MotorTimeout(f"no answer to {text!r} from the motor controller on "
                                        f"{self.port} in time")
+            self._lock.let_waiters_in(deadline - time.monotonic())
 
     def _pump_until(self, deadline: float) -> bool:
         """Read for one slice (at most ``_SLICE_S``); False if ``deadline`` had already passed."""
