@@ -213,7 +213,8 @@ class ScanPorts(Protocol):
         """Send the axes toward a viewpoint (returns at once)."""
 
     def stop_axes(self) -> None:
-        """Stop the axes (returns at once)."""
+        """Stop the axes; returns once the motor controller has answered (or after a
+        bounded wait)."""
 
     def prepare(self, step: str, *, timeout_s: float, cancelled: threading.Event) -> None:
         """Run a preparation step (``ScanSettings.prepare``); :class:`StepFailed` saying why

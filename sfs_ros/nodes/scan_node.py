@@ -309,7 +309,15 @@ class _RosPorts(MonotonicClock):
                                              stamp=node.get_clock().now().to_msg()))
 
     def stop_axes(self) -> None:
-        self._node.peers["stop"].call_async(Trigger.Request())   # nobody waits for it
+        # Waited for: a stop still on its way when the next goal starts would halt its homing.
+        try:
+            answer = call(self._node.peers["stop"], Trigger.Request(),
+                          timeout_s=self._node._p["service_timeout_s"])
+        except ServiceError as exc:
+            self.log("warning", f"the axes' stop was not confirmed: {exc}")
+            return
+        if not answer.success:
+            self.log("warning", f"the axes' stop failed: {answer.message}")
 
     def prepare(self, step: str, *, timeout_s: float, cancelled: threading.Event) -> None:
         if step == "listeners":
