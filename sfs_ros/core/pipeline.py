@@ -9,15 +9,12 @@ reprojection of the mesh into every view.
 from __future__ import annotations
 
 import os
-import threading
-import time
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
-from contextlib import contextmanager
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
+from .carved_scan import CarvedScan, ScanView
 from .carving.bounds import BoxCarve, estimate_bounds, refine_bounds
 from .carving.carve import PreparedMasks, carve
 from .carving.consistency import bbox_clips_object
@@ -35,34 +32,26 @@ from .geometry.lens import (
     undistort_image,
     undistort_mask,
 )
-from .meshing.advancing_front import advancing_front
-from .meshing.cloud import cloud_of_points
-from .meshing.colour import MAX_COLOUR_VIEWS, spread_views, vertex_colours
+from .mesh_scan import Reconstruction, mesh_scan
+from .mesh_scan import timed as _timed
+from .meshing.colour import MAX_COLOUR_VIEWS, spread_views
 from .meshing.hull_distance import DistanceImages, HullDistance
-from .meshing.marching import hull_marching_cubes_mesh
-from .meshing.mesh_checks import check_mesh
-from .metrics import reprojection_ious, silhouette_iou
-from .refinement import RefinedDistance, refine_hull
+from .meshing.meshers import MESHERS as MESHER_REGISTRY
+from .meshing.meshers import mesher
+from .refinement import refine_hull
 from .resegment import Consensus, consensus_masks
 from .segment import SegmentationParams, segment
 from .workers import map_in_threads
 
-__all__ = ["MESHERS", "RESOLUTION_RANGE", "Precomputed", "ReconstructionParams", "Reconstruction",
-           "reconstruct"]
+__all__ = ["MESHERS", "RESOLUTION_RANGE", "CarvedScan", "Precomputed", "ReconstructionParams",
+           "Reconstruction", "carve_scan", "reconstruct"]
 
-MESHERS = ("marching-cubes", "advancing-front")
+#: The meshers' names (:data:`sfs_ros.core.meshing.meshers.MESHERS`); the first is the default.
+MESHERS = tuple(MESHER_REGISTRY)
 #: Voxels along the box's longest side a reconstruction may be asked for, inclusive: one
 #: range for the command line, the reconstruction node's parameter and its requests (the
 #: memory budget then decides whether a grid fits).
 RESOLUTION_RANGE = (8, 2048)
-
-#: What the report's silhouette IoU is, written into every report beside it.
-SILHOUETTE_IOU_MEANING = (
-    "IoU of the mesh's silhouette, drawn into each view, with the mask this reconstruction "
-    "made from that view's image. For 'used' views it is agreement with the masks that "
-    "carved the mesh (high by construction, not a measure of accuracy); for 'held-out' views "
-    "(not carved with) it is a leave-one-out prediction; 'rejected' views show how far off "
-    "their masks were. Accuracy needs references the reconstruction did not make.")
 
 #: Progress callback: (stage name, fraction of the stage done in [0, 1]).
 Progress = Callable[[str, float], None]
@@ -158,26 +147,6 @@ class ReconstructionParams:
                              f"got {self.consistency_max_missing}")
 
 
-@dataclass
-class Reconstruction:
-    """What :func:`reconstruct` returns.
-
-    vertices : (n, 3) float64, metres, object frame; faces : (m, 3) int64,
-    outward; occupancy : (nx, ny, nz) bool on ``grid``; report : JSON-ready dict;
-    vertex_colors : (n, 3) uint8 RGB with ``colour=True``, else None;
-    masks : {view name: (H, W) bool} silhouette of every view read and segmented, as taken
-        (through the lens; carving used it undistorted, :mod:`.geometry.lens`).
-    """
-
-    vertices: np.ndarray
-    faces: np.ndarray
-    occupancy: np.ndarray
-    grid: VoxelGrid
-    report: dict = field(default_factory=dict)
-    vertex_colors: np.ndarray | None = None
-    masks: dict = field(default_factory=dict)
-
-
 @dataclass(frozen=True)
 class Precomputed:
     """What a scan received view by view computed as its views arrived (while the rig
@@ -190,16 +159,6 @@ class Precomputed:
 
     distances: DistanceImages | None = None
     box: BoxCarve | None = None
-
-
-@contextmanager
-def _timed(seconds: dict[str, float], stage: str):
-    """Add the wall time of the ``with`` block to ``seconds[stage]``."""
-    start = time.perf_counter()
-    try:
-        yield
-    finally:
-        seconds[stage] = seconds.get(stage, 0.0) + time.perf_counter() - start
 
 
 def _read_and_segment(view: View, params: SegmentationParams,
@@ -276,21 +235,6 @@ def _fills_frame(mask: np.ndarray) -> bool:
     return bool((mask[:, 0].any() and mask[:, -1].any()) or (mask[0].any() and mask[-1].any()))
 
 
-def _mesh(occupancy: np.ndarray, grid: VoxelGrid, params: ReconstructionParams,
-          hull: HullDistance | RefinedDistance) -> tuple:
-    """Mesh the carved shape on the zero level of ``hull``, the signed distance to the hull
-    of the views that carved it (or to the refined shape), sub-voxel."""
-    if params.mesher == "marching-cubes":
-        vertices, faces = hull_marching_cubes_mesh(occupancy, grid, hull)
-        return vertices, faces, {}
-    cloud = cloud_of_points(occupancy, grid, block=params.block)
-    # Surface voxel centres lie up to a voxel inside the hull surface: move them onto it.
-    points, on_hull = hull.project(cloud.points, cloud.normals, reach_m=2.0 * grid.voxel_size)
-    result = advancing_front(points, cloud.normals)
-    return points, result.faces, {**result.stats, "cloud_points": int(len(points)),
-                                  "cloud_points_on_hull": int(on_hull.sum())}
-
-
 def _consensus(views: list[View], used: list[int], cameras, masks, prepared: PreparedMasks,
                grid: VoxelGrid, seg_params: SegmentationParams, lenses: dict) -> Consensus:
     """The used views' masks re-segmented with the hull of all views as a prior
@@ -338,11 +282,12 @@ def _refine(occupancy: np.ndarray, grid: VoxelGrid, views: list[View], cameras, 
     return result.occupancy, result.distance, {"applied": True, **result.report}
 
 
-def reconstruct(view_set: ViewSet, params: ReconstructionParams = ReconstructionParams(), *,
-                progress: Progress | None = None, masks: dict | None = None,
-                images: dict | None = None,
-                precomputed: Precomputed = Precomputed()) -> Reconstruction:
-    """Reconstruct the object seen in ``view_set``.
+def carve_scan(view_set: ViewSet, params: ReconstructionParams = ReconstructionParams(), *,
+               progress: Progress | None = None, masks: dict | None = None,
+               images: dict | None = None,
+               precomputed: Precomputed = Precomputed()) -> CarvedScan:
+    """The carving half of :func:`reconstruct`: the views' hull and what its meshing needs
+    (:class:`~sfs_ros.core.carved_scan.CarvedScan`).
 
     ``masks`` ({view name: (H, W) bool}, optional) are silhouettes the caller already
     has (e.g. a live scan's received masks): those views are not read nor segmented.
@@ -428,10 +373,10 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
                                    max_memory_bytes=params.max_memory_bytes
                                    or default_memory_budget())
         grid = VoxelGrid(bounds[0], bounds[1], choice.voxel_size_m)
-        if params.mesher == "advancing-front" and params.block > max(1, max(grid.shape) // 4):
-            raise ValueError(
-                f"block (M) {params.block} leaves fewer than 4 blocks along the grid's longest "
-                f"side ({tuple(grid.shape)} voxels); expected 1..{max(1, max(grid.shape) // 4)}")
+        chosen = mesher(params.mesher)
+        mesher_options = {name: getattr(params, name) for name in chosen.options}
+        if chosen.check is not None:
+            chosen.check(grid, **mesher_options)
 
     resegmentation = None
     if params.consensus and len(cameras) >= 3 and seg_params.method == "graph-cut":
@@ -515,99 +460,15 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
             occupancy, hull, refinement = _refine(occupancy, grid, [views[i] for i in used],
                                                   cameras, used_masks, images, lenses, hull)
             progress("refinement", 1.0)
-    with _timed(timings, "meshing"):
-        progress("meshing", 0.0)
-        vertices, faces, mesher_stats = _mesh(occupancy, grid, params, hull)
-        progress("meshing", 1.0)
+    with _timed(timings, "mesher_input"):
+        mesher_input = chosen.prepare(occupancy, grid, hull, **mesher_options)
     # The used views with an image to colour from (all of them, from their files, unless
     # the caller gives the images), at most MAX_COLOUR_VIEWS spread out.
     coloured = ([n for n, i in enumerate(used) if images is None or views[i].name in images]
                 if params.colour else [])
     coloured = [coloured[k] for k in spread_views([cameras[n] for n in coloured],
                                                   MAX_COLOUR_VIEWS)] if coloured else []
-    # The colour draws its views' silhouettes of the mesh with its z-buffers; the others
-    # are drawn for the evaluation.
-    drawn = sorted(set(range(len(views))) - {used[n] for n in coloured})
-
-    blended = threading.Event()     # the colour's views are blended: its fill is left
-
-    def colour(closed: bool):
-        with _timed(timings, "colour"):
-            progress("colour", 0.0)
-            try:
-                found = vertex_colours(
-                    vertices, faces,
-                    [undistort_image(_colour_image(views[used[n]], images),
-                                     lenses[views[used[n]].name]) for n in coloured],
-                    [cameras[n] for n in coloured], masks=[used_masks[n] for n in coloured],
-                    coverage=True, closed=closed, on_blended=blended.set) if coloured else None
-            finally:
-                blended.set()
-            progress("colour", 1.0)
-        return found
-
-    def draw(closed: bool):
-        # The evaluation (both cores) waits for the colour's fill (one core) to run beside.
-        blended.wait()
-        with _timed(timings, "evaluation"):
-            return reprojection_ious(vertices, faces, [views[i].camera for i in drawn],
-                                     [masks[i] for i in drawn], closed=closed) if drawn else []
-
-    # A marching-cubes mesh is closed and outward by construction: its checks run beside
-    # the colour and the evaluation, which count on a closed mesh for half their drawing
-    # (should the checks find it otherwise, both are done again, the same as one after
-    # the other). Another mesher's mesh is checked first.
-    mesh_report = None
-    if params.mesher == "marching-cubes":
-        expect_closed = True
-    else:
-        with _timed(timings, "mesh_checks"):
-            mesh_report = check_mesh(vertices, faces).as_dict()
-        expect_closed = bool(mesh_report["watertight"] and mesh_report["outward"])
-
-    def checks_then_draw(closed: bool):
-        report = mesh_report
-        if report is None:
-            with _timed(timings, "mesh_checks"):
-                report = check_mesh(vertices, faces).as_dict()
-        return report, draw(closed)
-
-    with ThreadPoolExecutor(max_workers=1) as side:
-        beside = side.submit(checks_then_draw, expect_closed)
-        try:
-            colours, failure = colour(expect_closed), None
-        except ValueError as exc:   # an error of a wrong guess is no error: see below
-            colours, failure = None, exc
-        mesh_report, drawn_ious = beside.result()
-    closed = bool(mesh_report["watertight"] and mesh_report["outward"])
-    if closed != expect_closed:
-        colours = colour(closed)
-        drawn_ious = draw(closed)
-    elif failure is not None:
-        raise failure
-
-    with _timed(timings, "evaluation"):
-        progress("evaluation", 0.0)
-        used_names = {views[i].name for i in used}
-        # The coloured views' silhouettes of the mesh came with the colour's z-buffers (the
-        # same pixel-centre rule); the other views' are found here, a closed mesh's from
-        # its outline. Both agree with drawing every face, exact ties on the outline aside.
-        ious = np.empty(len(views))
-        ious[drawn] = drawn_ious
-        for n, packed in zip(coloured, colours.coverage if colours is not None else []):
-            mask = masks[used[n]]
-            ious[used[n]] = silhouette_iou(
-                np.unpackbits(packed, count=mask.size).reshape(mask.shape).view(bool), mask)
-        per_view = [{"view": view.name,
-                     "role": ("used" if view.name in used_names
-                              else "held-out" if view.name in params.holdout else "rejected"),
-                     "silhouette_iou": float(iou)} for view, iou in zip(views, ious)]
-        progress("evaluation", 1.0)
-
-    def mean_iou(role: str) -> float | None:
-        values = [p["silhouette_iou"] for p in per_view if p["role"] == role]
-        return float(np.mean(values)) if values else None
-
+    used_names = {views[i].name for i in used}
     report = {
         "input": {"source": view_set.source, "views": len(view_set.views)},
         "parameters": {
@@ -630,14 +491,31 @@ def reconstruct(view_set: ViewSet, params: ReconstructionParams = Reconstruction
         "refinement": refinement,
         "occupied_voxels": int(occupancy.sum()),
         "specks_removed": specks_removed,
-        "mesher": {"name": params.mesher, **mesher_stats},
-        "mesh": mesh_report,
-        **({"colour": colours.stats} if colours is not None else {}),
-        "silhouette_iou": {"meaning": SILHOUETTE_IOU_MEANING, "per_view": per_view,
-                           "mean_used": mean_iou("used"), "mean_held_out": mean_iou("held-out")},
         "timings_s": timings,
     }
-    return Reconstruction(vertices=vertices, faces=faces, occupancy=occupancy, grid=grid,
-                          report=report,
-                          vertex_colors=None if colours is None else colours.colours,
-                          masks=taken)
+    return CarvedScan(
+        grid=grid, occupancy=occupancy, mesher=params.mesher, mesher_input=mesher_input,
+        views=[ScanView(v.name, v.camera, "used" if v.name in used_names
+                        else "held-out" if v.name in params.holdout else "rejected")
+               for v in views],
+        masks=masks, colour_views=[used[n] for n in coloured],
+        colour_masks=[used_masks[n] for n in coloured],
+        colour_images=[undistort_image(_colour_image(views[used[n]], images),
+                                       lenses[views[used[n]].name]) for n in coloured],
+        report=report, taken=taken)
+
+
+def reconstruct(view_set: ViewSet, params: ReconstructionParams = ReconstructionParams(), *,
+                progress: Progress | None = None, masks: dict | None = None,
+                images: dict | None = None,
+                precomputed: Precomputed = Precomputed()) -> Reconstruction:
+    """Reconstruct the object seen in ``view_set``: :func:`carve_scan`, then
+    :func:`sfs_ros.core.mesh_scan.mesh_scan` (the arguments as :func:`carve_scan`'s).
+
+    Views that cannot be read, have an empty silhouette or disagree with the
+    others are rejected and reported, never silently used or dropped. Raises
+    ``ValueError`` with a one-line reason when no mesh can be made.
+    """
+    carved = carve_scan(view_set, params, progress=progress, masks=masks, images=images,
+                        precomputed=precomputed)
+    return mesh_scan(carved, progress=progress)

@@ -17,6 +17,7 @@ surface to a fraction of a voxel, with no voxel staircase to smooth away.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
@@ -27,7 +28,8 @@ from ..carving.hull import occupied_bounds
 from ..geometry.grid import VoxelGrid
 from .hull_distance import HullDistance
 
-__all__ = ["hull_marching_cubes_mesh", "marching_cubes_mesh"]
+__all__ = ["BandDistance", "band_marching_cubes", "hull_band_distance", "hull_marching_cubes_mesh",
+           "marching_cubes_mesh"]
 
 #: Iso-level between empty (0) and occupied (1) voxels: just below 0.5. At
 #: exactly 0.5, Lewiner's ambiguity tests tie on 0/1 data (a cube face whose
@@ -93,9 +95,49 @@ def marching_cubes_mesh(occupancy, grid: VoxelGrid, *, smooth_sigma_vox: float =
     return _contour(volume, LEVEL, lo - pad, grid)
 
 
-def hull_marching_cubes_mesh(occupancy, grid: VoxelGrid, hull: HullDistance, *,
-                             band_voxels: int = 1):
-    """Closed, outward-oriented triangle mesh of the visual hull at sub-voxel precision.
+@dataclass(frozen=True)
+class BandDistance:
+    """The signed distance to the hull at the voxels near a carved surface: what
+    :func:`band_marching_cubes` needs besides the occupancy (:func:`hull_band_distance`).
+
+    values : (n,) float32
+        Distance in voxels, positive outside, clipped to ``+-(band_voxels + 1)``, at the
+        band's voxels (:func:`band_voxels_of`) in index order.
+    band_voxels : int >= 1
+        Width of the band, voxels on either side of the occupancy's boundary.
+    """
+
+    values: np.ndarray
+    band_voxels: int = 1
+
+
+def _padded_crop(occ: np.ndarray, band: int) -> tuple[np.ndarray, np.ndarray]:
+    """The occupancy's occupied box padded by ``band + 1`` empty voxels, and the grid index
+    of its ``[0, 0, 0]``; ValueError if nothing is occupied."""
+    lo, hi = _occupied_bounds(occ)
+    # An empty border one voxel wider than the band: its outer layer stays
+    # outside (the level set is closed even where the object touches the grid box).
+    pad = band + 1
+    return np.pad(occ[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]], pad), lo - pad
+
+
+def band_voxels_of(crop: np.ndarray, band: int) -> np.ndarray:
+    """Voxels of a padded crop (3-D bool) within ``band`` steps (26-neighbour) of its
+    boundary, on either side: where the distance is computed."""
+    return _cube_grow(crop, band, dilate=True) & ~_cube_grow(crop, band, dilate=False)
+
+
+def _check_band(band_voxels) -> int:
+    if isinstance(band_voxels, bool) or not isinstance(band_voxels, (int, np.integer)) \
+            or band_voxels < 1:
+        raise ValueError(f"band_voxels must be an integer >= 1, got {band_voxels!r}")
+    return int(band_voxels)
+
+
+def hull_band_distance(occupancy, grid: VoxelGrid, hull: HullDistance, *,
+                       band_voxels: int = 1) -> BandDistance:
+    """The signed distance to the hull near the carved surface, for
+    :func:`band_marching_cubes`.
 
     Parameters
     ----------
@@ -107,13 +149,41 @@ def hull_marching_cubes_mesh(occupancy, grid: VoxelGrid, hull: HullDistance, *,
         Signed distance to the hull of the same views (and carving box).
     band_voxels : int, keyword-only
         Voxels within this many steps (26-neighbour) of the occupancy's
-        boundary, on either side, get the distance computed; the others get
-        ``-(band_voxels + 1)`` voxels inside and ``+(band_voxels + 1)``
-        outside. With 1, every corner of every grid cube that the carved
-        surface crosses is computed; the hull surface lies within a fraction
-        of a voxel of the carved one (both come from the same pixel test), so
-        that suffices (on a sphere seen from 60 views, bands of 1, 2 and 3
-        voxels gave the same errors to 0.1 micrometre).
+        boundary, on either side, get the distance computed. With 1, every
+        corner of every grid cube that the carved surface crosses is computed;
+        the hull surface lies within a fraction of a voxel of the carved one
+        (both come from the same pixel test), so that suffices (on a sphere
+        seen from 60 views, bands of 1, 2 and 3 voxels gave the same errors to
+        0.1 micrometre).
+
+    Raises
+    ------
+    ValueError
+        If the occupancy is not a 3-D array of the grid's shape, if it has no
+        occupied voxel, or if ``band_voxels`` is below 1.
+    """
+    occ = _check_occupancy(occupancy, grid)
+    band = _check_band(band_voxels)
+    crop, corner = _padded_crop(occ, band)
+    pad = band + 1
+    near = band_voxels_of(crop, band)
+    # Below -pad voxels the value is clipped anyway: the floor spares the views that
+    # see a group of points deep inside their silhouette.
+    distance = hull(grid.index_to_world(np.argwhere(near) + corner),
+                    floor_m=-pad * grid.voxel_size) / grid.voxel_size
+    distance = np.clip(distance, -pad, pad).astype(np.float32)
+    # A sample exactly on the level makes Lewiner's ambiguity tests tie (see
+    # LEVEL); counting it as just outside (by 1e-6 voxel) breaks the tie.
+    distance[distance == 0.0] = np.float32(1e-6)
+    return BandDistance(values=distance, band_voxels=band)
+
+
+def band_marching_cubes(occupancy, grid: VoxelGrid, band: BandDistance):
+    """Closed, outward-oriented triangle mesh of the zero level of the band's signed
+    distance (the visual hull at sub-voxel precision).
+
+    Off the band the volume keeps the occupancy's sign (``+-(band_voxels + 1)``
+    voxels), so the level set is closed.
 
     Returns
     -------
@@ -126,38 +196,35 @@ def hull_marching_cubes_mesh(occupancy, grid: VoxelGrid, hull: HullDistance, *,
     Raises
     ------
     ValueError
-        If the occupancy is not a 3-D array of the grid's shape, if it has no
-        occupied voxel, or if ``band_voxels`` is below 1.
+        If the occupancy is not of the grid's shape or is empty, or the band's
+        values are not one per band voxel.
     """
     occ = _check_occupancy(occupancy, grid)
-    if isinstance(band_voxels, bool) or not isinstance(band_voxels, (int, np.integer)) \
-            or band_voxels < 1:
-        raise ValueError(f"band_voxels must be an integer >= 1, got {band_voxels!r}")
-    band = int(band_voxels)
-    lo, hi = _occupied_bounds(occ)
-    # An empty border one voxel wider than the band: its outer layer stays
-    # outside (the level set is closed even where the object touches the grid box).
-    pad = band + 1
-    crop = np.pad(occ[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]], pad)
-    near = _cube_grow(crop, band, dilate=True) & ~_cube_grow(crop, band, dilate=False)
+    width = _check_band(band.band_voxels)
+    crop, corner = _padded_crop(occ, width)
+    pad = width + 1
+    near = band_voxels_of(crop, width)
+    values = np.asarray(band.values)
+    if values.dtype != np.float32 or values.shape != (int(near.sum()),):
+        raise ValueError(f"band distance has {values.dtype} {values.shape}, expected float32 "
+                         f"({int(near.sum())},): one value per voxel of the band")
     # The signed distance in voxels (positive outside) negated: as for the occupancy,
     # larger means more inside.
     volume = np.where(crop, np.float32(pad), np.float32(-pad))
-    corner = lo - pad
-    # Below -pad voxels the value is clipped anyway: the floor spares the views that
-    # see a group of points deep inside their silhouette.
-    distance = hull(grid.index_to_world(np.argwhere(near) + corner),
-                    floor_m=-pad * grid.voxel_size) / grid.voxel_size
-    distance = np.clip(distance, -pad, pad).astype(np.float32)
-    # A sample exactly on the level makes Lewiner's ambiguity tests tie (see
-    # LEVEL); counting it as just outside (by 1e-6 voxel) breaks the tie. (Off the
-    # band the values are +-pad.)
-    distance[distance == 0.0] = np.float32(1e-6)
-    volume[near] = -distance
+    volume[near] = -values
     # The level crosses only cubes with a corner in the band (off it the values keep the
     # occupancy's sign, and a cube whose corners differ there has them on its boundary):
     # only those are visited, the same mesh for half the work.
     return _contour(volume, 0.0, corner, grid, cubes=_cubes_with_a_corner_in(near))
+
+
+def hull_marching_cubes_mesh(occupancy, grid: VoxelGrid, hull: HullDistance, *,
+                             band_voxels: int = 1):
+    """:func:`band_marching_cubes` of :func:`hull_band_distance`: the closed, outward
+    mesh of the visual hull at sub-voxel precision, ``(vertices (n, 3) float64 metres,
+    faces (m, 3) int64)``."""
+    return band_marching_cubes(occupancy, grid, hull_band_distance(
+        occupancy, grid, hull, band_voxels=band_voxels))
 
 
 def _cube_grow(volume: np.ndarray, steps: int, *, dilate: bool) -> np.ndarray:

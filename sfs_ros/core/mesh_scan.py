@@ -1,0 +1,192 @@
+"""The meshing half of a reconstruction: a carved scan in, a checked mesh and a report out.
+
+Stages (each timed in the report): meshing (the mesher's second half), mesh
+checks, colour (when the carving chose views to colour from), reprojection of
+the mesh into every view.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .carved_scan import CarvedScan
+from .geometry.grid import VoxelGrid
+from .meshing.colour import vertex_colours
+from .meshing.mesh_checks import check_mesh
+from .meshing.meshers import mesher
+from .metrics import reprojection_ious, silhouette_iou
+
+__all__ = ["SILHOUETTE_IOU_MEANING", "Reconstruction", "mesh_scan"]
+
+#: What the report's silhouette IoU is, written into every report beside it.
+SILHOUETTE_IOU_MEANING = (
+    "IoU of the mesh's silhouette, drawn into each view, with the mask this reconstruction "
+    "made from that view's image. For 'used' views it is agreement with the masks that "
+    "carved the mesh (high by construction, not a measure of accuracy); for 'held-out' views "
+    "(not carved with) it is a leave-one-out prediction; 'rejected' views show how far off "
+    "their masks were. Accuracy needs references the reconstruction did not make.")
+
+
+@dataclass
+class Reconstruction:
+    """What :func:`mesh_scan` (and :func:`sfs_ros.core.pipeline.reconstruct`) return.
+
+    vertices : (n, 3) float64, metres, object frame; faces : (m, 3) int64,
+    outward; occupancy : (nx, ny, nz) bool on ``grid``; report : JSON-ready dict;
+    vertex_colors : (n, 3) uint8 RGB when coloured, else None;
+    masks : {view name: (H, W) bool} silhouette of every view read and segmented, as taken
+        (through the lens; carving used it undistorted, :mod:`.geometry.lens`).
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    occupancy: np.ndarray
+    grid: VoxelGrid
+    report: dict = field(default_factory=dict)
+    vertex_colors: np.ndarray | None = None
+    masks: dict = field(default_factory=dict)
+
+
+@contextmanager
+def timed(seconds: dict[str, float], stage: str):
+    """Add the wall time of the ``with`` block to ``seconds[stage]``."""
+    start = time.perf_counter()
+    try:
+        yield
+    finally:
+        seconds[stage] = seconds.get(stage, 0.0) + time.perf_counter() - start
+
+
+class _Finish:
+    """Colour, checks and evaluation of one mesh, overlapped: the colour (one core) runs
+    beside the checks and then the evaluation (both cores), which waits for the colour's
+    views to be blended."""
+
+    def __init__(self, carved: CarvedScan, vertices, faces, timings: dict, progress):
+        self.carved, self.vertices, self.faces = carved, vertices, faces
+        self.timings, self.progress = timings, progress
+        coloured = set(carved.colour_views)
+        # The colour draws its views' silhouettes of the mesh with its z-buffers; the
+        # others are drawn for the evaluation.
+        self.drawn = [i for i in range(len(carved.views)) if i not in coloured]
+        self.blended = threading.Event()
+
+    def colour(self, closed: bool):
+        carved = self.carved
+        with timed(self.timings, "colour"):
+            self.progress("colour", 0.0)
+            try:
+                found = vertex_colours(
+                    self.vertices, self.faces, carved.colour_images,
+                    [carved.views[i].camera for i in carved.colour_views],
+                    masks=carved.colour_masks, coverage=True, closed=closed,
+                    on_blended=self.blended.set) if carved.colour_views else None
+            finally:
+                self.blended.set()
+            self.progress("colour", 1.0)
+        return found
+
+    def draw(self, closed: bool) -> list:
+        self.blended.wait()
+        carved = self.carved
+        with timed(self.timings, "evaluation"):
+            return reprojection_ious(self.vertices, self.faces,
+                                     [carved.views[i].camera for i in self.drawn],
+                                     [carved.masks[i] for i in self.drawn],
+                                     closed=closed) if self.drawn else []
+
+    def checks(self) -> dict:
+        with timed(self.timings, "mesh_checks"):
+            return check_mesh(self.vertices, self.faces).as_dict()
+
+    def run(self, closed_by_construction: bool) -> tuple[dict, object, list]:
+        """``(mesh report, colours or None, silhouette IoU of the drawn views)``.
+
+        A mesh closed by construction has its checks run beside the colour and the
+        evaluation, which count on a closed mesh for half their drawing (should the
+        checks find it otherwise, both are done again, the same as one after the
+        other). Another mesher's mesh is checked first."""
+        report = None if closed_by_construction else self.checks()
+        expect_closed = True if report is None else bool(report["watertight"]
+                                                         and report["outward"])
+
+        def checks_then_draw(closed: bool):
+            return report if report is not None else self.checks(), self.draw(closed)
+
+        with ThreadPoolExecutor(max_workers=1) as side:
+            beside = side.submit(checks_then_draw, expect_closed)
+            try:
+                colours, failure = self.colour(expect_closed), None
+            except ValueError as exc:   # an error of a wrong guess is no error: see below
+                colours, failure = None, exc
+            report, ious = beside.result()
+        closed = bool(report["watertight"] and report["outward"])
+        if closed != expect_closed:
+            colours = self.colour(closed)
+            ious = self.draw(closed)
+        elif failure is not None:
+            raise failure
+        return report, colours, ious
+
+
+def _per_view_ious(carved: CarvedScan, finish: _Finish, drawn_ious: list, colours) -> list:
+    """The report's per-view silhouette IoU: the coloured views' silhouettes of the mesh
+    came with the colour's z-buffers (the same pixel-centre rule), the others were drawn;
+    both agree with drawing every face, exact ties on the outline aside."""
+    ious = np.empty(len(carved.views))
+    ious[finish.drawn] = drawn_ious
+    for i, packed in zip(carved.colour_views,
+                         colours.coverage if colours is not None else []):
+        mask = carved.masks[i]
+        ious[i] = silhouette_iou(
+            np.unpackbits(packed, count=mask.size).reshape(mask.shape).view(bool), mask)
+    return [{"view": view.name, "role": view.role, "silhouette_iou": float(iou)}
+            for view, iou in zip(carved.views, ious)]
+
+
+def _mean_iou(per_view: list, role: str) -> float | None:
+    values = [p["silhouette_iou"] for p in per_view if p["role"] == role]
+    return float(np.mean(values)) if values else None
+
+
+def mesh_scan(carved: CarvedScan, *, progress=None) -> Reconstruction:
+    """Mesh, check, colour and evaluate a carved scan; the report joins the carving's.
+
+    ``progress``: (stage name, fraction done) callback. Raises ``ValueError`` with a
+    one-line reason when the mesher cannot mesh the input.
+    """
+    progress = progress or (lambda stage, fraction: None)
+    timings: dict[str, float] = {}
+    chosen = mesher(carved.mesher)
+    with timed(timings, "meshing"):
+        progress("meshing", 0.0)
+        vertices, faces, mesher_stats = chosen.mesh(carved.occupancy, carved.grid,
+                                                    carved.mesher_input)
+        progress("meshing", 1.0)
+    finish = _Finish(carved, vertices, faces, timings, progress)
+    mesh_report, colours, drawn_ious = finish.run(chosen.closed)
+    with timed(timings, "evaluation"):
+        progress("evaluation", 0.0)
+        per_view = _per_view_ious(carved, finish, drawn_ious, colours)
+        progress("evaluation", 1.0)
+    head = {k: v for k, v in carved.report.items() if k != "timings_s"}
+    report = {
+        **head,
+        "mesher": {"name": carved.mesher, **mesher_stats},
+        "mesh": mesh_report,
+        **({"colour": colours.stats} if colours is not None else {}),
+        "silhouette_iou": {"meaning": SILHOUETTE_IOU_MEANING, "per_view": per_view,
+                           "mean_used": _mean_iou(per_view, "used"),
+                           "mean_held_out": _mean_iou(per_view, "held-out")},
+        "timings_s": {**carved.report.get("timings_s", {}), **timings},
+    }
+    return Reconstruction(vertices=vertices, faces=faces, occupancy=carved.occupancy,
+                          grid=carved.grid, report=report,
+                          vertex_colors=None if colours is None else colours.colours,
+                          masks=carved.taken)
