@@ -56,8 +56,9 @@ def test_the_message_carries_the_carving_exactly(halves):
     assert np.array_equal(received.occupancy, carved.occupancy)
     assert received.grid.shape == carved.grid.shape
     assert received.grid.voxel_size == carved.grid.voxel_size
-    assert [(v.name, v.role) for v in received.views] == [(v.name, v.role)
-                                                          for v in carved.views]
+    assert [(v.name, v.role, v.angles_rad) for v in received.views] == \
+        [(v.name, v.role, v.angles_rad) for v in carved.views]
+    assert all(v.angles_rad is not None for v in carved.views)
     for got, sent in zip(received.views, carved.views):
         assert np.array_equal(got.camera.K, sent.camera.K)
         assert np.array_equal(got.camera.R, sent.camera.R)

@@ -39,22 +39,20 @@ Output folder layout::
 
 from __future__ import annotations
 
-import math
 import re
 import shutil
 import time
 from dataclasses import dataclass, replace
-from functools import partial
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+from ..core.carved_scan import CarvedScan
 from ..core.carving.bounds import BoxCarve
 from ..core.carving.carve import Carver
 from ..core.carving.hull import surface_voxels
 from ..core.carving.resolution import BYTES_PER_VOXEL
-from ..core.exchange.export import SUPPORTED_SUFFIXES
 from ..core.exchange.inputs import load_views
 from ..core.exchange.limits import MAX_WAITING_BYTES
 from ..core.exchange.session import append_view, read_session, write_session
@@ -63,10 +61,11 @@ from ..core.geometry.grid import VoxelGrid
 from ..core.geometry.lens import ideal_camera, undistort_mask
 from ..core.geometry.rig import RigCalibration, rig_camera
 from ..core.meshing.hull_distance import DistanceImages
-from ..core.pipeline import Precomputed, ReconstructionParams, reconstruct
-from ..core.result_files import SheetViews, add_pictures, write_result
+from ..core.pipeline import Precomputed, ReconstructionParams, carve_scan
+from ..core.result_files import SheetViews
 from ..core.segment import SegmentationParams
-from .paths import check_scan_name_format, confined_path
+from .mesh_files import HandOver, mask_to_rgb, mesh_paths, write_mesh
+from .paths import check_scan_name_format
 
 __all__ = ["MASK_SEGMENTATION", "DuplicateViewError", "AddedView", "LiveReconstruction",
            "surface_points", "mask_to_rgb", "check_scan_name", "view_key_of"]
@@ -136,11 +135,6 @@ def view_key_of(name: str) -> str:
     (a key that is a file name as it is, else ``view_NNN_<key>.png``)."""
     found = _NAMED_KEY.fullmatch(name)
     return found.group(1) if found else name
-
-
-def mask_to_rgb(mask: np.ndarray) -> np.ndarray:
-    """(H, W) bool -> (H, W, 3) uint8 image: object 255, background 0."""
-    return np.repeat(np.where(mask, np.uint8(255), np.uint8(0))[:, :, None], 3, axis=2)
 
 
 def surface_points(occupancy: np.ndarray, grid: VoxelGrid, max_points: int) -> np.ndarray:
@@ -505,19 +499,49 @@ class LiveReconstruction:
 
     # ------------------------------------------------------------ final mesh
 
+    def carve(self, *, resolution: int | None = None, bounds_m=None, mesher: str | None = None,
+              colour: bool | None = None) -> CarvedScan:
+        """The carving half of :meth:`reconstruct` on the views received so far: the hull and
+        what its meshing needs (:func:`sfs_ros.core.pipeline.carve_scan`). Options as
+        :meth:`reconstruct`'s; ``colour`` None or True: the images kept go with it.
+
+        Raises ValueError: no views yet, or a carving that cannot be made."""
+        if self._session is None:
+            raise ValueError("no views received yet")
+        view_set = load_views(self._session)
+        if bounds_m is not None:
+            view_set = replace(view_set, bounds_m=as_bounds(bounds_m, what="bounds_m"))
+        params = replace(self.params, resolution=resolution or self.params.resolution,
+                         mesher=mesher or self.params.mesher)
+        # The masks received are what segmenting their stored images gives
+        # (MASK_SEGMENTATION): the pipeline takes them as they are. A view whose image
+        # never came takes no part in the colour.
+        images = {self._views[key].name: rgb for key, rgb in self._colour_images.items()
+                  if key in self._views}
+        masks = {self._views[key].name: mask for key, mask, _, _ in self.views()}
+        return carve_scan(view_set, replace(params, colour=bool(images) and colour is not False),
+                          masks=masks, images=images, precomputed=self._precomputed)
+
+    def hand_over(self) -> HandOver:
+        """What goes with this scan's carving: its name, session folder, views received."""
+        if self._session is None:
+            raise ValueError("no views received yet")
+        return HandOver(scan_name=self._session.name, session_dir=str(self._session),
+                        views_received=len(self._views))
+
     def reconstruct(self, name: str | None = None, *, pictures: bool = True,
                     resolution: int | None = None, bounds_m=None, mesher: str | None = None,
                     colour: bool | None = None) -> dict:
-        """Run the full pipeline on the views received so far and write the mesh.
+        """Run the full pipeline on the views received so far and write the mesh:
+        :meth:`carve`, then :func:`sfs_ros.cell.mesh_files.write_mesh`.
 
         Parameters
         ----------
         name : str or None
             Mesh file name inside ``output_dir`` (format from the suffix:
             .ply, .obj, .stl, .glb; see :func:`.paths.confined_path` for what
-            is refused); None: ``<scan name>.ply``. The report goes beside it
-            as ``<stem>.report.json``, a picture of the mesh as ``<stem>.png``, a
-            viewer as ``<stem>.html`` and a contact sheet as ``<stem>.views.png``.
+            is refused); None: ``<scan name>.ply``. The report, a picture, a viewer
+            and a contact sheet go beside it (:mod:`sfs_ros.cell.mesh_files`).
             Existing files are replaced.
         pictures : bool, keyword-only
             Write the picture, viewer and contact sheet now (the default); False:
@@ -535,15 +559,8 @@ class LiveReconstruction:
         Returns
         -------
         dict
-            JSON-ready summary: ``path``, ``report_path``, ``preview_path``,
-            ``html_path``, ``contact_sheet_path`` (where the pictures are, or will be
-            with ``pictures=False``), ``session``,
-            ``views_received``, ``views_used``, ``views_rejected`` (list of
-            ``{view, reason}``), ``n_vertices``, ``n_faces``, ``watertight``,
-            ``volume_m3``, ``area_m2``, ``silhouette_iou_mean``,
-            ``holdout_iou`` (None: no views held out), ``voxel_size_m``,
-            ``coloured_from_views`` (how many views coloured the mesh, 0 without
-            images: see :meth:`add_colour_image`), ``seconds``.
+            JSON-ready summary (:func:`sfs_ros.cell.mesh_files.write_mesh`); its
+            ``coloured_from_views`` is 0 without images (:meth:`add_colour_image`).
 
         Raises
         ------
@@ -551,58 +568,18 @@ class LiveReconstruction:
             No views yet, a refused name, or a reconstruction that cannot be
             made (the pipeline's one-line reason).
         """
+        start = time.perf_counter()
         if self._session is None:
             raise ValueError("no views received yet")
-        start = time.perf_counter()
-        path = confined_path(self.output_dir, name or f"{self._session.name}.ply",
-                             suffixes=SUPPORTED_SUFFIXES)
-        root = self.output_dir.resolve()
-        report_name = path.relative_to(root).with_name(path.stem + ".report.json").as_posix()
-        report_path = confined_path(root, report_name, suffixes=(".json",))
-        stem = report_name[:-len(".report.json")]
-        preview_path = confined_path(root, stem + ".png", suffixes=(".png",))
-        html_path = confined_path(root, stem + ".html", suffixes=(".html",))
-        sheet_path = confined_path(root, stem + ".views.png", suffixes=(".png",))
-        view_set = load_views(self._session)
-        if bounds_m is not None:
-            view_set = replace(view_set, bounds_m=as_bounds(bounds_m, what="bounds_m"))
-        params = replace(self.params, resolution=resolution or self.params.resolution,
-                         mesher=mesher or self.params.mesher)
-        # The masks received are what segmenting their stored images gives
-        # (MASK_SEGMENTATION): the pipeline takes them as they are.
+        name = name or f"{self._session.name}.ply"
+        mesh_paths(self.output_dir, name)       # a refused name is refused before the work
+        carved = self.carve(resolution=resolution, bounds_m=bounds_m, mesher=mesher,
+                            colour=None if Path(name).suffix.lower() != ".stl" and colour
+                            is not False else False)
         masks = {key: mask for key, mask, _, _ in self.views()}
-        # The mesh is coloured from the captured images kept (not into an .stl: it has no
-        # colours); a view whose image never came takes no part.
-        images = {self._views[key].name: rgb for key, rgb in self._colour_images.items()
-                  if key in self._views}
-        colour = bool(images) and path.suffix.lower() != ".stl" and colour is not False
-        result = reconstruct(view_set, replace(params, colour=colour),
-                             masks={self._views[key].name: m for key, m in masks.items()},
-                             images=images, precomputed=self._precomputed)
-        colours = result.vertex_colors
-        coloured = result.report["colour"]["views"] if "colour" in result.report else 0
-        picture_files = dict(preview=preview_path, html=html_path, contact_sheet=sheet_path,
-                             sheet_views=self._sheet_views(masks))
-        written = write_result(result, path, vertex_colors=colours, report=report_path,
-                               extra={"session": str(self._session)}, within=root,
-                               **(picture_files if pictures else {}))
-        self._pictures_due = None if pictures else partial(
-            add_pictures, written, result, vertex_colors=colours, within=root, **picture_files)
-        self._mesh, self._colours = (result.vertices, result.faces), colours
-        mesh, views = result.report["mesh"], result.report["views"]
-        mean_iou = result.report["silhouette_iou"]["mean_used"]
-        held_out = result.report["silhouette_iou"]["mean_held_out"]
-        return {"path": str(path), "report_path": str(report_path),
-                "preview_path": str(preview_path), "html_path": str(html_path),
-                "contact_sheet_path": str(sheet_path),
-                "session": str(self._session), "views_received": len(self._views),
-                "views_used": len(views["used"]), "views_rejected": views["rejected"],
-                "n_vertices": mesh["n_vertices"], "n_faces": mesh["n_faces"],
-                "watertight": mesh["watertight"], "volume_m3": mesh["volume_m3"],
-                "area_m2": mesh["area_m2"],
-                "silhouette_iou_mean": None if mean_iou is None or math.isnan(mean_iou)
-                else float(mean_iou),
-                "holdout_iou": None if held_out is None or math.isnan(held_out)
-                else float(held_out),
-                "voxel_size_m": result.grid.voxel_size, "coloured_from_views": coloured,
-                "seconds": time.perf_counter() - start}
+        made = write_mesh(carved, self.hand_over(), self.output_dir, name, pictures=pictures,
+                          sheet_views=self._sheet_views(masks))
+        self._pictures_due = made.pictures_due
+        self._mesh = (made.result.vertices, made.result.faces)
+        self._colours = made.result.vertex_colors
+        return {**made.summary, "seconds": time.perf_counter() - start}

@@ -29,11 +29,13 @@ ROLES = ("used", "held-out", "rejected")
 @dataclass(frozen=True)
 class ScanView:
     """One segmented view: ``name``, its ideal pinhole ``camera`` (the masks are
-    undistorted onto it) and its ``role`` (:data:`ROLES`)."""
+    undistorted onto it), its ``role`` (:data:`ROLES`) and its encoder angles
+    ``(theta, phi)``, radians (None where the input had none)."""
 
     name: str
     camera: Camera
     role: str
+    angles_rad: tuple[float, float] | None = None
 
 
 @dataclass

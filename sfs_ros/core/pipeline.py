@@ -496,7 +496,8 @@ def carve_scan(view_set: ViewSet, params: ReconstructionParams = ReconstructionP
     return CarvedScan(
         grid=grid, occupancy=occupancy, mesher=params.mesher, mesher_input=mesher_input,
         views=[ScanView(v.name, v.camera, "used" if v.name in used_names
-                        else "held-out" if v.name in params.holdout else "rejected")
+                        else "held-out" if v.name in params.holdout else "rejected",
+                        None if v.theta_rad is None else (v.theta_rad, v.phi_rad))
                for v in views],
         masks=masks, colour_views=[used[n] for n in coloured],
         colour_masks=[used_masks[n] for n in coloured],

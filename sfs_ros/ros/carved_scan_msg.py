@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import array
 import json
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -59,7 +60,9 @@ def _unbits(data, shape: tuple[int, ...], what: str) -> np.ndarray:
 
 def _view_msg(view: ScanView, mask: np.ndarray, colour: tuple | None) -> CarvedView:
     camera = view.camera
-    msg = CarvedView(name=view.name, role=view.role, orthographic=bool(camera.orthographic))
+    theta, phi = view.angles_rad if view.angles_rad is not None else (math.nan, math.nan)
+    msg = CarvedView(name=view.name, role=view.role, orthographic=bool(camera.orthographic),
+                     theta_rad=float(theta), phi_rad=float(phi))
     msg.k = np.asarray(camera.K, np.float64).ravel()
     msg.r = np.asarray(camera.R, np.float64).ravel()
     msg.t = np.asarray(camera.t, np.float64).ravel()
@@ -149,7 +152,8 @@ def _view(view: CarvedView, width: int, height: int) -> tuple[ScanView, np.ndarr
                     t=np.array(view.t, np.float64), width=width, height=height,
                     orthographic=bool(view.orthographic))
     mask = _unbits(view.mask_bits, (height, width), f"view {view.name!r}'s mask_bits")
-    return ScanView(view.name, camera, view.role), mask.copy()
+    angles = None if math.isnan(view.theta_rad) else (view.theta_rad, view.phi_rad)
+    return ScanView(view.name, camera, view.role, angles), mask.copy()
 
 
 def _colour(view: CarvedView, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
