@@ -203,8 +203,9 @@ def cell_nodes(config_dir, output_dir, *, mock: bool, record: bool = False,
     return hardware + [
         spec("state_publisher", "tf_node", ["rig.yaml", "frames.yaml"]),
         spec("segmentation", "segmentation_node", ["segmentation.yaml"]),
-        spec("reconstruction", "reconstruction_node",
-             ["rig.yaml", "frames.yaml", "reconstruction.yaml"],
+        spec("carving", "carving_node", ["rig.yaml", "frames.yaml", "carving.yaml"],
+             {"output_dir": str(output)}),
+        spec("meshing", "meshing_node", ["frames.yaml", "meshing.yaml"],
              {"output_dir": str(output)}),
         spec("recorder", "recorder_node", ["recorder.yaml"],
              {"output_dir": str(output), **({"with_scan": "true"} if record else {})}),
@@ -393,7 +394,7 @@ def wait_until_signal(cell: Cell, *, policy: RestartPolicy | None = None,
     """Supervise the cell until SIGINT/SIGTERM (or ``stopping``); then stop it. Exit status.
 
     A node that ends by itself is started again after a back-off
-    (:class:`RestartPolicy`); a restarted segmentation or reconstruction node
+    (:class:`RestartPolicy`); a restarted segmentation, carving or meshing node
     gets every capture without a receipt again (the scan node resends them). A
     crash loop stops the cell with status 1; a node that exits with
     :data:`~sfs_ros.ros.names.CONFIGURATION_ERROR` (its parameters refused) is not started again: the cell

@@ -42,7 +42,7 @@ late: that bag is then taken as the scan's); recording goes on until
 from its first capture, and the ``reconstruct`` results that follow it.
 
 Parameters used: at every start a worker thread asks ``parameter_nodes``
-(by default reconstruction, segmentation, scan and camera) for all their
+(by default carving, meshing, segmentation, scan and camera) for all their
 parameters through their parameter services, within
 ``parameter_timeout_s`` together, and writes them as one JSON message on
 ``sfs/parameters`` (format in :mod:`sfs_ros.cell.bag.layout`); a node that does not
@@ -124,7 +124,7 @@ PARAMS: list[Param] = [
     BAG_NAME,
     Param("with_scan", False, "Also open a new bag when a scan starts (and keep recording until "
           "recorder/stop, the next scan or shutdown).", read_only=True),
-    Param("parameter_nodes", ["reconstruction", "segmentation", "scan", "camera"], "Nodes "
+    Param("parameter_nodes", ["carving", "meshing", "segmentation", "scan", "camera"], "Nodes "
           "(names relative to this node's namespace) whose parameters each bag stores.",
           read_only=True),
     Param("parameter_timeout_s", 20.0, "Longest wait for the parameters of all parameter_nodes, "
@@ -142,8 +142,8 @@ def _stamp() -> str:
 
 def session_parameters(nodes: dict) -> tuple[dict, dict]:
     """The ``session`` and ``reconstruction`` sections (:mod:`sfs_ros.cell.bag.layout`) of the
-    fetched ``{node: {name: value}}``; empty when the reconstruction node's are missing."""
-    values = nodes.get("reconstruction")
+    fetched ``{node: {name: value}}``; empty when the carving node's are missing."""
+    values = nodes.get("carving")
     if values is None:
         return {}, {}
     session = {"rig": rig_calibration(values).to_dict(),

@@ -19,7 +19,7 @@ is reached by remapping these.
 from __future__ import annotations
 
 __all__ = ["NAMESPACE", "DIAGNOSTICS", "RECORDER_NODE", "SERVICES", "TYPED_SERVICES",
-           "SCAN_ACTION", "CALIBRATE_ACTION", "CELL_STATUS", "RECONSTRUCTION_STATUS",
+           "SCAN_ACTION", "CALIBRATE_ACTION", "CELL_STATUS", "RECONSTRUCTION_STATUS", "MESHING_STATUS",
            "CONFIGURATION_ERROR",
            "private", "status_name"]
 
@@ -43,8 +43,8 @@ SERVICES: dict[str, str] = {
     "home": "motor/home",
     "stop": "motor/stop",
     "capture": "camera/capture",
-    "reset": "reconstruction/reset",
-    "reconstruct": "reconstruction/reconstruct",
+    "reset": "carving/reset",
+    "reconstruct": "meshing/reconstruct",
     "record/start": "recorder/start",
     "record/stop": "recorder/stop",
 }
@@ -52,11 +52,13 @@ SERVICES: dict[str, str] = {
 
 #: Short name -> typed service (``sfs_ros_interfaces/srv``) relative to the namespace:
 #: ``reconstruct_mesh`` (Reconstruct: per-call options, typed answer; ``reconstruct`` is its
-#: Trigger alias) and ``new_scan`` (NewScan: a reset naming the scan; ``reset`` is its
-#: Trigger alias).
+#: Trigger alias), ``new_scan`` (NewScan: a reset naming the scan; ``reset`` is its
+#: Trigger alias) and ``carve_scan`` (CarveScan: the carving node's hand-over to the
+#: meshing node).
 TYPED_SERVICES: dict[str, str] = {
-    "reconstruct_mesh": "reconstruction/reconstruct_mesh",
-    "new_scan": "reconstruction/new_scan",
+    "reconstruct_mesh": "meshing/reconstruct_mesh",
+    "new_scan": "carving/new_scan",
+    "carve_scan": "carving/carve_scan",
 }
 
 #: The scan node's action (``sfs_ros_interfaces/action/Scan``): ``<namespace>/scan``.
@@ -66,8 +68,10 @@ SCAN_ACTION = "scan"
 CALIBRATE_ACTION = "calibrate"
 #: The scan node's status (``sfs_ros_interfaces/msg/CellStatus``): ``<namespace>/status``.
 CELL_STATUS = "status"
-#: The reconstruction node's status (``sfs_ros_interfaces/msg/ReconstructionStatus``).
-RECONSTRUCTION_STATUS = "reconstruction/status"
+#: The carving node's status (``sfs_ros_interfaces/msg/ReconstructionStatus``: the scan's
+#: views), and the meshing node's (the same type: the reconstructions and the last mesh).
+RECONSTRUCTION_STATUS = "carving/status"
+MESHING_STATUS = "meshing/status"
 
 
 def private(service: str) -> str:

@@ -1,4 +1,4 @@
-"""Reconstruction node: silhouettes in, live hull and final mesh out.
+"""Carving node: silhouettes in, the live hull out; the carved scan on request.
 
 | kind | name | type | notes |
 |---|---|---|---|
@@ -8,117 +8,61 @@
 | pub | ``capture/stored`` | std_msgs/Header | a view's stamp once stored (or rejected): its receipt |
 | pub | ``hull`` | sensor_msgs/PointCloud2 | surface voxels of the live hull, turntable frame |
 | pub | ``camera_poses`` | geometry_msgs/PoseArray | the cameras of this scan's views, turntable frame |
-| pub | ``mesh`` | visualization_msgs/Marker | TRIANGLE_LIST of the last mesh, ``display_triangles`` |
-| pub | ``mesh_shape`` | shape_msgs/Mesh | the full mesh, in the ``mesh`` marker's frame |
 | pub | ``/diagnostics`` | diagnostic_msgs/DiagnosticArray | per event and at 1 Hz |
-| pub | ``~/status`` | sfs_ros_interfaces/ReconstructionStatus | on every change; transient local |
-| srv | ``~/reconstruct_mesh`` | sfs_ros_interfaces/Reconstruct | per-call options, typed answer |
-| srv | ``~/reconstruct`` | std_srvs/Trigger | alias of ``reconstruct_mesh``, defaults; JSON answer |
+| pub | ``~/status`` | sfs_ros_interfaces/ReconstructionStatus | the scan's fields; transient local |
+| srv | ``~/carve_scan`` | sfs_ros_interfaces/CarveScan | the carved scan, for the meshing node |
 | srv | ``~/new_scan`` | sfs_ros_interfaces/NewScan | start a new scan, optionally naming it |
 | srv | ``~/reset`` | std_srvs/Trigger | alias of ``new_scan`` with the ``scan_name`` parameter |
 
-One node does both carving and meshing: both work on the same
-:class:`sfs_ros.cell.live.LiveReconstruction` (live hull, views persisted in a
-session folder under ``output_dir``), which two processes would duplicate.
-
-``reconstruct_mesh`` takes, for that mesh only, a ``resolution``, a carving box
-(``bounds_m``), a ``mesher``, ``colour`` and an ``output_name`` (a file name with a mesh
-suffix, no folders, written in ``output_dir``); each left empty is the node's parameter. A
-bad option, or a grid that does not fit ``max_memory``, is refused at once with the reason.
-Another resolution or box carves the stored views again at that grid (seconds); the node's
-own settings use what the live scan computed as the views arrived. With
-``wait_for_pictures`` the answer comes once the picture, viewer and contact sheet are
-written too. ``~/status`` (reliable, transient local, depth 1) gives this scan's session
-folder, views stored, views rejected (``view at stamp S (theta T rad, phi P rad): reason``),
-the reconstructions made, the last mesh and the problem, on every change.
+The carving half of the cell's reconstruction (the meshing node,
+:mod:`sfs_ros.nodes.meshing_node`, is the other): it keeps the scan. Each view is stored
+in a session folder under ``output_dir`` and carved into the live hull as it arrives
+(:class:`sfs_ros.cell.live.LiveReconstruction`); ``carve_scan`` answers with the views'
+carving at the final grid (:meth:`LiveReconstruction.carve`, a
+``sfs_ros_interfaces/CarvedScan``: the hull, the mesher's input, the views' masks and
+the images that colour the mesh), as often as it is asked: a meshing node restarted or
+swapped asks again. Its options (``resolution``, ``bounds_m``, ``mesher``, ``colour``)
+are those of the ``Reconstruct`` request; each left empty is the node's parameter; a bad
+one, or a grid that does not fit ``max_memory``, is refused at once with the reason.
+``~/status`` (reliable, transient local, depth 1) gives this scan's session folder, views
+stored and views rejected (``view at stamp S (theta T rad, phi P rad): reason``) and
+the problem, on every change; its ``reconstructions`` and ``mesh_path`` are the meshing
+node's (``meshing/status``).
 
 Mask, joint state and receipt topics: reliable, volatile, depth ``queue_depth``
 (:func:`sfs_ros.ros.capture_qos`); masks and joint states are paired by
-exactly equal stamps (either order).
+exactly equal stamps (either order). Once a view is stored (or rejected as unusable)
+its header goes out on ``capture/stored``: the scan node resends a capture that has no
+receipt in time, and a view that comes again is not carved twice (``repeats``, receipted
+again); a late copy of a view of an earlier scan is not stored in the new one
+(``stale``, receipted again). ``hull`` and ``camera_poses``: reliable, transient local,
+depth 1 (:func:`sfs_ros.ros.result_qos`).
 
-Receipts: once a view is stored in the session folder (or rejected as
-unusable), its header goes out on ``capture/stored``. The scan node resends
-a capture that has no receipt in time (at-least-once delivery); a view that
-comes again is not carved twice: it is counted in ``repeats`` and its
-receipt sent again. A late copy of a view stored in an earlier scan (a resend
-that crossed its receipt, arriving after ``reset``) is not stored in the new
-scan: it is counted in ``stale`` and receipted again. ``hull``,
-``camera_poses``, ``mesh`` and ``mesh_shape``: reliable, transient-local,
-depth 1 (:func:`sfs_ros.ros.result_qos`), so a viewer started later gets the
-latest.
+Threads: the executor only decodes and pairs messages and answers services; one worker
+thread owns the ``LiveReconstruction`` and takes, in arrival order, views, carvings and
+resets: a carving uses exactly the views that arrived before the request. With
+``colour`` the node keeps each view's captured image (in memory, paired with its view by
+stamp, whichever comes first); the carved scan carries those of the views that colour
+the mesh.
 
-Threads: the executor (several threads) only decodes and pairs messages and
-answers services; one worker thread owns the ``LiveReconstruction`` and
-takes, in arrival order, views, ``reconstruct`` and ``reset`` requests. A
-reconstruction therefore uses exactly the views that arrived before the
-request, and messages keep being received (and queued for the worker) while
-it runs. ``reconstruct`` answers once the mesh and its report are written:
-``success`` and the JSON of :meth:`LiveReconstruction.reconstruct` (path,
-report_path, preview_path, views used / rejected, watertight, volume_m3,
-seconds, ...). Once the answer is sent, the picture, viewer and contact sheet
-follow (the report is written again naming them once they are on disk: wait for that, as
-:meth:`sfs_ros.ros.cell_client.CellClient.reconstruct` does), the ``mesh`` marker
-first: a copy within ``display_triangles`` (:func:`sfs_ros.core.meshing.decimate.decimate`,
-vertex clustering, colours averaged), small enough for RViz and quick to arrive; then
-``mesh_shape``, the full mesh (building and serialising it takes seconds for a large
-mesh, and the files are the result). ``shape_msgs/Mesh`` has no header: its vertices
-are in the turntable frame, the ``mesh`` marker's ``frame_id``;
-``success=False`` with the reason when there are no views or no mesh can be
-made. ``reset`` starts a new scan (new session folder on the next view) and
-publishes an empty hull; the last mesh stays on ``mesh`` until the next one.
-With ``colour`` the node also keeps each view's captured image (in memory,
-paired with its view by stamp, whichever comes first); the mesh is coloured
-from the images of the views it uses (:mod:`sfs_ros.core.meshing.colour`), in the
-file, the picture and the ``mesh`` marker's per-corner ``colors``.
+A malformed message or an unusable view is logged, counted in the diagnostics (ERROR
+until the next good view) and dropped; the node carries on. An all-zero mask is stored
+but carves nothing (WARN). A node started again takes up the scan being received
+(:meth:`LiveReconstruction.reopen`). A view the disk refuses is an ERROR naming the
+folder and the free space; it is kept in memory without a receipt and stored as soon as
+a write succeeds. A ``resolution`` whose grid does not fit ``max_memory`` is refused
+before anything is allocated: the node stays up with an ERROR giving the memory it
+would need and receipts no view.
 
-A malformed message (encoding other than mono8, sizes that do not add up,
-values other than 0/1 or 0/255, a joint state without both joints) or an
-unusable view is logged, counted in the diagnostics
-(ERROR until the next good view) and dropped; the node carries on. An
-all-zero mask is stored but carves nothing (WARN).
+Per-scan settings (``bounds_m``, ``resolution``, ``mesher``, ``scan_name``) and the rig
+(:data:`sfs_ros.ros.rig_params.WRITABLE_RIG_PARAMS`) can be set at run time, between
+scans: checked when set, used from the next ``reset``. A ``reset`` (or ``new_scan``) is
+refused with the reason while the scan node reports its scan ``running``, ``waiting`` or
+``paused``.
 
-Restarts, disk, memory: a node started again takes up the scan being received
-(:meth:`LiveReconstruction.reopen`: the session folder still open, its views
-carved again), so the views the scan node sends again are known and receipted,
-not stored twice. A view that cannot be stored (a full disk) is an ERROR naming
-the folder and the free space; it is kept in memory, without a receipt, and
-stored (then receipted) as soon as a write succeeds, tried every second; what
-was stored before is left intact. A ``resolution`` whose grid does not fit
-``max_memory`` is refused before anything is allocated: the node stays up with
-an ERROR giving the memory it would need, answers ``reconstruct`` and ``reset``
-with that reason, and receipts no view (the scan node keeps them).
-
-Diagnostics values: counts (views_received, carved, empty, rejected,
-malformed, repeats, stale, unpaired_dropped, reconstructions, ...), ``unstored`` (views
-kept in memory that the disk refused), ``scan_views``
-(views in this scan) and ``carve_s``, the seconds spent storing and carving
-this scan's views.
-
-Per-scan settings: ``bounds_m``, ``resolution``, ``mesher`` and ``scan_name``
-(the next scan's folder and mesh name) can be set at run time, between
-scans; a value is checked when it is set (refused with the reason, the old
-one kept) and takes effect at the next ``reset`` (which ``scan/start``
-calls), so a scan is carved and meshed with one set of values. A
-``scan_name`` whose folder exists by then makes that ``reset`` fail with the
-reason (the scan pauses on it): choose a new one, or "" for ``scan_NNN``.
-
-The rig (:data:`sfs_ros.ros.rig_params.WRITABLE_RIG_PARAMS`, a calibration's
-``rig.yaml``) can be set at run time too, between scans: checked as one rig
-(:class:`sfs_ros.ros.rig_params.RigParameters`; refused with the reason while
-the scan node reports a scan under way, and for another image size), it makes
-the next ``reset`` start the scan with a new :class:`LiveReconstruction` of
-that rig.
-
-A ``reset`` (or ``new_scan``) is refused with the reason while the scan node reports its
-scan ``running``, ``waiting`` or ``paused`` (:data:`~sfs_ros.ros.rig_params.CAPTURING_STATES`):
-its views belong to the scan open now (cancel the scan first). The scan node's own
-``new_scan`` comes while it reports ``starting``. A scan that ends (a reset, new settings)
-leaves its session folder no longer marked open.
-
-Parameters: see :data:`PARAMS` (the others read-only); ``output_dir`` is
-required. Output files stay inside ``output_dir``. The frames
-(:data:`sfs_ros.ros.frames.FRAME_PARAMS`, ``config/frames.yaml``, read-only)
-name the turntable frame ``hull``, ``mesh`` and ``camera_poses`` are stamped with.
+Parameters: see :data:`PARAMS`; ``output_dir`` is required and every file the node
+writes stays inside it. The frames (:data:`sfs_ros.ros.frames.FRAME_PARAMS`) name the
+turntable frame ``hull``, ``camera_poses`` and the carved scan are in.
 """
 
 from __future__ import annotations
@@ -133,13 +77,11 @@ from sfs_ros.core.resident_memory import keep_freed_memory, prefault
 
 keep_freed_memory()
 
-import json
 import os
-import shutil
-import tempfile
 import threading
 import time
 import traceback
+from dataclasses import replace
 from functools import partial
 
 import numpy as np
@@ -148,14 +90,11 @@ from geometry_msgs.msg import PoseArray
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
 from sensor_msgs.msg import Image, JointState, PointCloud2
-from shape_msgs.msg import Mesh
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
-from visualization_msgs.msg import Marker
 
 from sfs_ros.cell.live import DuplicateViewError, LiveReconstruction, check_scan_name
 from sfs_ros.cell.mesh_options import RESOLUTION_RANGE, MeshOptions, mesh_options
-from sfs_ros.cell.rehearsal import rehearse
 from sfs_ros.core.carving.resolution import (
     default_memory_budget,
     grid_shape,
@@ -164,18 +103,16 @@ from sfs_ros.core.carving.resolution import (
 )
 from sfs_ros.core.exchange.views import as_bounds
 from sfs_ros.core.geometry.rig import rig_camera
-from sfs_ros.core.meshing.decimate import decimate
 from sfs_ros.core.pipeline import MESHERS
 from sfs_ros.nodes.entry import run_node
 from sfs_ros.ros import capture_qos, result_qos
+from sfs_ros.ros.carved_scan_msg import carved_scan_to_msg
 from sfs_ros.ros.convert import (
     angles_from_joint_state,
     camera_poses,
     diagnostic_array,
     header,
     health,
-    mesh_to_marker,
-    mesh_to_shape,
     msg_to_image,
     points_to_cloud,
 )
@@ -184,20 +121,21 @@ from sfs_ros.ros.names import DIAGNOSTICS, RECONSTRUCTION_STATUS, private, statu
 from sfs_ros.ros.paired_input import PairedInput, Stream
 from sfs_ros.ros.pairing import format_stamp, stamp_key, view_key
 from sfs_ros.ros.params import Param, ParameterError, declare, read, validating_callback
+from sfs_ros.ros.rehearsal import Rehearsal
 from sfs_ros.ros.rig_params import (
     CAPTURING_STATES,
     WRITABLE_RIG_PARAMS,
     RigParameters,
     rig_calibration,
 )
-from sfs_ros.ros.typed import fill_reconstruct_response
-from sfs_ros.ros.worker import Hold, Worker
+from sfs_ros.ros.worker import Worker
+from sfs_ros_interfaces.msg import CarvedScan as CarvedScanMsg
 from sfs_ros_interfaces.msg import ReconstructionStatus
-from sfs_ros_interfaces.srv import NewScan, Reconstruct
+from sfs_ros_interfaces.srv import CarveScan, NewScan
 
-__all__ = ["ReconstructionNode", "PARAMS", "main"]
+__all__ = ["CarvingNode", "PARAMS", "main"]
 
-NODE_NAME = "reconstruction"
+NODE_NAME = "carving"
 
 #: The node's parameters: the rig calibration, then the scan's own (the per-scan settings
 #: settable at run time, see the module's description).
@@ -220,10 +158,6 @@ PARAMS: list[Param] = [
     Param("hull_rate_hz", 2.0, "Most hull clouds per second; the latest is always published "
           "once the views received so far are carved.", bounds=(0.0, 1000.0), read_only=True,
           constraints="0 = after every view"),
-    Param("display_triangles", 10000, "Most triangles of the mesh marker (a simplified "
-          "copy by vertex clustering, 40 bytes a corner with its colour: 10 000 make 1.2 MB); "
-          "the file and mesh_shape keep the full mesh.", bounds=(100, 10_000_000),
-          constraints="used from the next reconstruction"),
     Param("max_hull_points", 100000, "Most points of a hull cloud (an evenly spaced subset "
           "of the surface voxels beyond that).", bounds=(1, 100_000_000), read_only=True),
     Param("queue_depth", 100, "Depth of the reliable mask topics and of the buffer of unpaired "
@@ -238,13 +172,6 @@ PARAMS: list[Param] = [
           "folder in output_dir, removed after) so that the first real reconstruction finds "
           "its code loaded (about 0.2 s less from the last view to the mesh).", read_only=True),
 ]
-#: Folder name prefix of the rehearsal's scan in ``output_dir``.
-REHEARSAL_PREFIX = ".rehearsal_"
-#: How long stopping the node waits for a rehearsal still running, s.
-REHEARSAL_JOIN_S = 2.0
-#: Period (s) of the timer that releases the jobs after a ``reconstruct`` answer (it runs
-#: once per answer, as soon as the answer is sent).
-ANSWER_CHECK_S = 0.001
 #: How often views that could not be stored (a full disk) are tried again, s.
 STORE_RETRY_S = 1.0
 #: Views of earlier scans remembered by their keys, so that a late copy of one (a resend
@@ -306,8 +233,8 @@ def _bounds(values: dict) -> np.ndarray:
 
 
 
-class ReconstructionNode(Node):
-    """Carves paired masks into a live hull and meshes the scan on request.
+class CarvingNode(Node):
+    """Carves paired masks into a live hull; hands the carved scan over on request.
 
     Raises :class:`ParameterError` at construction for invalid parameters.
     ``destroy_node`` finishes the queued work and stops the worker thread.
@@ -356,14 +283,13 @@ class ReconstructionNode(Node):
         self._stats_lock = threading.Lock()
         self._counts = {"views_received": 0, "carved": 0, "empty": 0, "rejected": 0,
                         "malformed": 0, "repeats": 0, "stale": 0, "unpaired_dropped": 0,
-                        "reconstructions": 0, "reconstruction_failures": 0, "scan_views": 0}
+                        "carvings": 0, "carving_failures": 0, "scan_views": 0}
         self._carve_s = 0.0     # storing and carving this scan's views, for the benchmark
         self._unstored: dict = {}   # view key -> _add_view's arguments (worker thread)
         self._earlier: dict = {}    # keys of views stored in earlier scans (worker thread)
         self._problem = self._refusal
         self._warning = ""
         self._rejected: list[str] = []   # this scan's rejected views, named
-        self._mesh_path = ""             # the last mesh written
 
         inputs = MutuallyExclusiveCallbackGroup()     # pairer, timers
         services = MutuallyExclusiveCallbackGroup()   # one request at a time, waits on the worker
@@ -372,8 +298,6 @@ class ReconstructionNode(Node):
         self._hull_pub = self.create_publisher(PointCloud2, "hull", result_qos())
         self._poses_pub = self.create_publisher(PoseArray, "camera_poses", result_qos())
         self._cameras: list = []   # of this scan's views, for camera_poses (worker thread)
-        self._marker_pub = self.create_publisher(Marker, "mesh", result_qos())
-        self._shape_pub = self.create_publisher(Mesh, "mesh_shape", result_qos())
         self._diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
         self._status_pub = self.create_publisher(ReconstructionStatus,
                                                  "~/" + RECONSTRUCTION_STATUS.split("/", 1)[1],
@@ -391,35 +315,23 @@ class ReconstructionNode(Node):
         if values["colour"]:
             self.create_subscription(Image, "capture/image", self._on_image, qos,
                                      callback_group=inputs)
-        self.create_service(Trigger, private("reconstruct"), self._on_reconstruct,
-                            callback_group=services)
-        self.create_service(Reconstruct, private("reconstruct_mesh"), self._on_reconstruct_mesh,
+        self.create_service(CarveScan, private("carve_scan"), self._on_carve_scan,
                             callback_group=services)
         self.create_service(Trigger, private("reset"), self._on_reset, callback_group=services)
         self.create_service(NewScan, private("new_scan"), self._on_new_scan,
                             callback_group=services)
         self.create_timer(1.0, self._publish_diagnostics, callback_group=inputs)
         self.create_timer(STORE_RETRY_S, self._retry_unstored, callback_group=inputs)
-        # The jobs after a reconstruction (pictures, mesh messages) wait on a hold until
-        # its answer is sent: released by this timer, armed by the service callback. In the
-        # services group it runs only once that callback is done, and rclpy sends the
-        # answer before that. (Started at once, the pictures took the answer's turns at the
-        # interpreter lock: it reached the caller 20 ms after the mesh was written.)
-        self._answered = self.create_timer(ANSWER_CHECK_S, self._release_after_answer,
-                                           callback_group=services)
-        self._answered.cancel()
-        self._after_answer: Hold | None = None   # taken by the worker, released by the timer
-
         self._last_hull = -float("inf")   # worker thread: when the hull was last published
         self._hull_dirty = False           # worker thread: carved since then
-        self._worker = Worker("reconstruction", on_error=self._job_failed)
+        self._worker = Worker("carving", on_error=self._job_failed)
         self._publish_status()
         if self._refusal:
             self.get_logger().error(f"{self._refusal}; the node receipts no view and "
-                                    "reconstructs nothing until started with another one")
+                                    "carves nothing until started with another one")
             return
         self.get_logger().info(
-            f"reconstructing into {self._live.output_dir} (box {self._live.bounds_m.tolist()}, "
+            f"carving into {self._live.output_dir} (box {self._live.bounds_m.tolist()}, "
             f"resolution {values['resolution']}, {values['mesher']}, queue depth {depth})")
         self._submit("reopen", self._reopen)
         # Before the rehearsal thread allocates, so that it finds the pages touched too.
@@ -427,21 +339,16 @@ class ReconstructionNode(Node):
         if values["rehearse"]:
             # Beside the worker, not on it: with kernels still to compile (a fresh install)
             # it takes minutes, and views and resets must not wait for it.
-            self._rehearsal = threading.Thread(target=self._rehearse, name="rehearsal",
-                                               daemon=True)
-            self._rehearsal.start()
+            self._rehearsal = Rehearsal(self, self._live.output_dir)
 
     def destroy_node(self) -> None:
-        """Finish the queued work, stop the worker thread, then destroy the node (a
-        rehearsal still running after :data:`REHEARSAL_JOIN_S` is left to end with the
-        process; its folder goes at the next start)."""
+        """Finish the queued work, stop the worker thread and the rehearsal
+        (:meth:`Rehearsal.join`), then destroy the node."""
         if self._worker is not None:
-            if self._after_answer is not None:   # the answer's timer will not run now
-                self._after_answer.release()
             self._worker.stop()
             self._worker.join()
         if self._rehearsal is not None:
-            self._rehearsal.join(timeout=REHEARSAL_JOIN_S)
+            self._rehearsal.join()
         super().destroy_node()
 
     # -- inputs (executor threads) -----------------------------------------------------------
@@ -471,20 +378,13 @@ class ReconstructionNode(Node):
         self._count(kind)
         self._report_problem(text)
 
-    def _on_reconstruct(self, _request, response):
-        response.success, response.message, _ = self._answer_reconstruct(MeshOptions())
-        return response
-
-    def _on_reconstruct_mesh(self, request, response):
-        """The typed ``reconstruct_mesh``: options checked here (refused at once with the
-        reason), the mesh made in the worker."""
+    def _on_carve_scan(self, request, response):
+        """``carve_scan``: options checked here (refused at once with the reason), the
+        carving made in the worker."""
         try:
             options = mesh_options(
-                self._live.output_dir if self._live is not None
-                else self.get_parameter("output_dir").value,
-                resolution=request.resolution, bounds_m=list(request.bounds_m),
-                mesher=request.mesher, colour=request.colour, output_name=request.output_name,
-                wait_for_pictures=request.wait_for_pictures)
+                self.get_parameter("output_dir").value, resolution=request.resolution,
+                bounds_m=list(request.bounds_m), mesher=request.mesher, colour=request.colour)
         except ValueError as exc:
             response.success, response.message = False, f"request refused: {exc}"
             return response
@@ -497,32 +397,14 @@ class ReconstructionNode(Node):
         if refusal:
             response.success, response.message = False, f"request {refusal}"
             return response
-        response.success, response.message, summary = self._answer_reconstruct(options)
-        if summary is not None:
-            fill_reconstruct_response(response, summary, frame_id=self._frame_id)
-        return response
-
-    def _answer_reconstruct(self, options: MeshOptions) -> tuple[bool, str, dict | None]:
-        """Reconstruct in the worker with ``options``: ``(success, JSON summary or the
-        reason, summary or None)``; the jobs after it are held until the answer is out."""
-        # The previous answer is out (this group ran one callback at a time): should its
-        # timer not have run yet, the jobs held for it must not hold this one up.
-        self._release_after_answer()
         try:
-            answer = self._submit("reconstruct", self._reconstruct, options).result()
+            response.success, response.message, scan = self._submit(
+                "carve", self._carve, options).result()
         except Exception as exc:  # noqa: BLE001 -- the worker reported it; the caller gets it
-            answer = False, _internal_error("reconstruct", exc), None
-        if self._after_answer is not None:
-            self._answered.reset()
-        return answer
-
-    def _release_after_answer(self) -> None:
-        """Timer (services group), once the ``reconstruct`` answer is sent: the worker may
-        start the jobs that follow it."""
-        self._answered.cancel()
-        hold, self._after_answer = self._after_answer, None
-        if hold is not None:
-            hold.release()
+            response.success, response.message, scan = False, _internal_error("carve", exc), None
+        if scan is not None:
+            response.scan = scan
+        return response
 
     def _on_reset(self, _request, response):
         return self._request("reset", self._reset, response)
@@ -541,9 +423,6 @@ class ReconstructionNode(Node):
 
     def _request(self, name: str, job, response):
         """Run ``job`` (which answers ``(success, message)``) in the worker and answer with it."""
-        # The previous answer is out (this group ran one callback at a time): should its
-        # timer not have run yet, the jobs held for it must not hold this one up.
-        self._release_after_answer()
         try:
             response.success, response.message = self._submit(name, job).result()
         except Exception as exc:  # noqa: BLE001 -- the worker reported it; the caller gets it
@@ -592,34 +471,6 @@ class ReconstructionNode(Node):
                                                     self._budget)
         if prefault(reserve):
             self.get_logger().info(f"{reserve >> 20} MiB of working memory made resident")
-
-    def _rehearse(self) -> None:
-        """Thread: reconstruct a small simulated scan in a folder of ``output_dir`` that is
-        removed after (:func:`sfs_ros.cell.rehearsal.rehearse`), once those a stopped
-        rehearsal left are removed; a failure (a full disk) is logged and changes nothing
-        else."""
-        start = time.perf_counter()
-        for stale in self._live.output_dir.glob(f"{REHEARSAL_PREFIX}*"):
-            if stale.is_dir() and not stale.is_symlink():
-                shutil.rmtree(stale, ignore_errors=True)
-        try:
-            with tempfile.TemporaryDirectory(prefix=REHEARSAL_PREFIX,
-                                             dir=self._live.output_dir) as folder:
-                rehearse(folder)
-        except (ValueError, OSError) as exc:
-            self._log_if_up("warning", f"rehearsal reconstruction failed ({exc}); the first "
-                            "scan's reconstruction loads its code itself")
-            return
-        self._log_if_up("info", f"rehearsal reconstruction done in "
-                        f"{time.perf_counter() - start:.2f} s")
-
-    def _log_if_up(self, level: str, text: str) -> None:
-        """Log from a thread that may outlive the node: nothing once it has stopped."""
-        try:
-            if self.context.ok():
-                getattr(self.get_logger(), level)(text)
-        except Exception:  # noqa: BLE001 -- stopped between the test and the call
-            return
 
     def _retry_unstored(self) -> None:
         """Timer: store again the views a full disk refused (in the worker)."""
@@ -772,74 +623,35 @@ class ReconstructionNode(Node):
         self._publish_diagnostics()
         self._publish_status()
 
-    def _reconstruct(self, options: MeshOptions) -> tuple[bool, str, dict | None]:
-        """The mesh of the views received, with ``options``: ``(success, JSON summary or the
-        reason, summary or None)``."""
+    def _carve(self, options: MeshOptions) -> tuple[bool, str, CarvedScanMsg | None]:
+        """The carved scan of the views received, with ``options``: ``(success, summary or
+        the reason, the message or None)``."""
         if self._live is None:
             return False, self._refusal, None
+        start = time.perf_counter()
         try:
-            summary = self._live.reconstruct(
-                options.output_name, pictures=False, resolution=options.resolution,
-                bounds_m=options.bounds_m, mesher=options.mesher, colour=options.colour)
-        except (ValueError, OSError) as exc:
-            self._count("reconstruction_failures")
+            carved = self._live.carve(resolution=options.resolution, bounds_m=options.bounds_m,
+                                      mesher=options.mesher, colour=options.colour)
+            msg = carved_scan_to_msg(carved, replace(self._live.hand_over(),
+                                                     frame_id=self._frame_id),
+                                     stamp=self.get_clock().now().to_msg())
+        except ValueError as exc:
+            self._count("carving_failures")
             reason = str(exc)
             if self._live.n_views == 0:
                 reason += ": publish masks with their joint states first"
-            text = f"reconstruction failed: {reason}"
+            text = f"carving failed: {reason}"
             self.get_logger().error(text)
             self._publish_diagnostics()
             return False, text, None
-        self._count("reconstructions")
-        with self._stats_lock:
-            self._mesh_path = summary["path"]
-        self.get_logger().info(f"mesh written to {summary['path']} ({summary['views_used']} "
-                               f"views, {summary['n_faces']} faces, "
-                               f"{summary['seconds']:.1f} s)")
+        self._count("carvings")
+        text = (f"carved {sum(v.role == 'used' for v in carved.views)} of "
+                f"{self._live.n_views} views on a grid of {list(carved.grid.shape)} voxels "
+                f"({carved.mesher}, {len(carved.colour_views)} views to colour from) in "
+                f"{time.perf_counter() - start:.2f} s")
+        self.get_logger().info(text)
         self._publish_diagnostics()
-        self._publish_status()
-        # The answer goes out now, the mesh and its report being on disk; the pictures (a
-        # quarter of the time) and the mesh messages (seconds of building and serialising
-        # for a few 100 000 faces) follow as the worker's next jobs, once it is sent (the
-        # pictures before it when the request waits for them).
-        if options.wait_for_pictures:
-            self._write_pictures(summary["path"])
-        self._after_answer = self._worker.hold()
-        vertices, faces = self._live.last_mesh
-        self._submit("publish the display mesh", self._publish_marker, vertices, faces,
-                     self._live.last_colours)
-        if not options.wait_for_pictures:
-            self._submit("pictures", self._write_pictures, summary["path"])
-        self._submit("publish the mesh", self._publish_shape, vertices, faces)
-        return True, json.dumps(summary), summary
-
-    def _write_pictures(self, mesh_path: str) -> None:
-        """The last reconstruction's picture, viewer and contact sheet."""
-        try:
-            self._live.write_pictures()
-        except (ValueError, OSError) as exc:
-            self._report_problem(f"pictures of {mesh_path} not written (the mesh and its "
-                                 f"report are): {exc}")
-
-    def _publish_marker(self, vertices, faces, colours) -> None:
-        """``mesh``: the display copy, within ``display_triangles``."""
-        budget = self.get_parameter("display_triangles").value
-        vertices, faces, colours = decimate(vertices, faces, budget, colours)
-        self._publish_quietly(self._marker_pub, lambda: mesh_to_marker(
-            vertices, faces, stamp=self.get_clock().now().to_msg(), frame_id=self._frame_id,
-            vertex_colors=colours))
-
-    def _publish_shape(self, vertices, faces) -> None:
-        """``mesh_shape``: the full mesh (in the turntable frame, as ``mesh``)."""
-        self._publish_quietly(self._shape_pub, lambda: mesh_to_shape(vertices, faces))
-
-    def _publish_quietly(self, publisher, build) -> None:
-        """Publish ``build()``; nothing once the node is stopping (the mesh is in its file)."""
-        try:
-            publisher.publish(build())
-        except Exception:  # noqa: BLE001 -- rclpy's RCLError, once the node is stopping
-            if self.context.ok():
-                raise
+        return True, text, msg
 
     def _publish_poses(self) -> None:
         self._poses_pub.publish(camera_poses(self._cameras, stamp=self.get_clock().now().to_msg(),
@@ -866,15 +678,14 @@ class ReconstructionNode(Node):
         self._publish_status()
 
     def _publish_status(self) -> None:
-        """``~/status``: this scan's session folder, views stored and rejected, the
-        reconstructions made, the last mesh, the problem (any thread)."""
+        """``~/status``: this scan's session folder, views stored and rejected, the problem
+        (any thread)."""
         live = self._live
         with self._stats_lock:
             msg = ReconstructionStatus(
                 session_dir=str(live.session_dir or "") if live is not None else "",
                 views_stored=live.n_views if live is not None else 0,
                 views_rejected=list(self._rejected),
-                reconstructions=self._counts["reconstructions"], mesh_path=self._mesh_path,
                 problem=self._problem)
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.header.frame_id = self._frame_id
@@ -889,18 +700,18 @@ class ReconstructionNode(Node):
                       waiting_joint_states=self._input.pending("second"),
                       unstored=len(self._unstored))
         self._diag_pub.publish(diagnostic_array(
-            status_name(self, "reconstruction"), level, message, values,
+            status_name(self, "carving"), level, message, values,
             stamp=self.get_clock().now().to_msg()))
 
 
 def main(args=None) -> None:
-    """Entry point ``sfs-reconstruction``
-    (``--ros-args --params-file config/reconstruction.yaml``, with ``output_dir`` set).
+    """Entry point ``sfs-carving``
+    (``--ros-args --params-file config/carving.yaml``, with ``output_dir`` set).
 
     The process keeps the memory it frees (:func:`~sfs_ros.core.resident_memory.
     keep_freed_memory`, set as this module is imported, before rclpy's), so a
     reconstruction does not fault in its working memory anew."""
-    run_node("sfs-reconstruction", ReconstructionNode, args, threads=3)
+    run_node("sfs-carving", CarvingNode, args, threads=3)
 
 
 if __name__ == "__main__":

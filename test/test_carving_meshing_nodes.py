@@ -1,6 +1,7 @@
-"""The reconstruction node as a separate OS process, driven over ROS topics and services."""
+"""The carving and meshing nodes as separate OS processes, driven over ROS topics and services."""
 
 import json
+import signal
 import time
 from pathlib import Path
 
@@ -16,9 +17,12 @@ from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker
 
 from sfs_ros.core.exchange.export import load_mesh
+from sfs_ros.core.exchange.inputs import load_views
 from sfs_ros.core.geometry.grid import VoxelGrid
 from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
+from sfs_ros.core.pipeline import ReconstructionParams, reconstruct
 from sfs_ros.core.render import rasterize_silhouette
+from sfs_ros.core.result_files import write_result
 from sfs_ros.core.simulation.objects import make_object
 from sfs_ros.core.simulation.plan import ring_plan
 from sfs_ros.core.simulation.synthetic import carving_box, score_against_truth
@@ -30,7 +34,8 @@ from sfs_ros.ros.names import DIAGNOSTICS, SERVICES
 from ros_harness import MESSAGE_TIMEOUT_S, NodeProcess, NodeUnderTest, keep_ours
 from tolerances import MUG_IOU_29_VIEWS_MIN, QUIET_S
 
-MODULE = "sfs_ros.nodes.reconstruction_node"
+MODULE = "sfs_ros.nodes.carving_node"
+MESHING = "sfs_ros.nodes.meshing_node"
 RIG = RigCalibration(width=320, height=240, projection="pinhole", fx=700.0, fy=700.0,
                      camera_distance_m=0.6, aim_point_m=(0.0, 0.0, 0.04))
 PLAN = ring_plan([20.0, 55.0], 14, top_view=True)        # 29 views
@@ -67,10 +72,12 @@ def masks(mug):
 
 
 class Cell(NodeUnderTest):
-    """The node process plus the probe's publishers, recorders and service clients."""
+    """The carving and meshing node processes plus the probe's publishers, recorders and
+    service clients."""
 
     def __init__(self, params_file):
         super().__init__(MODULE, params_file=params_file)
+        self.meshing = NodeProcess(MESHING, params_file=params_file)
         node, qos = self.probe.node, capture_qos(100)
         self.mask_pub = node.create_publisher(Image, "capture/mask", qos)
         self.joints_pub = node.create_publisher(JointState, "capture/mask_joint_state", qos)
@@ -89,6 +96,12 @@ class Cell(NodeUnderTest):
         self.probe.wait_connected([self.mask_pub, self.joints_pub], subs, process=self.process)
         self.probe.spin_until(lambda: all(c.service_is_ready() for c in self.clients.values()),
                               what="services", process=self.process)
+
+    def close(self) -> tuple[int, str]:
+        """Both nodes stopped (SIGINT first): the first non-zero exit code, both outputs."""
+        code, output = super().close()
+        meshing_code, meshing_output = self.meshing.stop_and_read()
+        return code or meshing_code, output + meshing_output
 
     def send(self, stamp, mask, theta, phi, *, joints_first=False, encoding=None):
         image = image_to_msg(mask, stamp=stamp, frame_id="camera_optical")
@@ -109,7 +122,9 @@ class Cell(NodeUnderTest):
         return future.result()
 
     def statuses(self):
-        return [s for array in self.diagnostics for s in array.status]
+        """The carving node's diagnostic statuses, oldest first."""
+        return [s for array in self.diagnostics for s in array.status
+                if s.name.endswith(": carving")]
 
     def last_values(self) -> dict:
         statuses = self.statuses()
@@ -182,6 +197,40 @@ def test_mesh_is_latched_for_late_subscribers(scan, cell):
     cell.probe.spin_until(lambda: late, what="the mesh on a late subscription",
                           process=cell.process)
     assert len(late[0].points) == len(marker.points)
+
+
+@pytest.fixture(scope="module")
+def meshing_restarted(scan, cell, params_file):
+    """The scan's mesh file and its bytes; then the meshing node killed (SIGKILL) and
+    started again (a module fixture: the new node outlives the test)."""
+    first = json.loads(scan.message)
+    wait_for_pictures(first, timeout_s=60.0)
+    mesh_file = Path(first["path"])
+    before = mesh_file.read_bytes()
+    cell.meshing.process.send_signal(signal.SIGKILL)
+    assert cell.meshing.process.wait(timeout=30) == -signal.SIGKILL
+    cell.meshing.cleanup()
+    cell.meshing = NodeProcess(MESHING, params_file=params_file)
+    cell.probe.spin_until(lambda: "meshing into" in cell.meshing.output(),
+                          what="the new meshing node", process=cell.meshing)
+    return mesh_file, before
+
+
+def test_a_meshing_node_killed_and_started_again_makes_the_offline_mesh(meshing_restarted,
+                                                                       cell, tmp_path):
+    """SIGKILL of the meshing node between the scan and reconstruct: its successor asks the
+    carving node again, every view is used once, and the mesh is the one the offline path
+    makes of the stored views, byte for byte."""
+    mesh_file, before = meshing_restarted
+    again = cell.call("reconstruct", timeout=MESSAGE_TIMEOUT_S)
+    assert again.success, again.message
+    summary = json.loads(again.message)
+    assert summary["views_used"] == summary["views_received"] == len(PLAN)
+    assert mesh_file.read_bytes() == before
+    offline = reconstruct(load_views(summary["session"]),
+                          ReconstructionParams(resolution=RESOLUTION))
+    write_result(offline, tmp_path / "offline.ply")
+    assert (tmp_path / "offline.ply").read_bytes() == before
 
 
 def test_reconstruct_called_again_at_once_answers_and_its_pictures_follow(scan, cell):
@@ -287,7 +336,7 @@ def test_missing_output_dir_exits_with_one_line():
 def test_per_scan_settings_change_between_scans_and_bad_values_are_refused(scan, cell, masks,
                                                                            mug, out_dir):
     def set_one(name, value):
-        return cell.set_parameter("reconstruction", name, value)
+        return cell.set_parameter("carving", name, value)
 
     taken = Path(json.loads(scan.message)["path"]).stem          # the first scan's folder
     for name, value, words in [

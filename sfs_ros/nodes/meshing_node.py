@@ -1,0 +1,349 @@
+"""Meshing node: the carving node's carved scan in, the mesh, its files and messages out.
+
+| kind | name | type | notes |
+|---|---|---|---|
+| pub | ``mesh`` | visualization_msgs/Marker | TRIANGLE_LIST of the last mesh, ``display_triangles`` |
+| pub | ``mesh_shape`` | shape_msgs/Mesh | the full mesh, in the ``mesh`` marker's frame |
+| pub | ``/diagnostics`` | diagnostic_msgs/DiagnosticArray | per event and at 1 Hz |
+| pub | ``~/status`` | sfs_ros_interfaces/ReconstructionStatus | reconstructions, last mesh |
+| srv | ``~/reconstruct_mesh`` | sfs_ros_interfaces/Reconstruct | per-call options, typed answer |
+| srv | ``~/reconstruct`` | std_srvs/Trigger | alias of ``reconstruct_mesh``, defaults; JSON answer |
+| client | ``carving/carve_scan`` | sfs_ros_interfaces/CarveScan | the carved scan |
+
+The meshing half of the cell's reconstruction (:mod:`sfs_ros.nodes.carving_node` keeps
+the scan). ``reconstruct_mesh`` asks the carving node for the carved scan of the views
+it has received, with the request's ``resolution``, ``bounds_m``, ``mesher`` and
+``colour`` (each left empty is the carving node's parameter; ``colour`` empty is this
+node's ``colour``, and never into an .stl), meshes it, colours it, checks it and
+evaluates it (:func:`sfs_ros.cell.mesh_files.write_mesh`: the mesh the offline path
+makes of the same views, byte for byte) and writes the files in ``output_dir`` under
+``output_name`` (default ``<scan name>.ply``). The node holds nothing of a scan between
+requests: restarted, or another in its place, it asks again, and the carving node, which
+keeps the scan, answers again.
+
+The answer (``success`` and the summary: path, report_path, preview_path, views used /
+rejected, watertight, volume_m3, seconds, ...) goes out once the mesh and its report are
+written; the ``mesh`` marker (a copy within ``display_triangles``,
+:func:`sfs_ros.core.meshing.decimate.decimate`), the picture, viewer and contact sheet
+(the report is written again naming them) and ``mesh_shape`` (the full mesh) follow,
+in that order; with ``wait_for_pictures`` the pictures come before the answer.
+``shape_msgs/Mesh`` has no header: its vertices are in the turntable frame, the ``mesh``
+marker's ``frame_id``. ``mesh``, ``mesh_shape`` and ``~/status``: reliable, transient
+local, depth 1 (:func:`sfs_ros.ros.result_qos`).
+
+A request that cannot be made (a bad option, no carving node, no views, a mesh that
+cannot be made) is answered ``success=False`` with the reason, logged as an ERROR and
+shown in the diagnostics until the next mesh.
+
+Parameters: see :data:`PARAMS`; ``output_dir`` is required and every file the node
+writes stays inside it. The frames (:data:`sfs_ros.ros.frames.FRAME_PARAMS`) name the
+turntable frame ``mesh`` is stamped with.
+"""
+
+from __future__ import annotations
+
+# First, before anything starts a thread: malloc keeps what it frees (see the carving node).
+from sfs_ros.core.resident_memory import keep_freed_memory
+
+keep_freed_memory()
+
+import json
+import threading
+import traceback
+from functools import partial
+from pathlib import Path
+
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
+from rclpy.node import Node
+from shape_msgs.msg import Mesh
+from std_srvs.srv import Trigger
+from visualization_msgs.msg import Marker
+
+from sfs_ros.cell.mesh_files import write_mesh
+from sfs_ros.cell.mesh_options import MeshOptions, mesh_options
+from sfs_ros.core.meshing.decimate import decimate
+from sfs_ros.nodes.entry import run_node
+from sfs_ros.ros import result_qos
+from sfs_ros.ros.carved_scan_msg import carved_scan_from_msg
+from sfs_ros.ros.convert import diagnostic_array, health, mesh_to_marker, mesh_to_shape
+from sfs_ros.ros.frames import FRAME_PARAMS, frame_names
+from sfs_ros.ros.names import DIAGNOSTICS, MESHING_STATUS, TYPED_SERVICES, private, status_name
+from sfs_ros.ros.params import Param, ParameterError, declare
+from sfs_ros.ros.rehearsal import Rehearsal
+from sfs_ros.ros.services import ServiceError, call
+from sfs_ros.ros.typed import fill_reconstruct_response
+from sfs_ros.ros.worker import Hold, Worker
+from sfs_ros_interfaces.msg import ReconstructionStatus
+from sfs_ros_interfaces.srv import CarveScan, Reconstruct
+
+__all__ = ["MeshingNode", "PARAMS", "main"]
+
+NODE_NAME = "meshing"
+
+PARAMS: list[Param] = [
+    Param("output_dir", "", "Folder for the meshes, reports and pictures (created if needed); "
+          "every file the node writes stays inside it.", read_only=True,
+          constraints="required, non-empty"),
+    Param("colour", True, "Colour the mesh from the captured images of the views it uses "
+          "(a request's colour left empty).", read_only=True),
+    Param("display_triangles", 10000, "Most triangles of the mesh marker (a simplified "
+          "copy by vertex clustering, 40 bytes a corner with its colour: 10 000 make 1.2 MB); "
+          "the file and mesh_shape keep the full mesh.", bounds=(100, 10_000_000),
+          constraints="used from the next reconstruction"),
+    Param("carve_timeout_s", 120.0, "How long a reconstruction waits for the carving node's "
+          "carved scan, s.", bounds=(0.1, 86400.0), read_only=True),
+    Param("rehearse", True, "At start, reconstruct a small simulated scan (in a folder in "
+          "output_dir, removed after) so that the first real mesh finds its code loaded.",
+          read_only=True),
+]
+#: Period (s) of the timer that releases the jobs after a ``reconstruct`` answer (it runs
+#: once per answer, as soon as the answer is sent).
+ANSWER_CHECK_S = 0.001
+
+
+def _internal_error(job: str, exc: Exception) -> str:
+    return f"internal error in {job}: {type(exc).__name__}: {exc}"
+
+
+class MeshingNode(Node):
+    """Meshes the carving node's carved scan on request.
+
+    Raises :class:`ParameterError` at construction for invalid parameters.
+    ``destroy_node`` finishes the queued work and stops the worker thread.
+    """
+
+    def __init__(self, **kwargs):
+        self._worker = None  # started last; a node refused at start-up has none to stop
+        self._rehearsal = None
+        super().__init__(NODE_NAME, **kwargs)
+        values = declare(self, PARAMS)
+        self._frame_id = frame_names(declare(self, FRAME_PARAMS)).turntable_frame
+        if not values["output_dir"].strip():
+            raise ParameterError("output_dir", "is required: the folder for the meshes")
+        self._output_dir = Path(values["output_dir"])
+        try:
+            self._output_dir.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise ParameterError("output_dir", str(exc)) from None
+        self._values = values
+        self._stats_lock = threading.Lock()
+        self._counts = {"reconstructions": 0, "reconstruction_failures": 0}
+        self._problem = ""
+        self._mesh_path = self._session_dir = ""
+
+        services = MutuallyExclusiveCallbackGroup()   # one request at a time
+        self._carve_client = self.create_client(CarveScan, TYPED_SERVICES["carve_scan"],
+                                                callback_group=ReentrantCallbackGroup())
+        self._marker_pub = self.create_publisher(Marker, "mesh", result_qos())
+        self._shape_pub = self.create_publisher(Mesh, "mesh_shape", result_qos())
+        self._diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
+        self._status_pub = self.create_publisher(
+            ReconstructionStatus, "~/" + MESHING_STATUS.split("/", 1)[1], result_qos())
+        self.create_service(Trigger, private("reconstruct"), self._on_reconstruct,
+                            callback_group=services)
+        self.create_service(Reconstruct, private("reconstruct_mesh"), self._on_reconstruct_mesh,
+                            callback_group=services)
+        self.create_timer(1.0, self._publish_diagnostics,
+                          callback_group=MutuallyExclusiveCallbackGroup())
+        # The jobs after a reconstruction (pictures, mesh messages) wait on a hold until
+        # its answer is sent: released by this timer, armed by the service callback. In the
+        # services group it runs only once that callback is done, and rclpy sends the
+        # answer before that.
+        self._answered = self.create_timer(ANSWER_CHECK_S, self._release_after_answer,
+                                           callback_group=services)
+        self._answered.cancel()
+        self._after_answer: Hold | None = None
+        self._worker = Worker("meshing", on_error=self._job_failed)
+        self._publish_status()
+        self.get_logger().info(f"meshing into {self._output_dir}, carved scans from "
+                               f"{self._carve_client.srv_name}")
+        if values["rehearse"]:
+            self._rehearsal = Rehearsal(self, self._output_dir)
+
+    def destroy_node(self) -> None:
+        """Finish the queued work, stop the worker thread and the rehearsal, then destroy
+        the node."""
+        if self._worker is not None:
+            if self._after_answer is not None:   # the answer's timer will not run now
+                self._after_answer.release()
+            self._worker.stop()
+            self._worker.join()
+        if self._rehearsal is not None:
+            self._rehearsal.join()
+        super().destroy_node()
+
+    # -- requests (services group) -------------------------------------------------------------
+
+    def _on_reconstruct(self, _request, response):
+        response.success, response.message, _ = self._answer(MeshOptions())
+        return response
+
+    def _on_reconstruct_mesh(self, request, response):
+        """The typed ``reconstruct_mesh``: options checked here (refused at once with the
+        reason), the carved scan asked for, the mesh made in the worker."""
+        try:
+            options = mesh_options(
+                self._output_dir, resolution=request.resolution,
+                bounds_m=list(request.bounds_m), mesher=request.mesher,
+                colour=request.colour, output_name=request.output_name,
+                wait_for_pictures=request.wait_for_pictures)
+        except ValueError as exc:
+            response.success, response.message = False, f"request refused: {exc}"
+            return response
+        response.success, response.message, summary = self._answer(options)
+        if summary is not None:
+            fill_reconstruct_response(response, summary, frame_id=self._frame_id)
+        return response
+
+    def _answer(self, options: MeshOptions) -> tuple[bool, str, dict | None]:
+        """Ask for the carved scan, mesh it in the worker: ``(success, JSON summary or the
+        reason, summary or None)``; the jobs after it are held until the answer is out."""
+        # The previous answer is out (this group ran one callback at a time): should its
+        # timer not have run yet, the jobs held for it must not hold this one up.
+        self._release_after_answer()
+        carved = self._carved_scan(options)
+        if isinstance(carved, str):
+            return self._failed(carved)
+        try:
+            answer = self._worker.submit(lambda: self._mesh(carved, options),
+                                         name="mesh").result()
+        except Exception as exc:  # noqa: BLE001 -- the worker reported it; the caller gets it
+            answer = False, _internal_error("mesh", exc), None
+        if self._after_answer is not None:
+            self._answered.reset()
+        return answer
+
+    def _carved_scan(self, options: MeshOptions):
+        """The carving node's carved scan for ``options`` (a message), or why there is none."""
+        colour = options.colour if options.colour is not None else self._values["colour"]
+        if options.output_name and Path(options.output_name).suffix.lower() == ".stl":
+            colour = False                 # an .stl has no colours
+        request = CarveScan.Request(
+            resolution=options.resolution or 0,
+            bounds_m=[] if options.bounds_m is None else options.bounds_m.ravel().tolist(),
+            mesher=options.mesher or "", colour="yes" if colour else "no")
+        try:
+            answer = call(self._carve_client, request,
+                          timeout_s=self._values["carve_timeout_s"])
+        except ServiceError as exc:
+            return f"reconstruction failed: no carved scan: {exc}"
+        if not answer.success:
+            return f"reconstruction failed: {answer.message}"
+        return answer.scan
+
+    def _release_after_answer(self) -> None:
+        """Timer (services group), once the ``reconstruct`` answer is sent: the worker may
+        start the jobs that follow it."""
+        self._answered.cancel()
+        hold, self._after_answer = self._after_answer, None
+        if hold is not None:
+            hold.release()
+
+    # -- worker thread ---------------------------------------------------------------------------
+
+    def _mesh(self, msg, options: MeshOptions) -> tuple[bool, str, dict | None]:
+        """Mesh a carved scan message and write the files; the messages and pictures are
+        queued to follow the answer."""
+        try:
+            carved, hand_over = carved_scan_from_msg(msg)
+            made = write_mesh(carved, hand_over, self._output_dir, options.output_name,
+                              pictures=options.wait_for_pictures)
+        except (ValueError, OSError) as exc:
+            return self._failed(f"reconstruction failed: {exc}")
+        summary = made.summary
+        with self._stats_lock:
+            self._counts["reconstructions"] += 1
+            self._mesh_path, self._session_dir = summary["path"], summary["session"]
+            self._problem = ""
+        self.get_logger().info(f"mesh written to {summary['path']} ({summary['views_used']} "
+                               f"views, {summary['n_faces']} faces, "
+                               f"{summary['seconds']:.1f} s)")
+        self._publish_diagnostics()
+        self._publish_status()
+        self._after_answer = self._worker.hold()
+        result = made.result
+        self._worker.submit(partial(self._publish_marker, result.vertices, result.faces,
+                                    result.vertex_colors), name="publish the display mesh")
+        if made.pictures_due is not None:
+            self._worker.submit(partial(self._write_pictures, made.pictures_due,
+                                        summary["path"]), name="pictures")
+        self._worker.submit(partial(self._publish_shape, result.vertices, result.faces),
+                            name="publish the mesh")
+        return True, json.dumps(summary), summary
+
+    def _write_pictures(self, pictures_due, mesh_path: str) -> None:
+        try:
+            pictures_due()
+        except (ValueError, OSError) as exc:
+            self._report_problem(f"pictures of {mesh_path} not written (the mesh and its "
+                                 f"report are): {exc}")
+
+    def _publish_marker(self, vertices, faces, colours) -> None:
+        """``mesh``: the display copy, within ``display_triangles``."""
+        budget = self.get_parameter("display_triangles").value
+        vertices, faces, colours = decimate(vertices, faces, budget, colours)
+        self._publish_quietly(self._marker_pub, lambda: mesh_to_marker(
+            vertices, faces, stamp=self.get_clock().now().to_msg(), frame_id=self._frame_id,
+            vertex_colors=colours))
+
+    def _publish_shape(self, vertices, faces) -> None:
+        """``mesh_shape``: the full mesh (in the turntable frame, as ``mesh``)."""
+        self._publish_quietly(self._shape_pub, lambda: mesh_to_shape(vertices, faces))
+
+    def _publish_quietly(self, publisher, build) -> None:
+        """Publish ``build()``; nothing once the node is stopping (the mesh is in its file)."""
+        try:
+            publisher.publish(build())
+        except Exception:  # noqa: BLE001 -- rclpy's RCLError, once the node is stopping
+            if self.context.ok():
+                raise
+
+    def _job_failed(self, name: str, exc: Exception) -> None:
+        text = _internal_error(name, exc)
+        self.get_logger().error(f"{text}\n{''.join(traceback.format_exception(exc))}")
+        self._report_problem(text)
+
+    # -- status (any thread) ---------------------------------------------------------------------
+
+    def _failed(self, text: str) -> tuple[bool, str, None]:
+        with self._stats_lock:
+            self._counts["reconstruction_failures"] += 1
+        self._report_problem(text)
+        return False, text, None
+
+    def _report_problem(self, text: str) -> None:
+        with self._stats_lock:
+            self._problem = text
+        self.get_logger().error(text)
+        self._publish_diagnostics()
+        self._publish_status()
+
+    def _publish_status(self) -> None:
+        """``~/status``: the reconstructions made, the last mesh and its session folder,
+        the problem."""
+        with self._stats_lock:
+            msg = ReconstructionStatus(session_dir=self._session_dir,
+                                       reconstructions=self._counts["reconstructions"],
+                                       mesh_path=self._mesh_path, problem=self._problem)
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.header.frame_id = self._frame_id
+        self._status_pub.publish(msg)
+
+    def _publish_diagnostics(self) -> None:
+        with self._stats_lock:
+            values, problem = dict(self._counts), self._problem
+        level, message = health(problem, "", f"{values['reconstructions']} meshes made")
+        self._diag_pub.publish(diagnostic_array(
+            status_name(self, "meshing"), level, message, values,
+            stamp=self.get_clock().now().to_msg()))
+
+
+def main(args=None) -> None:
+    """Entry point ``sfs-meshing``
+    (``--ros-args --params-file config/meshing.yaml``, with ``output_dir`` set)."""
+    run_node("sfs-meshing", MeshingNode, args, threads=3)
+
+
+if __name__ == "__main__":
+    main()
