@@ -56,7 +56,7 @@ def _config(folder: Path, rings: dict, resolution: int) -> dict:
     merged = {}
     for path in CONFIG.glob("*.yaml"):
         data = yaml.safe_load(path.read_text())
-        if path.name == "reconstruction.yaml":
+        if path.name == "carving.yaml":
             data["/**"]["ros__parameters"]["resolution"] = resolution
         if path.name == "scan_plan.yaml":
             data = {"rings": rings}
@@ -117,7 +117,7 @@ def _cell_run(config: Path, output: Path, total: int) -> dict:
         motion = _node_value(client, "scan", "motion_s")
         shutter = _node_value(client, "scan", "shutter_s")
         seg = _node_value(client, "segmentation", "segment_s")
-        carve = _node_value(client, "reconstruction", "carve_s")
+        carve = _node_value(client, "carving", "carve_s")
     last_view = max(observer.seen.values())
     return {"total_s": end - start, "latency_s": end - last_view,
             "stored_latency_s": end - max(observer.receipted.values()),

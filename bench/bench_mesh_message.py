@@ -30,7 +30,7 @@ from sfs_ros.ros.cell_client import CellClient
 
 CONFIG = Path(__file__).resolve().parent.parent / "config"
 NAMESPACE = "/bench_mesh"
-FAST = {"reconstruction.yaml": {"display_triangles": int(os.environ.get("DISPLAY_TRIANGLES", "10000"))},
+FAST = {"meshing.yaml": {"display_triangles": int(os.environ.get("DISPLAY_TRIANGLES", "10000"))},
         "mock_hardware.yaml": {"max_speed_deg_s": [720.0, 360.0],
                                "accel_deg_s2": [7200.0, 3600.0], "homing_speed_deg_s": 600.0}}
 

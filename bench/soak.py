@@ -36,7 +36,7 @@ _CAMERA = {"width": 320, "height": 240, "fx": 700.0, "fy": 700.0}
 _SMALL = {"rig.yaml": _CAMERA,
           "mock_hardware.yaml": {"max_speed_deg_s": [720.0, 360.0],
                                  "accel_deg_s2": [7200.0, 3600.0], "homing_speed_deg_s": 600.0},
-          "reconstruction.yaml": {"resolution": 64}}
+          "carving.yaml": {"resolution": 64}}
 
 
 def _small_config(folder: Path) -> Path:

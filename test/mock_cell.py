@@ -36,8 +36,8 @@ OVERRIDES = {
     "mock_hardware.yaml": {"max_speed_deg_s": [720.0, 360.0], "accel_deg_s2": [7200.0, 3600.0],
                            "homing_speed_deg_s": 600.0, "seed": 7, "world_rig": SMALL_CAMERA},
     "motor.yaml": {"status_rate_hz": 20.0, "reconnect_period_s": 0.5, "move_timeout_s": 5.0},
-    "reconstruction.yaml": {"resolution": RESOLUTION, "hull_rate_hz": 1.0,
-                            "bounds_m": carving_box(make_object("mug")).ravel().tolist()},
+    "carving.yaml": {"resolution": RESOLUTION, "hull_rate_hz": 1.0,
+                     "bounds_m": carving_box(make_object("mug")).ravel().tolist()},
     "scan.yaml": {"settle_samples": 2, "stall_s": 1.5, "move_timeout_s": 4.0, "move_retries": 1,
                   "capture_timeout_s": 3.0, "capture_retries": 1, "receipt_timeout_s": 3.0,
                   # Homing only bounded against a hang: under the load of two full suites

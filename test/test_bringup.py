@@ -45,7 +45,8 @@ REAL = [("camera", "camera_node", ["rig.yaml", "frames.yaml", "camera.yaml"]),
 MANAGER = [("lifecycle_manager", "lifecycle_manager_node", [])]
 REST = [("state_publisher", "tf_node", ["rig.yaml", "frames.yaml"]),
         ("segmentation", "segmentation_node", ["segmentation.yaml"]),
-        ("reconstruction", "reconstruction_node", ["rig.yaml", "frames.yaml", "reconstruction.yaml"]),
+        ("carving", "carving_node", ["rig.yaml", "frames.yaml", "carving.yaml"]),
+        ("meshing", "meshing_node", ["frames.yaml", "meshing.yaml"]),
         ("recorder", "recorder_node", ["recorder.yaml"]),
         ("calibration", "calibration_node", ["calibration.yaml"]),
         ("scan", "scan_node", ["scan.yaml"])]
@@ -80,6 +81,7 @@ def test_cell_nodes_in_start_order_with_their_files_and_overrides(mock, tmp_path
     assert [s.overrides for s in specs] == (
         hardware if mock else [managed, managed, {"nodes": "[motor,camera]"}]) + [
         {}, {}, {"output_dir": str(output)}, {"output_dir": str(output)},
+        {"output_dir": str(output)},
         {"output_dir": str(output), "plan_file": str(config / "calibration_plan.yaml")},
         {"plan_file": str(config / "scan_plan.yaml"),
          "progress_dir": str(output / "scan_progress")}]
@@ -131,7 +133,7 @@ def test_real_cell_options_port_camera_device_camera_topic_and_site_params(tmp_p
     # Another driver's camera: no camera node; the scan node streams from its topic.
     other = cell_nodes(config, tmp_path / "out", mock=False, camera_topic="/usb_cam/image_raw")
     assert [s.name for s in other] == ["motor", "lifecycle_manager", "state_publisher",
-                                       "segmentation", "reconstruction", "recorder",
+                                       "segmentation", "carving", "meshing", "recorder",
                                        "calibration", "scan"]
     assert other[1].overrides == {"nodes": "[motor]"}
     # An integrator's own launch drives the transitions: no manager.
@@ -278,7 +280,7 @@ class MockCell:
 
     def wait_up(self) -> None:
         """Until every node has written a line, the mock serves its controller, and the scan
-        and reconstruction services are ready."""
+        and reconstruct services are ready."""
         probe = RosProbe()
         try:
             clients = [probe.node.create_client(Trigger, f"{self.namespace}/{SERVICES[name]}")

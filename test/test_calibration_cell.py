@@ -12,7 +12,7 @@ second block calibrates from the recorded bag and applies the result to the runn
 Checked: ``sfs-calibrate`` recovers the world the mock rendered (the bars of
 :mod:`test_mock_calibration`, which checks every parameter in-process and measures the
 accuracy it wins back); every node that holds the rig now has the calibrated file's
-values; the rig is kept in ``out/calib/calibration/rig.yaml``; a reconstruction node
+values; the rig is kept in ``out/calib/calibration/rig.yaml``; a carving node
 stopped and started again by ``sfs-cell`` comes back with it; applying logs no ERROR,
 and the cell stops cleanly.
 """
@@ -111,17 +111,17 @@ def _pids(*patterns: str) -> set[int]:
     return found
 
 
-def _restart_reconstruction(client: CellClient, output: Path) -> dict:
-    """Stop this cell's reconstruction node (SIGTERM): ``sfs-cell`` starts it again. The
+def _restart_carving(client: CellClient, output: Path) -> dict:
+    """Stop this cell's carving node (SIGTERM): ``sfs-cell`` starts it again. The
     rig of the new process."""
-    ours = (f"sfs_ros.nodes.reconstruction_node --ros-args -r __ns:={NAMESPACE}",
+    ours = (f"sfs_ros.nodes.carving_node --ros-args -r __ns:={NAMESPACE}",
             f"output_dir:={output}")
     running = _pids(*ours)
     assert len(running) == 1, running
     os.kill(next(iter(running)), signal.SIGTERM)
-    wait(lambda: _pids(*ours) - running, what="the reconstruction node started again",
+    wait(lambda: _pids(*ours) - running, what="the carving node started again",
          timeout=STARTUP_TIMEOUT_S)
-    return _rig_of(client, "reconstruction")
+    return _rig_of(client, "carving")
 
 
 @pytest.fixture(scope="module")
@@ -154,9 +154,9 @@ def calibration(tmp_path_factory):
             assert done.returncode == 0, done.stderr + log_path.read_text()[-5000:]
             result["stdout"] = done.stdout
             result["held"] = {node: _rig_of(client, node)
-                              for node in ("reconstruction", "camera")}
+                              for node in ("carving", "camera")}
             result["apply_log"] = log_path.read_text()[scanned:]
-            result["restarted"] = _restart_reconstruction(client, output.resolve())
+            result["restarted"] = _restart_carving(client, output.resolve())
     finally:
         cell.send_signal(signal.SIGINT)
         result["exit"] = cell.wait(timeout=120)
@@ -187,7 +187,7 @@ def test_the_recorded_board_scan_calibrates_the_cell(calibration):
 
 def test_the_calibration_is_applied_to_the_running_cell_and_kept(calibration):
     applied = calibration["stdout"].split("applied to ", 1)[1].splitlines()[0]
-    assert f"{NAMESPACE}/reconstruction" in applied and f"{NAMESPACE}/camera" in applied
+    assert f"{NAMESPACE}/carving" in applied and f"{NAMESPACE}/camera" in applied
     for node, held in calibration["held"].items():
         assert held == calibration["file"], node
     assert calibration["kept"] == calibration["file"]
@@ -195,7 +195,7 @@ def test_the_calibration_is_applied_to_the_running_cell_and_kept(calibration):
 
 def test_a_node_started_again_keeps_the_applied_rig(calibration):
     assert calibration["restarted"] == calibration["file"]
-    assert "sfs-cell: reconstruction starts with the rig applied last" \
+    assert "sfs-cell: carving starts with the rig applied last" \
         in calibration["log"].read_text()
 
 

@@ -136,8 +136,8 @@ def _matched_views(joints) -> list[int]:
 
 
 def _reconstruction_views(rec: Recorder) -> int:
-    """Views in the reconstruction node's current scan, by its latest report (-1: none yet)."""
-    statuses = rec.statuses("reconstruction")
+    """Views in the carving node's current scan, by its latest report (-1: none yet)."""
+    statuses = rec.statuses("carving")
     if not statuses:
         return -1
     return int({kv.key: kv.value for kv in statuses[-1].values}["scan_views"])
@@ -288,9 +288,9 @@ def _restarted_mid_scan(cell, node: str):
     return status
 
 
-def test_reconstruction_restarted_mid_scan_loses_no_view(cell):
-    status = _restarted_mid_scan(cell, "reconstruction")
-    # The scan node sent every capture again to the new reconstruction node.
+def test_carving_restarted_mid_scan_loses_no_view(cell):
+    status = _restarted_mid_scan(cell, "carving")
+    # The scan node sent every capture again to the new carving node.
     assert _count(_scan_diagnostics(cell["recorder"], status), "resends") >= 6
     summary = cell["client"].reconstruct()
     assert summary["views_received"] == summary["views_used"] == len(PLAN)
@@ -319,7 +319,7 @@ def test_malformed_messages_are_reported_and_the_scan_goes_on(cell):
     status = client.wait_scan_done(scan, timeout_s=SCAN_TIMEOUT_S)
     rec.wait_status("segmentation", "yuv422")
     rec.wait_status("segmentation", "nanosec")
-    rec.wait_status("reconstruction", "nanosec")
+    rec.wait_status("carving", "nanosec")
     _check_every_view_once(rec, status)
     assert cell["cell"].exited() == {}
     assert cell["client"].reconstruct()["views_used"] == len(PLAN)

@@ -13,9 +13,10 @@ import yaml
 from sfs_ros.nodes import (
     calibration_node,
     camera_node,
+    carving_node,
+    meshing_node,
     mock_hardware_node,
     motor_node,
-    reconstruction_node,
     recorder_node,
     scan_node,
     segmentation_node,
@@ -27,7 +28,8 @@ RIG_NAMES = {p.name for p in RIG_PARAMS}
 
 # (module, its config file): the rig parameters live in rig.yaml, the rest in the node's file.
 NODES = [(camera_node, "camera.yaml"), (mock_hardware_node, "mock_hardware.yaml"),
-         (motor_node, "motor.yaml"), (reconstruction_node, "reconstruction.yaml"),
+         (motor_node, "motor.yaml"), (carving_node, "carving.yaml"),
+         (meshing_node, "meshing.yaml"),
          (recorder_node, "recorder.yaml"), (scan_node, "scan.yaml"),
          (calibration_node, "calibration.yaml")]
 

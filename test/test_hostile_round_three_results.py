@@ -212,13 +212,13 @@ def test_class_13_a_reset_during_a_scan_is_refused_and_no_open_marker_is_left(tm
     from test_rig_runtime import _scan_report
 
     from sfs_ros.cell.live import OPEN_MARKER
-    from sfs_ros.nodes.reconstruction_node import ReconstructionNode
+    from sfs_ros.nodes.carving_node import CarvingNode
     from sfs_ros.ros.names import DIAGNOSTICS, SERVICES
 
     from ros_harness import NAMESPACE, RosProbe
 
     probe = RosProbe("round_three_probe")
-    node = ReconstructionNode(context=probe.context, namespace=NAMESPACE, parameter_overrides=[
+    node = CarvingNode(context=probe.context, namespace=NAMESPACE, parameter_overrides=[
         Parameter("output_dir", value=str(tmp_path / "out")),
         Parameter("resolution", value=16), Parameter("hull_rate_hz", value=0.0)])
     probe.executor.add_node(node)
@@ -334,7 +334,7 @@ def test_class_16_a_corrupt_message_is_a_rejected_view_and_the_rest_is_used(tmp_
 
 def test_class_17_the_command_line_resolution_overrides_the_bags_within_one_range(tmp_path):
     from sfs_ros.cell.mesh_options import RESOLUTION_RANGE as REQUESTS
-    from sfs_ros.nodes.reconstruction_node import PARAMS
+    from sfs_ros.nodes.carving_node import PARAMS
 
     node_range = next(p.bounds for p in PARAMS if p.name == "resolution")
     assert tuple(node_range) == RESOLUTION_RANGE == REQUESTS

@@ -255,8 +255,9 @@ def test_our_state_publisher_gives_the_tf_in_the_configured_frames(filename, nam
                                       str(share / "config" / "frames.yaml")]
     # Every node that stamps a frame reads the same frames file.
     stamping = [n for n in launch.nodes() if n["executable"] in
-                {"sfs-state-publisher", "sfs-reconstruction", "sfs-camera", "sfs-mock-hardware"}]
-    assert len(stamping) == 3
+                {"sfs-state-publisher", "sfs-carving", "sfs-meshing", "sfs-camera",
+                 "sfs-mock-hardware"}]
+    assert len(stamping) == 4
     assert all(str(share / "config" / "frames.yaml") in n["parameters"] for n in stamping)
 
 

@@ -1,6 +1,6 @@
 """The recorder node as a separate OS process: starting, stopping, and what survives a crash.
 
-A reconstruction node runs beside it (the recorder stores its parameters,
+A carving node runs beside it (the recorder stores its parameters,
 and the offline reader needs them to place the cameras); the probe publishes
 exact sphere silhouettes with their joint states as the segmentation node
 would. A bag closed by SIGINT, SIGTERM or ``recorder/stop`` opens with rosbags; a bag
@@ -57,15 +57,15 @@ def views():
 
 @pytest.fixture(scope="module")
 def probe(tmp_path_factory, start_node_for_module):
-    """The probe, with a reconstruction node running (whose parameters every bag stores)."""
+    """The probe, with a carving node running (whose parameters every bag stores)."""
     params = {"projection": TEST_RIG.projection, "width": TEST_RIG.width,
               "height": TEST_RIG.height, "fx": TEST_RIG.fx, "fy": TEST_RIG.fy,
               "camera_distance_m": TEST_RIG.camera_distance_m,
               "aim_point_m": list(TEST_RIG.aim_point_m), "bounds_m": BOUNDS, "resolution": 40,
-              "output_dir": str(tmp_path_factory.mktemp("reconstruction")), "hull_rate_hz": 0.0}
-    path = tmp_path_factory.mktemp("params") / "reconstruction.yaml"
+              "output_dir": str(tmp_path_factory.mktemp("carving")), "hull_rate_hz": 0.0}
+    path = tmp_path_factory.mktemp("params") / "carving.yaml"
     path.write_text(yaml.safe_dump({"/**": {"ros__parameters": params}}))
-    reconstruction = start_node_for_module(NodeUnderTest, "sfs_ros.nodes.reconstruction_node",
+    reconstruction = start_node_for_module(NodeUnderTest, "sfs_ros.nodes.carving_node",
                                            params_file=path, probe_name="recorder_probe")
     probe = reconstruction.probe
     qos = capture_qos(100)
@@ -83,7 +83,7 @@ class Recorder:
         self.probe = probe
         self.output_dir = output_dir
         self.process = NodeProcess(RECORDER, parameters={
-            "output_dir": str(output_dir), "parameter_nodes": ["reconstruction"],
+            "output_dir": str(output_dir), "parameter_nodes": ["carving"],
             "parameter_timeout_s": 10.0, **parameters})
         self.clients = {n: probe.node.create_client(Trigger, SERVICES[f"record/{n}"])
                         for n in ("start", "stop")}

@@ -32,7 +32,7 @@ FRESH_PAGES = 32 * (1 << 20) // 4096
 #: faults.
 NODE_CHILD = """
 import threading
-import sfs_ros.nodes.reconstruction_node
+import sfs_ros.nodes.carving_node
 from sfs_ros.core import resident_memory
 kept = resident_memory._kept
 import numpy as np
@@ -97,7 +97,7 @@ def test_prefault_only_after_keep_and_refuses_bad_sizes():
             prefault(bad)
 
 
-def test_the_reconstruction_nodes_worker_thread_reuses_the_heap_its_constructor_touched():
+def test_the_carving_nodes_worker_thread_reuses_the_heap_its_constructor_touched():
     # Importing the node's module sets malloc up before rclpy's import starts threads: all
     # threads share the one arena, so the worker finds the pages the constructor touched.
     kept, touched, faults = _child(script=NODE_CHILD)

@@ -1,12 +1,12 @@
-"""The cell on two hosts: the reconstruction and recorder on one, the rest on the other.
+"""The cell on two hosts: the meshing node and recorder on one, the rest on the other.
 
 Two network namespaces joined by a veth pair (addresses that exist only inside
 them) stand for two machines on one network: ``sfs-cell --mock --only
-reconstruction,recorder --record`` runs in one, ``sfs-cell --mock --without
-reconstruction,recorder`` (mock hardware, motor, camera, scan, segmentation, ...)
+meshing,recorder --record`` runs in one, ``sfs-cell --mock --without
+meshing,recorder`` (mock hardware, motor, camera, scan, segmentation, ...)
 in the other, both in the same ROS domain and namespace, discovery over the
 network (``ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET``: Fast DDS's multicast SPDP
-over the veth). A program beside the reconstruction scans and reconstructs
+over the veth). A program beside the meshing node scans and reconstructs
 with :class:`CellClient`; every capture crosses the link (the veth's byte
 counters show it). A third namespace, joined to neither, sees none of the
 cell's nodes. Each half's files stay on its host's disk.
@@ -41,8 +41,9 @@ from ros_harness import DOMAIN_ID, NAMESPACE, SOURCE_ROOT
 from tolerances import READBACK_TOL_RAD
 from waiting import wait
 
-#: The reconstruction's host runs these; the other host the rest of the cell.
-FAR_NODES = "reconstruction,recorder"
+#: The meshing node's host runs these; the other host the rest of the cell (the carving
+#: node's carved scan crosses to it).
+FAR_NODES = "meshing,recorder"
 RINGS_DEG, PER_RING = [25.0, 60.0], 4
 PLAN = ScanPlan.from_rings(RINGS_DEG, PER_RING, True)                  # 9 views
 #: Process start-up (rclpy, numpy, OpenCV, numba imports) on a loaded 2-core machine, a
@@ -52,7 +53,7 @@ STOP_TIMEOUT_S = 120.0
 #: How long the unjoined namespace looks for the cell's nodes, s (discovery, when there
 #: is a way, takes a second or two).
 LOOK_S = 15.0
-#: Nodes of the other half that a program beside the reconstruction finds.
+#: Nodes of the other half that a program beside the meshing node finds.
 NEAR_NODES = ("motor", "scan", "segmentation")
 CLIENT = Path(__file__).resolve().parent / "two_hosts_client.py"
 
@@ -222,7 +223,7 @@ def _scan_bag(output_dir: Path) -> Path | None:
 
 @pytest.fixture(scope="module")
 def two_hosts(tmp_path_factory):
-    """The scan and reconstruction made by a client beside the reconstruction, the other
+    """The scan and reconstruction made by a client beside the meshing node, the other
     half of the cell on the other side of the link; the cells stopped (each exit 0) and the
     namespaces deleted before the checks."""
     root = tmp_path_factory.mktemp("two_hosts")
@@ -310,20 +311,24 @@ def test_every_view_crosses_the_link_and_is_stored_once(two_hosts):
     assert two_hosts["received"] > len(PLAN) * rig["width"] * rig["height"] * (3 + 1)
 
 
-def test_the_mesh_is_made_on_the_reconstructions_host(two_hosts):
+def test_the_mesh_is_made_on_the_meshing_nodes_host(two_hosts):
     summary = two_hosts["summary"]
     far = two_hosts["halves"]["far"].output_dir.resolve()
     mesh = Path(summary["path"])
     assert mesh.is_file() and mesh.stat().st_size > 0
     assert summary["views_used"] == len(PLAN) and summary["n_faces"] > 0
-    for key in ("path", "session_dir", "report_path", "preview_path"):
+    for key in ("path", "report_path", "preview_path"):
         assert Path(summary[key]).resolve().is_relative_to(far), key
-    # The scan node's host keeps the scan's progress and the mock's port, nothing else.
-    assert set(two_hosts["near_files"]) <= {"scan_progress", "ttyMOCK"}
-    assert not (far / "scan_progress").exists()
+    # The scan node's host keeps the scan's progress, the mock's port and the carving
+    # node's session folder, no mesh.
+    session = Path(summary["session_dir"])
+    near = two_hosts["halves"]["near"].output_dir.resolve()
+    assert session.resolve().is_relative_to(near)
+    assert set(two_hosts["near_files"]) <= {"scan_progress", "ttyMOCK", session.name}
+    assert not (far / "scan_progress").exists() and not (far / session.name).exists()
 
 
-def test_the_recorder_beside_the_reconstruction_holds_every_capture(two_hosts):
+def test_the_recorder_beside_the_meshing_node_holds_every_capture(two_hosts):
     far = two_hosts["halves"]["far"].output_dir
     bag = _scan_bag(far)
     stamps = _capture_stamps(bag.parent)                 # the closed bag
@@ -338,7 +343,7 @@ def test_the_recorder_beside_the_reconstruction_holds_every_capture(two_hosts):
 
 
 def test_a_host_not_joined_sees_none_of_the_cell(two_hosts):
-    # The same program beside the reconstruction sees the other host's nodes.
+    # The same program beside the meshing node sees the other host's nodes.
     assert set(NEAR_NODES) <= set(two_hosts["look"]["far"])
     assert two_hosts["look"]["alone"] == []
 
@@ -358,12 +363,12 @@ def _specs(names: list[str]) -> list[NodeSpec]:
     return [NodeSpec(name, f"{name}_node", []) for name in names]
 
 
-CELL = ["mock_hardware", "motor", "segmentation", "reconstruction", "recorder", "scan"]
+CELL = ["mock_hardware", "motor", "segmentation", "carving", "meshing", "recorder", "scan"]
 
 
 @pytest.mark.parametrize("only, without, started", [
-    (["recorder", "reconstruction"], [], ["reconstruction", "recorder"]),
-    ([], ["reconstruction", "recorder"], ["mock_hardware", "motor", "segmentation", "scan"]),
+    (["recorder", "meshing"], [], ["meshing", "recorder"]),
+    ([], ["meshing", "recorder"], ["mock_hardware", "motor", "segmentation", "carving", "scan"]),
     ([], [], CELL),
 ])
 def test_select_nodes_keeps_the_cells_order(only, without, started):
@@ -372,8 +377,8 @@ def test_select_nodes_keeps_the_cells_order(only, without, started):
 
 
 @pytest.mark.parametrize("only, without, error", [
-    (["reconstructoin"], [], "no node reconstructoin in this cell; its nodes are "
-                             "mock_hardware, motor, segmentation, reconstruction, recorder, scan"),
+    (["meshnig"], [], "no node meshnig in this cell; its nodes are "
+                      "mock_hardware, motor, segmentation, carving, meshing, recorder, scan"),
     (["scan"], ["motor"], "one or the other"),
     ([], CELL, "no node left to start"),
     (["motor", "scan"], [], "mock_hardware and motor run on the same host"),
@@ -386,10 +391,10 @@ def test_select_nodes_refuses_a_selection_that_cannot_run(only, without, error):
 
 def test_sfs_cell_names_the_valid_nodes_for_an_unknown_one(tmp_path):
     done = subprocess.run([sys.executable, "-m", "sfs_ros.cli.cell", "--mock", "-o",
-                           str(tmp_path / "out"), "--only", "reconstruction,recoder"],
+                           str(tmp_path / "out"), "--only", "meshing,recoder"],
                           capture_output=True, text=True, env=_environment(), cwd=tmp_path,
                           timeout=120)
     assert done.returncode == 2
     [line] = done.stderr.strip().splitlines()
     assert line.startswith("sfs-cell: error: no node recoder in this cell; its nodes are ")
-    assert "reconstruction, recorder" in line
+    assert "meshing, recorder" in line

@@ -58,7 +58,7 @@ def scanned(cell):
 def test_the_action_and_service_are_found_by_their_types(cell):
     node = cell["client"].node
     action = (f"{NAMESPACE}/scan", ["sfs_ros_interfaces/action/Scan"])
-    service = (f"{NAMESPACE}/reconstruction/reconstruct_mesh",
+    service = (f"{NAMESPACE}/meshing/reconstruct_mesh",
                ["sfs_ros_interfaces/srv/Reconstruct"])
     wait(lambda: action in get_action_names_and_types(node), what="the Scan action")
     wait(lambda: service in node.get_service_names_and_types(), what="the Reconstruct service")
@@ -169,10 +169,10 @@ def test_sfs_ctl(cell, tmp_path):
     mesh = _ctl("reconstruct", "--output", "ctl.ply", "--wait-pictures")
     assert mesh.returncode == 0, mesh.stderr
     assert (cell["output"] / "ctl.ply").is_file() and (cell["output"] / "ctl.png").is_file()
-    assert _ctl("param", "set", "reconstruction", "mesher", "advancing-front").returncode == 0
-    got = _ctl("param", "get", "reconstruction", "mesher")
+    assert _ctl("param", "set", "carving", "mesher", "advancing-front").returncode == 0
+    got = _ctl("param", "get", "carving", "mesher")
     assert got.returncode == 0 and got.stdout.strip() == "advancing-front", got.stderr
-    refused = _ctl("param", "set", "reconstruction", "resolution", "5")
+    refused = _ctl("param", "set", "carving", "resolution", "5")
     assert refused.returncode == 1 and "resolution" in refused.stderr
     status = _ctl("status")
     assert status.returncode == 0 and "done" in status.stdout

@@ -135,9 +135,10 @@ def test_tree_links_and_joint_names():
     limit = urdf.joints["carriage"].find("limit")        # phi in [-90, 90] deg after the zero
     assert float(limit.get("lower")) == pytest.approx(NON_IDEAL.phi_zero_rad - math.pi / 2)
     assert float(limit.get("upper")) == pytest.approx(NON_IDEAL.phi_zero_rad + math.pi / 2)
-    # The reconstruction publishes in the object frame, the camera in its optical frame.
-    text = (REPO / "sfs_ros" / "nodes" / "reconstruction_node.py").read_text()
-    assert "frame_names(declare(self, FRAME_PARAMS)).turntable_frame" in text
+    # The carving and meshing nodes publish in the object frame, the camera in its optical frame.
+    for node in ("carving_node.py", "meshing_node.py"):
+        text = (REPO / "sfs_ros" / "nodes" / node).read_text()
+        assert "frame_names(declare(self, FRAME_PARAMS)).turntable_frame" in text
     text = (REPO / "sfs_ros" / "nodes" / "camera_node.py").read_text()
     assert "frame_names(values).camera_frame" in text
     from sfs_ros.ros.frames import FRAME_PARAMS  # ROS: only here (the rest needs none)

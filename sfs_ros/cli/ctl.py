@@ -15,7 +15,7 @@ feedback lines, then the result; Ctrl-C cancels it), ``rig apply`` sets a calibr
 restarts (:func:`sfs_ros.ros.rig_apply.apply_rig`), ``cancel`` and ``home`` call
 ``scan/cancel`` and ``motor/home``, ``status`` prints the scan node's CellStatus
 (``--follow``: every one until Ctrl-C),
-``reconstruct`` calls ``reconstruction/reconstruct_mesh``, ``param`` gets or sets a
+``reconstruct`` calls ``meshing/reconstruct_mesh``, ``param`` gets or sets a
 node's parameter through its rcl_interfaces services (VALUE parsed as YAML: ``256``,
 ``true``, ``[0.1, 0.2]``, ``bracket_07``). Exit status 0 on success, 1 on failure (the
 reason on stderr), 2 for a usage error.
@@ -79,7 +79,7 @@ def build_parser() -> argparse.ArgumentParser:
     param = sub.add_parser("param", help="get or set a node's parameter")
     what = param.add_subparsers(dest="action", required=True)
     get = what.add_parser("get")
-    get.add_argument("node", help="node name, e.g. reconstruction (in the namespace)")
+    get.add_argument("node", help="node name, e.g. carving (in the namespace)")
     get.add_argument("name")
     put = what.add_parser("set")
     put.add_argument("node")

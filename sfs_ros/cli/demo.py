@@ -90,7 +90,7 @@ def run(args) -> dict:
         shutil.copyfile(summary[key], out / name)
     bags = sorted((cell_dir / "bags").glob("*/"))
     mock = _ros_parameters(config / "mock_hardware.yaml")
-    own = _ros_parameters(config / "reconstruction.yaml")
+    own = _ros_parameters(config / "carving.yaml")
     obj = make_object(mock["object"])
     vertices, faces = load_mesh(mesh_path)
     box = [own["bounds_m"][:3], own["bounds_m"][3:]]

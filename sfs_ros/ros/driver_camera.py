@@ -18,14 +18,14 @@
   :func:`sfs_ros.ros.convert.camera_info_intrinsics`.
 
 At a scan's start (``camera_trigger`` stream), :meth:`check_intrinsics` compares the
-driver's intrinsics with the rig the reconstruction node holds (its parameters, read
+driver's intrinsics with the rig the carving node holds (its parameters, read
 with ``GetParameters``) and, by ``intrinsics_source``:
 
 * ``rig``: the scan uses the rig; a difference beyond ``intrinsics_tolerance`` is the
   :attr:`warning` (a WARN on the scan node's diagnostics) naming the parameters and the
   differences (:mod:`sfs_ros.cell.intrinsics`); no ``camera_info`` is a WARN too;
 * ``driver``: the driver's ``fx``, ``fy``, ``cx``, ``cy`` and ``distortion`` are set on
-  the reconstruction node (``SetParametersAtomically``, before the scan starts: a rig
+  the carving node (``SetParametersAtomically``, before the scan starts: a rig
   change is refused during a scan), so that the scan's ``reset`` carves with them; the
   start is refused, with the reason, without a ``camera_info``, for another image size
   than the rig's, or when the reconstruction refuses.
@@ -62,8 +62,8 @@ __all__ = ["DriverCamera", "DRIVER_PARAMS", "TRANSPORTS", "RELIABILITIES", "INTR
 TRANSPORTS = ("raw", "compressed")
 RELIABILITIES = ("auto", "reliable", "best_effort")
 INTRINSICS_SOURCES = ("rig", "driver")
-#: The reconstruction node (relative to the scan node's namespace): it holds the scan's rig.
-RECONSTRUCTION = "reconstruction"
+#: The carving node (relative to the scan node's namespace): it holds the scan's rig.
+RECONSTRUCTION = "carving"
 #: Rig parameters read from the reconstruction node to compare.
 _RIG_NAMES = ("projection", "width", "height", "fx", "fy", "cx", "cy", "distortion")
 #: Depth of the frames' subscription (a second of a 10 Hz stream).
@@ -81,7 +81,7 @@ DRIVER_PARAMS: list[Param] = [
           choices=TRANSPORTS, constraints="applied within a second"),
     Param("intrinsics_source", "rig", "stream: rig (the scan uses the rig's intrinsics; a "
           "driver's camera_info that disagrees is a WARN) or driver (the driver's camera_info "
-          "is set on the reconstruction's rig at each scan start).",
+          "is set on the carving node's rig at each scan start).",
           choices=INTRINSICS_SOURCES, constraints="takes effect at the next scan/start"),
     Param("intrinsics_tolerance", 0.005, "Largest difference between the driver's and the "
           "rig's intrinsics that is not reported: relative for fx, fy, cx, cy, absolute for a "
@@ -236,7 +236,7 @@ class DriverCamera:
         except ServiceError as exc:
             return f"intrinsics_source driver: the rig cannot be set: {exc}"
         if not answer.result.successful:
-            return (f"intrinsics_source driver: the reconstruction refused the driver's "
+            return (f"intrinsics_source driver: the carving node refused the driver's "
                     f"intrinsics: {answer.result.reason}")
         self._node.get_logger().info(
             f"the scan carves with the driver's intrinsics (fx {info.fx:.2f}, fy {info.fy:.2f},"

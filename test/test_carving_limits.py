@@ -1,4 +1,4 @@
-"""The reconstruction node at the machine's limits (a separate process, as in the cell): a
+"""The carving node at the machine's limits (a separate process, as in the cell): a
 resolution it cannot hold is refused before allocating, with the memory it would need, and
 the node stays up; a view that a full disk refuses is kept, without a receipt, and stored
 and receipted once space returns, the views stored before left whole."""
@@ -12,18 +12,18 @@ import yaml
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from sensor_msgs.msg import Image, JointState
 from std_msgs.msg import Header
-from std_srvs.srv import Trigger
 
 from sfs_ros.core.carving.resolution import BYTES_PER_VOXEL, grid_shape
 from sfs_ros.core.exchange.session import read_session
 from sfs_ros.ros import capture_qos
 from sfs_ros.ros.convert import image_to_msg, joint_state
-from sfs_ros.ros.names import DIAGNOSTICS, SERVICES
+from sfs_ros.ros.names import DIAGNOSTICS, TYPED_SERVICES
+from sfs_ros_interfaces.srv import CarveScan
 
 from ros_harness import NodeUnderTest, keep_ours
 from small_disk import fill, small_disk
 
-MODULE = "sfs_ros.nodes.reconstruction_node"
+MODULE = "sfs_ros.nodes.carving_node"
 BOX = [-0.05, -0.05, 0.0, 0.05, 0.05, 0.1]
 RESOLUTION = 2048
 #: The grid of 2048 voxels a side is 8.6 G voxels, 128 GiB at 16 bytes a voxel: far over
@@ -34,8 +34,8 @@ BUDGET = "256M"
 MAX_RSS_BYTES = 1 << 30
 
 
-class ReconstructionNode(NodeUnderTest):
-    """The node with the probe's mask publishers, receipts, diagnostics and reconstruct."""
+class CarvingNode(NodeUnderTest):
+    """The node with the probe's mask publishers, receipts, diagnostics and carve_scan."""
 
     def __init__(self, params_file):
         super().__init__(MODULE, params_file=params_file)
@@ -46,9 +46,9 @@ class ReconstructionNode(NodeUnderTest):
         subs = [node.create_subscription(DiagnosticArray, DIAGNOSTICS,
                                          keep_ours(self.diagnostics), 10),
                 node.create_subscription(Header, "capture/stored", self.receipts.append, qos)]
-        self.client = node.create_client(Trigger, SERVICES["reconstruct"])
+        self.client = node.create_client(CarveScan, TYPED_SERVICES["carve_scan"])
         self.probe.wait_connected([self.mask_pub, self.joints_pub], subs, process=self.process)
-        self.probe.spin_until(self.client.service_is_ready, what="reconstruct",
+        self.probe.spin_until(self.client.service_is_ready, what="carve_scan",
                               process=self.process)
 
     def send(self, n: int) -> None:
@@ -69,7 +69,7 @@ class ReconstructionNode(NodeUnderTest):
 def _params(folder, output, **values):
     params = {"width": 320, "height": 240, "fx": 700.0, "fy": 700.0, "bounds_m": BOX,
               "output_dir": str(output), "resolution": 32, **values}
-    path = folder / "reconstruction.yaml"
+    path = folder / "carving.yaml"
     path.write_text(yaml.safe_dump({"/**": {"ros__parameters": params}}))
     return path
 
@@ -81,7 +81,7 @@ def params_file(tmp_path):
 
 def test_a_resolution_too_large_is_refused_with_the_memory_it_needs_and_the_node_stays_up(
         start_node, params_file):
-    node = start_node(ReconstructionNode, params_file)
+    node = start_node(CarvingNode, params_file)
     shape = grid_shape(np.reshape(BOX, (2, 3)), 0.1 / RESOLUTION)     # the box is 0.1 m a side
     needed_gib = int(np.prod(shape)) * BYTES_PER_VOXEL / (1 << 30)
     node.probe.spin_until(lambda: node.statuses, what="diagnostics", process=node.process)
@@ -90,8 +90,8 @@ def test_a_resolution_too_large_is_refused_with_the_memory_it_needs_and_the_node
     assert f"resolution {RESOLUTION} is more than this machine may hold" in status.message
     assert f"needs {needed_gib:.2f} GiB" in status.message and "budget is 0.25 GiB" in \
         status.message
-    future = node.client.call_async(Trigger.Request())
-    node.probe.spin_until(future.done, what="the reconstruct answer", process=node.process)
+    future = node.client.call_async(CarveScan.Request())
+    node.probe.spin_until(future.done, what="the carve_scan answer", process=node.process)
     answer = future.result()
     assert not answer.success and f"needs {needed_gib:.2f} GiB" in answer.message
     assert node.process.alive()
@@ -107,7 +107,7 @@ def test_a_view_refused_by_a_full_disk_is_stored_and_receipted_once_space_return
     with small_disk(disk, "2m"):
         # No rehearsal: its scan, refused by the small disk, would free its space again
         # whenever its clean-up runs, maybe after the disk is filled below.
-        node = start_node(ReconstructionNode, _params(tmp_path, disk / "out", rehearse=False))
+        node = start_node(CarvingNode, _params(tmp_path, disk / "out", rehearse=False))
         node.send(0)
         node.probe.spin_until(lambda: node.receipted() == [0], what="view 0's receipt",
                               process=node.process)
