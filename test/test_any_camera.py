@@ -28,6 +28,8 @@ from mock_cell import PLAN, RESOLUTION, SCAN_TIMEOUT_S, running_cell
 from ros_harness import RosProbe
 from tolerances import MUG_IOU_SPARSE_MIN
 
+pytestmark = pytest.mark.cell
+
 #: Frames per second of the streaming camera: a view waits at most one period after settling.
 STREAM_HZ = 10.0
 #: The stream's exposure delay after settling, s.
