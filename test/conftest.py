@@ -146,8 +146,8 @@ def warm_kernels(config) -> None:
 def pytest_collection_finish(session):
     """Before a session in which node processes start (a ``ros`` test selected): the
     kernels warmed (:func:`warm_kernels`), so that each node loads them from the cache
-    instead of compiling them under its test's deadlines (a cold reconstruction node
-    takes minutes on a loaded machine to answer its first request)."""
+    instead of compiling them under its test's deadlines (a cold reconstruction node on
+    a loaded machine answered its first request later than its test waited)."""
     if not session.config.option.collectonly and any(
             item.get_closest_marker("ros") for item in session.items):
         warm_kernels(session.config)
