@@ -50,8 +50,9 @@ MESHES_AGREE_MIN = 0.99
 #: settled, a receipt, a service's answer, the graph matched): bounds a hang only.
 HANG_S = 120.0
 #: The cell's fault deadlines at :data:`HANG_S` (mock_cell's are short, for its fault
-#: tests). The encoder reading that tags a frame may be that far from it too: a frame is
-#: only taken once the axes have settled, so every reading near it is of the viewpoint.
+#: tests), and the encoder reading that tags a frame up to 5 s from it: a frame is taken
+#: only after readings settled on the viewpoint, and the next move waits for it, so the
+#: reading nearest the frame is a settled one however late the readings come.
 NO_FAULT = {"scan.yaml": {"move_timeout_s": HANG_S, "stall_s": HANG_S,
                           "capture_timeout_s": HANG_S, "encoder_max_gap_s": 5.0,
                           "receipt_timeout_s": HANG_S, "service_timeout_s": HANG_S,

@@ -25,6 +25,7 @@ import argparse
 import hashlib
 import os
 import platform
+import re
 import sys
 import tempfile
 import time
@@ -42,8 +43,8 @@ from ..core.simulation.synthetic import simulate_scan
 
 #: This package's folder (``.../sfs_ros``): the copy whose kernels a warm-up compiles.
 PACKAGE = Path(__file__).resolve().parents[1]
-#: Marks the numba functions whose compiled code is cached on disk.
-_CACHED = "cache=True"
+#: The decorator of a numba function whose compiled code is cached on disk.
+_CACHED = re.compile(r"^\s*@[\w.]*jit\(.*\bcache=True", re.MULTILINE)
 #: The lines of ``/proc/cpuinfo`` that name the CPU numba compiles for (x86; ARM).
 _CPU_FIELDS = ("model name", "flags", "CPU implementer", "CPU part", "Features")
 
@@ -70,7 +71,7 @@ def host_cpu() -> str:
 
 def kernel_modules(package: Path = PACKAGE) -> list[Path]:
     """The package's modules that define cached kernels, sorted."""
-    return sorted(p for p in package.rglob("*.py") if _CACHED in p.read_text())
+    return sorted(p for p in package.rglob("*.py") if _CACHED.search(p.read_text()))
 
 
 def cache_key(package: Path = PACKAGE) -> str:
