@@ -347,6 +347,7 @@ def start_cell(tmp_path):
         cell.cleanup()
 
 
+@pytest.mark.cell
 def test_sfs_cell_brings_up_the_mock_cell_and_stops_it_on_sigint(start_cell):
     mock_cell = start_cell("bringup")
     mock_cell.wait_up()
@@ -364,6 +365,7 @@ def test_sfs_cell_brings_up_the_mock_cell_and_stops_it_on_sigint(start_cell):
     assert not link.is_symlink() and not link.exists()
 
 
+@pytest.mark.cell
 def test_sfs_cell_restarts_a_node_that_is_killed(start_cell):
     mock_cell = start_cell("node_ends")
     mock_cell.wait_up()

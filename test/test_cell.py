@@ -36,6 +36,8 @@ from mock_cell import PLAN, RESOLUTION, SCAN_TIMEOUT_S, running_cell
 from ros_harness import MESSAGE_TIMEOUT_S, RosProbe, keep_ours, wait
 from tolerances import MUG_IOU_SPARSE_MIN, READBACK_TOL_RAD
 
+pytestmark = pytest.mark.cell
+
 
 class Recorder:
     """The probe's view of the captures, the diagnostics and the fault switches.
