@@ -110,17 +110,30 @@ def test_class_8_too_few_viewing_directions_is_an_error(base, tmp_path):
 # ---- class 9: calibration with the wrong board size --------------------------------------
 
 @pytest.fixture(scope="module")
-def board_session(tmp_path_factory) -> Path:
-    """Every other view of the calibration scene (a 7 x 5 board of 30 mm squares)."""
-    from sfs_ros.core.exchange.session import write_session
-    from sfs_ros.core.simulation.calibration_scene import board_scene, nominal_rig
+def board_scene():
+    """The calibration scene: a 7 x 5 board of 30 mm squares in 28 views, and its truth."""
+    from sfs_ros.core.simulation.calibration_scene import board_scene
 
-    scene = board_scene()
-    chosen = range(0, len(scene.images), 2)
-    folder = tmp_path_factory.mktemp("board") / "session"
+    return board_scene()
+
+
+def write_board_session(folder: Path, scene, chosen, angles=None) -> Path:
+    """A session of the views ``chosen`` of ``scene``, tagged with ``angles`` (default the
+    scene's)."""
+    from sfs_ros.core.exchange.session import write_session
+    from sfs_ros.core.simulation.calibration_scene import nominal_rig
+
+    angles = scene.angles if angles is None else angles
     write_session(folder, [(f"view_{i:03d}.png", scene.images[i]) for i in chosen],
-                  [scene.angles[i] for i in chosen], nominal_rig())
+                  [angles[i] for i in chosen], nominal_rig())
     return folder
+
+
+@pytest.fixture(scope="module")
+def board_session(board_scene, tmp_path_factory) -> Path:
+    """Every other view of the calibration scene."""
+    return write_board_session(tmp_path_factory.mktemp("board") / "session", board_scene,
+                               range(0, len(board_scene.images), 2))
 
 
 def calibrate(argv) -> tuple[int, list[str]]:
@@ -157,6 +170,65 @@ def test_class_9_a_board_of_the_wrong_size_is_named_with_both_radii(board_sessio
         status, lines = calibrate([board_session, "-o", tmp_path / "rms",
                                    "--max-view-rms-px", value])
         assert status == 2 and "max_view_rms_px" in lines[0], lines
+
+
+# ---- class 10: one mis-tagged view -----------------------------------------------------
+
+def test_class_10_mis_tagged_views_are_rejected_by_name_and_the_rig_recovered(board_scene,
+                                                                             tmp_path):
+    """Three of the 28 views tagged with theta 90 degrees off, 1e308 and NaN: the fit
+    starts from the views' board poses, names exactly those three with what was wrong,
+    and recovers the true rig within the bars of ``test_calibration.py``."""
+    import test_calibration as bars
+
+    from sfs_ros.core.calibration import canonical
+    from sfs_ros.ros.rig_params import rig_calibration
+
+    angles = list(board_scene.angles)
+    # The principal point is what the views pin down least: without these three, cy comes
+    # 1.02 px from the truth (the bar: 1.18 px), as the same 25 views alone give it.
+    wrong = {5: (angles[5][0] + np.pi / 2, angles[5][1]), 9: (1e308, angles[9][1]),
+             16: (float("nan"), angles[16][1])}
+    angles = [wrong.get(i, pair) for i, pair in enumerate(angles)]
+    folder = write_board_session(tmp_path / "session", board_scene, range(len(angles)), angles)
+    status, lines = calibrate([folder, "-o", tmp_path / "out"])
+    assert status == 0, lines
+    report = yaml.safe_load((tmp_path / "out" / "calibration_report.yaml").read_text())
+    rejected = report["rejected"]
+    assert set(rejected) == {f"view_{i:03d}.png" for i in wrong}, rejected
+    assert "disagree with its board pose by 90.0 degrees" in rejected["view_005.png"]
+    assert "theta_rad 1e+308" in rejected["view_009.png"]
+    assert "disagree with its board pose" in rejected["view_009.png"]
+    assert "not finite" in rejected["view_016.png"]
+    assert len(report["view_rms_px"]) == 25 and report["rms_px"] < bars.RMS_PX
+    values = yaml.safe_load((tmp_path / "out" / "rig.yaml").read_text())["/**"]["ros__parameters"]
+    rig, true = rig_calibration(values), canonical(board_scene.rig, board_scene.pose)[0]
+    for name in ("fx", "fy", "cx", "cy"):
+        assert getattr(rig, name) == pytest.approx(getattr(true, name),
+                                                   rel=bars.INTRINSICS_REL), name
+    assert rig.distortion[0] == pytest.approx(true.distortion[0], abs=bars.K1_ABS)
+    np.testing.assert_allclose(rig.axis_point_m, true.axis_point_m, atol=bars.AXIS_POINT_M)
+    for name in ("axis_tilt_y_rad", "theta_zero_rad", "phi_zero_rad"):
+        assert getattr(rig, name) == pytest.approx(getattr(true, name), abs=bars.ANGLE_RAD), name
+    assert rig.camera_distance_m == pytest.approx(true.camera_distance_m, abs=bars.RADIUS_M)
+    np.testing.assert_allclose(rig.mount_rotation_rad, true.mount_rotation_rad,
+                               atol=bars.MOUNT_RAD)
+
+
+def test_class_10_angles_that_give_no_camera_are_rejected_before_the_fit(board_scene):
+    """Angles straight from a caller (not a session, which refuses them on reading): NaN
+    and a carriage beyond the C-arm are rejected views, named, not an abort."""
+    from sfs_ros.core.calibration import calibrate_rig, detect_board
+    from sfs_ros.core.simulation.calibration_scene import nominal_rig
+
+    detections = [(f"v{i}", *board_scene.angles[i],
+                   detect_board(board_scene.images[i], board_scene.board)[0]) for i in range(6)]
+    detections[0] = ("v0", float("nan"), *detections[0][2:])
+    detections[1] = ("v1", detections[1][1], 3.0, detections[1][3])
+    with pytest.raises(ValueError, match=r"4 usable board views, need at least 6 \(2 rejected, "
+                                         r"first: v0: its tagged angles cannot be used: "
+                                         r"encoder angles must be finite"):
+        calibrate_rig(detections, board_scene.board, nominal_rig())
 
 
 # ---- class 11: COLMAP images.txt read by structure ---------------------------------------
