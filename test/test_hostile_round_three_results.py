@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 import test_hostile_input
 import yaml
-from test_hostile_input import FAST, OK, Cases, failures
+from test_hostile_input import FAST, OK, REFUSED, Cases, failures
 from test_supervisor import ScriptSpec
 
 from sfs_ros.cell.bag import read_bag
@@ -254,6 +254,17 @@ def test_class_11_colmap_images_are_read_by_structure(base, tmp_path):
         views = read_colmap(folder)
         assert [v.name for v in views.views] == [v.name for v in reference.views], case
         assert len(views.views) == count and not views.rejected, case
+    # An image line cut to six numbers is not taken for points (a POINT3D_ID is whole, and
+    # an image has one points line): refused, naming its line, not silently dropped.
+    for cut in ([], ["1 1 0 0 0 0"]):
+        folder = colmap_model(base, tmp_path / f"cut{len(cut)}")
+        path = folder / "images.txt"
+        lines = path.read_text().splitlines()
+        first = next(n for n, line in enumerate(lines) if line and line[0] != "#")
+        lines[first + 2] = cut[0] if cut else " ".join(lines[first + 2].split()[:6])
+        path.write_text("\n".join(lines) + "\n")
+        with pytest.raises(ViewError, match=f"images.txt line {first + 3}: expected IMAGE_ID"):
+            read_colmap(folder)
 
 
 # ---- class 12: implausible lenses ---------------------------------------------------------
@@ -440,12 +451,51 @@ def test_class_19_options_that_cannot_be_met_are_named(base, tmp_path):
         status, lines, _ = reconstruct([base, "-o", tmp_path / "m.ply", *options, *FAST])
         assert status == 2 and len(lines) == 1 and words in lines[0], (options, lines)
     assert not (tmp_path / "p.jpg").exists() and not (tmp_path / "m.ply").exists()
+    # A grid over the voxel cap is refused for that, not for the memory it would fit in.
+    status, lines, _ = reconstruct([base, "-o", tmp_path / "m.ply", "--voxel-size", "0.00005",
+                                    "--max-memory", "900G", "-q"])
+    assert status == 2 and len(lines) == 1, lines
+    assert "needs 139.25 GiB and has more than the 1074 M voxels a grid may have" in lines[0]
+    assert "--max-memory" not in lines[0] and "coarser resolution" in lines[0]
+
+
+def test_class_19_a_message_names_the_destination_and_no_stale_report_is_left(base, tmp_path):
+    """-o names a folder: the error names it (not a temporary file beside it), and the
+    report of an earlier run is gone rather than describing a mesh that was not written."""
+    (tmp_path / "m.ply").mkdir()
+    (tmp_path / "m.report.json").write_text('{"output": "an earlier mesh"}')
+    status, lines, _ = reconstruct([base, "-o", tmp_path / "m.ply", *FAST])
+    assert status == 2 and len(lines) == 1, lines
+    assert f"Is a directory: '{tmp_path / 'm.ply'}'" in lines[0] and ".tmp" not in lines[0]
+    assert [p.name for p in tmp_path.iterdir()] == ["m.ply"]
 
 
 # ---- the fuzz suite: COLMAP models and bags --------------------------------------------------
 
-def test_round_three_cases_through_the_fuzz_driver(base, tmp_path):
+def test_round_three_cases_through_the_fuzz_driver(base, board_scene, tmp_path):
     c = Cases(tmp_path / "cases", base)
+
+    def board(case: str, edits: dict, *options, expect=OK):
+        """sfs-calibrate on every other view of the board scene, ``edits`` {view: angles}."""
+        angles = [edits.get(i, pair) for i, pair in enumerate(board_scene.angles)]
+        folder = write_board_session(c.folder() / "board", board_scene,
+                                     range(0, len(angles), 2), angles)
+        c.add(case, [folder, "-o", c.root / "out" / f"calibration{len(c.cases)}", *options],
+              tool="calibrate", expect=expect)
+
+    theta, phi = board_scene.angles[4]
+    board("10: calibrate, a view 90 degrees off", {4: (theta + np.pi / 2, phi)},
+          expect="view_004.png")
+    board("10: calibrate, a view at theta 1e308", {4: (1e308, phi)}, expect="view_004.png")
+    board("10: calibrate, a view at theta nan", {4: (float("nan"), phi)}, expect="view_004.png")
+    board("10: calibrate, a view at phi -1e308", {4: (theta, -1e308)}, expect="view_004.png")
+    board("10: calibrate, every angle nan",
+          {i: (float("nan"), float("nan")) for i in range(len(board_scene.angles))},
+          expect=REFUSED)
+    for value in ("nan", "-1", "inf"):
+        board(f"19: calibrate --max-view-rms-px {value}", {}, "--max-view-rms-px", value,
+              expect=REFUSED)
+    board("16: calibrate --square-m 1e300", {}, "--square-m", "1e300", expect=REFUSED)
     names = [v.name for v in read_session(base).views]
     c.add("8: one view", [session_of(base, c.folder(), names[:1])])
     c.add("8: copies of one view", [session_of(base, c.folder(), names[:1] * 13)])
@@ -480,6 +530,8 @@ def test_round_three_cases_through_the_fuzz_driver(base, tmp_path):
         c.add(f"18: --bounds {box[3]}", [c.session(), "--bounds", *box])
     c.add("19: --block 100000", [c.session(), "--block", "100000", "-m", "advancing-front"])
     c.add("19: --preview p.jpg", [c.session(), "--preview", tmp_path / "p.jpg"])
+    (tmp_path / "a_folder.ply").mkdir()
+    c.add("19: -o names a folder", [c.session(), "-o", tmp_path / "a_folder.ply", *FAST])
     spec = tmp_path / "cases.json"
     inputs = sorted(str(p) for p in (tmp_path / "cases").glob("case*"))
     spec.write_text(json.dumps({"watched": [], "inputs": inputs, "cases": c.cases}))
