@@ -44,7 +44,7 @@ REAL = [("camera", "camera_node", ["rig.yaml", "frames.yaml", "camera.yaml"]),
 #: After the hardware: the node that brings the managed ones (motor, camera) up in order.
 MANAGER = [("lifecycle_manager", "lifecycle_manager_node", [])]
 REST = [("state_publisher", "tf_node", ["rig.yaml", "frames.yaml"]),
-        ("segmentation", "segmentation_node", ["segmentation.yaml"]),
+        ("segmentation", "segmentation_node", ["rig.yaml", "segmentation.yaml"]),
         ("reconstruction", "reconstruction_node", ["rig.yaml", "frames.yaml", "reconstruction.yaml"]),
         ("recorder", "recorder_node", ["recorder.yaml"]),
         ("calibration", "calibration_node", ["calibration.yaml"]),
