@@ -1,7 +1,7 @@
 """The cell with simulated hardware: the mock controller and camera of sfs-mock-hardware.
 
     ros2 launch sfs_ros mock_cell.launch.py output_dir:=out/cell [namespace:=/sfs] \
-        [params_file:=my_cell.yaml]
+        [camera_topic:=/usb_cam/image_raw] [params_file:=my_cell.yaml]
 
 The same nodes, params files and overrides as ``sfs-cell --mock -o OUTPUT_DIR``
 (``sfs_ros.cli.bringup.cell_nodes(..., mock=True)``): the motor node opens
@@ -11,15 +11,21 @@ the mock's camera are managed (lifecycle) nodes started unconfigured
 (``autostart`` false); the lifecycle manager (``sfs-lifecycle-manager``)
 configures and activates them in order, the camera (whose process has made the
 controller's port by then) first, and again when one is respawned.
+With ``camera_topic`` (as ``sfs-cell --mock --camera-topic``) a real camera is tried
+with simulated motion: the mock hardware runs without its camera (``camera: false``),
+the manager manages the motor alone and the scan node streams from that topic.
 """
 
 import os
 
 from ament_index_python.packages import get_package_share_directory
 from launch.actions import DeclareLaunchArgument, OpaqueFunction, SetEnvironmentVariable
+from launch.conditions import IfCondition
 from launch.substitutions import (
     EnvironmentVariable,
+    EqualsSubstitution,
     LaunchConfiguration,
+    NotEqualsSubstitution,
     PathJoinSubstitution,
 )
 from launch_ros.actions import Node
@@ -42,6 +48,9 @@ def generate_launch_description():
     output_dir = LaunchConfiguration('output_dir')
     namespace = LaunchConfiguration('namespace')
     params_file = LaunchConfiguration('params_file')
+    camera_topic = LaunchConfiguration('camera_topic')
+    mock_camera = IfCondition(EqualsSubstitution(camera_topic, ''))
+    other_camera = IfCondition(NotEqualsSubstitution(camera_topic, ''))
     port = PathJoinSubstitution([output_dir, 'ttyMOCK'])
     return LaunchDescription([
         DeclareLaunchArgument('output_dir',
@@ -55,21 +64,39 @@ def generate_launch_description():
         # leave a respawned node deaf to the nodes that outlived its predecessor.
         SetEnvironmentVariable('FASTDDS_BUILTIN_TRANSPORTS', EnvironmentVariable(
             'FASTDDS_BUILTIN_TRANSPORTS', default_value='UDPv4')),
+        DeclareLaunchArgument('camera_topic', default_value='',
+                              description="Image topic of a real camera's driver (usb_cam, "
+                                          "v4l2_camera, GenICam) to scan with the simulated "
+                                          "motion: the mock's camera is then not started and "
+                                          "the scan takes that topic's frames; empty = the "
+                                          "mock's camera"),
         OpaqueFunction(function=make_output_dir),
         # One process, two nodes (mock_hardware and camera): no name, which would rename both.
         Node(package='sfs_ros', executable='sfs-mock-hardware', namespace=namespace,
              output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
+             condition=mock_camera,
              parameters=[os.path.join(config, 'rig.yaml'), os.path.join(config, 'frames.yaml'),
                          os.path.join(config, 'camera.yaml'),
                          os.path.join(config, 'mock_hardware.yaml'), params_file,
                          {'port_link': port, 'autostart': False}]),
+        # Another driver's camera: the mock's controller alone.
+        Node(package='sfs_ros', executable='sfs-mock-hardware', namespace=namespace,
+             output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
+             condition=other_camera,
+             parameters=[os.path.join(config, 'rig.yaml'), os.path.join(config, 'frames.yaml'),
+                         os.path.join(config, 'camera.yaml'),
+                         os.path.join(config, 'mock_hardware.yaml'), params_file,
+                         {'port_link': port, 'autostart': False, 'camera': False}]),
         Node(package='sfs_ros', executable='sfs-motor', name='motor', namespace=namespace,
              output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
              parameters=[os.path.join(config, 'motor.yaml'), params_file,
                          {'port': port, 'autostart': False}]),
         Node(package='sfs_ros', executable='sfs-lifecycle-manager', name='lifecycle_manager',
              namespace=namespace, output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
-             parameters=[params_file, {'nodes': ['camera', 'motor']}]),
+             condition=mock_camera, parameters=[params_file, {'nodes': ['camera', 'motor']}]),
+        Node(package='sfs_ros', executable='sfs-lifecycle-manager', name='lifecycle_manager',
+             namespace=namespace, output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
+             condition=other_camera, parameters=[params_file, {'nodes': ['motor']}]),
         # The cell's TF (/tf, /tf_static) and URDF (robot_description) from the motor node's
         # joint_states, the rig and the frames (config/frames.yaml).
         Node(package='sfs_ros', executable='sfs-state-publisher', name='state_publisher',
@@ -78,7 +105,8 @@ def generate_launch_description():
                          params_file]),
         Node(package='sfs_ros', executable='sfs-segmentation', name='segmentation',
              namespace=namespace, output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
-             parameters=[os.path.join(config, 'segmentation.yaml'), params_file]),
+             parameters=[os.path.join(config, 'rig.yaml'),
+                         os.path.join(config, 'segmentation.yaml'), params_file]),
         Node(package='sfs_ros', executable='sfs-carving', name='carving',
              namespace=namespace, output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
              parameters=[os.path.join(config, 'rig.yaml'), os.path.join(config, 'frames.yaml'),
@@ -99,8 +127,16 @@ def generate_launch_description():
                          {'output_dir': output_dir,
                           'plan_file': os.path.join(config, 'calibration_plan.yaml')}]),
         Node(package='sfs_ros', executable='sfs-scan', name='scan', namespace=namespace,
-             output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
+             output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S, condition=mock_camera,
              parameters=[os.path.join(config, 'scan.yaml'), params_file,
                          {'plan_file': os.path.join(config, 'scan_plan.yaml'),
+                          'progress_dir': PathJoinSubstitution([output_dir, 'scan_progress'])}]),
+        # Another driver's camera: the scan node takes its streamed frames.
+        Node(package='sfs_ros', executable='sfs-scan', name='scan', namespace=namespace,
+             output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
+             condition=other_camera, remappings=[('image_raw', camera_topic)],
+             parameters=[os.path.join(config, 'scan.yaml'), params_file,
+                         {'plan_file': os.path.join(config, 'scan_plan.yaml'),
+                          'camera_trigger': 'stream',
                           'progress_dir': PathJoinSubstitution([output_dir, 'scan_progress'])}]),
     ])

@@ -6,7 +6,9 @@
 # lib/sfs_ros/<script> for every console script of setup.py, share/sfs_ros/{launch,config,
 # urdf} with the repository's files, package.xml and the ament index entries; then, from
 # the sourced install, two commands run and the interfaces (sfs_ros_interfaces.action.Scan)
-# import and serialise from the workspace's install, not from the environment.
+# import and serialise from the workspace's install, not from the environment; last, a quick
+# `colcon test` (doc/testing.md: the markers through --pytest-args) of a few test files
+# passes, and the cell's tests among them are left out.
 # Uses the environment of scripts/setup.sh ($SFS_VENV, default .venv) as the underlay (its
 # ROS 2 wheels stand in for a ROS install) and installs colcon-common-extensions (PyPI)
 # into it when missing. Exits non-zero on any failure; the workspace is removed in any
@@ -169,6 +171,37 @@ elsewhere = sorted(path for path in mapped if not path.startswith(install))
 assert not elsewhere, f"mapped from outside {install}: {elsewhere}"
 EOF
 ) || fail "the installed packages do not run (above)"
+
+# A quick colcon test, as doc/testing.md gives it: pytest in the package's source folder
+# (the tests import the sources there), the workspace's install on the path (node processes
+# import sfs_ros_interfaces from it), `-m "not cell"` passed through --pytest-args. The test
+# files: pure checks, node processes, and two tests that bring the cell up (left out).
+# The numba kernels the tests' node processes load are cached beside the sources: the
+# repository's cache (its sources are the same, and numba keys the cache on their content)
+# is copied in when there is one, else the session compiles them first (test/conftest.py).
+quick=(test/test_bringup.py test/test_config_files.py test/test_launch_files.py)
+(cd "$repo" && find sfs_ros -path '*/__pycache__/*' \( -name '*.nbi' -o -name '*.nbc' \
+    -o -name 'sfs_warm_up.stamp' \) -print0) | tar -C "$repo" --null -T - -cf - |
+    tar -C "$ws/src/sfs_ros" -xf -
+started=$SECONDS
+tested=0
+colcon test --event-handlers console_direct- console_cohesion+ --base-paths "${base_paths[@]}" \
+    --packages-select sfs_ros --return-code-on-test-failure \
+    --pytest-args " -m" "not cell" "${quick[@]}" > "$ws/test.log" 2>&1 || tested=$?
+summary=$(colcon test-result --test-result-base build/sfs_ros --all 2>&1 | tail -n 1) || true
+# The cell's tests are deselected: neither run nor counted as skipped.
+if ((tested == 0)) && grep -q " deselected" "$ws/test.log" &&
+        [[ "$summary" =~ ^Summary:\ ([0-9]+)\ tests,\ 0\ errors,\ 0\ failures,\ 0\ skipped$ ]]
+then
+    kernels=$(grep -o "kernels compiled and cached in [0-9]* s" "$ws/test.log" ||
+              echo "the kernels cached")
+    echo "colcon test -m 'not cell' of ${quick[*]}: ${BASH_REMATCH[1]} tests passed," \
+        "$(grep -o '[0-9]* deselected' "$ws/test.log" | tail -n 1) ($((SECONDS - started)) s;" \
+        "$kernels)"
+else
+    cat "$ws/test.log" >&2
+    fail "the quick colcon test did not pass with the cell's tests left out ($summary)"
+fi
 
 if ((failures)); then
     echo "colcon check: $failures failure(s)" >&2

@@ -1,11 +1,18 @@
 """Shared fixtures (a simulated scan of a known object, written as a session folder; ROS
-nodes started for a test and stopped cleanly) and the ``ros`` marker, put automatically
-on every test of a module that uses ROS 2 (see :func:`uses_ros`)."""
+nodes started for a test and stopped cleanly), the ``ros`` marker, put automatically
+on every test of a module that uses ROS 2 (see :func:`uses_ros`), and the kernels of the
+``sfs_ros`` the tests import compiled before a session that starts nodes
+(:func:`pytest_collection_finish`)."""
 
 import inspect
+import os
+import subprocess
+import sys
+import time
 
 import pytest
 
+from sfs_ros.cli import warm_up
 from sfs_ros.core.exchange.inputs import load_views
 from sfs_ros.core.exchange.session import write_session
 from sfs_ros.core.geometry.rig import RigCalibration
@@ -13,7 +20,7 @@ from sfs_ros.core.simulation.objects import make_object
 from sfs_ros.core.simulation.plan import ring_plan
 from sfs_ros.core.simulation.synthetic import carving_box, simulate_scan
 
-from ros_harness import leftovers_stopped, node_starter
+from ros_harness import SOURCE_ROOT, leftovers_stopped, node_starter
 
 #: Small pinhole camera so the end-to-end tests stay fast: 320 x 240 px, 0.6 m away.
 TEST_RIG = RigCalibration(width=320, height=240, projection="pinhole", fx=700.0, fy=700.0,
@@ -104,3 +111,49 @@ def pytest_collection_modifyitems(config, items):
             verdicts[module.__name__] = uses_ros(module)
         if verdicts[module.__name__]:
             item.add_marker(pytest.mark.ros)
+
+
+#: A cold warm-up compiles every kernel: one to two minutes on 2 busy cores; the bound only
+#: catches a hang.
+WARM_UP_TIMEOUT_S = 900
+
+
+def warm_kernels(config) -> None:
+    """Compile and cache the kernels of the ``sfs_ros`` the tests import (``sfs-warm-up``
+    in a process of its own, importing that copy: the source tree under ``colcon test``
+    and a plain pytest run, not the installed package) unless they are already
+    (:func:`sfs_ros.cli.warm_up.is_warm`); says so on the terminal, with the seconds. A
+    warm-up that fails is reported, and the tests compile what they use."""
+    if warm_up.is_warm():
+        return
+    reporter = config.pluginmanager.get_plugin("terminalreporter")
+    say = reporter.write_line if reporter is not None else print
+    say(f"compiling the kernels of {warm_up.PACKAGE} (sfs-warm-up: not cached for these "
+        "sources yet) ...")
+    start = time.monotonic()
+    done = subprocess.run([sys.executable, "-m", "sfs_ros.cli.warm_up"], cwd=SOURCE_ROOT,
+                          env=dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [
+                              str(SOURCE_ROOT), os.environ.get("PYTHONPATH")]))),
+                          stdin=subprocess.DEVNULL, capture_output=True, text=True,
+                          timeout=WARM_UP_TIMEOUT_S)
+    if done.returncode != 0:
+        say(f"the warm-up failed (exit {done.returncode}); the tests compile what they use:\n"
+            f"{done.stderr[-3000:]}")
+        return
+    say(f"kernels compiled and cached in {time.monotonic() - start:.0f} s")
+
+
+def pytest_collection_finish(session):
+    """Before a session in which node processes start (a ``ros`` test selected): the
+    kernels warmed (:func:`warm_kernels`), so that each node loads them from the cache
+    instead of compiling them under its test's deadlines (a cold reconstruction node on
+    a loaded machine answered its first request later than its test waited)."""
+    if not session.config.option.collectonly and any(
+            item.get_closest_marker("ros") for item in session.items):
+        warm_kernels(session.config)
+
+
+@pytest.fixture(scope="session")
+def kernels_warmed(request):
+    """The same for a session of tests that need the cache warm without a ``ros`` test."""
+    warm_kernels(request.config)

@@ -5,6 +5,7 @@ Usage: ``python fuzz_driver.py CASES.json RESULTS.json``. ``CASES.json`` holds
 "cases": [{"id", "tool", "argv"}, ...]}``. For each case the tool's ``main(argv)``
 runs as the console script would, and the driver records the exit status, the
 lines written to stderr, a traceback if an exception escaped ``main``, every
+warning raised (each time, not once per place as Python prints them), every
 file opened inside a watched folder (links resolved) and every input file
 opened for writing (through the interpreter's audit hook on ``open``). At the
 end it records the process's peak resident memory. Used by
@@ -19,8 +20,10 @@ import os
 import resource
 import sys
 import traceback
+import warnings
 
-TOOLS = {"reconstruct": "sfs_ros.cli.reconstruct", "export": "sfs_ros.cli.export"}
+TOOLS = {"reconstruct": "sfs_ros.cli.reconstruct", "export": "sfs_ros.cli.export",
+         "calibrate": "sfs_ros.cli.calibrate"}
 
 
 def _under(path: str, roots: list[str]) -> bool:
@@ -54,7 +57,12 @@ def main() -> None:
         opened.clear()
         err, out = io.StringIO(), io.StringIO()
         escaped = None
-        with contextlib.redirect_stderr(err), contextlib.redirect_stdout(out):
+        with contextlib.redirect_stderr(err), contextlib.redirect_stdout(out), \
+                warnings.catch_warnings(record=True) as warned:
+            warnings.simplefilter("always")       # those Python shows, each time
+            for hidden in (DeprecationWarning, PendingDeprecationWarning, ImportWarning,
+                           ResourceWarning):
+                warnings.filterwarnings("ignore", category=hidden)
             try:
                 status = main_fn(case["argv"])
             except SystemExit as exit_:  # argparse
@@ -62,7 +70,9 @@ def main() -> None:
             except BaseException:  # noqa: BLE001 - recorded, this is what the test looks for
                 status, escaped = None, traceback.format_exc()
         results.append({"id": case["id"], "status": status, "stderr": err.getvalue(),
-                        "traceback": escaped, "opened": list(opened)})
+                        "traceback": escaped, "opened": list(opened),
+                        "warnings": [f"{w.category.__name__}: {w.message} ({w.filename}:"
+                                     f"{w.lineno})" for w in warned]})
     peak_mib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     with open(sys.argv[2], "w") as f:
         json.dump({"results": results, "peak_rss_mib": peak_mib}, f)

@@ -44,7 +44,7 @@ REAL = [("camera", "camera_node", ["rig.yaml", "frames.yaml", "camera.yaml"]),
 #: After the hardware: the node that brings the managed ones (motor, camera) up in order.
 MANAGER = [("lifecycle_manager", "lifecycle_manager_node", [])]
 REST = [("state_publisher", "tf_node", ["rig.yaml", "frames.yaml"]),
-        ("segmentation", "segmentation_node", ["segmentation.yaml"]),
+        ("segmentation", "segmentation_node", ["rig.yaml", "segmentation.yaml"]),
         ("carving", "carving_node", ["rig.yaml", "frames.yaml", "carving.yaml"]),
         ("meshing", "meshing_node", ["frames.yaml", "meshing.yaml"]),
         ("recorder", "recorder_node", ["recorder.yaml"]),
@@ -349,6 +349,7 @@ def start_cell(tmp_path):
         cell.cleanup()
 
 
+@pytest.mark.cell
 def test_sfs_cell_brings_up_the_mock_cell_and_stops_it_on_sigint(start_cell):
     mock_cell = start_cell("bringup")
     mock_cell.wait_up()
@@ -366,6 +367,7 @@ def test_sfs_cell_brings_up_the_mock_cell_and_stops_it_on_sigint(start_cell):
     assert not link.is_symlink() and not link.exists()
 
 
+@pytest.mark.cell
 def test_sfs_cell_restarts_a_node_that_is_killed(start_cell):
     mock_cell = start_cell("node_ends")
     mock_cell.wait_up()

@@ -43,6 +43,8 @@ from test_frames import chain
 from test_tf_node import matrix
 from waiting import wait
 
+pytestmark = pytest.mark.cell
+
 #: Frames of this run only (/tf is global).
 PREFIX = NAMESPACE.strip("/") + "/"
 #: The calibration plan: the board from 35 viewpoints, theta -75..75 deg in 25 deg steps

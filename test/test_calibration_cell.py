@@ -42,6 +42,8 @@ from sfs_ros.ros.rig_params import RIG_PARAMS, rig_calibration
 from ros_harness import SOURCE_ROOT, STARTUP_TIMEOUT_S
 from waiting import wait
 
+pytestmark = pytest.mark.cell
+
 REPO = Path(__file__).resolve().parent.parent
 DOC = REPO / "doc" / "calibration.md"
 SECTION = "## A calibration scan in the cell"

@@ -32,9 +32,11 @@ from sfs_ros.ros.cell_client import ScanFailed
 from sfs_ros.ros.convert import image_to_msg
 from sfs_ros.ros.names import DIAGNOSTICS
 
-from mock_cell import PLAN, RESOLUTION, SCAN_TIMEOUT_S, running_cell
+from mock_cell import PLAN, RESOLUTION, SCAN_TIMEOUT_S, SMALL_CAMERA, running_cell
 from ros_harness import MESSAGE_TIMEOUT_S, RosProbe, keep_ours, wait
 from tolerances import MUG_IOU_SPARSE_MIN, READBACK_TOL_RAD
+
+pytestmark = pytest.mark.cell
 
 
 class Recorder:
@@ -304,7 +306,9 @@ def test_malformed_messages_are_reported_and_the_scan_goes_on(cell):
     rec, client = cell["recorder"], cell["client"]
 
     def garbage():
-        bad = image_to_msg(np.zeros((4, 4, 3), np.uint8), stamp=(5, 0), frame_id="c")
+        # The rig's size (another is refused for that first), an encoding the cell reads not.
+        size = (SMALL_CAMERA["height"], SMALL_CAMERA["width"], 3)
+        bad = image_to_msg(np.zeros(size, np.uint8), stamp=(5, 0), frame_id="c")
         bad.encoding = "yuv422"
         rec.bad_image_pub.publish(bad)
         rec.bad_joints_pub.publish(JointState(name=["turntable"], position=[0.1]))

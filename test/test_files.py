@@ -88,3 +88,29 @@ def test_within_creates_folders_and_never_follows_a_link_below_it(tmp_path):
     assert not (root / "d.ply").is_symlink() and not (elsewhere / "target.ply").exists()
     with pytest.raises(ValueError, match="not inside the output folder"):
         write_atomic(tmp_path / "x.ply", b"mesh", within=root)
+
+
+def test_an_error_names_the_destination_never_the_temporary(tmp_path):
+    """A destination that is a folder (the rename fails) and a file where a folder should
+    be (``within``): each error names the path asked for; no temporary is left."""
+    (tmp_path / "m.ply").mkdir()
+    with pytest.raises(IsADirectoryError) as failed:
+        write_atomic(tmp_path / "m.ply", b"mesh")
+    assert failed.value.filename == str(tmp_path / "m.ply") and ".tmp" not in str(failed.value)
+    (tmp_path / "a").write_bytes(b"a file")
+    with pytest.raises(NotADirectoryError) as failed:
+        write_atomic(tmp_path / "a" / "b" / "c.txt", b"x", within=tmp_path)
+    assert failed.value.filename == str(tmp_path / "a")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a", "m.ply"]
+    assert list((tmp_path / "m.ply").iterdir()) == []
+
+
+def test_a_long_name_is_written_and_none_removes_a_file_in_its_turn(tmp_path):
+    long = tmp_path / ("x" * 250 + ".ply")      # its temporary would pass 255 bytes whole
+    assert write_atomic(long, b"mesh").read_bytes() == b"mesh"
+    report, mesh = tmp_path / "m.report.json", tmp_path / "m.ply"
+    report.write_bytes(b"old report")
+    write_atomic_all([(report, None), (mesh, b"mesh")])
+    assert not report.exists() and mesh.read_bytes() == b"mesh"
+    write_atomic_all([(report, None), (mesh, b"mesh 2"), (report, b"new report")])
+    assert report.read_bytes() == b"new report" and mesh.read_bytes() == b"mesh 2"

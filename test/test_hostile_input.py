@@ -9,9 +9,12 @@ clashes and options. They run over every input format (session folder, Middlebur
 (``fuzz_driver.py``), so that its peak memory belongs to these cases alone.
 """
 
+import contextlib
 import json
 import os
+import re
 import shutil
+import sqlite3
 import struct
 import subprocess
 import sys
@@ -23,7 +26,8 @@ import pytest
 import yaml
 from test_hostile_round_three import bomb_bags, zstd_bomb
 
-from sfs_ros.core.exchange.pose_export import write_nerf_transforms
+from sfs_ros.core.exchange.limits import MAX_BAG_RECORD_BYTES
+from sfs_ros.core.exchange.pose_export import write_colmap, write_nerf_transforms
 from sfs_ros.core.exchange.session import read_session, write_session
 from sfs_ros.core.geometry.rig import RigCalibration
 from sfs_ros.core.simulation.objects import make_object
@@ -49,6 +53,9 @@ RIG = RigCalibration(width=96, height=72, projection="pinhole", fx=160.0, fy=160
 FAST = ["-r", "24", "-q"]
 #: Expected outcomes: refused with exit 2, or a mesh with exit 0.
 REFUSED, OK = "refused", "ok"
+#: What a message must never name instead of the file it is about: an atomic writer's
+#: temporary, or the folders where a bag and a parameters file are unpacked for reading.
+TEMPORARY = re.compile(r"\.[0-9a-f]{8}\.tmp\b|sfs_bag_|sfs_params_")
 
 
 def png_header(width: int, height: int, *, bit_depth: int = 8, colour_type: int = 2) -> bytes:
@@ -126,6 +133,101 @@ def middlebury(folder: Path, session: Path) -> Path:
         lines.append(" ".join([v.name] + [repr(float(x)) for x in (*c.K.ravel(), *c.R.ravel(), *c.t)]))
     (folder / "toy_par.txt").write_text("\n".join(lines) + "\n")
     return folder / "toy_par.txt"
+
+
+def _sql(bag: Path, *statements) -> None:
+    """Run SQL ``statements`` (each a string or (string, parameters)) on ``bag``'s .db3."""
+    with contextlib.closing(sqlite3.connect(bag / "bag.db3")) as db, db:
+        for statement in statements:
+            db.execute(*((statement,) if isinstance(statement, str) else statement))
+
+
+def huge_row(bag: Path) -> None:
+    """The bag's fifth message replaced by one larger than a bag record may be."""
+    _sql(bag, ("UPDATE messages SET data = zeroblob(?) WHERE id = 5",
+               (MAX_BAG_RECORD_BYTES + 1,)))
+
+
+def corrupt_row(bag: Path) -> None:
+    """The bag's sixth message (a mask) cut to 20 bytes: not a valid message."""
+    _sql(bag, "UPDATE messages SET data = substr(data, 1, 20) WHERE id = 6")
+
+
+def foreign_type(bag: Path) -> None:
+    """A topic whose recorded type names a module to run (issue 29, class 1)."""
+    _sql(bag, "INSERT INTO topics (name, type, serialization_format, offered_qos_profiles, "
+              "type_description_hash) VALUES ('/cell/capture/other', 'venv/__main__/X', 'cdr', "
+              "'', '')",
+         "INSERT INTO messages (topic_id, timestamp, data) SELECT id, 1, x'00000000' "
+         "FROM topics WHERE name = '/cell/capture/other'")
+
+
+def colmap(folder: Path, session: Path) -> Path:
+    """The session's views as a COLMAP text model in ``folder``, its images in ``images/``."""
+    write_colmap(read_session(session), folder)
+    shutil.copytree(session / "images", folder / "images")
+    return folder
+
+
+def edit_line(path: Path, index: int, edit) -> None:
+    """Replace the fields of the ``index``-th line of ``path`` that is not a comment nor
+    blank by ``edit(fields)`` (a list of strings)."""
+    lines = path.read_text().splitlines()
+    data = [n for n, line in enumerate(lines) if line.strip() and not line.startswith("#")]
+    lines[data[index]] = " ".join(edit(lines[data[index]].split()))
+    path.write_text("\n".join(lines) + "\n")
+
+
+def colmap_cases(c: "Cases", base: Path, secret: Path) -> None:
+    """COLMAP text models: numbers, structure, names and links in ``cameras.txt`` and
+    ``images.txt`` (the first image, ``view_000.png``, is the one edited)."""
+    def model(case_id: str, name: str, edit, *, expect: str = REFUSED, index: int = 0):
+        folder = colmap(c.folder() / "model", base)
+        edit_line(folder / name, index, edit)
+        c.add(case_id, [folder], expect=expect)
+
+    c.add("colmap: valid", [colmap(c.folder() / "model", base)], expect=OK)
+    for field, value in [(2, "1e9"), (2, "0"), (2, "95.5"), (3, "-72"), (4, "1e300"),
+                         (4, "1e-300"), (4, "0"), (4, "-160"), (4, "nan"), (4, "inf"),
+                         (4, "abc"), (6, "1e308"), (7, "-1e308")]:
+        model(f"colmap: cameras.txt field {field} = {value}", "cameras.txt",
+              lambda f, i=field, v=value: f[:i] + [v] + f[i + 1:])
+    for case, edit in {"model FISHEYE": lambda f: f[:1] + ["SIMPLE_RADIAL_FISHEYE"] + f[2:],
+                       "one parameter too many": lambda f: f + ["1"],
+                       "no parameters": lambda f: f[:4],
+                       "camera id twice": lambda f: f + ["\n" + " ".join(f)],
+                       "OPENCV k1 1e300": lambda f: [f[0], "OPENCV", *f[2:], "1e300", "0", "0",
+                                                     "0"]}.items():
+        model(f"colmap: cameras.txt {case}", "cameras.txt", edit)
+    rejected = "view_000.png"
+    for field, value, expect in [(1, "0", rejected), (1, "1e308", rejected),
+                                 (2, "1e-300", rejected), (5, "1e308", REFUSED),
+                                 (5, "1e300", REFUSED), (7, "1e-300", REFUSED),
+                                 (1, "nan", REFUSED), (5, "abc", REFUSED)]:
+        model(f"colmap: images.txt field {field} = {value}", "images.txt",
+              lambda f, i=field, v=value: f[:i] + [v] + f[i + 1:], expect=expect)
+    for case, edit in {"unknown camera": lambda f: f[:8] + ["99"] + f[9:],
+                       "too few fields": lambda f: f[:6],
+                       "image listed twice": lambda f: f + ["\n" + " ".join(f)],
+                       "image missing": lambda f: f[:9] + ["missing.png"],
+                       "image name ../../x": lambda f: f[:9] + ["../../secret/outside.png"],
+                       "absolute image name": lambda f: f[:9] + [str(secret / "outside.png")],
+                       "points line of garbage": lambda f: f + ["\n1 2 x 4 5"],
+                       "a name with spaces and escapes": lambda f: f[:9] + ["a \x1b[31m.png"],
+                       }.items():
+        model(f"colmap: images.txt {case}", "images.txt", edit)
+    for name, text in [("cameras.txt", ""), ("images.txt", "# only a comment\n"),
+                       ("cameras.txt", "\x00\x01\x02" * 100), ("images.txt", "9" * 100000)]:
+        folder = colmap(c.folder() / "model", base)
+        (folder / name).write_text(text)
+        c.add(f"colmap: {name} is {text[:12]!r}", [folder])
+    folder = colmap(c.folder() / "model", base)
+    (folder / "images" / "view_000.png").write_bytes(png_header(50000, 50000))
+    c.add("colmap: image a 50000^2 PNG header", [folder], expect=rejected)
+    folder = colmap(c.folder() / "model", base)
+    (folder / "images" / "view_000.png").unlink()
+    os.symlink(secret / "outside.png", folder / "images" / "view_000.png")
+    c.add("colmap: an image is a link outside", [folder])
 
 
 def build_cases(root: Path, base: Path, secret: Path) -> Cases:
@@ -277,16 +379,17 @@ def build_cases(root: Path, base: Path, secret: Path) -> Cases:
     c.add("session: an image of the wrong size", [folder], expect="view_001.png")
 
     # ---- bags: recorded parameters of the wrong shape, cut and foreign files
-    def bag(case_id: str, edit=None, *, expect: str = REFUSED, cut=None, extra=None) -> None:
+    def bag(case_id: str, edit=None, *, expect: str = REFUSED, cut=None, extra=None,
+            storage: str = "mcap") -> None:
         folder = c.folder() / "bag"
         doc = document()
         if edit is not None:
             edit(doc)
         write_bag(folder, [(PARAMETERS_TOPIC, parameters_message(doc)),
-                           *mask_messages(sphere_views())])
+                           *mask_messages(sphere_views())], storage=storage)
         if cut is not None:
-            mcap = folder / "bag.mcap"
-            mcap.write_bytes(mcap.read_bytes()[:cut(mcap.stat().st_size)])
+            data = folder / ("bag.mcap" if storage == "mcap" else "bag.db3")
+            data.write_bytes(data.read_bytes()[:cut(data.stat().st_size)])
             (folder / "metadata.yaml").unlink()
         if extra is not None:
             extra(folder)
@@ -311,6 +414,22 @@ def build_cases(root: Path, base: Path, secret: Path) -> Cases:
         c.add(f"bag: zstd bomb chunk {case}", [folder])
         c.add(f"sfs-export of a bag: zstd bomb chunk {case}",
               [folder, "--colmap", root / "out" / "bomb_export"], tool="export")
+    # The same in rosbag2's other storage, SQLite 3 (.db3).
+    bag("bag sqlite3: valid", expect=OK, storage="sqlite3")
+    bag("bag sqlite3: nodes is a list", lambda d: d.update(nodes=[1, 2]), storage="sqlite3")
+    bag("bag sqlite3: rig a number", lambda d: d["session"].update(rig=5), storage="sqlite3")
+    bag("bag sqlite3: cut in half", cut=lambda size: size // 2, storage="sqlite3")
+    # (rosbag2's SQLite reader needs metadata.yaml: a clear refusal.)
+    bag("bag sqlite3: metadata.yaml an alias bomb", storage="sqlite3",
+        extra=lambda f: (f / "metadata.yaml").write_text(alias_bomb()))
+    bag("bag sqlite3: db3 file replaced by text", storage="sqlite3",
+        extra=lambda f: (f / "bag.db3").write_text("not a bag"))
+    bag("bag sqlite3: a message row over the limit", storage="sqlite3", extra=huge_row)
+    bag("bag sqlite3: a corrupt message", expect=OK, storage="sqlite3", extra=corrupt_row)
+    bag("bag sqlite3: a topic typed venv/__main__/X", expect=OK, storage="sqlite3",
+        extra=foreign_type)
+    bag("bag sqlite3: no messages table", storage="sqlite3",
+        extra=lambda f: _sql(f, "DROP TABLE messages"))
     # A COLMAP model whose images/ is a link outside (as a session's is refused).
     model = c.folder() / "sparse" / "0"
     model.mkdir(parents=True)
@@ -318,6 +437,8 @@ def build_cases(root: Path, base: Path, secret: Path) -> Cases:
     (model / "images.txt").write_text("1 1 0 0 0 0 0 0.5 1 outside.png\n\n")
     os.symlink(secret, model / "images")
     c.add("colmap: images/ is a link outside", [model])
+
+    colmap_cases(c, base, secret)
 
     # ---- output clashes: no input file is ever written, no output overwrites another
     out = root / "clash"
@@ -350,6 +471,16 @@ def build_cases(root: Path, base: Path, secret: Path) -> Cases:
     return c
 
 
+def rejected_views(case: dict) -> set[str]:
+    """The views a case that ended with exit 0 reports rejected: in the mesh's report, or
+    in ``calibration_report.yaml`` (``sfs-calibrate``)."""
+    out = Path(case["argv"][case["argv"].index("-o") + 1])
+    if case["tool"] == "calibrate":
+        return set(yaml.safe_load((out / "calibration_report.yaml").read_text())["rejected"])
+    report = json.loads(out.with_name(out.stem + ".report.json").read_text())
+    return {v["view"] for v in report["views"]["rejected"]}
+
+
 def failures(cases: list[dict], results: list[dict]) -> list[str]:
     """What each case did wrong against the rules of the module docstring and its
     ``expect``: one line per failure."""
@@ -362,6 +493,11 @@ def failures(cases: list[dict], results: list[dict]) -> list[str]:
             continue
         if "Traceback" in r["stderr"] or "\x1b" in r["stderr"]:
             found.append(f"{r['id']}: raw traceback or escape code on stderr")
+        if r["warnings"]:
+            # A NumPy RuntimeWarning (overflow, invalid value) is a number not checked.
+            found.append(f"{r['id']}: warnings {r['warnings'][:3]}")
+        if TEMPORARY.search(r["stderr"]):
+            found.append(f"{r['id']}: names a temporary file: {r['stderr'][:300]!r}")
         if r["status"] == 2 and (len(lines) != 1 or ": error: " not in lines[0]):
             # One line saying what was wrong; "internal error" is a bug, not an answer.
             found.append(f"{r['id']}: {len(lines)} lines on stderr: {r['stderr'][:500]!r}")
@@ -374,9 +510,7 @@ def failures(cases: list[dict], results: list[dict]) -> list[str]:
             found.append(f"{r['id']}: expected a mesh, got exit {r['status']}: {r['stderr']}")
         elif expect not in (REFUSED, OK):
             if r["status"] == 0:
-                out = Path(case["argv"][case["argv"].index("-o") + 1])
-                rejected = json.loads(out.with_name(out.stem + ".report.json").read_text())
-                if expect not in {v["view"] for v in rejected["views"]["rejected"]}:
+                if expect not in rejected_views(case):
                     found.append(f"{r['id']}: exit 0 without naming {expect} as rejected")
             elif r["status"] != 2:
                 found.append(f"{r['id']}: exit {r['status']}")

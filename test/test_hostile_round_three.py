@@ -412,6 +412,39 @@ def test_class6_a_mask_or_image_not_of_the_rigs_size_is_refused_before_it_is_kep
         _decode_mask(msg, (96, 72))
 
 
+@pytest.mark.ros
+def test_class6_the_segmentation_node_refuses_a_capture_not_of_the_rigs_size(start_node,
+                                                                             tmp_path):
+    """An 8000 x 6000 capture (48 MB of pixels) at a node configured with the rig's 320 x 240:
+    refused from its header, named with both sizes, before it is kept or segmented (no mask
+    for it, nothing left waiting); the capture after it is segmented."""
+    from sensor_msgs.msg import Image
+    from test_segmentation_node import NODE_PARAMS, RIG, Cell
+
+    from sfs_ros.ros.convert import image_to_msg, joint_state
+
+    params = tmp_path / "segmentation.yaml"
+    params.write_text(yaml.safe_dump({"/**": {"ros__parameters": NODE_PARAMS}}))
+    cell = start_node(Cell, params)
+    huge = Image(width=8000, height=6000, encoding="mono8", step=8000,
+                 data=np.full(8000 * 6000, 200, np.uint8).tobytes())
+    huge.header.stamp.sec = 300
+    cell.image_pub.publish(huge)
+    cell.joints_pub.publish(joint_state(0.0, 0.5, stamp=(300, 0)))
+    good = np.full((RIG.height, RIG.width, 3), 250, np.uint8)
+    good[80:160, 120:200] = 40                                       # a dark box on white
+    cell.image_pub.publish(image_to_msg(good, stamp=(301, 0), frame_id="c"))
+    cell.joints_pub.publish(joint_state(0.0, 0.5, stamp=(301, 0)))
+    cell.receive(1)
+    assert [(m.header.stamp.sec, m.header.stamp.nanosec) for m in cell.masks] == [(301, 0)]
+    assert ("malformed image at stamp 300.000000000 dropped with its capture: image is "
+            "8000x6000 pixels, expected the rig's 320x240 (width x height)"
+            in cell.process.output())
+    last = {kv.key: kv.value for kv in cell.diagnostics[-1].status[0].values}
+    assert last["malformed"] == "1" and last["masks"] == "1"
+    assert last["waiting_images"] == "0" and last["waiting_joint_states"] == "0"
+
+
 def test_class6_colour_images_without_their_view_are_bounded(tmp_path):
     """3,000 captured images whose masks never come: the node's live reconstruction keeps
     at most MAX_WAITING_BYTES of them (peak memory measured), and an image whose view

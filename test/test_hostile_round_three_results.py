@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 import test_hostile_input
 import yaml
-from test_hostile_input import FAST, OK, Cases, failures
+from test_hostile_input import FAST, OK, REFUSED, Cases, failures
 from test_supervisor import ScriptSpec
 
 from sfs_ros.cell.bag import read_bag
@@ -110,17 +110,30 @@ def test_class_8_too_few_viewing_directions_is_an_error(base, tmp_path):
 # ---- class 9: calibration with the wrong board size --------------------------------------
 
 @pytest.fixture(scope="module")
-def board_session(tmp_path_factory) -> Path:
-    """Every other view of the calibration scene (a 7 x 5 board of 30 mm squares)."""
-    from sfs_ros.core.exchange.session import write_session
-    from sfs_ros.core.simulation.calibration_scene import board_scene, nominal_rig
+def board_scene():
+    """The calibration scene: a 7 x 5 board of 30 mm squares in 28 views, and its truth."""
+    from sfs_ros.core.simulation.calibration_scene import board_scene
 
-    scene = board_scene()
-    chosen = range(0, len(scene.images), 2)
-    folder = tmp_path_factory.mktemp("board") / "session"
+    return board_scene()
+
+
+def write_board_session(folder: Path, scene, chosen, angles=None) -> Path:
+    """A session of the views ``chosen`` of ``scene``, tagged with ``angles`` (default the
+    scene's)."""
+    from sfs_ros.core.exchange.session import write_session
+    from sfs_ros.core.simulation.calibration_scene import nominal_rig
+
+    angles = scene.angles if angles is None else angles
     write_session(folder, [(f"view_{i:03d}.png", scene.images[i]) for i in chosen],
-                  [scene.angles[i] for i in chosen], nominal_rig())
+                  [angles[i] for i in chosen], nominal_rig())
     return folder
+
+
+@pytest.fixture(scope="module")
+def board_session(board_scene, tmp_path_factory) -> Path:
+    """Every other view of the calibration scene."""
+    return write_board_session(tmp_path_factory.mktemp("board") / "session", board_scene,
+                               range(0, len(board_scene.images), 2))
 
 
 def calibrate(argv) -> tuple[int, list[str]]:
@@ -159,6 +172,65 @@ def test_class_9_a_board_of_the_wrong_size_is_named_with_both_radii(board_sessio
         assert status == 2 and "max_view_rms_px" in lines[0], lines
 
 
+# ---- class 10: one mis-tagged view -----------------------------------------------------
+
+def test_class_10_mis_tagged_views_are_rejected_by_name_and_the_rig_recovered(board_scene,
+                                                                             tmp_path):
+    """Three of the 28 views tagged with theta 90 degrees off, 1e308 and NaN: the fit
+    starts from the views' board poses, names exactly those three with what was wrong,
+    and recovers the true rig within the bars of ``test_calibration.py``."""
+    import test_calibration as bars
+
+    from sfs_ros.core.calibration import canonical
+    from sfs_ros.ros.rig_params import rig_calibration
+
+    angles = list(board_scene.angles)
+    # The principal point is what the views pin down least: without these three, cy comes
+    # 1.02 px from the truth (the bar: 1.18 px), as the same 25 views alone give it.
+    wrong = {5: (angles[5][0] + np.pi / 2, angles[5][1]), 9: (1e308, angles[9][1]),
+             16: (float("nan"), angles[16][1])}
+    angles = [wrong.get(i, pair) for i, pair in enumerate(angles)]
+    folder = write_board_session(tmp_path / "session", board_scene, range(len(angles)), angles)
+    status, lines = calibrate([folder, "-o", tmp_path / "out"])
+    assert status == 0, lines
+    report = yaml.safe_load((tmp_path / "out" / "calibration_report.yaml").read_text())
+    rejected = report["rejected"]
+    assert set(rejected) == {f"view_{i:03d}.png" for i in wrong}, rejected
+    assert "disagree with its board pose by 90.0 degrees" in rejected["view_005.png"]
+    assert "theta_rad 1e+308" in rejected["view_009.png"]
+    assert "disagree with its board pose" in rejected["view_009.png"]
+    assert "not finite" in rejected["view_016.png"]
+    assert len(report["view_rms_px"]) == 25 and report["rms_px"] < bars.RMS_PX
+    values = yaml.safe_load((tmp_path / "out" / "rig.yaml").read_text())["/**"]["ros__parameters"]
+    rig, true = rig_calibration(values), canonical(board_scene.rig, board_scene.pose)[0]
+    for name in ("fx", "fy", "cx", "cy"):
+        assert getattr(rig, name) == pytest.approx(getattr(true, name),
+                                                   rel=bars.INTRINSICS_REL), name
+    assert rig.distortion[0] == pytest.approx(true.distortion[0], abs=bars.K1_ABS)
+    np.testing.assert_allclose(rig.axis_point_m, true.axis_point_m, atol=bars.AXIS_POINT_M)
+    for name in ("axis_tilt_y_rad", "theta_zero_rad", "phi_zero_rad"):
+        assert getattr(rig, name) == pytest.approx(getattr(true, name), abs=bars.ANGLE_RAD), name
+    assert rig.camera_distance_m == pytest.approx(true.camera_distance_m, abs=bars.RADIUS_M)
+    np.testing.assert_allclose(rig.mount_rotation_rad, true.mount_rotation_rad,
+                               atol=bars.MOUNT_RAD)
+
+
+def test_class_10_angles_that_give_no_camera_are_rejected_before_the_fit(board_scene):
+    """Angles straight from a caller (not a session, which refuses them on reading): NaN
+    and a carriage beyond the C-arm are rejected views, named, not an abort."""
+    from sfs_ros.core.calibration import calibrate_rig, detect_board
+    from sfs_ros.core.simulation.calibration_scene import nominal_rig
+
+    detections = [(f"v{i}", *board_scene.angles[i],
+                   detect_board(board_scene.images[i], board_scene.board)[0]) for i in range(6)]
+    detections[0] = ("v0", float("nan"), *detections[0][2:])
+    detections[1] = ("v1", detections[1][1], 3.0, detections[1][3])
+    with pytest.raises(ValueError, match=r"4 usable board views, need at least 6 \(2 rejected, "
+                                         r"first: v0: its tagged angles cannot be used: "
+                                         r"encoder angles must be finite"):
+        calibrate_rig(detections, board_scene.board, nominal_rig())
+
+
 # ---- class 11: COLMAP images.txt read by structure ---------------------------------------
 
 def colmap_model(base: Path, folder: Path) -> Path:
@@ -182,6 +254,17 @@ def test_class_11_colmap_images_are_read_by_structure(base, tmp_path):
         views = read_colmap(folder)
         assert [v.name for v in views.views] == [v.name for v in reference.views], case
         assert len(views.views) == count and not views.rejected, case
+    # An image line cut to six numbers is not taken for points (a POINT3D_ID is whole, and
+    # an image has one points line): refused, naming its line, not silently dropped.
+    for cut in ([], ["1 1 0 0 0 0"]):
+        folder = colmap_model(base, tmp_path / f"cut{len(cut)}")
+        path = folder / "images.txt"
+        lines = path.read_text().splitlines()
+        first = next(n for n, line in enumerate(lines) if line and line[0] != "#")
+        lines[first + 2] = cut[0] if cut else " ".join(lines[first + 2].split()[:6])
+        path.write_text("\n".join(lines) + "\n")
+        with pytest.raises(ViewError, match=f"images.txt line {first + 3}: expected IMAGE_ID"):
+            read_colmap(folder)
 
 
 # ---- class 12: implausible lenses ---------------------------------------------------------
@@ -368,12 +451,51 @@ def test_class_19_options_that_cannot_be_met_are_named(base, tmp_path):
         status, lines, _ = reconstruct([base, "-o", tmp_path / "m.ply", *options, *FAST])
         assert status == 2 and len(lines) == 1 and words in lines[0], (options, lines)
     assert not (tmp_path / "p.jpg").exists() and not (tmp_path / "m.ply").exists()
+    # A grid over the voxel cap is refused for that, not for the memory it would fit in.
+    status, lines, _ = reconstruct([base, "-o", tmp_path / "m.ply", "--voxel-size", "0.00005",
+                                    "--max-memory", "900G", "-q"])
+    assert status == 2 and len(lines) == 1, lines
+    assert "needs 139.25 GiB and has more than the 1074 M voxels a grid may have" in lines[0]
+    assert "--max-memory" not in lines[0] and "coarser resolution" in lines[0]
+
+
+def test_class_19_a_message_names_the_destination_and_no_stale_report_is_left(base, tmp_path):
+    """-o names a folder: the error names it (not a temporary file beside it), and the
+    report of an earlier run is gone rather than describing a mesh that was not written."""
+    (tmp_path / "m.ply").mkdir()
+    (tmp_path / "m.report.json").write_text('{"output": "an earlier mesh"}')
+    status, lines, _ = reconstruct([base, "-o", tmp_path / "m.ply", *FAST])
+    assert status == 2 and len(lines) == 1, lines
+    assert f"Is a directory: '{tmp_path / 'm.ply'}'" in lines[0] and ".tmp" not in lines[0]
+    assert [p.name for p in tmp_path.iterdir()] == ["m.ply"]
 
 
 # ---- the fuzz suite: COLMAP models and bags --------------------------------------------------
 
-def test_round_three_cases_through_the_fuzz_driver(base, tmp_path):
+def test_round_three_cases_through_the_fuzz_driver(base, board_scene, tmp_path):
     c = Cases(tmp_path / "cases", base)
+
+    def board(case: str, edits: dict, *options, expect=OK):
+        """sfs-calibrate on every other view of the board scene, ``edits`` {view: angles}."""
+        angles = [edits.get(i, pair) for i, pair in enumerate(board_scene.angles)]
+        folder = write_board_session(c.folder() / "board", board_scene,
+                                     range(0, len(angles), 2), angles)
+        c.add(case, [folder, "-o", c.root / "out" / f"calibration{len(c.cases)}", *options],
+              tool="calibrate", expect=expect)
+
+    theta, phi = board_scene.angles[4]
+    board("10: calibrate, a view 90 degrees off", {4: (theta + np.pi / 2, phi)},
+          expect="view_004.png")
+    board("10: calibrate, a view at theta 1e308", {4: (1e308, phi)}, expect="view_004.png")
+    board("10: calibrate, a view at theta nan", {4: (float("nan"), phi)}, expect="view_004.png")
+    board("10: calibrate, a view at phi -1e308", {4: (theta, -1e308)}, expect="view_004.png")
+    board("10: calibrate, every angle nan",
+          {i: (float("nan"), float("nan")) for i in range(len(board_scene.angles))},
+          expect=REFUSED)
+    for value in ("nan", "-1", "inf"):
+        board(f"19: calibrate --max-view-rms-px {value}", {}, "--max-view-rms-px", value,
+              expect=REFUSED)
+    board("16: calibrate --square-m 1e300", {}, "--square-m", "1e300", expect=REFUSED)
     names = [v.name for v in read_session(base).views]
     c.add("8: one view", [session_of(base, c.folder(), names[:1])])
     c.add("8: copies of one view", [session_of(base, c.folder(), names[:1] * 13)])
@@ -408,6 +530,8 @@ def test_round_three_cases_through_the_fuzz_driver(base, tmp_path):
         c.add(f"18: --bounds {box[3]}", [c.session(), "--bounds", *box])
     c.add("19: --block 100000", [c.session(), "--block", "100000", "-m", "advancing-front"])
     c.add("19: --preview p.jpg", [c.session(), "--preview", tmp_path / "p.jpg"])
+    (tmp_path / "a_folder.ply").mkdir()
+    c.add("19: -o names a folder", [c.session(), "-o", tmp_path / "a_folder.ply", *FAST])
     spec = tmp_path / "cases.json"
     inputs = sorted(str(p) for p in (tmp_path / "cases").glob("case*"))
     spec.write_text(json.dumps({"watched": [], "inputs": inputs, "cases": c.cases}))

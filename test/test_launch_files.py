@@ -137,8 +137,13 @@ REAL_CASES = {"defaults": {}, "port and device": {"port": "/dev/ttyUSB3",
               "site params": {"params_file": "site.yaml"}}
 
 
-@pytest.mark.parametrize("filename, mock, case", [("mock_cell.launch.py", True, "defaults"),
-                                                  ("mock_cell.launch.py", True, "site params")]
+#: Launch arguments of the mock cell beyond output_dir and namespace, by case (another
+#: driver: a real camera with the simulated motion, as sfs-cell --mock --camera-topic).
+MOCK_CASES = {case: REAL_CASES[case] for case in ("defaults", "another driver", "site params")}
+
+
+@pytest.mark.parametrize("filename, mock, case",
+                         [("mock_cell.launch.py", True, case) for case in MOCK_CASES]
                          + [("cell.launch.py", False, case) for case in REAL_CASES])
 @pytest.mark.parametrize("namespace", [None, "/cell1"])
 def test_launch_file_starts_the_nodes_of_cell_nodes(filename, mock, case, namespace, share,
@@ -158,8 +163,8 @@ def test_launch_file_starts_the_nodes_of_cell_nodes(filename, mock, case, namesp
     camera = ({"camera_topic": given["camera_topic"]} if "camera_topic" in given else
               {"camera_device": given.get("camera_device",
                                           _yaml_value(share, "camera.yaml", "device"))})
-    hardware = {} if mock else {
-        "port": given.get("port", _yaml_value(share, "motor.yaml", "port")), **camera}
+    hardware = ({"camera_topic": given.get("camera_topic")} if mock else {
+        "port": given.get("port", _yaml_value(share, "motor.yaml", "port")), **camera})
     specs = cell_nodes(share / "config", output_dir, mock=mock,
                        params_file=given.get("params_file"), **hardware)
 
@@ -189,17 +194,24 @@ def test_launch_file_starts_the_nodes_of_cell_nodes(filename, mock, case, namesp
     if "camera_topic" in given:     # no camera node of ours; the scan streams the driver's
         assert "camera" not in [n.get("name") for n in launch.nodes()]
         assert specs[-1].overrides["camera_trigger"] == "stream"
+        assert launch.nodes()[-1]["remappings"] == [("image_raw", given["camera_topic"])]
+        managed = [n for n in launch.nodes() if n["executable"] == "sfs-lifecycle-manager"]
+        assert [n["parameters"][-1]["nodes"] for n in managed] == [["motor"]]
+        if mock:    # nor the mock's camera: its process runs the controller alone
+            (hardware,) = [n for n in launch.nodes() if n["executable"] == "sfs-mock-hardware"]
+            assert hardware["parameters"][-1]["camera"] is False
 
 
 def _typed(overrides: dict[str, str]) -> dict:
     """``-p`` overrides as a launch file's parameters give them: the lifecycle's
-    ``autostart`` a bool, the manager's ``nodes`` a list (the others strings in both)."""
-    return {name: yaml.safe_load(value) if name in ("autostart", "nodes") else value
+    ``autostart`` and the mock's ``camera`` bools, the manager's ``nodes`` a list (the
+    others strings in both)."""
+    return {name: yaml.safe_load(value) if name in ("autostart", "camera", "nodes") else value
             for name, value in overrides.items()}
 
 
 #: Launch arguments each file declares; only output_dir is required.
-ARGUMENTS = {"mock_cell.launch.py": {"output_dir", "namespace", "params_file"},
+ARGUMENTS = {"mock_cell.launch.py": {"output_dir", "namespace", "params_file", "camera_topic"},
              "cell.launch.py": {"output_dir", "namespace", "params_file", "port",
                                 "camera_device", "camera_topic"}}
 

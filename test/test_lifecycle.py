@@ -21,8 +21,11 @@ from std_srvs.srv import Trigger
 from sfs_ros.hardware.simulator import SimulatedGrbl
 from sfs_ros.ros.names import SERVICES
 
-from ros_harness import NodeUnderTest
+from ros_harness import MESSAGE_TIMEOUT_S, NodeUnderTest
 from tolerances import QUIET_S
+
+#: A lifecycle query is asked this many times, waiting this long for each answer, s.
+ATTEMPTS, ATTEMPT_S = 12, 10.0
 
 
 class Managed(NodeUnderTest):
@@ -37,18 +40,32 @@ class Managed(NodeUnderTest):
                               and self.change_state.service_is_ready(),
                               what="the lifecycle services", process=self.process)
 
-    def answer(self, client, request):
+    def answer(self, client, request, *, timeout: float = MESSAGE_TIMEOUT_S):
+        """The answer to ``request``; None when none came within ``timeout`` s."""
         future = client.call_async(request)
-        self.probe.spin_until(future.done, what=f"answer of {client.srv_name}",
+        deadline = time.monotonic() + timeout
+        self.probe.spin_until(lambda: future.done() or time.monotonic() > deadline,
+                              timeout=timeout + 1.0, what=f"answer of {client.srv_name}",
                               process=self.process)
-        return future.result()
+        return future.result() if future.done() else None
 
     def state(self) -> str:
-        return self.answer(self.get_state, GetState.Request()).current_state.label
+        """The node's state; asked again while no answer comes (Fast DDS drops an answer to
+        a client it has not matched yet, after 100 ms: a loaded machine can be slower)."""
+        for _ in range(ATTEMPTS):
+            answer = self.answer(self.get_state, GetState.Request(), timeout=ATTEMPT_S)
+            if answer is not None:
+                return answer.current_state.label
+        raise AssertionError(f"no answer of {self.get_state.srv_name} in {ATTEMPTS} attempts")
 
     def transition(self, transition_id: int) -> bool:
+        """Whether the transition succeeded: its answer, or (the answer lost, see
+        :meth:`state`) whether the node's state changed, as the lifecycle manager finds
+        out (a transition is never asked twice)."""
+        before = self.state()
         request = ChangeState.Request(transition=Transition(id=transition_id))
-        return self.answer(self.change_state, request).success
+        answer = self.answer(self.change_state, request)
+        return answer.success if answer is not None else self.state() != before
 
 
 def write_params(path: Path, **camera) -> Path:

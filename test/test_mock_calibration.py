@@ -41,6 +41,8 @@ from sfs_ros.ros.rig_params import rig_calibration
 
 from tolerances import HANG_S
 
+pytestmark = pytest.mark.slow
+
 CONFIG = Path(__file__).resolve().parent.parent / "config"
 DEG = math.pi / 180
 

@@ -11,12 +11,16 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from sfs_ros.cell.bag import open_bag
 from sfs_ros.ros.cell_client import CellClient
 
 from mock_cell import SCAN_TIMEOUT_S, write_config
 from ros_harness import NAMESPACE, SOURCE_ROOT
 from waiting import wait
+
+pytestmark = pytest.mark.cell
 
 #: Lines that must not appear in a normal start, scan, reconstruct and Ctrl-C.
 NOISE = ("[ERROR]", "Traceback", "was never retrieved", "Failed to publish log message")

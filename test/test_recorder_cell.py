@@ -34,6 +34,8 @@ from sfs_ros.ros.services import call
 from mock_cell import RESOLUTION, SCAN_TIMEOUT_S, running_cell
 from ros_harness import NAMESPACE, SOURCE_ROOT, RosProbe, wait
 
+pytestmark = pytest.mark.cell
+
 STORE = get_typestore(Stores.ROS2_KILTED)
 CAPTURE_TOPICS = ("capture/image", "capture/joint_state", "capture/mask",
                   "capture/mask_joint_state", "capture/stored")

@@ -88,14 +88,25 @@ def test_pictures_added_later_come_before_the_report_that_names_them(tmp_path, r
         add_pictures(first, result, contact_sheet=tmp_path / "x.png")
 
 
-def test_the_report_is_renamed_into_place_before_the_mesh(tmp_path, result, monkeypatch):
+def test_the_report_is_renamed_into_place_after_the_mesh(tmp_path, result, monkeypatch):
     order = []
     real_replace = os.replace
     monkeypatch.setattr(files_module.os, "replace",
                         lambda src, dst, **dir_fds: (order.append(os.path.basename(dst)),
                                                      real_replace(src, dst, **dir_fds)))
     write_result(result, tmp_path / "m.ply", preview=tmp_path / "m.png")
-    assert order == ["m.png", "m.report.json", "m.ply"]
+    assert order == ["m.ply", "m.png", "m.report.json"]
+
+
+def test_a_mesh_that_cannot_be_written_leaves_no_report_beside_it(tmp_path, result):
+    """The mesh's name is a folder: the error names the mesh, and the report of an earlier
+    run is gone rather than left describing a mesh that was not written, and no picture
+    of it is written either."""
+    (tmp_path / "m.ply").mkdir()
+    (tmp_path / "m.report.json").write_text('{"output": "an earlier mesh"}')
+    with pytest.raises(IsADirectoryError, match=str(tmp_path / "m.ply")):
+        write_result(result, tmp_path / "m.ply", preview=tmp_path / "m.png")
+    assert [p.name for p in tmp_path.iterdir()] == ["m.ply"]
 
 
 def test_a_failed_write_keeps_the_previous_mesh_and_report_together(tmp_path, result,
@@ -104,12 +115,12 @@ def test_a_failed_write_keeps_the_previous_mesh_and_report_together(tmp_path, re
     before = (first.mesh.read_bytes(), first.report.read_bytes())
     fsyncs = []
 
-    def fail_on_mesh(fd):      # staged in order: report, then mesh
+    def fail_on_report(fd):    # staged in order: mesh, then report
         fsyncs.append(fd)
         if len(fsyncs) == 2:
             raise OSError("disk full")
 
-    monkeypatch.setattr(files_module.os, "fsync", fail_on_mesh)
+    monkeypatch.setattr(files_module.os, "fsync", fail_on_report)
     scaled = SimpleNamespace(vertices=result.vertices * 2, faces=result.faces,
                              report=result.report)
     with pytest.raises(OSError, match="disk full"):

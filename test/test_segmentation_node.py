@@ -21,11 +21,13 @@ from ros_harness import NodeProcess, NodeUnderTest, keep_ours
 from tolerances import QUIET_S
 
 MODULE = "sfs_ros.nodes.segmentation_node"
-# What the params file sets, and the same as core parameters (for the expected masks).
-NODE_PARAMS = {"method": "threshold", "background": "white", "close_px": 3, "queue_depth": 30}
-CORE_PARAMS = SegmentationParams(method="threshold", background="white", close_px=3)
 RIG = RigCalibration(width=320, height=240, projection="pinhole", fx=700.0, fy=700.0,
                      camera_distance_m=0.6, aim_point_m=(0.0, 0.0, 0.04))
+# What the params file sets (the rig's image size, as rig.yaml gives it, and segmentation
+# parameters the same as these core ones, for the expected masks).
+NODE_PARAMS = {"method": "threshold", "background": "white", "close_px": 3, "queue_depth": 30,
+               "width": RIG.width, "height": RIG.height}
+CORE_PARAMS = SegmentationParams(method="threshold", background="white", close_px=3)
 PLAN = ring_plan([20.0, 60.0], 4)          # 8 views
 # The rendered mug covers 8 000-10 000 px with an outline of ~400 px; noise
 # (sigma 2 grey levels) is far below the contrast, so only rim pixels may be

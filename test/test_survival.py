@@ -35,6 +35,8 @@ from ros_harness import NAMESPACE, SOURCE_ROOT
 from small_disk import keep_full, small_disk
 from waiting import wait
 
+pytestmark = pytest.mark.cell
+
 #: Kill order: hardware first, the scan node last (the hard case: it resumes from disk).
 #: mock_hardware is the controller and the camera: killing it is a power cut of both. The
 #: captures taken while the recorder is down reach its new bag when the scan node sees it

@@ -53,6 +53,8 @@ from tf_watch import TfWatch, camera_pose, transform_matrix
 from tolerances import READBACK_TOL_RAD
 from waiting import wait
 
+pytestmark = pytest.mark.cell
+
 RUN = NAMESPACE.strip("/")
 #: Each cell: namespace, frame prefix, pose of its base in world, its plan and scan name.
 CELLS = {

@@ -294,6 +294,7 @@ def _plan_view(theta: float, phi: float) -> int:
     return best
 
 
+@pytest.mark.cell
 def test_every_view_crosses_the_link_and_is_stored_once(two_hosts):
     status, summary = two_hosts["status"], two_hosts["summary"]
     assert status["state"] == "done"
@@ -311,6 +312,7 @@ def test_every_view_crosses_the_link_and_is_stored_once(two_hosts):
     assert two_hosts["received"] > len(PLAN) * rig["width"] * rig["height"] * (3 + 1)
 
 
+@pytest.mark.cell
 def test_the_mesh_is_made_on_the_meshing_nodes_host(two_hosts):
     summary = two_hosts["summary"]
     far = two_hosts["halves"]["far"].output_dir.resolve()
@@ -328,6 +330,7 @@ def test_the_mesh_is_made_on_the_meshing_nodes_host(two_hosts):
     assert not (far / "scan_progress").exists() and not (far / session.name).exists()
 
 
+@pytest.mark.cell
 def test_the_recorder_beside_the_meshing_node_holds_every_capture(two_hosts):
     far = two_hosts["halves"]["far"].output_dir
     bag = _scan_bag(far)
@@ -342,12 +345,14 @@ def test_the_recorder_beside_the_meshing_node_holds_every_capture(two_hosts):
     assert document["unavailable"] == {}
 
 
+@pytest.mark.cell
 def test_a_host_not_joined_sees_none_of_the_cell(two_hosts):
     # The same program beside the meshing node sees the other host's nodes.
     assert set(NEAR_NODES) <= set(two_hosts["look"]["far"])
     assert two_hosts["look"]["alone"] == []
 
 
+@pytest.mark.cell
 def test_each_half_says_what_it_expects_elsewhere(two_hosts):
     logs = two_hosts["logs"]
     assert f"expecting {FAR_NODES.replace(',', ', ')} on another host" in logs["near"]

@@ -27,6 +27,8 @@ from ros_harness import NAMESPACE, SOURCE_ROOT, wait
 from test_frames import chain
 from tf_watch import TfWatch, camera_pose
 
+pytestmark = pytest.mark.cell
+
 #: Six views, visited in this order (radians).
 SMALL = {"theta_rad": [0.0, 2.1, 4.2, 1.0, 3.1, 5.2],
          "phi_rad": [0.35, 0.35, 0.35, 0.96, 0.96, 0.96]}

@@ -1,8 +1,16 @@
-"""``sfs-warm-up`` (run by scripts/setup.sh): after it, a new process takes every kernel the
-scan's reconstruction uses from numba's on-disk cache instead of compiling it again."""
+"""``sfs-warm-up`` (run by scripts/setup.sh, and by test/conftest.py for the copy the tests
+import): after it, a new process takes every kernel the scan's reconstruction uses from
+numba's on-disk cache instead of compiling it again; its stamp says which sources it
+compiled."""
 
+import os
 import subprocess
 import sys
+from pathlib import Path
+
+from sfs_ros.cli import warm_up
+
+from ros_harness import SOURCE_ROOT
 
 #: A cold warm-up compiles every kernel: about two minutes on 2 busy cores; the bound
 #: only catches a hang.
@@ -29,15 +37,63 @@ print(hits, " ".join(sorted(set(compiled))))
 """
 
 
+def _compiled_again(cwd, env=None) -> tuple[int, str]:
+    """The warm-up's scan reconstructed in a new process (run in ``cwd``): the kernels it
+    loaded from the cache, and the names of those it compiled, space-separated."""
+    second = subprocess.run([sys.executable, "-c", SECOND_RUN], cwd=cwd, env=env,
+                            capture_output=True, text=True, timeout=TIMEOUT_S)
+    assert second.returncode == 0, second.stderr
+    hits, _, compiled = second.stdout.strip().partition(" ")
+    return int(hits), compiled
+
+
 def test_after_the_warm_up_nothing_compiles_again(tmp_path):
     # Both processes run in an empty folder: they import the same installed package.
     first = subprocess.run([sys.executable, "-m", "sfs_ros.cli.warm_up"], cwd=tmp_path,
                            capture_output=True, text=True, timeout=TIMEOUT_S)
     assert first.returncode == 0, first.stderr
     assert "kernels compiled and cached in" in first.stdout
-    second = subprocess.run([sys.executable, "-c", SECOND_RUN], cwd=tmp_path,
-                            capture_output=True, text=True, timeout=TIMEOUT_S)
-    assert second.returncode == 0, second.stderr
-    hits, _, compiled = second.stdout.strip().partition(" ")
+    hits, compiled = _compiled_again(tmp_path)
     assert compiled == "", f"compiled again instead of loaded from the cache: {compiled}"
-    assert int(hits) >= 20  # the carving, meshing, colour and rendering kernels, at least
+    assert hits >= 20  # the carving, meshing, colour and rendering kernels, at least
+
+
+def test_the_copy_the_tests_import_is_warm_for_its_node_processes(kernels_warmed):
+    # As test/ros_harness.py starts a node: the tests' sfs_ros first on the module path.
+    env = dict(os.environ, PYTHONPATH=str(SOURCE_ROOT))
+    assert warm_up.is_warm()
+    hits, compiled = _compiled_again(SOURCE_ROOT, env)
+    assert compiled == "", f"compiled again instead of loaded from the cache: {compiled}"
+    assert hits >= 20
+
+
+def _package(root: Path) -> Path:
+    """A package with a cached kernel in ``kernels.py`` and none in ``plain.py``."""
+    package = root / "pkg"
+    (package / "sub").mkdir(parents=True)
+    (package / "sub" / "kernels.py").write_text("@njit(cache=True)\ndef f(x):\n    return x\n")
+    (package / "plain.py").write_text("def g(x):\n    return x\n")
+    return package
+
+
+def test_the_stamp_follows_the_kernels_sources(tmp_path):
+    package = _package(tmp_path)
+    assert warm_up.kernel_modules(package) == [package / "sub" / "kernels.py"]
+    assert not warm_up.is_warm(package)                  # never warmed
+    assert warm_up.mark_warm(warm_up.cache_key(package), package)
+    assert warm_up.is_warm(package)
+    (package / "plain.py").write_text("def g(x):\n    return 2 * x\n")
+    assert warm_up.is_warm(package)                      # no kernel there: the cache holds
+    (package / "sub" / "kernels.py").write_text("@njit(cache=True)\ndef f(x):\n    return -x\n")
+    assert not warm_up.is_warm(package)                  # numba compiles this one again
+    assert warm_up.mark_warm(warm_up.cache_key(package), package)
+    moved = tmp_path / "elsewhere"
+    package.rename(moved)
+    assert warm_up.is_warm(moved)        # numba's cache beside the sources moves with them
+
+
+def test_a_package_where_no_stamp_can_be_written_is_never_called_warm(tmp_path):
+    package = _package(tmp_path)
+    (package / "__pycache__").write_text("")    # a file where the stamp's folder would be
+    assert not warm_up.mark_warm(warm_up.cache_key(package), package)
+    assert not warm_up.is_warm(package)

@@ -15,9 +15,9 @@ import math
 
 import numpy as np
 
-__all__ = ["JOINT_NAMES", "IMAGE_ENCODINGS", "image_rows", "stamp_key", "format_stamp", "view_key",
-           "msg_to_image", "angles_from_joint_state", "ForeignJointState", "scan_report",
-           "status_namespace"]
+__all__ = ["JOINT_NAMES", "IMAGE_ENCODINGS", "check_image_size", "image_rows", "stamp_key",
+           "format_stamp", "view_key", "msg_to_image", "angles_from_joint_state",
+           "ForeignJointState", "scan_report", "status_namespace"]
 
 #: Joint names of the cell: turntable = theta, carriage = phi.
 JOINT_NAMES = ("turntable", "carriage")
@@ -55,6 +55,14 @@ def view_key(stamp: Stamp) -> str:
     """The key a capture's view goes by (in the reconstruction and its session files):
     ``sec_nanosec`` of its stamp."""
     return f"{stamp[0]}_{stamp[1]:09d}"
+
+
+def check_image_size(msg, size: tuple[int, int], what: str) -> None:
+    """ValueError unless the image message ``msg`` is ``size`` (width, height) pixels, the
+    rig's: checked from its header, before its pixels are looked at or kept."""
+    if (msg.width, msg.height) != tuple(size):
+        raise ValueError(f"{what} is {msg.width}x{msg.height} pixels, expected the rig's "
+                         f"{size[0]}x{size[1]} (width x height)")
 
 
 def image_rows(msg, bytes_per_pixel: int) -> np.ndarray:

@@ -202,7 +202,7 @@ def cell_nodes(config_dir, output_dir, *, mock: bool, record: bool = False,
         else ({}, {})
     return hardware + [
         spec("state_publisher", "tf_node", ["rig.yaml", "frames.yaml"]),
-        spec("segmentation", "segmentation_node", ["segmentation.yaml"]),
+        spec("segmentation", "segmentation_node", ["rig.yaml", "segmentation.yaml"]),
         spec("carving", "carving_node", ["rig.yaml", "frames.yaml", "carving.yaml"],
              {"output_dir": str(output)}),
         spec("meshing", "meshing_node", ["frames.yaml", "meshing.yaml"],

@@ -9,15 +9,29 @@ temporary folder, both ways the package does: offline from the images (segmentat
 consensus, fusion, carving, meshing, evaluation) and live, view by view (incremental
 carving, then the pipeline on the received masks with colour, the mesh file and its
 pictures: :func:`sfs_ros.cell.rehearsal.rehearse`). Prints the seconds it took.
+
+numba keys a cached kernel on its source file's content (and location: beside the file,
+or under ``NUMBA_CACHE_DIR``), its own version, the Python and the host CPU. Each copy of
+the package has its own cache: the installed one and a source tree that tests import
+(``colcon test`` runs pytest in the source tree) are warmed apart. After a warm-up the
+package's folder holds a stamp of those keys (:func:`cache_key`), so that
+:func:`is_warm` tells without compiling anything whether this copy's kernels are cached
+(``test/conftest.py`` warms the copy the tests import when it is not).
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
+import os
+import platform
+import re
 import sys
 import tempfile
 import time
 from pathlib import Path
+
+import numba
 
 from ..cell.rehearsal import REHEARSAL_PLAN, REHEARSAL_RESOLUTION, REHEARSAL_RIG, rehearse
 from ..core.exchange.inputs import load_views
@@ -26,6 +40,13 @@ from ..core.pipeline import ReconstructionParams, reconstruct
 from ..core.segment import segment
 from ..core.simulation.objects import make_object
 from ..core.simulation.synthetic import simulate_scan
+
+#: This package's folder (``.../sfs_ros``): the copy whose kernels a warm-up compiles.
+PACKAGE = Path(__file__).resolve().parents[1]
+#: The decorator of a numba function whose compiled code is cached on disk.
+_CACHED = re.compile(r"^\s*@[\w.]*jit\(.*\bcache=True", re.MULTILINE)
+#: The lines of ``/proc/cpuinfo`` that name the CPU numba compiles for (x86; ARM).
+_CPU_FIELDS = ("model name", "flags", "CPU implementer", "CPU part", "Features")
 
 
 def run(folder: Path) -> None:
@@ -37,6 +58,63 @@ def run(folder: Path) -> None:
     rehearse(folder / "live", [(segment(c.image).mask, c.image) for c in captures])
 
 
+def host_cpu() -> str:
+    """The machine type and the first CPU's model and features (``/proc/cpuinfo``, where
+    there is one): numba compiles each kernel for the host's CPU."""
+    try:
+        first = Path("/proc/cpuinfo").read_text().split("\n\n", 1)[0]
+    except OSError:
+        first = ""
+    return "\n".join([platform.machine(), *(line for line in first.splitlines()
+                                             if line.startswith(_CPU_FIELDS))])
+
+
+def kernel_modules(package: Path = PACKAGE) -> list[Path]:
+    """The package's modules that define cached kernels, sorted."""
+    return sorted(p for p in package.rglob("*.py") if _CACHED.search(p.read_text()))
+
+
+def cache_key(package: Path = PACKAGE) -> str:
+    """Hex digest of what numba's cache of the package's kernels depends on: each kernel
+    module's path in the package and bytes, numba's version, the Python (its cache tag),
+    the host CPU and ``NUMBA_CACHE_DIR``."""
+    digest = hashlib.sha256()
+    for path in kernel_modules(package):
+        digest.update(f"{path.relative_to(package)}\0".encode())
+        digest.update(path.read_bytes())
+    digest.update(f"\0{numba.__version__}\0{sys.implementation.cache_tag}\0{host_cpu()}\0"
+                  f"{os.environ.get('NUMBA_CACHE_DIR', '')}".encode())
+    return digest.hexdigest()
+
+
+def stamp_file(package: Path = PACKAGE) -> Path:
+    """Where a warm-up leaves :func:`cache_key` (beside the package's own cache)."""
+    return package / "__pycache__" / "sfs_warm_up.stamp"
+
+
+def is_warm(package: Path = PACKAGE) -> bool:
+    """Whether a warm-up ran on this copy of the package's kernels as they are now."""
+    try:
+        return stamp_file(package).read_text() == cache_key(package)
+    except OSError:
+        return False
+
+
+def mark_warm(key: str, package: Path = PACKAGE) -> bool:
+    """Leave ``key`` (the :func:`cache_key` of the sources the warm-up compiled) as the
+    stamp :func:`is_warm` reads, atomically; False where the package's folder is read-only
+    (numba then caches in the user's home; :func:`is_warm` stays False)."""
+    stamp = stamp_file(package)
+    try:
+        stamp.parent.mkdir(exist_ok=True)
+        partial = stamp.with_name(f"{stamp.name}.{os.getpid()}")
+        partial.write_text(key)
+        partial.replace(stamp)
+    except OSError:
+        return False
+    return True
+
+
 def build_parser() -> argparse.ArgumentParser:
     return argparse.ArgumentParser(prog="sfs-warm-up", description=__doc__.split("\n\n")[0])
 
@@ -44,9 +122,12 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     build_parser().parse_args(argv)
     start = time.perf_counter()
+    key = cache_key()
     with tempfile.TemporaryDirectory(prefix="sfs_warm_up_") as tmp:
         run(Path(tmp))
-    print(f"kernels compiled and cached in {time.perf_counter() - start:.0f} s")
+    stamped = mark_warm(key)
+    print(f"kernels compiled and cached in {time.perf_counter() - start:.0f} s"
+          + ("" if stamped else f" (no stamp: {stamp_file()} cannot be written)"))
     return 0
 
 

@@ -14,11 +14,12 @@
 
 Every file is written atomically, all in one batch
 (:func:`sfs_ros.core.exchange.files.write_atomic_all`): all are staged on disk
-first, then renamed into place in the order pictures, report, mesh. A reader
-that finds the new mesh therefore finds its report, and the report names only
-pictures that exist; a failure or an interruption before the renames changes
-nothing. (One that reads the report just between the last two renames pairs it
-with the previous mesh; the mesh is the file tools watch, so it comes last.)
+first (a failure or an interruption then changes nothing), then the old report
+is removed, the mesh renamed into place, the pictures, and the report last. A
+report therefore never describes a mesh that is not there: if the mesh cannot
+be renamed into place (its name is a folder, say) the old report is gone and
+nothing new is written; and the report names only pictures that exist. (A
+reader that finds the new mesh may find no report yet.)
 With ``within``, no symbolic link below that folder is followed while writing.
 """
 
@@ -126,7 +127,8 @@ def write_result(result, mesh_path, *, units: str = "m", vertex_colors=None,
         A mesh path or units the mesh cannot be written with, colours an .stl
         cannot hold, or a contact sheet without its views; nothing is written.
     OSError
-        A file could not be written: the mesh and report stay as they were.
+        A file could not be written: staged, the mesh and report stay as they were;
+        the mesh not renamed into place, no report is left beside it.
     """
     if contact_sheet is not None and sheet_views is None:
         raise ValueError("a contact sheet needs sheet_views: the images and masks it shows")
@@ -143,8 +145,8 @@ def write_result(result, mesh_path, *, units: str = "m", vertex_colors=None,
     pictures = _pictures(result, mesh_path, vertex_colors, preview, html, contact_sheet,
                          sheet_views, textured)
     document.update({key: str(path) for key, (path, _) in pictures.items()})
-    files = [*pictures.values(), (report_path, json.dumps(document, indent=2).encode("utf-8")),
-             *meshes]
+    files = [(report_path, None), *meshes, *pictures.values(),
+             (report_path, json.dumps(document, indent=2).encode("utf-8"))]
     _write(files, within)
     return WrittenResult(mesh=mesh_path, report=report_path,
                          preview=pictures.get("preview", (None,))[0],
@@ -200,7 +202,8 @@ def _pictures(result, mesh_path: Path, vertex_colors, preview, html, contact_she
 
 
 def _write(files: list, within) -> None:
-    """Write ``files`` ([(path, bytes)]) atomically, in one batch, in this order."""
+    """Write ``files`` ([(path, bytes or None: removed)]) atomically, in one batch, in this
+    order."""
     if within is None:
         for path, _ in files:
             path.parent.mkdir(parents=True, exist_ok=True)

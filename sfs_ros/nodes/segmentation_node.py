@@ -23,16 +23,19 @@ diagnostic; a mask touching the image border is a WARN too. A malformed
 message (unknown encoding, sizes that do not add up, a joint state without
 both joints or with NaN) is logged, counted in the diagnostics (ERROR level
 until the next good capture) and its capture is dropped; the node carries on.
+An image whose size is not the rig's (``width`` and ``height``, from
+``config/rig.yaml`` as every node that needs the rig reads it) is such a
+message: refused from its header, before it is kept or segmented.
 
 Diagnostics values: counts (masks, empty, touching_border, malformed,
 unpaired_dropped, repeats), waiting halves, and ``segment_s``, the seconds
 spent segmenting since start-up.
 
 Parameters: the fields of :class:`sfs_ros.core.segment.SegmentationParams`
-(see there) with ROS-friendly encodings, plus ``preset`` and
-``queue_depth``; see :data:`PARAMS`. ``preset`` (read-only) names an entry of
-``PRESETS`` whose values become the defaults of the other parameters;
-values given explicitly still win.
+(see there) with ROS-friendly encodings, plus ``preset``, ``queue_depth``
+and the rig's ``width`` and ``height`` (read-only); see :data:`PARAMS`.
+``preset`` (read-only) names an entry of ``PRESETS`` whose values become the
+defaults of the other parameters; values given explicitly still win.
 """
 
 from __future__ import annotations
@@ -44,6 +47,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from sensor_msgs.msg import Image, JointState
 
+from sfs_ros.cell.messages import check_image_size
 from sfs_ros.core.segment import PRESETS, SegmentationParams, segment
 from sfs_ros.nodes.entry import run_node
 from sfs_ros.ros import capture_qos
@@ -58,6 +62,7 @@ from sfs_ros.ros.names import DIAGNOSTICS, status_name
 from sfs_ros.ros.paired_input import PairedInput, Stream
 from sfs_ros.ros.pairing import format_stamp
 from sfs_ros.ros.params import Param, declare, read, validating_callback
+from sfs_ros.ros.rig_params import RIG_PARAMS
 from sfs_ros.ros.segmentation_params import segmentation_param_list, segmentation_params
 
 __all__ = ["SegmentationNode", "PARAMS", "main"]
@@ -72,12 +77,18 @@ QUEUE_DEPTH = Param("queue_depth", 100, "Depth of the reliable capture topics an
                     bounds=(1, 100000), read_only=True)
 
 
+#: The rig's image size (of :data:`~sfs_ros.ros.rig_params.RIG_PARAMS`): captures must have it.
+SIZE_PARAMS: list[Param] = [p for p in RIG_PARAMS if p.name in ("width", "height")]
+
 #: The node's parameters with the core defaults (``preset`` changes the defaults).
-PARAMS: list[Param] = [PRESET, QUEUE_DEPTH, *segmentation_param_list(SegmentationParams())]
+PARAMS: list[Param] = [PRESET, QUEUE_DEPTH, *SIZE_PARAMS,
+                       *segmentation_param_list(SegmentationParams())]
 
 
-def _decode_image(msg: Image) -> tuple[Image, np.ndarray]:
-    """The message and its 8-bit pixels; ValueError for another depth or a bad layout."""
+def _decode_image(msg: Image, size: tuple[int, int]) -> tuple[Image, np.ndarray]:
+    """The message and its 8-bit pixels; ValueError for another size than ``size`` (the
+    rig's width, height), another depth or a bad layout."""
+    check_image_size(msg, size, "image")
     image = msg_to_image(msg)
     if image.dtype != np.uint8:
         raise ValueError(f"image encoding {msg.encoding!r} is not 8-bit")
@@ -103,6 +114,8 @@ class SegmentationNode(Node):
             else SegmentationParams()
         self._param_list = segmentation_param_list(defaults)
         depth = declare(self, [QUEUE_DEPTH])["queue_depth"]
+        declared = declare(self, SIZE_PARAMS)
+        size = (declared["width"], declared["height"])
         self._seg = segmentation_params(declare(self, self._param_list))
         self.add_on_set_parameters_callback(
             validating_callback(self, self._param_list, segmentation_params))
@@ -118,12 +131,12 @@ class SegmentationNode(Node):
         self._joints_pub = self.create_publisher(JointState, "capture/mask_joint_state", qos)
         self._diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
         self._input = PairedInput(
-            self, Stream(Image, "capture/image", "image", _decode_image),
+            self, Stream(Image, "capture/image", "image", lambda msg: _decode_image(msg, size)),
             Stream(JointState, "capture/joint_state", "joint state", _checked_joint_state),
             depth, qos, unit="capture", on_pair=self._process, on_problem=self._dropped)
         self.create_timer(1.0, self._publish_diagnostics)
-        self.get_logger().info(f"segmenting with {self._seg} (preset {preset or 'none'}, "
-                               f"queue depth {depth})")
+        self.get_logger().info(f"segmenting the rig's {size[0]}x{size[1]} images with "
+                               f"{self._seg} (preset {preset or 'none'}, queue depth {depth})")
 
     def _parameters_changed(self, _changed) -> None:
         self._seg = segmentation_params(read(self, self._param_list))
@@ -183,7 +196,8 @@ class SegmentationNode(Node):
 
 
 def main(args=None) -> None:
-    """Entry point ``sfs-segmentation`` (``--ros-args --params-file config/segmentation.yaml``)."""
+    """Entry point ``sfs-segmentation`` (``--ros-args --params-file config/rig.yaml
+    --params-file config/segmentation.yaml``)."""
     run_node("sfs-segmentation", SegmentationNode, args)
 
 

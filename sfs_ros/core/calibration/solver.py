@@ -10,13 +10,21 @@ mounting rotation; both encoder zeros; the board's pose on the turntable (two
 leans and an offset). What the images cannot determine is held fixed, as
 :mod:`.model` explains, and listed in :attr:`RigFit.fixed`.
 
-Start: ``cv2.calibrateCamera`` over the views (every view with a free board
-pose) gives the intrinsics and distortion; each view's board pose, carried
-into the object frame through the input (nominal) rig, gives the board's pose
-on the turntable and the turntable zero (component-wise median over views, so
-one bad view does not move it). A first robust pass (soft-L1 loss) is followed
-by plain least squares; a view whose corners then miss by more than
-``max_view_rms_px`` (RMS) is rejected, worst first, and the fit repeated.
+Start, robust to views tagged with wrong angles (a garbled or shifted encoder
+reading): a view whose angles give no camera (not finite, the carriage beyond
+the C-arm) is rejected by name. ``cv2.calibrateCamera`` over the views (every
+view with a free board pose: no angle is used) gives the intrinsics,
+distortion and each view's board pose in the camera. The rig's turntable axis,
+radius, camera mounting, encoder zeros and the board's pose on the turntable
+are then fitted to those board poses alone (six numbers a view, a Cauchy loss,
+from the component-wise median of the board's pose in the object frame over
+the views, so neither the start nor the fit follows a minority). A view whose
+board pose its tagged angles then miss by more than
+:data:`MAX_POSE_DISAGREEMENT_DEG` is rejected by name, with the disagreement,
+and the poses fitted again without it. A first robust pass over every corner
+(soft-L1 loss) is followed by plain least squares; a view whose corners then
+miss by more than ``max_view_rms_px`` (RMS) is rejected, worst first, and the
+fit repeated.
 """
 
 from __future__ import annotations
@@ -33,8 +41,8 @@ from ..geometry.rig import RigCalibration, rig_camera, rotation_from_vector
 from .board import BoardSpec, Detection
 from .model import STANDING, BoardPose, euler_zyx
 
-__all__ = ["PARAMETERS", "FIXED", "RADIUS_WARNING_FACTOR", "RADIUS_ERROR_FACTOR", "RigFit",
-           "calibrate_rig"]
+__all__ = ["PARAMETERS", "FIXED", "MAX_POSE_DISAGREEMENT_DEG", "RADIUS_WARNING_FACTOR",
+           "RADIUS_ERROR_FACTOR", "RigFit", "calibrate_rig"]
 
 _log = logging.getLogger(__name__)
 
@@ -43,11 +51,20 @@ _log = logging.getLogger(__name__)
 #: sets the scale of every length the fit finds, so a wrong ``square_m`` scales the radius.
 RADIUS_WARNING_FACTOR, RADIUS_ERROR_FACTOR = 1.1, 1.5
 
+#: A view whose tagged angles miss the board pose seen in its image by more than this,
+#: degrees, once the rig is fitted to the other views' board poses, is rejected before the
+#: fit of the corners (consistent views miss by a few tenths of a degree; a smaller
+#: error of the angles is left to the reprojection check after that fit).
+MAX_POSE_DISAGREEMENT_DEG = 5.0
+
 #: Every parameter the solver can estimate, in the order of its vector.
 PARAMETERS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3",
               "axis_x_m", "axis_y_m", "axis_tilt_y_rad", "camera_distance_m",
               "mount_x_rad", "mount_y_rad", "mount_z_rad", "theta_zero_rad", "phi_zero_rad",
               "board_tilt_x_rad", "board_tilt_y_rad", "board_x_m", "board_y_m", "board_z_m")
+
+#: The lens: what the fit to the views' board poses takes as ``cv2.calibrateCamera`` found it.
+_LENS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
 
 #: What is always held fixed, and why.
 FIXED = {
@@ -142,33 +159,111 @@ def _view_rms(residuals: np.ndarray, views: list[_View]) -> np.ndarray:
     return np.array([math.sqrt(np.mean(p ** 2)) for p in parts])
 
 
-def _start(views: list[_View], points: np.ndarray, nominal: RigCalibration,
-           radial_terms: int) -> np.ndarray:
-    """Initial parameter vector (:data:`PARAMETERS` order) from per-view poses."""
-    size = (nominal.width, nominal.height)
+def _usable(views: list[_View], rig: RigCalibration, rejected: list) -> list[_View]:
+    """The views whose tagged angles give a camera of ``rig``; the others go to ``rejected``
+    (``(name, reason)``)."""
+    kept = []
+    for view in views:
+        try:
+            rig_camera(view.theta_rad, view.phi_rad, rig)
+        except ValueError as exc:
+            rejected.append((view.name, f"its tagged angles cannot be used: {exc}"))
+        else:
+            kept.append(view)
+    return kept
+
+
+def _board_poses(views: list[_View], points: np.ndarray, nominal: RigCalibration,
+                 radial_terms: int) -> tuple[np.ndarray, np.ndarray, list]:
+    """``cv2.calibrateCamera`` over the views (angles unused): K (3, 3), distortion (5,) and
+    each view's board pose in the camera, ``(R (3, 3), t (3,) metres)`` board -> camera."""
     flags = cv2.CALIB_FIX_K3 if radial_terms == 2 else 0
     obj = [points[v.detection.ids].astype(np.float32) for v in views]
     img = [v.detection.pixels.astype(np.float32) for v in views]
-    _, K, D, rvecs, tvecs = cv2.calibrateCamera(obj, img, size, nominal.K.copy(), None,
+    _, K, D, rvecs, tvecs = cv2.calibrateCamera(obj, img, (nominal.width, nominal.height),
+                                                nominal.K.copy(), None,
                                                 flags=flags | cv2.CALIB_USE_INTRINSIC_GUESS)
+    poses = [(cv2.Rodrigues(r)[0], t.ravel()) for r, t in zip(rvecs, tvecs)]
+    return K, D.ravel(), poses
+
+
+def _start(views: list[_View], poses: list, K: np.ndarray, D: np.ndarray,
+           nominal: RigCalibration, radial_terms: int) -> np.ndarray:
+    """Initial parameter vector (:data:`PARAMETERS` order): the lens ``K``, ``D``, the
+    nominal rig, and the board's pose carried into the object frame through it
+    (component-wise median over the views' ``poses``)."""
     rig = replace(nominal, fx=K[0, 0], fy=K[1, 1], cx=K[0, 2], cy=K[1, 2])
     rotations, offsets = [], []
-    for view, rvec, tvec in zip(views, rvecs, tvecs):
+    for view, (board_to_cam, t) in zip(views, poses):
         cam = rig_camera(view.theta_rad, view.phi_rad, rig)
-        board_to_cam = cv2.Rodrigues(rvec)[0]
         rotations.append(cam.R.T @ board_to_cam)
-        offsets.append(cam.R.T @ (tvec.ravel() - cam.t))
+        offsets.append(cam.R.T @ (t - cam.t))
     u, _, vt = np.linalg.svd(np.median(rotations, axis=0))
     rotation = u @ vt
     yaw, tilt_y, tilt_x = euler_zyx(rotation @ STANDING.T)
     # A board yaw is a turntable zero: move it there (module docstring of .model).
     offset = rotation_from_vector([0.0, 0.0, -yaw]) @ np.median(offsets, axis=0)
-    d = D.ravel()
-    return np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2], d[0], d[1], d[2], d[3],
-                     d[4] if radial_terms == 3 else 0.0,
+    return np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2], D[0], D[1], D[2], D[3],
+                     D[4] if radial_terms == 3 else 0.0,
                      *nominal.axis_point_m, 0.0, nominal.camera_distance_m,
                      *nominal.mount_rotation_rad, nominal.theta_zero_rad - yaw,
                      nominal.phi_zero_rad, tilt_x, tilt_y, *offset])
+
+
+def _pose_misses(rig: RigCalibration, board: BoardPose, views: list[_View],
+                 poses: list) -> np.ndarray:
+    """(n, 2, 3) how the board pose seen in each view misses the one its angles give:
+    the rotation vector from the predicted to the seen rotation, radians, and the seen
+    minus the predicted position over the C-arm radius (metres / metres)."""
+    out = np.empty((len(views), 2, 3))
+    for i, (view, (R, t)) in enumerate(zip(views, poses)):
+        cam = rig_camera(view.theta_rad, view.phi_rad, rig)
+        out[i, 0] = cv2.Rodrigues((cam.R @ board.rotation).T @ R)[0].ravel()
+        out[i, 1] = (t - cam.R @ np.asarray(board.offset_m) - cam.t) / rig.camera_distance_m
+    return out
+
+
+def _fit_poses(template: np.ndarray, views: list[_View], poses: list,
+               nominal: RigCalibration) -> tuple[np.ndarray, np.ndarray]:
+    """The rig and board parameters fitted to the views' board ``poses`` (the lens held as
+    in ``template``; a Cauchy loss of scale 1 degree): the new template, and each view's
+    disagreement, degrees (the angle between its seen and predicted board rotation)."""
+    free = np.array([p not in _LENS for p in PARAMETERS])
+
+    def fun(x):
+        return _pose_misses(*_unpack(x, free, template, nominal), views, poses).ravel()
+
+    low, high = _bounds(template, nominal)
+    result = least_squares(fun, template[free], bounds=(low[free], high[free]), loss="cauchy",
+                           f_scale=math.radians(1.0), x_scale="jac", method="trf")
+    fitted = template.copy()
+    fitted[free] = result.x
+    misses = result.fun.reshape(-1, 2, 3)
+    return fitted, np.degrees(np.linalg.norm(misses[:, 0], axis=1))
+
+
+def _drop_mistagged(views: list[_View], poses: list, template: np.ndarray,
+                    nominal: RigCalibration, rejected: list,
+                    min_views: int) -> tuple[list, np.ndarray]:
+    """Fit the rig to the board poses (:func:`_fit_poses`) and reject, into ``rejected``,
+    the views that miss by more than :data:`MAX_POSE_DISAGREEMENT_DEG`, fitting again
+    until none does or fewer than ``min_views`` are left: the views kept and the
+    template fitted to them."""
+    while len(views) >= min_views:
+        template, disagreement = _fit_poses(template, views, poses, nominal)
+        bad = disagreement > MAX_POSE_DISAGREEMENT_DEG
+        if not bad.any():
+            break
+        for view, degrees in zip(views, disagreement):
+            if degrees > MAX_POSE_DISAGREEMENT_DEG:
+                rejected.append((view.name, (
+                    f"its tagged angles (theta_rad {view.theta_rad:.6g}, phi_rad "
+                    f"{view.phi_rad:.6g}) disagree with its board pose by {degrees:.1f} degrees "
+                    f"(more than {MAX_POSE_DISAGREEMENT_DEG:g} from the rig fitted to the "
+                    "other views: a wrong encoder reading?)")))
+        views = [v for v, b in zip(views, bad) if not b]
+        poses = [p for p, b in zip(poses, bad) if not b]
+    return views, template
 
 
 #: How far (+-) the solver may move each parameter from its start: focal lengths and
@@ -272,13 +367,17 @@ def calibrate_rig(detections: list[tuple[str, float, float, Detection]], board: 
                              + (f" ({len(rejected)} rejected, first: {rejected[0][0]}: "
                                 f"{rejected[0][1]})" if rejected else ""))
 
-    check_count()
     points = board.object_points
     # The start in the solver's gauge (a tilt about lab X is a carriage zero, see .model).
     nominal = replace(nominal, axis_tilt_x_rad=0.0,
                       phi_zero_rad=nominal.phi_zero_rad - nominal.axis_tilt_x_rad)
+    views = _usable(views, nominal, rejected)
+    check_count()
+    K, D, poses = _board_poses(views, points, nominal, radial_terms)
+    start = _start(views, poses, K, D, nominal, radial_terms)
+    views, template = _drop_mistagged(views, poses, start, nominal, rejected, min_views)
+    check_count()
     free = np.array([p != "k3" or radial_terms == 3 for p in PARAMETERS])
-    template = _start(views, points, nominal, radial_terms)
     x = _solve(template[free], free, template, nominal, views, points, "soft_l1").x
     while True:
         result = _solve(x, free, template, nominal, views, points, "linear")

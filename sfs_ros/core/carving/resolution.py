@@ -177,11 +177,12 @@ def choose_voxel_size(bounds_m, cameras: Sequence[Camera], *, max_memory_bytes: 
     shape = grid_shape(bounds, size)
     if not _fits(shape, max_memory_bytes):
         if source != "footprint":
+            advice = "raise it with --max-memory, or choose a coarser resolution" \
+                if int(np.prod(shape)) <= MAX_VOXELS else "choose a coarser resolution"
             raise ValueError(
                 f"the {source} asked for ({size * 1e3:.4g} mm voxels) is more than this "
                 f"reconstruction may use: {_describe(shape)}, the budget is "
-                f"{max_memory_bytes / (1 << 30):.2f} GiB (raise it with --max-memory, or "
-                f"choose a coarser resolution)")
+                f"{max_memory_bytes / (1 << 30):.2f} GiB ({advice})")
         limit = min(MAX_VOXELS, max_memory_bytes // BYTES_PER_VOXEL)
         volume = float(np.prod(bounds[1] - bounds[0]))
         size = (volume / limit) ** (1.0 / 3.0)

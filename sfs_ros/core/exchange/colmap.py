@@ -112,23 +112,32 @@ def _cameras(path: Path) -> dict[str, tuple[int, int, np.ndarray, tuple]]:
 
 
 def _is_points_line(fields: list[str]) -> bool:
-    """Whether ``fields`` are an image's 2-D points: ``X Y POINT3D_ID`` triples of numbers
-    (none at all for an image without points)."""
+    """Whether ``fields`` may be an image's 2-D points: ``X Y POINT3D_ID`` triples of
+    numbers, each POINT3D_ID a whole number (-1 for none)."""
     if len(fields) % 3:
         return False
     try:
-        for value in fields:
-            float(value)
+        values = [float(value) for value in fields]
     except ValueError:
         return False
-    return True
+    return all(v.is_integer() for v in values[2::3])
 
 
 def _image_lines(lines: list[tuple[int, str]]) -> list[tuple[int, str]]:
-    """The image lines of ``images.txt`` told by their structure, not their position: every
-    line that is not blank nor an image's 2-D points (:func:`_is_points_line`), so a
-    missing points line or a stray blank line moves no image."""
-    return [(n, line) for n, line in lines if not _is_points_line(line.split())]
+    """The image lines of ``images.txt`` told by their structure, not their position.
+
+    After an image line comes at most one line of its 2-D points (:func:`_is_points_line`;
+    blank for none); blank lines beyond it are stray and skipped; any other line is an
+    image. So a missing points line or a stray blank line moves no image, and an image
+    line cut to look like points is still taken as an image (and refused as malformed)."""
+    images, points_due = [], False
+    for n, line in lines:
+        if not line or (points_due and _is_points_line(line.split())):
+            points_due = False
+        else:
+            images.append((n, line))
+            points_due = True
+    return images
 
 
 def _image_root(model: Path) -> Path:
@@ -187,7 +196,10 @@ def read_colmap(folder: Path | str) -> ViewSet:
         if not path.is_file():
             raise ViewError(f"{where}: image {path} does not exist")
         q = values[:4]
-        if not math.isclose(float(np.linalg.norm(q)), 1.0, abs_tol=1e-3):
+        # (A unit quaternion's parts are within [-1, 1]: checked first, the norm of larger
+        # ones could overflow.)
+        if np.any(np.abs(q) > 1.001) or not math.isclose(float(np.linalg.norm(q)), 1.0,
+                                                          abs_tol=1e-3):
             rejected.append((name, f"rotation quaternion {q.tolist()} is not a unit quaternion"))
             continue
         R = Rotation.from_quat([q[1], q[2], q[3], q[0]]).as_matrix()
