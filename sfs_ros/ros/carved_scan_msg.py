@@ -2,9 +2,8 @@
 message and back, bit for bit (the meshing node makes the mesh the offline path makes).
 
 The hull travels as its occupied box, packed a bit a voxel; each silhouette packed a bit a
-pixel; the mesher's input as it is (float32 band distances, float64 points), so a scan of
-49 views of 640 x 480 at resolution 192 is about a megabyte and a half without colour,
-plus 0.9 MB for each view that colours the mesh.
+pixel; the mesher's input as it is (float32 band distances, float64 points); the images
+that colour the mesh as rgb8 (sizes: ``bench/bench_handover.py``).
 """
 
 from __future__ import annotations
