@@ -122,3 +122,41 @@ def test_only_the_views_that_disagree_with_the_hull_are_cut_again():
     assert result.applied and sorted(read) == [BAD, BAD + 7]
     assert not result.resegmented.any()
     assert all(a is b for a, b in zip(result.masks, masks))
+
+
+def settled_on_the_whole_frame(prior, mask, footprint_px):
+    """:func:`settled`'s definition computed on the whole frame (its docstring)."""
+    import cv2
+
+    from sfs_ros.core.carving.fusion import deepest_cut_px
+    from sfs_ros.core.resegment import _SETTLED_FRACTION, _SETTLED_MIN_PX
+
+    square = np.ones((3, 3), np.uint8)
+    outside = mask.view(np.uint8) & (cv2.dilate(prior.view(np.uint8), square) == 0)
+    if cv2.morphologyEx(outside, cv2.MORPH_OPEN, square).any():
+        return False
+    radius = np.sqrt(np.count_nonzero(prior) / np.pi)
+    tolerance = max(_SETTLED_MIN_PX, footprint_px + 1.0) + _SETTLED_FRACTION * radius
+    return deepest_cut_px(mask, prior) <= tolerance
+
+
+def test_settled_on_the_box_around_both_is_the_whole_frames_answer():
+    # Random discs for the prior and masks a few pixels off it (short, wide, shifted, with
+    # a blob beside it), some cut by the frame's edges, and the empty cases: the box
+    # version answers as the whole frame does, settled or not.
+    rng = np.random.default_rng(5)
+    answers = []
+    for _ in range(60):
+        cx, cy, r = rng.uniform(-10, W + 10), rng.uniform(-10, H + 10), rng.uniform(8, 40)
+        prior = disc(cx, cy, r)
+        mask = disc(cx + rng.uniform(-3, 3), cy + rng.uniform(-3, 3), r + rng.uniform(-7, 2))
+        if rng.random() < 0.3:
+            mask |= disc(cx + r + rng.uniform(0, 8), cy, rng.uniform(1, 6))
+        footprint = rng.uniform(0.5, 3.0)
+        answer = settled(prior, mask, footprint)
+        assert answer == settled_on_the_whole_frame(prior, mask, footprint)
+        answers.append(answer)
+    assert 10 < sum(answers) < 50     # both answers are exercised
+    empty = np.zeros((H, W), bool)
+    for prior, mask in ((empty, empty), (empty, disc(80, 60, 10)), (disc(80, 60, 10), empty)):
+        assert settled(prior, mask, 1.0) == settled_on_the_whole_frame(prior, mask, 1.0)

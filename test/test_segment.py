@@ -380,3 +380,60 @@ def test_backdrop_distance_is_the_smallest_mahalanobis_distance():
     # (n, 3) pixels and a strided view read the same colours
     np.testing.assert_array_equal(model.distance(image.reshape(-1, 3)), distance.ravel())
     np.testing.assert_array_equal(model.distance(image[:, ::2]), distance[:, ::2])
+
+
+def random_blobs(shape, seed):
+    """(H, W) uint8 0/1: a few random discs and bars, some reaching the image's edges and
+    corners (where the closing reads the edge pixels repeated), on an empty frame."""
+    rng = np.random.default_rng(seed)
+    h, w = shape
+    yy, xx = np.mgrid[0:h, 0:w]
+    mask = np.zeros(shape, bool)
+    for _ in range(4):
+        cx, cy = rng.uniform(-5, w + 5), rng.uniform(-5, h + 5)
+        mask |= np.hypot(xx - cx, yy - cy) < rng.uniform(2, 12)
+    x0, y0 = rng.integers(0, w - 3), rng.integers(0, h - 3)
+    mask[y0:y0 + rng.integers(1, 4), x0:] = True          # a bar out to the right edge
+    mask &= rng.random(shape) > 0.05                       # pin-holes and cracks to close
+    return mask.astype(np.uint8)
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_close_mask_on_its_box_is_the_whole_frames_closing(seed):
+    # The definition: the whole frame extended by its edge pixels, closed with a disk,
+    # cut back. The box version must give every pixel the same value.
+    import cv2
+
+    from sfs_ros.core.segment import close_mask
+
+    shape = (37 + seed, 53 + 2 * seed)
+    mask = random_blobs(shape, seed)
+    for radius in range(0, 7):
+        k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
+        padded = cv2.copyMakeBorder(mask, radius, radius, radius, radius, cv2.BORDER_REPLICATE)
+        whole = cv2.morphologyEx(padded, cv2.MORPH_CLOSE, k)[radius:radius + shape[0],
+                                                              radius:radius + shape[1]]
+        np.testing.assert_array_equal(close_mask(mask, radius), whole, err_msg=f"radius {radius}")
+    empty = np.zeros(shape, np.uint8)
+    np.testing.assert_array_equal(close_mask(empty, 3), empty)
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_band_redecided_on_its_box_is_the_whole_frames(seed):
+    # The definition: the pixels within ``reach`` (a square) of the outline, found on the
+    # whole frame, take ``distance > _EDGE_SIGMA``; the rest keep their value.
+    import cv2
+
+    from sfs_ros.core.segment import _EDGE_SIGMA, _redecide_band
+
+    shape = (41 + seed, 47 + 3 * seed)
+    mask = random_blobs(shape, seed)
+    distance = np.random.default_rng(seed).uniform(0, 3, shape).astype(np.float32)
+    for reach in (1, 2, 4):
+        square = np.ones((2 * reach + 1, 2 * reach + 1), np.uint8)
+        band = (cv2.dilate(mask, square) > 0) & (cv2.erode(mask, square) == 0)
+        expected = mask.copy()
+        expected[band] = distance[band] > _EDGE_SIGMA
+        ours = mask.copy()
+        _redecide_band(ours, distance, reach)
+        np.testing.assert_array_equal(ours, expected, err_msg=f"reach {reach}")

@@ -713,11 +713,35 @@ def _threshold_mask(rgb: np.ndarray, params: SegmentationParams) -> tuple[np.nda
 
 
 def close_mask(mask: np.ndarray, radius: int) -> np.ndarray:
-    """Morphological closing of (H, W) uint8 ``mask`` with a disk; the image edge is not object."""
-    if not radius:
+    """Morphological closing of (H, W) uint8 ``mask`` with a disk; the image edge is not
+    object (the image is extended by its edge pixels).
+
+    Computed over the mask's bounding box widened by the radius, extended by its edge
+    pixels as the image is: beyond the box the mask is zero, and so are the box's edge
+    pixels that the extension repeats (unless the box meets the image's edge), so each
+    pixel's closing, which reads the mask within twice the radius, is the whole frame's."""
+    box = _box(mask, margin=radius) if radius else None
+    if box is None:
         return mask
-    padded = cv2.copyMakeBorder(mask, radius, radius, radius, radius, cv2.BORDER_REPLICATE)
-    return cv2.morphologyEx(padded, cv2.MORPH_CLOSE, _disk(radius))[radius:-radius, radius:-radius]
+    padded = cv2.copyMakeBorder(mask[box], radius, radius, radius, radius, cv2.BORDER_REPLICATE)
+    closed = np.zeros_like(mask)
+    closed[box] = cv2.morphologyEx(padded, cv2.MORPH_CLOSE,
+                                   _disk(radius))[radius:-radius, radius:-radius]
+    return closed
+
+
+def _redecide_band(mask: np.ndarray, distance: np.ndarray, reach: int) -> None:
+    """Re-decide in place the pixels of (H, W) uint8 ``mask`` within ``reach`` pixels (a
+    square) of its outline: object where ``distance`` ((H, W) float32, backdrop standard
+    deviations) is above ``_EDGE_SIGMA``. Over the mask's bounding box widened by
+    ``reach + 1`` pixels, where the whole band lies."""
+    box = _box(mask, margin=reach + 1)
+    if box is None:
+        return
+    part = mask[box]
+    square = np.ones((2 * reach + 1, 2 * reach + 1), np.uint8)
+    band = (cv2.dilate(part, square) > 0) & (cv2.erode(part, square) == 0)
+    part[band] = distance[box][band] > _EDGE_SIGMA
 
 
 def _undecided_window(labels: np.ndarray) -> tuple[slice, slice]:
@@ -793,10 +817,7 @@ def _graph_cut_mask(rgb: np.ndarray, params: SegmentationParams) -> tuple[np.nda
     chosen = ((labels == cv2.GC_FGD) | (labels == cv2.GC_PR_FGD)).astype(np.float32)
     mask = (cv2.resize(chosen, (w, h), interpolation=cv2.INTER_LINEAR) > 0.5).astype(np.uint8)
     # Full-resolution boundary: re-decide a band one working pixel wide on each side.
-    reach = int(np.ceil(1 / scale)) + 1
-    square = np.ones((2 * reach + 1, 2 * reach + 1), np.uint8)
-    band = (cv2.dilate(mask, square) > 0) & (cv2.erode(mask, square) == 0)
-    mask[band] = distance[band] > _EDGE_SIGMA
+    _redecide_band(mask, distance, int(np.ceil(1 / scale)) + 1)
     radius = int(round(params.close_fraction * np.sqrt(np.count_nonzero(mask))))
     return close_mask(mask, radius), background, params.object_sigma
 
