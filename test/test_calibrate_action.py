@@ -153,7 +153,7 @@ def test_the_calibration_applied_to_the_running_cell_wins_the_accuracy_back(cali
 def test_the_result_names_the_rig_the_views_and_the_nodes(calibrated):
     answer = calibrated["answer"]
     assert answer.success and answer.applied
-    assert {f"{NAMESPACE}/{n}" for n in ("reconstruction", "camera", "state_publisher")} \
+    assert {f"{NAMESPACE}/{n}" for n in ("carving", "camera", "state_publisher")} \
         <= set(answer.applied_nodes)
     assert answer.views_used + len(answer.views_rejected) == len(PLAN["views"])
     assert answer.views_used >= 30 and answer.rms_px < 0.5

@@ -4,7 +4,7 @@ The mock cell is brought up as in test_cell.py (:mod:`mock_cell`: small
 camera, fast axes, 64^3, a 17-view plan), the recorder among its nodes. The scan
 runs through :class:`CellClient` while ``recorder/start`` .. ``recorder/stop``
 records it; ``sfs-reconstruct BAG`` must then give the mesh the
-reconstruction node wrote: the bag holds the masks and joint states the node
+carving node wrote: the bag holds the masks and joint states the node
 carved and the parameters it ran with, and the offline reader feeds them to
 the same code in the same order.
 """
@@ -147,7 +147,7 @@ def test_the_bag_is_a_ros2_mcap_that_rosbags_opens(recorded):
     assert all(types[f"{NAMESPACE}/{n}"] == t for n, (t, _) in TOPICS.items())
     assert len(parameters) == 1
     document = json.loads(STORE.deserialize_cdr(parameters[0], "std_msgs/msg/String").data)
-    assert set(document["nodes"]) == {"reconstruction", "segmentation", "scan", "camera"}
+    assert set(document["nodes"]) == {"carving", "meshing", "segmentation", "scan", "camera"}
     assert document["unavailable"] == {}
     assert document["reconstruction"]["resolution"] == RESOLUTION
     data = (recorded["bag"] / f"{recorded['bag'].name}.mcap").read_bytes()
@@ -174,7 +174,7 @@ def test_the_bag_exports_its_captures_for_other_tools(recorded, tmp_path):
     # The captured images (the mug in colour on a white backdrop), not the 0/255 masks.
     image = read_image(plain.views[0].image_path)
     assert len(np.unique(image)) > 16 and np.any(image[..., 0] != image[..., 2])
-    # Tagged with the encoder angles the reconstruction node stored for the same captures.
+    # Tagged with the encoder angles the carving node stored for the same captures.
     live = read_session(recorded["summary"]["session_dir"])
     assert sorted((v.theta_rad, v.phi_rad) for v in plain.views) == \
         sorted((v.theta_rad, v.phi_rad) for v in live.views)

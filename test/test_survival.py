@@ -7,7 +7,7 @@ delivered exactly once:
   emptied again.
 
 Exactly once, checked against the plan: the scan node's progress lists one capture per
-planned view; the reconstruction's session folder holds each of those captures' views once
+planned view; the carving node's session folder holds each of those captures' views once
 and nothing else; the mesh is made of all of them; the bags of the scan hold each capture.
 """
 
@@ -41,13 +41,13 @@ pytestmark = pytest.mark.cell
 #: mock_hardware is the controller and the camera: killing it is a power cut of both. The
 #: captures taken while the recorder is down reach its new bag when the scan node sees it
 #: subscribe again (every capture is sent again).
-KILLED = ("mock_hardware", "motor", "segmentation", "recorder", "reconstruction", "scan")
+KILLED = ("mock_hardware", "motor", "segmentation", "recorder", "carving", "meshing", "scan")
 #: The first kill after this many views are captured, then one more per view: the last
-#: (the scan node) at view 7 of 17, so every node dies while views are being taken however
+#: (the scan node) at view 8 of 17, so every node dies while views are being taken however
 #: fast the scan goes (waiting for a victim's start-up between kills let a quick scan end
 #: before the last ones).
 FIRST_KILL_AT_VIEW = 2
-#: Bounds the whole scan with six restarts on a loaded machine (a hang bound only).
+#: Bounds the whole scan with seven restarts on a loaded machine (a hang bound only).
 SURVIVAL_TIMEOUT_S = 900.0
 
 #: Retries generous enough to ride through a restart (a node's start-up under load takes
@@ -178,7 +178,7 @@ def _kill_each_node_mid_scan(supervised) -> set:
     for name in KILLED:
         assert f"node {name} ended by itself (exit status -9)" in log, name
     assert "took up scan 1 (running)" in log        # the scan node resumed, not restarted
-    assert "took up the open scan" in log            # so did the reconstruction
+    assert "took up the open scan" in log            # so did the carving node
     stamps = _delivered_once(output, scan, summary)
     # The captures sent again are still on their way when the scan node logs that it sends
     # them: stopping the cell then could close the bag before they are in. The recorder

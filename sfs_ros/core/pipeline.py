@@ -1,9 +1,12 @@
 """The whole reconstruction: tagged images in, a checked mesh and a report out.
 
-Stages (each timed in the report): segmentation, bounding box, fusion of
-the silhouettes, carving, refinement below the hull (on request), meshing (cloud
-of points + advancing front, or marching cubes), mesh checks, colour (on request),
-reprojection of the mesh into every view.
+Two halves: :func:`carve_scan` (stages: segmentation, bounding box, consensus,
+fusion of the silhouettes, carving, refinement below the hull on request, the
+mesher's input), whose :class:`~sfs_ros.core.carved_scan.CarvedScan` may cross a
+process (the cell's carving and meshing nodes), and
+:func:`sfs_ros.core.mesh_scan.mesh_scan` (meshing, mesh checks, colour on
+request, reprojection of the mesh into every view, the report).
+:func:`reconstruct` runs both. Each stage is timed in the report.
 """
 
 from __future__ import annotations
@@ -49,7 +52,7 @@ __all__ = ["MESHERS", "RESOLUTION_RANGE", "CarvedScan", "Precomputed", "Reconstr
 #: The meshers' names (:data:`sfs_ros.core.meshing.meshers.MESHERS`); the first is the default.
 MESHERS = tuple(MESHER_REGISTRY)
 #: Voxels along the box's longest side a reconstruction may be asked for, inclusive: one
-#: range for the command line, the reconstruction node's parameter and its requests (the
+#: range for the command line, the carving node's parameter and the requests (the
 #: memory budget then decides whether a grid fits).
 RESOLUTION_RANGE = (8, 2048)
 
