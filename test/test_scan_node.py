@@ -125,7 +125,7 @@ def test_idle_services_and_a_start_without_the_reconstruction_pauses(start):
         assert time.monotonic() - sent_s >= SERVICE_TIMEOUT_S
         assert status.level == DiagnosticStatus.ERROR
         assert f"scan paused at view 1 of {N}" in status.message, status.message
-        assert "service reconstruction/new_scan is not available (waited 1 s)" in status.message
+        assert "service carving/new_scan is not available (waited 1 s)" in status.message
         assert node.process.alive()
     node.probe.spin_for(QUIET_S)
     assert node.commands == []                 # nothing moved before the reset

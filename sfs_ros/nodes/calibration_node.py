@@ -6,7 +6,7 @@
 | sub | ``calibration/image``, ``calibration/joint_state`` | Image, JointState | a board scan's captures |
 | pub | ``capture/stored`` | std_msgs/Header | a receipt for each capture received |
 | cli | ``scan`` | sfs_ros_interfaces/Scan | the scan node's action (object "board") |
-| cli | ``reconstruction/get_parameters`` | rcl_interfaces | the cell's rig now (the fit's start) |
+| cli | ``carving/get_parameters`` | rcl_interfaces | the cell's rig now (the fit's start) |
 | cli | each rig holder's parameter services | rcl_interfaces | ``apply``: the new rig |
 
 A ``calibrate`` goal: a ``Scan`` goal of object ``board`` with the calibration plan

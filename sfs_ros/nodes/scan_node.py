@@ -17,10 +17,10 @@
 | srv | ``~/start`` | std_srvs/Trigger | alias: a default ``scan`` goal, not followed |
 | srv | ``~/cancel`` | std_srvs/Trigger | stop the axes, keep what was captured |
 | srv | ``~/resume`` | std_srvs/Trigger | go on with the views not yet captured |
-| sub | ``reconstruction/status`` | sfs_ros_interfaces/ReconstructionStatus | for the result |
+| sub | ``carving/status`` | sfs_ros_interfaces/ReconstructionStatus | for the result |
 | cli | ``motor/home``, ``motor/stop`` | std_srvs/Trigger | the motor node's |
 | cli | ``camera/capture`` | std_srvs/Trigger | our camera's shutter (trigger ``shutter``) |
-| cli | ``reconstruction/new_scan`` | sfs_ros_interfaces/NewScan | the reconstruction's reset |
+| cli | ``carving/new_scan`` | sfs_ros_interfaces/NewScan | the carving node's reset |
 
 Names: :mod:`sfs_ros.ros.names` (the node is ``scan``, so ``~/start`` is
 ``scan/start`` in the cell's namespace; the action is ``<namespace>/scan`` and the status
@@ -163,6 +163,7 @@ from sfs_ros.ros.convert import (
 )
 from sfs_ros.ros.driver_camera import DRIVER_PARAMS, DriverCamera
 from sfs_ros.ros.names import (
+    CARVING_NODE,
     CELL_STATUS,
     DIAGNOSTICS,
     RECONSTRUCTION_STATUS,
@@ -201,7 +202,7 @@ _BOARD = ("calibration/image", "calibration/joint_state")
 #: By the scan's object: the nodes whose subscriptions must be there before its first
 #: capture, and the topics of each.
 LISTENERS = {
-    "object": {"segmentation": _CAPTURES, "reconstruction": _MASKS,
+    "object": {"segmentation": _CAPTURES, CARVING_NODE: _MASKS,
                RECORDER_NODE: _CAPTURES + _MASKS},
     "board": {"calibration": _BOARD, RECORDER_NODE: _BOARD},
 }

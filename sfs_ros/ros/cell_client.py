@@ -5,7 +5,7 @@ What a robot cell's controller (``sfs-demo``, ``sfs-ctl``) does over ROS: send a
 scan node's ``CellStatus`` topic, and call the reconstruction's typed ``Reconstruct``
 service (``sfs_ros_interfaces``). The std_srvs/Trigger services stay reachable by
 their short names (``"reset"``, ``"home"``, ``"scan/start"``, ...), which
-:data:`sfs_ros.ros.names.SERVICES` maps to the node's own (``reconstruction/reset``,
+:data:`sfs_ros.ros.names.SERVICES` maps to the node's own (``carving/reset``,
 ``motor/home``, ...) in the cell's namespace (default
 :data:`sfs_ros.ros.names.NAMESPACE`). :class:`CellClient` runs its own node in a
 private rclpy context, spun by a background thread, so it can be used from plain

@@ -54,6 +54,7 @@ from sfs_ros.cell.intrinsics import (
     rig_update,
 )
 from sfs_ros.ros.convert import camera_info_intrinsics
+from sfs_ros.ros.names import CARVING_NODE
 from sfs_ros.ros.params import Param
 from sfs_ros.ros.services import ServiceError, call
 
@@ -62,8 +63,8 @@ __all__ = ["DriverCamera", "DRIVER_PARAMS", "TRANSPORTS", "RELIABILITIES", "INTR
 TRANSPORTS = ("raw", "compressed")
 RELIABILITIES = ("auto", "reliable", "best_effort")
 INTRINSICS_SOURCES = ("rig", "driver")
-#: The carving node (relative to the scan node's namespace): it holds the scan's rig.
-RECONSTRUCTION = "carving"
+#: The node that holds the scan's rig (relative to the scan node's namespace).
+RECONSTRUCTION = CARVING_NODE
 #: Rig parameters read from the reconstruction node to compare.
 _RIG_NAMES = ("projection", "width", "height", "fx", "fy", "cx", "cy", "distortion")
 #: Depth of the frames' subscription (a second of a 10 Hz stream).

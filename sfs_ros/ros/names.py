@@ -18,7 +18,7 @@ is reached by remapping these.
 
 from __future__ import annotations
 
-__all__ = ["NAMESPACE", "DIAGNOSTICS", "RECORDER_NODE", "SERVICES", "TYPED_SERVICES",
+__all__ = ["NAMESPACE", "DIAGNOSTICS", "CARVING_NODE", "RECORDER_NODE", "SERVICES", "TYPED_SERVICES",
            "SCAN_ACTION", "CALIBRATE_ACTION", "CELL_STATUS", "RECONSTRUCTION_STATUS", "MESHING_STATUS",
            "CONFIGURATION_ERROR",
            "private", "status_name"]
@@ -31,6 +31,9 @@ DIAGNOSTICS = "/diagnostics"
 #: rcl cannot read): ``sfs-cell`` does not start it again.
 CONFIGURATION_ERROR = 2
 
+#: The carving node's name: it holds the scan's views and rig (the scan waits for its
+#: subscriptions, a calibration or a driver's intrinsics are set on it).
+CARVING_NODE = "carving"
 #: The recorder's node name: the scan node knows a restarted recorder by it (and sends it
 #: the scan's captures again, so that its new bag holds them).
 RECORDER_NODE = "recorder"

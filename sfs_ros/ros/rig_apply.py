@@ -29,7 +29,7 @@ from sfs_ros.cell.paths import APPLIED_RIG
 from sfs_ros.core.calibration.outputs import yaml_document
 from sfs_ros.core.exchange.files import write_atomic
 from sfs_ros.core.geometry.rig import RigCalibration
-from sfs_ros.ros.names import SERVICES
+from sfs_ros.ros.names import CARVING_NODE
 from sfs_ros.ros.params import ParameterError, check
 from sfs_ros.ros.rig_params import RIG_PARAMS, rig_calibration
 
@@ -38,7 +38,7 @@ __all__ = ["AppliedRig", "HOLDER_PARAMETER", "apply_rig", "cell_rig", "read_rig_
 #: A node holds the rig if it declares this parameter.
 HOLDER_PARAMETER = "camera_distance_m"
 #: The node whose ``output_dir`` is the cell's output folder (it holds the rig too).
-RECONSTRUCTION_NODE = SERVICES["reset"].split("/", 1)[0]
+RECONSTRUCTION_NODE = CARVING_NODE
 #: Seconds after which an unanswered parameter service call is sent again.
 RESEND_S = 2.0
 #: Discovery: the cell's nodes are taken as found once the reconstruction node is and the
