@@ -1,7 +1,7 @@
 """End to end: a 72-view simulated scan through the cell's nodes, stage by stage.
 
 The cell runs as in ``sfs-demo`` (mock hardware with its mock camera, motor,
-scan, segmentation and reconstruction nodes, each a separate process; the
+scan, segmentation, carving and meshing nodes, each a separate process; the
 repository's config: 640 x 480 camera, the mock axes' real speeds, 192^3),
 with a plan of three rings of 24 views. An observer node in this process
 sees each capture on ``capture/image`` and its receipt on ``capture/stored``,
@@ -10,7 +10,7 @@ and calls ``reconstruct`` the moment the last receipt arrives.
 Stages (sums over the views, seconds): motion (command to settled, scan
 node), capture (shutter call to frame in hand: rendering plus the frame's
 trip), segmentation (segmentation node), storing and carving
-(reconstruction node), transport (capture seen to receipt, minus
+(carving node), transport (capture seen to receipt, minus
 segmentation and carving: the two hops and any queueing), meshing (the
 ``reconstruct`` call: the pipeline again on the stored masks, until the mesh
 and its report are written), the latency from the last view (its capture seen

@@ -6,12 +6,15 @@ mesh the offline path gives, byte for byte, for every mesher and with colour.
 """
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
 from builtin_interfaces.msg import Time
 from rclpy.serialization import deserialize_message, serialize_message
 
+from sfs_ros.cell.mesh_files import THUMBNAIL_PX, thumbnail
+from sfs_ros.core.exchange.views import read_image
 from sfs_ros.core.mesh_scan import mesh_scan
 from sfs_ros.core.meshing.meshers import MESHERS, mesher
 from sfs_ros.core.pipeline import ReconstructionParams, carve_scan, reconstruct
@@ -20,6 +23,10 @@ from sfs_ros_interfaces.msg import CarvedScan as CarvedScanMsg
 
 HAND_OVER = HandOver(scan_name="scan_007", session_dir="/data/scan_007", views_received=24,
                      frame_id="sfs_turntable")
+#: A thumbnail is a JPEG of quality 90 on the wire: mean |error| per channel (0..255) on the
+#: rendered mug's image, scaled down as the carving node does; a few units, far from the
+#: 128 of an unrelated image.
+THUMBNAIL_ERROR_MAX = 4.0
 
 
 def _without_times(report: dict) -> str:
@@ -52,7 +59,7 @@ def test_meshing_the_message_gives_the_offline_mesh_byte_for_byte(halves):
 
 def test_the_message_carries_the_carving_exactly(halves):
     _, carved, received, hand_over, _ = halves
-    assert hand_over == HAND_OVER
+    assert replace(hand_over, thumbnails={}) == HAND_OVER and hand_over.thumbnails == {}
     assert np.array_equal(received.occupancy, carved.occupancy)
     assert received.grid.shape == carved.grid.shape
     assert received.grid.voxel_size == carved.grid.voxel_size
@@ -83,6 +90,20 @@ def test_the_message_is_sized_for_the_wire(halves):
                + sum(np.asarray(a).nbytes for a in vars(mesher_input).values()
                      if isinstance(a, np.ndarray)))
     assert payload <= size <= 1.1 * payload + 64_000
+
+
+def test_thumbnails_cross_for_the_contact_sheet(halves, mug_views):
+    _, carved, _, _, _ = halves
+    name = carved.views[3].name
+    image = thumbnail(read_image(next(v for v in mug_views.views if v.name == name).image_path))
+    assert image.shape[1] == THUMBNAIL_PX
+    msg = carved_scan_to_msg(carved, replace(HAND_OVER, thumbnails={name: image}),
+                             stamp=_stamp())
+    _, hand_over = carved_scan_from_msg(deserialize_message(serialize_message(msg),
+                                                            CarvedScanMsg))
+    [(got_name, got)] = hand_over.thumbnails.items()
+    assert got_name == name and got.shape == image.shape
+    assert np.abs(got.astype(int) - image).mean() <= THUMBNAIL_ERROR_MAX
 
 
 def test_a_message_that_does_not_add_up_is_refused_by_name(halves):

@@ -64,7 +64,7 @@ from ..core.meshing.hull_distance import DistanceImages
 from ..core.pipeline import Precomputed, ReconstructionParams, carve_scan
 from ..core.result_files import SheetViews
 from ..core.segment import SegmentationParams
-from .mesh_files import HandOver, mask_to_rgb, mesh_paths, write_mesh
+from .mesh_files import HandOver, mask_to_rgb, mesh_paths, thumbnail, write_mesh
 from .paths import check_scan_name_format
 
 __all__ = ["MASK_SEGMENTATION", "DuplicateViewError", "AddedView", "LiveReconstruction",
@@ -523,11 +523,15 @@ class LiveReconstruction:
                           masks=masks, images=images, precomputed=self._precomputed)
 
     def hand_over(self) -> HandOver:
-        """What goes with this scan's carving: its name, session folder, views received."""
+        """What goes with this scan's carving: its name, session folder, views received and
+        the thumbnails of the captured images kept."""
         if self._session is None:
             raise ValueError("no views received yet")
         return HandOver(scan_name=self._session.name, session_dir=str(self._session),
-                        views_received=len(self._views))
+                        views_received=len(self._views),
+                        thumbnails={self._views[key].name: thumbnail(rgb)
+                                    for key, rgb in self._colour_images.items()
+                                    if key in self._views})
 
     def reconstruct(self, name: str | None = None, *, pictures: bool = True,
                     resolution: int | None = None, bounds_m=None, mesher: str | None = None,

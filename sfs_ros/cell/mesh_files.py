@@ -15,10 +15,11 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from ..core.carved_scan import CarvedScan
@@ -27,19 +28,36 @@ from ..core.mesh_scan import Reconstruction, mesh_scan
 from ..core.result_files import SheetViews, add_pictures, write_result
 from .paths import confined_path
 
-__all__ = ["HandOver", "MeshFiles", "mask_to_rgb", "mesh_paths", "write_mesh"]
+__all__ = ["THUMBNAIL_PX", "HandOver", "MeshFiles", "mask_to_rgb", "mesh_paths", "thumbnail",
+           "write_mesh"]
+
+
+#: Widest thumbnail of a view's image for the contact sheet (its tiles are 200 pixels).
+THUMBNAIL_PX = 256
 
 
 @dataclass(frozen=True)
 class HandOver:
     """What comes with a carved scan besides the carving: the scan's ``scan_name`` (its
     session folder's), that ``session_dir`` (on the carving side's host), the
-    ``views_received`` and the ``frame_id`` of the grid and cameras."""
+    ``views_received``, the ``frame_id`` of the grid and cameras, and ``thumbnails``:
+    {view name: (h, w, 3) uint8 RGB}, the views' captured images scaled down
+    (:func:`thumbnail`) for the contact sheet."""
 
     scan_name: str
     session_dir: str
     views_received: int
     frame_id: str = ""
+    thumbnails: dict = field(default_factory=dict)
+
+
+def thumbnail(rgb: np.ndarray) -> np.ndarray:
+    """(h, w, 3) uint8: ``rgb`` scaled down to at most :data:`THUMBNAIL_PX` wide."""
+    height, width = rgb.shape[:2]
+    if width <= THUMBNAIL_PX:
+        return rgb
+    size = (THUMBNAIL_PX, max(1, round(height * THUMBNAIL_PX / width)))
+    return cv2.resize(rgb, size, interpolation=cv2.INTER_AREA)
 
 
 @dataclass(frozen=True)
@@ -73,13 +91,13 @@ def mesh_paths(output_dir, name: str) -> dict[str, Path]:
             "contact_sheet": confined_path(root, stem + ".views.png", suffixes=(".png",))}
 
 
-def _sheet_views(carved: CarvedScan) -> SheetViews:
-    """Every segmented view: its image where the carved scan has one (the views that
-    colour the mesh), else its mask; its mask and angles."""
+def _sheet_views(carved: CarvedScan, thumbnails: dict) -> SheetViews:
+    """Every segmented view: its thumbnail, else its image where the carved scan has one
+    (the views that colour the mesh), else its mask; its mask and angles."""
     images = dict(zip(carved.colour_views, carved.colour_images))
     return SheetViews(names=[v.name for v in carved.views],
-                      images=[images[i] if i in images else mask_to_rgb(m)
-                              for i, m in enumerate(carved.masks)],
+                      images=[thumbnails.get(v.name, images.get(i, mask_to_rgb(m)))
+                              for i, (v, m) in enumerate(zip(carved.views, carved.masks))],
                       masks=list(carved.masks), angles_rad=[v.angles_rad for v in carved.views])
 
 
@@ -100,8 +118,8 @@ def write_mesh(carved: CarvedScan, hand_over: HandOver, output_dir, name: str | 
         Write the picture, viewer and contact sheet now; False: only the mesh and its
         report, the pictures when ``pictures_due`` is called.
     sheet_views : SheetViews or None, keyword-only
-        The contact sheet's views; None: those of ``carved`` (the images it carries,
-        the masks of the others).
+        The contact sheet's views; None: those of ``carved`` with ``hand_over``'s
+        thumbnails (else the images it carries, else the masks).
 
     Returns
     -------
@@ -122,7 +140,7 @@ def write_mesh(carved: CarvedScan, hand_over: HandOver, output_dir, name: str | 
     colours = result.vertex_colors
     picture_files = dict(preview=paths["preview"], html=paths["html"],
                          contact_sheet=paths["contact_sheet"],
-                         sheet_views=sheet_views or _sheet_views(carved))
+                         sheet_views=sheet_views or _sheet_views(carved, hand_over.thumbnails))
     written = write_result(result, paths["mesh"], vertex_colors=colours, report=paths["report"],
                            extra={"session": hand_over.session_dir}, within=root,
                            **(picture_files if pictures else {}))

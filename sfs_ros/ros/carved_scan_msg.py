@@ -3,7 +3,8 @@ message and back, bit for bit (the meshing node makes the mesh the offline path 
 
 The hull travels as its occupied box, packed a bit a voxel; each silhouette packed a bit a
 pixel; the mesher's input as it is (float32 band distances, float64 points); the images
-that colour the mesh as rgb8 (sizes: ``bench/bench_handover.py``).
+that colour the mesh as rgb8 (sizes: ``bench/bench_handover.py``); the hand-over's
+thumbnails, for the contact sheet only, as JPEG.
 """
 
 from __future__ import annotations
@@ -11,10 +12,11 @@ from __future__ import annotations
 import array
 import json
 import math
-from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
+from sfs_ros.cell.mesh_files import THUMBNAIL_PX, HandOver
 from sfs_ros.core.carved_scan import ROLES, CarvedScan, ScanView
 from sfs_ros.core.carving.hull import occupied_bounds
 from sfs_ros.core.geometry.camera import Camera
@@ -26,17 +28,8 @@ from sfs_ros_interfaces.msg import CarvedView
 
 __all__ = ["HandOver", "carved_scan_from_msg", "carved_scan_to_msg"]
 
-
-@dataclass(frozen=True)
-class HandOver:
-    """What a carved scan message says of its scan besides the carving: the scan's
-    ``scan_name``, its ``session_dir`` on the carving node's host, the ``views_received``
-    and the ``frame_id`` of the grid and cameras."""
-
-    scan_name: str
-    session_dir: str
-    views_received: int
-    frame_id: str
+#: JPEG quality of the views' thumbnails (pictures only: the mesh never sees them).
+THUMBNAIL_QUALITY = 90
 
 
 def _bytes(values: np.ndarray, code: str) -> array.array:
@@ -57,7 +50,24 @@ def _unbits(data, shape: tuple[int, ...], what: str) -> np.ndarray:
     return np.unpackbits(packed, count=count).reshape(shape).view(bool)
 
 
-def _view_msg(view: ScanView, mask: np.ndarray, colour: tuple | None) -> CarvedView:
+def _jpeg(rgb: np.ndarray) -> array.array:
+    ok, data = cv2.imencode(".jpg", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR),
+                            [cv2.IMWRITE_JPEG_QUALITY, THUMBNAIL_QUALITY])
+    if not ok:
+        raise ValueError(f"a thumbnail of {rgb.shape} could not be encoded")
+    return _bytes(data, "B")
+
+
+def _unjpeg(data, name: str) -> np.ndarray:
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+    if image is None or image.shape[1] > THUMBNAIL_PX:
+        raise ValueError(f"view {name!r}'s thumbnail_jpeg is not a JPEG of at most "
+                         f"{THUMBNAIL_PX} pixels wide")
+    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+
+
+def _view_msg(view: ScanView, mask: np.ndarray, colour: tuple | None,
+              thumb: np.ndarray | None) -> CarvedView:
     camera = view.camera
     theta, phi = view.angles_rad if view.angles_rad is not None else (math.nan, math.nan)
     msg = CarvedView(name=view.name, role=view.role, orthographic=bool(camera.orthographic),
@@ -66,6 +76,8 @@ def _view_msg(view: ScanView, mask: np.ndarray, colour: tuple | None) -> CarvedV
     msg.r = np.asarray(camera.R, np.float64).ravel()
     msg.t = np.asarray(camera.t, np.float64).ravel()
     msg.mask_bits = _bits(mask)
+    if thumb is not None:
+        msg.thumbnail_jpeg = _jpeg(thumb)
     if colour is not None:
         colour_mask, image = colour
         msg.colour_mask_bits = _bits(colour_mask)
@@ -108,7 +120,7 @@ def carved_scan_to_msg(carved: CarvedScan, hand_over: HandOver, *, stamp) -> Car
     _mesher_fields(msg, carved.mesher_input)
     colours = {i: (m, image) for i, m, image in zip(carved.colour_views, carved.colour_masks,
                                                     carved.colour_images)}
-    msg.views = [_view_msg(view, mask, colours.get(i))
+    msg.views = [_view_msg(view, mask, colours.get(i), hand_over.thumbnails.get(view.name))
                  for i, (view, mask) in enumerate(zip(carved.views, carved.masks))]
     msg.colour_views = _bytes(np.asarray(carved.colour_views, np.uint32), "I")
     return msg
@@ -181,6 +193,8 @@ def carved_scan_from_msg(msg: CarvedScanMsg) -> tuple[CarvedScan, HandOver]:
                         colour_views=colour_views, colour_masks=[m for m, _ in colours],
                         colour_images=[image for _, image in colours],
                         report=json.loads(msg.report_json or "{}"))
+    thumbnails = {v.name: _unjpeg(v.thumbnail_jpeg, v.name) for v in msg.views
+                  if len(v.thumbnail_jpeg)}
     return carved, HandOver(scan_name=msg.scan_name, session_dir=msg.session_dir,
                             views_received=int(msg.views_received),
-                            frame_id=msg.header.frame_id)
+                            frame_id=msg.header.frame_id, thumbnails=thumbnails)

@@ -58,6 +58,13 @@ def _wrap(text: str, width_px: int, scale: float, lines: int) -> list[str]:
     return out + [" ".join(words)] if words else out
 
 
+def _fits(mask_shape: tuple, image_shape: tuple) -> bool:
+    """Whether a mask of ``mask_shape`` (H, W) outlines an image of ``image_shape``: the same
+    size, or the image scaled down from it (the same aspect to within a pixel)."""
+    (mh, mw), (ih, iw) = mask_shape[:2], image_shape
+    return len(mask_shape) == 2 and ih <= mh and abs(iw * mh - mw * ih) <= mh
+
+
 def _check_view(i: int, name: str, image, mask, angles, iou, reason) -> tuple:
     """One view's entries, validated: (image, mask, angles, iou, reason)."""
     where = f"view {i} ({name!r})"
@@ -68,10 +75,11 @@ def _check_view(i: int, name: str, image, mask, angles, iou, reason) -> tuple:
                              f"shape {image.shape} dtype {image.dtype}")
     if mask is not None:
         mask = np.asarray(mask)
-        if image is None or mask.dtype != bool or mask.shape != image.shape[:2]:
+        if image is None or mask.dtype != bool or not _fits(mask.shape, image.shape[:2]):
             raise ValueError(f"{where}: mask must be None or (H, W) bool of its image's size "
-                             f"{None if image is None else image.shape[:2]}, got shape "
-                             f"{mask.shape} dtype {mask.dtype}")
+                             f"{None if image is None else image.shape[:2]} (or of the image "
+                             f"it was scaled down from), got shape {mask.shape} dtype "
+                             f"{mask.dtype}")
     if angles is not None:
         angles = tuple(angles)
         if len(angles) != 2 or not all(isinstance(a, Real) and math.isfinite(a) for a in angles):
@@ -108,7 +116,8 @@ def _check(images, masks, names, angles_rad, ious, rejected, columns, tile_px, b
 
 
 def _thumbnail(image: np.ndarray, mask, box_w: int, box_h: int, thickness: int) -> np.ndarray:
-    """(box_h, box_w, 3) uint8: ``image`` scaled to fit, centred, with the outline of ``mask``."""
+    """(box_h, box_w, 3) uint8: ``image`` scaled to fit, centred, with the outline of ``mask``
+    (of the image's size, or of the full image a smaller ``image`` was scaled down from)."""
     h, w = image.shape[:2]
     scale = min(box_w / w, box_h / h)
     tw, th = max(1, round(w * scale)), max(1, round(h * scale))
@@ -116,7 +125,8 @@ def _thumbnail(image: np.ndarray, mask, box_w: int, box_h: int, thickness: int) 
     if mask is not None:
         contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_LIST, cv2.CHAIN_APPROX_SIMPLE)
         # Pixel centres map as (x + 0.5) * scale - 0.5; polylines takes 1/16-pixel fixed point.
-        scaled = [np.round(((c[:, 0] + 0.5) * (tw / w, th / h) - 0.5) * 16).astype(np.int32)
+        mh, mw = mask.shape[:2]
+        scaled = [np.round(((c[:, 0] + 0.5) * (tw / mw, th / mh) - 0.5) * 16).astype(np.int32)
                   for c in contours]
         cv2.polylines(thumb, scaled, True, OUTLINE_RGB, thickness, cv2.LINE_8, shift=4)
     box = np.full((box_h, box_w, 3), BACKGROUND_RGB, np.uint8)
