@@ -95,6 +95,7 @@ from std_srvs.srv import Trigger
 
 from sfs_ros.cell.live import DuplicateViewError, LiveReconstruction, check_scan_name
 from sfs_ros.cell.mesh_options import RESOLUTION_RANGE, MeshOptions, mesh_options
+from sfs_ros.cell.messages import check_image_size
 from sfs_ros.core.carving.resolution import (
     default_memory_budget,
     grid_shape,
@@ -179,18 +180,10 @@ STORE_RETRY_S = 1.0
 EARLIER_VIEWS_KEPT = 10_000
 
 
-def _check_size(msg: Image, size: tuple[int, int], what: str) -> None:
-    """ValueError unless the image ``msg`` is ``size`` (width, height) pixels, the rig's
-    (checked before its pixels are looked at or kept)."""
-    if (msg.width, msg.height) != size:
-        raise ValueError(f"{what} is {msg.width}x{msg.height} pixels, expected the rig's "
-                         f"{size[0]}x{size[1]} (width x height)")
-
-
 def _decode_mask(msg: Image, size: tuple[int, int]) -> tuple[np.ndarray, str]:
     """A mono8 mask (a copy) and its frame id; ValueError for another size than ``size``
     (the rig's width, height), another encoding or a bad layout."""
-    _check_size(msg, size, "mask")
+    check_image_size(msg, size, "mask")
     if msg.encoding != "mono8":
         raise ValueError(f"mask encoding is {msg.encoding!r}, expected 'mono8'")
     return msg_to_image(msg).copy(), msg.header.frame_id
@@ -245,10 +238,10 @@ class CarvingNode(Node):
         self._rehearsal = None
         super().__init__(NODE_NAME, **kwargs)
         values = declare(self, PARAMS)
-        # Frame of the hull, mesh and camera poses: the object frame on the turntable.
+        # Frame of the hull, camera poses and carved scan: the object frame on the turntable.
         self._frame_id = frame_names(declare(self, FRAME_PARAMS)).turntable_frame
         if not values["output_dir"].strip():
-            raise ParameterError("output_dir", "is required: the folder for scans and meshes")
+            raise ParameterError("output_dir", "is required: the folder for the scans")
         calibration = rig_calibration(values)
         bounds = _bounds(values)
         try:
@@ -357,7 +350,7 @@ class CarvingNode(Node):
         """A captured image, kept to colour the mesh (its view may come before or after)."""
         try:
             stamp = stamp_key(msg.header.stamp)
-            _check_size(msg, self._size, "captured image")
+            check_image_size(msg, self._size, "captured image")
             image = msg_to_image(msg)
             if image.ndim != 3 or image.dtype != np.uint8:
                 raise ValueError(f"encoding {msg.encoding!r}, expected rgb8 or bgr8")
