@@ -10,7 +10,7 @@ from visualization_msgs.msg import Marker
 from sfs_ros.core.meshing.decimate import decimate
 from sfs_ros.ros.convert import mesh_to_marker
 
-#: The reconstruction node's default ``display_triangles``.
+#: The meshing node's default ``display_triangles``.
 BUDGET = 10000
 RADIUS_M = 0.05
 

@@ -2,7 +2,7 @@
 
 A ``Reconstruct`` request (``sfs_ros_interfaces/srv/Reconstruct``) may set, for that one
 mesh, the resolution, the carving box, the mesher, the colour and the mesh's file name;
-each left empty takes the reconstruction node's setting. :func:`mesh_options` turns the
+each left empty takes the carving or meshing node's setting. :func:`mesh_options` turns the
 request's fields into :class:`MeshOptions` (None = the node's setting) or a ValueError
 naming the field, what it was and what was expected. The file name is confined to the
 output folder: a plain name with a mesh suffix (:func:`sfs_ros.cell.paths.plain_file_name`).

@@ -8,7 +8,7 @@ INPUT is a session folder (``session.yaml`` + ``views.csv`` with
 ``image,theta_rad,phi_rad`` + ``images/``) of the board standing on the
 plate, photographed at a spread of turntable and carriage angles, or a
 rosbag2 the recorder made of such a scan (its captured images with their
-joint states); its ``rig`` (a bag's: the reconstruction node's) is the
+joint states); its ``rig`` (a bag's: the carving node's) is the
 hand-measured start. OUTDIR receives ``rig.yaml`` (the cell's rig
 parameters, for ``--params-file``), ``camera_info.yaml`` (ROS
 camera_calibration_parsers format) and ``calibration_report.yaml`` (RMS and

@@ -26,9 +26,9 @@ def _is_bag(path: Path) -> bool:
 
 def load_input(path, *, captures: bool = False) -> tuple[ViewSet, dict]:
     """The views at ``path`` (:func:`sfs_ros.core.exchange.inputs.load_views`, or a rosbag2 read
-    by :func:`sfs_ros.cell.bag.read_bag`: its masks as the reconstruction node carved
+    by :func:`sfs_ros.cell.bag.read_bag`: its masks as the carving node carved
     them, or with ``captures`` its captured images) and the recorded defaults of a bag
-    (``{"resolution": ..., "mesher": ...}`` as the reconstruction node had them; empty
+    (``{"resolution": ..., "mesher": ...}`` as the carving node had them; empty
     for other inputs). Raises ViewError with one line."""
     path = Path(path)
     if not _is_bag(path):

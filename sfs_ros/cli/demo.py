@@ -7,7 +7,7 @@ until every view is stored, calls ``reconstruct``, stops the cell, and
 scores the mesh against the true shape of the object the mock camera
 rendered. Writes into ``--out``::
 
-    mesh.ply      the coloured mesh (a copy of the one the reconstruction node wrote)
+    mesh.ply      the coloured mesh (a copy of the one the meshing node wrote)
     mesh.png      a picture of it
     mesh.html     a page that shows it in a browser
     views.png     a contact sheet of the views: mask outline, angles, silhouette IoU

@@ -15,7 +15,7 @@ by stamp, are stored in ``OUTPUT_DIR/calibration_<UTC time>/session/`` and recei
 ``capture/stored`` (the scan node's delivery: a capture not receipted is sent again), and
 the board looked for in each (feedback ``boards_detected``); then, in a worker thread, the
 fit of ``sfs-calibrate`` (:func:`sfs_ros.cell.calibration_run.fit_and_write`) from the
-reconstruction node's rig, which writes ``rig.yaml``, ``camera_info.yaml`` and
+carving node's rig, which writes ``rig.yaml``, ``camera_info.yaml`` and
 ``calibration_report.yaml`` beside the session; with ``apply``, the rig is set on every
 node that holds it and kept in ``OUTPUT_DIR/calibration/rig.yaml``
 (:func:`sfs_ros.ros.rig_apply.apply_rig`). Feedback: the phase (scanning, fitting,

@@ -100,7 +100,7 @@ Delivery: every capture of the scan is kept until the next ``scan/start``.
 One that the reconstruction has not receipted on ``capture/stored`` within
 ``receipt_timeout_s`` is sent again (at most ``max_sends`` times in all, then
 reported as lost in transport); when a publisher of receipts appears that
-was not there before (the reconstruction node restarted, or started late),
+was not there before (the carving node restarted, or started late),
 every capture is sent again. The reconstruction stores
 each view once, so a view is never lost to a restarted node and never carved twice.
 
@@ -235,7 +235,7 @@ PARAMS: list[Param] = [
     Param("receipt_timeout_s", 10.0, "A capture not receipted by the reconstruction this long "
           "after it was sent is sent again, s.", bounds=(0.1, 3600.0), read_only=True),
     Param("max_sends", 5, "Most sends of one capture.", bounds=(1, 1000), read_only=True),
-    Param("reset_reconstruction", True, "scan/start resets the reconstruction node first.",
+    Param("reset_reconstruction", True, "scan/start resets the carving node first.",
           read_only=True),
     Param("home_before_scan", True, "scan/start homes the axes first.", read_only=True),
     Param("service_timeout_s", 10.0, "Deadline of the reset and stop calls, s.",
@@ -537,7 +537,7 @@ class ScanNode(Node):
 
     def _tick(self) -> None:
         """Delivery (resends; a receiver not seen before, a publisher of receipts or the
-        recorder's subscription to the captures, is a restarted reconstruction node or
+        recorder's subscription to the captures, is a restarted carving node or
         recorder: everything is sent again), then diagnostics."""
         receipts = self.get_publishers_info_by_topic(self._receipt_sub.topic_name)
         recorders = [info for info in

@@ -65,7 +65,7 @@ RELIABILITIES = ("auto", "reliable", "best_effort")
 INTRINSICS_SOURCES = ("rig", "driver")
 #: The node that holds the scan's rig (relative to the scan node's namespace).
 RECONSTRUCTION = CARVING_NODE
-#: Rig parameters read from the reconstruction node to compare.
+#: Rig parameters read from the carving node to compare.
 _RIG_NAMES = ("projection", "width", "height", "fx", "fy", "cx", "cy", "distortion")
 #: Depth of the frames' subscription (a second of a 10 Hz stream).
 _DEPTH = 10
@@ -246,7 +246,7 @@ class DriverCamera:
         return ""
 
     def _rig_values(self, timeout_s: float) -> dict:
-        """``{name: value}`` of the reconstruction node's rig parameters now."""
+        """``{name: value}`` of the carving node's rig parameters now."""
         answer = call(self._get, GetParameters.Request(names=list(_RIG_NAMES)),
                       timeout_s=timeout_s, resend_after_s=_RESEND_S)
         if len(answer.values) != len(_RIG_NAMES):

@@ -1,6 +1,6 @@
 """Two subscriptions whose messages pair up by header stamp: one capture each pair.
 
-The segmentation node pairs (image, joint state), the reconstruction node
+The segmentation node pairs (image, joint state), the carving node
 (mask, joint state); both the same way, here:
 
 * each message is decoded by its stream's ``decode`` (ValueError = malformed);

@@ -5,12 +5,12 @@ ros__parameters:`` with every rig parameter) and checks it as a
 :class:`RigCalibration`. :func:`apply_rig` sets it, all parameters at once
 (``SetParametersAtomically``), on every node of the cell that holds the rig:
 the nodes in the cell's namespace that declare ``camera_distance_m`` (the
-reconstruction node, the camera node, the TF publisher), found through their
+carving node, the camera node, the TF publisher), found through their
 ``ListParameters`` services. A node that refuses (a scan under way, another
 image size) has the reason in the error, and the nodes set before it get
 their earlier rig back. Once every node took it, the rig is written
 atomically to :data:`sfs_ros.cell.paths.APPLIED_RIG` in the cell's output
-folder (the reconstruction node's ``output_dir``), which ``sfs-cell`` gives
+folder (the carving node's ``output_dir``), which ``sfs-cell`` gives
 those nodes whenever it starts one: a node started again keeps the rig.
 """
 
@@ -41,7 +41,7 @@ HOLDER_PARAMETER = "camera_distance_m"
 RECONSTRUCTION_NODE = CARVING_NODE
 #: Seconds after which an unanswered parameter service call is sent again.
 RESEND_S = 2.0
-#: Discovery: the cell's nodes are taken as found once the reconstruction node is and the
+#: Discovery: the cell's nodes are taken as found once the carving node is and the
 #: list of nodes in the namespace has not changed for this long, seconds (a new participant
 #: learns of the running ones within a fraction of a second on one machine).
 DISCOVERY_QUIET_S = 2.0
@@ -126,7 +126,7 @@ def apply_rig(node: Node, path, namespace: str | None = None, *,
 
 def cell_rig(node: Node, namespace: str | None = None, *,
              timeout_s: float = 30.0) -> RigCalibration:
-    """The rig the cell's reconstruction node in ``namespace`` (default: ``node``'s) holds
+    """The rig the cell's carving node in ``namespace`` (default: ``node``'s) holds
     now (the one its next scan is carved with). ``node`` must be spun by another thread.
     TimeoutError when it does not answer within ``timeout_s`` s, ValueError if its values
     make no rig."""
@@ -148,7 +148,7 @@ def _join(namespace: str, name: str) -> str:
 
 def _holders(node: Node, namespace: str, deadline: float) -> dict[str, AsyncParameterClient]:
     """``{full name: parameter client}`` of the nodes in ``namespace`` that hold the rig,
-    the reconstruction node first; waits for discovery (:data:`DISCOVERY_QUIET_S`)."""
+    the carving node first; waits for discovery (:data:`DISCOVERY_QUIET_S`)."""
     reconstruction = _join(namespace, RECONSTRUCTION_NODE)
     found, quiet_since = set(), time.monotonic()
     while reconstruction not in found or time.monotonic() - quiet_since < DISCOVERY_QUIET_S:

@@ -1,6 +1,6 @@
 """The rig calibration as node parameters, shared by every node that needs it.
 
-The reconstruction node turns encoder angles into cameras with it, the camera
+The carving node turns encoder angles into cameras with it, the camera
 node publishes its intrinsics as ``CameraInfo``, and the mock camera renders
 with it. One file, ``config/rig.yaml`` (``/**:`` so every node reads it),
 holds the values for the whole cell.

@@ -9,7 +9,7 @@ message fields are decoded by :mod:`sfs_ros.cell.messages`, as the nodes do.
 * :mod:`.writing`: :class:`BagWriter`, every message on disk before the next;
 * :mod:`.reading`: :func:`open_bag`, the messages of a bag folder or file;
 * :mod:`.salvage`: the whole messages of an MCAP file that was cut or not closed;
-* :mod:`.views`: :func:`read_bag`, the views as the reconstruction node received them.
+* :mod:`.views`: :func:`read_bag`, the views as the carving node received them.
 """
 
 from .layout import (

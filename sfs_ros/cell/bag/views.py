@@ -1,9 +1,9 @@
-"""Rebuilding the views of a bag as the reconstruction node received them.
+"""Rebuilding the views of a bag as the carving node received them.
 
 :func:`read_bag` gives the masks with their joint states, paired by stamp, one
 by one, in recorded order, to a :class:`~sfs_ros.cell.live.LiveReconstruction`
 built from the recorded reconstruction parameters, exactly as the
-reconstruction node did; its session folder (in a temporary folder, removed
+carving node did; its session folder (in a temporary folder, removed
 with the view set) is then read as any session. A bag holding several scans
 gives its last (as the node, the scan node resetting it at each ``scan/start``):
 scans are told apart by the recorder's ``sfs/scan`` records
@@ -50,7 +50,7 @@ _log = logging.getLogger(__name__)
 @dataclass
 class BagViewSet(ViewSet):
     """The views of a bag (:func:`read_bag`): a :class:`ViewSet` plus the recorded
-    reconstruction node's ``resolution`` and ``mesher``."""
+    carving node's ``resolution`` and ``mesher``."""
 
     resolution: int | None = None
     mesher: str | None = None
@@ -85,13 +85,13 @@ def _parameters(bag: Bag) -> dict:
                         "version 1 document")
     if "session" not in document or "reconstruction" not in document:
         why = document.get("unavailable", {}).get("reconstruction", "not recorded")
-        raise ViewError(f"bag {bag.path} has no parameters of the reconstruction node ({why}); "
+        raise ViewError(f"bag {bag.path} has no parameters of the carving node ({why}); "
                         "expected them to place the cameras")
     return document
 
 
 def _check_resolution(value) -> None:
-    """TypeError / ValueError unless ``value`` is a resolution the reconstruction node takes
+    """TypeError / ValueError unless ``value`` is a resolution the carving node takes
     (an int in :data:`~sfs_ros.core.pipeline.RESOLUTION_RANGE`)."""
     low, high = RESOLUTION_RANGE
     if isinstance(value, bool) or not isinstance(value, int):
@@ -277,7 +277,7 @@ def _capture_topics(bag: Bag) -> tuple[str, str]:
 
 def read_bag(path, *, captures: bool = False) -> BagViewSet:
     """The views of the bag at ``path`` (a rosbag2 folder, or its .mcap / .db3 file), as
-    the reconstruction node received them (module docstring); with ``captures``, the
+    the carving node received them (module docstring); with ``captures``, the
     last scan's captured images with their angles instead (for calibration and export
     to other tools): a board scan's on ``calibration/image`` when the bag has them, else
     those on ``capture/image``.
