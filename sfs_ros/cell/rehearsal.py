@@ -2,8 +2,8 @@
 
 The first reconstruction in a process pays for loading what it uses: its
 compiled kernels from numba's disk cache, the code pages of OpenCV, SciPy and
-scikit-image, the worker threads. In the cell's reconstruction node (now the carving and meshing nodes) that was
-about 0.2 s of the latency from the last view to the mesh (``bench_cell``:
+scikit-image, the worker threads. In the cell's nodes that reconstruct, that was about
+0.2 s of the latency from the last view to the mesh (``bench_cell``:
 1.10-1.28 s with a rehearsal, 1.14-1.62 s without, alternated three times).
 :func:`rehearse` does it once beforehand, on a scan of 25 views of 160 x 120
 at 48^3: every stage of :meth:`~sfs_ros.cell.live.LiveReconstruction.reconstruct`
