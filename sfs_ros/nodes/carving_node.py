@@ -129,7 +129,7 @@ from sfs_ros.ros.rig_params import (
     RigParameters,
     rig_calibration,
 )
-from sfs_ros.ros.worker import Worker
+from sfs_ros.ros.worker import Worker, internal_error
 from sfs_ros_interfaces.msg import CarvedScan as CarvedScanMsg
 from sfs_ros_interfaces.msg import ReconstructionStatus
 from sfs_ros_interfaces.srv import CarveScan, NewScan
@@ -208,10 +208,6 @@ def _scan_settings(values: dict) -> tuple:
     rig among them)."""
     return (tuple(values["bounds_m"]), values["resolution"], values["mesher"],
             rig_calibration(values))
-
-
-def _internal_error(job: str, exc: Exception) -> str:
-    return f"internal error in {job}: {type(exc).__name__}: {exc}"
 
 
 def _bounds(values: dict) -> np.ndarray:
@@ -394,7 +390,7 @@ class CarvingNode(Node):
             response.success, response.message, scan = self._submit(
                 "carve", self._carve, options).result()
         except Exception as exc:  # noqa: BLE001 -- the worker reported it; the caller gets it
-            response.success, response.message, scan = False, _internal_error("carve", exc), None
+            response.success, response.message, scan = False, internal_error("carve", exc), None
         if scan is not None:
             response.scan = scan
         return response
@@ -419,7 +415,7 @@ class CarvingNode(Node):
         try:
             response.success, response.message = self._submit(name, job).result()
         except Exception as exc:  # noqa: BLE001 -- the worker reported it; the caller gets it
-            response.success, response.message = False, _internal_error(name, exc)
+            response.success, response.message = False, internal_error(name, exc)
         return response
 
     def _submit(self, name: str, job, *args):
@@ -441,7 +437,7 @@ class CarvingNode(Node):
         return answer
 
     def _job_failed(self, name: str, exc: Exception) -> None:
-        text = _internal_error(name, exc)
+        text = internal_error(name, exc)
         self.get_logger().error(f"{text}\n{''.join(traceback.format_exception(exc))}")
         self._report_problem(text)
 

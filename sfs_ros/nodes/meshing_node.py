@@ -73,7 +73,7 @@ from sfs_ros.ros.params import Param, ParameterError, declare
 from sfs_ros.ros.rehearsal import Rehearsal
 from sfs_ros.ros.services import ServiceError, call
 from sfs_ros.ros.typed import fill_reconstruct_response
-from sfs_ros.ros.worker import Hold, Worker
+from sfs_ros.ros.worker import Hold, Worker, internal_error
 from sfs_ros_interfaces.msg import ReconstructionStatus
 from sfs_ros_interfaces.srv import CarveScan, Reconstruct
 
@@ -100,10 +100,6 @@ PARAMS: list[Param] = [
 #: Period (s) of the timer that releases the jobs after a ``reconstruct`` answer (it runs
 #: once per answer, as soon as the answer is sent).
 ANSWER_CHECK_S = 0.001
-
-
-def _internal_error(job: str, exc: Exception) -> str:
-    return f"internal error in {job}: {type(exc).__name__}: {exc}"
 
 
 class MeshingNode(Node):
@@ -209,7 +205,7 @@ class MeshingNode(Node):
             answer = self._worker.submit(lambda: self._mesh(carved, options),
                                          name="mesh").result()
         except Exception as exc:  # noqa: BLE001 -- the worker reported it; the caller gets it
-            answer = False, _internal_error("mesh", exc), None
+            answer = False, internal_error("mesh", exc), None
         if self._after_answer is not None:
             self._answered.reset()
         return answer
@@ -300,7 +296,7 @@ class MeshingNode(Node):
                 raise
 
     def _job_failed(self, name: str, exc: Exception) -> None:
-        text = _internal_error(name, exc)
+        text = internal_error(name, exc)
         self.get_logger().error(f"{text}\n{''.join(traceback.format_exception(exc))}")
         self._report_problem(text)
 

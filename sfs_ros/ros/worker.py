@@ -31,8 +31,14 @@ from concurrent.futures import Future
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
-__all__ = ["Hold", "JobCancelled", "Worker"]
+__all__ = ["Hold", "JobCancelled", "Worker", "internal_error"]
 
+
+
+def internal_error(job: str, exc: Exception) -> str:
+    """One line for a job that failed on a bug, not on its input: its name and the
+    exception."""
+    return f"internal error in {job}: {type(exc).__name__}: {exc}"
 
 class JobCancelled(Exception):
     """The job was dropped before it ran; the text says why."""
