@@ -9,7 +9,12 @@ import pytest
 import yaml
 
 from sfs_ros.core.exchange.inputs import load_views
-from sfs_ros.core.exchange.session import append_view, read_session, write_session
+from sfs_ros.core.exchange.session import (
+    append_view,
+    appended_view,
+    read_session,
+    write_session,
+)
 from sfs_ros.core.exchange.views import ViewError, read_image
 from sfs_ros.core.geometry.camera import Camera
 from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
@@ -231,6 +236,26 @@ def test_append_view_keeps_earlier_rows(session):
     assert views.views[-1].theta_rad == 4.0 and np.array_equal(read_image(views.views[-1].image_path),
                                                               image(4))
     assert [name for name, _ in views.rejected] == ["view_005.png"]  # NaN stored, rejected on read
+
+
+def test_appended_view_is_what_reading_the_folder_again_gives(session):
+    """A live scan keeps its session in memory: each view it appends must be the view (or
+    the rejection) that reading the folder gives, cameras bit for bit."""
+    kept = read_session(session)
+    for n, (theta, phi) in enumerate([(4.0, 0.4), (5.0, math.nan), (0.1 + 0.2, 1e-17),
+                                      (6.0, 3.0)], start=4):
+        name = f"view_{n:03d}.png"
+        append_view(session, name, image(n), theta, phi)
+        kept = appended_view(kept, session, name, theta, phi)
+    read = read_session(session)
+    assert kept.rejected == read.rejected and len(kept.rejected) == 2   # NaN; phi off the arm
+    assert len(kept.views) == len(read.views) == len(ANGLES) + 2
+    for ours, theirs in zip(kept.views, read.views):
+        assert (ours.name, ours.image_path, ours.theta_rad, ours.phi_rad) \
+            == (theirs.name, theirs.image_path, theirs.theta_rad, theirs.phi_rad)
+        for field in dataclasses.fields(ours.camera):
+            assert np.array_equal(getattr(ours.camera, field.name),
+                                  getattr(theirs.camera, field.name)), field.name
 
 
 def test_append_after_a_table_without_final_newline(session):

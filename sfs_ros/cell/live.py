@@ -53,10 +53,9 @@ from ..core.carving.bounds import BoxCarve
 from ..core.carving.carve import Carver
 from ..core.carving.hull import surface_voxels
 from ..core.carving.resolution import BYTES_PER_VOXEL
-from ..core.exchange.inputs import load_views
 from ..core.exchange.limits import MAX_WAITING_BYTES
-from ..core.exchange.session import append_view, read_session, write_session
-from ..core.exchange.views import as_bounds
+from ..core.exchange.session import append_view, appended_view, read_session, write_session
+from ..core.exchange.views import ViewSet, as_bounds
 from ..core.geometry.grid import VoxelGrid
 from ..core.geometry.lens import ideal_camera, undistort_mask
 from ..core.geometry.rig import RigCalibration, rig_camera
@@ -255,6 +254,7 @@ class LiveReconstruction:
         self._precomputed = Precomputed(distances=DistanceImages(), box=BoxCarve(self.bounds_m))
         self._views: dict[str, _Received] = {}
         self._colour_images: dict[str, np.ndarray] = {}
+        self._thumbnails: dict[str, bytes] = {}     # JPEG of each colour image, made as it came
         self._colour_waiting: dict[str, int] = {}   # keys of images without a view yet, oldest first
         self._mesh: tuple[np.ndarray, np.ndarray] | None = None
         self._colours: np.ndarray | None = None
@@ -265,6 +265,7 @@ class LiveReconstruction:
         if getattr(self, "_session", None) is not None:
             (self._session / OPEN_MARKER).unlink(missing_ok=True)
         self._session: Path | None = None
+        self._view_set: ViewSet | None = None      # the session as read back, kept up to date
 
     @property
     def working_memory_bytes(self) -> int:
@@ -389,8 +390,10 @@ class LiveReconstruction:
         rgb = mask_to_rgb(mask)
         if self._session is None:
             self._session = self._open_session(name, rgb, theta, phi)
+            self._view_set = read_session(self._session)
         else:
             append_view(self._session, name, rgb, theta, phi)
+            self._view_set = appended_view(self._view_set, self._session, name, theta, phi)
         carved = bool(mask.any())
         if carved:   # stored as taken; carved as the ideal pinhole (the mask undistorted once)
             self._take(camera, undistort_mask(mask, camera))
@@ -429,7 +432,7 @@ class LiveReconstruction:
         except (ValueError, OSError) as exc:
             return f"open scan {folder} not taken up: {exc}"
         self.reset()
-        self._session = folder
+        self._session, self._view_set = folder, view_set
         for view in view_set.views:
             image = cv2.imread(str(view.image_path), cv2.IMREAD_GRAYSCALE)
             if image is None or view.theta_rad is None:
@@ -459,6 +462,7 @@ class LiveReconstruction:
             raise ValueError(f"image of view {key!r} is {rgb.shape} {rgb.dtype}, expected "
                              f"{expected} uint8 RGB (the rig's size)")
         self._colour_images[key] = rgb
+        self._thumbnails[key] = thumbnail(rgb)
         if key in self._views:
             return
         self._colour_waiting.pop(key, None)
@@ -468,7 +472,7 @@ class LiveReconstruction:
             if waiting <= MAX_WAITING_BYTES:
                 break
             waiting -= self._colour_waiting.pop(old)
-            del self._colour_images[old]
+            del self._colour_images[old], self._thumbnails[old]
 
     def _sheet_views(self, masks: dict) -> SheetViews:
         """Every view received: its captured image (the mask where none was kept) and mask
@@ -508,7 +512,7 @@ class LiveReconstruction:
         Raises ValueError: no views yet, or a carving that cannot be made."""
         if self._session is None:
             raise ValueError("no views received yet")
-        view_set = load_views(self._session)
+        view_set = self._view_set
         if bounds_m is not None:
             view_set = replace(view_set, bounds_m=as_bounds(bounds_m, what="bounds_m"))
         params = replace(self.params, resolution=resolution or self.params.resolution,
@@ -529,8 +533,8 @@ class LiveReconstruction:
             raise ValueError("no views received yet")
         return HandOver(scan_name=self._session.name, session_dir=str(self._session),
                         views_received=len(self._views),
-                        thumbnails={self._views[key].name: thumbnail(rgb)
-                                    for key, rgb in self._colour_images.items()
+                        thumbnails={self._views[key].name: jpeg
+                                    for key, jpeg in self._thumbnails.items()
                                     if key in self._views})
 
     def reconstruct(self, name: str | None = None, *, pictures: bool = True,

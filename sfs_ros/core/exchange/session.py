@@ -81,7 +81,7 @@ from .limits import brief, confined_path, load_yaml, printable, read_text
 from .views import IMAGE_SUFFIXES, View, ViewError, ViewSet, as_bounds
 
 __all__ = ["FORMAT", "VERSION", "SESSION_FILE", "VIEWS_FILE", "IMAGES_DIR", "ANGLE_COLUMNS",
-           "MATRIX_COLUMNS", "read_session", "write_session", "append_view"]
+           "MATRIX_COLUMNS", "read_session", "write_session", "append_view", "appended_view"]
 
 FORMAT = "sfs_ros-session"
 VERSION = 1
@@ -193,6 +193,28 @@ def _angle_camera(theta: float, phi: float, rig: RigCalibration) -> tuple[Camera
     return rig_camera(theta, phi, rig), ""
 
 
+def _angle_view(path: Path, name: str, theta: float, phi: float,
+                rig: RigCalibration) -> tuple[View | None, str]:
+    """The view of an angles row, or None and the reason its angles cannot be used."""
+    camera, reason = _angle_camera(theta, phi, rig)
+    if camera is None:
+        return None, reason
+    return View(name=name, image_path=path, camera=camera, theta_rad=theta, phi_rad=phi), ""
+
+
+def appended_view(view_set: ViewSet, folder: Path | str, name: str, theta_rad: float,
+                  phi_rad: float) -> ViewSet:
+    """``view_set`` (:func:`read_session` of ``folder``) with the view :func:`append_view`
+    added to it, as reading the folder again would give it (usable or rejected), without
+    reading it."""
+    path = confined_path(Path(folder), f"{IMAGES_DIR}/{name}", "appended view")
+    view, reason = _angle_view(path, name, float(theta_rad), float(phi_rad),
+                               view_set.calibration)
+    if view is None:
+        return dataclasses.replace(view_set, rejected=[*view_set.rejected, (name, reason)])
+    return dataclasses.replace(view_set, views=[*view_set.views, view])
+
+
 def _matrix_camera(values: np.ndarray, rig: RigCalibration) -> tuple[Camera | None, str]:
     if not np.all(np.isfinite(values)):
         return None, "projection matrix contains NaN or infinity"
@@ -255,16 +277,14 @@ def read_session(folder: Path | str) -> ViewSet:
         if not path.is_file():
             missing.append(name)
         if header == ANGLE_COLUMNS:
-            theta, phi = float(values[0]), float(values[1])
-            camera, reason = _angle_camera(theta, phi, rig)
+            view, reason = _angle_view(path, name, float(values[0]), float(values[1]), rig)
         else:
-            theta = phi = None
             camera, reason = _matrix_camera(values, rig)
-        if camera is None:
+            view = None if camera is None else View(name=name, image_path=path, camera=camera)
+        if view is None:
             rejected.append((name, reason))
         else:
-            views.append(View(name=name, image_path=path, camera=camera, theta_rad=theta,
-                              phi_rad=phi))
+            views.append(view)
 
     if missing:
         raise ViewError(f"{table} lists {len(missing)} image(s) missing from {IMAGES_DIR}/: "
