@@ -6,6 +6,7 @@ mesh the offline path gives, byte for byte, for every mesher and with colour.
 """
 
 import json
+import re
 from dataclasses import replace
 
 import numpy as np
@@ -104,6 +105,31 @@ def test_thumbnails_cross_for_the_contact_sheet(halves, mug_views):
     [(got_name, got)] = hand_over.thumbnails.items()
     assert got_name == name and got.shape == image.shape
     assert np.abs(got.astype(int) - image).mean() <= THUMBNAIL_ERROR_MAX
+
+
+def test_images_the_receiver_holds_are_left_out_and_the_mesh_is_the_same(halves):
+    """The meshing node holds the colour images the carving node sent as the views were
+    stored: the carved scan leaves those out, and meshing it with them gives the mesh
+    the offline path makes; the message shrinks by the images' bytes."""
+    offline, carved, _, _, full_size = halves
+    held = {carved.views[i].name: image for i, image in zip(carved.colour_views,
+                                                              carved.colour_images)}
+    kept_back = next(iter(held))                    # one image the receiver missed
+    held_names = frozenset(held) - {kept_back}
+    wire = serialize_message(carved_scan_to_msg(carved, HAND_OVER, stamp=_stamp(),
+                                                held=held_names))
+    msg = deserialize_message(wire, CarvedScanMsg)
+    sent = {v.name: (v.image_held, len(v.image_rgb)) for v in msg.views}
+    assert all(sent[name] == (True, 0) for name in held_names)
+    assert sent[kept_back] == (False, held[kept_back].size)
+    assert full_size - len(wire) == sum(held[name].nbytes for name in held_names)
+    received, _ = carved_scan_from_msg(msg, {name: held[name] for name in held_names})
+    result = mesh_scan(received)
+    assert result.vertices.tobytes() == offline.vertices.tobytes()
+    assert result.vertex_colors.tobytes() == offline.vertex_colors.tobytes()
+    missing = sorted(held_names)[0]
+    with pytest.raises(ValueError, match=re.escape(f"view {missing!r}'s image was left out")):
+        carved_scan_from_msg(msg, {n: held[n] for n in held_names if n != missing})
 
 
 def test_a_message_that_does_not_add_up_is_refused_by_name(halves):

@@ -219,6 +219,17 @@ def test_full_scan_reconstructs_the_mug_from_every_view_once(cell):
     assert summary["views_received"] == summary["views_used"] == len(PLAN)
     assert summary["watertight"]
     assert summary["coloured_from_views"] == len(PLAN)          # the captures reached it too
+    # The meshing node, up since before the scan, held the images as the views were
+    # stored: the carved scan carried the masks and the hull, and (at most) the few images
+    # a loaded reader missed.
+    def meshed():
+        return [values for values in ({kv.key: kv.value for kv in s.values}
+                                      for s in rec.statuses("meshing"))
+                if int(values["reconstructions"]) >= 1]
+    wait(meshed, what="the meshing node's diagnostics after the mesh")
+    values = meshed()[-1]
+    held, carried = int(values["images_held"]), int(values["images_carried"])
+    assert held + carried == len(PLAN) and held > carried
     mug = make_object("mug")
     vertices, faces, colours = load_mesh(path, with_colors=True)
     assert colours is not None and len(colours) == len(vertices)

@@ -1,6 +1,7 @@
 """Live reconstruction on the exact silhouettes of a known object (the mug)."""
 
 import csv
+import dataclasses
 import errno
 import json
 import math
@@ -365,6 +366,33 @@ def test_final_mesh_is_coloured_from_the_captured_images(tmp_path, mug, box, mas
     # unseen underside is filled from its neighbours. 5.4 measured.
     error = np.abs(live.last_colours.astype(float) - mug.color_at(vertices)).mean()
     assert error <= 7.0
+
+
+def test_each_views_colour_image_is_the_one_the_carved_scan_hands_over(tmp_path, box, masks):
+    """The image sent as a view is stored (``colour_image``) is, bit for bit, the one the
+    carved scan colours with, through a lens that distorts (so it is undistorted)."""
+    rig = dataclasses.replace(RIG, distortion=(-0.12, 0.05, 0.001, -0.002, 0.0))
+    live = LiveReconstruction(rig, box, output_dir=tmp_path, resolution=32)
+    rng = np.random.default_rng(3)
+    sent = {}
+    for n, ((theta, phi), mask) in enumerate(zip(PLAN[:12], masks)):
+        image = rng.integers(0, 256, (RIG.height, RIG.width, 3), dtype=np.uint8)
+        if n % 3 == 0:
+            live.add_colour_image(n, image)
+            assert live.colour_image(n) is None            # its view has not come
+        live.add_view(n, mask, theta, phi)
+        if n % 3 == 1:
+            assert live.colour_image(n) is None            # its image has not come
+            live.add_colour_image(n, image)
+        if n % 3 != 2:
+            name, undistorted = live.colour_image(n)
+            assert not np.array_equal(undistorted, image)   # the lens moved the pixels
+            sent[name] = undistorted
+    carved = live.carve()
+    handed = {carved.views[i].name: image for i, image in zip(carved.colour_views,
+                                                                carved.colour_images)}
+    assert set(handed) == set(sent)
+    assert all(np.array_equal(handed[name], sent[name]) for name in handed)
 
 
 # ------------------------------------------------------------------ restarts and a full disk

@@ -57,7 +57,7 @@ from ..core.exchange.limits import MAX_WAITING_BYTES
 from ..core.exchange.session import append_view, appended_view, read_session, write_session
 from ..core.exchange.views import ViewSet, as_bounds
 from ..core.geometry.grid import VoxelGrid
-from ..core.geometry.lens import ideal_camera, undistort_mask
+from ..core.geometry.lens import ideal_camera, undistort_image, undistort_mask
 from ..core.geometry.rig import RigCalibration, rig_camera
 from ..core.meshing.hull_distance import DistanceImages
 from ..core.pipeline import Precomputed, ReconstructionParams, carve_scan
@@ -254,7 +254,7 @@ class LiveReconstruction:
         self._precomputed = Precomputed(distances=DistanceImages(), box=BoxCarve(self.bounds_m))
         self._views: dict[str, _Received] = {}
         self._colour_images: dict[str, np.ndarray] = {}
-        self._thumbnails: dict[str, bytes] = {}     # JPEG of each colour image, made as it came
+        self._thumbnails: dict[str, np.ndarray] = {}   # of the images, made as they came
         self._colour_waiting: dict[str, int] = {}   # keys of images without a view yet, oldest first
         self._mesh: tuple[np.ndarray, np.ndarray] | None = None
         self._colours: np.ndarray | None = None
@@ -493,6 +493,20 @@ class LiveReconstruction:
             return False
         due()
         return True
+
+    def colour_image(self, key) -> tuple[str, np.ndarray] | None:
+        """``(view name, (H, W, 3) uint8 RGB)`` of view ``key``: its captured image
+        undistorted onto its ideal camera, as :meth:`carve` hands it over when the view
+        colours the mesh; None until both the view and its image have come (or the view's
+        angles were refused)."""
+        key = _check_key(key)
+        received, rgb = self._views.get(key), self._colour_images.get(key)
+        if received is None or rgb is None:
+            return None
+        for view in reversed(self._view_set.views):
+            if view.name == received.name:
+                return view.name, undistort_image(rgb, view.camera)
+        return None
 
     def hull_points(self, max_points: int = 100_000) -> np.ndarray:
         """(n, 3) float64 surface voxel centres of the live hull, metres (see

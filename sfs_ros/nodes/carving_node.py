@@ -8,6 +8,7 @@
 | pub | ``capture/stored`` | std_msgs/Header | a view's stamp once stored (or rejected): its receipt |
 | pub | ``hull`` | sensor_msgs/PointCloud2 | surface voxels of the live hull, turntable frame |
 | pub | ``camera_poses`` | geometry_msgs/PoseArray | the cameras of this scan's views, turntable frame |
+| pub | ``~/view_image`` | sfs_ros_interfaces/ViewImage | each stored view's colour image, for meshing |
 | pub | ``/diagnostics`` | diagnostic_msgs/DiagnosticArray | per event and at 1 Hz |
 | pub | ``~/status`` | sfs_ros_interfaces/ReconstructionStatus | the scan's fields; transient local |
 | srv | ``~/carve_scan`` | sfs_ros_interfaces/CarveScan | the carved scan, for the meshing node |
@@ -43,7 +44,9 @@ thread owns the ``LiveReconstruction`` and takes, in arrival order, views, carvi
 resets: a carving uses exactly the views that arrived before the request. With
 ``colour`` the node keeps each view's captured image (in memory, paired with its view by
 stamp, whichever comes first); the carved scan carries those of the views that colour
-the mesh.
+the mesh. Each view's image goes out on ``~/view_image`` (reliable, volatile) once both
+have come, so that the meshing node holds the images before the scan ends:
+``carve_scan`` leaves out those its request names as held (``images_held``).
 
 A malformed message or an unusable view is logged, counted in the diagnostics (ERROR
 until the next good view) and dropped; the node carries on. An all-zero mask is stored
@@ -107,7 +110,7 @@ from sfs_ros.core.geometry.rig import rig_camera
 from sfs_ros.core.pipeline import MESHERS
 from sfs_ros.nodes.entry import run_node
 from sfs_ros.ros import capture_qos, result_qos
-from sfs_ros.ros.carved_scan_msg import carved_scan_to_msg
+from sfs_ros.ros.carved_scan_msg import carved_scan_to_msg, view_image_msg
 from sfs_ros.ros.convert import (
     angles_from_joint_state,
     camera_poses,
@@ -118,7 +121,14 @@ from sfs_ros.ros.convert import (
     points_to_cloud,
 )
 from sfs_ros.ros.frames import FRAME_PARAMS, frame_names
-from sfs_ros.ros.names import DIAGNOSTICS, RECONSTRUCTION_STATUS, private, status_name
+from sfs_ros.ros.names import (
+    DIAGNOSTICS,
+    RECONSTRUCTION_STATUS,
+    VIEW_IMAGE_DEPTH,
+    VIEW_IMAGES,
+    private,
+    status_name,
+)
 from sfs_ros.ros.paired_input import PairedInput, Stream
 from sfs_ros.ros.pairing import format_stamp, stamp_key, view_key
 from sfs_ros.ros.params import Param, ParameterError, declare, read, validating_callback
@@ -131,7 +141,7 @@ from sfs_ros.ros.rig_params import (
 )
 from sfs_ros.ros.worker import Worker, internal_error
 from sfs_ros_interfaces.msg import CarvedScan as CarvedScanMsg
-from sfs_ros_interfaces.msg import ReconstructionStatus
+from sfs_ros_interfaces.msg import ReconstructionStatus, ViewImage
 from sfs_ros_interfaces.srv import CarveScan, NewScan
 
 __all__ = ["CarvingNode", "PARAMS", "main"]
@@ -286,6 +296,8 @@ class CarvingNode(Node):
         self._stored_pub = self.create_publisher(Header, "capture/stored", qos)
         self._hull_pub = self.create_publisher(PointCloud2, "hull", result_qos())
         self._poses_pub = self.create_publisher(PoseArray, "camera_poses", result_qos())
+        self._view_image_pub = self.create_publisher(
+            ViewImage, "~/" + VIEW_IMAGES.split("/", 1)[1], capture_qos(VIEW_IMAGE_DEPTH))
         self._cameras: list = []   # of this scan's views, for camera_poses (worker thread)
         self._diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
         self._status_pub = self.create_publisher(ReconstructionStatus,
@@ -387,8 +399,9 @@ class CarvingNode(Node):
             response.success, response.message = False, f"request {refusal}"
             return response
         try:
+            held = frozenset(request.images_held)
             response.success, response.message, scan = self._submit(
-                "carve", self._carve, options).result()
+                "carve", self._carve, options, request.images_session, held).result()
         except Exception as exc:  # noqa: BLE001 -- the worker reported it; the caller gets it
             response.success, response.message, scan = False, internal_error("carve", exc), None
         if scan is not None:
@@ -481,6 +494,17 @@ class CarvingNode(Node):
         except ValueError as exc:
             self._report_problem(f"captured image at stamp {format_stamp(stamp)} not kept for "
                                  f"colour: {exc}")
+            return
+        self._send_view_image(stamp)
+
+    def _send_view_image(self, stamp) -> None:
+        """``~/view_image``: the view's colour image, once both the view and its image
+        are in."""
+        found = self._live.colour_image(view_key(stamp))
+        if found is not None:
+            self._view_image_pub.publish(view_image_msg(
+                str(self._live.session_dir), *found,
+                header=header(stamp=stamp, frame_id=self._frame_id)))
 
     def _grid_refusal(self, values: dict) -> str:
         """Why the voxel grid of ``values`` cannot be held within the memory budget ("" if it
@@ -611,19 +635,23 @@ class CarvingNode(Node):
             self.get_logger().warning(self._warning)
         self._publish_diagnostics()
         self._publish_status()
+        self._send_view_image(stamp)
 
-    def _carve(self, options: MeshOptions) -> tuple[bool, str, CarvedScanMsg | None]:
+    def _carve(self, options: MeshOptions, images_session: str,
+               held: frozenset) -> tuple[bool, str, CarvedScanMsg | None]:
         """The carved scan of the views received, with ``options``: ``(success, summary or
-        the reason, the message or None)``."""
+        the reason, the message or None)``; without the images of the views in ``held`` if
+        the caller holds them of this scan (``images_session``)."""
         if self._live is None:
             return False, self._refusal, None
         start = time.perf_counter()
         try:
             carved = self._live.carve(resolution=options.resolution, bounds_m=options.bounds_m,
                                       mesher=options.mesher, colour=options.colour)
-            msg = carved_scan_to_msg(carved, replace(self._live.hand_over(),
-                                                     frame_id=self._frame_id),
-                                     stamp=self.get_clock().now().to_msg())
+            hand_over = replace(self._live.hand_over(), frame_id=self._frame_id)
+            msg = carved_scan_to_msg(
+                carved, hand_over, stamp=self.get_clock().now().to_msg(),
+                held=held if images_session == hand_over.session_dir else frozenset())
         except ValueError as exc:
             self._count("carving_failures")
             reason = str(exc)

@@ -8,6 +8,7 @@
 | pub | ``~/status`` | sfs_ros_interfaces/ReconstructionStatus | reconstructions, last mesh |
 | srv | ``~/reconstruct_mesh`` | sfs_ros_interfaces/Reconstruct | per-call options, typed answer |
 | srv | ``~/reconstruct`` | std_srvs/Trigger | alias of ``reconstruct_mesh``, defaults; JSON answer |
+| sub | ``carving/view_image`` | sfs_ros_interfaces/ViewImage | the scan's colour images, as stored |
 | client | ``carving/carve_scan`` | sfs_ros_interfaces/CarveScan | the carved scan |
 
 The meshing half of the cell's reconstruction (:mod:`sfs_ros.nodes.carving_node` keeps
@@ -19,7 +20,11 @@ evaluates it (:func:`sfs_ros.cell.mesh_files.write_mesh`: the mesh the offline p
 makes of the same views, byte for byte) and writes the files in ``output_dir`` under
 ``output_name`` (default ``<scan name>.ply``). The node holds nothing of a scan between
 requests: restarted, or another in its place, it asks again, and the carving node, which
-keeps the scan, answers again.
+keeps the scan, answers again. The colour images of the scan being received come as the
+carving node stores its views (``carving/view_image``); the node holds those of the newest
+scan (at most ``held_images_mb``) and names them in its request, so that the carved scan
+comes without them: the hand-over at the end carries the hull and the masks. An image
+not held (the node started mid-scan, a message missed) comes in the carved scan.
 
 The answer (``success`` and the summary: path, report_path, preview_path, views used /
 rejected, watertight, volume_m3, seconds, ...) goes out once the mesh and its report are
@@ -60,21 +65,30 @@ from shape_msgs.msg import Mesh
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker
 
+from sfs_ros.cell.held_images import HeldImages
 from sfs_ros.cell.mesh_files import write_mesh
 from sfs_ros.cell.mesh_options import MeshOptions, mesh_options
 from sfs_ros.core.meshing.decimate import decimate
 from sfs_ros.nodes.entry import run_node
-from sfs_ros.ros import result_qos
-from sfs_ros.ros.carved_scan_msg import carved_scan_from_msg
+from sfs_ros.ros import capture_qos, result_qos
+from sfs_ros.ros.carved_scan_msg import carved_scan_from_msg, view_image_from_msg
 from sfs_ros.ros.convert import diagnostic_array, health, mesh_to_marker, mesh_to_shape
 from sfs_ros.ros.frames import FRAME_PARAMS, frame_names
-from sfs_ros.ros.names import DIAGNOSTICS, MESHING_STATUS, TYPED_SERVICES, private, status_name
+from sfs_ros.ros.names import (
+    DIAGNOSTICS,
+    MESHING_STATUS,
+    TYPED_SERVICES,
+    VIEW_IMAGE_DEPTH,
+    VIEW_IMAGES,
+    private,
+    status_name,
+)
 from sfs_ros.ros.params import Param, ParameterError, declare
 from sfs_ros.ros.rehearsal import Rehearsal
 from sfs_ros.ros.services import ServiceError, call
 from sfs_ros.ros.typed import fill_reconstruct_response
 from sfs_ros.ros.worker import Hold, Worker, internal_error
-from sfs_ros_interfaces.msg import ReconstructionStatus
+from sfs_ros_interfaces.msg import ReconstructionStatus, ViewImage
 from sfs_ros_interfaces.srv import CarveScan, Reconstruct
 
 __all__ = ["MeshingNode", "PARAMS", "main"]
@@ -91,6 +105,10 @@ PARAMS: list[Param] = [
           "copy by vertex clustering, 40 bytes a corner with its colour: 10 000 make 1.2 MB); "
           "the file and mesh_shape keep the full mesh.", bounds=(100, 10_000_000),
           constraints="used from the next reconstruction"),
+    Param("held_images_mb", 1024, "Most memory, MiB, for the colour images of the scan being "
+          "received, held so that the carved scan need not carry them (the oldest are given "
+          "up first; 0: none held, the carved scan carries them all).",
+          bounds=(0, 1 << 20), read_only=True),
     Param("carve_timeout_s", 120.0, "How long a reconstruction waits for the carving node's "
           "carved scan, s.", bounds=(0.1, 86400.0), read_only=True),
     Param("rehearse", True, "At start, reconstruct a small simulated scan (in a folder in "
@@ -124,13 +142,21 @@ class MeshingNode(Node):
             raise ParameterError("output_dir", str(exc)) from None
         self._values = values
         self._stats_lock = threading.Lock()
-        self._counts = {"reconstructions": 0, "reconstruction_failures": 0}
+        # images_held / images_carried: the last carved scan's colour images, held here
+        # as they came or carried by it.
+        self._counts = {"reconstructions": 0, "reconstruction_failures": 0,
+                        "images_held": 0, "images_carried": 0}
         self._problem = ""
         self._mesh_path = self._session_dir = ""
 
         services = MutuallyExclusiveCallbackGroup()   # one request at a time
         self._carve_client = self.create_client(CarveScan, TYPED_SERVICES["carve_scan"],
                                                 callback_group=ReentrantCallbackGroup())
+        self._held = HeldImages(values["held_images_mb"] << 20)
+        if self._held.max_bytes:
+            self.create_subscription(ViewImage, VIEW_IMAGES, self._on_view_image,
+                                     capture_qos(VIEW_IMAGE_DEPTH),
+                                     callback_group=MutuallyExclusiveCallbackGroup())
         self._marker_pub = self.create_publisher(Marker, "mesh", result_qos())
         self._shape_pub = self.create_publisher(Mesh, "mesh_shape", result_qos())
         self._diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
@@ -169,6 +195,13 @@ class MeshingNode(Node):
             self._rehearsal.join()
         super().destroy_node()
 
+    def _on_view_image(self, msg) -> None:
+        """A view's colour image as the carving node stored it: held for the carved scan."""
+        try:
+            self._held.add(*view_image_from_msg(msg))
+        except ValueError as exc:   # the carved scan will carry that image instead
+            self.get_logger().warning(f"{exc}: not held")
+
     # -- requests (services group) -------------------------------------------------------------
 
     def _on_reconstruct(self, _request, response):
@@ -198,11 +231,12 @@ class MeshingNode(Node):
         # The previous answer is out (this group ran one callback at a time): should its
         # timer not have run yet, the jobs held for it must not hold this one up.
         self._release_after_answer()
-        carved = self._carved_scan(options)
+        held_session, held = self._held.snapshot()
+        carved = self._carved_scan(options, held_session, list(held))
         if isinstance(carved, str):
             return self._failed(carved)
         try:
-            answer = self._worker.submit(lambda: self._mesh(carved, options),
+            answer = self._worker.submit(lambda: self._mesh(carved, options, held),
                                          name="mesh").result()
         except Exception as exc:  # noqa: BLE001 -- the worker reported it; the caller gets it
             answer = False, internal_error("mesh", exc), None
@@ -210,15 +244,17 @@ class MeshingNode(Node):
             self._answered.reset()
         return answer
 
-    def _carved_scan(self, options: MeshOptions):
-        """The carving node's carved scan for ``options`` (a message), or why there is none."""
+    def _carved_scan(self, options: MeshOptions, held_session: str, held: list):
+        """The carving node's carved scan for ``options`` (a message), or why there is none;
+        without the images ``held`` of the scan ``held_session``."""
         colour = options.colour if options.colour is not None else self._values["colour"]
         if options.output_name and Path(options.output_name).suffix.lower() == ".stl":
             colour = False                 # an .stl has no colours
         request = CarveScan.Request(
             resolution=options.resolution or 0,
             bounds_m=[] if options.bounds_m is None else options.bounds_m.ravel().tolist(),
-            mesher=options.mesher or "", colour="yes" if colour else "no")
+            mesher=options.mesher or "", colour="yes" if colour else "no",
+            images_session=held_session, images_held=held)
         try:
             answer = call(self._carve_client, request,
                           timeout_s=self._values["carve_timeout_s"])
@@ -238,18 +274,21 @@ class MeshingNode(Node):
 
     # -- worker thread ---------------------------------------------------------------------------
 
-    def _mesh(self, msg, options: MeshOptions) -> tuple[bool, str, dict | None]:
-        """Mesh a carved scan message and write the files; the messages and pictures are
-        queued to follow the answer."""
+    def _mesh(self, msg, options: MeshOptions, held: dict) -> tuple[bool, str, dict | None]:
+        """Mesh a carved scan message (``held``: the images it leaves out) and write the
+        files; the messages and pictures are queued to follow the answer."""
         try:
-            carved, hand_over = carved_scan_from_msg(msg)
+            carved, hand_over = carved_scan_from_msg(msg, held)
             made = write_mesh(carved, hand_over, self._output_dir, options.output_name,
                               pictures=options.wait_for_pictures)
         except (ValueError, OSError) as exc:
             return self._failed(f"reconstruction failed: {exc}")
         summary = made.summary
+        held = sum(msg.views[i].image_held for i in msg.colour_views)
         with self._stats_lock:
             self._counts["reconstructions"] += 1
+            self._counts["images_held"] = held
+            self._counts["images_carried"] = len(msg.colour_views) - held
             self._mesh_path, self._session_dir = summary["path"], summary["session"]
             self._problem = ""
         self.get_logger().info(f"mesh written to {summary['path']} ({summary['views_used']} "

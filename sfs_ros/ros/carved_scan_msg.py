@@ -3,8 +3,10 @@ message and back, bit for bit (the meshing node makes the mesh the offline path 
 
 The hull travels as its occupied box, packed a bit a voxel; each silhouette packed a bit a
 pixel; the mesher's input as it is (float32 band distances, float64 points); the images
-that colour the mesh as rgb8 (sizes: ``bench/bench_handover.py``); the hand-over's
-thumbnails, for the contact sheet only, as JPEG.
+that colour the mesh as rgb8 (sizes: ``bench/bench_handover.py``), but for those the
+receiver holds already (``held``: the carving node sends each view's image as it is
+stored, :func:`view_image_msg`); the hand-over's thumbnails, for the contact sheet only,
+as JPEG.
 """
 
 from __future__ import annotations
@@ -24,9 +26,10 @@ from sfs_ros.core.geometry.grid import VoxelGrid
 from sfs_ros.core.meshing.marching import BandDistance
 from sfs_ros.core.meshing.meshers import MESHERS, HullCloud
 from sfs_ros_interfaces.msg import CarvedScan as CarvedScanMsg
-from sfs_ros_interfaces.msg import CarvedView
+from sfs_ros_interfaces.msg import CarvedView, ViewImage
 
-__all__ = ["HandOver", "carved_scan_from_msg", "carved_scan_to_msg"]
+__all__ = ["HandOver", "carved_scan_from_msg", "carved_scan_to_msg", "view_image_from_msg",
+           "view_image_msg"]
 
 #: JPEG quality of the views' thumbnails (pictures only: the mesh never sees them).
 THUMBNAIL_QUALITY = 90
@@ -67,7 +70,7 @@ def _unjpeg(data, name: str) -> np.ndarray:
 
 
 def _view_msg(view: ScanView, mask: np.ndarray, colour: tuple | None,
-              thumb: np.ndarray | None) -> CarvedView:
+              thumb: np.ndarray | None, held: bool) -> CarvedView:
     camera = view.camera
     theta, phi = view.angles_rad if view.angles_rad is not None else (math.nan, math.nan)
     msg = CarvedView(name=view.name, role=view.role, orthographic=bool(camera.orthographic),
@@ -81,7 +84,10 @@ def _view_msg(view: ScanView, mask: np.ndarray, colour: tuple | None,
     if colour is not None:
         colour_mask, image = colour
         msg.colour_mask_bits = _bits(colour_mask)
-        msg.image_rgb = _bytes(np.asarray(image, np.uint8), "B")
+        if held:
+            msg.image_held = True
+        else:
+            msg.image_rgb = _bytes(np.asarray(image, np.uint8), "B")
     return msg
 
 
@@ -98,8 +104,10 @@ def _mesher_fields(msg: CarvedScanMsg, mesher_input) -> None:
                          f"{type(mesher_input).__name__}")
 
 
-def carved_scan_to_msg(carved: CarvedScan, hand_over: HandOver, *, stamp) -> CarvedScanMsg:
-    """The message of ``carved`` (its ``taken`` masks stay behind), stamped ``stamp``."""
+def carved_scan_to_msg(carved: CarvedScan, hand_over: HandOver, *, stamp,
+                       held=frozenset()) -> CarvedScanMsg:
+    """The message of ``carved`` (its ``taken`` masks stay behind), stamped ``stamp``;
+    the images of the views named in ``held`` are left out (the receiver holds them)."""
     box = occupied_bounds(carved.occupancy)
     if box is None:
         raise ValueError("the carved hull is empty: nothing to hand over")
@@ -120,7 +128,8 @@ def carved_scan_to_msg(carved: CarvedScan, hand_over: HandOver, *, stamp) -> Car
     _mesher_fields(msg, carved.mesher_input)
     colours = {i: (m, image) for i, m, image in zip(carved.colour_views, carved.colour_masks,
                                                     carved.colour_images)}
-    msg.views = [_view_msg(view, mask, colours.get(i), hand_over.thumbnails.get(view.name))
+    msg.views = [_view_msg(view, mask, colours.get(i), hand_over.thumbnails.get(view.name),
+                           view.name in held)
                  for i, (view, mask) in enumerate(zip(carved.views, carved.masks))]
     msg.colour_views = _bytes(np.asarray(carved.colour_views, np.uint32), "I")
     return msg
@@ -167,9 +176,16 @@ def _view(view: CarvedView, width: int, height: int) -> tuple[ScanView, np.ndarr
     return ScanView(view.name, camera, view.role, angles), mask.copy()
 
 
-def _colour(view: CarvedView, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+def _colour(view: CarvedView, width: int, height: int,
+            held: dict) -> tuple[np.ndarray, np.ndarray]:
     mask = _unbits(view.colour_mask_bits, (height, width),
                    f"view {view.name!r}'s colour_mask_bits")
+    if view.image_held:
+        image = held.get(view.name)
+        if image is None or image.shape != (height, width, 3):
+            raise ValueError(f"view {view.name!r}'s image was left out as held, but no "
+                             f"{width} x {height} image of it is held")
+        return mask.copy(), image
     image = np.frombuffer(view.image_rgb, np.uint8)
     if image.size != height * width * 3:
         raise ValueError(f"view {view.name!r}'s image_rgb has {image.size} bytes, expected "
@@ -177,9 +193,11 @@ def _colour(view: CarvedView, width: int, height: int) -> tuple[np.ndarray, np.n
     return mask.copy(), image.reshape(height, width, 3).copy()
 
 
-def carved_scan_from_msg(msg: CarvedScanMsg) -> tuple[CarvedScan, HandOver]:
+def carved_scan_from_msg(msg: CarvedScanMsg,
+                         held: dict | None = None) -> tuple[CarvedScan, HandOver]:
     """The carved scan of a message, and what it says of its scan; ValueError naming the
-    field that does not add up."""
+    field that does not add up. ``held``: {view name: (H, W, 3) uint8} of the images
+    left out of the message (``image_held``)."""
     width, height = int(msg.image_width), int(msg.image_height)
     grid, occupancy = _grid_and_occupancy(msg)
     views, masks = zip(*[_view(v, width, height) for v in msg.views]) if msg.views else ((), ())
@@ -187,7 +205,7 @@ def carved_scan_from_msg(msg: CarvedScanMsg) -> tuple[CarvedScan, HandOver]:
     if any(i >= len(msg.views) for i in colour_views):
         raise ValueError(f"colour_views {colour_views} name views beyond the "
                          f"{len(msg.views)} given")
-    colours = [_colour(msg.views[i], width, height) for i in colour_views]
+    colours = [_colour(msg.views[i], width, height, held or {}) for i in colour_views]
     carved = CarvedScan(grid=grid, occupancy=occupancy, mesher=msg.mesher,
                         mesher_input=_mesher_input(msg), views=list(views), masks=list(masks),
                         colour_views=colour_views, colour_masks=[m for m, _ in colours],
@@ -198,3 +216,29 @@ def carved_scan_from_msg(msg: CarvedScanMsg) -> tuple[CarvedScan, HandOver]:
     return carved, HandOver(scan_name=msg.scan_name, session_dir=msg.session_dir,
                             views_received=int(msg.views_received),
                             frame_id=msg.header.frame_id, thumbnails=thumbnails)
+
+
+def view_image_msg(session_dir: str, name: str, rgb: np.ndarray, *, header) -> ViewImage:
+    """A view's colour image (``(H, W, 3)`` uint8, as :meth:`LiveReconstruction.colour_image`
+    gives it) as its message, with ``header`` (``std_msgs/Header``: the capture's stamp)."""
+    msg = ViewImage(header=header, session_dir=session_dir, view_name=name)
+    height, width = rgb.shape[:2]
+    msg.image.header = header
+    msg.image.height, msg.image.width = int(height), int(width)
+    msg.image.encoding, msg.image.step = "rgb8", int(width) * 3
+    msg.image.data = _bytes(np.asarray(rgb, np.uint8), "B")
+    return msg
+
+
+def view_image_from_msg(msg: ViewImage) -> tuple[str, str, np.ndarray]:
+    """``(session folder, view name, (H, W, 3) uint8)`` of a view image message;
+    ValueError for anything but a packed rgb8 image."""
+    image = msg.image
+    height, width = int(image.height), int(image.width)
+    if image.encoding != "rgb8" or image.step != width * 3 \
+            or len(image.data) != height * width * 3 or not msg.view_name:
+        raise ValueError(f"view image {msg.view_name!r}: expected a named, packed rgb8 image, "
+                         f"got {image.encoding!r} {width} x {height}, step {image.step}, "
+                         f"{len(image.data)} bytes")
+    return (msg.session_dir, msg.view_name,
+            np.frombuffer(image.data, np.uint8).reshape(height, width, 3).copy())

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 __all__ = ["NAMESPACE", "DIAGNOSTICS", "CARVING_NODE", "RECORDER_NODE", "SERVICES", "TYPED_SERVICES",
            "SCAN_ACTION", "CALIBRATE_ACTION", "CELL_STATUS", "RECONSTRUCTION_STATUS", "MESHING_STATUS",
+           "VIEW_IMAGES", "VIEW_IMAGE_DEPTH",
            "CONFIGURATION_ERROR",
            "private", "status_name"]
 
@@ -75,6 +76,12 @@ CELL_STATUS = "status"
 #: views), and the meshing node's (the same type: the reconstructions and the last mesh).
 RECONSTRUCTION_STATUS = "carving/status"
 MESHING_STATUS = "meshing/status"
+#: The carving node's colour image of each view as it is stored
+#: (``sfs_ros_interfaces/msg/ViewImage``), held by the meshing node.
+VIEW_IMAGES = "carving/view_image"
+#: Its depth (reliable, volatile): an image missed by a slow reader comes in the carved
+#: scan instead.
+VIEW_IMAGE_DEPTH = 8
 
 
 def private(service: str) -> str:

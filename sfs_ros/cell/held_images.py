@@ -1,0 +1,54 @@
+"""The colour images a meshing process holds of the scan being received.
+
+The carving node sends each view's colour image as it stores the view; the meshing node
+keeps those of the newest scan here, so that the carved scan it asks for at the end can
+leave them out (the hand-over then carries the masks and the hull, not the images).
+Whatever is not held (a meshing node started mid-scan, an image dropped on the way, one
+given up to the byte limit) comes in the carved scan itself: holding is an optimisation,
+never a condition.
+"""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+
+__all__ = ["HeldImages"]
+
+
+class HeldImages:
+    """Colour images of one scan, ``{view name: (H, W, 3) uint8}``, at most ``max_bytes``.
+
+    Thread-safe: images are added from a subscription while a reconstruction reads them.
+    An image of another scan (``session_dir``) replaces those held; past ``max_bytes``
+    the oldest images are given up.
+    """
+
+    def __init__(self, max_bytes: int):
+        self.max_bytes = int(max_bytes)
+        self._lock = threading.Lock()
+        self._session = ""
+        self._images: dict[str, np.ndarray] = {}
+
+    def add(self, session_dir: str, name: str, rgb: np.ndarray) -> None:
+        """Hold view ``name``'s image of the scan ``session_dir``."""
+        with self._lock:
+            if session_dir != self._session:
+                self._session, self._images = session_dir, {}
+            self._images.pop(name, None)
+            self._images[name] = rgb
+            total = sum(image.nbytes for image in self._images.values())
+            while total > self.max_bytes and self._images:
+                total -= self._images.pop(next(iter(self._images))).nbytes
+
+    def snapshot(self) -> tuple[str, dict[str, np.ndarray]]:
+        """``(scan folder, {view name: image})`` held now; the dict is the caller's own."""
+        with self._lock:
+            return self._session, dict(self._images)
+
+    @property
+    def n_bytes(self) -> int:
+        """Bytes of the images held."""
+        with self._lock:
+            return sum(image.nbytes for image in self._images.values())
