@@ -6,7 +6,8 @@ rings of 16 views and one from above) is received as the carving node receives i
 mesher, with and without colour: the carving (:meth:`LiveReconstruction.carve`, the
 baseline, measured in the same run), and the hand-over: the carved scan made into its
 message, serialised, deserialised and made back (:mod:`sfs_ros.ros.carved_scan_msg`),
-as it crosses between the nodes (without the transport itself). Ratio = carving /
+as it crosses between the nodes (without the transport itself); with colour also as it
+crosses when the meshing node holds the images (sent as the views were stored). Ratio = carving /
 hand-over (above 1: the hand-over costs less than the carving). The serialised size
 goes in the notes.
 
@@ -33,11 +34,12 @@ from .bench_colour import PLAN, RIGS
 from .timing import best_of, main
 
 
-def _round_trip(carved) -> int:
-    """The carved scan through its serialised message and back; the message's bytes."""
+def _round_trip(carved, held: dict) -> int:
+    """The carved scan through its serialised message and back, without the images in
+    ``held`` ({view name: image}, those the meshing node holds); the message's bytes."""
     wire = serialize_message(carved_scan_to_msg(carved, HandOver("scan", "/scan", 49, "t"),
-                                                stamp=Time()))
-    carved_scan_from_msg(deserialize_message(wire, CarvedScanMsg))
+                                                stamp=Time(), held=frozenset(held)))
+    carved_scan_from_msg(deserialize_message(wire, CarvedScanMsg), held)
     return len(wire)
 
 
@@ -57,14 +59,18 @@ def run(quick: bool = False) -> list[dict]:
             live.add_view(n, mask, capture.theta_rad, capture.phi_rad)
             live.add_colour_image(n, capture.image)
         for mesher in ("marching-cubes", "advancing-front"):
-            for colour in (False, True):
+            for colour, holding in ((False, False), (True, False), (True, True)):
                 carved = live.carve(mesher=mesher, colour=colour)
+                held = ({carved.views[i].name: image for i, image
+                         in zip(carved.colour_views, carved.colour_images)} if holding else {})
                 repeats = 2 if quick else 3
                 baseline = best_of(lambda: live.carve(mesher=mesher, colour=colour), repeats)
-                seconds = best_of(lambda: _round_trip(carved), repeats)
-                size = _round_trip(carved)
+                seconds = best_of(lambda: _round_trip(carved, held), repeats)
+                size = _round_trip(carved, held)
+                what = ("colour, images held by the meshing node" if holding
+                        else "colour" if colour else "no colour")
                 rows.append({
-                    "name": f"hand-over {mesher}, {'colour' if colour else 'no colour'}, "
+                    "name": f"hand-over {mesher}, {what}, "
                             f"{len(captures)} views {rig_name}, resolution {resolution}",
                     "seconds": seconds, "baseline_seconds": baseline,
                     "ratio": baseline / seconds,
