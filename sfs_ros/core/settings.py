@@ -119,7 +119,8 @@ BOUNDS_M = Setting(
     cell_default=[-0.1, -0.1, 0.0, 0.1, 0.1, 0.2],
     default_text="the input's, else estimated from the silhouettes")
 COLOUR = Setting(
-    "colour", "Colour the mesh's vertices from the captured images of the views it uses.", bool, "--colour", default=False, cell_default=True)
+    "colour", "Colour the mesh's vertices from the captured images of the views it uses.",
+    bool, "--colour", default=False, cell_default=True)
 MAX_MEMORY = Setting(
     "max_memory", "Working memory the voxel grid may take, e.g. 2G or 512M; a resolution "
     "that needs more is refused, a grid from the pixel footprint is coarsened to fit.",
