@@ -22,7 +22,6 @@ from ..cell.live import view_key_of
 from ..core.carving.resolution import parse_memory
 from ..core.exchange.export import MESH_FORMATS, TEXTURED_SUFFIXES
 from ..core.exchange.views import ViewSet, read_image
-from ..core.meshing.meshers import MESHER
 from ..core.pipeline import ReconstructionParams, reconstruct
 from ..core.resident_memory import keep_freed_memory
 from ..core.result_files import SheetViews, report_path_for, write_result
@@ -46,6 +45,7 @@ PROG = "sfs-reconstruct"
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from ..core.meshing.meshers import MESHER
     p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
     p.add_argument("input", type=Path, help=accepted_inputs())
     p.add_argument("-o", "--output", type=Path, required=True,
@@ -152,6 +152,7 @@ def _by_view(captures: ViewSet, view_set: ViewSet) -> dict:
 
 def run(args) -> dict:
     """Run one reconstruction from parsed arguments; returns the report."""
+    from ..core.meshing.meshers import MESHER
     suffix = args.output.suffix.lower()
     if suffix not in MESH_FORMATS:
         raise ValueError(f"output {args.output} has an unsupported suffix {suffix!r}; "
@@ -168,7 +169,8 @@ def run(args) -> dict:
                          f"({', '.join(holders)}); {MESH_FORMATS[suffix].name} has none")
     if args.texture and suffix not in TEXTURED_SUFFIXES:
         raise ValueError(f"--texture writes {' or '.join(TEXTURED_SUFFIXES)}, not {suffix}: "
-                         "PLY and STL hold no texture (use --colour for vertex colours)")
+                         f"{MESH_FORMATS[suffix].name} holds no texture (use --colour for "
+                         "vertex colours)")
     view_set, recorded = load_input(args.input)
     check_outputs({"-o": args.output, "report": report_path_for(args.output),
                    "--preview": args.preview, "--html": args.html,

@@ -18,7 +18,6 @@ from ..core.exchange.export import MESH_FORMATS, export_mesh
 from ..core.exchange.inputs import load_views
 from ..core.exchange.session import write_session
 from ..core.geometry.rig import RigCalibration
-from ..core.meshing.meshers import MESHER
 from ..core.pictures.preview import preview_image, write_png
 from ..core.pipeline import ReconstructionParams, reconstruct
 from ..core.resident_memory import keep_freed_memory
@@ -43,6 +42,7 @@ DEMO_RIG = RigCalibration(width=640, height=480, projection="pinhole", fx=1400.0
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from ..core.meshing.meshers import MESHER
     p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
     p.add_argument("-o", "--out", type=Path, default=Path("out/simulate"), help="output folder")
     p.add_argument("--object", choices=OBJECT_NAMES, default="mug")

@@ -69,6 +69,7 @@ class MeshFormat:
     textured : optional (textured mesh, path, vertices (k, 3) in the file's units and
         axes) -> [(path, bytes)]: the files of a textured mesh; None: no texture.
     file_type : str, trimesh's name of the format (to read it back).
+    soup : bool, stores a triangle soup: its identical vertices are merged when read back.
     """
 
     suffix: str
@@ -80,6 +81,7 @@ class MeshFormat:
     vertex_colours: bool = True
     units: tuple[str, ...] = tuple(UNIT_SCALE)
     textured: Callable | None = None
+    soup: bool = False
 
 
 def export_mesh(vertices, faces, path, *, vertex_colors=None, units: str = "m") -> Path:
@@ -167,7 +169,7 @@ def load_mesh(path, *, units: str = "m", with_colors: bool = False):
     mesh = trimesh.load(path, file_type=fmt.file_type, force="mesh", process=False)
     v = np.asarray(mesh.vertices, dtype=np.float64)
     f = np.asarray(mesh.faces, dtype=np.int64)
-    if fmt.file_type == "stl":
+    if fmt.soup:
         v, inverse = np.unique(v, axis=0, return_inverse=True)
         f = inverse.reshape(-1)[f]
     if fmt.y_up:
@@ -318,7 +320,7 @@ MESH_FORMATS: dict[str, MeshFormat] = {f.suffix: f for f in (
                "texture as vt, an .mtl and a .png beside it.", _trimesh_encoder("obj"), "obj",
                y_up=True, textured=_obj_textured),
     MeshFormat(".stl", "STL", "Binary STL, Z up; no colours.", _trimesh_encoder("stl"), "stl",
-               vertex_colours=False),
+               vertex_colours=False, soup=True),
     MeshFormat(".glb", "glTF", "Binary glTF 2.0, Y up, metres; vertex colours as COLOR_0; a "
                "texture as the material's baseColorTexture.", _trimesh_encoder("glb"), "glb",
                y_up=True, units=("m",), textured=_glb_textured),
