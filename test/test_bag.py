@@ -173,12 +173,14 @@ def test_bag_of_masks_gives_the_live_nodes_views_and_mesh(tmp_path, views, refer
     # The same masks, cameras, box and grid through the same code: the very same mesh.
     np.testing.assert_array_equal(faces, reference[1])
     np.testing.assert_array_equal(vertices, reference[0])
-    # The command-line tools recognise the folder and the storage file alike.
+    # The command-line tools and the core's one door recognise the folder and the storage
+    # file alike.
     ending = ".mcap" if storage == "mcap" else ".db3"
     for path in (tmp_path / "bag", tmp_path / "bag" / f"bag{ending}"):
         loaded, recorded = load_input(path)
         assert len(loaded.views) == len(views)
         assert recorded == {"resolution": RESOLUTION, "mesher": "marching-cubes"}
+        assert [v.name for v in load_views(path).views] == [v.name for v in loaded.views]
 
 
 def test_bag_of_captures_is_segmented_with_the_recorded_parameters(tmp_path, mug,

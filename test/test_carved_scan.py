@@ -144,9 +144,11 @@ def test_a_message_that_does_not_add_up_is_refused_by_name(halves):
         carved_scan_from_msg(msg)
 
 
-def test_every_mesher_has_two_halves_and_is_named_in_the_parameters():
+def test_every_mesher_has_two_halves_and_takes_its_own_options():
     for name, entry in MESHERS.items():
         assert mesher(name) is entry and callable(entry.prepare) and callable(entry.mesh)
-        assert set(entry.options) <= set(ReconstructionParams.__dataclass_fields__)
+        defaults = {option.name: option.default for option in entry.options}
+        assert entry.option_values({}) == defaults
+        assert ReconstructionParams(mesher=name, mesher_options=defaults).mesher_options == defaults
     with pytest.raises(ValueError, match="mesher must be one of"):
         mesher("poisson")

@@ -28,7 +28,8 @@ from sfs_ros.core.exchange.colmap import read_colmap
 from sfs_ros.core.exchange.pose_export import write_colmap
 from sfs_ros.core.exchange.session import read_session
 from sfs_ros.core.exchange.views import ViewError, as_bounds
-from sfs_ros.core.pipeline import RESOLUTION_RANGE, ReconstructionParams
+from sfs_ros.core.pipeline import ReconstructionParams
+from sfs_ros.core.settings import RESOLUTION
 
 from test_bag import (
     PARAMETERS_TOPIC,
@@ -415,12 +416,17 @@ def test_class_16_a_corrupt_message_is_a_rejected_view_and_the_rest_is_used(tmp_
 
 # ---- class 17: -r overrides a bag's resolution; one range --------------------------------
 
+RESOLUTION_RANGE = RESOLUTION.bounds
+
+
 def test_class_17_the_command_line_resolution_overrides_the_bags_within_one_range(tmp_path):
-    from sfs_ros.cell.mesh_options import RESOLUTION_RANGE as REQUESTS
+    from sfs_ros.cell.mesh_options import mesh_options
     from sfs_ros.nodes.carving_node import PARAMS
 
     node_range = next(p.bounds for p in PARAMS if p.name == "resolution")
-    assert tuple(node_range) == RESOLUTION_RANGE == REQUESTS
+    assert tuple(node_range) == RESOLUTION_RANGE
+    with pytest.raises(ValueError, match=f"outside \\[{RESOLUTION_RANGE[0]}, {RESOLUTION_RANGE[1]}\\]"):
+        mesh_options(tmp_path, resolution=RESOLUTION_RANGE[1] + 1)
     with pytest.raises(ValueError, match=f"{RESOLUTION_RANGE[0]}..{RESOLUTION_RANGE[1]}"):
         ReconstructionParams(resolution=RESOLUTION_RANGE[1] + 1)
     high = RESOLUTION_RANGE[1]

@@ -226,7 +226,8 @@ def test_cli_writes_a_textured_obj_with_its_viewer(tmp_path, scan):
 
 def test_cli_refuses_a_texture_in_ply(tmp_path, scan, capsys):
     assert reconstruct_main([str(scan[1]), "-o", str(tmp_path / "m.ply"), "--texture"]) == 2
-    assert "--texture writes .glb or .obj" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "--texture writes .obj or .glb" in err and "PLY holds no texture" in err
 
 
 def test_the_viewer_draws_the_texture(tmp_path):

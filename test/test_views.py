@@ -96,8 +96,10 @@ def test_view_set_checks_source_and_bounds(tmp_path):
     camera = Camera(np.eye(3), np.eye(3), np.zeros(3), 4, 4)
     views = [View("a", tmp_path / "a.png", camera)]
     assert ViewSet(views, "session", bounds_m=[[0, 0, 0], [1, 1, 1]]).bounds_m.shape == (2, 3)
-    with pytest.raises(ValueError, match="source"):
-        ViewSet(views, "photogrammetry")
+    assert ViewSet(views, "photogrammetry").source == "photogrammetry"   # any format's name
+    for nameless in ("", None):
+        with pytest.raises(ValueError, match="source"):
+            ViewSet(views, nameless)
     with pytest.raises(ValueError, match="min < max"):
         ViewSet(views, "nerf", bounds_m=[[0, 0, 0], [1, -1, 1]])
 

@@ -60,9 +60,11 @@ from ..core.geometry.grid import VoxelGrid
 from ..core.geometry.lens import ideal_camera, undistort_image, undistort_mask
 from ..core.geometry.rig import RigCalibration, rig_camera
 from ..core.meshing.hull_distance import DistanceImages
+from ..core.meshing.meshers import MESHER
 from ..core.pipeline import Precomputed, ReconstructionParams, carve_scan
 from ..core.result_files import SheetViews
 from ..core.segment import SegmentationParams
+from ..core.settings import RESOLUTION
 from .mesh_files import HandOver, mask_to_rgb, mesh_paths, thumbnail, write_mesh
 from .paths import check_scan_name_format
 
@@ -208,9 +210,10 @@ class LiveReconstruction:
         needed). Only one :class:`LiveReconstruction` should write to it.
     resolution : int
         Voxels along the longest side of the box, for the live hull and the
-        final reconstruction alike (default 192, as ``sfs-reconstruct``).
+        final reconstruction alike (default: the cell's,
+        :data:`sfs_ros.core.settings.RESOLUTION`).
     mesher : str
-        ``"marching-cubes"`` or ``"advancing-front"``.
+        A name in :data:`sfs_ros.core.meshing.meshers.MESHERS`.
     max_misses : int
         A voxel survives when at most this many views miss it.
     check_consistency : bool
@@ -222,7 +225,8 @@ class LiveReconstruction:
     """
 
     def __init__(self, calibration: RigCalibration, bounds_m, *, output_dir,
-                 resolution: int = 192, mesher: str = "marching-cubes", max_misses: int = 0,
+                 resolution: int = RESOLUTION.cell_default, mesher: str = MESHER.cell_default,
+                 max_misses: int = 0,
                  check_consistency: bool = True, scan_name: str | None = None):
         if not isinstance(calibration, RigCalibration):
             raise ValueError(f"calibration must be a RigCalibration, got "
@@ -560,8 +564,8 @@ class LiveReconstruction:
         Parameters
         ----------
         name : str or None
-            Mesh file name inside ``output_dir`` (format from the suffix:
-            .ply, .obj, .stl, .glb; see :func:`.paths.confined_path` for what
+            Mesh file name inside ``output_dir`` (format from the suffix, one of
+            :data:`sfs_ros.core.exchange.export.MESH_FORMATS`; see :func:`.paths.confined_path` for what
             is refused); None: ``<scan name>.ply``. The report, a picture, a viewer
             and a contact sheet go beside it (:mod:`sfs_ros.cell.mesh_files`).
             Existing files are replaced.

@@ -17,10 +17,11 @@ import numpy as np
 
 from ..core.exchange.export import SUPPORTED_SUFFIXES
 from ..core.exchange.views import as_bounds
-from ..core.pipeline import MESHERS, RESOLUTION_RANGE
+from ..core.meshing.meshers import MESHER
+from ..core.settings import RESOLUTION
 from .paths import plain_file_name
 
-__all__ = ["COLOUR_CHOICES", "RESOLUTION_RANGE", "MeshOptions", "mesh_options"]
+__all__ = ["COLOUR_CHOICES", "MeshOptions", "mesh_options"]
 
 #: Accepted ``colour`` values: "" (the node's setting), then yes / no.
 COLOUR_CHOICES = {"": None, "yes": True, "no": False, "true": True, "false": False}
@@ -32,7 +33,7 @@ class MeshOptions:
 
     resolution : int, voxels along the box's longest side
     bounds_m : (2, 3) float64, the carving box ``[min, max]``, metres, object frame
-    mesher : str, one of :data:`sfs_ros.core.pipeline.MESHERS`
+    mesher : str, one of :data:`sfs_ros.core.meshing.meshers.MESHERS`
     colour : bool
     output_name : str, a file name in the output folder (with its suffix)
     wait_for_pictures : bool, answer once the pictures are written too
@@ -53,10 +54,11 @@ def mesh_options(output_dir, *, resolution: int = 0, bounds_m=(), mesher: str = 
     ValueError naming the field that is wrong and what was expected.
 
     ``bounds_m``: 6 numbers ``[xmin, ymin, zmin, xmax, ymax, zmax]``, metres.
-    ``output_name``: a file name ending in .ply, .obj, .stl or .glb, no folders,
-    written inside ``output_dir``.
+    ``output_name``: a file name ending in a suffix of
+    :data:`sfs_ros.core.exchange.export.MESH_FORMATS`, no folders, written inside
+    ``output_dir``.
     """
-    low, high = RESOLUTION_RANGE
+    low, high = RESOLUTION.bounds
     if resolution and not low <= resolution <= high:
         raise ValueError(f"resolution {resolution} is outside [{low}, {high}] (0 = the node's)")
     box = None
@@ -69,8 +71,8 @@ def mesh_options(output_dir, *, resolution: int = 0, bounds_m=(), mesher: str = 
         except ValueError:
             raise ValueError(f"bounds_m {list(bounds_m)} is not [xmin, ymin, zmin, xmax, ymax, "
                              "zmax] with finite min < max (empty = the node's)") from None
-    if mesher and mesher not in MESHERS:
-        raise ValueError(f"mesher {mesher!r} is not one of {', '.join(MESHERS)} "
+    if mesher and mesher not in MESHER.choices():
+        raise ValueError(f"mesher {mesher!r} is not one of {', '.join(MESHER.choices())} "
                          "(empty = the node's)")
     if colour.lower() not in COLOUR_CHOICES:
         raise ValueError(f"colour {colour!r} is not 'yes' or 'no' (empty = the node's)")

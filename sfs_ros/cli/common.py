@@ -7,42 +7,70 @@ import signal
 import sys
 import threading
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from ..core.exchange.inputs import ACCEPTED_INPUTS as CORE_INPUTS
-from ..core.exchange.inputs import load_views
-from ..core.exchange.views import ViewError, ViewSet
-
-#: What :func:`load_input` reads, in words.
-ACCEPTED_INPUTS = f"{CORE_INPUTS}, or a rosbag2 recorded by sfs-recorder (folder, .mcap or .db3)"
-_BAG_SUFFIXES = (".mcap", ".db3")
+if TYPE_CHECKING:
+    from ..core.exchange.views import ViewSet
+    from ..core.settings import Setting
 
 
-def _is_bag(path: Path) -> bool:
-    if path.is_file():
-        return path.suffix.lower() in _BAG_SUFFIXES
-    return path.is_dir() and ((path / "metadata.yaml").is_file()
-                              or any(p.suffix.lower() in _BAG_SUFFIXES for p in path.iterdir()))
+def accepted_inputs() -> str:
+    """What :func:`load_input` reads, in words: every input format, the cell's rosbag2
+    among them (:func:`sfs_ros.core.exchange.inputs.accepted_inputs`)."""
+    from ..cell import bag_input  # noqa: F401 - adds the rosbag2 to the input formats
+    from ..core.exchange.inputs import accepted_inputs as every_format
+    return every_format()
 
 
 def load_input(path, *, captures: bool = False) -> tuple[ViewSet, dict]:
-    """The views at ``path`` (:func:`sfs_ros.core.exchange.inputs.load_views`, or a rosbag2 read
-    by :func:`sfs_ros.cell.bag.read_bag`: its masks as the carving node carved
-    them, or with ``captures`` its captured images) and the recorded defaults of a bag
-    (``{"resolution": ..., "mesher": ...}`` as the carving node had them; empty
-    for other inputs). Raises ViewError with one line."""
-    path = Path(path)
-    if not _is_bag(path):
-        return load_views(path), {}
-    try:
-        from ..cell.bag import read_bag
-    except ModuleNotFoundError as exc:
-        if (exc.name or "").split(".")[0] != "rosbags":
-            raise
-        raise ViewError(f"input {path} is a rosbag2: reading it needs the rosbags package "
-                        "(pip install rosbags)") from None
-    views = read_bag(path, captures=captures)
-    recorded = {"resolution": views.resolution, "mesher": views.mesher}
-    return views, {k: v for k, v in recorded.items() if v is not None}
+    """The views at ``path`` (:func:`sfs_ros.core.exchange.inputs.load_views`, the cell's
+    rosbag2 among the formats; ``captures``: a bag's captured images rather than its
+    masks) and the settings the input recorded (``{"resolution": ..., "mesher": ...}`` as
+    a bag's carving node had them; empty for other inputs). Raises ViewError with one
+    line."""
+    from ..cell import bag_input  # noqa: F401 - adds the rosbag2 to the input formats
+    from ..core.exchange.inputs import load_views
+    views = load_views(Path(path), captures=captures)
+    return views, views.recorded_settings
+
+
+def add_setting(parser, setting: Setting, *short: str, **overrides):
+    """Add ``setting`` (:mod:`sfs_ros.core.settings`) to ``parser`` (or a group of it) as
+    its flag after the ``short`` ones: type, count, choices and help from the setting,
+    default None (the run fills it in), a flag for a bool; ``overrides``: argparse's
+    keywords."""
+    keywords = {"help": setting.help()}
+    if setting.kind is bool:
+        keywords["action"] = "store_true"
+    else:
+        keywords.update(type=setting.kind, metavar=setting.metavar)
+        if setting.length:
+            keywords["nargs"] = setting.length
+        if setting.choices is not None:
+            keywords.update(choices=setting.choices(), metavar=None)
+    keywords.update(overrides)
+    return parser.add_argument(*short, setting.flag, **keywords)
+
+
+def add_mesher_options(parser) -> None:
+    """Add the meshers' own options (:data:`sfs_ros.core.meshing.meshers.MESHERS`), each
+    once, its help naming the meshers that take it."""
+    from ..core.meshing.meshers import MESHERS
+    owners: dict[str, list] = {}
+    for entry in MESHERS.values():
+        for option in entry.options:
+            owners.setdefault(option.name, [option]).append(entry.name)
+    for option, *meshers in owners.values():
+        add_setting(parser, option, dest=option.name,
+                    help=f"{' and '.join(meshers)} only: {option.help()}")
+
+
+def mesher_options(args) -> dict:
+    """``{option name: value}`` of the meshers' options given on the command line."""
+    from ..core.meshing.meshers import MESHERS
+    names = {option.name for entry in MESHERS.values() for option in entry.options}
+    return {name: getattr(args, name) for name in sorted(names)
+            if getattr(args, name, None) is not None}
 
 
 def input_files(path: Path, view_set: ViewSet) -> list[Path]:

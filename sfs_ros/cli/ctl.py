@@ -71,7 +71,8 @@ def build_parser() -> argparse.ArgumentParser:
     rec = sub.add_parser("reconstruct", help="mesh the views received")
     rec.add_argument("--resolution", type=int, default=0, help="voxels along the box's "
                      "longest side (default: the node's)")
-    rec.add_argument("--mesher", default="", help="marching-cubes or advancing-front")
+    rec.add_argument("--mesher", default="", help="a mesher of doc/reference.md "
+                     "(default: the node's)")
     rec.add_argument("--output", default="", help="mesh file name in the output folder")
     rec.add_argument("--no-colour", action="store_true", help="no vertex colours")
     rec.add_argument("--wait-pictures", action="store_true", help="answer once the picture, "

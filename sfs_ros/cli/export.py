@@ -18,14 +18,14 @@ from pathlib import Path
 
 from ..core.exchange.pose_export import export_session, write_colmap, write_nerf_transforms
 from ..core.exchange.session import IMAGES_DIR, read_session
-from .common import ACCEPTED_INPUTS, check_outputs, input_files, load_input, run_reporting_errors
+from .common import accepted_inputs, check_outputs, input_files, load_input, run_reporting_errors
 
 PROG = "sfs-export"
 
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
-    p.add_argument("input", type=Path, help=ACCEPTED_INPUTS)
+    p.add_argument("input", type=Path, help=accepted_inputs())
     p.add_argument("--session", type=Path, metavar="DIR", help="plain session folder to write")
     p.add_argument("--colmap", type=Path, metavar="DIR", help="COLMAP text model folder")
     p.add_argument("--nerf", type=Path, metavar="FILE", help="transforms.json to write")

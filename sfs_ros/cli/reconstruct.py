@@ -1,9 +1,9 @@
-"""``sfs-reconstruct INPUT -o OUT.{ply,obj,stl,glb}``: images with cameras in, a mesh out.
+"""``sfs-reconstruct INPUT -o MESH``: images with cameras in, a mesh out.
 
-INPUT is a scan session folder (``session.yaml`` + ``views.csv`` + images), a
-Middlebury ``*_par.txt`` file, a NeRF-style ``transforms*.json``, or a rosbag2
-recorded by ``sfs-recorder`` (its folder or its .mcap / .db3 file: the
-recorded masks, rig, box, resolution and mesher, which options override). Beside the
+INPUT is any input format (:data:`sfs_ros.core.exchange.inputs.INPUT_FORMATS`, the
+list in ``doc/reference.md``), a rosbag2 recorded by ``sfs-recorder`` among them (its
+recorded masks, rig, box, resolution and mesher, which options override); MESH's suffix
+chooses its format (:data:`sfs_ros.core.exchange.export.MESH_FORMATS`). Beside the
 mesh it writes ``OUT.report.json``: per-stage timings, views used and
 rejected, per-view silhouette IoU and the mesh checks. On request it also
 writes a PNG picture of the mesh, an HTML page that shows the mesh in any
@@ -20,19 +20,23 @@ from pathlib import Path
 
 from ..cell.live import view_key_of
 from ..core.carving.resolution import parse_memory
-from ..core.exchange.export import SUPPORTED_SUFFIXES, TEXTURED_SUFFIXES
+from ..core.exchange.export import MESH_FORMATS, TEXTURED_SUFFIXES
 from ..core.exchange.views import ViewSet, read_image
-from ..core.pipeline import MESHERS, RESOLUTION_RANGE, ReconstructionParams, reconstruct
+from ..core.pipeline import ReconstructionParams, reconstruct
 from ..core.resident_memory import keep_freed_memory
 from ..core.result_files import SheetViews, report_path_for, write_result
 from ..core.segment import PRESETS, SegmentationParams
+from ..core.settings import BOUNDS_M, COLOUR, MAX_MEMORY, RESOLUTION
 from ..core.texture import texture_reconstruction
 from .common import (
-    ACCEPTED_INPUTS,
     StageProgress,
+    accepted_inputs,
+    add_mesher_options,
+    add_setting,
     check_outputs,
     input_files,
     load_input,
+    mesher_options,
     one_line,
     run_reporting_errors,
 )
@@ -41,30 +45,21 @@ PROG = "sfs-reconstruct"
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from ..core.meshing.meshers import MESHER
     p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
-    p.add_argument("input", type=Path, help=ACCEPTED_INPUTS)
+    p.add_argument("input", type=Path, help=accepted_inputs())
     p.add_argument("-o", "--output", type=Path, required=True,
-                   help=f"mesh file, format from the suffix: {', '.join(SUPPORTED_SUFFIXES)}")
+                   help=f"mesh file, format from the suffix: {', '.join(MESH_FORMATS)}")
     size = p.add_mutually_exclusive_group()
-    size.add_argument("-r", "--resolution", type=int,
-                      help=f"voxels along the longest side of the bounding box, "
-                           f"{RESOLUTION_RANGE[0]}..{RESOLUTION_RANGE[1]} (default: a "
-                           "bag's recorded one, else the finest pixel footprint at the object, "
-                           "within --max-memory)")
+    add_setting(size, RESOLUTION, "-r")
     size.add_argument("--voxel-size", type=float, metavar="METRES", help="voxel edge in metres")
-    p.add_argument("--max-memory", metavar="SIZE",
-                   help="working memory the voxel grid may take, e.g. 2G or 512M (default: a "
-                        "quarter of the machine's memory); a finer grid is coarsened, a given "
-                        "resolution that needs more is refused")
-    p.add_argument("-m", "--mesher", choices=MESHERS,
-                   help="default: a bag's recorded one, else marching-cubes")
-    p.add_argument("--block", type=int, default=2, metavar="M",
-                   help="cloud of points: one point per MxMxM block (advancing front; default 2)")
+    add_setting(p, MAX_MEMORY)
+    add_setting(p, MESHER, "-m")
+    add_mesher_options(p)
     p.add_argument("--holdout", default="", metavar="VIEWS",
                    help="comma-separated view names or 0-based indices kept out of carving "
                         "and used only to evaluate the mesh")
-    p.add_argument("--bounds", type=float, nargs=6, metavar=("XMIN", "YMIN", "ZMIN", "XMAX", "YMAX", "ZMAX"),
-                   help="carving box in metres (default: the input's, else estimated)")
+    add_setting(p, BOUNDS_M, metavar=("XMIN", "YMIN", "ZMIN", "XMAX", "YMAX", "ZMAX"))
     p.add_argument("--max-misses", type=int, default=0, metavar="K",
                    help="keep voxels that fall outside at most K silhouettes (default 0)")
     p.add_argument("--no-consistency-check", action="store_true",
@@ -83,9 +78,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="go below the visual hull where the colours show empty space "
                         "(concavities no silhouette shows): a photo-consistent refinement of "
                         "the hull, from views that carry colour; seconds more")
-    p.add_argument("--colour", action="store_true",
-                   help="colour the mesh's vertices from the images (the views that see each "
-                        "point, blended); a bag's captured images colour it")
+    add_setting(p, COLOUR)
     p.add_argument("--texture", action="store_true",
                    help="texture the mesh from the images (each face from the view that sees "
                         "it best, an atlas, colours levelled along the seams): a textured .glb, "
@@ -159,22 +152,25 @@ def _by_view(captures: ViewSet, view_set: ViewSet) -> dict:
 
 def run(args) -> dict:
     """Run one reconstruction from parsed arguments; returns the report."""
+    from ..core.meshing.meshers import MESHER
     suffix = args.output.suffix.lower()
-    if suffix not in SUPPORTED_SUFFIXES:
+    if suffix not in MESH_FORMATS:
         raise ValueError(f"output {args.output} has an unsupported suffix {suffix!r}; "
-                         f"expected one of {', '.join(SUPPORTED_SUFFIXES)}")
+                         f"expected one of {', '.join(MESH_FORMATS)}")
     for option, path, suffixes in (("--preview", args.preview, (".png",)),
                                    ("--contact-sheet", args.contact_sheet, (".png",)),
                                    ("--html", args.html, (".html", ".htm"))):
         if path is not None and path.suffix.lower() not in suffixes:
             raise ValueError(f"{option} {path} must end in {' or '.join(suffixes)}: that is "
                              "the format written")
-    if args.colour and suffix == ".stl":
-        raise ValueError("--colour needs a format that stores vertex colours (.ply, .obj, "
-                         ".glb); STL has none")
+    if args.colour and not MESH_FORMATS[suffix].vertex_colours:
+        holders = [s for s, f in MESH_FORMATS.items() if f.vertex_colours]
+        raise ValueError(f"--colour needs a format that stores vertex colours "
+                         f"({', '.join(holders)}); {MESH_FORMATS[suffix].name} has none")
     if args.texture and suffix not in TEXTURED_SUFFIXES:
         raise ValueError(f"--texture writes {' or '.join(TEXTURED_SUFFIXES)}, not {suffix}: "
-                         "PLY and STL hold no texture (use --colour for vertex colours)")
+                         f"{MESH_FORMATS[suffix].name} holds no texture (use --colour for "
+                         "vertex colours)")
     view_set, recorded = load_input(args.input)
     check_outputs({"-o": args.output, "report": report_path_for(args.output),
                    "--preview": args.preview, "--html": args.html,
@@ -192,8 +188,9 @@ def run(args) -> dict:
         resolution=recorded.get("resolution") if args.resolution is None else args.resolution,
         voxel_size_m=args.voxel_size,
         max_memory_bytes=None if args.max_memory is None else parse_memory(args.max_memory),
-        mesher=args.mesher or recorded.get("mesher", MESHERS[0]),
-        block=args.block, bounds_m=None if args.bounds is None else (args.bounds[:3], args.bounds[3:]),
+        mesher=args.mesher or recorded.get("mesher", MESHER.default),
+        mesher_options=mesher_options(args),
+        bounds_m=None if args.bounds is None else (args.bounds[:3], args.bounds[3:]),
         max_misses=args.max_misses, check_consistency=not args.no_consistency_check,
         consensus=not args.no_consensus,
         holdout=_holdout_names(args.holdout, [v.name for v in view_set.views]),

@@ -14,17 +14,24 @@ import json
 import sys
 from pathlib import Path
 
-from ..core.exchange.export import SUPPORTED_SUFFIXES, export_mesh
+from ..core.exchange.export import MESH_FORMATS, export_mesh
 from ..core.exchange.inputs import load_views
 from ..core.exchange.session import write_session
 from ..core.geometry.rig import RigCalibration
 from ..core.pictures.preview import preview_image, write_png
-from ..core.pipeline import MESHERS, ReconstructionParams, reconstruct
+from ..core.pipeline import ReconstructionParams, reconstruct
 from ..core.resident_memory import keep_freed_memory
+from ..core.settings import RESOLUTION
 from ..core.simulation.objects import OBJECT_NAMES, make_object
 from ..core.simulation.plan import ring_plan
 from ..core.simulation.synthetic import carving_box, score_against_truth, simulate_scan
-from .common import StageProgress, run_reporting_errors
+from .common import (
+    StageProgress,
+    add_mesher_options,
+    add_setting,
+    mesher_options,
+    run_reporting_errors,
+)
 from .reconstruct import summary
 
 PROG = "sfs-simulate"
@@ -35,15 +42,18 @@ DEMO_RIG = RigCalibration(width=640, height=480, projection="pinhole", fx=1400.0
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from ..core.meshing.meshers import MESHER
     p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
     p.add_argument("-o", "--out", type=Path, default=Path("out/simulate"), help="output folder")
     p.add_argument("--object", choices=OBJECT_NAMES, default="mug")
     p.add_argument("--rings", type=float, nargs="+", default=[5.0, 35.0, 65.0], metavar="PHI_DEG",
                    help="carriage elevations of the view rings, degrees")
     p.add_argument("--per-ring", type=int, default=24, help="turntable stops per ring")
-    p.add_argument("-r", "--resolution", type=int, default=192)
-    p.add_argument("-m", "--mesher", choices=MESHERS, default="marching-cubes")
-    p.add_argument("--format", choices=[s[1:] for s in SUPPORTED_SUFFIXES], default="ply")
+    add_setting(p, RESOLUTION, "-r", default=RESOLUTION.cell_default,
+                help=RESOLUTION.help(default=f"{RESOLUTION.cell_default}, the cell's"))
+    add_setting(p, MESHER, "-m", default=MESHER.default, help=MESHER.help(default=MESHER.default))
+    add_mesher_options(p)
+    p.add_argument("--format", choices=[s[1:] for s in MESH_FORMATS], default="ply")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("-q", "--quiet", action="store_true")
     return p
@@ -63,7 +73,8 @@ def run(args) -> dict:
     views = load_views(session)
     try:
         result = reconstruct(views,
-                             ReconstructionParams(resolution=args.resolution, mesher=args.mesher),
+                             ReconstructionParams(resolution=args.resolution, mesher=args.mesher,
+                                                  mesher_options=mesher_options(args)),
                              progress=progress)
     finally:
         progress.close()

@@ -4,7 +4,11 @@ The front door names what a script needs::
 
     from sfs_ros.core import load_views, reconstruct, ReconstructionParams, export_mesh
     result = reconstruct(load_views("session_folder"), ReconstructionParams(resolution=192))
-    export_mesh("mesh.ply", result.vertices, result.faces)
+    export_mesh(result.vertices, result.faces, "mesh.ply")
+
+``load_views`` reads every input format of
+:data:`sfs_ros.core.exchange.inputs.INPUT_FORMATS`; a rosbag2 recorded by the cell once
+``sfs_ros.cell.bag_input`` is imported (it adds the format).
 
 Sub-packages, each naming its public API in its ``__init__``:
 

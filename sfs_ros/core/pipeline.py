@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
@@ -39,22 +39,15 @@ from .mesh_scan import Reconstruction, mesh_scan
 from .mesh_scan import timed as _timed
 from .meshing.colour import MAX_COLOUR_VIEWS, spread_views
 from .meshing.hull_distance import DistanceImages, HullDistance
-from .meshing.meshers import MESHERS as MESHER_REGISTRY
-from .meshing.meshers import mesher
+from .meshing.meshers import MESHER, mesher
 from .refinement import refine_hull
 from .resegment import Consensus, consensus_masks
 from .segment import SegmentationParams, segment
+from .settings import RESOLUTION
 from .workers import map_in_threads
 
-__all__ = ["MESHERS", "RESOLUTION_RANGE", "CarvedScan", "Precomputed", "ReconstructionParams",
-           "Reconstruction", "carve_scan", "reconstruct"]
-
-#: The meshers' names (:data:`sfs_ros.core.meshing.meshers.MESHERS`); the first is the default.
-MESHERS = tuple(MESHER_REGISTRY)
-#: Voxels along the box's longest side a reconstruction may be asked for, inclusive: one
-#: range for the command line, the carving node's parameter and the requests (the
-#: memory budget then decides whether a grid fits).
-RESOLUTION_RANGE = (8, 2048)
+__all__ = ["CarvedScan", "Precomputed", "ReconstructionParams", "Reconstruction", "carve_scan",
+           "reconstruct"]
 
 #: Progress callback: (stage name, fraction of the stage done in [0, 1]).
 Progress = Callable[[str, float], None]
@@ -67,7 +60,8 @@ class ReconstructionParams:
     Attributes
     ----------
     resolution : int or None
-        Voxels along the longest side of the bounding box (ignored when
+        Voxels along the longest side of the bounding box, in
+        :data:`sfs_ros.core.settings.RESOLUTION`'s range (ignored when
         ``voxel_size_m`` is set). None: the voxel is the finest pixel footprint
         at the box centre over the views, coarsened only to fit
         ``max_memory_bytes`` (:func:`sfs_ros.core.carving.resolution.choose_voxel_size`).
@@ -82,9 +76,10 @@ class ReconstructionParams:
         from the silhouettes. The input's and the estimated box are then
         shrunk to a tolerant carve's hull plus a margin.
     mesher : str
-        ``"marching-cubes"`` or ``"advancing-front"``.
-    block : int
-        M of the paper's cloud of points (M x M x M sub-blocks), advancing front only.
+        A name in :data:`sfs_ros.core.meshing.meshers.MESHERS`.
+    mesher_options : dict
+        ``{option name: value}`` of the mesher's own options (its ``options``, e.g. the
+        advancing front's ``block``); those not given take their defaults.
     max_misses : int
         A voxel survives if at most this many views see it outside their
         silhouette (after the fusion repaired the masks).
@@ -120,8 +115,8 @@ class ReconstructionParams:
     voxel_size_m: float | None = None
     max_memory_bytes: int | None = None
     bounds_m: tuple | None = None
-    mesher: str = "marching-cubes"
-    block: int = 2
+    mesher: str = MESHER.default
+    mesher_options: dict = field(default_factory=dict)
     max_misses: int = 0
     check_consistency: bool = True
     consistency_max_missing: float = 0.35
@@ -132,17 +127,13 @@ class ReconstructionParams:
     refine: bool = False
 
     def __post_init__(self) -> None:
-        if self.mesher not in MESHERS:
-            raise ValueError(f"mesher must be one of {MESHERS}, got {self.mesher!r}")
-        low, high = RESOLUTION_RANGE
-        if self.resolution is not None and not low <= int(self.resolution) <= high:
-            raise ValueError(f"resolution must be {low}..{high} voxels, got {self.resolution}")
+        mesher(self.mesher).option_values(self.mesher_options)
+        if self.resolution is not None:
+            RESOLUTION.check(int(self.resolution))
         if self.voxel_size_m is not None and not self.voxel_size_m > 0:
             raise ValueError(f"voxel size must be > 0 metres, got {self.voxel_size_m}")
         if self.max_memory_bytes is not None and not int(self.max_memory_bytes) > 0:
             raise ValueError(f"max_memory_bytes must be > 0, got {self.max_memory_bytes}")
-        if int(self.block) < 1:
-            raise ValueError(f"block (M) must be >= 1 voxel, got {self.block}")
         if int(self.max_misses) < 0:
             raise ValueError(f"max_misses must be >= 0, got {self.max_misses}")
         if not 0.0 <= self.consistency_max_missing <= 1.0:
@@ -377,7 +368,7 @@ def carve_scan(view_set: ViewSet, params: ReconstructionParams = ReconstructionP
                                    or default_memory_budget())
         grid = VoxelGrid(bounds[0], bounds[1], choice.voxel_size_m)
         chosen = mesher(params.mesher)
-        mesher_options = {name: getattr(params, name) for name in chosen.options}
+        mesher_options = chosen.option_values(params.mesher_options)
         if chosen.check is not None:
             chosen.check(grid, **mesher_options)
 
@@ -476,6 +467,7 @@ def carve_scan(view_set: ViewSet, params: ReconstructionParams = ReconstructionP
         "input": {"source": view_set.source, "views": len(view_set.views)},
         "parameters": {
             **{k: v for k, v in asdict(params).items() if k != "segmentation"},
+            "mesher_options": mesher_options,
             "segmentation": asdict(seg_params),
         },
         "grid": {"shape": list(grid.shape), "voxel_size_m": grid.voxel_size,

@@ -94,7 +94,7 @@ def write_result(result, mesh_path, *, units: str = "m", vertex_colors=None,
     result : sfs_ros.core.pipeline.Reconstruction
         Its ``vertices`` (n, 3) float64 metres, ``faces`` (m, 3) int and ``report``.
     mesh_path : path-like
-        The mesh file, .ply, .obj, .stl or .glb; missing folders are created
+        The mesh file, a suffix of :data:`.exchange.export.MESH_FORMATS`; missing folders are created
         (for every file written).
     units : {"m", "mm"}, keyword-only
         Length unit of the mesh file.

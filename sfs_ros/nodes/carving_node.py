@@ -97,7 +97,7 @@ from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
 from sfs_ros.cell.live import DuplicateViewError, LiveReconstruction, check_scan_name
-from sfs_ros.cell.mesh_options import RESOLUTION_RANGE, MeshOptions, mesh_options
+from sfs_ros.cell.mesh_options import MeshOptions, mesh_options
 from sfs_ros.cell.messages import check_image_size
 from sfs_ros.core.carving.resolution import (
     default_memory_budget,
@@ -107,7 +107,8 @@ from sfs_ros.core.carving.resolution import (
 )
 from sfs_ros.core.exchange.views import as_bounds
 from sfs_ros.core.geometry.rig import rig_camera
-from sfs_ros.core.pipeline import MESHERS
+from sfs_ros.core.meshing.meshers import MESHER
+from sfs_ros.core.settings import BOUNDS_M, COLOUR, MAX_MEMORY, RESOLUTION
 from sfs_ros.nodes.entry import run_node
 from sfs_ros.ros import capture_qos, result_qos
 from sfs_ros.ros.carved_scan_msg import carved_scan_to_msg, view_image_msg
@@ -152,13 +153,10 @@ NODE_NAME = "carving"
 #: settable at run time, see the module's description).
 PARAMS: list[Param] = [
     *WRITABLE_RIG_PARAMS,
-    Param("bounds_m", [-0.1, -0.1, 0.0, 0.1, 0.1, 0.2], "Carving box [xmin, ymin, zmin, xmax, "
-          "ymax, zmax], metres, object frame.",
-          constraints="six values, min < max on each axis; from the next reset"),
-    Param("resolution", 192, "Voxels along the longest side of the box (live hull and final "
-          "reconstruction).", bounds=RESOLUTION_RANGE, constraints="from the next reset"),
-    Param("mesher", MESHERS[0], "Surface extraction of the final reconstruction.",
-          choices=MESHERS, constraints="from the next reset"),
+    Param.of(BOUNDS_M, constraints="six values, min < max on each axis; from the next reset"),
+    Param.of(RESOLUTION, constraints="the live hull's and the final reconstruction's; from "
+             "the next reset"),
+    Param.of(MESHER, constraints="from the next reset"),
     Param("scan_name", "", "Name of the next scan's folder in output_dir and of its mesh "
           "(<name>.ply); empty = scan_NNN, the next free number.",
           constraints="from the next reset; 1-100 letters, digits, '_', '-', '.', a folder "
@@ -174,11 +172,8 @@ PARAMS: list[Param] = [
     Param("queue_depth", 100, "Depth of the reliable mask topics and of the buffer of unpaired "
           "halves per topic; at least the number of views of a scan.", bounds=(1, 100000),
           read_only=True),
-    Param("colour", True, "Colour the mesh from the captured images (capture/image) of the "
-          "views it uses.", read_only=True),
-    Param("max_memory", "", "Working memory the voxel grid may take, e.g. 2G or 512M; a "
-          "resolution that needs more is refused.", read_only=True,
-          constraints="empty = a quarter of the machine's memory"),
+    Param.of(COLOUR, read_only=True, constraints="the captured images on capture/image"),
+    Param.of(MAX_MEMORY, read_only=True, constraints=f"empty = {MAX_MEMORY.default_text}"),
     Param("rehearse", True, "At start, receive and reconstruct a small simulated scan (in a "
           "folder in output_dir, removed after) so that the first real reconstruction finds "
           "its code loaded (about 0.2 s less from the last view to the mesh).", read_only=True),

@@ -69,6 +69,7 @@ from sfs_ros.cell.held_images import HeldImages
 from sfs_ros.cell.mesh_files import write_mesh
 from sfs_ros.cell.mesh_options import MeshOptions, mesh_options
 from sfs_ros.core.meshing.decimate import decimate
+from sfs_ros.core.settings import COLOUR
 from sfs_ros.nodes.entry import run_node
 from sfs_ros.ros import capture_qos, result_qos
 from sfs_ros.ros.carved_scan_msg import carved_scan_from_msg, view_image_from_msg
@@ -99,8 +100,7 @@ PARAMS: list[Param] = [
     Param("output_dir", "", "Folder for the meshes, reports and pictures (created if needed); "
           "every file the node writes stays inside it.", read_only=True,
           constraints="required, non-empty"),
-    Param("colour", True, "Colour the mesh from the captured images of the views it uses "
-          "(a request's colour left empty).", read_only=True),
+    Param.of(COLOUR, read_only=True, constraints="a request's colour left empty"),
     Param("display_triangles", 10000, "Most triangles of the mesh marker (a simplified "
           "copy by vertex clustering, 40 bytes a corner with its colour: 10 000 make 1.2 MB); "
           "the file and mesh_shape keep the full mesh.", bounds=(100, 10_000_000),

@@ -5,6 +5,10 @@ inclusive range (published as ``FloatingPointRange`` / ``IntegerRange`` so
 ``ros2 param describe`` shows it), optional string choices, and
 ``read_only`` for what only takes effect at start-up.
 
+A reconstruction setting shared with ``sfs-reconstruct``
+(:class:`sfs_ros.core.settings.Setting`) becomes a parameter by :meth:`Param.of`: its
+meaning, range, choices and the cell's default come from there.
+
 * :func:`declare` declares them on a node and returns their values,
   raising :class:`ParameterError` (one line naming the parameter) for a value
   out of range, of the wrong type or not among the choices; ``main()``
@@ -28,6 +32,8 @@ from rcl_interfaces.msg import (
 )
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.node import Node
+
+from sfs_ros.core.settings import Setting
 
 __all__ = ["Param", "ParameterError", "declare", "read", "check", "validating_callback"]
 
@@ -66,6 +72,17 @@ class Param:
     choices: tuple[str, ...] | None = None
     read_only: bool = False
     constraints: str = ""
+
+    @classmethod
+    def of(cls, setting: Setting, *, read_only: bool = False, constraints: str = "") -> Param:
+        """The parameter of a reconstruction setting: its name, the cell's default
+        (``cell_default``), its description, bounds and choices (read now)."""
+        bounds = setting.bounds
+        if bounds is not None and bounds[1] is None:
+            raise ValueError(f"setting {setting.name} has no upper bound; a parameter needs one")
+        return cls(setting.name, setting.cell_default, setting.description, bounds=bounds,
+                   choices=None if setting.choices is None else tuple(setting.choices()),
+                   read_only=read_only, constraints=constraints)
 
     def descriptor(self) -> ParameterDescriptor:
         """The ``rcl_interfaces/ParameterDescriptor`` of this parameter."""

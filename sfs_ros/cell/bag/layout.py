@@ -49,6 +49,7 @@ from pathlib import Path
 
 from rosbags.typesys import Stores, get_typestore
 
+from ..bag_input import BAG_SUFFIXES
 from ..paths import confined_path
 
 __all__ = ["CAPTURE", "RESULT", "DEFAULT", "TOPICS", "PARAMETERS_TOPIC", "PARAMETERS_FORMAT",
@@ -82,7 +83,6 @@ TOPICS: dict[str, tuple[str, str]] = {
     SCAN_TOPIC: ("std_msgs/msg/UInt32", DEFAULT),
 }
 STORAGES = ("mcap", "sqlite3")
-BAG_SUFFIXES = (".mcap", ".db3")
 #: The message types rosbags (de)serializes, as ROS 2 has them.
 STORE = get_typestore(Stores.ROS2_KILTED)
 

@@ -32,8 +32,8 @@ import numpy as np
 from ...core.exchange.session import read_session, write_session
 from ...core.exchange.views import ViewError, ViewSet
 from ...core.geometry.rig import RigCalibration
-from ...core.pipeline import RESOLUTION_RANGE
 from ...core.segment import SegmentationParams, segment
+from ...core.settings import RESOLUTION
 from ..live import DuplicateViewError, LiveReconstruction
 from ..messages import angles_from_joint_state, msg_to_image, scan_report, stamp_key, view_key
 from .layout import PARAMETERS_FORMAT, PARAMETERS_TOPIC, SCAN_TOPIC, STORE, TOPICS
@@ -54,6 +54,12 @@ class BagViewSet(ViewSet):
 
     resolution: int | None = None
     mesher: str | None = None
+
+    @property
+    def recorded_settings(self) -> dict:
+        """The recorded ``resolution`` and ``mesher`` (those the bag has)."""
+        recorded = {"resolution": self.resolution, "mesher": self.mesher}
+        return {name: value for name, value in recorded.items() if value is not None}
 
 
 def _decode(message: BagMessage, expected: str):
@@ -92,8 +98,8 @@ def _parameters(bag: Bag) -> dict:
 
 def _check_resolution(value) -> None:
     """TypeError / ValueError unless ``value`` is a resolution the carving node takes
-    (an int in :data:`~sfs_ros.core.pipeline.RESOLUTION_RANGE`)."""
-    low, high = RESOLUTION_RANGE
+    (an int in :data:`~sfs_ros.core.settings.RESOLUTION`'s range)."""
+    low, high = RESOLUTION.bounds
     if isinstance(value, bool) or not isinstance(value, int):
         raise TypeError(f"reconstruction resolution is {value!r}, not an integer")
     if not low <= value <= high:
@@ -129,7 +135,7 @@ class _Views:
             # The live grid only stores the views here (the reconstruction is made from the
             # session folder at the resolution asked for): the smallest there is.
             self.live = LiveReconstruction(calibration, session["bounds_m"], output_dir=folder,
-                                           resolution=RESOLUTION_RANGE[0],
+                                           resolution=RESOLUTION.bounds[0],
                                            mesher=recon["mesher"])
         except (KeyError, TypeError, ValueError, AttributeError) as exc:
             # Recorded parameters of the wrong shape (not mappings where mappings belong).

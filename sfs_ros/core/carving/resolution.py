@@ -20,7 +20,7 @@ from typing import Sequence
 import numpy as np
 
 from ..geometry.camera import Camera
-from ..geometry.grid import MAX_VOXELS
+from ..geometry.grid import MAX_VOXELS, resolution_voxel_size
 
 __all__ = ["BYTES_PER_VOXEL", "refuse_unfit_grid", "ResolutionChoice", "pixel_footprints_m", "parse_memory",
            "default_memory_budget", "grid_shape", "choose_voxel_size"]
@@ -167,11 +167,10 @@ def choose_voxel_size(bounds_m, cameras: Sequence[Camera], *, max_memory_bytes: 
         raise ValueError(f"max_memory_bytes must be > 0, got {max_memory_bytes}")
     footprints = pixel_footprints_m(cameras, bounds.mean(axis=0))
     finest, median = float(footprints.min()), float(np.median(footprints))
-    extent = float(np.max(bounds[1] - bounds[0]))
     if voxel_size_m is not None:
         size, source = float(voxel_size_m), "voxel-size"
     elif resolution is not None:
-        size, source = extent / int(resolution), "resolution"
+        size, source = resolution_voxel_size(bounds[0], bounds[1], resolution), "resolution"
     else:
         size, source = finest, "footprint"
     shape = grid_shape(bounds, size)

@@ -35,6 +35,8 @@ renamed, so a crash never leaves a partial file under the final name.
 from __future__ import annotations
 
 import io
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -45,18 +47,41 @@ from trimesh.visual.material import PBRMaterial
 
 from .files import write_atomic, write_atomic_all
 
-__all__ = ["SUPPORTED_SUFFIXES", "TEXTURED_SUFFIXES", "export_mesh", "export_textured_mesh",
-           "load_mesh", "mesh_bytes", "textured_mesh_files"]
+__all__ = ["MESH_FORMATS", "SUPPORTED_SUFFIXES", "TEXTURED_SUFFIXES", "MeshFormat", "export_mesh",
+           "export_textured_mesh", "load_mesh", "mesh_bytes", "textured_mesh_files"]
 
-SUPPORTED_SUFFIXES = (".ply", ".obj", ".stl", ".glb")
 #: Metres -> file units.
 UNIT_SCALE = {"m": 1.0, "mm": 1000.0}
-#: Formats stored Y up (glTF by specification, OBJ by convention).
-Y_UP_SUFFIXES = (".glb", ".obj")
-#: Formats that carry a texture atlas.
-TEXTURED_SUFFIXES = (".glb", ".obj")
-#: trimesh file type for each suffix.
-_FILE_TYPE = {".ply": "ply", ".obj": "obj", ".stl": "stl", ".glb": "glb"}
+
+
+@dataclass(frozen=True)
+class MeshFormat:
+    """One mesh file format, by its suffix.
+
+    suffix : str, lower case with its dot.
+    name : str, the format's name in messages and the docs.
+    description : str, one sentence for the docs.
+    encode : (vertices (n, 3) float64 in the file's units and axes, faces (m, 3) int,
+        colours (n, 3|4) uint8 or None) -> bytes.
+    y_up : bool, stored Y up (``(x, y, z)`` written as ``(x, z, -y)``), else Z up.
+    vertex_colours : bool, holds vertex colours.
+    units : the units it may be written in (:data:`UNIT_SCALE`' keys).
+    textured : optional (textured mesh, path, vertices (k, 3) in the file's units and
+        axes) -> [(path, bytes)]: the files of a textured mesh; None: no texture.
+    file_type : str, trimesh's name of the format (to read it back).
+    soup : bool, stores a triangle soup: its identical vertices are merged when read back.
+    """
+
+    suffix: str
+    name: str
+    description: str
+    encode: Callable[[np.ndarray, np.ndarray, np.ndarray | None], bytes]
+    file_type: str
+    y_up: bool = False
+    vertex_colours: bool = True
+    units: tuple[str, ...] = tuple(UNIT_SCALE)
+    textured: Callable | None = None
+    soup: bool = False
 
 
 def export_mesh(vertices, faces, path, *, vertex_colors=None, units: str = "m") -> Path:
@@ -69,8 +94,8 @@ def export_mesh(vertices, faces, path, *, vertex_colors=None, units: str = "m") 
     faces : (m, 3) int
         Vertex indices, counter-clockwise seen from outside.
     path : str or os.PathLike
-        Destination ending in .ply, .obj, .stl or .glb (case-insensitive);
-        its folder must exist.
+        Destination ending in a suffix of :data:`MESH_FORMATS` (any case); its folder
+        must exist.
     vertex_colors : (n, 3) or (n, 4) uint8, or float in [0, 1], optional
         RGB(A) per vertex; ValueError for .stl, which cannot store them.
     units : {"m", "mm"}, keyword-only
@@ -89,11 +114,8 @@ def export_mesh(vertices, faces, path, *, vertex_colors=None, units: str = "m") 
 def mesh_bytes(vertices, faces, path, *, vertex_colors=None, units: str = "m") -> bytes:
     """The bytes :func:`export_mesh` writes to ``path`` (format from its suffix; nothing is
     written), for callers that place the file themselves; same parameters and errors."""
-    suffix = _suffix(Path(path))
-    if units not in UNIT_SCALE:
-        raise ValueError(f"units must be one of {sorted(UNIT_SCALE)}, got {units!r}")
-    if suffix == ".glb" and units != "m":
-        raise ValueError("glTF (.glb) stores metres by specification; use units='m'")
+    fmt = _format(Path(path))
+    _check_units(fmt, units)
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces)
     if v.ndim != 2 or v.shape[1] != 3 or len(v) == 0:
@@ -107,20 +129,12 @@ def mesh_bytes(vertices, faces, path, *, vertex_colors=None, units: str = "m") -
         raise ValueError(f"face indices must lie in [0, {len(v)}), got [{f.min()}, {f.max()}]")
     colors = None
     if vertex_colors is not None:
-        if suffix == ".stl":
-            raise ValueError("STL cannot store vertex colours; pass vertex_colors=None "
-                             "or write .ply, .obj or .glb")
+        if not fmt.vertex_colours:
+            holders = [s for s, other in MESH_FORMATS.items() if other.vertex_colours]
+            raise ValueError(f"{fmt.name} cannot store vertex colours; pass vertex_colors=None "
+                             f"or write {', '.join(holders[:-1])} or {holders[-1]}")
         colors = _colors_uint8(vertex_colors, len(v))
-
-    v = v * UNIT_SCALE[units]
-    if suffix == ".ply":
-        return _ply_bytes(v, f, colors)
-    if suffix in Y_UP_SUFFIXES:
-        v = np.column_stack((v[:, 0], v[:, 2], -v[:, 1]))
-    mesh = trimesh.Trimesh(vertices=v, faces=f.astype(np.int64), vertex_colors=colors,
-                           process=False)
-    data = mesh.export(file_type=_FILE_TYPE[suffix])
-    return data.encode("utf-8") if isinstance(data, str) else data
+    return fmt.encode(_file_axes(fmt, v * UNIT_SCALE[units]), f, colors)
 
 
 def load_mesh(path, *, units: str = "m", with_colors: bool = False):
@@ -133,7 +147,7 @@ def load_mesh(path, *, units: str = "m", with_colors: bool = False):
     Parameters
     ----------
     path : str or os.PathLike
-        A .ply, .obj, .stl or .glb file.
+        A file of one of :data:`MESH_FORMATS`.
     units : {"m", "mm"}, keyword-only
         Length unit of the file.
     with_colors : bool, keyword-only
@@ -149,16 +163,16 @@ def load_mesh(path, *, units: str = "m", with_colors: bool = False):
         255 where the format stores none (.obj).
     """
     path = Path(path)
-    suffix = _suffix(path)
+    fmt = _format(path)
     if units not in UNIT_SCALE:
         raise ValueError(f"units must be one of {sorted(UNIT_SCALE)}, got {units!r}")
-    mesh = trimesh.load(path, file_type=_FILE_TYPE[suffix], force="mesh", process=False)
+    mesh = trimesh.load(path, file_type=fmt.file_type, force="mesh", process=False)
     v = np.asarray(mesh.vertices, dtype=np.float64)
     f = np.asarray(mesh.faces, dtype=np.int64)
-    if suffix == ".stl":
+    if fmt.soup:
         v, inverse = np.unique(v, axis=0, return_inverse=True)
         f = inverse.reshape(-1)[f]
-    if suffix in Y_UP_SUFFIXES:
+    if fmt.y_up:
         v = np.column_stack((v[:, 0], -v[:, 2], v[:, 1]))
     if not with_colors:
         return v / UNIT_SCALE[units], f
@@ -167,12 +181,38 @@ def load_mesh(path, *, units: str = "m", with_colors: bool = False):
     return v / UNIT_SCALE[units], f, colors
 
 
-def _suffix(path: Path) -> str:
-    suffix = path.suffix.lower()
-    if suffix not in SUPPORTED_SUFFIXES:
+def _format(path: Path) -> MeshFormat:
+    """The format of ``path`` by its suffix (any case); ValueError naming the supported ones."""
+    try:
+        return MESH_FORMATS[path.suffix.lower()]
+    except KeyError:
         raise ValueError(f"unsupported mesh file suffix {path.suffix!r} in {path.name!r}; "
-                         f"supported: {', '.join(SUPPORTED_SUFFIXES)}")
-    return suffix
+                         f"supported: {', '.join(MESH_FORMATS)}") from None
+
+
+def _check_units(fmt: MeshFormat, units: str) -> None:
+    if units not in UNIT_SCALE:
+        raise ValueError(f"units must be one of {sorted(UNIT_SCALE)}, got {units!r}")
+    if units not in fmt.units:
+        raise ValueError(f"{fmt.name} ({fmt.suffix}) is written in units "
+                         f"{' or '.join(map(repr, fmt.units))} only, got {units!r}")
+
+
+def _file_axes(fmt: MeshFormat, vertices: np.ndarray) -> np.ndarray:
+    """(n, 3) ``vertices`` in the format's axes: as they are (Z up) or Y up."""
+    if not fmt.y_up:
+        return vertices
+    return np.column_stack((vertices[:, 0], vertices[:, 2], -vertices[:, 1]))
+
+
+def _trimesh_encoder(file_type: str) -> Callable:
+    """An ``encode`` through trimesh's exporter of ``file_type``."""
+    def encode(vertices: np.ndarray, faces: np.ndarray, colors: np.ndarray | None) -> bytes:
+        mesh = trimesh.Trimesh(vertices=vertices, faces=faces.astype(np.int64),
+                               vertex_colors=colors, process=False)
+        data = mesh.export(file_type=file_type)
+        return data.encode("utf-8") if isinstance(data, str) else data
+    return encode
 
 
 def _ply_bytes(vertices: np.ndarray, faces: np.ndarray, colors: np.ndarray | None) -> bytes:
@@ -239,23 +279,29 @@ def textured_mesh_files(textured, path, *, units: str = "m") -> list[tuple[Path,
     ``units`` as :func:`export_mesh`'s. ValueError for another suffix.
     """
     path = Path(path)
-    suffix = _suffix(path)
-    if suffix not in TEXTURED_SUFFIXES:
-        raise ValueError(f"a texture needs .glb or .obj, not {path.suffix!r} ({path.name}); "
-                         "PLY and STL hold no texture (vertex colours: .ply)")
-    if units not in UNIT_SCALE or (suffix == ".glb" and units != "m"):
-        raise ValueError(f"units must be 'm' for .glb, 'm' or 'mm' for .obj, got {units!r}")
-    v = np.asarray(textured.vertices, dtype=np.float64) * UNIT_SCALE[units]
-    v = np.column_stack((v[:, 0], v[:, 2], -v[:, 1]))                # Y up
-    if suffix == ".obj":
-        mtl, png = path.with_suffix(".mtl"), path.with_suffix(".png")
-        material = (f"newmtl atlas\nKa 1 1 1\nKd 1 1 1\nKs 0 0 0\nillum 1\n"
-                    f"map_Kd {png.name}\n").encode("ascii")
-        return [(png, _png(textured.texture)), (mtl, material),
-                (path, _obj_text(v, textured.uv, textured.faces, mtl.name))]
+    fmt = _format(path)
+    if fmt.textured is None:
+        raise ValueError(f"a texture needs {' or '.join(TEXTURED_SUFFIXES)}, not "
+                         f"{path.suffix!r} ({path.name}): {fmt.name} holds no texture")
+    _check_units(fmt, units)
+    v = _file_axes(fmt, np.asarray(textured.vertices, dtype=np.float64) * UNIT_SCALE[units])
+    return fmt.textured(textured, path, v)
+
+
+def _obj_textured(textured, path: Path, vertices: np.ndarray) -> list[tuple[Path, bytes]]:
+    """The OBJ, ``<stem>.mtl`` (``map_Kd``, diffuse colour 1) and the atlas ``<stem>.png``."""
+    mtl, png = path.with_suffix(".mtl"), path.with_suffix(".png")
+    material = (f"newmtl atlas\nKa 1 1 1\nKd 1 1 1\nKs 0 0 0\nillum 1\n"
+                f"map_Kd {png.name}\n").encode("ascii")
+    return [(png, _png(textured.texture)), (mtl, material),
+            (path, _obj_text(vertices, textured.uv, textured.faces, mtl.name))]
+
+
+def _glb_textured(textured, path: Path, vertices: np.ndarray) -> list[tuple[Path, bytes]]:
+    """One binary glTF whose material's ``baseColorTexture`` is the atlas."""
     material = PBRMaterial(baseColorTexture=Image.fromarray(textured.texture),
                            metallicFactor=0.0, roughnessFactor=1.0, doubleSided=False)
-    mesh = trimesh.Trimesh(vertices=v, faces=textured.faces,
+    mesh = trimesh.Trimesh(vertices=vertices, faces=textured.faces,
                            visual=TextureVisuals(uv=textured.uv, material=material), process=False)
     return [(path, mesh.export(file_type="glb"))]
 
@@ -263,3 +309,23 @@ def textured_mesh_files(textured, path, *, units: str = "m") -> list[tuple[Path,
 def export_textured_mesh(textured, path, *, units: str = "m") -> list[Path]:
     """Write :func:`textured_mesh_files` atomically, the mesh last; returns the paths."""
     return write_atomic_all(textured_mesh_files(textured, path, units=units))
+
+
+#: The mesh file formats by suffix: what ``export_mesh``, ``sfs-reconstruct -o`` and the
+#: nodes' output names accept. Adding one is its ``encode`` and one entry here.
+MESH_FORMATS: dict[str, MeshFormat] = {f.suffix: f for f in (
+    MeshFormat(".ply", "PLY", "Binary PLY, Z up; vertex colours as uchar red, green, blue, "
+               "alpha.", _ply_bytes, "ply"),
+    MeshFormat(".obj", "OBJ", "Wavefront OBJ, Y up; vertex colours as v x y z r g b; a "
+               "texture as vt, an .mtl and a .png beside it.", _trimesh_encoder("obj"), "obj",
+               y_up=True, textured=_obj_textured),
+    MeshFormat(".stl", "STL", "Binary STL, Z up; no colours.", _trimesh_encoder("stl"), "stl",
+               vertex_colours=False, soup=True),
+    MeshFormat(".glb", "glTF", "Binary glTF 2.0, Y up, metres; vertex colours as COLOR_0; a "
+               "texture as the material's baseColorTexture.", _trimesh_encoder("glb"), "glb",
+               y_up=True, units=("m",), textured=_glb_textured),
+)}
+#: The suffixes of :data:`MESH_FORMATS`.
+SUPPORTED_SUFFIXES = tuple(MESH_FORMATS)
+#: The suffixes of the formats that carry a texture atlas.
+TEXTURED_SUFFIXES = tuple(s for s, f in MESH_FORMATS.items() if f.textured is not None)

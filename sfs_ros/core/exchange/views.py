@@ -18,11 +18,8 @@ from ..geometry.rig import RigCalibration
 from .errors import ViewError
 from .limits import brief, image_header
 
-__all__ = ["SOURCES", "IMAGE_SUFFIXES", "ViewError", "View", "ViewSet", "read_image", "image_size",
+__all__ = ["IMAGE_SUFFIXES", "ViewError", "View", "ViewSet", "read_image", "image_size",
            "as_bounds", "BOX_SIDE_RANGE", "MAX_BOX_COORDINATE", "nearest_rotation"]
-
-#: Input formats a :class:`ViewSet` can come from.
-SOURCES = ("session", "middlebury", "nerf", "colmap")
 
 #: File name endings (lower case) treated as images when a folder is searched.
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp", ".ppm", ".pgm")
@@ -65,7 +62,7 @@ class ViewSet:
     views : list of View
         The usable views, in input order.
     source : str
-        ``"session"``, ``"middlebury"``, ``"nerf"`` or ``"colmap"``.
+        The name of the input's format (:data:`sfs_ros.core.exchange.inputs.INPUT_FORMATS`).
     bounds_m : (2, 3) float64 or None
         Bounding box ``[min, max]`` of the object stored by the input, metres.
     segmentation : dict or None
@@ -84,10 +81,17 @@ class ViewSet:
     calibration: RigCalibration | None = None
 
     def __post_init__(self) -> None:
-        if self.source not in SOURCES:
-            raise ValueError(f"view set source must be one of {SOURCES}, got {self.source!r}")
+        if not isinstance(self.source, str) or not self.source:
+            raise ValueError(f"view set source must name the input's format, got "
+                             f"{self.source!r}")
         if self.bounds_m is not None:
             self.bounds_m = as_bounds(self.bounds_m, what="bounding box")
+
+    @property
+    def recorded_settings(self) -> dict:
+        """``{setting name: value}`` the input recorded for its reconstruction
+        (:mod:`sfs_ros.core.settings`; options override them): none here."""
+        return {}
 
 
 def _decode(path: Path, flags: int, expected_size: tuple[int, int] | None = None) -> np.ndarray:

@@ -4,10 +4,17 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["VoxelGrid"]
+__all__ = ["VoxelGrid", "resolution_voxel_size"]
 
 #: Largest grid we allocate (voxels): 1024^3 bytes = 1 GiB of occupancy.
 MAX_VOXELS = 1024 ** 3
+
+
+def resolution_voxel_size(bounds_min, bounds_max, resolution: int) -> float:
+    """The voxel edge, metres, that splits the longest side of the box
+    ``[bounds_min, bounds_max]`` (each (3,), metres) into ``resolution`` voxels."""
+    extent = np.asarray(bounds_max, dtype=np.float64) - np.asarray(bounds_min, dtype=np.float64)
+    return float(np.max(extent)) / int(resolution)
 
 
 class VoxelGrid:
@@ -50,11 +57,14 @@ class VoxelGrid:
 
     @classmethod
     def cube(cls, bounds_min, bounds_max, resolution: int) -> "VoxelGrid":
-        """Grid whose longest box side is split into ``resolution`` voxels."""
+        """Grid whose longest box side is split into ``resolution`` voxels
+        (:func:`resolution_voxel_size`); any resolution from 2 up, as the internal grids
+        take coarser ones than a user may ask for
+        (:data:`sfs_ros.core.settings.RESOLUTION`)."""
         if int(resolution) < 2:
             raise ValueError(f"grid resolution must be >= 2 voxels, got {resolution}")
-        extent = np.asarray(bounds_max, dtype=np.float64) - np.asarray(bounds_min, dtype=np.float64)
-        return cls(bounds_min, bounds_max, float(np.max(extent)) / int(resolution))
+        return cls(bounds_min, bounds_max, resolution_voxel_size(bounds_min, bounds_max,
+                                                                 resolution))
 
     def centers_axis(self, axis: int) -> np.ndarray:
         """(n_axis,) float64 voxel-centre coordinates along ``axis``, metres."""

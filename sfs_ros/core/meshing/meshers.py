@@ -7,8 +7,10 @@ that input alone. Between the two, the input may cross a process or a network
 (the cell's carving and meshing nodes): the same input gives the same mesh.
 
 Adding a mesher is one module with its two halves and one entry in
-:data:`MESHERS`; its ``options`` name the fields of
-:class:`sfs_ros.core.pipeline.ReconstructionParams` it takes.
+:data:`MESHERS`; its own options are :class:`~sfs_ros.core.settings.Setting` s in the
+entry (``sfs-reconstruct`` offers each as an option, ``ReconstructionParams.mesher_options``
+takes them by name). The command line, the nodes' ``mesher`` parameter and
+``doc/reference.md`` list what the table holds (``doc/architecture.md``, "Extending").
 """
 
 from __future__ import annotations
@@ -19,12 +21,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..geometry.grid import VoxelGrid
+from ..settings import Setting
 from .advancing_front import advancing_front
 from .cloud import cloud_of_points
 from .hull_distance import HullDistance
 from .marching import BandDistance, band_marching_cubes, hull_band_distance
 
-__all__ = ["MESHERS", "HullCloud", "Mesher", "mesher"]
+__all__ = ["MESHER", "MESHERS", "HullCloud", "Mesher", "mesher"]
 
 
 @dataclass(frozen=True)
@@ -45,21 +48,34 @@ class Mesher:
     """One surface extraction.
 
     name : str, as asked for (``--mesher``, the node's ``mesher``).
+    description : str, one sentence for the help and the docs.
     prepare : (occupancy, grid, hull, **options) -> input, beside the carving.
     mesh : (occupancy, grid, input) -> (vertices (n, 3) float64 metres, faces (m, 3)
         int64, JSON-ready stats).
-    options : names of the reconstruction parameters ``prepare`` takes.
+    options : the :class:`~sfs_ros.core.settings.Setting` s ``prepare`` takes by name.
     check : (grid, **options) -> None, ValueError for options the grid cannot take.
     closed : whether the mesh is closed and outward by construction (its checks may
         then run beside the colour and the evaluation).
     """
 
     name: str
+    description: str
     prepare: Callable
     mesh: Callable
-    options: tuple[str, ...] = ()
+    options: tuple[Setting, ...] = ()
     check: Callable | None = None
     closed: bool = False
+
+    def option_values(self, given: dict) -> dict:
+        """``{option name: value}``: ``given`` over the options' defaults; ValueError for
+        a name that is not one of this mesher's options or a value out of its range."""
+        own = {option.name: option for option in self.options}
+        for name, value in given.items():
+            if name not in own:
+                raise ValueError(f"{name} is not an option of the {self.name} mesher "
+                                 f"(its options: {', '.join(own) or 'none'})")
+            own[name].check(value)
+        return {name: given.get(name, option.default) for name, option in own.items()}
 
 
 def _prepare_band(occupancy, grid: VoxelGrid, hull: HullDistance) -> BandDistance:
@@ -93,12 +109,25 @@ def _check_block(grid: VoxelGrid, *, block: int) -> None:
             f"({tuple(grid.shape)} voxels); expected 1..{most}")
 
 
+#: M of the paper's cloud of points: one point per M x M x M block of voxels.
+BLOCK = Setting("block", "The cloud of points: one point per M x M x M block of voxels "
+                "on the surface.", int, "--block", bounds=(1, None), default=2, unit="voxels",
+                metavar="M")
+
 #: The meshers by name; the first is the default.
 MESHERS: dict[str, Mesher] = {m.name: m for m in (
-    Mesher("marching-cubes", _prepare_band, _mesh_band, closed=True),
-    Mesher("advancing-front", _prepare_cloud, _mesh_cloud, options=("block",),
-           check=_check_block),
+    Mesher("marching-cubes", "Marching cubes on the signed distance to the visual hull "
+           "near its surface: closed and outward by construction.",
+           _prepare_band, _mesh_band, closed=True),
+    Mesher("advancing-front", "The paper's cloud of points moved onto the visual hull, "
+           "triangulated by an advancing front with edge swaps.",
+           _prepare_cloud, _mesh_cloud, options=(BLOCK,), check=_check_block),
 )}
+
+#: The mesher's name, as a setting: its choices are :data:`MESHERS`' names, read when asked.
+MESHER = Setting("mesher", "Surface extraction of the carved hull.", str, "--mesher",
+                 choices=lambda: tuple(MESHERS), default=next(iter(MESHERS)),
+                 cell_default=next(iter(MESHERS)), recorded=True)
 
 
 def mesher(name: str) -> Mesher:
