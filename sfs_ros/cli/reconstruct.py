@@ -30,6 +30,7 @@ from ..core.texture import texture_reconstruction
 from .common import (
     ACCEPTED_INPUTS,
     StageProgress,
+    accept_negative_numbers,
     check_outputs,
     input_files,
     load_input,
@@ -41,7 +42,8 @@ PROG = "sfs-reconstruct"
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
+    p = accept_negative_numbers(
+        argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0]))
     p.add_argument("input", type=Path, help=ACCEPTED_INPUTS)
     p.add_argument("-o", "--output", type=Path, required=True,
                    help=f"mesh file, format from the suffix: {', '.join(SUPPORTED_SUFFIXES)}")

@@ -24,7 +24,7 @@ from ..core.resident_memory import keep_freed_memory
 from ..core.simulation.objects import OBJECT_NAMES, make_object
 from ..core.simulation.plan import ring_plan
 from ..core.simulation.synthetic import carving_box, score_against_truth, simulate_scan
-from .common import StageProgress, run_reporting_errors
+from .common import StageProgress, accept_negative_numbers, run_reporting_errors
 from .reconstruct import summary
 
 PROG = "sfs-simulate"
@@ -35,7 +35,8 @@ DEMO_RIG = RigCalibration(width=640, height=480, projection="pinhole", fx=1400.0
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
+    p = accept_negative_numbers(
+        argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0]))
     p.add_argument("-o", "--out", type=Path, default=Path("out/simulate"), help="output folder")
     p.add_argument("--object", choices=OBJECT_NAMES, default="mug")
     p.add_argument("--rings", type=float, nargs="+", default=[5.0, 35.0, 65.0], metavar="PHI_DEG",

@@ -11,6 +11,7 @@ request, reprojection of the mesh into every view, the report).
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
@@ -137,8 +138,9 @@ class ReconstructionParams:
         low, high = RESOLUTION_RANGE
         if self.resolution is not None and not low <= int(self.resolution) <= high:
             raise ValueError(f"resolution must be {low}..{high} voxels, got {self.resolution}")
-        if self.voxel_size_m is not None and not self.voxel_size_m > 0:
-            raise ValueError(f"voxel size must be > 0 metres, got {self.voxel_size_m}")
+        if self.voxel_size_m is not None and not 0 < self.voxel_size_m < math.inf:
+            raise ValueError(f"voxel size must be a finite number of metres > 0, got "
+                             f"{self.voxel_size_m}")
         if self.max_memory_bytes is not None and not int(self.max_memory_bytes) > 0:
             raise ValueError(f"max_memory_bytes must be > 0, got {self.max_memory_bytes}")
         if int(self.block) < 1:
@@ -373,6 +375,7 @@ def carve_scan(view_set: ViewSet, params: ReconstructionParams = ReconstructionP
                                    known=precomputed.box)
         choice = choose_voxel_size(bounds, cameras, resolution=params.resolution,
                                    voxel_size_m=params.voxel_size_m,
+                                   min_side_voxels=RESOLUTION_RANGE[0],
                                    max_memory_bytes=params.max_memory_bytes
                                    or default_memory_budget())
         grid = VoxelGrid(bounds[0], bounds[1], choice.voxel_size_m)

@@ -151,16 +151,45 @@ def refuse_unfit_grid(shape, max_memory_bytes: int, what: str) -> None:
                          "a coarser resolution")
 
 
+def _refuse_coarse_voxel(size: float, source: str, bounds: np.ndarray, cameras, footprints,
+                         min_side_voxels: int) -> None:
+    """ValueError unless a voxel of ``size`` metres (chosen by ``source``) can show a
+    shape: a given voxel size leaves at least ``min_side_voxels`` along the box's longest
+    side, and no voxel is wider than what the cameras see at the box centre (the median
+    over the views of the image's longer side times the pixel footprint ``footprints``
+    (n,), metres): a wider voxel holds the whole view, so every silhouette is one voxel."""
+    extent = float(np.max(bounds[1] - bounds[0]))
+    what = {"memory": "voxel the memory budget allows", "voxel-size": "voxel size asked for",
+            "resolution": "resolution asked for"}.get(source, "pixel footprint")
+    if source == "voxel-size" and extent / size < min_side_voxels:
+        raise ValueError(
+            f"the {what} ({size:.4g} m) is too coarse for the carving box: its longest side "
+            f"is {extent:.4g} m, {extent / size:.3g} voxel(s); expected voxels of at most "
+            f"{extent / min_side_voxels:.4g} m (at least {min_side_voxels} along the box's "
+            "longest side)")
+    sides = np.array([max(c.width, c.height) for c in cameras], dtype=np.float64)
+    field = float(np.median(sides * footprints))
+    if size > field:
+        raise ValueError(
+            f"the {what} ({size:.4g} m voxels) is wider than the cameras see at the box's "
+            f"centre (about {field:.4g} m across, the median over the views): the carving box "
+            f"{bounds.round(4).tolist()} m is far larger than what the views show; expected a "
+            "box around the object")
+
+
 def choose_voxel_size(bounds_m, cameras: Sequence[Camera], *, max_memory_bytes: int,
-                      resolution: int | None = None,
-                      voxel_size_m: float | None = None) -> ResolutionChoice:
+                      resolution: int | None = None, voxel_size_m: float | None = None,
+                      min_side_voxels: int = 1) -> ResolutionChoice:
     """The voxel size for carving ``bounds_m`` (2, 3), metres, seen by ``cameras``.
 
     ``voxel_size_m`` or ``resolution`` (voxels along the box's longest side)
     override the footprint; a grid they ask for that does not fit
     ``max_memory_bytes`` (or more than ``MAX_VOXELS`` voxels) is refused with a
     ``ValueError`` giving the memory it would need, before anything is
-    allocated. The footprint's grid is instead coarsened until it fits.
+    allocated. The footprint's grid is instead coarsened until it fits. A voxel
+    that cannot show a shape is refused with a ``ValueError`` saying why: fewer
+    than ``min_side_voxels`` along the box's longest side, or wider than the
+    cameras' view at the box centre (a box far larger than the object).
     """
     bounds = np.asarray(bounds_m, dtype=np.float64)
     if int(max_memory_bytes) <= 0:
@@ -189,6 +218,7 @@ def choose_voxel_size(bounds_m, cameras: Sequence[Camera], *, max_memory_bytes: 
         while not _fits(grid_shape(bounds, size), max_memory_bytes):  # whole-voxel rounding
             size *= 1.01
         shape, source = grid_shape(bounds, size), "memory"
+    _refuse_coarse_voxel(size, source, bounds, cameras, footprints, min_side_voxels)
     return ResolutionChoice(voxel_size_m=size, shape=shape, footprint_m=finest,
                             footprint_median_m=median, source=source,
                             memory_bytes=int(np.prod(shape)) * BYTES_PER_VOXEL,
