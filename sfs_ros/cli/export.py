@@ -16,8 +16,6 @@ import argparse
 import sys
 from pathlib import Path
 
-from ..core.exchange.pose_export import export_session, write_colmap, write_nerf_transforms
-from ..core.exchange.session import IMAGES_DIR, read_session
 from .common import ACCEPTED_INPUTS, check_outputs, input_files, load_input, run_reporting_errors
 
 PROG = "sfs-export"
@@ -33,6 +31,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def run(args) -> dict:
+    # Here, not at the top: the help loads no writers (SciPy).
+    from ..core.exchange.pose_export import export_session, write_colmap, write_nerf_transforms
+    from ..core.exchange.session import IMAGES_DIR, read_session
+
     if not (args.session or args.colmap or args.nerf):
         raise ValueError("nothing to do: give --session, --colmap and/or --nerf")
     views, _ = load_input(args.input, captures=True)     # a bag: its images, not its masks

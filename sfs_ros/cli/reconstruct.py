@@ -17,16 +17,14 @@ import argparse
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from ..cell.live import view_key_of
-from ..core.carving.resolution import parse_memory
+# Only names at the top: the help and the import load no numba, SciPy, OpenCV or trimesh;
+# the pipeline's modules are imported where they run.
 from ..core.exchange.export import SUPPORTED_SUFFIXES, TEXTURED_SUFFIXES
-from ..core.exchange.views import ViewSet, read_image
-from ..core.pipeline import MESHERS, RESOLUTION_RANGE, ReconstructionParams, reconstruct
-from ..core.resident_memory import keep_freed_memory
-from ..core.result_files import SheetViews, report_path_for, write_result
-from ..core.segment import PRESETS, SegmentationParams
-from ..core.texture import texture_reconstruction
+from ..core.geometry.grid import RESOLUTION_RANGE
+from ..core.meshing.meshers import MESHERS as MESHER_TABLE
+from ..core.segment_presets import PRESETS
 from .common import (
     ACCEPTED_INPUTS,
     StageProgress,
@@ -38,7 +36,14 @@ from .common import (
     run_reporting_errors,
 )
 
+if TYPE_CHECKING:
+    from ..core.exchange.views import ViewSet
+    from ..core.result_files import SheetViews
+    from ..core.segment import SegmentationParams
+
 PROG = "sfs-reconstruct"
+#: The meshers' names; the first is the default.
+MESHERS = tuple(MESHER_TABLE)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -119,6 +124,8 @@ def _holdout_names(spec: str, names: list[str]) -> tuple[str, ...]:
 
 
 def _segmentation(args, stored: dict | None) -> SegmentationParams | None:
+    from ..core.segment import SegmentationParams
+
     if args.preset is None and args.threshold is None and not args.ignore_alpha:
         return None
     values = dict(PRESETS[args.preset]) if args.preset else dict(stored or {})
@@ -132,6 +139,9 @@ def _segmentation(args, stored: dict | None) -> SegmentationParams | None:
 def _sheet_views(view_set: ViewSet, result) -> SheetViews:
     """Every view of ``view_set``, then those rejected while loading, with the masks the
     pipeline carved with; rejection reasons name the view rather than its image's path."""
+    from ..core.exchange.views import read_image
+    from ..core.result_files import SheetViews
+
     reasons = {r["view"]: r["reason"] for r in result.report["views"]["rejected"]}
     images, masks, short = [], [], {}
     for view in view_set.views:
@@ -155,12 +165,19 @@ def _by_view(captures: ViewSet, view_set: ViewSet) -> dict:
     """{name of a bag's view: path of its captured image} (``captures``: the bag's
     captured images, named by their keys): the bag's views are the recorded masks, named
     as the carving node stored them."""
+    from ..cell.live import view_key_of
+
     paths = {Path(v.name).stem: v.image_path for v in captures.views}
     return {v.name: paths[key] for v in view_set.views if (key := view_key_of(v.name)) in paths}
 
 
 def run(args) -> dict:
     """Run one reconstruction from parsed arguments; returns the report."""
+    from ..core.carving.resolution import parse_memory
+    from ..core.pipeline import ReconstructionParams, reconstruct
+    from ..core.result_files import report_path_for, write_result
+    from ..core.texture import texture_reconstruction
+
     suffix = args.output.suffix.lower()
     if suffix not in SUPPORTED_SUFFIXES:
         raise ValueError(f"output {args.output} has an unsupported suffix {suffix!r}; "
@@ -237,6 +254,8 @@ def summary(report: dict) -> str:
 
 
 def main(argv=None) -> int:
+    from ..core.resident_memory import keep_freed_memory
+
     # The pipeline allocates and frees large arrays stage after stage: kept by malloc, they
     # are not faulted in again each time (a tenth of the run on the bench).
     keep_freed_memory()

@@ -27,7 +27,7 @@ from .carving.fusion import fuse_silhouettes, reference_misses
 from .carving.hull import drop_specks
 from .carving.resolution import choose_voxel_size, default_memory_budget
 from .exchange.views import View, ViewSet, as_bounds, read_image
-from .geometry.grid import VoxelGrid
+from .geometry.grid import RESOLUTION_RANGE, VoxelGrid
 from .geometry.lens import (
     distort_mask,
     ideal_camera,
@@ -52,10 +52,6 @@ __all__ = ["MESHERS", "RESOLUTION_RANGE", "CarvedScan", "Precomputed", "Reconstr
 
 #: The meshers' names (:data:`sfs_ros.core.meshing.meshers.MESHERS`); the first is the default.
 MESHERS = tuple(MESHER_REGISTRY)
-#: Voxels along the box's longest side a reconstruction may be asked for, inclusive: one
-#: range for the command line, the carving node's parameter and the requests (the
-#: memory budget then decides whether a grid fits).
-RESOLUTION_RANGE = (8, 2048)
 
 #: Progress callback: (stage name, fraction of the stage done in [0, 1]).
 Progress = Callable[[str, float], None]
@@ -375,7 +371,6 @@ def carve_scan(view_set: ViewSet, params: ReconstructionParams = ReconstructionP
                                    known=precomputed.box)
         choice = choose_voxel_size(bounds, cameras, resolution=params.resolution,
                                    voxel_size_m=params.voxel_size_m,
-                                   min_side_voxels=RESOLUTION_RANGE[0],
                                    max_memory_bytes=params.max_memory_bytes
                                    or default_memory_budget())
         grid = VoxelGrid(bounds[0], bounds[1], choice.voxel_size_m)

@@ -1,15 +1,16 @@
 """Files in and out: views with their cameras (session folders, Middlebury, NeRF), meshes
-(PLY, OBJ, STL, GLB) and camera poses for other tools (COLMAP, NeRF)."""
+(PLY, OBJ, STL, GLB) and camera poses for other tools (COLMAP, NeRF).
 
-from .export import SUPPORTED_SUFFIXES, export_mesh, load_mesh
-from .inputs import ACCEPTED_INPUTS, load_views
-from .middlebury import read_middlebury
-from .nerf import read_transforms
-from .pose_export import export_session, write_colmap, write_nerf_transforms
-from .session import append_view, read_session, write_session
-from .views import View, ViewError, ViewSet, read_image
+Names are imported on first use (:mod:`..lazy_exports`)."""
 
-__all__ = ["ACCEPTED_INPUTS", "SUPPORTED_SUFFIXES", "View", "ViewError", "ViewSet",
-           "append_view", "export_mesh", "export_session", "load_mesh", "load_views",
-           "read_image", "read_middlebury", "read_session", "read_transforms", "write_colmap",
-           "write_nerf_transforms", "write_session"]
+from ..lazy_exports import lazy_exports
+
+__getattr__, __dir__, __all__ = lazy_exports(__name__, {
+    ".export": ("SUPPORTED_SUFFIXES", "export_mesh", "load_mesh"),
+    ".inputs": ("ACCEPTED_INPUTS", "load_views"),
+    ".middlebury": ("read_middlebury",),
+    ".nerf": ("read_transforms",),
+    ".pose_export": ("export_session", "write_colmap", "write_nerf_transforms"),
+    ".session": ("append_view", "read_session", "write_session"),
+    ".views": ("View", "ViewError", "ViewSet", "read_image"),
+})

@@ -38,10 +38,6 @@ import io
 from pathlib import Path
 
 import numpy as np
-import trimesh
-from PIL import Image
-from trimesh.visual import TextureVisuals
-from trimesh.visual.material import PBRMaterial
 
 from .files import write_atomic, write_atomic_all
 
@@ -117,6 +113,8 @@ def mesh_bytes(vertices, faces, path, *, vertex_colors=None, units: str = "m") -
         return _ply_bytes(v, f, colors)
     if suffix in Y_UP_SUFFIXES:
         v = np.column_stack((v[:, 0], v[:, 2], -v[:, 1]))
+    import trimesh  # here, not at the top: the formats' names cost no trimesh
+
     mesh = trimesh.Trimesh(vertices=v, faces=f.astype(np.int64), vertex_colors=colors,
                            process=False)
     data = mesh.export(file_type=_FILE_TYPE[suffix])
@@ -152,6 +150,8 @@ def load_mesh(path, *, units: str = "m", with_colors: bool = False):
     suffix = _suffix(path)
     if units not in UNIT_SCALE:
         raise ValueError(f"units must be one of {sorted(UNIT_SCALE)}, got {units!r}")
+    import trimesh
+
     mesh = trimesh.load(path, file_type=_FILE_TYPE[suffix], force="mesh", process=False)
     v = np.asarray(mesh.vertices, dtype=np.float64)
     f = np.asarray(mesh.faces, dtype=np.int64)
@@ -216,6 +216,8 @@ def _colors_uint8(colors, n: int) -> np.ndarray:
 
 
 def _png(texture: np.ndarray) -> bytes:
+    from PIL import Image
+
     out = io.BytesIO()
     Image.fromarray(np.ascontiguousarray(texture, dtype=np.uint8)).save(out, format="PNG")
     return out.getvalue()
@@ -253,6 +255,11 @@ def textured_mesh_files(textured, path, *, units: str = "m") -> list[tuple[Path,
                     f"map_Kd {png.name}\n").encode("ascii")
         return [(png, _png(textured.texture)), (mtl, material),
                 (path, _obj_text(v, textured.uv, textured.faces, mtl.name))]
+    import trimesh
+    from PIL import Image
+    from trimesh.visual import TextureVisuals
+    from trimesh.visual.material import PBRMaterial
+
     material = PBRMaterial(baseColorTexture=Image.fromarray(textured.texture),
                            metallicFactor=0.0, roughnessFactor=1.0, doubleSided=False)
     mesh = trimesh.Trimesh(vertices=v, faces=textured.faces,

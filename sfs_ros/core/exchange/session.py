@@ -70,7 +70,6 @@ import os
 import shutil
 from pathlib import Path, PurePosixPath
 
-import cv2
 import numpy as np
 import yaml
 
@@ -321,6 +320,8 @@ def _check_new_name(name: str) -> str:
 
 
 def _write_png(path: Path, rgb: np.ndarray) -> None:
+    import cv2  # here, not at the top: reading the formats' names costs no OpenCV
+
     ok, data = cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
     if not ok:
         raise ValueError(f"could not encode {path} as PNG")

@@ -4,10 +4,14 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["VoxelGrid"]
+__all__ = ["MAX_VOXELS", "RESOLUTION_RANGE", "VoxelGrid"]
 
 #: Largest grid we allocate (voxels): 1024^3 bytes = 1 GiB of occupancy.
 MAX_VOXELS = 1024 ** 3
+#: Voxels along the box's longest side a reconstruction may be asked for, inclusive: one
+#: range for the command line, the carving node's parameter and the requests (the
+#: memory budget then decides whether a grid fits).
+RESOLUTION_RANGE = (8, 2048)
 
 
 class VoxelGrid:
