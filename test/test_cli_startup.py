@@ -52,7 +52,6 @@ def test_the_help_still_lists_what_the_heavy_modules_define():
     for name in (*pipeline.MESHERS, *segment.PRESETS, *export.SUPPORTED_SUFFIXES):
         assert name in text, name
     assert f"{pipeline.RESOLUTION_RANGE[0]}..{pipeline.RESOLUTION_RANGE[1]}" in text
-    assert reconstruct.MESHERS == pipeline.MESHERS
 
 
 def test_a_heavy_module_is_seen_when_it_is_loaded():

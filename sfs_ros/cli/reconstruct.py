@@ -19,34 +19,26 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-# Only names at the top: the help and the import load no numba, SciPy, OpenCV or trimesh;
-# the pipeline's modules are imported where they run.
-from ..core.exchange.export import SUPPORTED_SUFFIXES, TEXTURED_SUFFIXES
-from ..core.geometry.grid import RESOLUTION_RANGE
-from ..core.meshing.meshers import MESHERS as MESHER_TABLE
-from ..core.segment_presets import PRESETS
-from .common import (
-    ACCEPTED_INPUTS,
-    StageProgress,
-    accept_negative_numbers,
-    check_outputs,
-    input_files,
-    load_input,
-    one_line,
-    run_reporting_errors,
-)
+from ..process import configure_process
 
+# The standard library alone at the top: main() sets the process up before NumPy loads
+# (:mod:`sfs_ros.process`), and the help loads no numba, SciPy, OpenCV or trimesh; each
+# function imports what it uses.
 if TYPE_CHECKING:
     from ..core.exchange.views import ViewSet
     from ..core.result_files import SheetViews
     from ..core.segment import SegmentationParams
 
 PROG = "sfs-reconstruct"
-#: The meshers' names; the first is the default.
-MESHERS = tuple(MESHER_TABLE)
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from ..core.exchange.export import SUPPORTED_SUFFIXES
+    from ..core.geometry.grid import RESOLUTION_RANGE
+    from ..core.meshing.meshers import MESHERS
+    from ..core.segment_presets import PRESETS
+    from .common import ACCEPTED_INPUTS, accept_negative_numbers
+
     p = accept_negative_numbers(
         argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0]))
     p.add_argument("input", type=Path, help=ACCEPTED_INPUTS)
@@ -63,7 +55,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="working memory the voxel grid may take, e.g. 2G or 512M (default: a "
                         "quarter of the machine's memory); a finer grid is coarsened, a given "
                         "resolution that needs more is refused")
-    p.add_argument("-m", "--mesher", choices=MESHERS,
+    p.add_argument("-m", "--mesher", choices=tuple(MESHERS),
                    help="default: a bag's recorded one, else marching-cubes")
     p.add_argument("--block", type=int, default=2, metavar="M",
                    help="cloud of points: one point per MxMxM block (advancing front; default 2)")
@@ -125,6 +117,7 @@ def _holdout_names(spec: str, names: list[str]) -> tuple[str, ...]:
 
 def _segmentation(args, stored: dict | None) -> SegmentationParams | None:
     from ..core.segment import SegmentationParams
+    from ..core.segment_presets import PRESETS
 
     if args.preset is None and args.threshold is None and not args.ignore_alpha:
         return None
@@ -174,9 +167,11 @@ def _by_view(captures: ViewSet, view_set: ViewSet) -> dict:
 def run(args) -> dict:
     """Run one reconstruction from parsed arguments; returns the report."""
     from ..core.carving.resolution import parse_memory
-    from ..core.pipeline import ReconstructionParams, reconstruct
+    from ..core.exchange.export import SUPPORTED_SUFFIXES, TEXTURED_SUFFIXES
+    from ..core.pipeline import MESHERS, ReconstructionParams, reconstruct
     from ..core.result_files import report_path_for, write_result
     from ..core.texture import texture_reconstruction
+    from .common import StageProgress, check_outputs, input_files, load_input
 
     suffix = args.output.suffix.lower()
     if suffix not in SUPPORTED_SUFFIXES:
@@ -238,6 +233,8 @@ def run(args) -> dict:
 
 def summary(report: dict) -> str:
     """A few lines for the terminal."""
+    from .common import one_line
+
     mesh, views, iou = report["mesh"], report["views"], report["silhouette_iou"]
     lines = [f"mesh: {report['output']} ({mesh['n_vertices']} vertices, {mesh['n_faces']} faces, "
              f"watertight={mesh['watertight']}, outward={mesh['outward']})",
@@ -254,11 +251,11 @@ def summary(report: dict) -> str:
 
 
 def main(argv=None) -> int:
-    from ..core.resident_memory import keep_freed_memory
-
     # The pipeline allocates and frees large arrays stage after stage: kept by malloc, they
     # are not faulted in again each time (a tenth of the run on the bench).
-    keep_freed_memory()
+    configure_process(keep_freed_memory=True)
+    from .common import run_reporting_errors
+
     status, text = run_reporting_errors(PROG, lambda args: summary(run(args)),
                                         build_parser().parse_args(argv))
     if status:

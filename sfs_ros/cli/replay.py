@@ -19,7 +19,7 @@ import sys
 import time
 from pathlib import Path
 
-from .common import run_reporting_errors
+from ..process import configure_process
 
 PROG = "sfs-replay"
 #: Longest wait for the subscribers to acknowledge the last messages, s.
@@ -128,6 +128,9 @@ def run(args) -> dict:
 
 
 def main(argv=None) -> int:
+    configure_process()
+    from .common import run_reporting_errors
+
     args = build_parser().parse_args(argv)
     status, summary = run_reporting_errors(PROG, run, args)
     if status:

@@ -20,10 +20,10 @@ from ..core.exchange.session import write_session
 from ..core.geometry.rig import RigCalibration
 from ..core.pictures.preview import preview_image, write_png
 from ..core.pipeline import MESHERS, ReconstructionParams, reconstruct
-from ..core.resident_memory import keep_freed_memory
 from ..core.simulation.objects import OBJECT_NAMES, make_object
 from ..core.simulation.plan import ring_plan
 from ..core.simulation.synthetic import carving_box, score_against_truth, simulate_scan
+from ..process import configure_process
 from .common import StageProgress, accept_negative_numbers, run_reporting_errors
 from .reconstruct import summary
 
@@ -79,7 +79,7 @@ def run(args) -> dict:
 
 
 def main(argv=None) -> int:
-    keep_freed_memory()     # as sfs-reconstruct: freed arrays are not faulted in again
+    configure_process(keep_freed_memory=True)   # as sfs-reconstruct
     status, report = run_reporting_errors(PROG, run, build_parser().parse_args(argv))
     if status:
         return status
