@@ -7,20 +7,21 @@ before something else happens in the process:
 
 * **BLAS threads.** Per-view work runs in the package's own threads (and numba's); BLAS
   only ever multiplies thin (n, 3) by (3, 3) matrices here, where threads of its own
-  gain nothing and, on a busy machine, spin against the others (projecting a mesh's
-  vertices was 15x slower). OpenBLAS reads ``OPENBLAS_NUM_THREADS`` once, when NumPy
-  first loads it, and starts its threads then, so the variable must be set before the
-  first ``import numpy``. ``sfs-reconstruct``, ``sfs-export`` and ``sfs-replay`` import
-  NumPy only inside ``main()``, after this call (their modules' tops import the standard
-  library alone); a node's module imports rclpy and its messages (and so NumPy) at the
-  top, so there the variable comes from the process that starts it: ``sfs-cell`` calls
-  this first and its nodes inherit the variable (:data:`PROCESS_ENVIRONMENT`, also given
-  to them explicitly), the launch files set it. Where NumPy is loaded all the same (a
-  command line whose module imports it, a node run by hand, a caller in another
-  program), the call limits the loaded OpenBLAS to that count through its own
-  ``openblas_set_num_threads``: its calls then run on one thread as well, though its idle
-  threads were started. A value the user set wins.
-* **malloc** (``keep_freed_memory``, the carving and meshing nodes):
+  gain nothing and, on a busy machine, spin against the others (``doc/benchmarks.md``).
+  OpenBLAS reads ``OPENBLAS_NUM_THREADS`` once, when NumPy first loads it, and starts
+  its threads then, so the variable must be set before the first ``import numpy``.
+  ``sfs-reconstruct``, ``sfs-export`` and ``sfs-replay`` import NumPy only inside
+  ``main()``, after this call (their modules' tops import the standard library alone);
+  a node's module imports rclpy and its messages (and so NumPy) at the top, so there
+  the variable comes from the process that starts it: ``sfs-cell`` calls this first and
+  its nodes inherit the variable (:data:`PROCESS_ENVIRONMENT`, also given to them
+  explicitly), the launch files set it. Where NumPy is loaded all the same (a command
+  line whose module imports it, a node run by hand, a caller in another program), the
+  call limits the loaded OpenBLAS to that count through its own
+  ``openblas_set_num_threads``: its calls then run on one thread as well, though its
+  idle threads were started. A value the user set wins.
+* **malloc** (``keep_freed_memory``: the carving and meshing nodes, ``sfs-reconstruct``
+  and ``sfs-simulate``):
   :func:`sfs_ros.core.resident_memory.keep_freed_memory` makes malloc keep what it frees,
   in one arena for all threads; an arena a thread took before stays its own, and
   ``import rclpy`` starts threads. glibc reads the same settings from the environment

@@ -28,15 +28,26 @@ def _integer(value) -> bool:
     return isinstance(value, int) and not isinstance(value, bool)
 
 
-def _field(mapping: dict, key: str, where: str, kind, expected: str):
-    """``mapping[key]``; ValueError naming ``where.key`` unless it is there and ``kind``
-    (a type or a predicate) accepts it."""
+def _mapping(value) -> bool:
+    return isinstance(value, dict)
+
+
+def _list(value) -> bool:
+    return isinstance(value, list)
+
+
+def _string(value) -> bool:
+    return isinstance(value, str)
+
+
+def _field(mapping: dict, key: str, where: str, accepts, expected: str):
+    """``mapping[key]``; ValueError naming ``where.key`` unless it is there and
+    ``accepts(value)``."""
     path = f"{where}.{key}" if where else key
     if key not in mapping:
         raise ValueError(f"{path} is missing")
     value = mapping[key]
-    ok = kind(value) if callable(kind) and not isinstance(kind, type) else isinstance(value, kind)
-    if not ok:
+    if not accepts(value):
         raise ValueError(f"{path} is {brief(value, 60)}, expected {expected}")
     return value
 
@@ -45,9 +56,9 @@ def _topic(entry, where: str) -> None:
     if not isinstance(entry, dict):
         raise ValueError(f"{where} is {brief(entry, 60)}, expected a mapping")
     _field(entry, "message_count", where, _integer, "a whole number")
-    meta = _field(entry, "topic_metadata", where, dict, "a mapping")
+    meta = _field(entry, "topic_metadata", where, _mapping, "a mapping")
     for key in ("name", "type", "serialization_format"):
-        _field(meta, key, f"{where}.topic_metadata", str, "a string")
+        _field(meta, key, f"{where}.topic_metadata", _string, "a string")
     try:
         parse_qos(meta.get("offered_qos_profiles", []))
     except (ReaderError, KeyError, TypeError, ValueError, AttributeError) as exc:
@@ -58,11 +69,11 @@ def _topic(entry, where: str) -> None:
 def _check(document, folder: Path) -> None:
     if not isinstance(document, dict):
         raise ValueError(f"the document is {brief(document, 60)}, expected a mapping")
-    info = _field(document, _INFO, "", dict, "a mapping")
+    info = _field(document, _INFO, "", _mapping, "a mapping")
     _field(info, "version", _INFO, lambda v: _integer(v) and 1 <= v <= 9,
            "a whole number 1..9")
     files = _field(info, "relative_file_paths", _INFO,
-                   lambda v: isinstance(v, list) and all(isinstance(x, str) for x in v),
+                   lambda v: _list(v) and all(map(_string, v)),
                    "a list of file names")
     for name in files:
         if not (folder / PurePath(name).name).is_file():
@@ -70,20 +81,20 @@ def _check(document, folder: Path) -> None:
                              f"not a file in the bag's folder")
     _field(info, "storage_identifier", _INFO, lambda v: v in _STORAGES,
            " or ".join(repr(s) for s in _STORAGES))
-    topics = _field(info, "topics_with_message_count", _INFO, list, "a list")
+    topics = _field(info, "topics_with_message_count", _INFO, _list, "a list")
     for n, entry in enumerate(topics):
         _topic(entry, f"{_INFO}.topics_with_message_count[{n}]")
-    duration = _field(info, "duration", _INFO, dict, "a mapping")
+    duration = _field(info, "duration", _INFO, _mapping, "a mapping")
     _field(duration, "nanoseconds", f"{_INFO}.duration", _integer, "a whole number")
-    start = _field(info, "starting_time", _INFO, dict, "a mapping")
+    start = _field(info, "starting_time", _INFO, _mapping, "a mapping")
     _field(start, "nanoseconds_since_epoch", f"{_INFO}.starting_time", _integer,
            "a whole number")
     _field(info, "message_count", _INFO, _integer, "a whole number")
     if "files" in info:
-        _field(info, "files", _INFO, list, "a list")
+        _field(info, "files", _INFO, _list, "a list")
     for key in ("compression_format", "compression_mode"):
         if key in info:
-            _field(info, key, _INFO, str, "a string")
+            _field(info, key, _INFO, _string, "a string")
 
 
 def metadata_damage(folder: Path) -> str:
