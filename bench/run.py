@@ -16,15 +16,18 @@ import sys
 
 import numpy as np
 
+from sfs_ros.process import configure_process
+
 from .timing import print_table
 
 SUITES = [("bench_carve", "run"), ("bench_marching", "run"),
           ("bench_marching", "run_hull_surface"), ("bench_mesh", "run_advancing_front"),
           ("bench_lens", "run"), ("bench_segment", "run"), ("bench_colour", "run"),
-          ("bench_cell", "run"), ("bench_reconstruct", "run")]
+          ("bench_cell", "run"), ("bench_reconstruct", "run"), ("bench_startup", "run")]
 
 
 def main(argv=None) -> int:
+    configure_process()      # as the tools' processes are set up
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="smaller sizes, for a smoke run")
     parser.add_argument("--only", nargs="+", help="run only these suites, e.g. bench_carve")

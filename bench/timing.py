@@ -11,6 +11,8 @@ import argparse
 import time
 from collections.abc import Callable, Iterable
 
+from sfs_ros.process import configure_process
+
 
 def best_of(fn, repeats: int) -> float:
     """Shortest wall time of ``repeats`` calls of ``fn()``, seconds (the least disturbed run
@@ -40,7 +42,8 @@ def print_table(rows: Iterable[dict]) -> None:
 def main(doc: str, *suites: Callable[..., list[dict]], quick_help: str,
          argv=None) -> None:
     """The command line of one benchmark module (``doc``: its docstring): ``--quick``,
-    then the table of its ``suites``."""
+    then the table of its ``suites``, in a process set up as the tools' are."""
+    configure_process()
     parser = argparse.ArgumentParser(description=doc.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help=quick_help)
     quick = parser.parse_args(argv).quick

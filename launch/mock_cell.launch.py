@@ -31,6 +31,7 @@ from launch.substitutions import (
 from launch_ros.actions import Node
 
 from launch import LaunchDescription
+from sfs_ros.process import KEEP_FREED_MEMORY_ENVIRONMENT
 
 #: Seconds before a node that ended by itself is started again.
 RESPAWN_DELAY_S = 2.0
@@ -64,6 +65,9 @@ def generate_launch_description():
         # leave a respawned node deaf to the nodes that outlived its predecessor.
         SetEnvironmentVariable('FASTDDS_BUILTIN_TRANSPORTS', EnvironmentVariable(
             'FASTDDS_BUILTIN_TRANSPORTS', default_value='UDPv4')),
+        # As sfs-cell (sfs_ros.process.PROCESS_ENVIRONMENT): in place before NumPy loads BLAS.
+        SetEnvironmentVariable('OPENBLAS_NUM_THREADS', EnvironmentVariable(
+            'OPENBLAS_NUM_THREADS', default_value='1')),
         DeclareLaunchArgument('camera_topic', default_value='',
                               description="Image topic of a real camera's driver (usb_cam, "
                                           "v4l2_camera, GenICam) to scan with the simulated "
@@ -108,11 +112,13 @@ def generate_launch_description():
              parameters=[os.path.join(config, 'rig.yaml'),
                          os.path.join(config, 'segmentation.yaml'), params_file]),
         Node(package='sfs_ros', executable='sfs-carving', name='carving',
+             additional_env=KEEP_FREED_MEMORY_ENVIRONMENT,
              namespace=namespace, output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
              parameters=[os.path.join(config, 'rig.yaml'), os.path.join(config, 'frames.yaml'),
                          os.path.join(config, 'carving.yaml'), params_file,
                          {'output_dir': output_dir}]),
         Node(package='sfs_ros', executable='sfs-meshing', name='meshing',
+             additional_env=KEEP_FREED_MEMORY_ENVIRONMENT,
              namespace=namespace, output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
              parameters=[os.path.join(config, 'frames.yaml'),
                          os.path.join(config, 'meshing.yaml'), params_file,

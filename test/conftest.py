@@ -19,6 +19,7 @@ from sfs_ros.core.geometry.rig import RigCalibration
 from sfs_ros.core.simulation.objects import make_object
 from sfs_ros.core.simulation.plan import ring_plan
 from sfs_ros.core.simulation.synthetic import carving_box, simulate_scan
+from sfs_ros.process import configure_process
 
 from ros_harness import SOURCE_ROOT, leftovers_stopped, node_starter
 
@@ -157,3 +158,8 @@ def pytest_collection_finish(session):
 def kernels_warmed(request):
     """The same for a session of tests that need the cache warm without a ``ros`` test."""
     warm_kernels(request.config)
+
+
+def pytest_configure(config):
+    """The test session's process set up as the tools' are (one BLAS thread)."""
+    configure_process()

@@ -278,6 +278,8 @@ def build_cases(root: Path, base: Path, secret: Path) -> Cases:
         c.session_yaml(f"session {key}={value!r}", lambda d, k=key, v=value: d.update({k: v}))
     for n, (row, expect) in enumerate([("view_000.png,1e400,0.5", "view_000.png"),
                                        ("view_000.png,nan,nan", "view_000.png"),
+                                       ("view_000.png,1e308,0.5", "view_000.png"),
+                                       ("view_000.png,0.1,-1e300", "view_000.png"),
                                        ("view_000.png,0.1", REFUSED),
                                        ("view_000.png,0.1,0.2,0.3", REFUSED),
                                        ("view_000.png," + "9" * 5000 + ",0.1", "view_000.png"),
@@ -428,6 +430,9 @@ def build_cases(root: Path, base: Path, secret: Path) -> Cases:
     bag("bag sqlite3: a corrupt message", expect=OK, storage="sqlite3", extra=corrupt_row)
     bag("bag sqlite3: a topic typed venv/__main__/X", expect=OK, storage="sqlite3",
         extra=foreign_type)
+    bag("bag sqlite3: metadata.yaml without its duration", storage="sqlite3",
+        extra=lambda f: (f / "metadata.yaml").write_text(
+            (f / "metadata.yaml").read_text().replace("duration:", "lasted:")))
     bag("bag sqlite3: no messages table", storage="sqlite3",
         extra=lambda f: _sql(f, "DROP TABLE messages"))
     # A COLMAP model whose images/ is a link outside (as a session's is refused).
@@ -462,7 +467,9 @@ def build_cases(root: Path, base: Path, secret: Path) -> Cases:
     # ---- options
     for n, options in enumerate([["-r", "0"], ["-r", "-5"], ["-r", "100000"],
                                  ["--max-misses", "100"], ["--voxel-size", "nan"],
-                                 ["--voxel-size", "1e-9"], ["--block", "0"],
+                                 ["--voxel-size", "1e-9"], ["--voxel-size", "1e3"],
+                                 ["--voxel-size", "inf"], ["--block", "0"],
+                                 ["--bounds", "-1e4", "-1e4", "-1e4", "1e4", "1e4", "1e4"],
                                  ["--bounds", "5", "5", "5", "6", "6", "6"],
                                  ["--bounds", "1", "1", "1", "0", "0", "0"],
                                  ["--holdout", "999"], ["--threshold", "7"]]):

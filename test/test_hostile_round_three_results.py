@@ -198,8 +198,7 @@ def test_class_10_mis_tagged_views_are_rejected_by_name_and_the_rig_recovered(bo
     rejected = report["rejected"]
     assert set(rejected) == {f"view_{i:03d}.png" for i in wrong}, rejected
     assert "disagree with its board pose by 90.0 degrees" in rejected["view_005.png"]
-    assert "theta_rad 1e+308" in rejected["view_009.png"]
-    assert "disagree with its board pose" in rejected["view_009.png"]
+    assert "theta_rad=1e+308 is beyond any reading" in rejected["view_009.png"]
     assert "not finite" in rejected["view_016.png"]
     assert len(report["view_rms_px"]) == 25 and report["rms_px"] < bars.RMS_PX
     values = yaml.safe_load((tmp_path / "out" / "rig.yaml").read_text())["/**"]["ros__parameters"]
@@ -230,6 +229,39 @@ def test_class_10_angles_that_give_no_camera_are_rejected_before_the_fit(board_s
                                          r"first: v0: its tagged angles cannot be used: "
                                          r"encoder angles must be finite"):
         calibrate_rig(detections, board_scene.board, nominal_rig())
+
+
+def test_class_10_an_angle_beyond_any_reading_is_a_rejected_view_named_with_its_value(
+        base, tmp_path):
+    """theta 1e308 (cos and sin of it are numbers, so it once made a real camera), -2e6 and
+    a phi of -1e300, in a session's views.csv and in a bag's joint states: each a rejected
+    view, named with the value and the accepted range; the other views make the mesh."""
+    from sfs_ros.core.geometry.rig import MAX_ENCODER_RAD
+
+    expected = f"within +-{MAX_ENCODER_RAD:g} rad"
+    folder = shutil.copytree(base, tmp_path / "session")
+    table = (folder / "views.csv").read_text().splitlines()
+    edits = {1: ("1e308", None), 2: ("-2e6", None), 3: (None, "-1e300")}
+    for row, (theta, phi) in edits.items():
+        name, old_theta, old_phi = table[row].split(",")
+        table[row] = ",".join([name, theta or old_theta, phi or old_phi])
+    (folder / "views.csv").write_text("\n".join(table) + "\n")
+    status, lines, report = reconstruct([folder, "-o", tmp_path / "m.ply", *FAST])
+    assert status == 0, lines
+    reasons = {r["view"]: r["reason"] for r in report["views"]["rejected"]}
+    assert reasons == {
+        "view_000.png": f"encoder angle theta_rad=1e+308 is beyond any reading: expected a "
+                        f"finite angle {expected}",
+        "view_001.png": f"encoder angle theta_rad=-2000000.0 is beyond any reading: expected a "
+                        f"finite angle {expected}",
+        "view_002.png": f"encoder angle phi_rad=-1e+300 is beyond any reading: expected a "
+                        f"finite angle {expected}"}, reasons
+    views = sphere_views()
+    views[3] = (*views[3][:2], 1e308, views[3][3])
+    reasons = dict(read_bag(bag(tmp_path / "bag", views)).rejected)
+    assert list(reasons) == ["103_000003000"], reasons
+    assert "got theta_rad=1e+308" in reasons["103_000003000"] and expected in \
+        reasons["103_000003000"]
 
 
 # ---- class 11: COLMAP images.txt read by structure ---------------------------------------
@@ -409,6 +441,32 @@ def test_class_16_a_corrupt_message_is_a_rejected_view_and_the_rest_is_used(tmp_
     meta["rosbag2_bagfile_information"]["files"] = {"a": 1}
     (folder / "metadata.yaml").write_text(yaml.safe_dump(meta))
     assert len(read_bag(folder).views) == len(sphere_views()) - 1
+    # An SQLite bag is read through its metadata.yaml: damaged, the bag is refused naming
+    # the bag and the field, not with the reader's KeyError.
+    sqlite = tmp_path / "sqlite"
+    write_bag(sqlite, [(PARAMETERS_TOPIC, parameters_message(document())), *messages],
+              storage="sqlite3")
+    good = (sqlite / "metadata.yaml").read_text()
+    info = "rosbag2_bagfile_information"
+    damages = {
+        lambda i: i.pop("duration"): f"{info}.duration is missing",
+        lambda i: i.update(starting_time=5): f"{info}.starting_time is 5, expected a mapping",
+        lambda i: i.update(version="x"): f"{info}.version is 'x', expected a whole number 1..9",
+        lambda i: i["topics_with_message_count"][0]["topic_metadata"].pop("type"):
+            f"{info}.topics_with_message_count[0].topic_metadata.type is missing",
+        lambda i: i.update(relative_file_paths=["other.db3"]):
+            f"{info}.relative_file_paths names 'other.db3', which is not a file in the bag's "
+            "folder",
+        lambda i: i.update(storage_identifier=5):
+            f"{info}.storage_identifier is 5, expected 'sqlite3' or 'mcap'"}
+    for damage, words in damages.items():
+        meta = yaml.safe_load(good)
+        damage(meta[info])
+        (sqlite / "metadata.yaml").write_text(yaml.safe_dump(meta))
+        status, lines, _ = reconstruct([sqlite, "-o", tmp_path / "s.ply", *FAST])
+        assert status == 2 and lines == [
+            f"sfs-reconstruct: error: bag {sqlite}: its metadata.yaml is damaged: {words} (the "
+            "storage file is read through it; ros2 bag reindex writes it again)"], lines
     for square in (1e300, float("inf"), 1e-300):
         with pytest.raises(ValueError, match="square_m"):
             BoardSpec(square_m=square, marker_m=min(square / 2, 0.01))
@@ -446,6 +504,27 @@ def test_class_18_a_box_beyond_any_grid_is_refused_when_set(box):
         as_bounds(box, what="bounds_m")
 
 
+def test_class_18_negative_bounds_are_numbers_and_a_box_far_too_large_is_named(base,
+                                                                                tmp_path):
+    """``--bounds -1e4 ...`` is six numbers, not an option (argparse once read ``-1e4`` as
+    one); the box they give, far larger than the cameras see, is refused for that."""
+    box = ["-6e-2", "-6e-2", "0", "6e-2", "6e-2", "1.1e-1"]
+    status, lines, report = reconstruct([base, "-o", tmp_path / "m.ply", "--bounds", *box,
+                                         *FAST])
+    assert status == 0, lines
+    assert report["grid"]["bounds_source"] == "given"
+    assert report["grid"]["bounds_m"][0] == [-0.06, -0.06, 0.0]
+    status, lines, _ = reconstruct([base, "-o", tmp_path / "m.ply", "--bounds", "-1e4", "-1e4",
+                                    "-1e4", "1e4", "1e4", "1e4", *FAST])
+    assert status == 2 and len(lines) == 1, lines
+    assert "the resolution asked for (833.3 m voxels) is wider than the cameras see at the " \
+        "box's centre (about 0.315 m across" in lines[0] and "expected a box around the " \
+        "object" in lines[0], lines
+    status, lines, _ = reconstruct([base, "-o", tmp_path / "m.ply", "--bounds", "-inf", "0",
+                                    "0", "1", "1", "1", *FAST])
+    assert status == 2 and "with finite min < max" in lines[0], lines
+
+
 # ---- class 19: unclear answers --------------------------------------------------------------
 
 def test_class_19_options_that_cannot_be_met_are_named(base, tmp_path):
@@ -463,6 +542,17 @@ def test_class_19_options_that_cannot_be_met_are_named(base, tmp_path):
     assert status == 2 and len(lines) == 1, lines
     assert "needs 139.25 GiB and has more than the 1074 M voxels a grid may have" in lines[0]
     assert "--max-memory" not in lines[0] and "coarser resolution" in lines[0]
+    # A voxel larger than the box: what was asked, the box, and the largest voxel it takes.
+    for size, voxels in (("1e3", "0.000106"), ("0.05", "2.12")):
+        status, lines, _ = reconstruct([base, "-o", tmp_path / "m.ply", "--voxel-size", size,
+                                        "-q"])
+        assert lines == [f"sfs-reconstruct: error: the voxel size asked for ({float(size):g} m) "
+                         f"is too coarse for the carving box: its longest side is 0.1059 m, "
+                         f"{voxels} voxel(s); expected voxels of at most 0.01324 m (at least "
+                         f"{RESOLUTION_RANGE[0]} along the box's longest side)"], lines
+    status, lines, _ = reconstruct([base, "-o", tmp_path / "m.ply", "--voxel-size", "inf", "-q"])
+    assert lines == ["sfs-reconstruct: error: voxel size must be a finite number of metres > 0, "
+                     "got inf"], lines
 
 
 def test_class_19_a_message_names_the_destination_and_no_stale_report_is_left(base, tmp_path):

@@ -23,6 +23,7 @@ from pathlib import Path
 import pytest
 import yaml
 
+from sfs_ros import process
 from sfs_ros.cli.bringup import DDS_ENVIRONMENT, cell_nodes
 from sfs_ros.ros.names import NAMESPACE
 
@@ -80,6 +81,8 @@ class LaunchFile:
     def value(self, expr: ast.expr):
         if isinstance(expr, ast.Constant):
             return expr.value
+        if isinstance(expr, ast.Name) and expr.id == "KEEP_FREED_MEMORY_ENVIRONMENT":
+            return process.KEEP_FREED_MEMORY_ENVIRONMENT     # imported from sfs_ros.process
         if isinstance(expr, ast.Name) and expr.id in self.assigned:
             return self.value(self.assigned[expr.id])
         if isinstance(expr, ast.List):
@@ -178,6 +181,8 @@ def test_launch_file_starts_the_nodes_of_cell_nodes(filename, mock, case, namesp
 
     for spec, node in zip(specs, launch.nodes()):
         assert node["package"] == "sfs_ros"
+        # The carving and meshing nodes start with malloc's settings, as by sfs-cell.
+        assert node.get("additional_env", {}) == spec.environment
         # Supervised as by sfs-cell: a node that ends by itself is started again.
         assert node["respawn"] is True and node["respawn_delay"] > 0
         assert node["namespace"] == (namespace or NAMESPACE)   # sfs-cell's default too
@@ -240,7 +245,7 @@ def test_launch_files_set_the_middleware_environment_of_sfs_cell(filename, share
         assert ast.unparse(value.func) == "EnvironmentVariable"
         assert launch.value(value.args[0]) == name
         settings[name] = launch.keywords(value)["default_value"]
-    assert settings == DDS_ENVIRONMENT
+    assert settings == DDS_ENVIRONMENT | process.PROCESS_ENVIRONMENT
 
 
 def test_every_executable_is_a_console_script(share):

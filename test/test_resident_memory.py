@@ -3,6 +3,7 @@
 Each case runs in a child process: the malloc settings are the whole process's.
 """
 
+import os
 import platform
 import subprocess
 import sys
@@ -10,6 +11,7 @@ import sys
 import pytest
 
 from sfs_ros.core.resident_memory import prefault
+from sfs_ros.process import KEEP_FREED_MEMORY_ENVIRONMENT
 
 #: The child: optionally keep freed memory and touch 64 MiB of heap, then take 32 arrays
 #: of 1 MiB (below numpy's 4 MiB huge-page advice: plain 4 KiB pages), write every page,
@@ -19,22 +21,24 @@ import sys
 import numpy as np
 from sfs_ros.core.resident_memory import keep_freed_memory, page_faults, prefault
 kept = keep_freed_memory() if "keep" in sys.argv else False
-touched = prefault(64 << 20) if "prefault" in sys.argv else False
+touched = prefault(64 << 20, memory_kept=kept) if "prefault" in sys.argv else False
 before = page_faults()
 arrays = [np.ones(1 << 20, np.uint8) for _ in range(32)]
 print(kept, touched, page_faults() - before)
 """
 FRESH_PAGES = 32 * (1 << 20) // 4096
-#: The child as the reconstruction node runs: its module imported first (which sets malloc
-#: up), rclpy's threads (a multi-threaded executor spinning), the heap touched in the main
+#: The child as the carving node runs when sfs-cell or a launch file starts it: malloc's
+#: settings in its environment from the start (``KEEP_FREED_MEMORY_ENVIRONMENT``, read
+#: before rclpy's import starts threads), its module imported, then main()'s set-up;
+#: rclpy's threads (a multi-threaded executor spinning), the heap touched in the main
 #: thread (the node's constructor), the arrays taken in another (its worker). Set up after
-#: rclpy's import instead, the worker took its own arena about every other run, and 8194
+#: rclpy's import alone, the worker took its own arena about every other run, and 8194
 #: faults.
 NODE_CHILD = """
 import threading
 import sfs_ros.nodes.carving_node
-from sfs_ros.core import resident_memory
-kept = resident_memory._kept
+from sfs_ros.process import configure_process
+kept = configure_process(keep_freed_memory=True)
 import numpy as np
 import rclpy
 from rclpy.executors import MultiThreadedExecutor
@@ -46,7 +50,7 @@ executor = MultiThreadedExecutor(num_threads=3)
 executor.add_node(node)
 spinning = threading.Thread(target=executor.spin)
 spinning.start()
-touched = prefault(64 << 20)
+touched = prefault(64 << 20, memory_kept=kept)
 faults = []
 def worker():
     before = page_faults()
@@ -63,9 +67,9 @@ rclpy.try_shutdown()
 """
 
 
-def _child(*flags: str, script: str = CHILD) -> tuple[bool, bool, int]:
+def _child(*flags: str, script: str = CHILD, env=None) -> tuple[bool, bool, int]:
     out = subprocess.run([sys.executable, "-c", script, *flags], capture_output=True,
-                         text=True, check=True, timeout=120).stdout.split()
+                         text=True, check=True, timeout=120, env=env).stdout.split()
     return out[0] == "True", out[1] == "True", int(out[2])
 
 
@@ -94,12 +98,14 @@ def test_prefault_only_after_keep_and_refuses_bad_sizes():
     assert _child("prefault")[:2] == (False, False)
     for bad in (-1, True, 1.5, "1M"):
         with pytest.raises(ValueError, match="reserve_bytes"):
-            prefault(bad)
+            prefault(bad, memory_kept=True)
 
 
 def test_the_carving_nodes_worker_thread_reuses_the_heap_its_constructor_touched():
-    # Importing the node's module sets malloc up before rclpy's import starts threads: all
-    # threads share the one arena, so the worker finds the pages the constructor touched.
-    kept, touched, faults = _child(script=NODE_CHILD)
+    # Started with malloc's settings in its environment (as sfs-cell and the launch files
+    # start it), malloc is set up before rclpy's import starts threads: all threads share
+    # the one arena, so the worker finds the pages the constructor touched.
+    env = os.environ | KEEP_FREED_MEMORY_ENVIRONMENT
+    kept, touched, faults = _child(script=NODE_CHILD, env=env)
     assert kept and touched
     assert faults < FRESH_PAGES // 10     # as in the single-threaded case above

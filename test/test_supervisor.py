@@ -7,7 +7,7 @@ import signal
 import sys
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from sfs_ros.cli.bringup import Cell, RestartPolicy, wait_until_signal
 
@@ -21,6 +21,7 @@ class ScriptSpec:
 
     name: str
     argv: list
+    environment: dict = field(default_factory=dict)
 
     def command(self, namespace: str = "") -> list[str]:
         return list(self.argv)

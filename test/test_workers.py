@@ -44,11 +44,13 @@ def test_at_least_one_worker():
 
 @pytest.mark.parametrize("given, expected", [(None, "1"), ("3", "3")])
 def test_blas_runs_one_thread_unless_the_user_says_otherwise(given, expected):
-    # Importing the package sets BLAS's threads before numpy loads; a user's value wins.
+    # A process's set-up (first in each main()) sets BLAS's threads before numpy loads; a
+    # user's value wins.
     env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
     if given is not None:
         env["OPENBLAS_NUM_THREADS"] = given
-    out = subprocess.run([sys.executable, "-c", "import os, sfs_ros, numpy; "
+    out = subprocess.run([sys.executable, "-c", "import os; from sfs_ros.process import "
+                          "configure_process; configure_process(); import numpy; "
                           "print(os.environ['OPENBLAS_NUM_THREADS'])"],
                          env=env, capture_output=True, text=True, check=True,
                          cwd=Path(__file__).resolve().parents[1])

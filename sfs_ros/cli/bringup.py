@@ -50,10 +50,11 @@ import subprocess
 import sys
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from sfs_ros.cell.paths import APPLIED_RIG
+from sfs_ros.process import KEEP_FREED_MEMORY_ENVIRONMENT, PROCESS_ENVIRONMENT
 from sfs_ros.ros.names import CONFIGURATION_ERROR, NAMESPACE
 
 __all__ = ["NodeSpec", "Cell", "DDS_ENVIRONMENT", "RestartPolicy", "cell_nodes",
@@ -104,7 +105,8 @@ class NodeSpec:
     """One node process: ``module`` under ``sfs_ros.nodes``, its params files (in order,
     later ones win), ``-p name:=value`` overrides, ``-r from:=to`` topic remaps, and
     ``applied_rig``, a params file given after the others when it exists at the start
-    ("" = none)."""
+    ("" = none), and ``environment``, variables it starts with where the cell's
+    environment does not set them (glibc's malloc settings, read before any thread)."""
 
     name: str
     module: str
@@ -112,6 +114,7 @@ class NodeSpec:
     overrides: dict[str, str] = field(default_factory=dict)
     remaps: dict[str, str] = field(default_factory=dict)
     applied_rig: str = ""
+    environment: dict[str, str] = field(default_factory=dict)
 
     def applied_rig_file(self) -> str:
         """``applied_rig`` if it exists now, else ""."""
@@ -203,10 +206,10 @@ def cell_nodes(config_dir, output_dir, *, mock: bool, record: bool = False,
     return hardware + [
         spec("state_publisher", "tf_node", ["rig.yaml", "frames.yaml"]),
         spec("segmentation", "segmentation_node", ["rig.yaml", "segmentation.yaml"]),
-        spec("carving", "carving_node", ["rig.yaml", "frames.yaml", "carving.yaml"],
-             {"output_dir": str(output)}),
-        spec("meshing", "meshing_node", ["frames.yaml", "meshing.yaml"],
-             {"output_dir": str(output)}),
+        replace(spec("carving", "carving_node", ["rig.yaml", "frames.yaml", "carving.yaml"],
+                     {"output_dir": str(output)}), environment=KEEP_FREED_MEMORY_ENVIRONMENT),
+        replace(spec("meshing", "meshing_node", ["frames.yaml", "meshing.yaml"],
+                     {"output_dir": str(output)}), environment=KEEP_FREED_MEMORY_ENVIRONMENT),
         spec("recorder", "recorder_node", ["recorder.yaml"],
              {"output_dir": str(output), **({"with_scan": "true"} if record else {})}),
         spec("calibration", "calibration_node", ["calibration.yaml"],
@@ -258,8 +261,9 @@ class Cell:
         Where the nodes' output lines go, prefixed with ``[name]``; None = discarded.
     env : dict, optional
         Environment of the processes (default: this process's), plus
-        :data:`DDS_ENVIRONMENT` where it does not set those variables, and the module
-        path of :func:`node_environment`.
+        :data:`DDS_ENVIRONMENT` and :data:`~sfs_ros.process.PROCESS_ENVIRONMENT` where it
+        does not set those variables, each node's own ``environment`` likewise, and the
+        module path of :func:`node_environment`.
     """
 
     def __init__(self, specs: list[NodeSpec], *, namespace: str = NAMESPACE, log=sys.stdout,
@@ -267,7 +271,7 @@ class Cell:
         self.specs = specs
         self.namespace = "/" + namespace.strip("/") if namespace.strip("/") else ""
         self._log = log
-        self._env = node_environment(dict(DDS_ENVIRONMENT) | dict(
+        self._env = node_environment(DDS_ENVIRONMENT | PROCESS_ENVIRONMENT | dict(
             os.environ if env is None else env, PYTHONUNBUFFERED="1"))
         self._log_lock = threading.Lock()
         self.processes: dict[str, subprocess.Popen] = {}
@@ -277,6 +281,12 @@ class Cell:
         for spec in self.specs:
             self.start_node(spec.name)
         return self
+
+    def environment_of(self, name: str) -> dict:
+        """The environment the node called ``name`` starts with: the cell's, and the node's
+        own ``environment`` where the cell's does not set those variables."""
+        spec = next(s for s in self.specs if s.name == name)
+        return spec.environment | self._env
 
     def start_node(self, name: str) -> None:
         """Start (or start again) the node called ``name``."""
@@ -288,7 +298,7 @@ class Cell:
                 self._log.flush()
         process = subprocess.Popen(spec.command(self.namespace), stdin=subprocess.DEVNULL,
                                    stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                   env=self._env, start_new_session=True)
+                                   env=self.environment_of(name), start_new_session=True)
         self.processes[name] = process
         reader = threading.Thread(target=self._copy_output, args=(name, process), daemon=True)
         reader.start()

@@ -32,6 +32,7 @@ from ..core.calibration import (
     yaml_document,
 )
 from ..core.exchange.files import write_atomic_all
+from ..process import configure_process
 from ..ros.names import NAMESPACE
 from ..ros.params_file import check_params_file
 from .common import load_input, run_reporting_errors
@@ -118,6 +119,7 @@ def _apply(path: Path, namespace: str):
 
 
 def main(argv=None) -> int:
+    configure_process()
     status, result = run_reporting_errors(PROG, run, build_parser().parse_args(argv))
     if status:
         return status

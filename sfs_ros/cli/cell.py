@@ -30,6 +30,7 @@ import os
 import sys
 from pathlib import Path
 
+from sfs_ros.process import configure_process
 from sfs_ros.ros.names import NAMESPACE
 
 from .bringup import Cell, cell_nodes, default_config_dir, select_nodes, wait_until_signal
@@ -105,6 +106,7 @@ def _elsewhere(left_out: list[str], namespace: str) -> str:
 
 
 def main(argv=None) -> int:
+    configure_process()     # its nodes inherit the settings
     args = build_parser().parse_args(argv)
     try:
         config = args.config or default_config_dir()

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import argparse
 import os
+import re
 import signal
 import sys
 import threading
@@ -189,3 +191,21 @@ def run_reporting_errors(prog: str, run, args):
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
     return 2, None
+
+
+#: A command-line word that is a negative number (``-1e4``, ``-.5``, ``-inf``), not an option.
+_NEGATIVE_NUMBER = re.compile(r"^-(\.?\d|inf$|infinity$|nan$)", re.IGNORECASE)
+
+
+def accept_negative_numbers(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """``parser`` taking every negative number as a value (``--bounds -1e4 ...``).
+
+    argparse reads a word as an option unless it looks like ``-5`` or ``-0.5``, so
+    ``-1e4`` or ``-inf`` end an option's values with "expected 6 arguments". None of
+    the tools has an option that starts with a digit, so every word that starts with
+    ``-`` and a digit (or ``-.`` and a digit, ``-inf``, ``-nan``) is a number, as
+    Python 3.14's argparse reads it; the value's own check then says what is wrong
+    with it.
+    """
+    parser._negative_number_matcher = _NEGATIVE_NUMBER
+    return parser

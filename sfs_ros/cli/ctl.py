@@ -29,6 +29,7 @@ import sys
 
 import yaml
 
+from ..process import configure_process
 from ..ros.names import NAMESPACE
 from ..ros.services import ServiceError, call
 
@@ -246,6 +247,7 @@ def run(args) -> int:
 
 
 def main(argv=None) -> int:
+    configure_process()
     args = build_parser().parse_args(argv)
     from ..ros.cell_client import ScanFailed
     try:

@@ -35,6 +35,7 @@ from ..core.geometry.grid import VoxelGrid
 from ..core.pipeline import ReconstructionParams, reconstruct
 from ..core.simulation.objects import make_object
 from ..core.simulation.synthetic import score_against_truth
+from ..process import configure_process
 from ..ros.cell_client import CellClient, ScanFailed
 from ..ros.services import ServiceError
 from .bringup import Cell, cell_nodes, default_config_dir
@@ -117,6 +118,7 @@ def _replay(bag: Path, vertices, faces) -> dict:
 
 
 def main(argv=None) -> int:
+    configure_process()
     args = build_parser().parse_args(argv)
     try:
         report = run(args)

@@ -16,14 +16,14 @@ import argparse
 import sys
 from pathlib import Path
 
-from ..core.exchange.pose_export import export_session, write_colmap, write_nerf_transforms
-from ..core.exchange.session import IMAGES_DIR, read_session
-from .common import accepted_inputs, check_outputs, input_files, load_input, run_reporting_errors
+from ..process import configure_process
 
 PROG = "sfs-export"
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from .common import accepted_inputs
+
     p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
     p.add_argument("input", type=Path, help=accepted_inputs())
     p.add_argument("--session", type=Path, metavar="DIR", help="plain session folder to write")
@@ -33,6 +33,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def run(args) -> dict:
+    # Here, not at the top: NumPy loads after main() set the process up, and the help loads
+    # no writers (SciPy).
+    from ..core.exchange.pose_export import export_session, write_colmap, write_nerf_transforms
+    from ..core.exchange.session import IMAGES_DIR, read_session
+    from .common import check_outputs, input_files, load_input
+
     if not (args.session or args.colmap or args.nerf):
         raise ValueError("nothing to do: give --session, --colmap and/or --nerf")
     views, _ = load_input(args.input, captures=True)     # a bag: its images, not its masks
@@ -52,6 +58,9 @@ def run(args) -> dict:
 
 
 def main(argv=None) -> int:
+    configure_process()
+    from .common import run_reporting_errors
+
     status, result = run_reporting_errors(PROG, run, build_parser().parse_args(argv))
     if status:
         return status

@@ -17,36 +17,30 @@ import argparse
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from ..cell.live import view_key_of
-from ..core.carving.resolution import parse_memory
-from ..core.exchange.export import MESH_FORMATS, TEXTURED_SUFFIXES
-from ..core.exchange.views import ViewSet, read_image
-from ..core.pipeline import ReconstructionParams, reconstruct
-from ..core.resident_memory import keep_freed_memory
-from ..core.result_files import SheetViews, report_path_for, write_result
-from ..core.segment import PRESETS, SegmentationParams
-from ..core.settings import BOUNDS_M, COLOUR, MAX_MEMORY, RESOLUTION
-from ..core.texture import texture_reconstruction
-from .common import (
-    StageProgress,
-    accepted_inputs,
-    add_mesher_options,
-    add_setting,
-    check_outputs,
-    input_files,
-    load_input,
-    mesher_options,
-    one_line,
-    run_reporting_errors,
-)
+from ..process import configure_process
+
+# The standard library alone at the top: main() sets the process up before NumPy loads
+# (:mod:`sfs_ros.process`), and the help loads no numba, SciPy, OpenCV or trimesh; each
+# function imports what it uses.
+if TYPE_CHECKING:
+    from ..core.exchange.views import ViewSet
+    from ..core.result_files import SheetViews
+    from ..core.segment import SegmentationParams
 
 PROG = "sfs-reconstruct"
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from ..core.exchange.export import MESH_FORMATS
     from ..core.meshing.meshers import MESHER
-    p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
+    from ..core.segment_presets import PRESETS
+    from ..core.settings import BOUNDS_M, COLOUR, MAX_MEMORY, RESOLUTION
+    from .common import accept_negative_numbers, accepted_inputs, add_mesher_options, add_setting
+
+    p = accept_negative_numbers(
+        argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0]))
     p.add_argument("input", type=Path, help=accepted_inputs())
     p.add_argument("-o", "--output", type=Path, required=True,
                    help=f"mesh file, format from the suffix: {', '.join(MESH_FORMATS)}")
@@ -110,6 +104,9 @@ def _holdout_names(spec: str, names: list[str]) -> tuple[str, ...]:
 
 
 def _segmentation(args, stored: dict | None) -> SegmentationParams | None:
+    from ..core.segment import SegmentationParams
+    from ..core.segment_presets import PRESETS
+
     if args.preset is None and args.threshold is None and not args.ignore_alpha:
         return None
     values = dict(PRESETS[args.preset]) if args.preset else dict(stored or {})
@@ -123,6 +120,9 @@ def _segmentation(args, stored: dict | None) -> SegmentationParams | None:
 def _sheet_views(view_set: ViewSet, result) -> SheetViews:
     """Every view of ``view_set``, then those rejected while loading, with the masks the
     pipeline carved with; rejection reasons name the view rather than its image's path."""
+    from ..core.exchange.views import read_image
+    from ..core.result_files import SheetViews
+
     reasons = {r["view"]: r["reason"] for r in result.report["views"]["rejected"]}
     images, masks, short = [], [], {}
     for view in view_set.views:
@@ -146,13 +146,22 @@ def _by_view(captures: ViewSet, view_set: ViewSet) -> dict:
     """{name of a bag's view: path of its captured image} (``captures``: the bag's
     captured images, named by their keys): the bag's views are the recorded masks, named
     as the carving node stored them."""
+    from ..cell.live import view_key_of
+
     paths = {Path(v.name).stem: v.image_path for v in captures.views}
     return {v.name: paths[key] for v in view_set.views if (key := view_key_of(v.name)) in paths}
 
 
 def run(args) -> dict:
     """Run one reconstruction from parsed arguments; returns the report."""
+    from ..core.carving.resolution import parse_memory
+    from ..core.exchange.export import MESH_FORMATS, TEXTURED_SUFFIXES
     from ..core.meshing.meshers import MESHER
+    from ..core.pipeline import ReconstructionParams, reconstruct
+    from ..core.result_files import report_path_for, write_result
+    from ..core.texture import texture_reconstruction
+    from .common import StageProgress, check_outputs, input_files, load_input, mesher_options
+
     suffix = args.output.suffix.lower()
     if suffix not in MESH_FORMATS:
         raise ValueError(f"output {args.output} has an unsupported suffix {suffix!r}; "
@@ -216,6 +225,8 @@ def run(args) -> dict:
 
 def summary(report: dict) -> str:
     """A few lines for the terminal."""
+    from .common import one_line
+
     mesh, views, iou = report["mesh"], report["views"], report["silhouette_iou"]
     lines = [f"mesh: {report['output']} ({mesh['n_vertices']} vertices, {mesh['n_faces']} faces, "
              f"watertight={mesh['watertight']}, outward={mesh['outward']})",
@@ -234,7 +245,9 @@ def summary(report: dict) -> str:
 def main(argv=None) -> int:
     # The pipeline allocates and frees large arrays stage after stage: kept by malloc, they
     # are not faulted in again each time (a tenth of the run on the bench).
-    keep_freed_memory()
+    configure_process(keep_freed_memory=True)
+    from .common import run_reporting_errors
+
     status, text = run_reporting_errors(PROG, lambda args: summary(run(args)),
                                         build_parser().parse_args(argv))
     if status:

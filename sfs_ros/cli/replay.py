@@ -19,14 +19,7 @@ import sys
 import time
 from pathlib import Path
 
-import rclpy
-from rclpy.duration import Duration
-from rclpy.signals import SignalHandlerOptions
-
-from ..cell.bag import CAPTURE, DEFAULT, RESULT, TOPICS, open_bag
-from ..ros import capture_qos, result_qos
-from ..ros.messages import message_class
-from .common import run_reporting_errors
+from ..process import configure_process
 
 PROG = "sfs-replay"
 #: Longest wait for the subscribers to acknowledge the last messages, s.
@@ -59,6 +52,8 @@ def _namespace(text: str) -> str:
 
 def _plan(bag, args) -> dict[str, tuple[str, str, str]]:
     """Recorded topic -> (topic to publish on, message type, QoS kind)."""
+    from ..cell.bag import DEFAULT, TOPICS
+
     namespace = bag.namespace if args.namespace is None else _namespace(args.namespace)
     names = {bag.relative(t) or t: t for t in bag.topics}
     chosen = args.topics or list(names)
@@ -76,6 +71,15 @@ def _plan(bag, args) -> dict[str, tuple[str, str, str]]:
 
 def run(args) -> dict:
     """Play the bag; ``{"messages", "topics", "seconds", "skipped"}``."""
+    # Here, not at the top: the help loads neither rclpy nor the bag reader.
+    import rclpy
+    from rclpy.duration import Duration
+    from rclpy.signals import SignalHandlerOptions
+
+    from ..cell.bag import CAPTURE, RESULT, open_bag
+    from ..ros import capture_qos, result_qos
+    from ..ros.messages import message_class
+
     if not args.rate > 0:
         raise ValueError(f"--rate must be > 0, got {args.rate}")
     if args.queue_depth < 1:
@@ -124,6 +128,9 @@ def run(args) -> dict:
 
 
 def main(argv=None) -> int:
+    configure_process()
+    from .common import run_reporting_errors
+
     args = build_parser().parse_args(argv)
     status, summary = run_reporting_errors(PROG, run, args)
     if status:

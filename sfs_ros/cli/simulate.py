@@ -20,13 +20,14 @@ from ..core.exchange.session import write_session
 from ..core.geometry.rig import RigCalibration
 from ..core.pictures.preview import preview_image, write_png
 from ..core.pipeline import ReconstructionParams, reconstruct
-from ..core.resident_memory import keep_freed_memory
 from ..core.settings import RESOLUTION
 from ..core.simulation.objects import OBJECT_NAMES, make_object
 from ..core.simulation.plan import ring_plan
 from ..core.simulation.synthetic import carving_box, score_against_truth, simulate_scan
+from ..process import configure_process
 from .common import (
     StageProgress,
+    accept_negative_numbers,
     add_mesher_options,
     add_setting,
     mesher_options,
@@ -43,7 +44,8 @@ DEMO_RIG = RigCalibration(width=640, height=480, projection="pinhole", fx=1400.0
 
 def build_parser() -> argparse.ArgumentParser:
     from ..core.meshing.meshers import MESHER
-    p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
+    p = accept_negative_numbers(
+        argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0]))
     p.add_argument("-o", "--out", type=Path, default=Path("out/simulate"), help="output folder")
     p.add_argument("--object", choices=OBJECT_NAMES, default="mug")
     p.add_argument("--rings", type=float, nargs="+", default=[5.0, 35.0, 65.0], metavar="PHI_DEG",
@@ -89,7 +91,7 @@ def run(args) -> dict:
 
 
 def main(argv=None) -> int:
-    keep_freed_memory()     # as sfs-reconstruct: freed arrays are not faulted in again
+    configure_process(keep_freed_memory=True)   # as sfs-reconstruct
     status, report = run_reporting_errors(PROG, run, build_parser().parse_args(argv))
     if status:
         return status

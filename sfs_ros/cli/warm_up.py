@@ -40,6 +40,7 @@ from ..core.pipeline import ReconstructionParams, reconstruct
 from ..core.segment import segment
 from ..core.simulation.objects import make_object
 from ..core.simulation.synthetic import simulate_scan
+from ..process import configure_process
 
 #: This package's folder (``.../sfs_ros``): the copy whose kernels a warm-up compiles.
 PACKAGE = Path(__file__).resolve().parents[1]
@@ -120,6 +121,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
+    configure_process()
     build_parser().parse_args(argv)
     start = time.perf_counter()
     key = cache_key()

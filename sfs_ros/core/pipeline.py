@@ -11,6 +11,7 @@ request, reprojection of the mesh into every view, the report).
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
@@ -130,8 +131,9 @@ class ReconstructionParams:
         mesher(self.mesher).option_values(self.mesher_options)
         if self.resolution is not None:
             RESOLUTION.check(int(self.resolution))
-        if self.voxel_size_m is not None and not self.voxel_size_m > 0:
-            raise ValueError(f"voxel size must be > 0 metres, got {self.voxel_size_m}")
+        if self.voxel_size_m is not None and not 0 < self.voxel_size_m < math.inf:
+            raise ValueError(f"voxel size must be a finite number of metres > 0, got "
+                             f"{self.voxel_size_m}")
         if self.max_memory_bytes is not None and not int(self.max_memory_bytes) > 0:
             raise ValueError(f"max_memory_bytes must be > 0, got {self.max_memory_bytes}")
         if int(self.max_misses) < 0:

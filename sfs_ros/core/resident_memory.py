@@ -35,8 +35,6 @@ _M_MMAP_MAX = -4
 _M_ARENA_MAX = -8
 #: Page size of the touch loop; larger pages (huge pages) are touched as well.
 _PAGE_BYTES = 4096
-#: Whether :func:`keep_freed_memory` took in this process.
-_kept = False
 
 
 def _mallopt():
@@ -58,24 +56,23 @@ def keep_freed_memory() -> bool:
     are, so a worker may allocate in another arena than the one the memory was
     touched in. True when the settings took (glibc), False when nothing was changed.
     """
-    global _kept
     mallopt = _mallopt()
     if mallopt is None:
         return False
     # mallopt answers 1 on success; -1 as the trim threshold is the largest size_t.
     answers = [mallopt(_M_ARENA_MAX, 1), mallopt(_M_MMAP_MAX, 0), mallopt(_M_TRIM_THRESHOLD, -1)]
-    _kept = all(answer == 1 for answer in answers)
-    return _kept
+    return all(answer == 1 for answer in answers)
 
 
-def prefault(reserve_bytes: int) -> bool:
+def prefault(reserve_bytes: int, *, memory_kept: bool) -> bool:
     """Touch ``reserve_bytes`` (integer >= 0) of fresh heap once and free it, so that the
-    heap holds those pages for the jobs to come. Only after :func:`keep_freed_memory`
-    took (else the pages would be handed back at once): whether it touched them."""
+    heap holds those pages for the jobs to come. Only where ``memory_kept`` (what
+    :func:`keep_freed_memory` answered: else the pages would be handed back at once):
+    whether it touched them."""
     if isinstance(reserve_bytes, bool) or not isinstance(reserve_bytes, (int, np.integer)) \
             or reserve_bytes < 0:
         raise ValueError(f"reserve_bytes must be an integer >= 0, got {reserve_bytes!r}")
-    if not _kept or not reserve_bytes:
+    if not memory_kept or not reserve_bytes:
         return False
     block = np.empty(int(reserve_bytes), dtype=np.uint8)
     block[::_PAGE_BYTES] = 1        # one write per page faults it in

@@ -48,6 +48,7 @@ from sfs_ros.cell.messages import angles_from_joint_state, msg_to_image
 from sfs_ros.cell.scan_plan import load_plan
 from sfs_ros.core.calibration import BoardSpec
 from sfs_ros.nodes.entry import run_node
+from sfs_ros.process import configure_process
 from sfs_ros.ros import capture_qos
 from sfs_ros.ros.names import CALIBRATE_ACTION, SCAN_ACTION
 from sfs_ros.ros.paired_input import PairedInput, Stream
@@ -352,6 +353,7 @@ class CalibrationNode(Node):
 def main(args=None) -> None:
     """Entry point ``sfs-calibration`` (``--ros-args --params-file config/calibration.yaml
     -p output_dir:=OUT``)."""
+    configure_process()
     run_node("sfs-calibration", CalibrationNode, args, threads=4)
 
 

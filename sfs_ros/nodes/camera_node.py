@@ -61,6 +61,7 @@ from std_srvs.srv import Trigger
 from sfs_ros.core.geometry.rig import rig_camera
 from sfs_ros.hardware.cameras import CameraSource, FolderSource, FrameUnavailable, OpenCVSource
 from sfs_ros.nodes.entry import run_node
+from sfs_ros.process import configure_process
 from sfs_ros.ros import capture_qos
 from sfs_ros.ros.convert import camera_info, diagnostic_array, image_to_msg
 from sfs_ros.ros.frames import FRAME_PARAMS, frame_names
@@ -312,6 +313,7 @@ def main(args=None) -> None:
 
     ``sfs-camera --ros-args --params-file config/rig.yaml --params-file config/camera.yaml``
     """
+    configure_process()
     run_node("sfs-camera", CameraNode, args, threads=2)
 
 

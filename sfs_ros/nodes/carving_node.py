@@ -70,16 +70,6 @@ turntable frame ``hull``, ``camera_poses`` and the carved scan are in.
 
 from __future__ import annotations
 
-# First, before anything starts a thread: malloc keeps what it frees, in one arena for all
-# threads (:mod:`sfs_ros.core.resident_memory`). rclpy's import starts threads, and a thread
-# that took an arena of its own keeps it: called in main(), after the imports, the worker
-# thread reconstructed in another arena than the one its memory was touched in, whose big
-# blocks malloc maps and unmaps, and a reconstruction after a scan paced by the rig
-# faulted 33 000-37 000 pages in anew (0.4-0.5 s of system time).
-from sfs_ros.core.resident_memory import keep_freed_memory, prefault
-
-keep_freed_memory()
-
 import os
 import threading
 import time
@@ -108,8 +98,10 @@ from sfs_ros.core.carving.resolution import (
 from sfs_ros.core.exchange.views import as_bounds
 from sfs_ros.core.geometry.rig import rig_camera
 from sfs_ros.core.meshing.meshers import MESHER
+from sfs_ros.core.resident_memory import prefault
 from sfs_ros.core.settings import BOUNDS_M, COLOUR, MAX_MEMORY, RESOLUTION
 from sfs_ros.nodes.entry import run_node
+from sfs_ros.process import configure_process
 from sfs_ros.ros import capture_qos, result_qos
 from sfs_ros.ros.carved_scan_msg import carved_scan_to_msg, view_image_msg
 from sfs_ros.ros.convert import (
@@ -234,10 +226,11 @@ class CarvingNode(Node):
     ``destroy_node`` finishes the queued work and stops the worker thread.
     """
 
-    def __init__(self, **kwargs):
+    def __init__(self, *, memory_kept: bool = False, **kwargs):
         self._worker = None  # started last; a node refused at start-up has none to stop
         self._rehearsal = None
         super().__init__(NODE_NAME, **kwargs)
+        self._memory_kept = memory_kept    # malloc keeps freed memory: prefault helps
         values = declare(self, PARAMS)
         # Frame of the hull, camera poses and carved scan: the object frame on the turntable.
         self._frame_id = frame_names(declare(self, FRAME_PARAMS)).turntable_frame
@@ -466,7 +459,7 @@ class CarvingNode(Node):
         :mod:`sfs_ros.core.resident_memory`); no more than the memory budget."""
         reserve = 0 if self._live is None else min(self._live.working_memory_bytes,
                                                     self._budget)
-        if prefault(reserve):
+        if prefault(reserve, memory_kept=self._memory_kept):
             self.get_logger().info(f"{reserve >> 20} MiB of working memory made resident")
 
     def _retry_unstored(self) -> None:
@@ -720,10 +713,12 @@ def main(args=None) -> None:
     """Entry point ``sfs-carving``
     (``--ros-args --params-file config/carving.yaml``, with ``output_dir`` set).
 
-    The process keeps the memory it frees (:func:`~sfs_ros.core.resident_memory.
-    keep_freed_memory`, set as this module is imported, before rclpy's), so a
-    reconstruction does not fault in its working memory anew."""
-    run_node("sfs-carving", CarvingNode, args, threads=3)
+    The process keeps the memory it frees (:func:`~sfs_ros.process.configure_process`;
+    started by ``sfs-cell`` or the launch files, malloc has the settings from the start,
+    before rclpy's threads), so a reconstruction does not fault in its working memory
+    anew."""
+    kept = configure_process(keep_freed_memory=True)
+    run_node("sfs-carving", partial(CarvingNode, memory_kept=kept), args, threads=3)
 
 
 if __name__ == "__main__":

@@ -31,6 +31,7 @@ from lifecycle_msgs.srv import ChangeState, GetState
 from rclpy.node import Node
 
 from sfs_ros.nodes.entry import run_node
+from sfs_ros.process import configure_process
 from sfs_ros.ros.params import Param, ParameterError, declare
 
 __all__ = ["LifecycleManagerNode", "PARAMS", "main"]
@@ -158,6 +159,7 @@ class LifecycleManagerNode(Node):
 
 def main(args=None) -> None:
     """Entry point ``sfs-lifecycle-manager`` (``--ros-args -p nodes:=[motor,camera]``)."""
+    configure_process()
     run_node("sfs-lifecycle-manager", LifecycleManagerNode, args)
 
 

@@ -47,11 +47,6 @@ turntable frame ``mesh`` is stamped with.
 
 from __future__ import annotations
 
-# First, before anything starts a thread: malloc keeps what it frees (see the carving node).
-from sfs_ros.core.resident_memory import keep_freed_memory
-
-keep_freed_memory()
-
 import json
 import threading
 import traceback
@@ -71,6 +66,7 @@ from sfs_ros.cell.mesh_options import MeshOptions, mesh_options
 from sfs_ros.core.meshing.decimate import decimate
 from sfs_ros.core.settings import COLOUR
 from sfs_ros.nodes.entry import run_node
+from sfs_ros.process import configure_process
 from sfs_ros.ros import capture_qos, result_qos
 from sfs_ros.ros.carved_scan_msg import carved_scan_from_msg, view_image_from_msg
 from sfs_ros.ros.convert import diagnostic_array, health, mesh_to_marker, mesh_to_shape
@@ -376,7 +372,9 @@ class MeshingNode(Node):
 
 def main(args=None) -> None:
     """Entry point ``sfs-meshing``
-    (``--ros-args --params-file config/meshing.yaml``, with ``output_dir`` set)."""
+    (``--ros-args --params-file config/meshing.yaml``, with ``output_dir`` set); the
+    process keeps the memory it frees, as the carving node's."""
+    configure_process(keep_freed_memory=True)
     run_node("sfs-meshing", MeshingNode, args, threads=3)
 
 

@@ -64,6 +64,7 @@ from sfs_ros.hardware.mock_world import SCENES, WORLDS, mock_scene, world_rig
 from sfs_ros.hardware.simulator import SimulatedGrbl
 from sfs_ros.nodes.camera_node import CameraNode
 from sfs_ros.nodes.entry import run_node
+from sfs_ros.process import configure_process
 from sfs_ros.ros import result_qos
 from sfs_ros.ros.params import Param, ParameterError, declare, validating_callback
 from sfs_ros.ros.rig_params import RIG_PARAMS, rig_calibration
@@ -271,6 +272,7 @@ def main(args=None) -> None:
     ``sfs-mock-hardware --ros-args --params-file config/rig.yaml --params-file
     config/camera.yaml --params-file config/mock_hardware.yaml``
     """
+    configure_process()
     run_node("sfs-mock-hardware", make_nodes, args, threads=2)
 
 

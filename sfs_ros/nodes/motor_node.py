@@ -80,6 +80,7 @@ from sfs_ros.hardware.driver import (
     MotorTimeout,
 )
 from sfs_ros.nodes.entry import run_node
+from sfs_ros.process import configure_process
 from sfs_ros.ros.convert import angles_from_joint_state, diagnostic_array, health, joint_state
 from sfs_ros.ros.lifecycle import AUTOSTART, FAILURE, SUCCESS, bring_up
 from sfs_ros.ros.names import DIAGNOSTICS, private, status_name
@@ -551,6 +552,7 @@ class MotorNode(LifecycleNode):
 
 def main(args=None) -> None:
     """Entry point ``sfs-motor`` (``--ros-args --params-file config/motor.yaml -p port:=...``)."""
+    configure_process()
     run_node("sfs-motor", MotorNode, args, threads=4)
 
 

@@ -98,6 +98,7 @@ from sfs_ros.cell.bag import (
 )
 from sfs_ros.cell.messages import scan_report
 from sfs_ros.nodes.entry import run_node
+from sfs_ros.process import configure_process
 from sfs_ros.ros import capture_qos, result_qos
 from sfs_ros.ros.convert import diagnostic_array, health
 from sfs_ros.ros.messages import message_class
@@ -490,6 +491,7 @@ class RecorderNode(Node):
 def main(args=None) -> None:
     """Entry point ``sfs-recorder``
     (``--ros-args --params-file config/recorder.yaml``, with ``output_dir`` set)."""
+    configure_process()
     run_node("sfs-recorder", RecorderNode, args, threads=4)
 
 

@@ -153,6 +153,7 @@ from sfs_ros.cell.scan_sequence import (
     StepFailed,
 )
 from sfs_ros.nodes.entry import run_node
+from sfs_ros.process import configure_process
 from sfs_ros.ros import capture_qos, result_qos
 from sfs_ros.ros.convert import (
     angles_from_joint_state,
@@ -765,6 +766,7 @@ class ScanNode(Node):
 
 def main(args=None) -> None:
     """Entry point ``sfs-scan`` (``--ros-args --params-file config/scan.yaml``)."""
+    configure_process()
     run_node("sfs-scan", ScanNode, args, threads=4)
 
 

@@ -50,6 +50,7 @@ from sensor_msgs.msg import Image, JointState
 from sfs_ros.cell.messages import check_image_size
 from sfs_ros.core.segment import PRESETS, SegmentationParams, segment
 from sfs_ros.nodes.entry import run_node
+from sfs_ros.process import configure_process
 from sfs_ros.ros import capture_qos
 from sfs_ros.ros.convert import (
     angles_from_joint_state,
@@ -198,6 +199,7 @@ class SegmentationNode(Node):
 def main(args=None) -> None:
     """Entry point ``sfs-segmentation`` (``--ros-args --params-file config/rig.yaml
     --params-file config/segmentation.yaml``)."""
+    configure_process()
     run_node("sfs-segmentation", SegmentationNode, args)
 
 

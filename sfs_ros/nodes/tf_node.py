@@ -41,6 +41,7 @@ from sfs_ros.cell.messages import ForeignJointState
 from sfs_ros.core.geometry.frames import moving_transforms, static_transforms
 from sfs_ros.core.geometry.urdf import cell_urdf
 from sfs_ros.nodes.entry import run_node
+from sfs_ros.process import configure_process
 from sfs_ros.ros import capture_qos, result_qos
 from sfs_ros.ros.convert import angles_from_joint_state
 from sfs_ros.ros.frames import FRAME_PARAMS, frame_names, tf_message
@@ -136,6 +137,7 @@ def main(args=None) -> None:
     ``sfs-state-publisher --ros-args --params-file config/rig.yaml --params-file
     config/frames.yaml``
     """
+    configure_process()
     run_node("sfs-state-publisher", StatePublisherNode, args)
 
 

@@ -20,6 +20,7 @@ from rosbags.rosbag2 import Reader, ReaderError
 from ...core.exchange.views import ViewError
 from .bounds import RecordTooLarge, check_storage, install
 from .layout import BAG_SUFFIXES, TOPICS
+from .metadata import metadata_damage
 from .salvage import McapRecords
 
 __all__ = ["BagMessage", "Bag", "open_bag"]
@@ -103,6 +104,17 @@ def _storage_files(folder: Path) -> list[Path]:
     return sorted(p for p in folder.iterdir() if p.suffix in BAG_SUFFIXES and p.is_file())
 
 
+def _unreadable(path: Path, error: Exception) -> ViewError:
+    """The refusal of the bag ``path`` that the reader could not open (``error``): what is
+    damaged in its metadata.yaml, which an SQLite bag is read through, if that is why."""
+    damage = metadata_damage(path) if path.is_dir() and (path / "metadata.yaml").is_file() \
+        else ""
+    if damage:
+        return ViewError(f"bag {path}: its metadata.yaml is damaged: {damage} (the storage "
+                         "file is read through it; ros2 bag reindex writes it again)")
+    return ViewError(f"cannot read bag {path}: {type(error).__name__}: {error}")
+
+
 def open_bag(path) -> Bag:
     """Open the rosbag2 folder (or ``.mcap`` / ``.db3`` file) ``path``.
 
@@ -143,7 +155,7 @@ def open_bag(path) -> Bag:
     except (ReaderError, ValueError, struct.error, EOFError, KeyError, IndexError, TypeError,
             AttributeError) as exc:   # metadata.yaml of an unexpected shape among them
         if len(files) != 1 or files[0].suffix != ".mcap":
-            raise ViewError(f"cannot read bag {path}: {exc}") from None
+            raise _unreadable(path, exc) from None
         error = exc
     else:
         return Bag(path, files[0], topics, counts, reader=target)

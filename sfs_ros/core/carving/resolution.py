@@ -21,6 +21,7 @@ import numpy as np
 
 from ..geometry.camera import Camera
 from ..geometry.grid import MAX_VOXELS, resolution_voxel_size
+from ..settings import RESOLUTION
 
 __all__ = ["BYTES_PER_VOXEL", "refuse_unfit_grid", "ResolutionChoice", "pixel_footprints_m", "parse_memory",
            "default_memory_budget", "grid_shape", "choose_voxel_size"]
@@ -151,6 +152,34 @@ def refuse_unfit_grid(shape, max_memory_bytes: int, what: str) -> None:
                          "a coarser resolution")
 
 
+def _refuse_coarse_voxel(size: float, source: str, bounds: np.ndarray, cameras,
+                         footprints) -> None:
+    """ValueError unless a voxel of ``size`` metres (chosen by ``source``) can show a
+    shape: a given voxel size leaves as many voxels along the box's longest side as the
+    coarsest resolution (:data:`~sfs_ros.core.settings.RESOLUTION`), and no voxel is wider
+    than what the cameras see at the box centre (the median over the views of the image's longer side
+    times the pixel footprint ``footprints`` (n,), metres): a wider voxel holds the whole
+    view, so every silhouette is one voxel."""
+    extent = float(np.max(bounds[1] - bounds[0]))
+    what = {"memory": "voxel the memory budget allows", "voxel-size": "voxel size asked for",
+            "resolution": "resolution asked for"}.get(source, "pixel footprint")
+    min_side_voxels = RESOLUTION.bounds[0]
+    if source == "voxel-size" and extent / size < min_side_voxels:
+        raise ValueError(
+            f"the {what} ({size:.4g} m) is too coarse for the carving box: its longest side "
+            f"is {extent:.4g} m, {extent / size:.3g} voxel(s); expected voxels of at most "
+            f"{extent / min_side_voxels:.4g} m (at least {min_side_voxels} along the box's "
+            "longest side)")
+    sides = np.array([max(c.width, c.height) for c in cameras], dtype=np.float64)
+    field = float(np.median(sides * footprints))
+    if size > field:
+        raise ValueError(
+            f"the {what} ({size:.4g} m voxels) is wider than the cameras see at the box's "
+            f"centre (about {field:.4g} m across, the median over the views): the carving box "
+            f"{bounds.round(4).tolist()} m is far larger than what the views show; expected a "
+            "box around the object")
+
+
 def choose_voxel_size(bounds_m, cameras: Sequence[Camera], *, max_memory_bytes: int,
                       resolution: int | None = None,
                       voxel_size_m: float | None = None) -> ResolutionChoice:
@@ -160,7 +189,11 @@ def choose_voxel_size(bounds_m, cameras: Sequence[Camera], *, max_memory_bytes: 
     override the footprint; a grid they ask for that does not fit
     ``max_memory_bytes`` (or more than ``MAX_VOXELS`` voxels) is refused with a
     ``ValueError`` giving the memory it would need, before anything is
-    allocated. The footprint's grid is instead coarsened until it fits.
+    allocated. The footprint's grid is instead coarsened until it fits. A voxel
+    that cannot show a shape is refused with a ``ValueError`` saying why: a given
+    size with fewer voxels along the box's longest side than the coarsest
+    resolution, or any voxel wider than the cameras' view at the box centre (a
+    box far larger than the object).
     """
     bounds = np.asarray(bounds_m, dtype=np.float64)
     if int(max_memory_bytes) <= 0:
@@ -188,6 +221,7 @@ def choose_voxel_size(bounds_m, cameras: Sequence[Camera], *, max_memory_bytes: 
         while not _fits(grid_shape(bounds, size), max_memory_bytes):  # whole-voxel rounding
             size *= 1.01
         shape, source = grid_shape(bounds, size), "memory"
+    _refuse_coarse_voxel(size, source, bounds, cameras, footprints)
     return ResolutionChoice(voxel_size_m=size, shape=shape, footprint_m=finest,
                             footprint_median_m=median, source=source,
                             memory_bytes=int(np.prod(shape)) * BYTES_PER_VOXEL,

@@ -1,16 +1,17 @@
 """Files in and out: views with their cameras (the input formats of :data:`INPUT_FORMATS`),
 meshes (the file formats of :data:`MESH_FORMATS`) and camera poses for other tools (COLMAP,
-NeRF)."""
+NeRF).
 
-from .export import MESH_FORMATS, SUPPORTED_SUFFIXES, export_mesh, load_mesh
-from .inputs import INPUT_FORMATS, accepted_inputs, load_views
-from .middlebury import read_middlebury
-from .nerf import read_transforms
-from .pose_export import export_session, write_colmap, write_nerf_transforms
-from .session import append_view, read_session, write_session
-from .views import View, ViewError, ViewSet, read_image
+Names are imported on first use (:mod:`..lazy_exports`)."""
 
-__all__ = ["INPUT_FORMATS", "MESH_FORMATS", "SUPPORTED_SUFFIXES", "View", "ViewError",
-           "ViewSet", "accepted_inputs", "append_view", "export_mesh", "export_session",
-           "load_mesh", "load_views", "read_image", "read_middlebury", "read_session",
-           "read_transforms", "write_colmap", "write_nerf_transforms", "write_session"]
+from ..lazy_exports import lazy_exports
+
+__getattr__, __dir__, __all__ = lazy_exports(__name__, {
+    ".export": ("MESH_FORMATS", "SUPPORTED_SUFFIXES", "export_mesh", "load_mesh"),
+    ".inputs": ("INPUT_FORMATS", "accepted_inputs", "load_views"),
+    ".middlebury": ("read_middlebury",),
+    ".nerf": ("read_transforms",),
+    ".pose_export": ("export_session", "write_colmap", "write_nerf_transforms"),
+    ".session": ("append_view", "read_session", "write_session"),
+    ".views": ("View", "ViewError", "ViewSet", "read_image"),
+})

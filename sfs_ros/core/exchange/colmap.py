@@ -39,10 +39,8 @@ import math
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ..geometry.camera import Camera
-from ..geometry.lens import lens_problem
 from .limits import brief, confined_path, read_text
 from .views import View, ViewError, ViewSet
 
@@ -74,6 +72,8 @@ def _floats(fields: list[str], where: str) -> np.ndarray:
 
 def _cameras(path: Path) -> dict[str, tuple[int, int, np.ndarray, tuple]]:
     """``{camera id: (width, height, K, distortion)}`` of ``cameras.txt``."""
+    from ..geometry.lens import lens_problem  # OpenCV: loaded when a model is read
+
     cameras = {}
     for n, line in _lines(path):
         if not line:
@@ -166,6 +166,8 @@ def read_colmap(folder: Path | str) -> ViewSet:
         Missing files, an unknown camera model, a malformed line, an image of an
         undefined camera, a missing image file, or no usable image.
     """
+    from scipy.spatial.transform import Rotation  # loaded when a model is read
+
     folder = Path(folder)
     for name in (CAMERAS_FILE, IMAGES_FILE):
         if not (folder / name).is_file():

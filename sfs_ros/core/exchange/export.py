@@ -40,10 +40,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import trimesh
-from PIL import Image
-from trimesh.visual import TextureVisuals
-from trimesh.visual.material import PBRMaterial
 
 from .files import write_atomic, write_atomic_all
 
@@ -166,6 +162,8 @@ def load_mesh(path, *, units: str = "m", with_colors: bool = False):
     fmt = _format(path)
     if units not in UNIT_SCALE:
         raise ValueError(f"units must be one of {sorted(UNIT_SCALE)}, got {units!r}")
+    import trimesh
+
     mesh = trimesh.load(path, file_type=fmt.file_type, force="mesh", process=False)
     v = np.asarray(mesh.vertices, dtype=np.float64)
     f = np.asarray(mesh.faces, dtype=np.int64)
@@ -208,6 +206,8 @@ def _file_axes(fmt: MeshFormat, vertices: np.ndarray) -> np.ndarray:
 def _trimesh_encoder(file_type: str) -> Callable:
     """An ``encode`` through trimesh's exporter of ``file_type``."""
     def encode(vertices: np.ndarray, faces: np.ndarray, colors: np.ndarray | None) -> bytes:
+        import trimesh  # here, not at the top: the formats' names cost no trimesh
+
         mesh = trimesh.Trimesh(vertices=vertices, faces=faces.astype(np.int64),
                                vertex_colors=colors, process=False)
         data = mesh.export(file_type=file_type)
@@ -256,6 +256,8 @@ def _colors_uint8(colors, n: int) -> np.ndarray:
 
 
 def _png(texture: np.ndarray) -> bytes:
+    from PIL import Image
+
     out = io.BytesIO()
     Image.fromarray(np.ascontiguousarray(texture, dtype=np.uint8)).save(out, format="PNG")
     return out.getvalue()
@@ -299,6 +301,11 @@ def _obj_textured(textured, path: Path, vertices: np.ndarray) -> list[tuple[Path
 
 def _glb_textured(textured, path: Path, vertices: np.ndarray) -> list[tuple[Path, bytes]]:
     """One binary glTF whose material's ``baseColorTexture`` is the atlas."""
+    import trimesh
+    from PIL import Image
+    from trimesh.visual import TextureVisuals
+    from trimesh.visual.material import PBRMaterial
+
     material = PBRMaterial(baseColorTexture=Image.fromarray(textured.texture),
                            metallicFactor=0.0, roughnessFactor=1.0, doubleSided=False)
     mesh = trimesh.Trimesh(vertices=vertices, faces=textured.faces,

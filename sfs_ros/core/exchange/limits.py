@@ -28,7 +28,6 @@ from pathlib import Path, PurePosixPath
 
 import numpy as np
 import yaml
-from PIL import Image, UnidentifiedImageError
 
 from .errors import ViewError
 
@@ -77,6 +76,8 @@ def image_header(path: Path) -> tuple[int, int]:
     Raises ViewError for a file over :data:`MAX_IMAGE_FILE_BYTES`, a header
     that is not an image's, or a size over :data:`MAX_IMAGE_PIXELS`.
     """
+    from PIL import Image, UnidentifiedImageError  # when an image is read, not at import
+
     check_file_size(path, MAX_IMAGE_FILE_BYTES, "image")
     try:
         with warnings.catch_warnings():
@@ -110,6 +111,8 @@ def decode_image_bytes(data: bytes, what: str, *, max_pixels: int = MAX_IMAGE_PI
     (a decompression bomb) costs a header read. Raises ViewError naming
     ``what``, what was wrong and what is expected.
     """
+    from PIL import Image, UnidentifiedImageError
+
     if len(data) > MAX_IMAGE_FILE_BYTES:
         raise ViewError(f"{what} is {len(data) / 2**20:.1f} MiB, more than the limit of "
                         f"{MAX_IMAGE_FILE_BYTES / 2**20:.0f} MiB")

@@ -70,12 +70,11 @@ import os
 import shutil
 from pathlib import Path, PurePosixPath
 
-import cv2
 import numpy as np
 import yaml
 
 from ..geometry.camera import Camera
-from ..geometry.rig import RigCalibration, rig_camera
+from ..geometry.rig import MAX_ENCODER_RAD, RigCalibration, rig_camera
 from .files import write_atomic
 from .limits import brief, confined_path, load_yaml, printable, read_text
 from .views import IMAGE_SUFFIXES, View, ViewError, ViewSet, as_bounds
@@ -186,6 +185,10 @@ def _angle_camera(theta: float, phi: float, rig: RigCalibration) -> tuple[Camera
     """The rig camera, or None and the reason the angles cannot be used."""
     if not (math.isfinite(theta) and math.isfinite(phi)):
         return None, f"encoder angles are not finite (theta_rad={theta}, phi_rad={phi})"
+    for name, value in (("theta_rad", theta), ("phi_rad", phi)):
+        if abs(value) > MAX_ENCODER_RAD:
+            return None, (f"encoder angle {name}={value!r} is beyond any reading: expected a "
+                          f"finite angle within +-{MAX_ENCODER_RAD:g} rad")
     carriage = phi - rig.phi_zero_rad
     if abs(carriage) > math.pi / 2 + 1e-9:
         return None, (f"carriage angle phi={math.degrees(carriage):.3f} deg (after the zero "
@@ -337,6 +340,8 @@ def _check_new_name(name: str) -> str:
 
 
 def _write_png(path: Path, rgb: np.ndarray) -> None:
+    import cv2  # here, not at the top: reading the formats' names costs no OpenCV
+
     ok, data = cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
     if not ok:
         raise ValueError(f"could not encode {path} as PNG")

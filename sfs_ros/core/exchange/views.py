@@ -10,7 +10,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from ..geometry.camera import Camera
@@ -24,9 +23,6 @@ __all__ = ["IMAGE_SUFFIXES", "ViewError", "View", "ViewSet", "read_image", "imag
 #: File name endings (lower case) treated as images when a folder is searched.
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp", ".ppm", ".pgm")
 
-#: Decode as stored (any depth, with alpha); keep the sensor's pixel grid (no EXIF
-#: rotation), since calibrations refer to it.
-_IMREAD_FLAGS = cv2.IMREAD_UNCHANGED | cv2.IMREAD_IGNORE_ORIENTATION
 
 
 @dataclass(frozen=True)
@@ -106,6 +102,8 @@ def _decode(path: Path, flags: int, expected_size: tuple[int, int] | None = None
     if expected_size is not None and (width, height) != tuple(int(v) for v in expected_size):
         raise ViewError(f"image {path} is {width}x{height} pixels, expected "
                         f"{int(expected_size[0])}x{int(expected_size[1])} (the camera's size)")
+    import cv2  # here, not at the top: reading the formats' names costs no OpenCV
+
     data = np.fromfile(path, dtype=np.uint8)
     image = cv2.imdecode(data, flags) if data.size else None
     if image is None or image.shape[:2] != (height, width):
@@ -144,7 +142,12 @@ def read_image(path: Path | str, *, expected_size: tuple[int, int] | None = None
     ViewError
         Missing file, a file that is not a readable image, or the wrong size.
     """
-    image = _decode(Path(path), _IMREAD_FLAGS, expected_size)
+    import cv2
+
+    # As stored (any depth, with alpha), on the sensor's pixel grid (no EXIF rotation),
+    # which calibrations refer to.
+    image = _decode(Path(path), cv2.IMREAD_UNCHANGED | cv2.IMREAD_IGNORE_ORIENTATION,
+                    expected_size)
     height, width = image.shape[:2]
     if image.dtype == np.uint16:
         image = (image >> 8).astype(np.uint8)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["VoxelGrid", "resolution_voxel_size"]
+__all__ = ["MAX_VOXELS", "VoxelGrid", "resolution_voxel_size"]
 
 #: Largest grid we allocate (voxels): 1024^3 bytes = 1 GiB of occupancy.
 MAX_VOXELS = 1024 ** 3

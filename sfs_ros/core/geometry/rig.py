@@ -61,7 +61,7 @@ import numpy as np
 
 from .camera import MAX_IMAGE_SIDE_PX, Camera
 
-__all__ = ["CONVENTIONS", "RigCalibration", "camera_tilt", "rig_rotation", "rig_camera",
+__all__ = ["CONVENTIONS", "MAX_ENCODER_RAD", "RigCalibration", "camera_tilt", "rig_rotation", "rig_camera",
            "rotation_from_vector", "rotation_x", "rotation_y", "rotation_z"]
 
 CONVENTIONS = ("physical", "paper")
@@ -74,6 +74,13 @@ _FOCAL_RANGE = (1e-3, 1e9)
 _DISTANCE_RANGE_M = (1e-4, 1e4)
 #: Largest magnitude of a distortion coefficient accepted.
 _MAX_DISTORTION = 1e3
+#: Largest magnitude of an encoder reading accepted, radians. A reading counts the turns
+#: since the axis was homed, so it may exceed 2 pi; 1e6 rad is 159 000 turns, more than a
+#: cell turns between homings (a scan is about one turn), and float64 still resolves 1.2e-10
+#: rad there, far below a pixel's angle, so a reading within the bound gives its camera as
+#: exactly as a small one. Beyond it the float's own spacing grows toward a whole turn
+#: (2 rad at 1e16): such a number (1e308, 1e20) is a damaged value, not an angle.
+MAX_ENCODER_RAD = 1e6
 
 
 def _brief(value, limit: int = 60) -> str:
@@ -263,12 +270,14 @@ def rig_rotation(theta_rad: float, phi_rad: float, convention: str = "physical")
 def rig_camera(theta_rad: float, phi_rad: float, calibration: RigCalibration) -> Camera:
     """The camera that took an image at encoder readings ``(theta_rad, phi_rad)``.
 
-    Raises ``ValueError`` for non-finite angles or a carriage angle outside
-    [-pi/2, pi/2] (after removing the encoder zero).
+    Raises ``ValueError`` for angles that are not finite or beyond
+    :data:`MAX_ENCODER_RAD`, or a carriage angle outside [-pi/2, pi/2] (after
+    removing the encoder zero).
     """
     theta_rad, phi_rad = float(theta_rad), float(phi_rad)
-    if not (math.isfinite(theta_rad) and math.isfinite(phi_rad)):
-        raise ValueError(f"encoder angles must be finite, got theta={theta_rad}, phi={phi_rad}")
+    if not (abs(theta_rad) <= MAX_ENCODER_RAD and abs(phi_rad) <= MAX_ENCODER_RAD):
+        raise ValueError(f"encoder angles must be finite and within +-{MAX_ENCODER_RAD:g} rad, "
+                         f"got theta_rad={theta_rad!r}, phi_rad={phi_rad!r}")
     theta = theta_rad - calibration.theta_zero_rad
     phi = phi_rad - calibration.phi_zero_rad
     if abs(phi) > math.pi / 2 + 1e-9:

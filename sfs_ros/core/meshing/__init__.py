@@ -1,16 +1,17 @@
 """From a carved hull to a checked, coloured mesh: cloud of points, advancing front,
 edge swaps, marching cubes, the signed distance to the hull (sub-voxel surface), mesh
-checks and vertex colour."""
+checks and vertex colour.
 
-from .advancing_front import AdvancingFrontResult, advancing_front, estimate_normals
-from .cloud import CloudOfPoints, cloud_of_points, surface_voxels
-from .colour import VertexColours, vertex_colours, vertex_normals
-from .edge_swap import swap_edges
-from .hull_distance import HullDistance
-from .marching import hull_marching_cubes_mesh, marching_cubes_mesh
-from .mesh_checks import MeshReport, check_mesh
+Names are imported on first use (:mod:`..lazy_exports`)."""
 
-__all__ = ["AdvancingFrontResult", "CloudOfPoints", "HullDistance", "MeshReport",
-           "VertexColours", "advancing_front", "check_mesh", "cloud_of_points",
-           "estimate_normals", "hull_marching_cubes_mesh", "marching_cubes_mesh",
-           "surface_voxels", "swap_edges", "vertex_colours", "vertex_normals"]
+from ..lazy_exports import lazy_exports
+
+__getattr__, __dir__, __all__ = lazy_exports(__name__, {
+    ".advancing_front": ("AdvancingFrontResult", "advancing_front", "estimate_normals"),
+    ".cloud": ("CloudOfPoints", "cloud_of_points", "surface_voxels"),
+    ".colour": ("VertexColours", "vertex_colours", "vertex_normals"),
+    ".edge_swap": ("swap_edges",),
+    ".hull_distance": ("HullDistance",),
+    ".marching": ("hull_marching_cubes_mesh", "marching_cubes_mesh"),
+    ".mesh_checks": ("MeshReport", "check_mesh"),
+})

@@ -17,15 +17,16 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..geometry.grid import VoxelGrid
 from ..settings import Setting
-from .advancing_front import advancing_front
-from .cloud import cloud_of_points
-from .hull_distance import HullDistance
-from .marching import BandDistance, band_marching_cubes, hull_band_distance
+
+if TYPE_CHECKING:
+    from .hull_distance import HullDistance
+    from .marching import BandDistance
 
 __all__ = ["MESHER", "MESHERS", "HullCloud", "Mesher", "mesher"]
 
@@ -78,16 +79,25 @@ class Mesher:
         return {name: given.get(name, option.default) for name, option in own.items()}
 
 
+# Each half imports its algorithm when it runs: the table of names is read by a command
+# line's help, which loads no numba.
+
 def _prepare_band(occupancy, grid: VoxelGrid, hull: HullDistance) -> BandDistance:
+    from .marching import hull_band_distance
+
     return hull_band_distance(occupancy, grid, hull)
 
 
 def _mesh_band(occupancy, grid: VoxelGrid, band: BandDistance) -> tuple:
+    from .marching import band_marching_cubes
+
     vertices, faces = band_marching_cubes(occupancy, grid, band)
     return vertices, faces, {}
 
 
 def _prepare_cloud(occupancy, grid: VoxelGrid, hull: HullDistance, *, block: int) -> HullCloud:
+    from .cloud import cloud_of_points
+
     cloud = cloud_of_points(occupancy, grid, block=block)
     # Surface voxel centres lie up to a voxel inside the hull surface: move them onto it.
     points, on_hull = hull.project(cloud.points, cloud.normals, reach_m=2.0 * grid.voxel_size)
@@ -97,6 +107,8 @@ def _prepare_cloud(occupancy, grid: VoxelGrid, hull: HullDistance, *, block: int
 
 
 def _mesh_cloud(_occupancy, _grid: VoxelGrid, cloud: HullCloud) -> tuple:
+    from .advancing_front import advancing_front
+
     result = advancing_front(cloud.points, cloud.normals)
     return cloud.points, result.faces, {**result.stats, **cloud.stats}
 
