@@ -56,6 +56,8 @@ class RefineParams:
     stride_px : a depth every this many pixels, along rows and columns.
     depth_step_px : depths are swept in steps that move the point this many pixels in the
         nearest neighbour (at the hull's median depth), and never finer than half a voxel.
+    coarse_steps : the whole ray is swept first every this many steps, then every step
+        only either side of its best depth (coarse to fine).
     min_ncc : a depth is kept when its score reaches this.
     min_margin : ... and beats every depth off its peak by this much (unique).
     min_std : grey levels; a flatter patch is not swept (textureless: the hull holds).
@@ -68,8 +70,9 @@ class RefineParams:
     best_of: int = 2
     patch_radius: int = 2
     patch_spacing_px: int = 2
-    stride_px: int = 2
+    stride_px: int = 3
     depth_step_px: float = 1.0
+    coarse_steps: int = 2
     min_ncc: float = 0.7
     min_margin: float = 0.15
     min_std: float = 4.0
@@ -189,7 +192,8 @@ def _depth_map(n: int, cameras, greys, masks, fronts, backs, neighbours, voxel_m
     # The front and back come from a coarser hull than the carved one: a step wider.
     sweep_kernel(greys[n], inner, fronts[n] - step_m, backs[n] + step_m, _patch_offsets(params),
                  np.array([p[0] for p in parts]), np.array([p[1] for p in parts]),
-                 np.stack([greys[j] for j in others]), float(step_m), params.stride_px,
+                 np.stack([greys[j] for j in others]), float(step_m), params.coarse_steps,
+                 params.stride_px,
                  float(params.min_std), min(params.best_of, len(others)),
                  float(params.min_margin), depth, score)
     depth[~(score >= params.min_ncc)] = np.nan
@@ -244,7 +248,7 @@ def refine_hull(occupancy: np.ndarray, grid: VoxelGrid, cameras: list[Camera], m
               for n in range(len(cameras))]
     rows = max(d.shape[0] for d in depths if d is not None)
     cols = max(d.shape[1] for d in depths if d is not None)
-    stack = np.full((len(cameras), rows, cols), np.nan)
+    stack = np.full((len(cameras), rows, cols), np.nan, dtype=np.float32)
     for n, d in enumerate(depths):
         if d is not None:
             stack[n, :d.shape[0], :d.shape[1]] = d
