@@ -23,7 +23,9 @@ surface each pixel sees and carves the hull's voxels that lie in front of it.
    ``truncation`` behind it (farther behind, the view does not see the voxel). A voxel
    is carved when at least ``min_views`` views vote and their mean is positive: empty
    space, on the evidence of views that see through it. Nothing outside the hull is
-   ever added; only parts of the hull are removed.
+   ever added; only parts of the hull are removed. Nor is a voxel that lies on the
+   rim of a silhouette near the hull's front (a contour generator: the silhouette
+   itself says the surface is there).
 3. The refined surface is the zero level of ``max(hull distance, fused distance)``
    (:class:`RefinedDistance`), which the meshers take in place of the hull's own.
 """
@@ -200,6 +202,23 @@ def _depth_map(n: int, cameras, greys, masks, fronts, backs, neighbours, voxel_m
     return depth
 
 
+def _rim_depths(mask: np.ndarray, front: np.ndarray, stride: int) -> np.ndarray:
+    """(H // stride + 1, W // stride + 1) float32: at the pixels ``(row, col) * stride``, the
+    nearest depth of the hull's front (``front`` (H, W), metres) over the rim of the
+    silhouette ``mask`` (H, W) bool (its pixels beside the background) within the block of
+    pixels that rounds to it; inf where the block holds no rim."""
+    inner = cv2.erode(mask.view(np.uint8), np.ones((3, 3), np.uint8),
+                      borderType=cv2.BORDER_CONSTANT, borderValue=0).astype(bool)
+    rim = np.where(mask & ~inner, front, np.inf).astype(np.float32)
+    height, width = mask.shape
+    rows, cols = height // stride + 1, width // stride + 1
+    half = stride // 2
+    padded = np.full((rows * stride, cols * stride), np.inf, dtype=np.float32)
+    padded[half:half + height, half:half + width] = rim[:rows * stride - half,
+                                                        :cols * stride - half]
+    return padded.reshape(rows, stride, cols, stride).min(axis=(1, 3))
+
+
 def _removed_report(carved: np.ndarray, grid: VoxelGrid, hull_voxels: int,
                     weights: np.ndarray) -> dict:
     """Where and how much was carved: voxels, volume, fraction of the hull, box."""
@@ -252,11 +271,18 @@ def refine_hull(occupancy: np.ndarray, grid: VoxelGrid, cameras: list[Camera], m
     for n, d in enumerate(depths):
         if d is not None:
             stack[n, :d.shape[0], :d.shape[1]] = d
+    rims = np.full_like(stack, np.inf)
+    for n in range(len(cameras)):
+        rim = _rim_depths(masks[n], fronts[n], params.stride_px)
+        rims[n, :rim.shape[0], :rim.shape[1]] = rim
     index = np.argwhere(occupancy)
     sdf, weight = np.empty(len(index)), np.empty(len(index), dtype=np.int64)
+    # The coarse hull's front lies up to a coarse voxel before the hull's: the band kept
+    # behind a rim reaches two coarse voxels.
     fuse_kernel(grid.index_to_world(index), np.stack([c.projection_matrix for c in cameras]),
-                stack, np.full(len(cameras), float(params.stride_px)),
-                params.truncation_voxels * grid.voxel_size, params.min_views, sdf, weight)
+                stack, rims, np.full(len(cameras), float(params.stride_px)),
+                params.truncation_voxels * grid.voxel_size, 4.0 * grid.voxel_size,
+                params.min_views, sdf, weight)
     carved_at = sdf > 0
     refined = occupancy.copy()
     refined[tuple(index[carved_at].T)] = False

@@ -185,20 +185,25 @@ def sweep_kernel(image, mask, front, back, offsets, Ms, ms, images, step, coarse
 
 
 @njit(parallel=True, cache=True)
-def fuse_kernel(points, projections, depths, strides, truncation, min_views, sdf, weight):
+def fuse_kernel(points, projections, depths, rims, strides, truncation, rim_depth,
+                min_views, sdf, weight):
     """Truncated signed distance (metres, positive in front of the surfaces seen) at
     ``points`` (n, 3) from depth maps ``depths`` (views, rows, cols) (NaN: no depth) taken
     by pinhole ``projections`` (views, 3, 4) at pixels ``(row, col) * strides[v]``.
 
     A view votes where the point lies in front of its depth or at most ``truncation``
     behind it: ``min(depth - z, truncation)``; ``sdf`` is the mean of the votes where at
-    least ``min_views`` views vote (else NaN), ``weight`` their count.
+    least ``min_views`` views vote (else NaN), ``weight`` their count. ``rims`` (views,
+    rows, cols): the depth of the hull's front where the pixel lies on the rim of the
+    view's silhouette (else inf); a point within ``rim_depth`` of it is where the
+    silhouette says the surface is (a contour generator): its ``sdf`` is NaN, undecided.
     """
     rows, cols = depths.shape[1], depths.shape[2]
     for p in prange(points.shape[0]):
         x, y, z = points[p, 0], points[p, 1], points[p, 2]
         total = 0.0
         count = 0
+        on_rim = False
         for v in range(projections.shape[0]):
             P = projections[v]
             w = P[2, 0] * x + P[2, 1] * y + P[2, 2] * z + P[2, 3]
@@ -210,10 +215,13 @@ def fuse_kernel(points, projections, depths, strides, truncation, min_views, sdf
                                  / strides[v] + 0.5))
             if not (0 <= row < rows and 0 <= col < cols):
                 continue
+            if abs(w - rims[v, row, col]) <= rim_depth:
+                on_rim = True
+                break
             seen = depths[v, row, col]
             if math.isnan(seen) or seen - w < -truncation:
                 continue
             total += min(seen - w, truncation)
             count += 1
         weight[p] = count
-        sdf[p] = total / count if count >= min_views else np.nan
+        sdf[p] = total / count if count >= min_views and not on_rim else np.nan
