@@ -221,10 +221,13 @@ def _rim_depths(mask: np.ndarray, front: np.ndarray, stride: int) -> np.ndarray:
 
 def _removed_report(carved: np.ndarray, grid: VoxelGrid, hull_voxels: int,
                     weights: np.ndarray) -> dict:
-    """Where and how much was carved: voxels, volume, fraction of the hull, box."""
+    """Where and how much was carved: voxels, volume, fraction of the hull, the box of the
+    carved voxels' centres (``[min, max]``, metres) and the mean count of views whose
+    depths carved them."""
     where = np.argwhere(carved)
-    box = ([grid.index_to_world(where.min(axis=0)).tolist(),
-            grid.index_to_world(where.max(axis=0)).tolist()] if len(where) else None)
+    box = ([grid.index_to_world(where.min(axis=0)).reshape(3).tolist(),
+            grid.index_to_world(where.max(axis=0)).reshape(3).tolist()]
+           if len(where) else None)
     return {"removed_voxels": int(len(where)),
             "removed_volume_m3": float(len(where) * grid.voxel_size ** 3),
             "removed_fraction_of_hull": float(len(where) / max(1, hull_voxels)),
