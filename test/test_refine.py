@@ -111,3 +111,19 @@ def test_a_carved_scan_is_refined_as_the_pipeline_would(tmp_path):
     assert refined_mesh.report["mesh"]["watertight"]
     assert iou(obj, (hull_mesh.vertices, hull_mesh.faces)) < 0.40
     assert iou(obj, (refined_mesh.vertices, refined_mesh.faces)) > 0.80
+
+
+def test_views_too_far_apart_to_compare_keep_the_hull():
+    """Three views 120 degrees apart have no neighbour to compare with: no depth, the hull
+    is kept whole."""
+    captures = captures_of("cup")[0:12:4]
+    obj = make_object("cup")
+    cameras = [rig_camera(c.theta_rad, c.phi_rad, RIG) for c in captures]
+    masks = white_backdrop_masks(captures)
+    box = carving_box(obj)
+    grid = VoxelGrid(box[0], box[1], 0.003)
+    occupancy, _ = drop_specks(carve(grid, cameras, masks))
+    refined = refine_hull(occupancy, grid, cameras, masks, [c.image for c in captures],
+                          HullDistance(cameras, masks, bounds_m=box))
+    assert refined.report["views_with_depths"] == 0
+    assert np.array_equal(refined.occupancy, occupancy)

@@ -268,8 +268,8 @@ def refine_hull(occupancy: np.ndarray, grid: VoxelGrid, cameras: list[Camera], m
                           grid.voxel_size, params) if neighbours[n] and masks[n].any() and
                np.isfinite(fronts[n]).any() else None)
               for n in range(len(cameras))]
-    rows = max(d.shape[0] for d in depths if d is not None)
-    cols = max(d.shape[1] for d in depths if d is not None)
+    rows = max(m.shape[0] // params.stride_px + 1 for m in masks)
+    cols = max(m.shape[1] // params.stride_px + 1 for m in masks)
     stack = np.full((len(cameras), rows, cols), np.nan, dtype=np.float32)
     for n, d in enumerate(depths):
         if d is not None:
