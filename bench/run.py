@@ -23,7 +23,8 @@ from .timing import print_table
 SUITES = [("bench_carve", "run"), ("bench_marching", "run"),
           ("bench_marching", "run_hull_surface"), ("bench_mesh", "run_advancing_front"),
           ("bench_lens", "run"), ("bench_segment", "run"), ("bench_colour", "run"),
-          ("bench_cell", "run"), ("bench_reconstruct", "run"), ("bench_startup", "run")]
+          ("bench_cell", "run"), ("bench_reconstruct", "run"), ("bench_startup", "run"),
+          ("bench_refine", "run")]
 
 
 def main(argv=None) -> int:

@@ -5,7 +5,10 @@ list in ``doc/reference.md``), a rosbag2 recorded by ``sfs-recorder`` among them
 recorded masks, rig, box, resolution and mesher, which options override); MESH's suffix
 chooses its format (:data:`sfs_ros.core.exchange.export.MESH_FORMATS`). Beside the
 mesh it writes ``OUT.report.json``: per-stage timings, views used and
-rejected, per-view silhouette IoU and the mesh checks. On request it also
+rejected, per-view silhouette IoU and the mesh checks. Where the views carry
+colour, the hull is refined below itself from the colours (stage ``refinement``:
+what was removed, where and on how many views' evidence; ``--no-refine`` skips it;
+a bag's default is its live mesh, the hull, unless ``--refine``). On request it also
 writes a PNG picture of the mesh, an HTML page that shows the mesh in any
 browser, and a contact sheet of the views with their mask outlines, angles and
 silhouette IoU.
@@ -68,10 +71,15 @@ def build_parser() -> argparse.ArgumentParser:
                    help="segment the colours of images with an alpha channel (default: alpha is "
                         "the silhouette)")
     p.add_argument("--units", choices=("m", "mm"), default="m", help="units of the mesh file")
-    p.add_argument("--refine", action="store_true",
-                   help="go below the visual hull where the colours show empty space "
-                        "(concavities no silhouette shows): a photo-consistent refinement of "
-                        "the hull, from views that carry colour; seconds more")
+    below = p.add_mutually_exclusive_group()
+    below.add_argument("--no-refine", action="store_true",
+                       help="keep the visual hull: skip the refinement below it (by default "
+                            "the hull is carved where the colours of the views show empty "
+                            "space, concavities no silhouette shows; views without colour "
+                            "skip it)")
+    below.add_argument("--refine", action="store_true",
+                       help="refine a bag's hull too, from its captured images (a bag's "
+                            "default is the live mesh: the hull its carving node made)")
     add_setting(p, COLOUR)
     p.add_argument("--texture", action="store_true",
                    help="texture the mesh from the images (each face from the view that sees "
@@ -190,8 +198,9 @@ def run(args) -> dict:
                   input_files(args.input, view_set))
     # A bag's views are the recorded masks; its captured images colour the mesh (their
     # files live as long as ``captures``).
+    refine = args.refine or not (args.no_refine or recorded)
     captures = (load_input(args.input, captures=True)[0]
-                if (args.colour or args.texture) and recorded else None)
+                if (args.colour or args.texture or args.refine) and recorded else None)
     bag_images = None if captures is None else _by_view(captures, view_set)
     params = ReconstructionParams(
         resolution=recorded.get("resolution") if args.resolution is None else args.resolution,
@@ -204,7 +213,7 @@ def run(args) -> dict:
         consensus=not args.no_consensus,
         holdout=_holdout_names(args.holdout, [v.name for v in view_set.views]),
         segmentation=_segmentation(args, view_set.segmentation),
-        colour=args.colour, refine=args.refine)
+        colour=args.colour, refine=refine)
     progress = StageProgress(quiet=args.quiet)
     try:
         result = reconstruct(view_set, params, progress=progress, images=bag_images)
@@ -223,6 +232,22 @@ def run(args) -> dict:
     return written.document
 
 
+def _refinement_line(refinement: dict, seconds: float) -> str:
+    """What the refinement below the hull did, in one line (``report["refinement"]``)."""
+    from .common import one_line
+
+    if not refinement["applied"]:
+        return f"refinement below the hull: skipped, {one_line(refinement['reason'])}"
+    box = refinement["removed_box_m"]
+    where = ("" if box is None else " within x {:.1f}..{:.1f}, y {:.1f}..{:.1f}, "
+             "z {:.1f}..{:.1f} mm".format(*(1e3 * box[end][axis] for axis in range(3)
+                                             for end in (0, 1))))
+    return (f"refinement below the hull ({seconds:.2f} s): removed "
+            f"{100 * refinement['removed_fraction_of_hull']:.1f} % of the hull, "
+            f"{refinement['removed_volume_m3'] * 1e6:.1f} cm^3{where}, each voxel on the "
+            f"evidence of {refinement['mean_votes_removed']:.1f} views on average")
+
+
 def summary(report: dict) -> str:
     """A few lines for the terminal."""
     from .common import one_line
@@ -238,6 +263,9 @@ def summary(report: dict) -> str:
                  f"{iou['mean_used']:.4f} over the views carved with"
                  + (f"; leave-one-out: {iou['mean_held_out']:.4f} over held-out views"
                     if iou["mean_held_out"] is not None else ""))
+    refinement = report.get("refinement")
+    if refinement:
+        lines.append(_refinement_line(refinement, report["timings_s"].get("refinement", 0.0)))
     lines.append("time: " + ", ".join(f"{k} {v:.2f} s" for k, v in report["timings_s"].items()))
     return "\n".join(lines)
 

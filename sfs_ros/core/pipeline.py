@@ -41,7 +41,7 @@ from .mesh_scan import timed as _timed
 from .meshing.colour import MAX_COLOUR_VIEWS, spread_views
 from .meshing.hull_distance import DistanceImages, HullDistance
 from .meshing.meshers import MESHER, mesher
-from .refinement import refine_hull
+from .refinement.scan import refine_views
 from .resegment import Consensus, consensus_masks
 from .segment import SegmentationParams, segment
 from .settings import RESOLUTION
@@ -259,23 +259,13 @@ def _colour_image(view: View, images: dict | None) -> np.ndarray:
 
 def _refine(occupancy: np.ndarray, grid: VoxelGrid, views: list[View], cameras, masks,
             images: dict | None, lenses: dict, hull: HullDistance) -> tuple:
-    """The photo-consistent refinement (:func:`.refinement.photo.refine_hull`) of the carved
-    hull: ``(occupancy, distance, report)``; the hull itself, with the reason in the
-    report, where the views cannot tell (orthographic cameras, images without colour)."""
-    def skipped(reason: str) -> tuple:
-        return occupancy, hull, {"applied": False, "reason": reason}
-
-    if any(c.orthographic for c in cameras):
-        return skipped("orthographic cameras: the plane sweep needs pinhole views")
+    """The refinement below the hull (:func:`.refinement.scan.refine_views`) from the used
+    views' RGB images: ``(occupancy, distance, report)``."""
     if images is not None and any(v.name not in images for v in views):
-        return skipped("not every view used has an image")
+        return occupancy, hull, {"applied": False,
+                                 "reason": "not every view used has an image"}
     rgb = [undistort_image(_colour_image(v, images), lenses[v.name]) for v in views]
-    if any(np.ndim(image) != 3 or np.shape(image)[2] != 3 for image in rgb):
-        return skipped("the views carry no colour")
-    result = refine_hull(occupancy, grid, cameras, masks, rgb, hull)
-    if not result.occupancy.any():
-        return skipped("the refinement carved everything: kept the hull")
-    return result.occupancy, result.distance, {"applied": True, **result.report}
+    return refine_views(occupancy, grid, cameras, masks, rgb, hull)
 
 
 def carve_scan(view_set: ViewSet, params: ReconstructionParams = ReconstructionParams(), *,

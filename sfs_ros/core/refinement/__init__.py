@@ -2,6 +2,8 @@
 colours (:mod:`.photo`), a stage above carving and meshing (it carves inside the hull and
 meshes a coarse hull to see it)."""
 
-from .photo import RefinedDistance, refine_hull
+from .photo import RefinedDistance, RefineParams, refine_hull
+from .scan import refine_carved_scan, refine_views
 
-__all__ = ["RefinedDistance", "refine_hull"]
+__all__ = ["RefineParams", "RefinedDistance", "refine_carved_scan", "refine_hull",
+           "refine_views"]

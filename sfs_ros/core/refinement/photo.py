@@ -23,7 +23,9 @@ surface each pixel sees and carves the hull's voxels that lie in front of it.
    ``truncation`` behind it (farther behind, the view does not see the voxel). A voxel
    is carved when at least ``min_views`` views vote and their mean is positive: empty
    space, on the evidence of views that see through it. Nothing outside the hull is
-   ever added; only parts of the hull are removed.
+   ever added; only parts of the hull are removed. Nor is a voxel that lies on the
+   rim of a silhouette near the hull's front (a contour generator: the silhouette
+   itself says the surface is there).
 3. The refined surface is the zero level of ``max(hull distance, fused distance)``
    (:class:`RefinedDistance`), which the meshers take in place of the hull's own.
 """
@@ -56,6 +58,8 @@ class RefineParams:
     stride_px : a depth every this many pixels, along rows and columns.
     depth_step_px : depths are swept in steps that move the point this many pixels in the
         nearest neighbour (at the hull's median depth), and never finer than half a voxel.
+    coarse_steps : the whole ray is swept first every this many steps, then every step
+        only either side of its best depth (coarse to fine).
     min_ncc : a depth is kept when its score reaches this.
     min_margin : ... and beats every depth off its peak by this much (unique).
     min_std : grey levels; a flatter patch is not swept (textureless: the hull holds).
@@ -68,8 +72,9 @@ class RefineParams:
     best_of: int = 2
     patch_radius: int = 2
     patch_spacing_px: int = 2
-    stride_px: int = 2
+    stride_px: int = 3
     depth_step_px: float = 1.0
+    coarse_steps: int = 2
     min_ncc: float = 0.7
     min_margin: float = 0.15
     min_std: float = 4.0
@@ -189,19 +194,40 @@ def _depth_map(n: int, cameras, greys, masks, fronts, backs, neighbours, voxel_m
     # The front and back come from a coarser hull than the carved one: a step wider.
     sweep_kernel(greys[n], inner, fronts[n] - step_m, backs[n] + step_m, _patch_offsets(params),
                  np.array([p[0] for p in parts]), np.array([p[1] for p in parts]),
-                 np.stack([greys[j] for j in others]), float(step_m), params.stride_px,
+                 np.stack([greys[j] for j in others]), float(step_m), params.coarse_steps,
+                 params.stride_px,
                  float(params.min_std), min(params.best_of, len(others)),
                  float(params.min_margin), depth, score)
     depth[~(score >= params.min_ncc)] = np.nan
     return depth
 
 
+def _rim_depths(mask: np.ndarray, front: np.ndarray, stride: int) -> np.ndarray:
+    """(H // stride + 1, W // stride + 1) float32: at the pixels ``(row, col) * stride``, the
+    nearest depth of the hull's front (``front`` (H, W), metres) over the rim of the
+    silhouette ``mask`` (H, W) bool (its pixels beside the background) within the block of
+    pixels that rounds to it; inf where the block holds no rim."""
+    inner = cv2.erode(mask.view(np.uint8), np.ones((3, 3), np.uint8),
+                      borderType=cv2.BORDER_CONSTANT, borderValue=0).astype(bool)
+    rim = np.where(mask & ~inner, front, np.inf).astype(np.float32)
+    height, width = mask.shape
+    rows, cols = height // stride + 1, width // stride + 1
+    half = stride // 2
+    padded = np.full((rows * stride, cols * stride), np.inf, dtype=np.float32)
+    padded[half:half + height, half:half + width] = rim[:rows * stride - half,
+                                                        :cols * stride - half]
+    return padded.reshape(rows, stride, cols, stride).min(axis=(1, 3))
+
+
 def _removed_report(carved: np.ndarray, grid: VoxelGrid, hull_voxels: int,
                     weights: np.ndarray) -> dict:
-    """Where and how much was carved: voxels, volume, fraction of the hull, box."""
+    """Where and how much was carved: voxels, volume, fraction of the hull, the box of the
+    carved voxels' centres (``[min, max]``, metres) and the mean count of views whose
+    depths carved them."""
     where = np.argwhere(carved)
-    box = ([grid.index_to_world(where.min(axis=0)).tolist(),
-            grid.index_to_world(where.max(axis=0)).tolist()] if len(where) else None)
+    box = ([grid.index_to_world(where.min(axis=0)).reshape(3).tolist(),
+            grid.index_to_world(where.max(axis=0)).reshape(3).tolist()]
+           if len(where) else None)
     return {"removed_voxels": int(len(where)),
             "removed_volume_m3": float(len(where) * grid.voxel_size ** 3),
             "removed_fraction_of_hull": float(len(where) / max(1, hull_voxels)),
@@ -242,17 +268,24 @@ def refine_hull(occupancy: np.ndarray, grid: VoxelGrid, cameras: list[Camera], m
                           grid.voxel_size, params) if neighbours[n] and masks[n].any() and
                np.isfinite(fronts[n]).any() else None)
               for n in range(len(cameras))]
-    rows = max(d.shape[0] for d in depths if d is not None)
-    cols = max(d.shape[1] for d in depths if d is not None)
-    stack = np.full((len(cameras), rows, cols), np.nan)
+    rows = max(m.shape[0] // params.stride_px + 1 for m in masks)
+    cols = max(m.shape[1] // params.stride_px + 1 for m in masks)
+    stack = np.full((len(cameras), rows, cols), np.nan, dtype=np.float32)
     for n, d in enumerate(depths):
         if d is not None:
             stack[n, :d.shape[0], :d.shape[1]] = d
+    rims = np.full_like(stack, np.inf)
+    for n in range(len(cameras)):
+        rim = _rim_depths(masks[n], fronts[n], params.stride_px)
+        rims[n, :rim.shape[0], :rim.shape[1]] = rim
     index = np.argwhere(occupancy)
     sdf, weight = np.empty(len(index)), np.empty(len(index), dtype=np.int64)
+    # The coarse hull's front lies up to a coarse voxel before the hull's: the band kept
+    # behind a rim reaches two coarse voxels.
     fuse_kernel(grid.index_to_world(index), np.stack([c.projection_matrix for c in cameras]),
-                stack, np.full(len(cameras), float(params.stride_px)),
-                params.truncation_voxels * grid.voxel_size, params.min_views, sdf, weight)
+                stack, rims, np.full(len(cameras), float(params.stride_px)),
+                params.truncation_voxels * grid.voxel_size, 4.0 * grid.voxel_size,
+                params.min_views, sdf, weight)
     carved_at = sdf > 0
     refined = occupancy.copy()
     refined[tuple(index[carved_at].T)] = False

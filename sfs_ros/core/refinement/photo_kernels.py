@@ -31,21 +31,20 @@ def _bilinear(image, u, v):
 
 
 @njit(cache=True)
-def _ncc(patch, offsets, u, v, inv_depth, M, m, image, samples):
+def _ncc(patch, rays, m, inv_depth, image, samples):
     """NCC of the reference ``patch`` (k,) (zero mean, unit norm) with the neighbour
     ``image`` sampled where the fronto-parallel plane at depth ``1 / inv_depth`` maps the
-    patch's pixels ``(u, v) + offsets`` (k, 2): homography ``M x + m / depth``. -1 when a
-    sample falls off the image or behind the camera; ``samples`` (k,) scratch."""
+    patch's pixels: ``rays`` (k, 3) holds ``M x`` of each patch pixel ``x`` (homogeneous),
+    so the sample is ``M x + m / depth``. -1 when a sample falls off the image or behind
+    the camera; ``samples`` (k,) scratch."""
     k = patch.shape[0]
+    mu, mv, mw = m[0] * inv_depth, m[1] * inv_depth, m[2] * inv_depth
     total = 0.0
     for s in range(k):
-        x, y = u + offsets[s, 0], v + offsets[s, 1]
-        hw = M[2, 0] * x + M[2, 1] * y + M[2, 2] + m[2] * inv_depth
+        hw = rays[s, 2] + mw
         if hw <= 0.0:
             return -1.0
-        hu = (M[0, 0] * x + M[0, 1] * y + M[0, 2] + m[0] * inv_depth) / hw
-        hv = (M[1, 0] * x + M[1, 1] * y + M[1, 2] + m[1] * inv_depth) / hw
-        value = _bilinear(image, hu, hv)
+        value = _bilinear(image, (rays[s, 0] + mu) / hw, (rays[s, 1] + mv) / hw)
         if math.isnan(value):
             return -1.0
         samples[s] = value
@@ -86,66 +85,83 @@ def _reference_patch(image, r, c, offsets, patch):
 
 
 @njit(cache=True)
-def _sweep_pixel(patch, offsets, u, v, near, far, step, Ms, ms, images, best_of, samples,
-                 scores):
-    """Best depth (metres) on ``[near, far]`` in steps of ``step`` for one reference pixel
-    and its score: the mean of the ``best_of`` highest neighbour NCCs, refined between the
-    steps by a parabola through the best and its two neighbours; and the best score more
-    than ``UNIQUE_STEPS`` steps from it (-1 if none). ``scores`` (views,) scratch."""
-    steps = int((far - near) / step) + 1
-    track = np.empty(steps)
-    best, best_depth, before, after, previous = -2.0, np.nan, -2.0, -2.0, -2.0
-    for s in range(steps):
-        depth = near + s * step
-        for j in range(Ms.shape[0]):
-            scores[j] = _ncc(patch, offsets, u, v, 1.0 / depth, Ms[j], ms[j], images[j],
-                             samples)
-        scores.sort()
-        score = 0.0
-        for j in range(best_of):
-            score += scores[scores.shape[0] - 1 - j]
-        score /= best_of
-        track[s] = score
-        if score > best:
-            best, best_depth, before, after = score, depth, previous, -2.0
-        elif s > 0 and best_depth == near + (s - 1) * step:
-            after = score
-        previous = score
-    # The best score away from the peak (more than UNIQUE_STEPS steps): a patch that
-    # matches as well elsewhere along the ray (a smooth ramp, a repeated pattern) decides
-    # nothing.
-    at = int(round((best_depth - near) / step)) if steps else 0
+def _score(patch, rays, ms, images, depth, best_of, samples, scores):
+    """The score of one depth (metres): the mean of the ``best_of`` highest NCCs over the
+    neighbours (``rays`` (n, k, 3), ``ms`` (n, 3), ``images`` (n, H', W')); ``scores``
+    (n,) scratch."""
+    for j in range(ms.shape[0]):
+        scores[j] = _ncc(patch, rays[j], ms[j], 1.0 / depth, images[j], samples)
+    scores.sort()
+    score = 0.0
+    for j in range(best_of):
+        score += scores[scores.shape[0] - 1 - j]
+    return score / best_of
+
+
+@njit(cache=True)
+def _sweep_pixel(patch, rays, ms, images, near, far, step, coarse, best_of, samples, scores):
+    """Best depth (metres) on ``[near, far]`` for one reference pixel, its score
+    (:func:`_score`) and the best score more than ``UNIQUE_STEPS`` steps of ``step`` from
+    it (-1 if none).
+
+    Coarse to fine: the ray is swept every ``coarse`` steps, then in steps of ``step``
+    across the coarse steps either side of the best, and the best of those is refined by
+    a parabola through it and its two neighbours."""
+    wide = coarse * step
+    count = int((far - near) / wide) + 1
+    track = np.empty(count)
+    at = 0
+    for s in range(count):
+        track[s] = _score(patch, rays, ms, images, near + s * wide, best_of, samples, scores)
+        if track[s] > track[at]:
+            at = s
+    # A patch that matches as well elsewhere along the ray (a smooth ramp, a repeated
+    # pattern) decides nothing: the rival is the best score away from the peak.
     rival = -1.0
-    for s in range(steps):
-        if abs(s - at) > UNIQUE_STEPS:
+    for s in range(count):
+        if abs(s - at) * coarse > UNIQUE_STEPS:
             rival = max(rival, track[s])
-    if before > -2.0 and after > -2.0:
-        curvature = before - 2.0 * best + after
+    start = near + (at - 1) * wide
+    fine = np.empty(2 * coarse + 1)
+    best = 0
+    for s in range(fine.shape[0]):
+        depth = start + s * step
+        fine[s] = (_score(patch, rays, ms, images, depth, best_of, samples, scores)
+                   if near - step <= depth <= near + (count - 1) * wide + step else -2.0)
+        if fine[s] > fine[best]:
+            best = s
+    best_depth = start + best * step
+    if 0 < best < fine.shape[0] - 1 and fine[best - 1] > -2.0 and fine[best + 1] > -2.0:
+        curvature = fine[best - 1] - 2.0 * fine[best] + fine[best + 1]
         if curvature < 0.0:
-            best_depth += step * 0.5 * (before - after) / curvature
-    return best_depth, best, rival
+            best_depth += step * 0.5 * (fine[best - 1] - fine[best + 1]) / curvature
+    return best_depth, fine[best], rival
 
 
 @njit(parallel=True, cache=True)
-def sweep_kernel(image, mask, front, back, offsets, Ms, ms, images, step, stride, min_std,
-                 best_of, min_margin, depth_out, score_out):
+def sweep_kernel(image, mask, front, back, offsets, Ms, ms, images, step, coarse, stride,
+                 min_std, best_of, min_margin, depth_out, score_out):
     """Plane-sweep depth map of one reference view.
 
     ``image`` (H, W) float32 grey; ``mask`` (H, W) bool, pixels whose whole patch lies in
     the silhouette; ``front``, ``back`` (H, W) float64 depths of the hull's surfaces,
     metres (inf off the hull); ``offsets`` (k, 2) patch pixels; ``Ms`` (n, 3, 3), ``ms``
     (n, 3) homography parts of the ``n`` neighbours and ``images`` (n, H', W') float32
-    their grey images. Fills ``depth_out`` and ``score_out`` (H // stride + 1, W // stride
-    + 1) at pixels ``(row * stride, col * stride)``: NaN depth where not swept (off the
-    mask, or a patch flatter than ``min_std`` grey levels); score -1 where a depth more
-    than ``UNIQUE_STEPS`` steps from the best scores within ``min_margin`` of it.
+    their grey images; depths every ``step`` metres, first every ``coarse`` of them
+    (:func:`_sweep_pixel`). Fills ``depth_out`` and ``score_out`` (H // stride + 1,
+    W // stride + 1) at pixels ``(row * stride, col * stride)``: NaN depth where not swept
+    (off the mask, or a patch flatter than ``min_std`` grey levels); score -1 where a
+    depth more than ``UNIQUE_STEPS`` steps from the best scores within ``min_margin``
+    of it.
     """
     rows, cols = depth_out.shape
     k = offsets.shape[0]
+    n = Ms.shape[0]
     for rr in prange(rows):
         patch = np.empty(k)
         samples = np.empty(k)
-        scores = np.empty(Ms.shape[0])
+        scores = np.empty(n)
+        rays = np.empty((n, k, 3))
         for cc in range(cols):
             r, c = rr * stride, cc * stride
             depth_out[rr, cc] = np.nan
@@ -155,29 +171,39 @@ def sweep_kernel(image, mask, front, back, offsets, Ms, ms, images, step, stride
                 continue
             if _reference_patch(image, r, c, offsets, patch) < min_std:
                 continue
+            for j in range(n):
+                for s in range(k):
+                    x, y = c + offsets[s, 0], r + offsets[s, 1]
+                    for a in range(3):
+                        rays[j, s, a] = Ms[j, a, 0] * x + Ms[j, a, 1] * y + Ms[j, a, 2]
             far = back[r, c] if np.isfinite(back[r, c]) else front[r, c]
             depth, score, rival = _sweep_pixel(
-                patch, offsets, float(c), float(r), front[r, c], max(far, front[r, c]), step,
-                Ms, ms, images, best_of, samples, scores)
+                patch, rays, ms, images, front[r, c], max(far, front[r, c]), step, coarse,
+                best_of, samples, scores)
             depth_out[rr, cc] = depth
             score_out[rr, cc] = score if score - rival >= min_margin else -1.0
 
 
 @njit(parallel=True, cache=True)
-def fuse_kernel(points, projections, depths, strides, truncation, min_views, sdf, weight):
+def fuse_kernel(points, projections, depths, rims, strides, truncation, rim_depth,
+                min_views, sdf, weight):
     """Truncated signed distance (metres, positive in front of the surfaces seen) at
     ``points`` (n, 3) from depth maps ``depths`` (views, rows, cols) (NaN: no depth) taken
     by pinhole ``projections`` (views, 3, 4) at pixels ``(row, col) * strides[v]``.
 
     A view votes where the point lies in front of its depth or at most ``truncation``
     behind it: ``min(depth - z, truncation)``; ``sdf`` is the mean of the votes where at
-    least ``min_views`` views vote (else NaN), ``weight`` their count.
+    least ``min_views`` views vote (else NaN), ``weight`` their count. ``rims`` (views,
+    rows, cols): the depth of the hull's front where the pixel lies on the rim of the
+    view's silhouette (else inf); a point within ``rim_depth`` of it is where the
+    silhouette says the surface is (a contour generator): its ``sdf`` is NaN, undecided.
     """
     rows, cols = depths.shape[1], depths.shape[2]
     for p in prange(points.shape[0]):
         x, y, z = points[p, 0], points[p, 1], points[p, 2]
         total = 0.0
         count = 0
+        on_rim = False
         for v in range(projections.shape[0]):
             P = projections[v]
             w = P[2, 0] * x + P[2, 1] * y + P[2, 2] * z + P[2, 3]
@@ -189,10 +215,13 @@ def fuse_kernel(points, projections, depths, strides, truncation, min_views, sdf
                                  / strides[v] + 0.5))
             if not (0 <= row < rows and 0 <= col < cols):
                 continue
+            if abs(w - rims[v, row, col]) <= rim_depth:
+                on_rim = True
+                break
             seen = depths[v, row, col]
             if math.isnan(seen) or seen - w < -truncation:
                 continue
             total += min(seen - w, truncation)
             count += 1
         weight[p] = count
-        sdf[p] = total / count if count >= min_views else np.nan
+        sdf[p] = total / count if count >= min_views and not on_rim else np.nan
