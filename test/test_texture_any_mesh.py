@@ -3,17 +3,20 @@ synthetic objects painted with a fine 3-D pattern, textured from a session witho
 held-out views, drawn into those views and compared with their images (PSNR inside the
 true silhouette) side by side with a nearest-view projective texture and with the mesh's
 vertex colours; clear errors for a file that is no mesh, a mesh without faces, and a
-mesh outside the views."""
+mesh outside the views; the viewer of a textured mesh showing its texture in Chromium."""
 
+import cv2
 import numpy as np
 import pytest
 import trimesh
+from test_html_viewer import object_pixels, screenshot
 
 from sfs_ros.cli.texture import main as texture_main
 from sfs_ros.core.exchange.export import export_mesh
 from sfs_ros.core.exchange.session import write_session
 from sfs_ros.core.geometry.rig import rig_camera
 from sfs_ros.core.meshing.colour import spread_views, vertex_colours
+from sfs_ros.core.pictures.html_viewer import write_html_viewer
 from sfs_ros.core.render import rasterize_silhouette
 from sfs_ros.core.simulation.objects import fine_color_at, make_object
 from sfs_ros.core.simulation.synthetic import carving_box, simulate_scan
@@ -159,3 +162,35 @@ def test_writes_obj_with_its_material_atlas_and_viewer(tmp_path, cup_session):
     mesh = trimesh.load(out, force="mesh", process=False)
     assert mesh.visual.kind == "texture" and len(mesh.faces) == len(obj.mesh.faces)
     assert '"texture": "iVBOR' in (out.parent / "cup.html").read_text()
+
+
+def test_the_viewer_of_a_textured_mesh_shows_its_texture(tmp_path, cup_session):
+    """Headless Chromium (WebGL, software) draws the page ``sfs-texture --html`` wrote for
+    the cup: the object's pixels carry the 5 mm pattern (hues varying from pixel to
+    pixel), where the page of the same mesh without colours shades one default colour."""
+    obj, _, session = cup_session
+    export_mesh(obj.mesh.vertices, obj.mesh.faces, tmp_path / "cup.ply")
+    page = tmp_path / "cup.html"
+    assert texture_main([str(session), str(tmp_path / "cup.ply"), "-o",
+                         str(tmp_path / "cup.glb"), "--html", str(page)]) == 0
+    plain = write_html_viewer(tmp_path / "plain.html", obj.mesh.vertices, obj.mesh.faces)
+
+    def look(image):
+        inside = object_pixels(image)
+        rgb = image[inside].astype(float) + 1.0
+        hue = rgb / rgb.sum(axis=1, keepdims=True)      # chromaticity: shading cancels
+        grey = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY).astype(np.float32)
+        inner = cv2.erode(inside.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+        detail = np.abs(cv2.Laplacian(grey, cv2.CV_32F))[inner]
+        return inside.sum(), float(hue.std(axis=0).max()), float(np.mean(detail))
+
+    textured_pixels, textured_hues, textured_detail = look(screenshot(page, "WebGL"))
+    plain_pixels, plain_hues, plain_detail = look(screenshot(plain, "WebGL"))
+    # The same framing: the same mesh covers the same pixels (within its outline's).
+    assert abs(textured_pixels - plain_pixels) < 0.05 * plain_pixels
+    # The pattern's channels swing over [30, 200] out of phase: the share of a channel in
+    # a pixel's sum spreads over pixels, where one colour shaded keeps one share (up to
+    # rounding and the outline's blend with the background); its detail (mean
+    # |Laplacian|) is many times the smooth shading's.
+    assert textured_hues > 3 * plain_hues, (textured_hues, plain_hues)
+    assert textured_detail > 3 * plain_detail, (textured_detail, plain_detail)

@@ -5,7 +5,9 @@ Middlebury ``*_par.txt`` file, a NeRF-style ``transforms*.json``, or a rosbag2
 recorded by ``sfs-recorder`` (its folder or its .mcap / .db3 file: the
 recorded masks, rig, box, resolution and mesher, which options override). Beside the
 mesh it writes ``OUT.report.json``: per-stage timings, views used and
-rejected, per-view silhouette IoU and the mesh checks. On request it also
+rejected, per-view silhouette IoU and the mesh checks (and with ``--holdout`` and
+``--texture`` or ``--colour``, the PSNR of the texture and of the vertex colours in the
+held-out views). On request it also
 writes a PNG picture of the mesh, an HTML page that shows the mesh in any
 browser, and a contact sheet of the views with their mask outlines, angles and
 silhouette IoU.
@@ -27,6 +29,7 @@ from ..core.resident_memory import keep_freed_memory
 from ..core.result_files import SheetViews, report_path_for, write_result
 from ..core.segment import PRESETS, SegmentationParams
 from ..core.texture import texture_reconstruction
+from ..core.texture.evaluation import held_out_colour_psnr
 from .common import (
     ACCEPTED_INPUTS,
     StageProgress,
@@ -209,6 +212,10 @@ def run(args) -> dict:
         start = time.perf_counter()
         textured = texture_reconstruction(view_set, result, images=bag_images)
         result.report["timings_s"]["texture"] = time.perf_counter() - start
+    if args.texture or args.colour:
+        colour_psnr = held_out_colour_psnr(view_set, result, textured, images=bag_images)
+        if colour_psnr is not None:
+            result.report["held_out_colour_psnr"] = colour_psnr
     written = write_result(
         result, args.output, units=args.units, vertex_colors=result.vertex_colors,
         textured=textured,
@@ -230,6 +237,13 @@ def summary(report: dict) -> str:
                  f"{iou['mean_used']:.4f} over the views carved with"
                  + (f"; leave-one-out: {iou['mean_held_out']:.4f} over held-out views"
                     if iou["mean_held_out"] is not None else ""))
+    colour = report.get("held_out_colour_psnr")
+    if colour is not None:
+        shown = [f"{name} {colour[key]:.2f} dB" for name, key in
+                 (("texture", "texture_db"), ("vertex colours", "vertex_colours_db"))
+                 if colour[key] is not None]
+        lines.append(f"colour in {len(colour['views'])} held-out views (PSNR inside their "
+                     f"silhouettes): " + ", ".join(shown))
     lines.append("time: " + ", ".join(f"{k} {v:.2f} s" for k, v in report["timings_s"].items()))
     return "\n".join(lines)
 
