@@ -1,7 +1,8 @@
 """Texture a mesh from calibrated views: a reconstruction's own
 (:func:`texture_reconstruction`, the step a caller runs after the mesh is out, so the
 texture never delays the mesh) or any mesh in the views' object frame
-(:func:`texture_from_views`)."""
+(:func:`texture_from_views`), or a carved scan's mesh from the images it carries
+(:func:`texture_carved_scan`, the cell's)."""
 
 from __future__ import annotations
 
@@ -16,8 +17,8 @@ from ..meshing.colour import MAX_COLOUR_VIEWS, spread_views
 from ..render import as_mesh_arrays
 from .textured import TexturedMesh, texture_mesh
 
-__all__ = ["MIN_SEEN_FRACTION", "check_mesh_in_views", "texture_from_views",
-           "texture_reconstruction"]
+__all__ = ["MIN_SEEN_FRACTION", "check_mesh_in_views", "texture_carved_scan",
+           "texture_from_views", "texture_reconstruction"]
 
 #: Share of a mesh's vertices that must lie in front of some view and inside its image.
 MIN_SEEN_FRACTION = 0.5
@@ -96,3 +97,19 @@ def texture_reconstruction(view_set: ViewSet, result, *, images: dict | None = N
                               masks=result.masks, max_views=max_views,
                               closed=bool(mesh.get("watertight") and mesh.get("outward")),
                               **options)
+
+
+def texture_carved_scan(carved, result, **options) -> TexturedMesh:
+    """:func:`~.textured.texture_mesh` of ``result`` (a
+    :class:`~sfs_ros.core.mesh_scan.Reconstruction` of the carved scan ``carved``) from
+    the images the carved scan carries to colour the mesh (``colour_images`` on the ideal
+    cameras of ``colour_views``, with their ``colour_masks``); ValueError when it carries
+    none. ``options`` go to :func:`~.textured.texture_mesh`."""
+    if not carved.colour_views:
+        raise ValueError("the carved scan carries no colour images to texture the mesh with "
+                         "(the views' images were not received, or carry no colour)")
+    mesh = result.report.get("mesh") or {}
+    return texture_mesh(result.vertices, result.faces, carved.colour_images,
+                        [carved.views[i].camera for i in carved.colour_views],
+                        masks=carved.colour_masks or None,
+                        closed=bool(mesh.get("watertight") and mesh.get("outward")), **options)
