@@ -98,9 +98,10 @@ def face_quality(vertices: np.ndarray, faces: np.ndarray, camera: Camera,
     flat_points, flat_normals = points.reshape(-1, 3), np.repeat(normals, 4, axis=0)
     sight = view_sight(camera, flat_points, flat_normals, zbuf, mask)
     weight = sight.weight.reshape(-1, 4).min(axis=1)
-    glimpse = view_sight(camera, points[:, 0], normals, zbuf, mask, **GLIMPSE).weight
     full = weight > 0
-    weight = np.where(full, weight, GLIMPSE_WEIGHT * glimpse)
+    glimpsed = np.flatnonzero(~full)
+    weight[glimpsed] = GLIMPSE_WEIGHT * view_sight(camera, points[glimpsed, 0], normals[glimpsed],
+                                                   zbuf, mask, **GLIMPSE).weight
     u, v = sight.u.reshape(-1, 4)[:, 1:], sight.v.reshape(-1, 4)[:, 1:]
     area_px = 0.5 * np.abs((u[:, 1] - u[:, 0]) * (v[:, 2] - v[:, 0])
                            - (u[:, 2] - u[:, 0]) * (v[:, 1] - v[:, 0])) / (1 - CORNER_PULL) ** 2
