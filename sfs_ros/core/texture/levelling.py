@@ -13,8 +13,7 @@ Goesele (2014), simplified:
   term (1 % of a view's shared faces), which also fixes the common scale. Means over
   whole regions, not seam by seam: detail finer than a pixel or two differs between two
   views' samples of one point (resampling, misregistration) and averages out only over
-  many points. Samples darker than :data:`DARK` grey levels or whose views disagree by
-  more than a factor :data:`MISMATCH` (a point one view sees misregistered) are left out;
+  many points. Samples darker than :data:`DARK` grey levels in any channel are left out;
 * **local**: at every vertex where faces of several views meet, each view's colour
   (after its gain) is moved to the mean of them all, the move fading linearly to zero
   across the faces around the vertex, so the colour is continuous across the seam.
@@ -29,14 +28,12 @@ from scipy.sparse.linalg import lsqr
 
 from ..geometry.camera import Camera
 
-__all__ = ["DARK", "FRONTAL_COS", "MISMATCH", "bilinear", "corner_colours", "sample_image",
+__all__ = ["DARK", "FRONTAL_COS", "bilinear", "corner_colours", "sample_image",
            "seam_edges", "seam_offsets", "view_gains"]
 
-#: Seam samples darker than this (grey levels, any channel) are not fitted: their ratio is
+#: Samples darker than this (grey levels, any channel) are not compared: their ratio is
 #: mostly noise.
 DARK = 8.0
-#: Seam samples whose two views' colours differ by more than this factor are not fitted.
-MISMATCH = 2.0
 #: Sweeps of averaging the seam offsets with their neighbours' (:func:`seam_offsets`).
 SEAM_SMOOTHING = 10
 #: Faces a view sees more obliquely than acos of this are not compared: a pixel there
@@ -94,25 +91,23 @@ def view_gains(images: list, cameras: list[Camera], vertices: np.ndarray, faces:
     centroid = tri.mean(axis=1)
     normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
-    colour = np.zeros((n_views, len(faces), 3), np.float32)
-    frontal = np.zeros((len(faces), n_views), bool)
+    colour = np.zeros((len(faces), n_views, 3), np.float32)
+    frontal = np.zeros((len(faces), n_views), np.float32)
     for view in np.unique(pairs):
         to_camera = cameras[view].center - centroid
         cos = np.einsum("md,md->m", normal, to_camera) / np.linalg.norm(to_camera, axis=1)
-        frontal[:, view] = seen[:, view] & (cos >= FRONTAL_COS)
-        mine = np.flatnonzero(frontal[:, view])
-        colour[view, mine] = sample_image(images[view], cameras[view], centroid[mine])
+        mine = np.flatnonzero(seen[:, view] & (cos >= FRONTAL_COS))
+        sampled = sample_image(images[view], cameras[view], centroid[mine])
+        bright = np.all(sampled > DARK, axis=1)
+        colour[mine[bright], view] = sampled[bright]
+        frontal[mine[bright], view] = 1.0
     gains = np.ones((n_views, 3))
     pair_a, pair_b = pairs[:, 0], pairs[:, 1]
-    sums = np.zeros((2, len(pairs), 3))
-    count = np.zeros(len(pairs))
-    for k, (va, vb) in enumerate(pairs):
-        both = frontal[:, va] & frontal[:, vb]
-        ca, cb = colour[va, both], colour[vb, both]
-        keep = np.all((ca > DARK) & (cb > DARK), axis=1)
-        keep[keep] &= np.all(np.abs(np.log(ca[keep] / cb[keep])) < np.log(MISMATCH), axis=1)
-        sums[0, k], sums[1, k] = ca[keep].sum(axis=0), cb[keep].sum(axis=0)
-        count[k] = keep.sum()
+    # Over the faces both views of a pair see: sums[a, b] the colour in view a, as
+    # matrix products (V, m) @ (m, V).
+    count = (frontal.T @ frontal)[pair_a, pair_b].astype(np.float64)
+    sums = np.stack([(colour[..., c] * frontal).T @ frontal for c in range(3)], axis=-1)
+    sums = np.stack([sums[pair_a, pair_b], sums[pair_b, pair_a]]).astype(np.float64)
     fitted = count > 0
     pair_a, pair_b, count = pair_a[fitted], pair_b[fitted], count[fitted]
     per_view = np.bincount(np.concatenate([pair_a, pair_b]),
