@@ -24,7 +24,7 @@ from ..exchange.views import read_image
 from ..geometry.camera import Camera
 from ..geometry.lens import ideal_camera, undistort_image, undistort_mask
 from ..render import as_mesh_arrays, render_image
-from .selection import face_neighbours
+from .selection import face_neighbours, towards_camera
 from .textured import TexturedMesh, textured_from_labels
 
 __all__ = ["HELD_OUT_ERODE_PX", "held_out_colour_psnr", "held_out_psnr", "nearest_view_labels",
@@ -88,9 +88,7 @@ def nearest_view_labels(vertices: np.ndarray, faces: np.ndarray,
     centroid = tri.mean(axis=1)
     cosines = np.empty((len(faces), len(cameras)))
     for k, camera in enumerate(cameras):
-        to_camera = camera.center[None, :] - centroid
-        cosines[:, k] = np.einsum("md,md->m", normal, to_camera) / np.maximum(
-            np.linalg.norm(to_camera, axis=1), 1e-300)
+        cosines[:, k] = np.einsum("md,md->m", normal, towards_camera(camera, centroid))
     return np.where(cosines.max(axis=1) > 0, cosines.argmax(axis=1), -1).astype(np.int64)
 
 

@@ -27,6 +27,7 @@ from scipy import sparse
 from scipy.sparse.linalg import lsqr
 
 from ..geometry.camera import Camera
+from .selection import towards_camera
 
 __all__ = ["DARK", "FRONTAL_COS", "bilinear", "corner_colours", "sample_image",
            "seam_edges", "seam_offsets", "view_gains"]
@@ -94,8 +95,7 @@ def view_gains(images: list, cameras: list[Camera], vertices: np.ndarray, faces:
     colour = np.zeros((len(faces), n_views, 3), np.float32)
     frontal = np.zeros((len(faces), n_views), np.float32)
     for view in np.unique(pairs):
-        to_camera = cameras[view].center - centroid
-        cos = np.einsum("md,md->m", normal, to_camera) / np.linalg.norm(to_camera, axis=1)
+        cos = np.einsum("md,md->m", normal, towards_camera(cameras[view], centroid))
         mine = np.flatnonzero(seen[:, view] & (cos >= FRONTAL_COS))
         sampled = sample_image(images[view], cameras[view], centroid[mine])
         bright = np.all(sampled > DARK, axis=1)

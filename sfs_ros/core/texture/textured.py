@@ -35,7 +35,14 @@ from .levelling import (
     seam_offsets,
     view_gains,
 )
-from .selection import SMOOTHNESS, face_neighbours, face_quality, label_faces, sharpness
+from .selection import (
+    SMOOTHNESS,
+    face_neighbours,
+    face_quality,
+    face_samples,
+    label_faces,
+    sharpness,
+)
 
 __all__ = ["LEVELLING_BLUR_PX", "TEXELS_PER_PIXEL", "TexturedMesh", "texture_mesh", "textured_from_labels"]
 
@@ -163,9 +170,12 @@ def _levelled(images, cameras, vertices, faces, labels, seams, seen, level: bool
 def _qualities(vertices, faces, images, cameras, masks, closed: bool) -> tuple:
     """(m, V) quality of each view for each face (:mod:`.selection`), sharpness included,
     and (m, V) bool where the view sees the face fully (not a glimpse)."""
+    samples = face_samples(vertices, faces)
+
     def one(view):
         image, camera, mask = view
-        return *face_quality(vertices, faces, camera, mask, closed=closed), sharpness(image, mask)
+        return (*face_quality(vertices, faces, camera, mask, closed=closed, samples=samples),
+                sharpness(image, mask))
 
     found = list(map_in_threads(one, zip(images, cameras, masks)))
     sharp = np.array([s for _, _, s in found])
