@@ -13,8 +13,8 @@ held out, reconstructed as ``sfs-reconstruct`` does by default (the pixel-footpr
 no colour) and textured from its own views (:func:`texture_reconstruction`, 24 of them
 spread out, and all 48): the best of three runs of each, interleaved, in the same
 process, and the texture's peak resident memory above the process's before it
-(``/proc/self/statm`` sampled every 2 ms, in a last run: the memory earlier runs freed
-and the allocator kept is not counted again).
+(``/proc/self/statm`` sampled every 2 ms, in the first runs on this mesh after one on a
+coarse mesh loaded the code: 24 views, then 48, which reuses what the first freed).
 
 Run: ``python -m bench.bench_texture``; ``python -m bench.bench_texture --picture PNG``
 writes the docs' picture of a textured model (:func:`picture`).
@@ -100,9 +100,11 @@ def cost_of_48_views(mug) -> None:
                                [(c.theta_rad, c.phi_rad) for c in captures], RIG,
                                bounds_m=carving_box(mug))
         view_set = load_views(folder)
-        reconstruct(view_set, ReconstructionParams(resolution=40))     # code loaded
+        small = reconstruct(view_set, ReconstructionParams(resolution=40))
+        texture_reconstruction(view_set, small)                         # code loaded
         result = reconstruct(view_set, ReconstructionParams())
-        texture_reconstruction(view_set, result)                        # code loaded
+        peaks = {views: timed_peak(lambda: texture_reconstruction(
+            view_set, result, max_views=views))[2] for views in (24, 48)}
         # Best of REPEATS, the two interleaved: the machine's other load comes and goes.
         mesh_s, texture_s = {}, {}
         for _ in range(REPEATS):
@@ -113,8 +115,7 @@ def cost_of_48_views(mug) -> None:
                     lambda: texture_reconstruction(view_set, result, max_views=views))
                 texture_s[views] = min(texture_s.get(views, math.inf), seconds)
         for views in (24, 48):
-            textured, _, peak = timed_peak(
-                lambda: texture_reconstruction(view_set, result, max_views=views))
+            textured, peak = texture_reconstruction(view_set, result, max_views=views), peaks[views]
             print(f"48 views, {len(result.faces)} faces: reconstruction {mesh_s:.2f} s; texture "
                   f"from {views} views {texture_s[views]:.2f} s "
                   f"({texture_s[views] / mesh_s:.2f} x the "

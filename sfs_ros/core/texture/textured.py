@@ -49,8 +49,8 @@ __all__ = ["LEVELLING_BLUR_PX", "TEXELS_PER_PIXEL", "TexturedMesh", "texture_mes
 #: Texels per pixel of a face's view along each side, by default: at 1 the texture is
 #: the views' pixels themselves, but a renderer's bilinear look-ups at a chart's border
 #: then mix in the texels of its padding; at 2 these are a quarter of the chart's area
-#: and the texture of a fine pattern comes 1.5-2 dB nearer held-out views
-#: (doc/benchmarks.md).
+#: and the texture of a fine pattern comes 1.3-2.2 dB nearer held-out views
+#: (doc/reconstruct.md, the atlas).
 TEXELS_PER_PIXEL = 2.0
 #: Standard deviation (pixels) of the Gaussian blur of the images the levelling compares.
 LEVELLING_BLUR_PX = 2.0
