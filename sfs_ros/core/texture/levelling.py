@@ -8,15 +8,18 @@ Goesele (2014), simplified:
   domain over every pair of views ``a`` and ``b`` that meet at a seam: their mean
   colours over the faces both see unhidden, ``c_a`` and ``c_b`` (at the faces'
   centroids; faces either sees at a slant beyond 60 degrees left out), should agree,
-  ``log g_a + log c_a = log g_b + log c_b``, each pair weighted
-  by the square root of its faces; the gains' logarithms are held towards 0 by a weak
+  ``log g_a + log c_a = log g_b + log c_b``, each pair weighted by the square root of
+  its faces; the gains' logarithms are held towards 0 by a weak
   term (1 % of a view's shared faces), which also fixes the common scale. Means over
   whole regions, not seam by seam: detail finer than a pixel or two differs between two
   views' samples of one point (resampling, misregistration) and averages out only over
   many points. Samples darker than :data:`DARK` grey levels in any channel are left out;
 * **local**: at every vertex where faces of several views meet, each view's colour
-  (after its gain) is moved to the mean of them all, the move fading linearly to zero
-  across the faces around the vertex, so the colour is continuous across the seam.
+  (after its gain) is moved to the mean of them all, the move averaged along the seam
+  with the view's moves at the neighbouring such vertices (:func:`seam_offsets`) and
+  fading linearly to zero across the faces around the vertex, so the colour is
+  continuous across the seam. Faces a view only glimpses (:mod:`.selection`) take no
+  part.
 """
 
 from __future__ import annotations
