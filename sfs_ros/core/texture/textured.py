@@ -51,7 +51,8 @@ from .selection import (
     sharpness,
 )
 
-__all__ = ["BLEND_POWER", "LEVELLING_BLUR_PX", "TEXELS_PER_PIXEL", "TexturedMesh", "texture_mesh", "textured_from_labels"]
+__all__ = ["BLEND_POWER", "LEVELLING_BLUR_PX", "TEXELS_PER_PIXEL", "TexturedMesh", "texture_mesh",
+           "textured_from_labels"]
 
 #: Texels per pixel of a face's view along each side, by default: at 1 the texture is
 #: the views' pixels themselves, but a renderer's bilinear look-ups at a chart's border
