@@ -5,7 +5,8 @@ neighbours from the same view where quality allows), the faces of a view make ch
 out as the view sees them (:mod:`.atlas`), the views' colours are levelled along the
 seams (:mod:`.levelling`), and every texel takes the colour at the texel's point of the
 face (bilinear) in the views that see the face fully, blended, each weighted by its
-quality relative to the face's best view to the power :data:`BLEND_POWER` and times its
+quality relative to the face's best view to the power :data:`BLEND_POWER` (from
+:data:`BLEND_MIN` of it) and times its
 gain (with ``blend_power`` None: the face's one view, plus the levelling's seam offsets).
 One view per face puts the detail of that view alone, sharp, but wherever the mesh departs
 from the surface by a fraction of a millimetre that detail lands off in other directions;
@@ -51,8 +52,8 @@ from .selection import (
     sharpness,
 )
 
-__all__ = ["BLEND_POWER", "LEVELLING_BLUR_PX", "TEXELS_PER_PIXEL", "TexturedMesh", "texture_mesh",
-           "textured_from_labels"]
+__all__ = ["BLEND_MIN", "BLEND_POWER", "LEVELLING_BLUR_PX", "TEXELS_PER_PIXEL", "TexturedMesh",
+           "texture_mesh", "textured_from_labels"]
 
 #: Texels per pixel of a face's view along each side, by default: at 1 the texture is
 #: the views' pixels themselves, but a renderer's bilinear look-ups at a chart's border
@@ -63,6 +64,9 @@ TEXELS_PER_PIXEL = 2.0
 #: Each texel is the blend of the views that see its face fully, each weighted by its
 #: quality relative to the face's best, to this power (None: the face's one view).
 BLEND_POWER = 1.0
+#: Views below this share of a face's best quality are not blended into it (they would
+#: add little for a sample each).
+BLEND_MIN = 0.25
 #: Standard deviation (pixels) of the Gaussian blur of the images the levelling compares.
 LEVELLING_BLUR_PX = 2.0
 
@@ -181,9 +185,11 @@ def _split_by_chart(faces: np.ndarray, atlas: Atlas, n_vertices: int) -> tuple:
     return keys % n_vertices, inverse.reshape(-1, 3).astype(np.int64), uv
 
 
-def _levelled(images, cameras, vertices, faces, labels, seams, seen, level: bool) -> tuple:
+def _levelled(images, cameras, vertices, faces, labels, seams, seen, level: bool,
+              offsets: bool = True) -> tuple:
     """The gains (V, 3), seam offsets (m, 3, 3) and vertex colours (n, 3) (seen or
-    interpolated) of :func:`texture_mesh`; ``seen`` (m, V) bool the faces each view sees."""
+    interpolated) of :func:`texture_mesh`; ``seen`` (m, V) bool the faces each view sees;
+    without ``offsets`` (a blended texture) the seam offsets are zero."""
     # Exposure is what the views disagree on at a scale of pixels; finer detail that a
     # fraction of a pixel of misregistration changes is blurred away before comparing.
     smooth = [cv2.GaussianBlur(image, (0, 0), LEVELLING_BLUR_PX) for image in images]
@@ -193,8 +199,8 @@ def _levelled(images, cameras, vertices, faces, labels, seams, seen, level: bool
     compared = np.where(seen[np.arange(len(faces)), np.maximum(labels, 0)], labels, -1) \
         if level else labels
     corner, vertex, views = corner_colours(smooth, cameras, gains, vertices, faces, compared)
-    offsets = (seam_offsets(views, vertex, corner, faces, compared, len(cameras)) if level
-               else np.zeros_like(corner))
+    offsets = (seam_offsets(views, vertex, corner, faces, compared, len(cameras))
+               if level and offsets else np.zeros_like(corner))
     seen = views > 0
     if not seen.all():
         vertex = fill_from_neighbours(vertex, seen, faces)
@@ -267,7 +273,8 @@ def texture_mesh(vertices, faces, images: Sequence, cameras: Sequence[Camera], *
     blend = None
     if blend_power is not None:
         best = np.maximum(quality.max(axis=1, keepdims=True), 1e-300)
-        blend = np.where(full, (quality / best) ** blend_power, 0.0)
+        relative = quality / best
+        blend = np.where(full & (relative >= BLEND_MIN), relative ** blend_power, 0.0)
     textured = textured_from_labels(vertices, faces, labels, neighbours, images, cameras,
                                     seen=full, level=level, blend=blend, texels_per_pixel=texels_per_pixel,
                                     max_size=max_size, padding=padding)
@@ -299,7 +306,7 @@ def textured_from_labels(vertices: np.ndarray, faces: np.ndarray, labels: np.nda
     floats = [image.astype(np.float32) for image in images]
     seams = seam_edges(faces, labels, neighbours)
     gains, offsets, vertex = _levelled(floats, cameras, vertices, faces, labels, seams, seen,
-                                       level)
+                                       level, offsets=blend is None)
     seconds["levelling"] = time.perf_counter() - start - sum(seconds.values())
     image = _texels(atlas, vertices, faces, labels, floats, cameras, gains, offsets, vertex,
                     blend)
