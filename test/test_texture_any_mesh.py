@@ -94,7 +94,7 @@ def test_texture_of_the_true_cup_beats_the_nearest_view_and_vertex_colours(tmp_p
     """The cup's inside is hidden from most views by its rim: the nearest view paints it
     with the rim's and the outside's colours, the texture from views that see it."""
     psnr = side_by_side("cup", tmp_path)
-    # Measured 27.7 dB against 18.3 (nearest view) and 13.4 (vertex colours, 2,048 faces
+    # Measured 27.8 dB against 18.3 (nearest view) and 13.4 (vertex colours, 2,048 faces
     # of 6-10 mm against the pattern's 5 mm period). Deterministic: seeded renders.
     assert psnr["texture"] > psnr["nearest view"] + 1.0, psnr
     assert psnr["texture"] > psnr["vertex colours"] + 6.0, psnr
@@ -104,20 +104,20 @@ def test_texture_of_the_true_bowl_beats_the_nearest_view_and_vertex_colours(tmp_
     """The bowl (66,048 faces): its inside seen past the rim, the rim's top a few pixels
     wide, its outside at a slant."""
     psnr = side_by_side("bowl", tmp_path)
-    # Measured 29.6 dB against 28.5 (nearest view) and 21.1 (vertex colours).
+    # Measured 29.7 dB against 28.5 (nearest view) and 21.1 (vertex colours).
     assert psnr["texture"] > psnr["nearest view"] + 1.0, psnr
     assert psnr["texture"] > psnr["vertex colours"] + 6.0, psnr
 
 
 def test_texture_of_the_true_mug_matches_the_nearest_view(tmp_path):
     """On the mug (25,600 faces) the views see nearly every face unhidden and frontally:
-    the nearest view is the view the texture chooses too, and the texture is no better.
-    The levelling of seams (built for views whose exposures differ) moves colours by
-    the pattern's residue in the blurred images it compares: a dB lost here."""
+    the nearest view is the view the texture chooses too, and the texture is no better:
+    its levelling (built for views whose exposures differ) moves colours by the pattern's
+    residue in the images it compares."""
     psnr = side_by_side("mug", tmp_path)
-    # Measured 31.5 dB against 32.6 (nearest view) and 12.8 (vertex colours: the faces
+    # Measured 31.9 dB against 32.6 (nearest view) and 12.8 (vertex colours: the faces
     # are 5-40 mm long, the pattern 5 mm).
-    assert psnr["texture"] > psnr["nearest view"] - 1.5, psnr
+    assert psnr["texture"] > psnr["nearest view"] - 1.0, psnr
     assert psnr["texture"] > psnr["vertex colours"] + 15.0, psnr
 
 

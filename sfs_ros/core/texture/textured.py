@@ -10,9 +10,9 @@ quality relative to the face's best view to the power :data:`BLEND_POWER` (from
 gain (with ``blend_power`` None: the face's one view, plus the levelling's seam offsets).
 One view per face puts the detail of that view alone, sharp, but wherever the mesh departs
 from the surface by a fraction of a millimetre that detail lands off in other directions;
-the blend keeps what the best views agree on, nearly as sharp on a true mesh (0 to 0.6 dB
-below one view on the tests' true meshes, doc/benchmarks.md) and 1.5 dB nearer held-out
-views on a reconstruction. Texels around each chart repeat its
+the blend keeps what the best views agree on, as sharp on a true mesh (within 0.4 dB of
+one view on the tests' true meshes, doc/benchmarks.md) and 1.5 dB nearer held-out views
+on a reconstruction. Texels around each chart repeat its
 border's colours (``padding`` of them) so that filtering does not bleed across a seam;
 the rest of the atlas is the texture's mean colour. Faces no view sees (the underside
 on the plate) take colours interpolated from their corners, each corner's colour the mean
