@@ -46,6 +46,7 @@ setup(
             "sfs-simulate = sfs_ros.cli.simulate:main",
             "sfs-warm-up = sfs_ros.cli.warm_up:main",
             "sfs-export = sfs_ros.cli.export:main",
+            "sfs-texture = sfs_ros.cli.texture:main",
             "sfs-calibrate = sfs_ros.cli.calibrate:main",
             "sfs-cell = sfs_ros.cli.cell:main",
             "sfs-ctl = sfs_ros.cli.ctl:main",

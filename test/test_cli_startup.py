@@ -34,7 +34,7 @@ def test_importing_a_command_line_loads_no_heavy_module(command):
     assert loaded_after(f"import sfs_ros.cli.{command}")["heavy"] == []
 
 
-@pytest.mark.parametrize("command", ["reconstruct", "export", "replay"])
+@pytest.mark.parametrize("command", ["reconstruct", "export", "replay", "texture"])
 def test_a_command_lines_help_loads_no_heavy_module(command):
     result = loaded_after(f"import contextlib\nimport sfs_ros.cli.{command} as cli\n"
                           "with contextlib.suppress(SystemExit):\n    cli.main(['--help'])")

@@ -33,3 +33,22 @@ def test_reprojected_mesh_matches_the_silhouettes(tmp_path, capsys, par, preset,
           f"min {min(v['silhouette_iou'] for v in per_view):.4f}")
     assert mean >= bar
     assert report["mesh"]["watertight"] and report["mesh"]["outward"]
+
+
+def test_temple_texture_and_vertex_colours_in_held_out_views(tmp_path, capsys):
+    """Three of the temple's 16 photographs held out, the mesh textured and coloured from
+    the others: PSNR of each in the held-out photographs, inside their silhouettes."""
+    out = tmp_path / "temple.glb"
+    assert main([str(DATA / "templeSparseRing/templeSR_par.txt"), "-o", str(out), "--preset",
+                 "middlebury-temple", "-r", "160", "--texture", "--colour", "--holdout",
+                 "2,7,12", "-q"]) == 0
+    colour = json.loads((tmp_path / "temple.report.json").read_text())["held_out_colour_psnr"]
+    assert colour["views"] == ["templeSR0003.png", "templeSR0008.png", "templeSR0013.png"]
+    print(f"temple, held out: texture {colour['texture_db']:.2f} dB, vertex colours "
+          f"{colour['vertex_colours_db']:.2f} dB")
+    # Measured 18.2 dB against 18.5: the texture is NOT above the vertex colours here. The
+    # hull is not the temple (its columns and steps are concave), so the views' detail
+    # lands a few pixels off in a view 22.5 degrees away; the vertex colours, blurred over
+    # faces of 1-2 pixels, are nearer in PSNR than the texture's sharper blend.
+    assert colour["texture_db"] > colour["vertex_colours_db"] - 0.75
+    assert colour["texture_db"] > 15.0

@@ -1,8 +1,8 @@
 """The options of one reconstruction request, checked before it is queued (no ROS).
 
 A ``Reconstruct`` request (``sfs_ros_interfaces/srv/Reconstruct``) may set, for that one
-mesh, the resolution, the carving box, the mesher, the colour and the mesh's file name;
-each left empty takes the carving or meshing node's setting. :func:`mesh_options` turns the
+mesh, the resolution, the carving box, the mesher, the colour, the texture and the mesh's
+file name; each left empty takes the carving or meshing node's setting. :func:`mesh_options` turns the
 request's fields into :class:`MeshOptions` (None = the node's setting) or a ValueError
 naming the field, what it was and what was expected. The file name is confined to the
 output folder: a plain name with a mesh suffix (:func:`sfs_ros.cell.paths.plain_file_name`).
@@ -37,6 +37,7 @@ class MeshOptions:
     colour : bool
     output_name : str, a file name in the output folder (with its suffix)
     wait_for_pictures : bool, answer once the pictures are written too
+    texture : bool, make the textured model after the answer
     """
 
     resolution: int | None = None
@@ -45,11 +46,12 @@ class MeshOptions:
     colour: bool | None = None
     output_name: str | None = None
     wait_for_pictures: bool = False
+    texture: bool | None = None
 
 
 def mesh_options(output_dir, *, resolution: int = 0, bounds_m=(), mesher: str = "",
                  colour: str = "", output_name: str = "",
-                 wait_for_pictures: bool = False) -> MeshOptions:
+                 wait_for_pictures: bool = False, texture: str = "") -> MeshOptions:
     """:class:`MeshOptions` of a request's fields (0, empty = the node's setting);
     ValueError naming the field that is wrong and what was expected.
 
@@ -57,6 +59,7 @@ def mesh_options(output_dir, *, resolution: int = 0, bounds_m=(), mesher: str = 
     ``output_name``: a file name ending in a suffix of
     :data:`sfs_ros.core.exchange.export.MESH_FORMATS`, no folders, written inside
     ``output_dir``.
+    ``colour`` and ``texture``: "yes" or "no".
     """
     low, high = RESOLUTION.bounds
     if resolution and not low <= resolution <= high:
@@ -76,8 +79,11 @@ def mesh_options(output_dir, *, resolution: int = 0, bounds_m=(), mesher: str = 
                          "(empty = the node's)")
     if colour.lower() not in COLOUR_CHOICES:
         raise ValueError(f"colour {colour!r} is not 'yes' or 'no' (empty = the node's)")
+    if texture.lower() not in COLOUR_CHOICES:
+        raise ValueError(f"texture {texture!r} is not 'yes' or 'no' (empty = the node's)")
     if output_name:
         plain_file_name(Path(output_dir), output_name, suffixes=SUPPORTED_SUFFIXES)
     return MeshOptions(resolution=resolution or None, bounds_m=box, mesher=mesher or None,
                        colour=COLOUR_CHOICES[colour.lower()], output_name=output_name or None,
-                       wait_for_pictures=bool(wait_for_pictures))
+                       wait_for_pictures=bool(wait_for_pictures),
+                       texture=COLOUR_CHOICES[texture.lower()])

@@ -4,7 +4,8 @@
     sfs-ctl calibrate [--plan FILE] [--apply] [--wait]
     sfs-ctl rig apply FILE
     sfs-ctl cancel | home | status [--follow]
-    sfs-ctl reconstruct [--resolution N] [--mesher M] [--output NAME] [--no-colour] [--wait-pictures]
+    sfs-ctl reconstruct [--resolution N] [--mesher M] [--output NAME] [--no-colour] [--texture]
+                        [--wait-pictures]
     sfs-ctl param get NODE NAME | param set NODE NAME VALUE
 
 Through the typed interfaces (:class:`sfs_ros.ros.cell_client.CellClient`): ``scan``
@@ -76,6 +77,8 @@ def build_parser() -> argparse.ArgumentParser:
                      "(default: the node's)")
     rec.add_argument("--output", default="", help="mesh file name in the output folder")
     rec.add_argument("--no-colour", action="store_true", help="no vertex colours")
+    rec.add_argument("--texture", action="store_true", help="also a textured model "
+                     "(<stem>.textured.glb), made after the answer, which names it")
     rec.add_argument("--wait-pictures", action="store_true", help="answer once the picture, "
                      "viewer and contact sheet are written too")
     param = sub.add_parser("param", help="get or set a node's parameter")
@@ -173,11 +176,13 @@ def _status(client, args) -> int:
 
 def _reconstruct(client, args) -> int:
     options = dict(resolution=args.resolution, mesher=args.mesher, output_name=args.output,
-                   colour="no" if args.no_colour else "")
+                   colour="no" if args.no_colour else "", texture="yes" if args.texture else "")
     summary = client.reconstruct(ANSWER_S * 20, pictures=args.wait_pictures, **options)
     print(f"{summary['mesh_path']}: {summary['n_vertices']} vertices, {summary['n_faces']} "
           f"faces, watertight {summary['watertight']}, {summary['views_used']} views used, "
           f"{summary['seconds']:.2f} s")
+    if summary["textured_path"]:
+        print(f"textured model to follow: {summary['textured_path']}")
     return 0
 
 

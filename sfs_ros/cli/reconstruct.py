@@ -5,10 +5,12 @@ list in ``doc/reference.md``), a rosbag2 recorded by ``sfs-recorder`` among them
 recorded masks, rig, box, resolution and mesher, which options override); MESH's suffix
 chooses its format (:data:`sfs_ros.core.exchange.export.MESH_FORMATS`). Beside the
 mesh it writes ``OUT.report.json``: per-stage timings, views used and
-rejected, per-view silhouette IoU and the mesh checks. Where the views carry
-colour, the hull is refined below itself from the colours (stage ``refinement``:
-what was removed, where and on how many views' evidence; ``--no-refine`` skips it;
-a bag's default is its live mesh, the hull, unless ``--refine``). On request it also
+rejected, per-view silhouette IoU and the mesh checks (and with ``--holdout`` and
+``--texture`` or ``--colour``, the PSNR of the texture and of the vertex colours in the
+held-out views). Where the views carry colour, the hull is refined below itself from the
+colours (stage ``refinement``: what was removed, where and on how many views' evidence;
+``--no-refine`` skips it; a bag's default is its live mesh, the hull, unless
+``--refine``). On request it also
 writes a PNG picture of the mesh, an HTML page that shows the mesh in any
 browser, and a contact sheet of the views with their mask outlines, angles and
 silhouette IoU.
@@ -168,6 +170,7 @@ def run(args) -> dict:
     from ..core.pipeline import ReconstructionParams, reconstruct
     from ..core.result_files import report_path_for, write_result
     from ..core.texture import texture_reconstruction
+    from ..core.texture.evaluation import held_out_colour_psnr
     from .common import StageProgress, check_outputs, input_files, load_input, mesher_options
 
     suffix = args.output.suffix.lower()
@@ -224,6 +227,10 @@ def run(args) -> dict:
         start = time.perf_counter()
         textured = texture_reconstruction(view_set, result, images=bag_images)
         result.report["timings_s"]["texture"] = time.perf_counter() - start
+    if args.texture or args.colour:
+        colour_psnr = held_out_colour_psnr(view_set, result, textured, images=bag_images)
+        if colour_psnr is not None:
+            result.report["held_out_colour_psnr"] = colour_psnr
     written = write_result(
         result, args.output, units=args.units, vertex_colors=result.vertex_colors,
         textured=textured,
@@ -266,6 +273,13 @@ def summary(report: dict) -> str:
     refinement = report.get("refinement")
     if refinement:
         lines.append(_refinement_line(refinement, report["timings_s"].get("refinement", 0.0)))
+    colour = report.get("held_out_colour_psnr")
+    if colour is not None:
+        shown = [f"{name} {colour[key]:.2f} dB" for name, key in
+                 (("texture", "texture_db"), ("vertex colours", "vertex_colours_db"))
+                 if colour[key] is not None]
+        lines.append(f"colour in {len(colour['views'])} held-out views (PSNR inside their "
+                     f"silhouettes): " + ", ".join(shown))
     lines.append("time: " + ", ".join(f"{k} {v:.2f} s" for k, v in report["timings_s"].items()))
     return "\n".join(lines)
 

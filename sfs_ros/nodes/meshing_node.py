@@ -31,7 +31,12 @@ rejected, watertight, volume_m3, seconds, ...) goes out once the mesh and its re
 written; the ``mesh`` marker (a copy within ``display_triangles``,
 :func:`sfs_ros.core.meshing.decimate.decimate`), the picture, viewer and contact sheet
 (the report is written again naming them) and ``mesh_shape`` (the full mesh) follow,
-in that order; with ``wait_for_pictures`` the pictures come before the answer.
+in that order; with ``wait_for_pictures`` the pictures come before the answer. Then the
+products after the answer (:mod:`sfs_ros.cell.after_answer`): with ``texture`` (the
+request's, else the node's parameter) the textured model ``<stem>.textured.glb``, from
+the images the carving node sends to colour the mesh (asked for even when the mesh is not
+coloured), whose path the answer names (``textured_path``) and the report names once it
+is written; empty when there are no images to texture from.
 ``shape_msgs/Mesh`` has no header: its vertices are in the turntable frame, the ``mesh``
 marker's ``frame_id``. ``mesh``, ``mesh_shape`` and ``~/status``: reliable, transient
 local, depth 1 (:func:`sfs_ros.ros.result_qos`).
@@ -60,6 +65,7 @@ from shape_msgs.msg import Mesh
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker
 
+from sfs_ros.cell.after_answer import make_product, textured_model, without_colour
 from sfs_ros.cell.held_images import HeldImages
 from sfs_ros.cell.mesh_files import write_mesh
 from sfs_ros.cell.mesh_options import MeshOptions, mesh_options
@@ -97,6 +103,9 @@ PARAMS: list[Param] = [
           "every file the node writes stays inside it.", read_only=True,
           constraints="required, non-empty"),
     Param.of(COLOUR, read_only=True, constraints="a request's colour left empty"),
+    Param("texture", False, "Also make a textured model (<mesh stem>.textured.glb) from the "
+          "captured images, after the answer, which names it (a request's texture left "
+          "empty).", read_only=True),
     Param("display_triangles", 10000, "Most triangles of the mesh marker (a simplified "
           "copy by vertex clustering, 40 bytes a corner with its colour: 10 000 make 1.2 MB); "
           "the file and mesh_shape keep the full mesh.", bounds=(100, 10_000_000),
@@ -212,7 +221,7 @@ class MeshingNode(Node):
                 self._output_dir, resolution=request.resolution,
                 bounds_m=list(request.bounds_m), mesher=request.mesher,
                 colour=request.colour, output_name=request.output_name,
-                wait_for_pictures=request.wait_for_pictures)
+                wait_for_pictures=request.wait_for_pictures, texture=request.texture)
         except ValueError as exc:
             response.success, response.message = False, f"request refused: {exc}"
             return response
@@ -243,9 +252,8 @@ class MeshingNode(Node):
     def _carved_scan(self, options: MeshOptions, held_session: str, held: list):
         """The carving node's carved scan for ``options`` (a message), or why there is none;
         without the images ``held`` of the scan ``held_session``."""
-        colour = options.colour if options.colour is not None else self._values["colour"]
-        if options.output_name and Path(options.output_name).suffix.lower() == ".stl":
-            colour = False                 # an .stl has no colours
+        # The texture needs the images the carving node sends to colour the mesh.
+        colour = self._colour(options) or self._texture(options)
         request = CarveScan.Request(
             resolution=options.resolution or 0,
             bounds_m=[] if options.bounds_m is None else options.bounds_m.ravel().tolist(),
@@ -260,6 +268,16 @@ class MeshingNode(Node):
             return f"reconstruction failed: {answer.message}"
         return answer.scan
 
+    def _colour(self, options: MeshOptions) -> bool:
+        """Whether the mesh is coloured: the request's choice, else the node's; never into
+        an .stl, which has no colours."""
+        colour = options.colour if options.colour is not None else self._values["colour"]
+        return colour and not (options.output_name
+                               and Path(options.output_name).suffix.lower() == ".stl")
+
+    def _texture(self, options: MeshOptions) -> bool:
+        return options.texture if options.texture is not None else self._values["texture"]
+
     def _release_after_answer(self) -> None:
         """Timer (services group), once the ``reconstruct`` answer is sent: the worker may
         start the jobs that follow it."""
@@ -272,15 +290,21 @@ class MeshingNode(Node):
 
     def _mesh(self, msg, options: MeshOptions, held: dict) -> tuple[bool, str, dict | None]:
         """Mesh a carved scan message (``held``: the images it leaves out) and write the
-        files; the messages and pictures are queued to follow the answer."""
+        files; the messages, the pictures and the products (the textured model) are queued
+        to follow the answer."""
         try:
             carved, hand_over = carved_scan_from_msg(msg, held)
-            made = write_mesh(carved, hand_over, self._output_dir, options.output_name,
+            # Images asked for the texture alone do not colour the mesh.
+            meshed = carved if self._colour(options) else without_colour(carved)
+            made = write_mesh(meshed, hand_over, self._output_dir, options.output_name,
                               pictures=options.wait_for_pictures)
         except (ValueError, OSError) as exc:
             return self._failed(f"reconstruction failed: {exc}")
         summary = made.summary
         held = sum(msg.views[i].image_held for i in msg.colour_views)
+        products = self._products(carved, made, options)
+        summary["textured_path"] = next((str(p.path) for p in products
+                                         if p.key == "textured_path"), "")
         with self._stats_lock:
             self._counts["reconstructions"] += 1
             self._counts["images_held"] = held
@@ -301,7 +325,32 @@ class MeshingNode(Node):
                                         summary["path"]), name="pictures")
         self._worker.submit(partial(self._publish_shape, result.vertices, result.faces),
                             name="publish the mesh")
+        for product in products:
+            self._worker.submit(partial(self._make_product, product, summary["report_path"]),
+                                name=product.key)
         return True, json.dumps(summary), summary
+
+    def _products(self, carved, made, options: MeshOptions) -> list:
+        """The products to make after the answer (:mod:`sfs_ros.cell.after_answer`); one
+        that cannot be made is reported and left out (the mesh is out)."""
+        if not self._texture(options):
+            return []
+        try:
+            return [textured_model(carved, made.result, self._output_dir,
+                                   made.summary["report_path"])]
+        except ValueError as exc:
+            self._report_problem(f"{exc}; the mesh {made.summary['path']} is written")
+            return []
+
+    def _make_product(self, product, report_path: str) -> None:
+        try:
+            make_product(product, report_path, self._output_dir)
+        except (ValueError, OSError) as exc:
+            self._report_problem(f"{product.path} not written (the mesh and its report "
+                                 f"are): {exc}")
+            return
+        self.get_logger().info(f"{product.key.removesuffix('_path')} model written to "
+                               f"{product.path}")
 
     def _write_pictures(self, pictures_due, mesh_path: str) -> None:
         try:

@@ -49,7 +49,7 @@ from sfs_ros_interfaces.msg import CellStatus
 from sfs_ros_interfaces.srv import Reconstruct
 
 __all__ = ["CalibrateGoal", "CellClient", "ScanFailed", "ScanGoal", "ScanStatus", "SERVICES", "READY",
-           "mesh_summary", "wait_for_pictures"]
+           "mesh_summary", "wait_for_pictures", "wait_for_product"]
 
 #: The Trigger services that must answer before :meth:`CellClient.wait_ready` returns
 #: (besides the action and the typed service).
@@ -104,6 +104,31 @@ def wait_for_pictures(summary: dict, *, timeout_s: float = 120.0) -> None:
         if time.monotonic() >= deadline:
             raise TimeoutError(f"the pictures of {summary['path']} were not written within "
                                f"{timeout_s:g} s (the report {report} does not name them)")
+        time.sleep(PICTURE_POLL_S)
+
+
+def wait_for_product(summary: dict, key: str = "textured_path", *,
+                     timeout_s: float = 300.0) -> Path:
+    """Until the report of a reconstruction (``summary``: its ``report_path`` and ``key``)
+    names the product the answer named under ``key`` (e.g. the textured model,
+    ``textured_path``): the node makes it after its answer, then writes the report again.
+    Returns its path; ValueError when the answer named none; TimeoutError after
+    ``timeout_s`` (the node's diagnostics say why)."""
+    if not summary.get(key):
+        raise ValueError(f"the answer names no {key}: not asked for, or it cannot be made "
+                         "(the node's diagnostics say why)")
+    report = Path(summary["report_path"])
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            named = json.loads(report.read_text())
+        except (OSError, ValueError):
+            named = {}          # replaced just now, or not there: read again
+        if named.get(key) == summary[key]:
+            return Path(summary[key])
+        if time.monotonic() >= deadline:
+            raise TimeoutError(f"{summary[key]} was not written within {timeout_s:g} s (the "
+                               f"report {report} does not name it)")
         time.sleep(PICTURE_POLL_S)
 
 
@@ -383,7 +408,8 @@ class CellClient:
         ScanFailed with the node's reason.
 
         ``options``: the request's ``resolution``, ``bounds_m``, ``mesher``, ``colour``
-        ("yes" / "no"), ``output_name`` (each left out: the node's). With ``pictures`` the
+        and ``texture`` ("yes" / "no"), ``output_name`` (each left out: the node's); the
+        textured model follows the answer (:func:`wait_for_product`). With ``pictures`` the
         node answers once the picture, viewer and contact sheet are written too; without,
         once the mesh and its report are (:func:`wait_for_pictures` waits for the rest)."""
         request = Reconstruct.Request(wait_for_pictures=pictures, **options)

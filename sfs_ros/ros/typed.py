@@ -54,6 +54,7 @@ def fill_reconstruct_response(response, summary: dict, *, frame_id: str):
     response.preview_path = summary["preview_path"]
     response.html_path = summary["html_path"]
     response.contact_sheet_path = summary["contact_sheet_path"]
+    response.textured_path = summary.get("textured_path", "")
     response.frame_id = frame_id
     response.session_dir = summary["session"]
     response.views_used = summary["views_used"]

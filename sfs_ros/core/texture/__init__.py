@@ -3,10 +3,10 @@
 :func:`texture_mesh` (mesh, images, cameras -> :class:`TexturedMesh`); view selection per
 face (:mod:`.selection`), the atlas (:mod:`.atlas`), levelling along the seams
 (:mod:`.levelling`); :func:`texture_reconstruction` textures a pipeline's result from
-its views.
+its views, :func:`texture_from_views` any mesh in the views' object frame.
 """
 
-from .from_views import texture_reconstruction
+from .from_views import texture_from_views, texture_reconstruction
 from .textured import TexturedMesh, texture_mesh
 
-__all__ = ["TexturedMesh", "texture_mesh", "texture_reconstruction"]
+__all__ = ["TexturedMesh", "texture_from_views", "texture_mesh", "texture_reconstruction"]

@@ -12,7 +12,8 @@ its mean normal when every face turns within 60 degrees of it, at half the seen 
 texels per metre (its colours are interpolated, smooth); otherwise each of its faces is
 a chart of its own, a right triangle of :data:`UNSEEN_TEXELS` texels a leg. Faces that
 would still overlap another in the atlas (a patch seen partly hidden, a curved unseen
-patch) are made charts of their own and the atlas is laid out again.
+patch) are made charts of their own (a whole unseen patch at once) and the atlas is laid
+out again.
 
 Charts are packed as rectangles on shelves (tallest first), ``2 * padding`` texels
 apart, into an atlas about as wide as high; when that exceeds ``max_size`` texels a
@@ -44,7 +45,7 @@ UNSEEN_TEXELS = 4.0
 #: Times the charts may be scaled down to fit ``max_size``.
 _FIT_TRIES = 6
 #: Times overlapping faces may be split off into charts of their own.
-_SPLIT_TRIES = 3
+_SPLIT_TRIES = 4
 #: A patch no view sees is projected onto a plane when its faces' normals are all within
 #: acos of this of their mean.
 _FLAT_COS = 0.5
@@ -268,6 +269,9 @@ def build_atlas(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray,
         if not again:
             return Atlas(shape=shape, corners=corners, chart=chart, face_index=face_id,
                          barycentric=bary, texels_per_pixel=scale)
-        alone |= overlapping
+        # A patch no view sees overlaps where it curves: all its faces go alone at once
+        # (their colours are interpolated, a few texels hold them) rather than ring by ring.
+        curved = np.isin(chart, chart[overlapping & (labels < 0)])
+        alone |= overlapping | curved
     raise ValueError(f"{again} texels of the atlas are claimed by two faces after splitting "
                      "the overlapping faces off: the mesh folds on itself")

@@ -5,15 +5,21 @@ exposure, the light's angle to each view). Two steps, as in Waechter, Moehrle an
 Goesele (2014), simplified:
 
 * **global**: one gain per view and channel, ``g_l``, fitted by least squares in the log
-  domain along every seam edge (neighbouring faces from views ``a`` and ``b``): the
-  mean colour of the edge's ends and midpoint in either view, ``c_a`` and ``c_b``, should
-  agree, ``log g_a + log c_a = log g_b + log c_b``; the gains' logarithms are held
-  towards 0 by a weak term (1 % of a view's seam count), which also fixes the common
-  scale. Samples darker than :data:`DARK` grey levels or whose views disagree by more
-  than a factor :data:`MISMATCH` (a seam on a misregistered edge) are left out;
+  domain over every pair of views ``a`` and ``b`` that meet at a seam: their mean
+  colours over the faces both see unhidden, ``c_a`` and ``c_b`` (at the faces'
+  centroids; faces either sees at a slant beyond 60 degrees left out), should agree,
+  ``log g_a + log c_a = log g_b + log c_b``, each pair weighted by the square root of
+  its faces; the gains' logarithms are held towards 0 by a weak
+  term (1 % of a view's shared faces), which also fixes the common scale. Means over
+  whole regions, not seam by seam: detail finer than a pixel or two differs between two
+  views' samples of one point (resampling, misregistration) and averages out only over
+  many points. Samples darker than :data:`DARK` grey levels in any channel are left out;
 * **local**: at every vertex where faces of several views meet, each view's colour
-  (after its gain) is moved to the mean of them all, the move fading linearly to zero
-  across the faces around the vertex, so the colour is continuous across the seam.
+  (after its gain) is moved to the mean of them all, the move averaged along the seam
+  with the view's moves at the neighbouring such vertices (:func:`seam_offsets`) and
+  fading linearly to zero across the faces around the vertex, so the colour is
+  continuous across the seam. Faces a view only glimpses (:mod:`.selection`) take no
+  part.
 """
 
 from __future__ import annotations
@@ -24,14 +30,19 @@ from scipy import sparse
 from scipy.sparse.linalg import lsqr
 
 from ..geometry.camera import Camera
+from .selection import towards_camera
 
-__all__ = ["DARK", "MISMATCH", "bilinear", "corner_colours", "sample_image", "seam_edges", "view_gains"]
+__all__ = ["DARK", "FRONTAL_COS", "bilinear", "corner_colours", "sample_image",
+           "seam_edges", "seam_offsets", "view_gains"]
 
-#: Seam samples darker than this (grey levels, any channel) are not fitted: their ratio is
+#: Samples darker than this (grey levels, any channel) are not compared: their ratio is
 #: mostly noise.
 DARK = 8.0
-#: Seam samples whose two views' colours differ by more than this factor are not fitted.
-MISMATCH = 2.0
+#: Sweeps of averaging the seam offsets with their neighbours' (:func:`seam_offsets`).
+SEAM_SMOOTHING = 10
+#: Faces a view sees more obliquely than acos of this are not compared: a pixel there
+#: spans much of the surface, and its colour is the mean of detail the other view resolves.
+FRONTAL_COS = 0.5
 #: Width of the maps OpenCV samples points with.
 _REMAP_WIDTH = 4096
 #: Weight of the term holding each view's log gain to 0, per seam edge of that view.
@@ -70,42 +81,59 @@ def seam_edges(faces: np.ndarray, labels: np.ndarray, neighbours: np.ndarray) ->
     return np.column_stack([f, g, faces[f, k], faces[f, (k + 1) % 3]])
 
 
-def view_gains(images: list, cameras: list[Camera], vertices: np.ndarray, labels: np.ndarray,
-               seams: np.ndarray) -> np.ndarray:
-    """(V, 3) float64 gain of each view and channel (module docstring) from the seam edges
-    ``seams`` (:func:`seam_edges`) of faces with ``labels``; ``images`` float32."""
+def view_gains(images: list, cameras: list[Camera], vertices: np.ndarray, faces: np.ndarray,
+               seen: np.ndarray, labels: np.ndarray, seams: np.ndarray) -> np.ndarray:
+    """(V, 3) float64 gain of each view and channel (module docstring): for every pair of
+    views meeting at a seam edge (``seams``, :func:`seam_edges` of faces with ``labels``),
+    the ratio of their mean colours over the faces both see (``seen`` (m, V) bool) within
+    acos :data:`FRONTAL_COS` of the face's normal, at the faces' centroids; ``images``
+    float32."""
     n_views = len(cameras)
-    ends = vertices[seams[:, 2:]]                                     # (e, 2, 3)
-    points = np.concatenate([ends, ends.mean(axis=1, keepdims=True)], axis=1)
-    sides = []
-    for face in (seams[:, 0], seams[:, 1]):
-        colour = np.zeros((len(seams), 3, 3), np.float32)
-        for label in np.unique(labels[face]):
-            mine = labels[face] == label
-            colour[mine] = sample_image(images[label], cameras[label],
-                                        points[mine].reshape(-1, 3)).reshape(-1, 3, 3)
-        sides.append(colour.mean(axis=1).astype(np.float64))
     a, b = labels[seams[:, 0]], labels[seams[:, 1]]
-    per_view = np.bincount(np.concatenate([a, b]), minlength=n_views).astype(np.float64)
+    pairs = np.unique(np.column_stack([np.minimum(a, b), np.maximum(a, b)]), axis=0)
+    tri = vertices[faces]
+    centroid = tri.mean(axis=1)
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
+    colour = np.zeros((len(faces), n_views, 3), np.float32)
+    frontal = np.zeros((len(faces), n_views), np.float32)
+    for view in np.unique(pairs):
+        cos = np.einsum("md,md->m", normal, towards_camera(cameras[view], centroid))
+        mine = np.flatnonzero(seen[:, view] & (cos >= FRONTAL_COS))
+        sampled = sample_image(images[view], cameras[view], centroid[mine])
+        bright = np.all(sampled > DARK, axis=1)
+        colour[mine[bright], view] = sampled[bright]
+        frontal[mine[bright], view] = 1.0
     gains = np.ones((n_views, 3))
+    pair_a, pair_b = pairs[:, 0], pairs[:, 1]
+    # Over the faces both views of a pair see: sums[a, b] the colour in view a, as
+    # matrix products (V, m) @ (m, V).
+    count = (frontal.T @ frontal)[pair_a, pair_b].astype(np.float64)
+    sums = np.stack([(colour[..., c] * frontal).T @ frontal for c in range(3)], axis=-1)
+    sums = np.stack([sums[pair_a, pair_b], sums[pair_b, pair_a]]).astype(np.float64)
+    fitted = count > 0
+    pair_a, pair_b, count = pair_a[fitted], pair_b[fitted], count[fitted]
+    per_view = np.bincount(np.concatenate([pair_a, pair_b]),
+                           weights=np.concatenate([count, count]), minlength=n_views)
     for channel in range(3):
-        ca, cb = sides[0][:, channel], sides[1][:, channel]
-        keep = (ca > DARK) & (cb > DARK)
-        keep[keep] &= np.abs(np.log(ca[keep] / cb[keep])) < np.log(MISMATCH)
-        gains[:, channel] = np.exp(_log_gains(a[keep], b[keep],
-                                              np.log(cb[keep] / ca[keep]), per_view))
+        ratio = sums[1, fitted, channel] / sums[0, fitted, channel]
+        gains[:, channel] = np.exp(_log_gains(pair_a, pair_b, np.log(ratio), per_view,
+                                              np.sqrt(count)))
     return gains
 
 
-def _log_gains(a: np.ndarray, b: np.ndarray, target: np.ndarray, per_view: np.ndarray):
-    """Least-squares ``x`` (V,) with ``x[a] - x[b] = target`` per seam sample and the weak
-    prior ``sqrt(_PRIOR * per_view) * x = 0`` (at least a small weight)."""
+def _log_gains(a: np.ndarray, b: np.ndarray, target: np.ndarray, per_view: np.ndarray,
+               weight: np.ndarray):
+    """Weighted least-squares ``x`` (V,) with ``weight * (x[a] - x[b]) = weight * target``
+    per pair and the weak prior ``sqrt(_PRIOR * per_view) * x = 0`` (at least a small
+    weight)."""
     n_views, e = len(per_view), len(a)
     rows = np.concatenate([np.arange(e), np.arange(e), e + np.arange(n_views)])
     cols = np.concatenate([a, b, np.arange(n_views)])
-    values = np.concatenate([np.ones(e), -np.ones(e), np.sqrt(_PRIOR * np.maximum(per_view, 1))])
+    values = np.concatenate([weight, -weight, np.sqrt(_PRIOR * np.maximum(per_view, 1))])
     matrix = sparse.csr_matrix((values, (rows, cols)), shape=(e + n_views, n_views))
-    return lsqr(matrix, np.concatenate([target, np.zeros(n_views)]), atol=1e-10, btol=1e-10)[0]
+    return lsqr(matrix, np.concatenate([weight * target, np.zeros(n_views)]),
+                atol=1e-10, btol=1e-10)[0]
 
 
 def corner_colours(images: list, cameras: list[Camera], gains: np.ndarray,
@@ -135,3 +163,38 @@ def corner_colours(images: list, cameras: list[Camera], gains: np.ndarray,
     corner = np.zeros((len(faces), 3, 3))
     corner[seen] = colour[inverse.reshape(-1, 3)]
     return corner, vertex, views
+
+
+def seam_offsets(vertices_views: np.ndarray, vertex: np.ndarray, corner: np.ndarray,
+                 faces: np.ndarray, labels: np.ndarray, n_views: int) -> np.ndarray:
+    """(m, 3, 3) offsets moving each face's corners (``corner`` (m, 3, 3)) to the mean of
+    the views meeting there (``vertex`` (n, 3); ``vertices_views`` (n,) how many meet),
+    smoothed along the seams: each view's offset at a vertex is averaged, over
+    :data:`SEAM_SMOOTHING` sweeps, with its offsets at the neighbouring vertices where
+    views meet too. Exposure and shading differ smoothly along a seam; detail finer than
+    the blur that two views sample differently does not, and averages out."""
+    seen = np.flatnonzero(labels >= 0)
+    meeting = vertices_views[faces[seen]] >= 2                        # (s, 3)
+    key = faces[seen] * n_views + labels[seen, None]
+    keys, inverse = np.unique(key[meeting], return_inverse=True)
+    offset = np.zeros((len(keys), 3))
+    offset[inverse] = (vertex[faces[seen]] - corner[seen])[meeting]
+    # Edges of each face between two corners where views meet, as (key, key) of one view.
+    index = np.full(key.shape, -1)
+    index[meeting] = inverse
+    ends = np.concatenate([index[:, [0, 1]], index[:, [1, 2]], index[:, [2, 0]]])
+    ends = ends[(ends >= 0).all(axis=1)]
+    n = len(keys)
+    adjacency = sparse.csr_matrix((np.ones(2 * len(ends)), (np.r_[ends[:, 0], ends[:, 1]],
+                                                            np.r_[ends[:, 1], ends[:, 0]])),
+                                  shape=(n, n))
+    adjacency.data[:] = 1.0                                            # duplicates once
+    adjacency = adjacency + sparse.identity(n, format="csr")
+    degree = np.asarray(adjacency.sum(axis=1)).ravel()
+    for _ in range(SEAM_SMOOTHING):
+        offset = (adjacency @ offset) / degree[:, None]
+    out = np.zeros_like(corner)
+    moved = np.zeros((len(seen), 3, 3))
+    moved[meeting] = offset[inverse]
+    out[seen] = moved
+    return out

@@ -12,7 +12,12 @@ z-buffer). The face's quality in that view is
 the weight falling with the angle from the normal (frontal), the projected area growing
 as the camera comes nearer (``1 / depth^2``) and faces it, and ``sharpness`` the view's
 variance of the Laplacian inside its silhouette relative to the sharpest view's (a
-shot blurred by motion or focus loses to its neighbours).
+shot blurred by motion or focus loses to its neighbours). A face no view sees so takes
+the best of the views that *glimpse* it (:data:`GLIMPSE`: its centroid seen unhidden,
+a pixel and a half from an outline or a depth step, where its corners may lie nearer),
+their weights scaled by :data:`GLIMPSE_WEIGHT` so that they never compete with a full
+view: a rim a few pixels wide then keeps its detail rather than colours interpolated
+from its corners.
 
 The labelling (in the spirit of Waechter, Moehrle and Goesele, "Let there be color!",
 2014) minimises ``sum_f cost(f, l_f) + smoothness * #{neighbouring faces with different
@@ -32,7 +37,8 @@ from ..geometry.camera import Camera
 from ..meshing.colour import view_sight
 from ..render import rasterize_depth
 
-__all__ = ["CORNER_PULL", "SMOOTHNESS", "face_neighbours", "face_quality", "label_faces",
+__all__ = ["CORNER_PULL", "GLIMPSE", "GLIMPSE_WEIGHT", "SMOOTHNESS", "face_neighbours", "face_quality",
+           "label_faces", "towards_camera",
            "sharpness"]
 
 #: The corners of a face are tested for visibility this fraction of the way towards its
@@ -42,6 +48,14 @@ CORNER_PULL = 0.2
 #: Cost of a seam (two neighbouring faces from different views) against the data cost in
 #: [0, 1] of a face (:func:`label_faces`); chosen by measurement (doc/benchmarks.md).
 SMOOTHNESS = 0.3
+#: The looser test of a *glimpse* (:func:`face_quality`): the face's centroid alone, half
+#: a pixel of ramp off the outline and the depth steps instead of three.
+GLIMPSE = {"edge_ramp_px": 0.5}
+#: A glimpse's weight against a full view's: it colours only faces no view sees fully.
+GLIMPSE_WEIGHT = 1e-6
+#: Faces whose centroid sees the camera at a cosine at most this are not tested (the
+#: sight test's least cosine is 0.2).
+_FACING_COS = 0.1
 #: Most sweeps of iterated conditional modes (it stops earlier when no face changes).
 MAX_SWEEPS = 20
 
@@ -71,23 +85,47 @@ def sharpness(image: np.ndarray, mask: np.ndarray | None) -> float:
     return float(laplacian[inner].var()) if inner.sum() > 1 else 0.0
 
 
+def towards_camera(camera: Camera, points: np.ndarray) -> np.ndarray:
+    """(k, 3) unit vectors from ``points`` (k, 3) metres towards ``camera`` (for an
+    orthographic camera, against its viewing direction)."""
+    if camera.orthographic:
+        return np.broadcast_to(-camera.R[2], points.shape)
+    to_camera = camera.center - points
+    return to_camera / np.maximum(np.linalg.norm(to_camera, axis=1, keepdims=True), 1e-300)
+
+
 def face_quality(vertices: np.ndarray, faces: np.ndarray, camera: Camera,
-                 mask: np.ndarray | None, *, closed: bool = False) -> np.ndarray:
+                 mask: np.ndarray | None, *, closed: bool = False, samples: tuple | None = None
+                 ) -> tuple[np.ndarray, np.ndarray]:
     """(m,) float64 quality of ``camera``'s view for each face (module docstring, without
-    the sharpness factor); 0 where the view does not see the face.
+    the sharpness factor; 0 where the view does not see the face) and (m,) bool where it
+    sees it fully (not a glimpse).
 
     ``vertices`` (n, 3) metres and ``faces`` (m, 3) outward; ``mask`` (H, W) bool the
     view's silhouette or None; ``closed``: the mesh is closed and outward (the z-buffer
     draws the faces turned towards the camera only).
+    ``samples``: the mesh's :func:`face_samples`, when the caller has them (one mesh,
+    many views).
     """
-    points, normals = face_samples(vertices, faces)
+    points, normals = face_samples(vertices, faces) if samples is None else samples
     zbuf = rasterize_depth(vertices, faces, camera, closed=closed)
-    sight = view_sight(camera, points.reshape(-1, 3), np.repeat(normals, 4, axis=0), zbuf, mask)
-    weight = sight.weight.reshape(-1, 4).min(axis=1)
+    # Only faces turned towards the camera can pass (the sight test's angle, less a
+    # margin for the samples' directions): the others are not tested.
+    cos = np.einsum("md,md->m", normals, towards_camera(camera, points[:, 0]))
+    facing = np.flatnonzero(cos > _FACING_COS)
+    sight = view_sight(camera, points[facing].reshape(-1, 3), np.repeat(normals[facing], 4, axis=0),
+                       zbuf, mask)
+    weight = np.zeros(len(faces))
+    weight[facing] = sight.weight.reshape(-1, 4).min(axis=1)
+    full = weight > 0
+    glimpsed = facing[~full[facing]]
+    weight[glimpsed] = GLIMPSE_WEIGHT * view_sight(camera, points[glimpsed, 0], normals[glimpsed],
+                                                   zbuf, mask, **GLIMPSE).weight
+    area_px = np.zeros(len(faces))
     u, v = sight.u.reshape(-1, 4)[:, 1:], sight.v.reshape(-1, 4)[:, 1:]
-    area_px = 0.5 * np.abs((u[:, 1] - u[:, 0]) * (v[:, 2] - v[:, 0])
-                           - (u[:, 2] - u[:, 0]) * (v[:, 1] - v[:, 0])) / (1 - CORNER_PULL) ** 2
-    return np.where(weight > 0, weight * np.nan_to_num(area_px), 0.0)
+    area_px[facing] = 0.5 * np.abs((u[:, 1] - u[:, 0]) * (v[:, 2] - v[:, 0])
+                                   - (u[:, 2] - u[:, 0]) * (v[:, 1] - v[:, 0])) / (1 - CORNER_PULL) ** 2
+    return np.where(weight > 0, weight * np.nan_to_num(area_px), 0.0), full
 
 
 def face_neighbours(faces: np.ndarray) -> np.ndarray:

@@ -1,10 +1,18 @@
 """A texture for a mesh from calibrated views: :func:`texture_mesh`.
 
-Each face takes its colour from one view (:mod:`.selection`: seen unhidden, frontal,
-near and sharp, neighbours from the same view where quality allows), the faces of a view
-make charts laid out as the view sees them (:mod:`.atlas`), the views' colours are
-levelled along the seams (:mod:`.levelling`), and every texel takes the colour its view
-shows at the texel's point of the face (bilinear). Texels around each chart repeat its
+Each face is given one view (:mod:`.selection`: seen unhidden, frontal, near and sharp,
+neighbours from the same view where quality allows), the faces of a view make charts laid
+out as the view sees them (:mod:`.atlas`), the views' colours are levelled along the
+seams (:mod:`.levelling`), and every texel takes the colour at the texel's point of the
+face (bilinear) in the views that see the face fully, blended, each weighted by its
+quality relative to the face's best view to the power :data:`BLEND_POWER` (from
+:data:`BLEND_MIN` of it) and times its
+gain (with ``blend_power`` None: the face's one view, plus the levelling's seam offsets).
+One view per face puts the detail of that view alone, sharp, but wherever the mesh departs
+from the surface by a fraction of a millimetre that detail lands off in other directions;
+the blend keeps what the best views agree on, as sharp on a true mesh (within 0.4 dB of
+one view on the tests' true meshes, doc/benchmarks.md) and 1.5 dB nearer held-out views
+on a reconstruction. Texels around each chart repeat its
 border's colours (``padding`` of them) so that filtering does not bleed across a seam;
 the rest of the atlas is the texture's mean colour. Faces no view sees (the underside
 on the plate) take colours interpolated from their corners, each corner's colour the mean
@@ -27,11 +35,38 @@ from ..meshing.colour import check_image, fill_from_neighbours
 from ..render import as_mesh_arrays
 from ..workers import map_in_threads
 from .atlas import Atlas, build_atlas
-from .levelling import bilinear, corner_colours, sample_image, seam_edges, view_gains
-from .selection import SMOOTHNESS, face_neighbours, face_quality, label_faces, sharpness
+from .levelling import (
+    bilinear,
+    corner_colours,
+    sample_image,
+    seam_edges,
+    seam_offsets,
+    view_gains,
+)
+from .selection import (
+    SMOOTHNESS,
+    face_neighbours,
+    face_quality,
+    face_samples,
+    label_faces,
+    sharpness,
+)
 
-__all__ = ["LEVELLING_BLUR_PX", "TexturedMesh", "texture_mesh"]
+__all__ = ["BLEND_MIN", "BLEND_POWER", "LEVELLING_BLUR_PX", "TEXELS_PER_PIXEL", "TexturedMesh",
+           "texture_mesh", "textured_from_labels"]
 
+#: Texels per pixel of a face's view along each side, by default: at 1 the texture is
+#: the views' pixels themselves, but a renderer's bilinear look-ups at a chart's border
+#: then mix in the texels of its padding; at 2 these are a quarter of the chart's area
+#: and the texture of a fine pattern comes 1.3-2.2 dB nearer held-out views
+#: (doc/reconstruct.md, the atlas).
+TEXELS_PER_PIXEL = 2.0
+#: Each texel is the blend of the views that see its face fully, each weighted by its
+#: quality relative to the face's best, to this power (None: the face's one view).
+BLEND_POWER = 1.0
+#: Views below this share of a face's best quality are not blended into it (they would
+#: add little for a sample each).
+BLEND_MIN = 0.25
 #: Standard deviation (pixels) of the Gaussian blur of the images the levelling compares.
 LEVELLING_BLUR_PX = 2.0
 
@@ -100,7 +135,7 @@ def _dilate(image: np.ndarray, filled: np.ndarray, steps: int) -> None:
 
 
 def _texels(atlas: Atlas, vertices, faces, labels, images, cameras, gains, offsets,
-            vertex_colour) -> np.ndarray:
+            vertex_colour, blend=None) -> np.ndarray:
     """(H, W, 3) float32 atlas: each texel of a face its view's colour at the texel's point,
     times the view's gain plus the interpolated seam offsets (``offsets`` (m, 3, 3)); of
     an unseen face, ``vertex_colour`` (n, 3) interpolated."""
@@ -115,8 +150,31 @@ def _texels(atlas: Atlas, vertices, faces, labels, images, cameras, gains, offse
         points = np.einsum("kc,kcd->kd", bary[mine], vertices[faces[face[mine]]])
         colour[mine] = (gains[view] * sample_image(images[view], cameras[view], points)
                         + np.einsum("kc,kcd->kd", bary[mine], offsets[face[mine]]))
+    if blend is not None:
+        _blend_views(colour, face, bary, vertices, faces, label, images, cameras, gains, blend)
     image[rows, cols] = colour
     return image
+
+
+def _blend_views(colour, face, bary, vertices, faces, label, images, cameras, gains,
+                 blend) -> None:
+    """Replace ``colour`` (k, 3) of texels of seen faces by the blend of every view with a
+    weight for their face (``blend`` (m, V), 0: not blended), each view's colour times its
+    gain."""
+    seen = label >= 0
+    total = np.zeros((int(seen.sum()), 3))
+    weight_sum = np.zeros(len(total))
+    index = np.flatnonzero(seen)
+    points = np.einsum("kc,kcd->kd", bary[index], vertices[faces[face[index]]])
+    for view in range(blend.shape[1]):
+        weight = blend[face[index], view]
+        mine = np.flatnonzero(weight > 0)
+        if mine.size:
+            total[mine] += weight[mine, None] * gains[view] * sample_image(
+                images[view], cameras[view], points[mine])
+            weight_sum[mine] += weight[mine]
+    blended = weight_sum > 0
+    colour[index[blended]] = total[blended] / weight_sum[blended, None]
 
 
 def _split_by_chart(faces: np.ndarray, atlas: Atlas, n_vertices: int) -> tuple:
@@ -127,41 +185,50 @@ def _split_by_chart(faces: np.ndarray, atlas: Atlas, n_vertices: int) -> tuple:
     return keys % n_vertices, inverse.reshape(-1, 3).astype(np.int64), uv
 
 
-def _levelled(images, cameras, vertices, faces, labels, seams, level: bool) -> tuple:
+def _levelled(images, cameras, vertices, faces, labels, seams, seen, level: bool,
+              offsets: bool = True) -> tuple:
     """The gains (V, 3), seam offsets (m, 3, 3) and vertex colours (n, 3) (seen or
-    interpolated) of :func:`texture_mesh`."""
+    interpolated) of :func:`texture_mesh`; ``seen`` (m, V) bool the faces each view sees;
+    without ``offsets`` (a blended texture) the seam offsets are zero."""
     # Exposure is what the views disagree on at a scale of pixels; finer detail that a
     # fraction of a pixel of misregistration changes is blurred away before comparing.
     smooth = [cv2.GaussianBlur(image, (0, 0), LEVELLING_BLUR_PX) for image in images]
-    gains = (view_gains(smooth, cameras, vertices, labels, seams) if level and len(seams)
-             else np.ones((len(cameras), 3)))
-    corner, vertex, views = corner_colours(smooth, cameras, gains, vertices, faces, labels)
-    offsets = np.zeros_like(corner)
-    if level:
-        meeting = (views[faces] >= 2) & (labels[:, None] >= 0)
-        offsets[meeting] = vertex[faces][meeting] - corner[meeting]
+    gains = (view_gains(images, cameras, vertices, faces, seen, labels, seams)
+             if level and len(seams) else np.ones((len(cameras), 3)))
+    # Glimpsed faces neither move the colours where views meet nor are moved.
+    compared = np.where(seen[np.arange(len(faces)), np.maximum(labels, 0)], labels, -1) \
+        if level else labels
+    corner, vertex, views = corner_colours(smooth, cameras, gains, vertices, faces, compared)
+    offsets = (seam_offsets(views, vertex, corner, faces, compared, len(cameras))
+               if level and offsets else np.zeros_like(corner))
     seen = views > 0
     if not seen.all():
         vertex = fill_from_neighbours(vertex, seen, faces)
     return gains, offsets, vertex
 
 
-def _qualities(vertices, faces, images, cameras, masks, closed: bool) -> np.ndarray:
-    """(m, V) quality of each view for each face (:mod:`.selection`), sharpness included."""
+def _qualities(vertices, faces, images, cameras, masks, closed: bool) -> tuple:
+    """(m, V) quality of each view for each face (:mod:`.selection`), sharpness included,
+    and (m, V) bool where the view sees the face fully (not a glimpse)."""
+    samples = face_samples(vertices, faces)
+
     def one(view):
         image, camera, mask = view
-        return face_quality(vertices, faces, camera, mask, closed=closed), sharpness(image, mask)
+        return (*face_quality(vertices, faces, camera, mask, closed=closed, samples=samples),
+                sharpness(image, mask))
 
     found = list(map_in_threads(one, zip(images, cameras, masks)))
-    sharp = np.array([s for _, s in found])
+    sharp = np.array([s for _, _, s in found])
     relative = sharp / sharp.max() if sharp.max() > 0 else np.ones_like(sharp)
-    return np.stack([q * r for (q, _), r in zip(found, relative)], axis=1)
+    return (np.stack([q * r for (q, _, _), r in zip(found, relative)], axis=1),
+            np.stack([full for _, full, _ in found], axis=1))
 
 
 def texture_mesh(vertices, faces, images: Sequence, cameras: Sequence[Camera], *,
                  masks: Sequence | None = None, closed: bool = False, level: bool = True,
-                 smoothness: float = SMOOTHNESS, texels_per_pixel: float = 1.0,
-                 max_size: int = 4096, padding: int = 2) -> TexturedMesh:
+                 smoothness: float = SMOOTHNESS, texels_per_pixel: float = TEXELS_PER_PIXEL,
+                 max_size: int = 4096, padding: int = 2,
+                 blend_power: float | None = BLEND_POWER) -> TexturedMesh:
     """Texture a closed mesh from the views that see it (module docstring).
 
     Parameters
@@ -178,9 +245,12 @@ def texture_mesh(vertices, faces, images: Sequence, cameras: Sequence[Camera], *
     smoothness : float >= 0
         Cost of a seam against a face's quality (:func:`.selection.label_faces`).
     texels_per_pixel : float > 0
-        Texels per pixel of a face's view (1: the views' pixels per metre on the object).
+        Texels per pixel of a face's view (1: the views' pixels per metre on the object;
+        default :data:`TEXELS_PER_PIXEL`).
     max_size, padding : int
         Largest side of the atlas and texels between charts, each side.
+    blend_power : float or None
+        Weights of the views blended into each texel (module docstring); None: one view.
 
     Returns
     -------
@@ -193,28 +263,59 @@ def texture_mesh(vertices, faces, images: Sequence, cameras: Sequence[Camera], *
                          f"images and {len(cameras)} cameras")
     masks = [None] * len(cameras) if masks is None else validate_masks(cameras, masks)
     images = [check_image(i, image, c) for i, (image, c) in enumerate(zip(images, cameras))]
-    seconds, start = {}, time.perf_counter()
-    quality = _qualities(vertices, faces, images, cameras, masks, closed)
+    start = time.perf_counter()
+    quality, full = _qualities(vertices, faces, images, cameras, masks, closed)
     neighbours = face_neighbours(faces)
     labels, sweeps = label_faces(quality, neighbours, smoothness=smoothness)
     if (labels < 0).all():
         raise ValueError("no face is seen by any view: check the cameras and the mesh")
-    seconds["selection"] = time.perf_counter() - start
+    selection_s = time.perf_counter() - start
+    blend = None
+    if blend_power is not None:
+        best = np.maximum(quality.max(axis=1, keepdims=True), 1e-300)
+        relative = quality / best
+        blend = np.where(full & (relative >= BLEND_MIN), relative ** blend_power, 0.0)
+    textured = textured_from_labels(vertices, faces, labels, neighbours, images, cameras,
+                                    seen=full, level=level, blend=blend, texels_per_pixel=texels_per_pixel,
+                                    max_size=max_size, padding=padding)
+    textured.stats.update(labelling_sweeps=int(sweeps), smoothness=float(smoothness))
+    textured.stats["seconds"] = {"selection": selection_s, **textured.stats["seconds"]}
+    return textured
+
+
+def textured_from_labels(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray,
+                         neighbours: np.ndarray, images: Sequence, cameras: Sequence[Camera], *,
+                         seen: np.ndarray | None = None, level: bool = True,
+                         blend: np.ndarray | None = None,
+                         texels_per_pixel: float = TEXELS_PER_PIXEL,
+                         max_size: int = 4096, padding: int = 2) -> TexturedMesh:
+    """The atlas, levelling and texels of :func:`texture_mesh` for faces whose views are
+    chosen: ``labels`` (m,) int64 (-1: none), ``neighbours`` (m, 3)
+    (:func:`.selection.face_neighbours`); ``vertices`` (n, 3) float64, ``faces`` (m, 3)
+    int64 checked, ``images`` (H, W, 3) uint8 each its camera's size; ``seen`` (m, V)
+    bool the faces each view sees fully (:func:`.selection.face_quality`; needed to
+    ``level``: the views are compared on those faces only); ``blend`` (m, V) the weight of
+    each view in each face's texels (0: none; None: the face's one view, with the seam
+    offsets); the other arguments as there."""
+    if level and seen is None:
+        raise ValueError("levelling needs the faces each view sees (seen)")
+    seconds, start = {}, time.perf_counter()
     atlas = build_atlas(vertices, faces, labels, neighbours, cameras,
                         texels_per_pixel=texels_per_pixel, max_size=max_size, padding=padding)
-    seconds["atlas"] = time.perf_counter() - start - sum(seconds.values())
+    seconds["atlas"] = time.perf_counter() - start
     floats = [image.astype(np.float32) for image in images]
     seams = seam_edges(faces, labels, neighbours)
-    gains, offsets, vertex = _levelled(floats, cameras, vertices, faces, labels, seams, level)
+    gains, offsets, vertex = _levelled(floats, cameras, vertices, faces, labels, seams, seen,
+                                       level, offsets=blend is None)
     seconds["levelling"] = time.perf_counter() - start - sum(seconds.values())
-    image = _texels(atlas, vertices, faces, labels, floats, cameras, gains, offsets, vertex)
+    image = _texels(atlas, vertices, faces, labels, floats, cameras, gains, offsets, vertex,
+                    blend)
     claimed = atlas.face_index >= 0
     _dilate(image, claimed.copy(), int(padding))
     source, new_faces, uv = _split_by_chart(faces, atlas, len(vertices))
     seconds["texels"] = time.perf_counter() - start - sum(seconds.values())
     stats = {"faces": int(len(faces)), "views": len(cameras), "unseen_faces": int((labels < 0).sum()),
              "charts": int(atlas.chart.max()) + 1, "seam_edges": int(len(seams)),
-             "labelling_sweeps": int(sweeps), "smoothness": float(smoothness),
              "atlas_size": [int(atlas.shape[1]), int(atlas.shape[0])],
              "atlas_use": float(claimed.mean()), "texels_per_pixel": atlas.texels_per_pixel,
              "levelled": bool(level), "gains": np.round(gains, 4).tolist(),

@@ -1,0 +1,95 @@
+"""The textured model from the cell: the carving and meshing nodes as separate OS processes,
+a scan of the mug painted with a fine pattern sent as masks, joint states and captured
+images; ``reconstruct_mesh`` asked for a texture answers with the mesh and names the
+textured model, made after the answer."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import test_carving_meshing_nodes as carving_meshing
+import trimesh
+from sensor_msgs.msg import Image
+from test_carving_meshing_nodes import PLAN, RIG, Cell, _stamp
+
+from sfs_ros.core.geometry.rig import rig_camera
+from sfs_ros.core.render import rasterize_silhouette
+from sfs_ros.core.simulation.objects import fine_color_at
+from sfs_ros.core.simulation.synthetic import simulate_scan
+from sfs_ros.ros import capture_qos
+from sfs_ros.ros.cell_client import mesh_summary, wait_for_product
+from sfs_ros.ros.convert import image_to_msg
+from sfs_ros.ros.names import TYPED_SERVICES
+from sfs_ros_interfaces.srv import Reconstruct
+
+#: That module's fixtures: the mug, the output folder, the nodes' parameters.
+mug, out_dir, params_file = carving_meshing.mug, carving_meshing.out_dir, carving_meshing.params_file
+
+#: The textured model may take this long after the answer on a loaded 2-core machine
+#: (a second or two on a quiet one).
+TEXTURE_TIMEOUT_S = 240.0
+RECONSTRUCT_TIMEOUT_S = 240.0
+
+
+class TexturingCell(Cell):
+    """:class:`Cell` that also publishes the captured images and asks ``reconstruct_mesh``."""
+
+    def __init__(self, params_file):
+        super().__init__(params_file)
+        node = self.probe.node
+        self.image_pub = node.create_publisher(Image, "capture/image", capture_qos(100))
+        self.typed = node.create_client(Reconstruct, TYPED_SERVICES["reconstruct_mesh"])
+        self.probe.spin_until(self.typed.service_is_ready, what="reconstruct_mesh",
+                              process=self.process)
+        self.probe.spin_until(lambda: self.image_pub.get_subscription_count() > 0,
+                              what="the carving node's capture/image subscription",
+                              process=self.process)
+
+    def reconstruct(self, **fields) -> Reconstruct.Response:
+        future = self.typed.call_async(Reconstruct.Request(**fields))
+        self.probe.spin_until(future.done, timeout=RECONSTRUCT_TIMEOUT_S,
+                              what="reconstruct_mesh answer", process=self.process)
+        return future.result()
+
+
+@pytest.fixture(scope="module")
+def cell(start_node_for_module, params_file):
+    return start_node_for_module(TexturingCell, params_file)
+
+
+@pytest.fixture(scope="module")
+def painted(mug):
+    """The mug painted with :func:`fine_color_at`, at the planned angles (no error)."""
+    return simulate_scan(mug, RIG, PLAN, seed=2, surface_color=fine_color_at, ambient=1.0,
+                         angle_error_rad=0.0)
+
+
+def test_reconstruct_names_the_textured_model_and_writes_it_after(cell, painted, mug, out_dir):
+    for i, capture in enumerate(painted):
+        stamp = _stamp(i)
+        mask = rasterize_silhouette(mug.mesh.vertices, mug.mesh.faces,
+                                    rig_camera(capture.theta_rad, capture.phi_rad, RIG))
+        cell.image_pub.publish(image_to_msg(capture.image, stamp=stamp,
+                                            frame_id="camera_optical", encoding="rgb8"))
+        cell.send(stamp, mask, capture.theta_rad, capture.phi_rad)
+    cell.wait_values(f"{len(PLAN)} carved views", scan_views=len(PLAN), carved=len(PLAN))
+    answer = cell.reconstruct(texture="yes", colour="no", output_name="painted.ply")
+    assert answer.success, answer.message
+    summary = mesh_summary(answer)
+    # The images came for the texture alone: the mesh is not coloured.
+    assert summary["coloured_from_views"] == 0
+    textured = Path(answer.textured_path)
+    assert textured.name == "painted.textured.glb"
+    assert textured.parent == Path(answer.mesh_path).parent
+    assert textured.resolve().is_relative_to(out_dir.resolve())
+    assert wait_for_product(summary, timeout_s=TEXTURE_TIMEOUT_S) == textured
+    model = trimesh.load(textured, force="mesh", process=False)
+    assert model.visual.kind == "texture"
+    atlas = np.asarray(model.visual.material.baseColorTexture.convert("RGB"))
+    assert min(atlas.shape[:2]) >= 64
+    # The pattern's channels swing over [30, 200]: the atlas is no flat colour.
+    assert atlas.reshape(-1, 3).std(axis=0).min() > 20
+    report = json.loads(Path(answer.report_path).read_text())
+    assert report["textured_path"] == str(textured)
+    assert report["texture"]["faces"] == answer.n_faces == len(model.faces)
