@@ -145,7 +145,7 @@ def test_errors_name_what_is_wrong(tmp_path, cup_session, capsys):
             (far, [], "the mesh lies outside the views: 0 % of its vertices"),
             (millimetres, [], "is it in the views' object frame and unit?"),
             (tmp_path / "missing.ply", [], "is not a file"),
-            (far, ["-o", str(tmp_path / "out.ply")], "must end in .glb or .obj")]:
+            (far, ["-o", str(tmp_path / "out.ply")], "must end in .obj or .glb")]:
         assert texture_main([str(session), str(mesh), "-o", out, *options]) == 2
         assert message in capsys.readouterr().err
     assert not (tmp_path / "out.glb").exists()

@@ -28,7 +28,7 @@ PROG = "sfs-texture"
 
 def build_parser() -> argparse.ArgumentParser:
     from ..core.exchange.export import SUPPORTED_SUFFIXES, TEXTURED_SUFFIXES
-    from ..core.meshing.colour import MAX_COLOUR_VIEWS
+    from ..core.settings import MAX_COLOUR_VIEWS
     from .common import accepted_inputs
 
     p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])

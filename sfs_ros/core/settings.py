@@ -19,7 +19,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["BOUNDS_M", "COLOUR", "MAX_MEMORY", "RESOLUTION", "Setting"]
+__all__ = ["BOUNDS_M", "COLOUR", "MAX_COLOUR_VIEWS", "MAX_MEMORY", "RESOLUTION", "Setting"]
 
 
 @dataclass(frozen=True)
@@ -126,3 +126,9 @@ MAX_MEMORY = Setting(
     "that needs more is refused, a grid from the pixel footprint is coarsened to fit.",
     str, "--max-memory", metavar="SIZE", cell_default="",
     default_text="a quarter of the machine's memory")
+#: Most views a mesh is coloured or textured from (spread over the directions:
+#: :func:`sfs_ros.core.meshing.colour.spread_views`). A vertex takes colour from the views
+#: within 78 degrees of its normal; 24 views spread over a hemisphere, some 30 degrees
+#: apart, leave about eight of them to each vertex, which the view-angle weights blend:
+#: more views cost a z-buffer each and change the blend little.
+MAX_COLOUR_VIEWS = 24

@@ -48,6 +48,7 @@ from scipy.sparse.linalg import splu
 from ..carving.carve import validate_masks
 from ..geometry.camera import Camera
 from ..render import as_mesh_arrays, rasterize_depth
+from ..settings import MAX_COLOUR_VIEWS
 from ..workers import map_in_threads
 
 __all__ = ["MAX_COLOUR_VIEWS", "VertexColours", "ViewSight", "check_image", "fill_from_neighbours",
@@ -59,12 +60,6 @@ __all__ = ["MAX_COLOUR_VIEWS", "VertexColours", "ViewSight", "check_image", "fil
 DEPTH_STEP_FOOTPRINTS = 4.0
 #: Distance (pixels) to an edge pixel below which the edge ramp is zero.
 EDGE_MARGIN_PX = 1.5
-#: Most views a reconstruction colours its mesh from (:func:`spread_views` picks them). A
-#: vertex takes colour from the views within 78 degrees of its normal (the default
-#: ``min_cos``); 24 views spread over a hemisphere, some 30 degrees apart, leave about
-#: eight of them to each vertex, which the view-angle weights blend: more views cost a
-#: z-buffer each and change the blend little.
-MAX_COLOUR_VIEWS = 24
 
 
 @dataclass(frozen=True)
