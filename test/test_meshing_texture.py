@@ -1,7 +1,8 @@
-"""The textured model from the cell: the carving and meshing nodes as separate OS processes,
-a scan of the mug painted with a fine pattern sent as masks, joint states and captured
-images; ``reconstruct_mesh`` asked for a texture answers with the mesh and names the
-textured model, made after the answer."""
+"""The products after the answer from the cell: the carving and meshing nodes as separate OS
+processes, a scan of the mug painted with a fine pattern sent as masks, joint states and
+captured images; ``reconstruct_mesh`` asked for a texture (or the refinement below the
+hull) answers with the mesh and names the textured model (the refined mesh), made after
+the answer."""
 
 import json
 from pathlib import Path
@@ -11,16 +12,21 @@ import pytest
 import test_carving_meshing_nodes as carving_meshing
 import trimesh
 from sensor_msgs.msg import Image
-from test_carving_meshing_nodes import PLAN, RIG, Cell, _stamp
+from test_carving_meshing_nodes import PLAN, RESOLUTION, RIG, Cell, _stamp
 
+from sfs_ros.cell.live import LiveReconstruction
+from sfs_ros.core.exchange.export import load_mesh, mesh_bytes
 from sfs_ros.core.geometry.rig import rig_camera
+from sfs_ros.core.mesh_scan import mesh_scan
+from sfs_ros.core.refinement import refine_carved_scan
 from sfs_ros.core.render import rasterize_silhouette
 from sfs_ros.core.simulation.objects import fine_color_at
-from sfs_ros.core.simulation.synthetic import simulate_scan
+from sfs_ros.core.simulation.synthetic import carving_box, simulate_scan
 from sfs_ros.ros import capture_qos
 from sfs_ros.ros.cell_client import mesh_summary, wait_for_product
 from sfs_ros.ros.convert import image_to_msg
 from sfs_ros.ros.names import TYPED_SERVICES
+from sfs_ros.ros.pairing import view_key
 from sfs_ros_interfaces.srv import Reconstruct
 
 #: That module's fixtures: the mug, the output folder, the nodes' parameters.
@@ -65,15 +71,27 @@ def painted(mug):
                          angle_error_rad=0.0)
 
 
-def test_reconstruct_names_the_textured_model_and_writes_it_after(cell, painted, mug, out_dir):
-    for i, capture in enumerate(painted):
+@pytest.fixture(scope="module")
+def masks(painted, mug):
+    return [rasterize_silhouette(mug.mesh.vertices, mug.mesh.faces,
+                                 rig_camera(capture.theta_rad, capture.phi_rad, RIG))
+            for capture in painted]
+
+
+@pytest.fixture(scope="module")
+def scanned(cell, painted, masks):
+    """The painted scan sent to the nodes: masks, joint states and captured images."""
+    for i, (capture, mask) in enumerate(zip(painted, masks)):
         stamp = _stamp(i)
-        mask = rasterize_silhouette(mug.mesh.vertices, mug.mesh.faces,
-                                    rig_camera(capture.theta_rad, capture.phi_rad, RIG))
         cell.image_pub.publish(image_to_msg(capture.image, stamp=stamp,
                                             frame_id="camera_optical", encoding="rgb8"))
         cell.send(stamp, mask, capture.theta_rad, capture.phi_rad)
     cell.wait_values(f"{len(PLAN)} carved views", scan_views=len(PLAN), carved=len(PLAN))
+    return cell
+
+
+def test_reconstruct_names_the_textured_model_and_writes_it_after(scanned, out_dir):
+    cell = scanned
     answer = cell.reconstruct(texture="yes", colour="no", output_name="painted.ply")
     assert answer.success, answer.message
     summary = mesh_summary(answer)
@@ -93,3 +111,33 @@ def test_reconstruct_names_the_textured_model_and_writes_it_after(cell, painted,
     report = json.loads(Path(answer.report_path).read_text())
     assert report["textured_path"] == str(textured)
     assert report["texture"]["faces"] == answer.n_faces == len(model.faces)
+
+
+def test_reconstruct_names_the_refined_mesh_and_writes_the_librarys_after(scanned, painted,
+                                                                         masks, mug, tmp_path):
+    """The refined mesh the meshing node writes after its answer, from the images it held
+    as the views were stored, is the one the library makes of the same views and images in
+    one process (carving as the carving node does, refining, meshing), byte for byte."""
+    answer = scanned.reconstruct(refine="yes", colour="no", output_name="carved.ply")
+    assert answer.success, answer.message
+    summary = mesh_summary(answer)
+    refined = Path(answer.refined_mesh_path)
+    assert refined.name == "carved.refined.ply" and not answer.textured_path
+    assert wait_for_product(summary, "refined_mesh_path",
+                            timeout_s=TEXTURE_TIMEOUT_S) == refined
+    live = LiveReconstruction(RIG, carving_box(mug), output_dir=tmp_path,
+                              resolution=RESOLUTION)
+    for i, (capture, mask) in enumerate(zip(painted, masks)):
+        key = view_key(_stamp(i))
+        live.add_view(key, mask, capture.theta_rad, capture.phi_rad)
+        live.add_colour_image(key, capture.image)
+    images = dict(live.colour_image(view_key(_stamp(i))) for i in range(len(painted)))
+    expected = mesh_scan(refine_carved_scan(live.carve(colour=False), images))
+    assert refined.read_bytes() == mesh_bytes(expected.vertices, expected.faces, refined)
+    report = json.loads(Path(answer.report_path).read_text())
+    assert report["refined_mesh_path"] == str(refined)
+    assert report["refinement"]["applied"]
+    # Below the hull: the refinement only removes voxels.
+    hull_vertices, hull_faces = load_mesh(answer.mesh_path)
+    volume = report["refined_mesh"]["volume_m3"]
+    assert 0 < volume <= trimesh.Trimesh(hull_vertices, hull_faces).volume

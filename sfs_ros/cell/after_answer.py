@@ -1,13 +1,15 @@
 """Products of a reconstruction made after its answer: named in the answer, made later.
 
 A reconstruction answers as soon as the mesh and its report are written. A product
-that takes longer (the textured model) is a :class:`Product`: its path is fixed before
+that takes longer (the textured model, the mesh refined below the hull) is a
+:class:`Product`: its path is fixed before
 the answer, which names it; :func:`make_product` is run after the answer, writes it and
 then the report again, naming it under the product's key (so a reader that finds the key
 in the report finds the file). A caller polls the report for the key
 (:func:`sfs_ros.ros.cell_client.wait_for_product`). Output names, beside the mesh::
 
     <stem>.textured.glb   # the mesh with its texture atlas (binary glTF)
+    <stem>.refined<suffix>   # the mesh refined below the hull, in the mesh's format
 """
 
 from __future__ import annotations
@@ -17,16 +19,20 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from ..core.exchange.export import textured_mesh_files
+from ..core.exchange.export import mesh_bytes, textured_mesh_files
 from ..core.exchange.files import write_atomic_all
+from ..core.mesh_scan import mesh_scan
+from ..core.refinement import refine_carved_scan
 from ..core.texture.from_views import texture_carved_scan
 from .paths import confined_path
 
-__all__ = ["TEXTURED_SUFFIX", "Product", "make_product", "product_path", "textured_model",
-           "without_colour"]
+__all__ = ["REFINED_STEM", "TEXTURED_SUFFIX", "Product", "make_product", "product_path",
+           "refined_model", "textured_model", "without_colour"]
 
 #: What the textured model's name adds to the mesh's stem.
 TEXTURED_SUFFIX = ".textured.glb"
+#: What the refined mesh's name adds to the mesh's stem (before the mesh's own suffix).
+REFINED_STEM = ".refined"
 
 
 @dataclass(frozen=True)
@@ -66,6 +72,43 @@ def textured_model(carved, result, output_dir, report_path) -> Product:
         return {"texture": textured.stats}
 
     return Product(key="textured_path", path=path, make=make)
+
+
+def refined_model(carved, images: dict, output_dir, report_path, mesh_path,
+                  on_mesh: Callable | None = None) -> Product:
+    """The mesh of ``carved`` refined below its hull from the views' colours
+    (:func:`sfs_ros.core.refinement.refine_carved_scan`, then meshed, coloured when
+    ``carved`` colours its mesh) as a product: ``<stem>.refined<suffix>`` beside the mesh
+    ``mesh_path``, in its format; ``on_mesh(vertices, faces, vertex colours or None)`` is
+    called once it is written (to publish it).
+
+    images : {view name: (H, W, 3) uint8 RGB on the view's ideal camera}, of every view
+        the hull was carved with (the carving node's ``view_image`` of each view, or the
+        images the carved scan carries); ValueError at once, naming how many are missing.
+    """
+    used = [view.name for view in carved.views if view.role == "used"]
+    missing = [name for name in used if name not in images]
+    if missing:
+        raise ValueError(f"no refined mesh: the images of {len(missing)} of the {len(used)} "
+                         f"views used are not held here (first {missing[0]}): a meshing node "
+                         "started during the scan, or images given up to held_images_mb")
+    suffix = Path(mesh_path).suffix.lower()
+    path = product_path(output_dir, report_path, REFINED_STEM + suffix)
+    root = Path(output_dir).resolve()
+
+    def make() -> dict:
+        refined = mesh_scan(refine_carved_scan(carved, images))
+        write_atomic_all([(path, mesh_bytes(refined.vertices, refined.faces, path,
+                                            vertex_colors=refined.vertex_colors))], within=root)
+        if on_mesh is not None:
+            on_mesh(refined.vertices, refined.faces, refined.vertex_colors)
+        report = refined.report
+        return {"refinement": report["refinement"],
+                "refined_mesh": {**{k: report["mesh"][k] for k in ("n_vertices", "n_faces",
+                                                                   "watertight", "volume_m3")},
+                                 "seconds": report["timings_s"]["refinement"]}}
+
+    return Product(key="refined_mesh_path", path=path, make=make)
 
 
 def without_colour(carved):

@@ -38,6 +38,7 @@ class MeshOptions:
     output_name : str, a file name in the output folder (with its suffix)
     wait_for_pictures : bool, answer once the pictures are written too
     texture : bool, make the textured model after the answer
+    refine : bool, make the mesh refined below the hull after the answer
     """
 
     resolution: int | None = None
@@ -47,11 +48,13 @@ class MeshOptions:
     output_name: str | None = None
     wait_for_pictures: bool = False
     texture: bool | None = None
+    refine: bool | None = None
 
 
 def mesh_options(output_dir, *, resolution: int = 0, bounds_m=(), mesher: str = "",
                  colour: str = "", output_name: str = "",
-                 wait_for_pictures: bool = False, texture: str = "") -> MeshOptions:
+                 wait_for_pictures: bool = False, texture: str = "",
+                 refine: str = "") -> MeshOptions:
     """:class:`MeshOptions` of a request's fields (0, empty = the node's setting);
     ValueError naming the field that is wrong and what was expected.
 
@@ -59,7 +62,7 @@ def mesh_options(output_dir, *, resolution: int = 0, bounds_m=(), mesher: str = 
     ``output_name``: a file name ending in a suffix of
     :data:`sfs_ros.core.exchange.export.MESH_FORMATS`, no folders, written inside
     ``output_dir``.
-    ``colour`` and ``texture``: "yes" or "no".
+    ``colour``, ``texture`` and ``refine``: "yes" or "no".
     """
     low, high = RESOLUTION.bounds
     if resolution and not low <= resolution <= high:
@@ -77,13 +80,13 @@ def mesh_options(output_dir, *, resolution: int = 0, bounds_m=(), mesher: str = 
     if mesher and mesher not in MESHER.choices():
         raise ValueError(f"mesher {mesher!r} is not one of {', '.join(MESHER.choices())} "
                          "(empty = the node's)")
-    if colour.lower() not in COLOUR_CHOICES:
-        raise ValueError(f"colour {colour!r} is not 'yes' or 'no' (empty = the node's)")
-    if texture.lower() not in COLOUR_CHOICES:
-        raise ValueError(f"texture {texture!r} is not 'yes' or 'no' (empty = the node's)")
+    for name, value in (("colour", colour), ("texture", texture), ("refine", refine)):
+        if value.lower() not in COLOUR_CHOICES:
+            raise ValueError(f"{name} {value!r} is not 'yes' or 'no' (empty = the node's)")
     if output_name:
         plain_file_name(Path(output_dir), output_name, suffixes=SUPPORTED_SUFFIXES)
     return MeshOptions(resolution=resolution or None, bounds_m=box, mesher=mesher or None,
                        colour=COLOUR_CHOICES[colour.lower()], output_name=output_name or None,
                        wait_for_pictures=bool(wait_for_pictures),
-                       texture=COLOUR_CHOICES[texture.lower()])
+                       texture=COLOUR_CHOICES[texture.lower()],
+                       refine=COLOUR_CHOICES[refine.lower()])

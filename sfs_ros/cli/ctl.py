@@ -5,7 +5,7 @@
     sfs-ctl rig apply FILE
     sfs-ctl cancel | home | status [--follow]
     sfs-ctl reconstruct [--resolution N] [--mesher M] [--output NAME] [--no-colour] [--texture]
-                        [--wait-pictures]
+                        [--refine] [--wait-pictures]
     sfs-ctl param get NODE NAME | param set NODE NAME VALUE
 
 Through the typed interfaces (:class:`sfs_ros.ros.cell_client.CellClient`): ``scan``
@@ -79,6 +79,9 @@ def build_parser() -> argparse.ArgumentParser:
     rec.add_argument("--no-colour", action="store_true", help="no vertex colours")
     rec.add_argument("--texture", action="store_true", help="also a textured model "
                      "(<stem>.textured.glb), made after the answer, which names it")
+    rec.add_argument("--refine", action="store_true", help="also the mesh refined below the "
+                     "hull from the views' colours (<stem>.refined<suffix>), made after the "
+                     "answer, which names it")
     rec.add_argument("--wait-pictures", action="store_true", help="answer once the picture, "
                      "viewer and contact sheet are written too")
     param = sub.add_parser("param", help="get or set a node's parameter")
@@ -176,13 +179,16 @@ def _status(client, args) -> int:
 
 def _reconstruct(client, args) -> int:
     options = dict(resolution=args.resolution, mesher=args.mesher, output_name=args.output,
-                   colour="no" if args.no_colour else "", texture="yes" if args.texture else "")
+                   colour="no" if args.no_colour else "", texture="yes" if args.texture else "",
+                   refine="yes" if args.refine else "")
     summary = client.reconstruct(ANSWER_S * 20, pictures=args.wait_pictures, **options)
     print(f"{summary['mesh_path']}: {summary['n_vertices']} vertices, {summary['n_faces']} "
           f"faces, watertight {summary['watertight']}, {summary['views_used']} views used, "
           f"{summary['seconds']:.2f} s")
     if summary["textured_path"]:
         print(f"textured model to follow: {summary['textured_path']}")
+    if summary["refined_mesh_path"]:
+        print(f"refined mesh to follow: {summary['refined_mesh_path']}")
     return 0
 
 

@@ -36,7 +36,11 @@ products after the answer (:mod:`sfs_ros.cell.after_answer`): with ``texture`` (
 request's, else the node's parameter) the textured model ``<stem>.textured.glb``, from
 the images the carving node sends to colour the mesh (asked for even when the mesh is not
 coloured), whose path the answer names (``textured_path``) and the report names once it
-is written; empty when there are no images to texture from.
+is written; empty when there are no images to texture from. With ``refine`` the mesh
+refined below the hull from the views' colours, ``<stem>.refined<suffix>``
+(``refined_mesh_path``), from the images held and carried, then published on ``mesh`` and
+``mesh_shape`` in the hull's place; it takes the worker for seconds to a minute, so a
+next request waits for it (hence off by default).
 ``shape_msgs/Mesh`` has no header: its vertices are in the turntable frame, the ``mesh``
 marker's ``frame_id``. ``mesh``, ``mesh_shape`` and ``~/status``: reliable, transient
 local, depth 1 (:func:`sfs_ros.ros.result_qos`).
@@ -65,7 +69,12 @@ from shape_msgs.msg import Mesh
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker
 
-from sfs_ros.cell.after_answer import make_product, textured_model, without_colour
+from sfs_ros.cell.after_answer import (
+    make_product,
+    refined_model,
+    textured_model,
+    without_colour,
+)
 from sfs_ros.cell.held_images import HeldImages
 from sfs_ros.cell.mesh_files import write_mesh
 from sfs_ros.cell.mesh_options import MeshOptions, mesh_options
@@ -106,6 +115,9 @@ PARAMS: list[Param] = [
     Param("texture", False, "Also make a textured model (<mesh stem>.textured.glb) from the "
           "captured images, after the answer, which names it (a request's texture left "
           "empty).", read_only=True),
+    Param("refine", False, "Also make the mesh refined below the hull from the views' "
+          "colours (<mesh stem>.refined<suffix>), after the answer, which names it; then "
+          "published in the hull's place (a request's refine left empty).", read_only=True),
     Param("display_triangles", 10000, "Most triangles of the mesh marker (a simplified "
           "copy by vertex clustering, 40 bytes a corner with its colour: 10 000 make 1.2 MB); "
           "the file and mesh_shape keep the full mesh.", bounds=(100, 10_000_000),
@@ -221,7 +233,8 @@ class MeshingNode(Node):
                 self._output_dir, resolution=request.resolution,
                 bounds_m=list(request.bounds_m), mesher=request.mesher,
                 colour=request.colour, output_name=request.output_name,
-                wait_for_pictures=request.wait_for_pictures, texture=request.texture)
+                wait_for_pictures=request.wait_for_pictures, texture=request.texture,
+                refine=request.refine)
         except ValueError as exc:
             response.success, response.message = False, f"request refused: {exc}"
             return response
@@ -241,7 +254,8 @@ class MeshingNode(Node):
         if isinstance(carved, str):
             return self._failed(carved)
         try:
-            answer = self._worker.submit(lambda: self._mesh(carved, options, held),
+            answer = self._worker.submit(lambda: self._mesh(carved, options, held_session,
+                                                            held),
                                          name="mesh").result()
         except Exception as exc:  # noqa: BLE001 -- the worker reported it; the caller gets it
             answer = False, internal_error("mesh", exc), None
@@ -278,6 +292,9 @@ class MeshingNode(Node):
     def _texture(self, options: MeshOptions) -> bool:
         return options.texture if options.texture is not None else self._values["texture"]
 
+    def _refine(self, options: MeshOptions) -> bool:
+        return options.refine if options.refine is not None else self._values["refine"]
+
     def _release_after_answer(self) -> None:
         """Timer (services group), once the ``reconstruct`` answer is sent: the worker may
         start the jobs that follow it."""
@@ -288,10 +305,12 @@ class MeshingNode(Node):
 
     # -- worker thread ---------------------------------------------------------------------------
 
-    def _mesh(self, msg, options: MeshOptions, held: dict) -> tuple[bool, str, dict | None]:
-        """Mesh a carved scan message (``held``: the images it leaves out) and write the
-        files; the messages, the pictures and the products (the textured model) are queued
-        to follow the answer."""
+    def _mesh(self, msg, options: MeshOptions, held_session: str,
+              held: dict) -> tuple[bool, str, dict | None]:
+        """Mesh a carved scan message (``held``: the images of the scan ``held_session``,
+        those it leaves out among them) and write the files; the messages, the pictures
+        and the products (the textured model, the refined mesh) are queued to follow the
+        answer."""
         try:
             carved, hand_over = carved_scan_from_msg(msg, held)
             # Images asked for the texture alone do not colour the mesh.
@@ -301,14 +320,15 @@ class MeshingNode(Node):
         except (ValueError, OSError) as exc:
             return self._failed(f"reconstruction failed: {exc}")
         summary = made.summary
-        held = sum(msg.views[i].image_held for i in msg.colour_views)
-        products = self._products(carved, made, options)
-        summary["textured_path"] = next((str(p.path) for p in products
-                                         if p.key == "textured_path"), "")
+        n_held = sum(msg.views[i].image_held for i in msg.colour_views)
+        images = held if held_session == msg.session_dir else {}
+        products = self._products(carved, made, options, images)
+        for key in ("textured_path", "refined_mesh_path"):
+            summary[key] = next((str(p.path) for p in products if p.key == key), "")
         with self._stats_lock:
             self._counts["reconstructions"] += 1
-            self._counts["images_held"] = held
-            self._counts["images_carried"] = len(msg.colour_views) - held
+            self._counts["images_held"] = n_held
+            self._counts["images_carried"] = len(msg.colour_views) - n_held
             self._mesh_path, self._session_dir = summary["path"], summary["session"]
             self._problem = ""
         self.get_logger().info(f"mesh written to {summary['path']} ({summary['views_used']} "
@@ -330,17 +350,34 @@ class MeshingNode(Node):
                                 name=product.key)
         return True, json.dumps(summary), summary
 
-    def _products(self, carved, made, options: MeshOptions) -> list:
+    def _products(self, carved, made, options: MeshOptions, held: dict) -> list:
         """The products to make after the answer (:mod:`sfs_ros.cell.after_answer`); one
-        that cannot be made is reported and left out (the mesh is out)."""
-        if not self._texture(options):
-            return []
-        try:
-            return [textured_model(carved, made.result, self._output_dir,
-                                   made.summary["report_path"])]
-        except ValueError as exc:
-            self._report_problem(f"{exc}; the mesh {made.summary['path']} is written")
-            return []
+        that cannot be made is reported and left out (the mesh is out). ``held``: the
+        images of this scan's views held here."""
+        summary, products = made.summary, []
+        if self._texture(options):
+            try:
+                products.append(textured_model(carved, made.result, self._output_dir,
+                                               summary["report_path"]))
+            except ValueError as exc:
+                self._report_problem(f"{exc}; the mesh {summary['path']} is written")
+        if self._refine(options):
+            carried = {carved.views[i].name: image
+                       for i, image in zip(carved.colour_views, carved.colour_images)}
+            meshed = carved if self._colour(options) else without_colour(carved)
+            try:
+                products.append(refined_model(meshed, {**held, **carried}, self._output_dir,
+                                              summary["report_path"], summary["path"],
+                                              on_mesh=self._publish_refined))
+            except ValueError as exc:
+                self.get_logger().warning(f"{exc}; the hull's mesh {summary['path']} is "
+                                          "written")
+        return products
+
+    def _publish_refined(self, vertices, faces, colours) -> None:
+        """The refined mesh on ``mesh`` and ``mesh_shape``, in the hull's place."""
+        self._publish_marker(vertices, faces, colours)
+        self._publish_shape(vertices, faces)
 
     def _make_product(self, product, report_path: str) -> None:
         try:
@@ -349,8 +386,7 @@ class MeshingNode(Node):
             self._report_problem(f"{product.path} not written (the mesh and its report "
                                  f"are): {exc}")
             return
-        self.get_logger().info(f"{product.key.removesuffix('_path')} model written to "
-                               f"{product.path}")
+        self.get_logger().info(f"{product.path.name} written after the answer")
 
     def _write_pictures(self, pictures_due, mesh_path: str) -> None:
         try:

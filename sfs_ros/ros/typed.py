@@ -55,6 +55,7 @@ def fill_reconstruct_response(response, summary: dict, *, frame_id: str):
     response.html_path = summary["html_path"]
     response.contact_sheet_path = summary["contact_sheet_path"]
     response.textured_path = summary.get("textured_path", "")
+    response.refined_mesh_path = summary.get("refined_mesh_path", "")
     response.frame_id = frame_id
     response.session_dir = summary["session"]
     response.views_used = summary["views_used"]

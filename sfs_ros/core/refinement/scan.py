@@ -77,7 +77,7 @@ def refine_carved_scan(carved: CarvedScan, images: dict,
         [np.asarray(images[carved.views[n].name]) for n in used], hull, params)
     chosen = mesher(carved.mesher)
     mesher_input = (chosen.prepare(occupancy, grid, distance,
-                                   **{name: parameters[name] for name in chosen.options})
+                                   **chosen.option_values(parameters.get("mesher_options", {})))
                     if report["applied"] else carved.mesher_input)
     timings = {**carved.report.get("timings_s", {}),
                "refinement": time.perf_counter() - start}
