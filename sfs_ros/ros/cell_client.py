@@ -84,15 +84,9 @@ def mesh_summary(response: Reconstruct.Response) -> dict:
     return summary
 
 
-def wait_for_pictures(summary: dict, *, timeout_s: float = 120.0) -> None:
-    """Until the report of a reconstruction (``summary``: its ``report_path``,
-    ``preview_path``, ``html_path``, ``contact_sheet_path`` and ``path``) names the
-    picture, viewer and contact sheet: the node writes them after its answer, then the
-    report again. Polls the report file; TimeoutError after ``timeout_s`` (the node's
-    diagnostics say why: a full disk, say)."""
-    report = Path(summary["report_path"])
-    wanted = {"preview": summary["preview_path"], "html": summary["html_path"],
-              "contact_sheet": summary["contact_sheet_path"]}
+def _wait_for_report(report: Path, wanted: dict, timeout_s: float, late: str) -> None:
+    """Poll the report file until it names every ``{key: path}`` of ``wanted``;
+    TimeoutError saying ``late`` after ``timeout_s``."""
     deadline = time.monotonic() + timeout_s
     while True:
         try:
@@ -102,34 +96,36 @@ def wait_for_pictures(summary: dict, *, timeout_s: float = 120.0) -> None:
         if all(named.get(key) == path for key, path in wanted.items()):
             return
         if time.monotonic() >= deadline:
-            raise TimeoutError(f"the pictures of {summary['path']} were not written within "
-                               f"{timeout_s:g} s (the report {report} does not name them)")
+            raise TimeoutError(f"{late} within {timeout_s:g} s (the report {report} does "
+                               "not name it)")
         time.sleep(PICTURE_POLL_S)
+
+
+def wait_for_pictures(summary: dict, *, timeout_s: float = 120.0) -> None:
+    """Until the report of a reconstruction (``summary``: its ``report_path``,
+    ``preview_path``, ``html_path``, ``contact_sheet_path`` and ``path``) names the
+    picture, viewer and contact sheet: the node writes them after its answer, then the
+    report again. Polls the report file; TimeoutError after ``timeout_s`` (the node's
+    diagnostics say why: a full disk, say)."""
+    wanted = {"preview": summary["preview_path"], "html": summary["html_path"],
+              "contact_sheet": summary["contact_sheet_path"]}
+    _wait_for_report(Path(summary["report_path"]), wanted, timeout_s,
+                     f"the pictures of {summary['path']} were not written")
 
 
 def wait_for_product(summary: dict, key: str = "textured_path", *,
                      timeout_s: float = 300.0) -> Path:
     """Until the report of a reconstruction (``summary``: its ``report_path`` and ``key``)
-    names the product the answer named under ``key`` (e.g. the textured model,
-    ``textured_path``): the node makes it after its answer, then writes the report again.
-    Returns its path; ValueError when the answer named none; TimeoutError after
-    ``timeout_s`` (the node's diagnostics say why)."""
+    names the product the answer named under ``key`` (the textured model,
+    ``textured_path``, or the refined mesh, ``refined_mesh_path``): the node makes it
+    after its answer, then writes the report again. Returns its path; ValueError when the
+    answer named none; TimeoutError after ``timeout_s`` (the node's diagnostics say why)."""
     if not summary.get(key):
         raise ValueError(f"the answer names no {key}: not asked for, or it cannot be made "
                          "(the node's diagnostics say why)")
-    report = Path(summary["report_path"])
-    deadline = time.monotonic() + timeout_s
-    while True:
-        try:
-            named = json.loads(report.read_text())
-        except (OSError, ValueError):
-            named = {}          # replaced just now, or not there: read again
-        if named.get(key) == summary[key]:
-            return Path(summary[key])
-        if time.monotonic() >= deadline:
-            raise TimeoutError(f"{summary[key]} was not written within {timeout_s:g} s (the "
-                               f"report {report} does not name it)")
-        time.sleep(PICTURE_POLL_S)
+    _wait_for_report(Path(summary["report_path"]), {key: summary[key]}, timeout_s,
+                     f"{summary[key]} was not written")
+    return Path(summary[key])
 
 
 class ScanStatus:
