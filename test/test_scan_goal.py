@@ -49,7 +49,7 @@ def test_too_many_views_and_both_kinds_are_refused(tmp_path):
 def test_empty_request_takes_the_node_settings(tmp_path):
     options = mesh_options(tmp_path)
     assert (options.resolution, options.bounds_m, options.mesher, options.colour,
-            options.output_name) == (None, None, None, None, None)
+            options.output_name, options.texture, options.refine) == (None,) * 7
 
 
 @pytest.mark.parametrize("name, reason", [
@@ -66,12 +66,16 @@ def test_output_names_are_confined(tmp_path, name, reason):
 
 def test_options_are_checked(tmp_path):
     options = mesh_options(tmp_path, resolution=64, bounds_m=[-1, -1, 0, 1, 1, 2],
-                           mesher="advancing-front", colour="no", output_name="part.obj")
+                           mesher="advancing-front", colour="no", output_name="part.obj",
+                           texture="yes", refine="YES")
+    assert options.texture is True and options.refine is True
     assert options.resolution == 64 and options.bounds_m.shape == (2, 3)
     assert options.colour is False and options.output_name == "part.obj"
     for kwargs, reason in (({"resolution": 4}, "outside"), ({"bounds_m": [0, 0, 0, 1, 1]},
                                                             "bounds_m"),
                            ({"bounds_m": [1, 0, 0, 0, 1, 1]}, "bounds_m"),
-                           ({"mesher": "x"}, "mesher"), ({"colour": "maybe"}, "colour")):
+                           ({"mesher": "x"}, "mesher"), ({"colour": "maybe"}, "colour"),
+                           ({"texture": "maybe"}, "texture 'maybe'"),
+                           ({"refine": "2"}, "refine '2' is not 'yes' or 'no'")):
         with pytest.raises(ValueError, match=reason):
             mesh_options(tmp_path, **kwargs)
