@@ -91,15 +91,20 @@ def timed_peak(fn):
     return value, seconds, max(peak[0], resident_bytes()) - start_rss
 
 
+def _session(folder: Path, obj, captures, rig=RIG):
+    """The captures of ``obj`` through ``rig`` written as a session folder in ``folder``,
+    read back as views."""
+    return load_views(write_session(folder / "session", [(c.name, c.image) for c in captures],
+                                    [(c.theta_rad, c.phi_rad) for c in captures], rig,
+                                    bounds_m=carving_box(obj)))
+
+
 def cost_of_48_views(mug) -> None:
     """Texture against reconstruction at default settings (module docstring)."""
     plan = ring_plan([15.0, 40.0, 65.0], 16)
     captures = simulate_scan(mug, RIG, plan, seed=1, surface_color=fine_color_at, ambient=1.0)
     with tempfile.TemporaryDirectory() as tmp:
-        folder = write_session(Path(tmp) / "session", [(c.name, c.image) for c in captures],
-                               [(c.theta_rad, c.phi_rad) for c in captures], RIG,
-                               bounds_m=carving_box(mug))
-        view_set = load_views(folder)
+        view_set = _session(Path(tmp), mug, captures)
         small = reconstruct(view_set, ReconstructionParams(resolution=40))
         texture_reconstruction(view_set, small)                         # code loaded
         result = reconstruct(view_set, ReconstructionParams())
@@ -128,10 +133,7 @@ def main() -> None:
     mug = make_object("mug")
     captures = simulate_scan(mug, RIG, PLAN, seed=1, surface_color=fine_color_at, ambient=1.0)
     with tempfile.TemporaryDirectory() as tmp:
-        folder = write_session(Path(tmp) / "session", [(c.name, c.image) for c in captures],
-                               [(c.theta_rad, c.phi_rad) for c in captures], RIG,
-                               bounds_m=carving_box(mug))
-        view_set = load_views(folder)
+        view_set = _session(Path(tmp), mug, captures)
         for resolution in RESOLUTIONS:
             params = ReconstructionParams(resolution=resolution, colour=True,
                                           holdout=tuple(captures[i].name for i in HELD_OUT))
@@ -167,10 +169,7 @@ def picture(path: Path, name: str = "barrel") -> None:
     captures = simulate_scan(obj, rig, plan, seed=1, textured=True)
     held_out = (21, 48)
     with tempfile.TemporaryDirectory() as tmp:
-        folder = write_session(Path(tmp) / "session", [(c.name, c.image) for c in captures],
-                               [(c.theta_rad, c.phi_rad) for c in captures], rig,
-                               bounds_m=carving_box(obj))
-        view_set = load_views(folder)
+        view_set = _session(Path(tmp), obj, captures, rig)
         result = reconstruct(view_set, ReconstructionParams(
             holdout=tuple(captures[i].name for i in held_out)))
         textured = texture_reconstruction(view_set, result)

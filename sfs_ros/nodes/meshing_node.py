@@ -322,7 +322,7 @@ class MeshingNode(Node):
         summary = made.summary
         n_held = sum(msg.views[i].image_held for i in msg.colour_views)
         images = held if held_session == msg.session_dir else {}
-        products = self._products(carved, made, options, images)
+        products = self._products(carved, meshed, made, options, images)
         for key in ("textured_path", "refined_mesh_path"):
             summary[key] = next((str(p.path) for p in products if p.key == key), "")
         with self._stats_lock:
@@ -350,10 +350,11 @@ class MeshingNode(Node):
                                 name=product.key)
         return True, json.dumps(summary), summary
 
-    def _products(self, carved, made, options: MeshOptions, held: dict) -> list:
+    def _products(self, carved, meshed, made, options: MeshOptions, held: dict) -> list:
         """The products to make after the answer (:mod:`sfs_ros.cell.after_answer`); one
-        that cannot be made is reported and left out (the mesh is out). ``held``: the
-        images of this scan's views held here."""
+        that cannot be made is reported and left out (the mesh is out). ``meshed``: the
+        carved scan as the mesh was made of it (without its images when not coloured);
+        ``held``: the images of this scan's views held here."""
         summary, products = made.summary, []
         if self._texture(options):
             try:
@@ -364,7 +365,6 @@ class MeshingNode(Node):
         if self._refine(options):
             carried = {carved.views[i].name: image
                        for i, image in zip(carved.colour_views, carved.colour_images)}
-            meshed = carved if self._colour(options) else without_colour(carved)
             try:
                 products.append(refined_model(meshed, {**held, **carried}, self._output_dir,
                                               summary["report_path"], summary["path"],
