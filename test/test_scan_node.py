@@ -159,8 +159,11 @@ def test_the_first_view_is_commanded_and_the_scan_pauses_without_encoder_reading
     assert status.values["move_retries"] == str(MOVE_RETRIES)
     assert status.values["captured"] == "0"
 
+    # The first planned view, commanded once per attempt, exactly as planned (radians):
+    # every command arrives, then a quiet while brings no extra one.
+    node.probe.spin_until(lambda: len(node.commands) >= attempts, what=f"{attempts} commands",
+                          process=node.process)
     node.probe.spin_for(QUIET_S)
-    # The first planned view, commanded once per attempt, exactly as planned (radians).
     assert len(node.commands) == attempts
     for command in node.commands:
         assert list(command.name) == ["turntable", "carriage"]
