@@ -7,7 +7,7 @@ before something else happens in the process:
 
 * **BLAS threads.** Per-view work runs in the package's own threads (and numba's); BLAS
   only ever multiplies thin (n, 3) by (3, 3) matrices here, where threads of its own
-  gain nothing and, on a busy machine, spin against the others (``doc/benchmarks.md``).
+  gain nothing and, on a busy machine, spin against the others (``doc/changelog.md``).
   OpenBLAS reads ``OPENBLAS_NUM_THREADS`` once, when NumPy first loads it, and starts
   its threads then, so the variable must be set before the first ``import numpy``.
   ``sfs-reconstruct``, ``sfs-export`` and ``sfs-replay`` import NumPy only inside

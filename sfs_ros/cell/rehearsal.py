@@ -2,17 +2,15 @@
 
 The first reconstruction in a process pays for loading what it uses: its
 compiled kernels from numba's disk cache, the code pages of OpenCV, SciPy and
-scikit-image, the worker threads. In the cell's nodes that reconstruct, that was about
-0.2 s of the latency from the last view to the mesh (``bench_cell``:
-1.10-1.28 s with a rehearsal, 1.14-1.62 s without, alternated three times).
+scikit-image, the worker threads. In the cell's nodes that reconstruct, that would add
+to the latency from the last view to the mesh (``doc/changelog.md``, 4 December, evening).
 :func:`rehearse` does it once beforehand, on a scan of 25 views of 160 x 120
 at 48^3: every stage of :meth:`~sfs_ros.cell.live.LiveReconstruction.reconstruct`
 (carving, fusion, meshing, colour, evaluation, the files and pictures) on
 arrays of the types a real scan has. It has more views than the colour takes
 (:data:`~sfs_ros.core.meshing.colour.MAX_COLOUR_VIEWS`), so the evaluation draws
-the others, as in a real scan (with 13 views it did not, and the first real
-reconstruction loaded the evaluation's kernels). ``sfs-warm-up`` runs it too, where it
-compiles the live path's kernels.
+the others, as in a real scan, and so loads the evaluation's kernels too.
+``sfs-warm-up`` runs it too, where it compiles the live path's kernels.
 """
 
 from __future__ import annotations

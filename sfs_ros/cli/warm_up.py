@@ -3,7 +3,8 @@
 The numba kernels compile on first use and are cached on disk beside the installed
 modules (``cache=True``; numba falls back to a cache in the user's home where that
 folder is read-only). Without this step the first scan after installing pays for the
-compilation: on 2 cores about a minute, against seconds for a warm reconstruction.
+compilation, which takes far longer than a warm reconstruction
+(``doc/benchmarks.md``, the kernels in a test session).
 ``scripts/setup.sh`` runs it. It reconstructs a small simulated scan of the mug, in a
 temporary folder, both ways the package does: offline from the images (segmentation,
 consensus, fusion, carving, meshing, evaluation) and live, view by view (incremental

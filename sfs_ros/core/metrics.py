@@ -162,8 +162,8 @@ def reprojection_ious(vertices, faces, cameras, masks, *, closed: bool = False) 
     The same pixel-centre coverage as :func:`reprojection_iou`, for all views
     at once (one parallel pass, no image kept). ``closed=True`` promises a
     closed, outward-oriented mesh: a view the mesh lies wholly in front of is
-    then covered from the mesh's outline (:mod:`sfs_ros.core.outline`: a few
-    times faster on a fine mesh; a pixel centre exactly on the outline may go
+    then covered from the mesh's outline (:mod:`sfs_ros.core.outline`: faster
+    on a fine mesh; a pixel centre exactly on the outline may go
     the other way), any other from the faces turned towards the camera (every
     ray into a closed surface enters through one). A mesh found not to be
     closed is drawn face by face. vertices : (n, 3) float64, metres; faces :

@@ -3,9 +3,9 @@
 A reconstruction allocates a few hundred megabytes of arrays and frees them
 when it ends. glibc's malloc gives large blocks back to the system (``munmap``,
 heap trimming), so the next reconstruction touches fresh pages again, and
-every first touch of a page is a page fault. On the 2-core test machine a
-fault costs about 20 microseconds: the cell's first reconstruction took
-30 000 to 47 000 faults and 0.6 to 0.9 s of system time, a third of its time.
+every first touch of a page is a page fault: faulting the working set in again
+is a large part of a reconstruction's latency (``doc/changelog.md``, 4 December,
+evening).
 
 The usual set-up of latency-bound processes (as ROS 2's real-time guides
 describe for their nodes): :func:`keep_freed_memory` makes malloc keep what it

@@ -10,7 +10,7 @@
 * on request a PNG picture of the mesh, a self-contained HTML viewer, and a
   contact sheet of the views (mask outlines, angles, silhouette IoU, reasons
   for rejection); or later, by :func:`add_pictures`, for a caller that wants
-  the mesh out first (in the cell the pictures take a quarter of a reconstruction).
+  the mesh out first (in the cell the pictures take a good part of a reconstruction).
 
 Every file is written atomically, all in one batch
 (:func:`sfs_ros.core.exchange.files.write_atomic_all`): all are staged on disk

@@ -332,9 +332,8 @@ def mesh_to_marker(vertices, faces, *, stamp, frame_id: str,
         which RViz and Foxglove interpolate across each face).
 
     One ``Point`` is built per vertex and the list repeats those objects per
-    face corner (the message serialises each entry; do not mutate them):
-    for 100 000 faces on 50 000 vertices this takes ~0.15 s against ~0.6 s for
-    a new Point per corner (serialising the marker then takes ~0.3 s).
+    face corner (the message serialises each entry; do not mutate them): a
+    fraction of the time of a new Point per corner (``doc/benchmarks.md``).
     """
     vertices, faces = _mesh_arrays(vertices, faces)
     rgba = [float(c) for c in color]

@@ -61,10 +61,9 @@ _TWO_MISSES_FROM = 40
 #: cross-section; corners and saddles cut somewhat deeper).
 _FACET_SAFETY = 1.5
 #: Below this median IoU of a view's mask with the reference hull's projection
-#: the views do not agree on one object. Measured: 0.96 for good synthetic and
-#: Middlebury dino masks, 0.84 for temple masks holding a dark cloth, 0.68 and
-#: 0.20 with two views in three 1 and 2.5 cm off their calibration. Masks with
-#: shadows or clutter hold more than the hull: the bar is low, for gross errors.
+#: the views do not agree on one object (a calibration centimetres off). Masks with
+#: shadows or clutter hold more than the hull: the bar is low, for gross errors
+#: (the medians measured on good and bad inputs: doc/accuracy.md).
 MIN_MEDIAN_IOU = 0.5
 #: Disagreements shallower than this never count as mask errors, pixels (the
 #: voxel footprint adds to it): segmentation edges are this uncertain anyway.

@@ -6,7 +6,7 @@ and the atlas as a PNG, which WebGL draws and the 2-D canvas replaces by the
 vertices' colours) and a short script that draws it with WebGL or,
 where WebGL is unavailable (no GPU and no software WebGL, or WebGL disabled),
 on a 2-D canvas with the painter's algorithm (triangles sorted back to front,
-flat shaded; a 200,000-face mesh takes about two seconds in software). The
+flat shaded; slow on a large mesh, see ``doc/benchmarks.md``). The
 renderer used is shown in the corner and set as ``data-renderer`` ("WebGL" or
 "Canvas 2D") on the page's ``body``.
 
