@@ -162,16 +162,9 @@ def _by_view(captures: ViewSet, view_set: ViewSet) -> dict:
     return {v.name: paths[key] for v in view_set.views if (key := view_key_of(v.name)) in paths}
 
 
-def run(args) -> dict:
-    """Run one reconstruction from parsed arguments; returns the report."""
-    from ..core.carving.resolution import parse_memory
+def _check_output_names(args) -> str:
+    """The mesh file's suffix, once every output's name is one its option can write."""
     from ..core.exchange.export import MESH_FORMATS, TEXTURED_SUFFIXES
-    from ..core.meshing.meshers import MESHER
-    from ..core.pipeline import ReconstructionParams, reconstruct
-    from ..core.result_files import report_path_for, write_result
-    from ..core.texture import texture_reconstruction
-    from ..core.texture.evaluation import held_out_colour_psnr
-    from .common import StageProgress, check_outputs, input_files, load_input, mesher_options
 
     suffix = args.output.suffix.lower()
     if suffix not in MESH_FORMATS:
@@ -191,6 +184,56 @@ def run(args) -> dict:
         raise ValueError(f"--texture writes {' or '.join(TEXTURED_SUFFIXES)}, not {suffix}: "
                          f"{MESH_FORMATS[suffix].name} holds no texture (use --colour for "
                          "vertex colours)")
+    return suffix
+
+
+def _params(args, view_set: ViewSet, recorded: dict, refine: bool):
+    """The ReconstructionParams of the options, a bag's recorded settings where an option
+    is not given."""
+    from ..core.carving.resolution import parse_memory
+    from ..core.meshing.meshers import MESHER
+    from ..core.pipeline import ReconstructionParams
+    from .common import mesher_options
+
+    return ReconstructionParams(
+        resolution=recorded.get("resolution") if args.resolution is None else args.resolution,
+        voxel_size_m=args.voxel_size,
+        max_memory_bytes=None if args.max_memory is None else parse_memory(args.max_memory),
+        mesher=args.mesher or recorded.get("mesher", MESHER.default),
+        mesher_options=mesher_options(args),
+        bounds_m=None if args.bounds is None else (args.bounds[:3], args.bounds[3:]),
+        max_misses=args.max_misses, check_consistency=not args.no_consistency_check,
+        consensus=not args.no_consensus,
+        holdout=_holdout_names(args.holdout, [v.name for v in view_set.views]),
+        segmentation=_segmentation(args, view_set.segmentation),
+        colour=args.colour, refine=refine)
+
+
+def _texture_and_colour_score(args, view_set: ViewSet, result, images: dict | None):
+    """The textured mesh with ``--texture`` (its time in the report), and the held-out
+    views' colour PSNR in the report with ``--texture`` or ``--colour``."""
+    from ..core.texture import texture_reconstruction
+    from ..core.texture.evaluation import held_out_colour_psnr
+
+    textured = None
+    if args.texture:
+        start = time.perf_counter()
+        textured = texture_reconstruction(view_set, result, images=images)
+        result.report["timings_s"]["texture"] = time.perf_counter() - start
+    if args.texture or args.colour:
+        colour_psnr = held_out_colour_psnr(view_set, result, textured, images=images)
+        if colour_psnr is not None:
+            result.report["held_out_colour_psnr"] = colour_psnr
+    return textured
+
+
+def run(args) -> dict:
+    """Run one reconstruction from parsed arguments; returns the report."""
+    from ..core.pipeline import reconstruct
+    from ..core.result_files import report_path_for, write_result
+    from .common import StageProgress, check_outputs, input_files, load_input
+
+    suffix = _check_output_names(args)
     view_set, recorded = load_input(args.input)
     check_outputs({"-o": args.output, "report": report_path_for(args.output),
                    "--preview": args.preview, "--html": args.html,
@@ -205,32 +248,13 @@ def run(args) -> dict:
     captures = (load_input(args.input, captures=True)[0]
                 if (args.colour or args.texture or args.refine) and recorded else None)
     bag_images = None if captures is None else _by_view(captures, view_set)
-    params = ReconstructionParams(
-        resolution=recorded.get("resolution") if args.resolution is None else args.resolution,
-        voxel_size_m=args.voxel_size,
-        max_memory_bytes=None if args.max_memory is None else parse_memory(args.max_memory),
-        mesher=args.mesher or recorded.get("mesher", MESHER.default),
-        mesher_options=mesher_options(args),
-        bounds_m=None if args.bounds is None else (args.bounds[:3], args.bounds[3:]),
-        max_misses=args.max_misses, check_consistency=not args.no_consistency_check,
-        consensus=not args.no_consensus,
-        holdout=_holdout_names(args.holdout, [v.name for v in view_set.views]),
-        segmentation=_segmentation(args, view_set.segmentation),
-        colour=args.colour, refine=refine)
+    params = _params(args, view_set, recorded, refine)
     progress = StageProgress(quiet=args.quiet)
     try:
         result = reconstruct(view_set, params, progress=progress, images=bag_images)
     finally:
         progress.close()
-    textured = None
-    if args.texture:
-        start = time.perf_counter()
-        textured = texture_reconstruction(view_set, result, images=bag_images)
-        result.report["timings_s"]["texture"] = time.perf_counter() - start
-    if args.texture or args.colour:
-        colour_psnr = held_out_colour_psnr(view_set, result, textured, images=bag_images)
-        if colour_psnr is not None:
-            result.report["held_out_colour_psnr"] = colour_psnr
+    textured = _texture_and_colour_score(args, view_set, result, bag_images)
     written = write_result(
         result, args.output, units=args.units, vertex_colors=result.vertex_colors,
         textured=textured,
