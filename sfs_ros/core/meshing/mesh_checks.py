@@ -84,6 +84,25 @@ class MeshReport:
         return asdict(self)
 
 
+def _checked_mesh(vertices, faces) -> tuple[np.ndarray, np.ndarray]:
+    """``(vertices (n, 3) float64, faces (m, 3) int64)``, or ValueError naming what is
+    wrong with them."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces)
+    if v.ndim != 2 or v.shape[1] != 3:
+        raise ValueError(f"vertices must be an (n, 3) array, got shape {v.shape}")
+    if not np.all(np.isfinite(v)):
+        raise ValueError("vertices must be finite")
+    if f.ndim != 2 or f.shape[1] != 3 or f.shape[0] == 0:
+        raise ValueError(f"faces must be an (m, 3) array with m >= 1, got shape {f.shape}")
+    if not np.issubdtype(f.dtype, np.integer):
+        raise ValueError(f"faces must hold integer vertex indices, got dtype {f.dtype}")
+    f = f.astype(np.int64, copy=False)
+    if f.min() < 0 or f.max() >= len(v):
+        raise ValueError(f"face indices must lie in [0, {len(v)}), got [{f.min()}, {f.max()}]")
+    return v, f
+
+
 def check_mesh(vertices, faces) -> MeshReport:
     """Check a triangle mesh's topology and measure it.
 
@@ -99,20 +118,8 @@ def check_mesh(vertices, faces) -> MeshReport:
     -------
     MeshReport
     """
-    v = np.asarray(vertices, dtype=np.float64)
-    f = np.asarray(faces)
-    if v.ndim != 2 or v.shape[1] != 3:
-        raise ValueError(f"vertices must be an (n, 3) array, got shape {v.shape}")
-    if not np.all(np.isfinite(v)):
-        raise ValueError("vertices must be finite")
-    if f.ndim != 2 or f.shape[1] != 3 or f.shape[0] == 0:
-        raise ValueError(f"faces must be an (m, 3) array with m >= 1, got shape {f.shape}")
-    if not np.issubdtype(f.dtype, np.integer):
-        raise ValueError(f"faces must hold integer vertex indices, got dtype {f.dtype}")
-    f = f.astype(np.int64, copy=False)
+    v, f = _checked_mesh(vertices, faces)
     n, m = len(v), len(f)
-    if f.min() < 0 or f.max() >= n:
-        raise ValueError(f"face indices must lie in [0, {n}), got [{f.min()}, {f.max()}]")
 
     # Half-edges: face t, corner k goes from f[t, k] to f[t, (k + 1) % 3].
     start = f.reshape(-1)
