@@ -310,7 +310,7 @@ def summary(report: dict) -> str:
 
 def main(argv=None) -> int:
     # The pipeline allocates and frees large arrays stage after stage: kept by malloc, they
-    # are not faulted in again each time (a tenth of the run on the bench).
+    # are not faulted in again each time (doc/benchmarks.md).
     configure_process(keep_freed_memory=True)
     from .common import run_reporting_errors
 
