@@ -1,12 +1,13 @@
 """The whole reconstruction: tagged images in, a checked mesh and a report out.
 
-Two halves: :func:`carve_scan` (stages: segmentation, bounding box, consensus,
-fusion of the silhouettes, carving, refinement below the hull on request, the
-mesher's input), whose :class:`~sfs_ros.core.carved_scan.CarvedScan` may cross a
-process (the cell's carving and meshing nodes), and
-:func:`sfs_ros.core.mesh_scan.mesh_scan` (meshing, mesh checks, colour on
-request, reprojection of the mesh into every view, the report).
-:func:`reconstruct` runs both. Each stage is timed in the report.
+Two halves: :func:`carve_scan` runs the stages of :mod:`sfs_ros.core.stages`
+(segmentation, the grid, consensus, fusion of the silhouettes, carving,
+refinement below the hull on request, the mesher's input, the views to colour
+from); its :class:`~sfs_ros.core.carved_scan.CarvedScan` may cross a process (the
+cell's carving and meshing nodes) to :func:`sfs_ros.core.mesh_scan.mesh_scan`
+(meshing, then colour beside the mesh checks and the reprojection of the mesh
+into every view). :func:`reconstruct` runs both. Each stage is timed in the
+report, which :mod:`sfs_ros.core.scan_report` assembles from the stages' pieces.
 """
 
 from __future__ import annotations
