@@ -20,17 +20,10 @@ from .geometry.grid import VoxelGrid
 from .meshing.colour import vertex_colours
 from .meshing.mesh_checks import check_mesh
 from .meshing.meshers import mesher
-from .metrics import reprojection_ious, silhouette_iou
+from .metrics import reprojection_ious
+from .scan_report import meshing_report, per_view_ious
 
-__all__ = ["SILHOUETTE_IOU_MEANING", "Reconstruction", "mesh_scan"]
-
-#: What the report's silhouette IoU is, written into every report beside it.
-SILHOUETTE_IOU_MEANING = (
-    "IoU of the mesh's silhouette, drawn into each view, with the mask this reconstruction "
-    "made from that view's image. For 'used' views it is agreement with the masks that "
-    "carved the mesh (high by construction, not a measure of accuracy); for 'held-out' views "
-    "(not carved with) it is a leave-one-out prediction; 'rejected' views show how far off "
-    "their masks were. Accuracy needs references the reconstruction did not make.")
+__all__ = ["Reconstruction", "mesh_scan", "timed"]
 
 
 @dataclass
@@ -135,26 +128,6 @@ class _Finish:
         return report, colours, ious
 
 
-def _per_view_ious(carved: CarvedScan, finish: _Finish, drawn_ious: list, colours) -> list:
-    """The report's per-view silhouette IoU: the coloured views' silhouettes of the mesh
-    came with the colour's z-buffers (the same pixel-centre rule), the others were drawn;
-    both agree with drawing every face, exact ties on the outline aside."""
-    ious = np.empty(len(carved.views))
-    ious[finish.drawn] = drawn_ious
-    for i, packed in zip(carved.colour_views,
-                         colours.coverage if colours is not None else []):
-        mask = carved.masks[i]
-        ious[i] = silhouette_iou(
-            np.unpackbits(packed, count=mask.size).reshape(mask.shape).view(bool), mask)
-    return [{"view": view.name, "role": view.role, "silhouette_iou": float(iou)}
-            for view, iou in zip(carved.views, ious)]
-
-
-def _mean_iou(per_view: list, role: str) -> float | None:
-    values = [p["silhouette_iou"] for p in per_view if p["role"] == role]
-    return float(np.mean(values)) if values else None
-
-
 def mesh_scan(carved: CarvedScan, *, progress=None) -> Reconstruction:
     """Mesh, check, colour and evaluate a carved scan; the report joins the carving's.
 
@@ -173,19 +146,13 @@ def mesh_scan(carved: CarvedScan, *, progress=None) -> Reconstruction:
     mesh_report, colours, drawn_ious = finish.run(chosen.closed)
     with timed(timings, "evaluation"):
         progress("evaluation", 0.0)
-        per_view = _per_view_ious(carved, finish, drawn_ious, colours)
+        per_view = per_view_ious(carved, finish.drawn, drawn_ious,
+                                 None if colours is None else colours.coverage)
         progress("evaluation", 1.0)
-    head = {k: v for k, v in carved.report.items() if k != "timings_s"}
-    report = {
-        **head,
-        "mesher": {"name": carved.mesher, **mesher_stats},
-        "mesh": mesh_report,
-        **({"colour": colours.stats} if colours is not None else {}),
-        "silhouette_iou": {"meaning": SILHOUETTE_IOU_MEANING, "per_view": per_view,
-                           "mean_used": _mean_iou(per_view, "used"),
-                           "mean_held_out": _mean_iou(per_view, "held-out")},
-        "timings_s": {**carved.report.get("timings_s", {}), **timings},
-    }
+    report = meshing_report(carved.report, mesher=carved.mesher, mesher_stats=mesher_stats,
+                            mesh_checks=mesh_report,
+                            colour_stats=None if colours is None else colours.stats,
+                            per_view=per_view, timings=timings)
     return Reconstruction(vertices=vertices, faces=faces, occupancy=carved.occupancy,
                           grid=carved.grid, report=report,
                           vertex_colors=None if colours is None else colours.colours,

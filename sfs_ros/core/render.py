@@ -388,6 +388,40 @@ def solid_colors(vertices, faces, color_of_points):
     return pixel_colors
 
 
+def _shading_inputs(vertices, faces, camera: Camera, *, vertex_colors, background_rgb,
+                    color_rgb, light_dir, ambient, noise_sigma, normals) -> tuple:
+    """:func:`render_image`'s options checked: ``(background (3,), vertex colours (n, 3)
+    float64, unit light direction (3,), corner normals (m, 3, 3))``."""
+    background = _rgb(background_rgb, "background_rgb")
+    if vertex_colors is None:
+        colors = np.tile(_rgb(color_rgb, "color_rgb"), (len(vertices), 1))
+    else:
+        colors = np.asarray(vertex_colors, dtype=np.float64)
+        if colors.shape != vertices.shape or not np.all((colors >= 0) & (colors <= 255)):
+            raise ValueError(
+                f"vertex_colors must be ({len(vertices)}, 3) values in [0, 255], "
+                f"got shape {colors.shape}")
+    if not 0.0 <= float(ambient) <= 1.0:
+        raise ValueError(f"ambient must be in [0, 1], got {ambient}")
+    if not (np.isfinite(noise_sigma) and noise_sigma >= 0):
+        raise ValueError(f"noise_sigma must be a finite value >= 0, got {noise_sigma}")
+    if light_dir is None:
+        light = camera.R.T @ np.array([-0.4, -0.6, -1.0])  # camera frame: left, up, backwards
+    else:
+        light = np.asarray(light_dir, dtype=np.float64).reshape(-1)
+        if light.shape != (3,) or not np.all(np.isfinite(light)) or not np.any(light):
+            raise ValueError(f"light_dir must be a finite non-zero 3-vector, got {light_dir!r}")
+    light = light / np.linalg.norm(light)
+
+    if normals is None:
+        normals = corner_normals(vertices, faces)
+    elif np.shape(normals) != (len(faces), 3, 3):
+        raise ValueError(f"normals must be ({len(faces)}, 3, 3) corner normals, one per face "
+                         f"corner, got shape {np.shape(normals)}")
+    normals = np.asarray(normals, dtype=np.float64)
+    return background, colors, light, normals
+
+
 def render_image(vertices, faces, camera: Camera, *, vertex_colors=None,
                  background_rgb=(255, 255, 255), color_rgb=(170, 120, 70), light_dir=None,
                  ambient: float = 0.25, noise_sigma: float = 2.0, seed=None,
@@ -431,33 +465,10 @@ def render_image(vertices, faces, camera: Camera, *, vertex_colors=None,
     (H, W, 3) uint8 RGB image.
     """
     vertices, faces = as_mesh_arrays(vertices, faces)
-    background = _rgb(background_rgb, "background_rgb")
-    if vertex_colors is None:
-        colors = np.tile(_rgb(color_rgb, "color_rgb"), (len(vertices), 1))
-    else:
-        colors = np.asarray(vertex_colors, dtype=np.float64)
-        if colors.shape != vertices.shape or not np.all((colors >= 0) & (colors <= 255)):
-            raise ValueError(
-                f"vertex_colors must be ({len(vertices)}, 3) values in [0, 255], "
-                f"got shape {colors.shape}")
-    if not 0.0 <= float(ambient) <= 1.0:
-        raise ValueError(f"ambient must be in [0, 1], got {ambient}")
-    if not (np.isfinite(noise_sigma) and noise_sigma >= 0):
-        raise ValueError(f"noise_sigma must be a finite value >= 0, got {noise_sigma}")
-    if light_dir is None:
-        light = camera.R.T @ np.array([-0.4, -0.6, -1.0])  # camera frame: left, up, backwards
-    else:
-        light = np.asarray(light_dir, dtype=np.float64).reshape(-1)
-        if light.shape != (3,) or not np.all(np.isfinite(light)) or not np.any(light):
-            raise ValueError(f"light_dir must be a finite non-zero 3-vector, got {light_dir!r}")
-    light = light / np.linalg.norm(light)
-
-    if normals is None:
-        normals = corner_normals(vertices, faces)
-    elif np.shape(normals) != (len(faces), 3, 3):
-        raise ValueError(f"normals must be ({len(faces)}, 3, 3) corner normals, one per face "
-                         f"corner, got shape {np.shape(normals)}")
-    normals = np.asarray(normals, dtype=np.float64)
+    background, colors, light, normals = _shading_inputs(
+        vertices, faces, camera, vertex_colors=vertex_colors, background_rgb=background_rgb,
+        color_rgb=color_rgb, light_dir=light_dir, ambient=ambient, noise_sigma=noise_sigma,
+        normals=normals)
 
     def shade(ideal: Camera) -> np.ndarray:
         face_id, bary, _ = rasterize_faces(vertices, faces, ideal)

@@ -171,6 +171,20 @@ def _positive(name: str, value: float) -> float:
     return value
 
 
+def _check_angles(theta_rad, phi_rad) -> None:
+    for name, value in (("theta_rad", theta_rad), ("phi_rad", phi_rad)):
+        if isinstance(value, bool) or not isinstance(value, numbers.Real) \
+                or not math.isfinite(value):
+            raise ValueError(f"{name} must be a finite number of radians, got {value!r}")
+
+
+def _read_back(status: Status, target: tuple[float, float]) -> str:
+    """The axes' read-back and ``target`` (radians), in degrees, for a message."""
+    return (f"read-back theta={math.degrees(status.theta_rad):.3f} deg, phi="
+            f"{math.degrees(status.phi_rad):.3f} deg, target theta="
+            f"{math.degrees(target[0]):.3f} deg, phi={math.degrees(target[1]):.3f} deg")
+
+
 class GrblClient:
     """A GRBL 1.1 controller on a serial port.
 
@@ -306,10 +320,7 @@ class GrblClient:
         CommandRejected
             ``error:N`` for the move command.
         """
-        for name, value in (("theta_rad", theta_rad), ("phi_rad", phi_rad)):
-            if isinstance(value, bool) or not isinstance(value, numbers.Real) \
-                    or not math.isfinite(value):
-                raise ValueError(f"{name} must be a finite number of radians, got {value!r}")
+        _check_angles(theta_rad, phi_rad)
         timeout = _positive("timeout_s", timeout_s)
         deadline = time.monotonic() + timeout
         command = grbl.format_move(math.degrees(theta_rad), math.degrees(phi_rad))
@@ -325,14 +336,7 @@ class GrblClient:
             status = self.status(timeout_s=min(self.timeout_s,
                                                max(deadline - time.monotonic(), 0.05)))
             now = time.monotonic()
-            with self._lock:
-                cancelled = self._cancel_seq != cancel_seq
-                alarmed = self._alarm_seq != alarm_seq
-            if alarmed or status.state == "Alarm":
-                raise MotorAlarm(self._alarm_code, critical=self._critical)
-            if cancelled or status.state == "Hold":
-                raise MotionCancelled(f"move to theta={theta_rad:.4f} rad, phi={phi_rad:.4f} rad "
-                                      f"interrupted ({'stop()' if cancelled else 'feed hold'})")
+            self._check_not_interrupted(status, cancel_seq, alarm_seq, target)
             error = max(abs(status.theta_rad - target[0]), abs(status.phi_rad - target[1]))
             if status.state == "Idle":
                 if error <= self.tolerance_rad:
@@ -342,21 +346,16 @@ class GrblClient:
                 idle_off_target += 1
                 if idle_off_target >= 2:
                     raise MotorStalled(
-                        f"motion ended short of the target: read-back theta="
-                        f"{math.degrees(status.theta_rad):.3f} deg, phi="
-                        f"{math.degrees(status.phi_rad):.3f} deg, target theta="
-                        f"{math.degrees(target[0]):.3f} deg, phi={math.degrees(target[1]):.3f} "
-                        f"deg (tolerance {math.degrees(self.tolerance_rad):.3f} deg)")
+                        f"motion ended short of the target: {_read_back(status, target)} "
+                        f"(tolerance {math.degrees(self.tolerance_rad):.3f} deg)")
             else:
                 idle_off_target = 0
             if error < best - self.min_progress_rad:
                 best, best_time = error, now
             elif status.state == "Run" and now - best_time > self.stall_timeout_s:
                 raise MotorStalled(
-                    f"no progress for {self.stall_timeout_s:.3g} s while running: read-back "
-                    f"theta={math.degrees(status.theta_rad):.3f} deg, phi="
-                    f"{math.degrees(status.phi_rad):.3f} deg, target theta="
-                    f"{math.degrees(target[0]):.3f} deg, phi={math.degrees(target[1]):.3f} deg")
+                    f"no progress for {self.stall_timeout_s:.3g} s while running: "
+                    f"{_read_back(status, target)}")
             if now >= deadline:
                 raise MotorTimeout(
                     f"move to theta={math.degrees(target[0]):.3f} deg, phi="
@@ -364,6 +363,19 @@ class GrblClient:
                     f"(state {status.state}, {math.degrees(error):.3f} deg to go); the axes "
                     f"may still be moving: call stop()")
             time.sleep(min(self.poll_interval_s, max(deadline - now, 0.0)))
+
+    def _check_not_interrupted(self, status: Status, cancel_seq: int, alarm_seq: int,
+                               target: tuple[float, float]) -> None:
+        """MotorAlarm or MotionCancelled if an alarm, :meth:`stop` or a feed hold came
+        since the move to ``target`` (radians) began (``cancel_seq``, ``alarm_seq``)."""
+        with self._lock:
+            cancelled = self._cancel_seq != cancel_seq
+            alarmed = self._alarm_seq != alarm_seq
+        if alarmed or status.state == "Alarm":
+            raise MotorAlarm(self._alarm_code, critical=self._critical)
+        if cancelled or status.state == "Hold":
+            raise MotionCancelled(f"move to theta={target[0]:.4f} rad, phi={target[1]:.4f} rad "
+                                  f"interrupted ({'stop()' if cancelled else 'feed hold'})")
 
     def home(self, *, timeout_s: float) -> Status:
         """Run the homing cycle (``$H``); returns the status once it has finished.

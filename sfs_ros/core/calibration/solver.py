@@ -315,6 +315,18 @@ def _uncertainty(result, free: np.ndarray) -> dict:
     return dict(zip(names, np.sqrt(np.diag(cov)).tolist()))
 
 
+def _check_options(nominal: RigCalibration, radial_terms: int, max_view_rms_px: float) -> None:
+    """ValueError naming the first of :func:`calibrate_rig`'s options it cannot take."""
+    if nominal.projection != "pinhole" or nominal.convention != "physical":
+        raise ValueError("calibration needs a pinhole rig with the 'physical' convention, got "
+                         f"{nominal.projection!r}, {nominal.convention!r}")
+    if radial_terms not in (2, 3):
+        raise ValueError(f"radial_terms must be 2 or 3, got {radial_terms}")
+    if not (math.isfinite(max_view_rms_px) and max_view_rms_px > 0):
+        raise ValueError(f"max_view_rms_px must be a number of pixels > 0, got "
+                         f"{max_view_rms_px}")
+
+
 def calibrate_rig(detections: list[tuple[str, float, float, Detection]], board: BoardSpec,
                   nominal: RigCalibration, *, rejected: list | None = None,
                   radial_terms: int = 2, max_view_rms_px: float = 1.0,
@@ -347,14 +359,7 @@ def calibrate_rig(detections: list[tuple[str, float, float, Detection]], board: 
         :data:`RADIUS_ERROR_FACTOR` times from the hand-measured one (beyond
         :data:`RADIUS_WARNING_FACTOR`: a warning, logged and in the result).
     """
-    if nominal.projection != "pinhole" or nominal.convention != "physical":
-        raise ValueError("calibration needs a pinhole rig with the 'physical' convention, got "
-                         f"{nominal.projection!r}, {nominal.convention!r}")
-    if radial_terms not in (2, 3):
-        raise ValueError(f"radial_terms must be 2 or 3, got {radial_terms}")
-    if not (math.isfinite(max_view_rms_px) and max_view_rms_px > 0):
-        raise ValueError(f"max_view_rms_px must be a number of pixels > 0, got "
-                         f"{max_view_rms_px}")
+    _check_options(nominal, radial_terms, max_view_rms_px)
     rejected = list(rejected or [])
     views = [_View(name, float(theta), float(phi), det) for name, theta, phi, det in detections]
     fixed = dict(FIXED)

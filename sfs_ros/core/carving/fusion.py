@@ -222,6 +222,62 @@ def _look(pair: tuple[np.ndarray, np.ndarray]) -> _Look:
                  iou=float(silhouette_iou(proj, mask)) if rows.size else 1.0)
 
 
+@dataclass(frozen=True)
+class _Judge:
+    """What :func:`fuse_silhouettes` judges each view by: its ``masks``, their ``looks``
+    at the reference hull's projections (whose half voxel footprint is ``half_px``, (n,)
+    pixels), each projection's ``radius_px`` and deepest cut ``cut_px`` (n,), the
+    ``typical`` cut relative to the radius, the ``angle`` between neighbouring views
+    (radians), the reference hull's tolerance ``k`` and ``max_missing``."""
+
+    masks: list
+    looks: list
+    half_px: np.ndarray
+    radius_px: np.ndarray
+    cut_px: np.ndarray
+    typical: float
+    angle: float
+    k: int
+    max_missing: float
+
+    def verdict(self, v: int) -> tuple[np.ndarray, ViewVerdict]:
+        """View ``v``'s repaired mask and verdict."""
+        look, max_missing = self.looks[v], self.max_missing
+        floor_px = max(_MIN_DEPTH_PX, self.half_px[v] + 1.0)
+        threshold = floor_px + _FACET_SAFETY * self.radius_px[v] * max(
+            self.typical, facet_depth_px(1.0, self.angle, 1))
+        n_fill, missing, depth = 0, 0.0, 0.0
+        if self.cut_px[v] > floor_px:
+            outside, dist = look.outside, look.distance
+            missing = float(np.count_nonzero(outside & (dist > floor_px))) / max(1, look.n_proj)
+            deep = outside & (dist > threshold)
+            if deep.any() and missing <= max_missing:
+                # the whole gap around the deep pixels, down to the mask's edge
+                r = int(math.ceil(threshold)) + 1
+                disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+                fill = outside & (cv2.dilate(deep.view(np.uint8), disk) > 0)
+                n_fill, depth = int(np.count_nonzero(fill)), float(dist[fill].max())
+        dropped = missing > max_missing
+        if dropped:
+            reason = (f"silhouette inconsistent with the other views as a whole: "
+                      f"{100 * missing:.1f}% of the hull they agree on is missing from it "
+                      f"(more than {100 * max_missing:.0f}%; IoU {look.iou:.3f})")
+        elif n_fill:
+            reason = (f"overruled on {n_fill} px: the hull all but {self.k} of the other "
+                      f"{len(self.masks) - 1} views agree on lies up to {depth:.1f} px "
+                      f"outside this mask, deeper than a correct view cuts ({threshold:.1f} px)")
+        else:
+            reason = None
+        repaired = self.masks[v]
+        if n_fill:
+            repaired = repaired.copy()
+            repaired[look.box] |= fill
+        return repaired, ViewVerdict(
+            index=v, iou=look.iou, missing_fraction=missing, depth_threshold_px=float(threshold),
+            overruled_pixels=n_fill, overruled_depth_px=depth, dropped=bool(dropped),
+            reason=reason)
+
+
 def fuse_silhouettes(grid: VoxelGrid, cameras: Sequence[Camera], masks, *,
                      max_missing: float = 0.35) -> Fusion:
     """Decide per view and pixel where a view's mask is outvoted by the others.
@@ -272,44 +328,8 @@ def fuse_silhouettes(grid: VoxelGrid, cameras: Sequence[Camera], masks, *,
     cut_px = np.array([look.cut_px for look in looks])
     typical = float(np.median(cut_px / np.maximum(radius_px, 1.0)))
 
-    def verdict(v: int) -> tuple[np.ndarray, ViewVerdict]:
-        """View ``v``'s repaired mask and verdict."""
-        look = looks[v]
-        floor_px = max(_MIN_DEPTH_PX, half_px[v] + 1.0)
-        threshold = floor_px + _FACET_SAFETY * radius_px[v] * max(
-            typical, facet_depth_px(1.0, angle, 1))
-        n_fill, missing, depth = 0, 0.0, 0.0
-        if cut_px[v] > floor_px:
-            outside, dist = look.outside, look.distance
-            missing = float(np.count_nonzero(outside & (dist > floor_px))) / max(1, look.n_proj)
-            deep = outside & (dist > threshold)
-            if deep.any() and missing <= max_missing:
-                # the whole gap around the deep pixels, down to the mask's edge
-                r = int(math.ceil(threshold)) + 1
-                disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
-                fill = outside & (cv2.dilate(deep.view(np.uint8), disk) > 0)
-                n_fill, depth = int(np.count_nonzero(fill)), float(dist[fill].max())
-        dropped = missing > max_missing
-        if dropped:
-            reason = (f"silhouette inconsistent with the other views as a whole: "
-                      f"{100 * missing:.1f}% of the hull they agree on is missing from it "
-                      f"(more than {100 * max_missing:.0f}%; IoU {look.iou:.3f})")
-        elif n_fill:
-            reason = (f"overruled on {n_fill} px: the hull all but {k} of the other {n - 1} "
-                      f"views agree on lies up to {depth:.1f} px outside this mask, deeper "
-                      f"than a correct view cuts ({threshold:.1f} px)")
-        else:
-            reason = None
-        repaired = masks[v]
-        if n_fill:
-            repaired = repaired.copy()
-            repaired[look.box] |= fill
-        return repaired, ViewVerdict(
-            index=v, iou=look.iou, missing_fraction=missing, depth_threshold_px=float(threshold),
-            overruled_pixels=n_fill, overruled_depth_px=depth, dropped=bool(dropped),
-            reason=reason)
-
-    repaired, verdicts = map(list, zip(*map_in_threads(verdict, range(n))))
+    judge = _Judge(masks, looks, half_px, radius_px, cut_px, typical, angle, k, max_missing)
+    repaired, verdicts = map(list, zip(*map_in_threads(judge.verdict, range(n))))
     median_iou = float(np.median([v.iou for v in verdicts]))
     if median_iou < MIN_MEDIAN_IOU:
         raise ValueError(

@@ -373,6 +373,50 @@ def _clear_old_session(folder: Path) -> None:
         shutil.rmtree(folder / IMAGES_DIR)
 
 
+def _angle_rows(names: list[str], angles: list) -> list[str]:
+    """The lines of an angles table (header first)."""
+    rows = [_csv_line(list(ANGLE_COLUMNS))]
+    for name, pair in zip(names, angles):
+        if len(pair) != 2:
+            raise ValueError(f"angles of {name!r} must be (theta_rad, phi_rad), got "
+                             f"{pair!r}")
+        rows.append(_csv_line([name, repr(float(pair[0])), repr(float(pair[1]))]))
+    return rows
+
+
+def _matrix_rows(names: list[str], cameras: list[Camera],
+                 calibration: RigCalibration) -> list[str]:
+    """The lines of a matrix table (header first); every camera a pinhole with the rig's
+    lens."""
+    rows = [_csv_line(list(MATRIX_COLUMNS))]
+    for name, camera in zip(names, cameras):
+        if camera.orthographic:
+            raise ValueError(f"camera of {name!r} is orthographic; a matrix table holds "
+                             "pinhole cameras")
+        if not np.array_equal(camera.distortion, calibration.distortion):
+            raise ValueError(f"camera of {name!r} has lens distortion "
+                             f"{camera.distortion.tolist()}, the session's rig "
+                             f"{list(calibration.distortion)}; expected one lens per session")
+        P = camera.projection_matrix
+        rows.append(_csv_line([name] + [repr(float(v)) for v in P.ravel()]))
+    return rows
+
+
+def _session_document(calibration: RigCalibration, bounds_m, segmentation) -> dict:
+    """The session file's content: format, rig, and the box and segmentation if given."""
+    document = {"format": FORMAT, "version": VERSION, "rig": _plain(calibration.to_dict())}
+    if bounds_m is not None:
+        document["bounds_m"] = as_bounds(bounds_m, what="bounds_m").tolist()
+    if segmentation is not None:
+        if dataclasses.is_dataclass(segmentation):
+            segmentation = dataclasses.asdict(segmentation)
+        if not isinstance(segmentation, dict):
+            raise ValueError("segmentation must be a dict or SegmentationParams, "
+                             f"got {type(segmentation).__name__}")
+        document["segmentation"] = _plain(segmentation)
+    return document
+
+
 def write_session(folder: Path | str, images: list[tuple[str, np.ndarray]],
                   angles: list[tuple[float, float]] | None, calibration: RigCalibration, *,
                   cameras: list[Camera] | None = None, bounds_m=None,
@@ -419,35 +463,9 @@ def write_session(folder: Path | str, images: list[tuple[str, np.ndarray]],
     twice = sorted({n for n in names if names.count(n) > 1})
     if twice:
         raise ValueError(f"view names must be unique; repeated: {_some(twice)}")
-    if cameras is None:
-        rows = [_csv_line(list(ANGLE_COLUMNS))]
-        for name, pair in zip(names, angles):
-            if len(pair) != 2:
-                raise ValueError(f"angles of {name!r} must be (theta_rad, phi_rad), got "
-                                 f"{pair!r}")
-            rows.append(_csv_line([name, repr(float(pair[0])), repr(float(pair[1]))]))
-    else:
-        rows = [_csv_line(list(MATRIX_COLUMNS))]
-        for name, camera in zip(names, cameras):
-            if camera.orthographic:
-                raise ValueError(f"camera of {name!r} is orthographic; a matrix table holds "
-                                 "pinhole cameras")
-            if not np.array_equal(camera.distortion, calibration.distortion):
-                raise ValueError(f"camera of {name!r} has lens distortion "
-                                 f"{camera.distortion.tolist()}, the session's rig "
-                                 f"{list(calibration.distortion)}; expected one lens per session")
-            P = camera.projection_matrix
-            rows.append(_csv_line([name] + [repr(float(v)) for v in P.ravel()]))
-    document = {"format": FORMAT, "version": VERSION, "rig": _plain(calibration.to_dict())}
-    if bounds_m is not None:
-        document["bounds_m"] = as_bounds(bounds_m, what="bounds_m").tolist()
-    if segmentation is not None:
-        if dataclasses.is_dataclass(segmentation):
-            segmentation = dataclasses.asdict(segmentation)
-        if not isinstance(segmentation, dict):
-            raise ValueError("segmentation must be a dict or SegmentationParams, "
-                             f"got {type(segmentation).__name__}")
-        document["segmentation"] = _plain(segmentation)
+    rows = (_angle_rows(names, angles) if cameras is None
+            else _matrix_rows(names, cameras, calibration))
+    document = _session_document(calibration, bounds_m, segmentation)
     checked = [_check_rgb(rgb, calibration, name) for name, (_, rgb) in zip(names, images)]
 
     _clear_old_session(folder)

@@ -744,6 +744,43 @@ class _Front:
         return len(edges)
 
 
+def _points_and_neighbours(points, k, swap_passes, max_seeds) -> tuple[np.ndarray, np.ndarray]:
+    """The points (n, 3) float64, checked with :func:`advancing_front`'s options, and
+    each one's ``k`` nearest neighbours (n, k) int64, itself left out."""
+    P = np.ascontiguousarray(points, dtype=np.float64)
+    if P.ndim != 2 or P.shape[1] != 3:
+        raise ValueError(f"points must be (n, 3), got shape {P.shape}")
+    if len(P) < 4:
+        raise ValueError(f"need at least 4 points, got {len(P)}")
+    if not np.all(np.isfinite(P)):
+        raise ValueError("points must be finite")
+    k = int(k)
+    if not 3 <= k < len(P):
+        raise ValueError(f"k must be in 3..{len(P) - 1} (number of points - 1), got {k}")
+    if int(swap_passes) < 0 or int(max_seeds) < 1:
+        raise ValueError(f"swap_passes must be >= 0 and max_seeds >= 1, got {swap_passes}, {max_seeds}")
+    dist, knn = cKDTree(P).query(P, k=k + 1)
+    if np.any(dist[:, 1] == 0.0):
+        raise ValueError("points contain duplicates; remove them first")
+    # Drop each point itself (the first hit, distance 0) from its neighbour list.
+    return P, np.ascontiguousarray(knn[:, 1:], dtype=np.int64)
+
+
+def _unit_normals(P: np.ndarray, normals, knn: np.ndarray) -> np.ndarray:
+    """(n, 3) unit outward normals: ``normals`` checked and normalised, or estimated."""
+    if normals is None:
+        N = estimate_normals(P, knn)
+    else:
+        N = np.array(normals, dtype=np.float64)
+        if N.shape != P.shape:
+            raise ValueError(f"normals must be (n, 3) like points {P.shape}, got {N.shape}")
+        length = np.linalg.norm(N, axis=1, keepdims=True)
+        if not np.all(np.isfinite(N)) or np.any(length == 0):
+            raise ValueError("normals must be finite and non-zero")
+        N = N / length
+    return np.ascontiguousarray(N)
+
+
 def advancing_front(points, normals=None, *, k: int = 20, swap_passes: int = 10,
                     max_seeds: int = 100) -> AdvancingFrontResult:
     """Triangulate a cloud of surface points by the paper's advancing front.
@@ -768,35 +805,8 @@ def advancing_front(points, normals=None, *, k: int = 20, swap_passes: int = 10,
         Faces counter-clockwise seen from outside (along the normals), and statistics.
         Points the front passes without using stay unreferenced (``n_points_used``).
     """
-    P = np.ascontiguousarray(points, dtype=np.float64)
-    if P.ndim != 2 or P.shape[1] != 3:
-        raise ValueError(f"points must be (n, 3), got shape {P.shape}")
-    if len(P) < 4:
-        raise ValueError(f"need at least 4 points, got {len(P)}")
-    if not np.all(np.isfinite(P)):
-        raise ValueError("points must be finite")
-    k = int(k)
-    if not 3 <= k < len(P):
-        raise ValueError(f"k must be in 3..{len(P) - 1} (number of points - 1), got {k}")
-    if int(swap_passes) < 0 or int(max_seeds) < 1:
-        raise ValueError(f"swap_passes must be >= 0 and max_seeds >= 1, got {swap_passes}, {max_seeds}")
-    dist, knn = cKDTree(P).query(P, k=k + 1)
-    if np.any(dist[:, 1] == 0.0):
-        raise ValueError("points contain duplicates; remove them first")
-    # Drop each point itself (the first hit, distance 0) from its neighbour list.
-    knn = np.ascontiguousarray(knn[:, 1:], dtype=np.int64)
-    if normals is None:
-        N = estimate_normals(P, knn)
-    else:
-        N = np.array(normals, dtype=np.float64)
-        if N.shape != P.shape:
-            raise ValueError(f"normals must be (n, 3) like points {P.shape}, got {N.shape}")
-        length = np.linalg.norm(N, axis=1, keepdims=True)
-        if not np.all(np.isfinite(N)) or np.any(length == 0):
-            raise ValueError("normals must be finite and non-zero")
-        N = N / length
-    N = np.ascontiguousarray(N)
-
+    P, knn = _points_and_neighbours(points, k, swap_passes, max_seeds)
+    N = _unit_normals(P, normals, knn)
     front = _Front(P, N, knn)
     n_seeds = n_seed_attempts = n_relaxed = 0
     tried = np.zeros(len(P), dtype=bool)
@@ -829,7 +839,7 @@ def advancing_front(points, normals=None, *, k: int = 20, swap_passes: int = 10,
     faces, n_swaps = swap_edges(P, N, faces, max_passes=int(swap_passes))
 
     n_open, n_over, n_pinched = _defects(faces, len(P))
-    stats = {
+    return AdvancingFrontResult(faces=faces, normals=N, stats={
         "n_points": len(P),
         "n_points_used": int(len(np.unique(faces))),
         "n_faces": len(faces),
@@ -845,6 +855,5 @@ def advancing_front(points, normals=None, *, k: int = 20, swap_passes: int = 10,
         "n_nonmanifold_vertices": n_pinched,
         "n_swaps": n_swaps,
         "closed": bool(len(faces) > 0 and n_open == 0 and n_over == 0),
-    }
-    return AdvancingFrontResult(faces=faces, normals=N, stats=stats)
+    })
 

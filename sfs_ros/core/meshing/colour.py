@@ -407,6 +407,71 @@ def fill_from_neighbours(colours: np.ndarray, seen: np.ndarray, faces: np.ndarra
     return out
 
 
+def _check_colour_inputs(images: Sequence, cameras: list[Camera], masks: Sequence | None, *,
+                         angle_power: float, min_cos: float, edge_ramp_px: float,
+                         depth_tolerance_px: float, coverage: bool,
+                         occlusion: bool) -> list:
+    """ValueError naming the first of :func:`vertex_colours`' arguments out of its range;
+    else the masks, validated (one None per view when none are given)."""
+    if not cameras:
+        raise ValueError("need at least one view (image and camera) to colour a mesh")
+    if len(images) != len(cameras):
+        raise ValueError(f"got {len(cameras)} cameras but {len(images)} images; expected one "
+                         "image per camera")
+    masks = [None] * len(cameras) if masks is None else validate_masks(cameras, masks)
+    if not (math.isfinite(angle_power) and angle_power >= 0):
+        raise ValueError(f"angle_power must be a finite number >= 0, got {angle_power}")
+    if not 0.0 <= min_cos < 1.0:
+        raise ValueError(f"min_cos must be in [0, 1), got {min_cos}")
+    if not (math.isfinite(edge_ramp_px) and edge_ramp_px > 0):
+        raise ValueError(f"edge_ramp_px must be a finite number of pixels > 0, got {edge_ramp_px}")
+    if not (math.isfinite(depth_tolerance_px) and depth_tolerance_px >= 0):
+        raise ValueError(f"depth_tolerance_px must be a finite number of pixels >= 0, "
+                         f"got {depth_tolerance_px}")
+    if coverage and not occlusion:
+        raise ValueError("coverage comes from the occlusion test's z-buffers: it needs "
+                         "occlusion=True")
+    return masks
+
+
+@dataclass(frozen=True)
+class _Weighing:
+    """One mesh and :func:`vertex_colours`' options, to weigh each view's colours with."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    normals: np.ndarray
+    occlusion: bool
+    closed: bool
+    coverage: bool
+    min_cos: float
+    angle_power: float
+    edge_ramp_px: float
+    depth_tolerance_px: float
+
+    def one_view(self, view: tuple) -> tuple:
+        """What one view ``(image, camera, mask)`` adds: the vertices it sees, their
+        weights and colours, and the vertices it would see but the mesh hides (and its
+        coverage by the mesh, packed bits, when asked for)."""
+        image, camera, mask = view
+        vertices, faces, min_cos = self.vertices, self.faces, self.min_cos
+        u, v, z, cos = _view_of(camera, vertices, self.normals)
+        idx = np.flatnonzero(_in_image(u, v, camera) & (cos > min_cos))
+        u, v, z, cos = u[idx], v[idx], z[idx], cos[idx]
+        zbuf = (rasterize_depth(vertices, faces, camera, closed=self.closed)
+                if self.occlusion else None)
+        edge_px = _edge_distance_px(zbuf, mask, camera)
+        constant, per_metre = _footprint_terms(camera)
+        weights, weighted = np.empty(len(idx)), np.empty((len(idx), 3))
+        hidden = np.empty(len(idx), bool)
+        _weigh_view(u, v, z, cos, image, _planes(edge_px, np.float32), _planes(zbuf, np.float64),
+                    min_cos, self.angle_power, self.edge_ramp_px, self.depth_tolerance_px,
+                    per_metre, constant, weights, weighted, hidden)
+        keep = weights > 0
+        covered = np.packbits(np.isfinite(zbuf), axis=None) if self.coverage else None
+        return idx[keep], weights[keep], weighted[keep], idx[hidden], covered
+
+
 def vertex_colours(vertices, faces, images: Sequence, cameras: Sequence[Camera], *,
                    masks: Sequence | None = None, occlusion: bool = True,
                    angle_power: float = 2.0, min_cos: float = 0.2, edge_ramp_px: float = 3.0,
@@ -473,72 +538,50 @@ def vertex_colours(vertices, faces, images: Sequence, cameras: Sequence[Camera],
     """
     vertices, faces = as_mesh_arrays(vertices, faces)
     cameras = list(cameras)
-    if not cameras:
-        raise ValueError("need at least one view (image and camera) to colour a mesh")
-    if len(images) != len(cameras):
-        raise ValueError(f"got {len(cameras)} cameras but {len(images)} images; expected one "
-                         "image per camera")
-    masks = [None] * len(cameras) if masks is None else validate_masks(cameras, masks)
-    if not (math.isfinite(angle_power) and angle_power >= 0):
-        raise ValueError(f"angle_power must be a finite number >= 0, got {angle_power}")
-    if not 0.0 <= min_cos < 1.0:
-        raise ValueError(f"min_cos must be in [0, 1), got {min_cos}")
-    if not (math.isfinite(edge_ramp_px) and edge_ramp_px > 0):
-        raise ValueError(f"edge_ramp_px must be a finite number of pixels > 0, got {edge_ramp_px}")
-    if not (math.isfinite(depth_tolerance_px) and depth_tolerance_px >= 0):
-        raise ValueError(f"depth_tolerance_px must be a finite number of pixels >= 0, "
-                         f"got {depth_tolerance_px}")
-    if coverage and not occlusion:
-        raise ValueError("coverage comes from the occlusion test's z-buffers: it needs "
-                         "occlusion=True")
-
+    masks = _check_colour_inputs(images, cameras, masks, angle_power=angle_power,
+                                 min_cos=min_cos, edge_ramp_px=edge_ramp_px,
+                                 depth_tolerance_px=depth_tolerance_px, coverage=coverage,
+                                 occlusion=occlusion)
     images = [check_image(i, image, c) for i, (image, c) in enumerate(zip(images, cameras))]
     normals = vertex_normals(vertices, faces)
     total = np.zeros((len(vertices), 3))
     weight_sum = np.zeros(len(vertices))
     n_views = np.zeros(len(vertices), dtype=np.int64)
     n_hidden = np.zeros(len(vertices), dtype=np.int64)
-    def one_view(view: tuple) -> tuple:
-        """What one view adds: the vertices it sees, their weights and colours, and the
-        vertices it would see but the mesh hides."""
-        image, camera, mask = view
-        u, v, z, cos = _view_of(camera, vertices, normals)
-        idx = np.flatnonzero(_in_image(u, v, camera) & (cos > min_cos))
-        u, v, z, cos = u[idx], v[idx], z[idx], cos[idx]
-        zbuf = rasterize_depth(vertices, faces, camera, closed=closed) if occlusion else None
-        edge_px = _edge_distance_px(zbuf, mask, camera)
-        constant, per_metre = _footprint_terms(camera)
-        weights, weighted = np.empty(len(idx)), np.empty((len(idx), 3))
-        hidden = np.empty(len(idx), bool)
-        _weigh_view(u, v, z, cos, image, _planes(edge_px, np.float32), _planes(zbuf, np.float64),
-                    min_cos, angle_power, edge_ramp_px, depth_tolerance_px, per_metre, constant,
-                    weights, weighted, hidden)
-        keep = weights > 0
-        covered = np.packbits(np.isfinite(zbuf), axis=None) if coverage else None
-        return idx[keep], weights[keep], weighted[keep], idx[hidden], covered
+    weighing = _Weighing(vertices, faces, normals, occlusion=occlusion, closed=closed,
+                         coverage=coverage, min_cos=min_cos, angle_power=angle_power,
+                         edge_ramp_px=edge_ramp_px, depth_tolerance_px=depth_tolerance_px)
 
     # Views in threads (numpy and the rasteriser release the GIL), summed in view order:
     # the same sums as one view after the other.
     covers = []
-    for idx, w, weighted, hidden, covered in map_in_threads(one_view,
+    for idx, w, weighted, hidden, covered in map_in_threads(weighing.one_view,
                                                            zip(images, cameras, masks)):
         covers.append(covered)
         _add_view(idx, w, weighted, hidden, total, weight_sum, n_views, n_hidden)
 
     if on_blended is not None:
         on_blended()
+    return _blended(total, weight_sum, n_views, n_hidden, faces, len(cameras), occlusion,
+                    covers if coverage else None)
+
+
+def _blended(total, weight_sum, n_views, n_hidden, faces, n_cameras: int, occlusion: bool,
+             coverage: list | None) -> VertexColours:
+    """The vertices' colours from the views' sums: ``total`` (n, 3) weighted colours and
+    ``weight_sum`` (n,) their weights; the vertices no view sees filled from their
+    neighbours."""
     seen = weight_sum > 0
     if not seen.any():
         raise ValueError("no vertex is seen by any view: check that the cameras look at the "
                          "mesh (calibration, frame) and that faces are outward")
-    colours = np.zeros((len(vertices), 3))
+    colours = np.zeros((len(total), 3))
     colours[seen] = total[seen] / weight_sum[seen, None]
     if not seen.all():
         colours = fill_from_neighbours(colours, seen, faces)
-    stats = {"vertices": int(len(vertices)), "views": len(cameras), "seen": int(seen.sum()),
+    stats = {"vertices": int(len(total)), "views": n_cameras, "seen": int(seen.sum()),
              "filled": int((~seen).sum()),
              "mean_views_per_seen_vertex": float(n_views[seen].mean()),
              "occlusion": bool(occlusion), "occluded_pairs": int(n_hidden.sum())}
     return VertexColours(colours=np.clip(np.rint(colours), 0, 255).astype(np.uint8),
-                         n_views=n_views, n_hidden=n_hidden, stats=stats,
-                         coverage=covers if coverage else None)
+                         n_views=n_views, n_hidden=n_hidden, stats=stats, coverage=coverage)

@@ -211,6 +211,44 @@ class SheetLayout:
                 self.pad_px + (k % self.columns) * (self.tile_w + self.pad_px))
 
 
+def _put(lay: SheetLayout, image: np.ndarray, text: str, row: int, rgb, width: int) -> None:
+    """Text line ``row`` (0-based) of ``image``, ``lay.pad_px`` from its left edge, cut to
+    ``width`` pixels."""
+    cv2.putText(image, _fit(text, width, lay.font_scale),
+                (lay.pad_px, row * lay.line_px + lay.baseline_px), _FONT, lay.font_scale, rgb,
+                1, cv2.LINE_AA)
+
+
+def _tile(lay: SheetLayout, thumbnail: np.ndarray | None, name: str, angles, iou, reason,
+          bad_iou: float) -> np.ndarray:
+    """One view's tile (``lay.tile_h``, ``lay.tile_w``, 3) uint8: its thumbnail, framed in
+    red when bad, above its name, angles, IoU and the reason it was rejected."""
+    pad, tile_px, width = lay.pad_px, lay.tile_px, lay.tile_px - 2 * lay.pad_px
+    bad = reason is not None or iou is None or iou < bad_iou
+    tile = np.full((lay.tile_h, lay.tile_w, 3), WARNING_RGB if bad else FRAME_RGB, np.uint8)
+    box = tile[pad:pad + lay.box_h, pad:pad + tile_px]
+    if thumbnail is None:
+        box[:] = _NO_IMAGE_RGB
+        _put(lay, box, "no image", lay.box_h // (2 * lay.line_px), _TEXT_RGB, width)
+    else:
+        box[:] = thumbnail
+    band = tile[pad + lay.box_h:-pad, pad:-pad]
+    band[:] = _BAD_BAND_RGB if bad else BACKGROUND_RGB
+    _put(lay, band, name, 0, _TEXT_RGB, width)
+    _put(lay, band, "no encoder angles" if angles is None else
+         f"theta {math.degrees(angles[0]):.1f}  phi {math.degrees(angles[1]):.1f} deg",
+         1, _TEXT_RGB, width)
+    figure = "IoU none" if iou is None else f"IoU {iou:.3f}"
+    if reason is not None:
+        _put(lay, band, f"REJECTED, {figure}", 2, WARNING_RGB, width)
+        for row, text in enumerate(_wrap(reason, width, lay.font_scale, lay.lines - 3), 3):
+            _put(lay, band, text, row, WARNING_RGB, width)
+    else:
+        _put(lay, band, figure + (f" < {bad_iou:.2f}" if bad and iou is not None else ""), 2,
+             WARNING_RGB if bad else _TEXT_RGB, width)
+    return tile
+
+
 def contact_sheet(images, masks, names, angles_rad, ious, *, rejected=None, columns=None,
                   tile_px: int = 200, bad_iou: float = 0.9) -> np.ndarray:
     """(H, W, 3) uint8 RGB contact sheet of a session's views (module docstring).
@@ -248,50 +286,23 @@ def contact_sheet(images, masks, names, angles_rad, ious, *, rejected=None, colu
     lay = SheetLayout.of(images, columns=columns, tile_px=tile_px,
                          any_rejected=any(r is not None for r in rejected))
     sheet = np.full((lay.height, lay.width, 3), BACKGROUND_RGB, np.uint8)
-    scale, line, pad = lay.font_scale, lay.line_px, lay.pad_px
-
-    def put(image, text, row, rgb, width=tile_px - 2 * pad):
-        """Text line ``row`` (0-based) of ``image``, ``pad`` from its left edge."""
-        cv2.putText(image, _fit(text, width, scale), (pad, row * line + lay.baseline_px),
-                    _FONT, scale, rgb, 1, cv2.LINE_AA)
-
     # The thumbnails in threads (OpenCV scales and draws outside Python's lock).
     thumbnails = map_in_threads(
         lambda view: None if view[0] is None
         else _thumbnail(*view, tile_px, lay.box_h, max(1, tile_px // 200)), zip(images, masks))
     for k, (thumbnail, name, angles, iou, reason) in enumerate(
             zip(thumbnails, names, angles_rad, ious, rejected)):
-        bad = reason is not None or iou is None or iou < bad_iou
-        tile = np.full((lay.tile_h, lay.tile_w, 3), WARNING_RGB if bad else FRAME_RGB, np.uint8)
-        box = tile[pad:pad + lay.box_h, pad:pad + tile_px]
-        if thumbnail is None:
-            box[:] = _NO_IMAGE_RGB
-            put(box, "no image", lay.box_h // (2 * line), _TEXT_RGB)
-        else:
-            box[:] = thumbnail
-        band = tile[pad + lay.box_h:-pad, pad:-pad]
-        band[:] = _BAD_BAND_RGB if bad else BACKGROUND_RGB
-        put(band, name, 0, _TEXT_RGB)
-        put(band, "no encoder angles" if angles is None else
-            f"theta {math.degrees(angles[0]):.1f}  phi {math.degrees(angles[1]):.1f} deg",
-            1, _TEXT_RGB)
-        figure = "IoU none" if iou is None else f"IoU {iou:.3f}"
-        if reason is not None:
-            put(band, f"REJECTED, {figure}", 2, WARNING_RGB)
-            for row, text in enumerate(_wrap(reason, tile_px - 2 * pad, scale, lay.lines - 3), 3):
-                put(band, text, row, WARNING_RGB)
-        else:
-            put(band, figure + (f" < {bad_iou:.2f}" if bad and iou is not None else ""), 2,
-                WARNING_RGB if bad else _TEXT_RGB)
         y, x = lay.tile_origin(k)
-        sheet[y:y + lay.tile_h, x:x + lay.tile_w] = tile
+        sheet[y:y + lay.tile_h, x:x + lay.tile_w] = _tile(lay, thumbnail, name, angles, iou,
+                                                          reason, bad_iou)
 
     scored = [v for v, r in zip(ious, rejected) if v is not None and r is None]
     low = sum(1 for v, r in zip(ious, rejected) if r is None and (v is None or v < bad_iou))
     header = (f"{len(names)} views: {sum(r is not None for r in rejected)} rejected, {low} with "
               f"IoU below {bad_iou:.2f} or none"
               + (f"; mean IoU {np.mean(scored):.3f}" if scored else ""))
-    put(sheet[pad:pad + line, pad:], header, 0, _TEXT_RGB, width=lay.width - 4 * pad)
+    pad = lay.pad_px
+    _put(lay, sheet[pad:pad + lay.line_px, pad:], header, 0, _TEXT_RGB, lay.width - 4 * pad)
     return sheet
 
 

@@ -112,6 +112,102 @@ def _surface_points_normals(vertices, faces, normals, face_id, bary, pixels):
     return points, n
 
 
+def _check_options(backdrop: str, plate_radius_factor: float, out_of_frame_every: int,
+                   out_fraction: float, stripe_period_m: float) -> None:
+    """ValueError naming the first of :func:`simulate_hostile_scan`'s options out of range."""
+    if backdrop not in BACKDROPS:
+        raise ValueError(f"backdrop must be one of {sorted(BACKDROPS)}, got {backdrop!r}")
+    if not plate_radius_factor > 1:
+        raise ValueError(f"plate_radius_factor must be > 1, got {plate_radius_factor}")
+    if isinstance(out_of_frame_every, bool) or not isinstance(out_of_frame_every, int) \
+            or out_of_frame_every < 0:
+        raise ValueError(f"out_of_frame_every must be an integer >= 0, got {out_of_frame_every!r}")
+    if not 0 < out_fraction < 1:
+        raise ValueError(f"out_fraction must be in (0, 1), got {out_fraction}")
+    if not stripe_period_m > 0:
+        raise ValueError(f"stripe_period_m must be > 0, got {stripe_period_m}")
+
+
+@dataclass(frozen=True)
+class _Scene:
+    """The object on its plate, one mesh: ``vertices`` (n, 3) metres and ``faces`` (m, 3),
+    the object's first (its ``object_faces``, on ``object_vertices``), their RGB
+    ``colours`` (n, 3) float64, corner ``normals`` (m, 3, 3) and the ``background`` RGB."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    colours: np.ndarray
+    normals: np.ndarray
+    object_vertices: np.ndarray
+    object_faces: np.ndarray
+    background: np.ndarray
+
+    @classmethod
+    def of(cls, obj: SyntheticObject, plate_radius_factor: float, backdrop: str) -> _Scene:
+        plate = _plate_mesh(obj, plate_radius_factor)
+        obj_v, obj_f = obj.mesh.vertices, obj.mesh.faces
+        vertices = np.vstack([obj_v, plate.vertices])
+        faces = np.vstack([obj_f, plate.faces + len(obj_v)])
+        albedo = 0.7 * np.asarray(_OBJECT_RGB, np.float64) + 0.3 * obj.color_at(obj_v)
+        colours = np.vstack([albedo, np.tile(np.asarray(_PLATE_RGB, np.float64),
+                                             (len(plate.vertices), 1))])
+        return cls(vertices, faces, colours, corner_normals(vertices, faces), obj_v, obj_f,
+                   np.asarray(BACKDROPS[backdrop], np.float32))
+
+    def render(self, camera: Camera, rng: np.random.Generator, stripe_period_m: float,
+               noise_sigma: float) -> tuple[np.ndarray, np.ndarray]:
+        """What ``camera`` records, (H, W, 3) uint8 RGB, and the object's exact
+        silhouette (H, W) bool; ``rng`` draws the cloth, then the noise."""
+        h, w = camera.height, camera.width
+        light = camera.R.T @ (_LIGHT_CAMERA / np.linalg.norm(_LIGHT_CAMERA))
+        image = render_image(self.vertices, self.faces, camera, vertex_colors=self.colours,
+                             background_rgb=self.background, light_dir=light, ambient=0.4,
+                             noise_sigma=0.0).astype(np.float32)
+        face_id, bary, _ = rasterize_faces(self.vertices, self.faces, camera)
+        n_obj_faces = len(self.object_faces)
+        on_object = (face_id >= 0) & (face_id < n_obj_faces)
+        on_plate = face_id >= n_obj_faces
+        # Soft cast shadow: darkens the plate by up to 60 %, edge blurred over ~2 % of the width.
+        shadow = self.cast_shadow(camera, light)
+        shadow = cv2.GaussianBlur(shadow, (0, 0), max(1.0, 0.02 * w))
+        image[on_plate] *= (1.0 - 0.6 * shadow[on_plate])[:, None]
+        # Cloth on the backdrop (behind object and plate).
+        covered, cloth = _cloth(h, w, rng)
+        behind = covered & (face_id < 0)
+        image[behind] = cloth[behind]
+        self.mark_object(image, camera, light, face_id, bary, on_object, stripe_period_m)
+        if noise_sigma > 0:
+            image += float(noise_sigma) * rng.standard_normal(image.shape, dtype=np.float32)
+        return np.clip(np.rint(image), 0, 255).astype(np.uint8), on_object
+
+    def cast_shadow(self, camera: Camera, light: np.ndarray) -> np.ndarray:
+        """(H, W) float32 in {0, 1}: the object flattened onto the plate plane along the
+        light (``light``: towards it, unit, object frame)."""
+        obj_v = self.object_vertices
+        shadow_v = obj_v - np.outer(obj_v[:, 2] / max(light[2], 0.2), light)
+        shadow_v[:, 2] = 1e-4  # just above the plate, so the plate never hides it
+        return rasterize_silhouette(shadow_v, self.object_faces, camera).astype(np.float32)
+
+    def mark_object(self, image: np.ndarray, camera: Camera, light: np.ndarray, face_id,
+                    bary, on_object: np.ndarray, stripe_period_m: float) -> None:
+        """Dark dashes and specular highlights drawn into ``image`` (H, W, 3) float32 on
+        the object's pixels."""
+        pixels = np.flatnonzero(on_object)
+        points, nrm = _surface_points_normals(self.vertices, self.faces, self.normals,
+                                              face_id, bary, pixels)
+        azimuth = np.arctan2(points[:, 1], points[:, 0])
+        stripes = (np.sin(2 * np.pi * points[:, 2] / stripe_period_m) > 0.85) \
+            & (np.sin(3 * azimuth) > 0.0)  # dashes: half of each ring
+        view = camera.center - points if not camera.orthographic else -camera.forward[None, :]
+        view /= np.linalg.norm(view, axis=1, keepdims=True)
+        half = view + light
+        half /= np.linalg.norm(half, axis=1, keepdims=True)
+        specular = 300.0 * np.clip((nrm * half).sum(axis=1), 0.0, 1.0) ** 80
+        flat = image.reshape(-1, 3)
+        flat[pixels] = np.where(stripes[:, None], 0.1 * flat[pixels], flat[pixels])
+        flat[pixels] += specular[:, None].astype(np.float32)
+
+
 def simulate_hostile_scan(obj: SyntheticObject, calibration: RigCalibration, plan: np.ndarray, *,
                           backdrop: str = "black", plate_radius_factor: float = 2.5,
                           out_of_frame_every: int = 4, out_fraction: float = 0.15,
@@ -142,72 +238,20 @@ def simulate_hostile_scan(obj: SyntheticObject, calibration: RigCalibration, pla
     -------
     list of SceneCapture, in plan order.
     """
-    if backdrop not in BACKDROPS:
-        raise ValueError(f"backdrop must be one of {sorted(BACKDROPS)}, got {backdrop!r}")
-    if not plate_radius_factor > 1:
-        raise ValueError(f"plate_radius_factor must be > 1, got {plate_radius_factor}")
-    if isinstance(out_of_frame_every, bool) or not isinstance(out_of_frame_every, int) \
-            or out_of_frame_every < 0:
-        raise ValueError(f"out_of_frame_every must be an integer >= 0, got {out_of_frame_every!r}")
-    if not 0 < out_fraction < 1:
-        raise ValueError(f"out_fraction must be in (0, 1), got {out_fraction}")
-    if not stripe_period_m > 0:
-        raise ValueError(f"stripe_period_m must be > 0, got {stripe_period_m}")
+    _check_options(backdrop, plate_radius_factor, out_of_frame_every, out_fraction,
+                   stripe_period_m)
     plan = np.asarray(plan, dtype=np.float64).reshape(-1, 2)
     rng = np.random.default_rng(seed)
-    plate = _plate_mesh(obj, plate_radius_factor)
-    obj_v, obj_f = obj.mesh.vertices, obj.mesh.faces
-    n_obj_faces = len(obj_f)
-    vertices = np.vstack([obj_v, plate.vertices])
-    faces = np.vstack([obj_f, plate.faces + len(obj_v)])
-    albedo = 0.7 * np.asarray(_OBJECT_RGB, np.float64) + 0.3 * obj.color_at(obj_v)
-    colours = np.vstack([albedo,
-                         np.tile(np.asarray(_PLATE_RGB, np.float64), (len(plate.vertices), 1))])
-    normals = corner_normals(vertices, faces)
-    background = np.asarray(BACKDROPS[backdrop], np.float32)
+    scene = _Scene.of(obj, plate_radius_factor, backdrop)
     captures = []
     for n, (theta, phi) in enumerate(plan):
         camera = rig_camera(float(theta), float(phi), calibration)
         if out_of_frame_every and n % out_of_frame_every == out_of_frame_every - 1:
-            camera = _shifted_camera(camera, rasterize_silhouette(obj_v, obj_f, camera), out_fraction)
-        h, w = camera.height, camera.width
-        light = camera.R.T @ (_LIGHT_CAMERA / np.linalg.norm(_LIGHT_CAMERA))
-        # The object flattened onto the plate plane along the light: its cast shadow.
-        shadow_v = obj_v - np.outer(obj_v[:, 2] / max(light[2], 0.2), light)
-        shadow_v[:, 2] = 1e-4  # just above the plate, so the plate never hides it
-        image = render_image(vertices, faces, camera, vertex_colors=colours,
-                             background_rgb=background, light_dir=light, ambient=0.4,
-                             noise_sigma=0.0).astype(np.float32)
-        face_id, bary, _ = rasterize_faces(vertices, faces, camera)
-        on_object = (face_id >= 0) & (face_id < n_obj_faces)
-        on_plate = face_id >= n_obj_faces
-        # Soft cast shadow: darkens the plate by up to 60 %, edge blurred over ~2 % of the width.
-        shadow = rasterize_silhouette(shadow_v, obj_f, camera).astype(np.float32)
-        sigma = max(1.0, 0.02 * w)
-        shadow = cv2.GaussianBlur(shadow, (0, 0), sigma)
-        image[on_plate] *= (1.0 - 0.6 * shadow[on_plate])[:, None]
-        # Cloth on the backdrop (behind object and plate).
-        covered, cloth = _cloth(h, w, rng)
-        behind = covered & (face_id < 0)
-        image[behind] = cloth[behind]
-        # Dark dashes and specular highlights on the object.
-        pixels = np.flatnonzero(on_object)
-        points, nrm = _surface_points_normals(vertices, faces, normals, face_id, bary, pixels)
-        azimuth = np.arctan2(points[:, 1], points[:, 0])
-        stripes = (np.sin(2 * np.pi * points[:, 2] / stripe_period_m) > 0.85) \
-            & (np.sin(3 * azimuth) > 0.0)  # dashes: half of each ring
-        view = camera.center - points if not camera.orthographic else -camera.forward[None, :]
-        view /= np.linalg.norm(view, axis=1, keepdims=True)
-        half = view + light
-        half /= np.linalg.norm(half, axis=1, keepdims=True)
-        specular = 300.0 * np.clip((nrm * half).sum(axis=1), 0.0, 1.0) ** 80
-        flat = image.reshape(-1, 3)
-        flat[pixels] = np.where(stripes[:, None], 0.1 * flat[pixels], flat[pixels])
-        flat[pixels] += specular[:, None].astype(np.float32)
-        if noise_sigma > 0:
-            image += float(noise_sigma) * rng.standard_normal(image.shape, dtype=np.float32)
-        captures.append(SceneCapture(name=f"view_{n:03d}.png",
-                                     image=np.clip(np.rint(image), 0, 255).astype(np.uint8),
+            camera = _shifted_camera(
+                camera, rasterize_silhouette(scene.object_vertices, scene.object_faces, camera),
+                out_fraction)
+        image, on_object = scene.render(camera, rng, stripe_period_m, noise_sigma)
+        captures.append(SceneCapture(name=f"view_{n:03d}.png", image=image,
                                      object_mask=on_object, camera=camera,
                                      theta_rad=float(theta), phi_rad=float(phi)))
     return captures
