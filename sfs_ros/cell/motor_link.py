@@ -37,7 +37,9 @@ LOCKED = "alarm lock since power-up: home the axes (motor/home) before moving"
 
 class MotorLink:
     """The controller on ``port`` at ``baudrate``, reopened every ``reconnect_period_s``
-    after a loss (by the caller's timer, :meth:`reconnect`); safe from any thread."""
+    after a loss (by the caller's timer, :meth:`reconnect`). Its methods are called from
+    the node's timers, services and worker: the port is taken and given up under a lock,
+    each call works on the client it found."""
 
     def __init__(self, port: str, baudrate: int, reconnect_period_s: float, *,
                  log: Callable[[str, str], None], changed: Callable[[], None]):
