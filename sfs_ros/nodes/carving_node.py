@@ -21,7 +21,7 @@ from sensor_msgs.msg import Image, JointState
 from std_srvs.srv import Trigger
 
 from sfs_ros.cell.carving_scan import HullSchedule, grid_refusal
-from sfs_ros.cell.mesh_options import MeshOptions, mesh_options
+from sfs_ros.cell.mesh_options import MeshOptions
 from sfs_ros.cell.messages import check_image_size
 from sfs_ros.core.meshing.meshers import MESHER
 from sfs_ros.core.resident_memory import prefault
@@ -32,10 +32,10 @@ from sfs_ros.ros import capture_qos
 from sfs_ros.ros.carved_scan_msg import carved_scan_to_msg
 from sfs_ros.ros.carving_outputs import CarvingOutputs
 from sfs_ros.ros.carving_params import (
+    carve_options,
     check_scan_settings,
     live_reconstruction,
     open_scan,
-    request_refusal,
     scan_bounds,
     scan_settings,
 )
@@ -214,15 +214,9 @@ class CarvingNode(Node):
         """``carve_scan``: options checked here (refused at once with the reason), the
         carving made in the worker."""
         try:
-            options = mesh_options(
-                self.get_parameter("output_dir").value, resolution=request.resolution,
-                bounds_m=list(request.bounds_m), mesher=request.mesher, colour=request.colour)
+            options = carve_options(request, read(self, PARAMS), self._scan.budget)
         except ValueError as exc:
-            response.success, response.message = False, f"request refused: {exc}"
-            return response
-        refusal = request_refusal(read(self, PARAMS), options, self._scan.budget)
-        if refusal:
-            response.success, response.message = False, f"request {refusal}"
+            response.success, response.message = False, str(exc)
             return response
         try:
             held = frozenset(request.images_held)
@@ -320,7 +314,8 @@ class CarvingNode(Node):
         refusal = (f"reset refused: the scan node reports scan {capturing[0]} {capturing[1]}; "
                    "its views go to the scan open now (cancel it first: scan/cancel, then "
                    "reset)" if capturing is not None
-                   else grid_refusal(scan_bounds(values), values["resolution"], self._scan.budget))
+                   else grid_refusal(scan_bounds(values), values["resolution"],
+                                     self._scan.budget))
         if refusal:
             self.get_logger().error(refusal)
             return False, refusal

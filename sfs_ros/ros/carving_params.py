@@ -11,13 +11,13 @@ import numpy as np
 
 from sfs_ros.cell.carving_scan import CarvingScan, grid_refusal, memory_budget
 from sfs_ros.cell.live import LiveReconstruction, check_scan_name
-from sfs_ros.cell.mesh_options import MeshOptions
+from sfs_ros.cell.mesh_options import MeshOptions, mesh_options
 from sfs_ros.core.exchange.views import as_bounds
 from sfs_ros.ros.params import ParameterError
 from sfs_ros.ros.rig_params import rig_calibration
 
-__all__ = ["check_scan_settings", "live_reconstruction", "open_scan", "request_refusal",
-           "scan_bounds", "scan_settings"]
+__all__ = ["carve_options", "check_scan_settings", "live_reconstruction", "open_scan",
+           "request_refusal", "scan_bounds", "scan_settings"]
 
 
 def scan_settings(values: dict) -> tuple:
@@ -95,3 +95,19 @@ def request_refusal(values: dict, options: MeshOptions, budget: int) -> str:
     if grid == values:
         return ""
     return grid_refusal(scan_bounds(grid), grid["resolution"], budget)
+
+
+def carve_options(request, values: dict, budget: int) -> MeshOptions:
+    """The options of a ``CarveScan`` ``request`` (each left empty: the node's parameter in
+    ``values``); ValueError ``request refused: <reason>`` for a bad one or a grid that does
+    not fit ``budget`` bytes."""
+    try:
+        options = mesh_options(values["output_dir"], resolution=request.resolution,
+                               bounds_m=list(request.bounds_m), mesher=request.mesher,
+                               colour=request.colour)
+    except ValueError as exc:
+        raise ValueError(f"request refused: {exc}") from None
+    refusal = request_refusal(values, options, budget)
+    if refusal:
+        raise ValueError(f"request {refusal}")
+    return options
