@@ -184,11 +184,13 @@ def test_reconstruct_writes_the_mug_inside_output_dir(scan, mug, out_dir, cell):
     wait_for_pictures(summary, timeout_s=60.0)      # they follow the answer
     preview = Path(summary["preview_path"])
     assert preview.is_file() and preview.resolve().is_relative_to(out_dir.resolve())
-    # The rehearsal at start runs beside the views (seconds), in a folder removed after it.
+    # Each node's rehearsal at start runs beside the views (seconds), in a folder removed
+    # after it.
     deadline = time.monotonic() + MESSAGE_TIMEOUT_S
-    while "rehearsal reconstruction done" not in cell.process.output():
-        assert time.monotonic() < deadline, "no rehearsal reconstruction in the node's log"
-        time.sleep(0.1)
+    for node in (cell.process, cell.meshing):
+        while "rehearsal reconstruction done" not in node.output():
+            assert time.monotonic() < deadline, "no rehearsal reconstruction in a node's log"
+            time.sleep(0.1)
     assert not [p.name for p in out_dir.iterdir() if p.name.startswith(".rehearsal")]
     assert summary["views_received"] == summary["views_used"] == len(PLAN)
     assert summary["views_rejected"] == [] and summary["watertight"]

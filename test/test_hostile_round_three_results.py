@@ -355,16 +355,17 @@ def test_class_13_a_reset_during_a_scan_is_refused_and_no_open_marker_is_left(tm
             probe.spin_until(reported, what=f"scan {state}")
 
         # A scan's first view opens its folder, marked open.
-        rig = node._live.calibration
-        node._submit("view", node._live.add_view, "v0", np.ones((rig.height, rig.width), bool),
+        live = node._scan.live
+        node._submit("view", live.add_view, "v0",
+                     np.ones((live.calibration.height, live.calibration.width), bool),
                      0.0, 0.3).result()
-        folder = node._live.session_dir
+        folder = node._scan.live.session_dir
         assert (folder / OPEN_MARKER).exists()
         for state in ("running", "waiting", "paused"):
             report(state)
             answer = call_reset()
             assert not answer.success and f"scan 4 {state}" in answer.message, answer.message
-            assert node._live.session_dir == folder and node._live.n_views == 1
+            assert node._scan.live.session_dir == folder and node._scan.live.n_views == 1
         report("done")
         # New per-scan settings: the reset builds a new live reconstruction; the old scan's
         # folder is no longer marked open.

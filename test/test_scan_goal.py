@@ -7,7 +7,7 @@ import pytest
 import yaml
 
 from sfs_ros.cell.mesh_options import mesh_options
-from sfs_ros.cell.scan_goal import goal_plan
+from sfs_ros.cell.scan_goal import goal_plan, scan_outcome
 
 
 def test_no_views_means_the_configured_plan():
@@ -79,3 +79,21 @@ def test_options_are_checked(tmp_path):
                            ({"refine": "2"}, "refine '2' is not 'yes' or 'no'")):
         with pytest.raises(ValueError, match=reason):
             mesh_options(tmp_path, **kwargs)
+
+
+def status_values(state, *, scan=2, total=4, receipted=4, lost=0) -> dict:
+    return {"scan": scan, "state": state, "total": total, "receipted": receipted,
+            "lost_in_transport": lost}
+
+
+@pytest.mark.parametrize("values, outcome", [
+    (status_values("running"), None),                    # still scanning
+    (status_values("done", scan=1), None),               # another scan's end
+    (status_values("done", receipted=3), None),          # a receipt still to come
+    (status_values("done"), True),
+    (status_values("done", receipted=3, lost=1), False),  # one lost in transport
+    (status_values("paused", receipted=1), False),
+    (status_values("cancelled", receipted=0), False),
+])
+def test_a_goal_ends_once_its_scan_ended_and_every_receipt_came(values, outcome):
+    assert scan_outcome(values, 2) is outcome

@@ -27,7 +27,7 @@ from ..core.texture.from_views import texture_carved_scan
 from .paths import confined_path
 
 __all__ = ["REFINED_STEM", "TEXTURED_SUFFIX", "Product", "make_product", "product_path",
-           "refined_model", "textured_model", "without_colour"]
+           "products_after", "refined_model", "textured_model", "without_colour"]
 
 #: What the textured model's name adds to the mesh's stem.
 TEXTURED_SUFFIX = ".textured.glb"
@@ -109,6 +109,35 @@ def refined_model(carved, images: dict, output_dir, report_path, mesh_path,
                                  "seconds": report["timings_s"]["refinement"]}}
 
     return Product(key="refined_mesh_path", path=path, make=make)
+
+
+def products_after(carved, meshed, made, output_dir, held: dict, *, texture: bool,
+                   refine: bool, on_mesh: Callable | None = None
+                   ) -> tuple[list[Product], list[tuple[str, str]]]:
+    """The products to make after the answer to the mesh ``made``
+    (:class:`sfs_ros.cell.mesh_files.MeshFiles`) of the carved scan ``carved``:
+    ``(products, notes)``, a product that cannot be made left out with a note
+    ``(level, text)`` (``"error"`` for the texture, ``"warning"`` for the refined mesh:
+    the hull's mesh is out). ``meshed``: the carved scan as the mesh was made of it
+    (without its images when not coloured); ``held``: the images of this scan's views held
+    by the caller; ``on_mesh`` as :func:`refined_model`'s."""
+    summary, products, notes = made.summary, [], []
+    if texture:
+        try:
+            products.append(textured_model(carved, made.result, output_dir,
+                                           summary["report_path"]))
+        except ValueError as exc:
+            notes.append(("error", f"{exc}; the mesh {summary['path']} is written"))
+    if refine:
+        carried = {carved.views[i].name: image
+                   for i, image in zip(carved.colour_views, carved.colour_images)}
+        try:
+            products.append(refined_model(meshed, {**held, **carried}, output_dir,
+                                          summary["report_path"], summary["path"],
+                                          on_mesh=on_mesh))
+        except ValueError as exc:
+            notes.append(("warning", f"{exc}; the hull's mesh {summary['path']} is written"))
+    return products, notes
 
 
 def without_colour(carved):

@@ -50,6 +50,21 @@ class MeshOptions:
     texture: bool | None = None
     refine: bool | None = None
 
+    def coloured(self, default: bool) -> bool:
+        """Whether the mesh is coloured: this request's choice, else ``default``; never into
+        an .stl, which has no colours."""
+        colour = self.colour if self.colour is not None else default
+        return colour and not (self.output_name
+                               and Path(self.output_name).suffix.lower() == ".stl")
+
+    def textured(self, default: bool) -> bool:
+        """Whether the textured model is made: this request's choice, else ``default``."""
+        return self.texture if self.texture is not None else default
+
+    def refined(self, default: bool) -> bool:
+        """Whether the refined mesh is made: this request's choice, else ``default``."""
+        return self.refine if self.refine is not None else default
+
 
 def mesh_options(output_dir, *, resolution: int = 0, bounds_m=(), mesher: str = "",
                  colour: str = "", output_name: str = "",

@@ -18,7 +18,7 @@ import numpy as np
 from .paths import check_scan_name_format
 from .scan_plan import ScanPlan, load_plan
 
-__all__ = ["OBJECTS", "PHI_LIMIT_RAD", "goal_object", "goal_plan"]
+__all__ = ["OBJECTS", "PHI_LIMIT_RAD", "goal_object", "goal_plan", "scan_outcome"]
 
 #: What a scan is of: ``object`` (scanned for its shape; the default) or ``board`` (a
 #: calibration board: its captures go to the calibration, not the reconstruction).
@@ -26,6 +26,8 @@ OBJECTS = ("object", "board")
 
 #: The carriage's range, |phi| at most this, radians (a plan file's [-90, 90] degrees).
 PHI_LIMIT_RAD = math.pi / 2
+#: States in which a scan's run has ended.
+ENDED = ("done", "paused", "cancelled")
 #: Rounding allowed beyond the carriage's range (a value written as pi / 2), radians.
 _EDGE_RAD = 1e-9
 
@@ -98,3 +100,16 @@ def goal_plan(plan_file: str, theta_rad, phi_rad, scan_name: str, *,
         raise ValueError(f"the goal's plan has {len(plan)} views, more than the {max_views} "
                          "the capture topics hold (the scan node's queue_depth)")
     return plan
+
+
+def scan_outcome(values: dict, scan: int) -> bool | None:
+    """Whether scan number ``scan`` succeeded, from the scan's status ``values``
+    (:attr:`sfs_ros.cell.scan_sequence.ScanStatus.values`): None while its run goes on or,
+    done, receipts are still to come; True once done with every capture receipted; False
+    once paused, cancelled, or done with captures lost in transport."""
+    if values["scan"] != scan or values["state"] not in ENDED:
+        return None
+    if values["state"] == "done" and values["receipted"] + \
+            values["lost_in_transport"] < values["total"]:
+        return None                                 # receipts still to come
+    return values["state"] == "done" and values["lost_in_transport"] == 0

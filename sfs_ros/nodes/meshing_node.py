@@ -1,63 +1,16 @@
-"""Meshing node: the carving node's carved scan in, the mesh, its files and messages out.
+"""Meshing node: the carving node's carved scan in, the mesh out, on request.
 
-| kind | name | type | notes |
-|---|---|---|---|
-| pub | ``mesh`` | visualization_msgs/Marker | TRIANGLE_LIST of the last mesh, ``display_triangles`` |
-| pub | ``mesh_shape`` | shape_msgs/Mesh | the full mesh, in the ``mesh`` marker's frame |
-| pub | ``/diagnostics`` | diagnostic_msgs/DiagnosticArray | per event and at 1 Hz |
-| pub | ``~/status`` | sfs_ros_interfaces/ReconstructionStatus | reconstructions, last mesh |
-| srv | ``~/reconstruct_mesh`` | sfs_ros_interfaces/Reconstruct | per-call options, typed answer |
-| srv | ``~/reconstruct`` | std_srvs/Trigger | alias of ``reconstruct_mesh``, defaults; JSON answer |
-| sub | ``carving/view_image`` | sfs_ros_interfaces/ViewImage | the scan's colour images, as stored |
-| client | ``carving/carve_scan`` | sfs_ros_interfaces/CarveScan | the carved scan |
-
-The meshing half of the cell's reconstruction (:mod:`sfs_ros.nodes.carving_node` keeps
-the scan). ``reconstruct_mesh`` asks the carving node for the carved scan of the views
-it has received, with the request's ``resolution``, ``bounds_m``, ``mesher`` and
-``colour`` (each left empty is the carving node's parameter; ``colour`` empty is this
-node's ``colour``, and never into an .stl), meshes it, colours it, checks it and
-evaluates it (:func:`sfs_ros.cell.mesh_files.write_mesh`: the mesh the offline path
-makes of the same views, byte for byte) and writes the files in ``output_dir`` under
-``output_name`` (default ``<scan name>.ply``). The node holds nothing of a scan between
-requests: restarted, or another in its place, it asks again, and the carving node, which
-keeps the scan, answers again. The colour images of the scan being received come as the
-carving node stores its views (``carving/view_image``); the node holds those of the newest
-scan (at most ``held_images_mb``) and names them in its request, so that the carved scan
-comes without them: the hand-over at the end carries the hull and the masks. An image
-not held (the node started mid-scan, a message missed) comes in the carved scan.
-
-The answer (``success`` and the summary: path, report_path, preview_path, views used /
-rejected, watertight, volume_m3, seconds, ...) goes out once the mesh and its report are
-written; the ``mesh`` marker (a copy within ``display_triangles``,
-:func:`sfs_ros.core.meshing.decimate.decimate`), the picture, viewer and contact sheet
-(the report is written again naming them) and ``mesh_shape`` (the full mesh) follow,
-in that order; with ``wait_for_pictures`` the pictures come before the answer. Then the
-products after the answer (:mod:`sfs_ros.cell.after_answer`): with ``texture`` (the
-request's, else the node's parameter) the textured model ``<stem>.textured.glb``, from
-the images the carving node sends to colour the mesh (asked for even when the mesh is not
-coloured), whose path the answer names (``textured_path``) and the report names once it
-is written; empty when there are no images to texture from. With ``refine`` the mesh
-refined below the hull from the views' colours, ``<stem>.refined<suffix>``
-(``refined_mesh_path``), from the images held and carried, then published on ``mesh`` and
-``mesh_shape`` in the hull's place; it takes the worker for seconds to a minute, so a
-next request waits for it (hence off by default).
-``shape_msgs/Mesh`` has no header: its vertices are in the turntable frame, the ``mesh``
-marker's ``frame_id``. ``mesh``, ``mesh_shape`` and ``~/status``: reliable, transient
-local, depth 1 (:func:`sfs_ros.ros.result_qos`).
-
-A request that cannot be made (a bad option, no carving node, no views, a mesh that
-cannot be made) is answered ``success=False`` with the reason, logged as an ERROR and
-shown in the diagnostics until the next mesh.
-
-Parameters: see :data:`PARAMS`; ``output_dir`` is required and every file the node
-writes stays inside it. The frames (:data:`sfs_ros.ros.frames.FRAME_PARAMS`) name the
-turntable frame ``mesh`` is stamped with.
+The meshing half of the cell's reconstruction (:mod:`sfs_ros.nodes.carving_node` keeps the
+scan): ``~/reconstruct_mesh`` asks the carving node for the carved scan, meshes it in a
+worker thread (:func:`sfs_ros.cell.mesh_files.write_mesh`), answers, then publishes the
+mesh and makes the products that follow the answer (:mod:`sfs_ros.cell.after_answer`).
+What it does, in full: ``doc/nodes.md``; its parameters: ``doc/reference.md`` (generated
+from :data:`PARAMS`); its topics and services: ``doc/cell.md``.
 """
 
 from __future__ import annotations
 
 import json
-import threading
 import traceback
 from functools import partial
 from pathlib import Path
@@ -69,21 +22,21 @@ from shape_msgs.msg import Mesh
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker
 
-from sfs_ros.cell.after_answer import (
-    make_product,
-    refined_model,
-    textured_model,
-    without_colour,
-)
+from sfs_ros.cell.after_answer import make_product, products_after, without_colour
 from sfs_ros.cell.held_images import HeldImages
 from sfs_ros.cell.mesh_files import write_mesh
 from sfs_ros.cell.mesh_options import MeshOptions, mesh_options
+from sfs_ros.cell.meshing_status import MeshingStatus
 from sfs_ros.core.meshing.decimate import decimate
 from sfs_ros.core.settings import COLOUR
 from sfs_ros.nodes.entry import run_node
 from sfs_ros.process import configure_process
 from sfs_ros.ros import capture_qos, result_qos
-from sfs_ros.ros.carved_scan_msg import carved_scan_from_msg, view_image_from_msg
+from sfs_ros.ros.carved_scan_msg import (
+    carve_scan_request,
+    carved_scan_from_msg,
+    view_image_from_msg,
+)
 from sfs_ros.ros.convert import diagnostic_array, health, mesh_to_marker, mesh_to_shape
 from sfs_ros.ros.frames import FRAME_PARAMS, frame_names
 from sfs_ros.ros.names import (
@@ -158,13 +111,7 @@ class MeshingNode(Node):
         except OSError as exc:
             raise ParameterError("output_dir", str(exc)) from None
         self._values = values
-        self._stats_lock = threading.Lock()
-        # images_held / images_carried: the last carved scan's colour images, held here
-        # as they came or carried by it.
-        self._counts = {"reconstructions": 0, "reconstruction_failures": 0,
-                        "images_held": 0, "images_carried": 0}
-        self._problem = ""
-        self._mesh_path = self._session_dir = ""
+        self._status = MeshingStatus()
 
         services = MutuallyExclusiveCallbackGroup()   # one request at a time
         self._carve_client = self.create_client(CarveScan, TYPED_SERVICES["carve_scan"],
@@ -267,12 +214,9 @@ class MeshingNode(Node):
         """The carving node's carved scan for ``options`` (a message), or why there is none;
         without the images ``held`` of the scan ``held_session``."""
         # The texture needs the images the carving node sends to colour the mesh.
-        colour = self._colour(options) or self._texture(options)
-        request = CarveScan.Request(
-            resolution=options.resolution or 0,
-            bounds_m=[] if options.bounds_m is None else options.bounds_m.ravel().tolist(),
-            mesher=options.mesher or "", colour="yes" if colour else "no",
-            images_session=held_session, images_held=held)
+        colour = options.coloured(self._values["colour"]) or \
+            options.textured(self._values["texture"])
+        request = carve_scan_request(options, colour, held_session, held)
         try:
             answer = call(self._carve_client, request,
                           timeout_s=self._values["carve_timeout_s"])
@@ -281,19 +225,6 @@ class MeshingNode(Node):
         if not answer.success:
             return f"reconstruction failed: {answer.message}"
         return answer.scan
-
-    def _colour(self, options: MeshOptions) -> bool:
-        """Whether the mesh is coloured: the request's choice, else the node's; never into
-        an .stl, which has no colours."""
-        colour = options.colour if options.colour is not None else self._values["colour"]
-        return colour and not (options.output_name
-                               and Path(options.output_name).suffix.lower() == ".stl")
-
-    def _texture(self, options: MeshOptions) -> bool:
-        return options.texture if options.texture is not None else self._values["texture"]
-
-    def _refine(self, options: MeshOptions) -> bool:
-        return options.refine if options.refine is not None else self._values["refine"]
 
     def _release_after_answer(self) -> None:
         """Timer (services group), once the ``reconstruct`` answer is sent: the worker may
@@ -314,7 +245,8 @@ class MeshingNode(Node):
         try:
             carved, hand_over = carved_scan_from_msg(msg, held)
             # Images asked for the texture alone do not colour the mesh.
-            meshed = carved if self._colour(options) else without_colour(carved)
+            meshed = carved if options.coloured(self._values["colour"]) \
+                else without_colour(carved)
             made = write_mesh(meshed, hand_over, self._output_dir, options.output_name,
                               pictures=options.wait_for_pictures)
         except (ValueError, OSError) as exc:
@@ -325,12 +257,8 @@ class MeshingNode(Node):
         products = self._products(carved, meshed, made, options, images)
         for key in ("textured_path", "refined_mesh_path"):
             summary[key] = next((str(p.path) for p in products if p.key == key), "")
-        with self._stats_lock:
-            self._counts["reconstructions"] += 1
-            self._counts["images_held"] = n_held
-            self._counts["images_carried"] = len(msg.colour_views) - n_held
-            self._mesh_path, self._session_dir = summary["path"], summary["session"]
-            self._problem = ""
+        self._status.meshed(summary["path"], summary["session"], n_held,
+                            len(msg.colour_views) - n_held)
         self.get_logger().info(f"mesh written to {summary['path']} ({summary['views_used']} "
                                f"views, {summary['n_faces']} faces, "
                                f"{summary['seconds']:.1f} s)")
@@ -351,27 +279,17 @@ class MeshingNode(Node):
         return True, json.dumps(summary), summary
 
     def _products(self, carved, meshed, made, options: MeshOptions, held: dict) -> list:
-        """The products to make after the answer (:mod:`sfs_ros.cell.after_answer`); one
-        that cannot be made is reported and left out (the mesh is out). ``meshed``: the
-        carved scan as the mesh was made of it (without its images when not coloured);
-        ``held``: the images of this scan's views held here."""
-        summary, products = made.summary, []
-        if self._texture(options):
-            try:
-                products.append(textured_model(carved, made.result, self._output_dir,
-                                               summary["report_path"]))
-            except ValueError as exc:
-                self._report_problem(f"{exc}; the mesh {summary['path']} is written")
-        if self._refine(options):
-            carried = {carved.views[i].name: image
-                       for i, image in zip(carved.colour_views, carved.colour_images)}
-            try:
-                products.append(refined_model(meshed, {**held, **carried}, self._output_dir,
-                                              summary["report_path"], summary["path"],
-                                              on_mesh=self._publish_refined))
-            except ValueError as exc:
-                self.get_logger().warning(f"{exc}; the hull's mesh {summary['path']} is "
-                                          "written")
+        """The products to make after the answer (:func:`products_after`); one that cannot
+        be made is reported and left out."""
+        products, notes = products_after(
+            carved, meshed, made, self._output_dir, held,
+            texture=options.textured(self._values["texture"]),
+            refine=options.refined(self._values["refine"]), on_mesh=self._publish_refined)
+        for level, text in notes:
+            if level == "error":
+                self._report_problem(text)
+            else:
+                self.get_logger().warning(text)
         return products
 
     def _publish_refined(self, vertices, faces, colours) -> None:
@@ -423,14 +341,12 @@ class MeshingNode(Node):
     # -- status (any thread) ---------------------------------------------------------------------
 
     def _failed(self, text: str) -> tuple[bool, str, None]:
-        with self._stats_lock:
-            self._counts["reconstruction_failures"] += 1
+        self._status.failed()
         self._report_problem(text)
         return False, text, None
 
     def _report_problem(self, text: str) -> None:
-        with self._stats_lock:
-            self._problem = text
+        self._status.report(text)
         self.get_logger().error(text)
         self._publish_diagnostics()
         self._publish_status()
@@ -438,17 +354,13 @@ class MeshingNode(Node):
     def _publish_status(self) -> None:
         """``~/status``: the reconstructions made, the last mesh and its session folder,
         the problem."""
-        with self._stats_lock:
-            msg = ReconstructionStatus(session_dir=self._session_dir,
-                                       reconstructions=self._counts["reconstructions"],
-                                       mesh_path=self._mesh_path, problem=self._problem)
+        msg = ReconstructionStatus(**self._status.status())
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.header.frame_id = self._frame_id
         self._status_pub.publish(msg)
 
     def _publish_diagnostics(self) -> None:
-        with self._stats_lock:
-            values, problem = dict(self._counts), self._problem
+        values, problem = self._status.diagnostics()
         level, message = health(problem, "", f"{values['reconstructions']} meshes made")
         self._diag_pub.publish(diagnostic_array(
             status_name(self, "meshing"), level, message, values,

@@ -1,66 +1,11 @@
 """Recorder node: a scanning session as a rosbag2 (MCAP, or sqlite3 on request).
 
-| kind | name | type | notes |
-|---|---|---|---|
-| sub | ``capture/image``, ``capture/mask`` | sensor_msgs/Image | captures QoS |
-| sub | ``capture/joint_state``, ``capture/mask_joint_state`` | sensor_msgs/JointState | captures |
-| sub | ``calibration/image``, ``calibration/joint_state`` | Image, JointState | a board scan's; captures |
-| sub | ``capture/stored`` | std_msgs/Header | captures QoS |
-| sub | ``joint_states``, ``camera_info`` | sensor_msgs/JointState, CameraInfo | depth 10 |
-| sub | ``/diagnostics`` | diagnostic_msgs/DiagnosticArray | in the bag as ``<ns>/diagnostics`` |
-| sub | ``hull``, ``camera_poses`` | sensor_msgs/PointCloud2, geometry_msgs/PoseArray | results |
-| sub | ``mesh``, ``mesh_shape`` | visualization_msgs/Marker, shape_msgs/Mesh | results QoS |
-| pub | ``/diagnostics`` | diagnostic_msgs/DiagnosticArray | 1 Hz and at start / stop |
-| srv | ``~/start`` | std_srvs/Trigger | open a bag; JSON ``{"path", "storage"}`` |
-| srv | ``~/stop`` | std_srvs/Trigger | close it; JSON ``{"path", "messages", ...}`` |
-| cli | ``<node>/list_parameters``, ``.../get_parameters`` | rcl_interfaces | ``parameter_nodes`` |
-
-Captures QoS: reliable, volatile, keep-last ``queue_depth``
-(:func:`sfs_ros.ros.capture_qos`); results QoS: reliable, transient-local,
-depth 1 (:func:`sfs_ros.ros.result_qos`). The subscriptions exist from
-start-up (so none is still being matched when a recording starts) and take
-the messages' serialized bytes (``raw=True``), which go into the bag
-unchanged with the time they were received; a bag holds what arrived while it
-was open (results published before its start are not in it). Topics,
-types and the bag's layout: :mod:`sfs_ros.cell.bag.layout`.
-
-Bags go to ``<output_dir>/bags/<name>/`` (``<name>.mcap`` or ``<name>.db3``
-and, once closed, ``metadata.yaml``): ``name`` is ``bag_name`` when set (a
-bag that exists already is refused), else ``bag_<UTC time>``, or
-``scan_<NNN>_<UTC time>`` for a bag started with scan NNN.
-
-Starting and stopping: ``recorder/start`` answers the bag's ``path`` and
-``storage``, ``recorder/stop`` its ``path``, ``messages``, ``bytes`` (of message
-data), ``seconds`` (recording) and ``write_s`` (spent writing), as JSON; a
-second start or a stop with nothing recording is refused with the reason. With
-``with_scan``, a new bag also opens when the scan node's diagnostics report
-a scan number not seen before in state ``starting`` or ``running`` (the bag
-being recorded, if any, is closed first), and also when a capture arrives
-while no bag is open (so no capture is missed when the scan's report comes
-late: that bag is then taken as the scan's); recording goes on until
-``recorder/stop``, the next scan's start or shutdown. Each bag holds one scan
-from its first capture, and the ``reconstruct`` results that follow it.
-
-Parameters used: at every start a worker thread asks ``parameter_nodes``
-(by default carving, meshing, segmentation, scan and camera) for all their
-parameters through their parameter services, within
-``parameter_timeout_s`` together, and writes them as one JSON message on
-``sfs/parameters`` (format in :mod:`sfs_ros.cell.bag.layout`); a node that does not
-answer is named there and in a WARN. The executor never waits for them.
-
-Scans: when the scan node's diagnostics report a scan number new to the bag,
-an ``sfs/scan`` record (std_msgs/UInt32) of that number goes in just before
-them, so a reader tells the scans in a bag apart by data, not by diagnostics.
-
-Durability: one worker thread owns the bag; every message is flushed to the
-operating system before the next (:class:`sfs_ros.cell.bag.writing.BagWriter`), so a
-recorder killed outright leaves a bag that reads up to its last whole
-message. ``destroy_node`` (SIGINT) writes what is queued and closes the bag.
-A write that fails (disk full) closes the bag and is an ERROR.
-
-Diagnostics values: ``recording``, ``path``, ``storage``, ``messages``,
-``bytes``, ``write_s`` (seconds spent writing this bag), ``bags`` (closed
-since start-up). Parameters: :data:`PARAMS`; ``output_dir`` is required.
+It subscribes to the cell's topics from start-up (their serialized bytes) and writes
+them, in one worker thread, into a bag (:class:`sfs_ros.cell.bag.writing.BagWriter`)
+opened on ``~/record/start`` or (``with_scan``) with each scan, with the parameters of the
+cell's nodes (:mod:`sfs_ros.ros.parameter_fetch`). What it does, in full:
+``doc/nodes.md``; its parameters: ``doc/reference.md`` (generated from :data:`PARAMS`);
+its topics and services: ``doc/cell.md``; the bag's layout: :mod:`sfs_ros.cell.bag.layout`.
 """
 
 from __future__ import annotations
@@ -70,15 +15,12 @@ import threading
 import time
 import traceback
 from concurrent.futures import Future
-from dataclasses import asdict
 from functools import partial
 from pathlib import Path
 
-import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.node import Node
-from rclpy.parameter import parameter_value_to_python
 from rclpy.parameter_client import AsyncParameterClient
 from rclpy.serialization import deserialize_message
 from std_srvs.srv import Trigger
@@ -93,20 +35,20 @@ from sfs_ros.cell.bag import (
     TOPICS,
     BagWriter,
     bag_folder,
+    new_bag_folder,
     parameters_message,
     scan_message,
 )
 from sfs_ros.cell.messages import scan_report
+from sfs_ros.cell.recording_status import RecordingStatus
 from sfs_ros.nodes.entry import run_node
 from sfs_ros.process import configure_process
 from sfs_ros.ros import capture_qos, result_qos
 from sfs_ros.ros.convert import diagnostic_array, health
 from sfs_ros.ros.messages import message_class
 from sfs_ros.ros.names import DIAGNOSTICS, RECORDER_NODE, private, status_name
+from sfs_ros.ros.parameter_fetch import fetch_parameters
 from sfs_ros.ros.params import Param, ParameterError, declare, validating_callback
-from sfs_ros.ros.rig_params import rig_calibration
-from sfs_ros.ros.segmentation_params import segmentation_params
-from sfs_ros.ros.services import ServiceError
 from sfs_ros.ros.worker import Worker
 
 __all__ = ["RecorderNode", "PARAMS", "main"]
@@ -137,22 +79,6 @@ PARAMS: list[Param] = [
 ]
 
 
-def _stamp() -> str:
-    return time.strftime("%Y%m%d_%H%M%S", time.gmtime())
-
-
-def session_parameters(nodes: dict) -> tuple[dict, dict]:
-    """The ``session`` and ``reconstruction`` sections (:mod:`sfs_ros.cell.bag.layout`) of the
-    fetched ``{node: {name: value}}``; empty when the carving node's are missing."""
-    values = nodes.get("carving")
-    if values is None:
-        return {}, {}
-    session = {"rig": rig_calibration(values).to_dict(),
-               "bounds_m": np.reshape(values["bounds_m"], (2, 3)).tolist()}
-    if "segmentation" in nodes:
-        session["segmentation"] = asdict(segmentation_params(nodes["segmentation"]))
-    return session, {"resolution": values["resolution"], "mesher": values["mesher"]}
-
 
 class RecorderNode(Node):
     """Records the cell's topics into rosbag2 bags on request or with each scan.
@@ -175,10 +101,7 @@ class RecorderNode(Node):
         self.add_on_set_parameters_callback(
             validating_callback(self, [BAG_NAME], self._check_name))
 
-        self._lock = threading.Lock()       # diagnostics values
-        self._status = {"recording": False, "path": "", "storage": p["storage"], "messages": 0,
-                        "bytes": 0, "write_s": 0.0, "bags": 0}
-        self._problem = self._warning = ""
+        self._status = RecordingStatus(p["storage"])
         self._last_ns = 0
         self._scan_seen = None
         self._bag_scan: int | None = None     # the scan the open bag holds, if known
@@ -284,7 +207,7 @@ class RecorderNode(Node):
             self.get_logger().error("".join(traceback.format_exception(exc)))
         what = "write failed" if isinstance(exc, OSError) else \
             f"internal error {type(exc).__name__}"
-        self._report_problem(f"bag {self._status['path']}: {what}: {exc}; bag closed")
+        self._report_problem(f"bag {self._status.path}: {what}: {exc}; bag closed")
         self._abandon()
 
     def _record(self, topic: str, log_ns: int, data: bytes) -> None:
@@ -315,15 +238,8 @@ class RecorderNode(Node):
             self._close()
         name = self.get_parameter("bag_name").value
         try:
-            if name:
-                folder = bag_folder(self._p["output_dir"], name)
-            else:
-                prefix = "bag" if not rolling else "scan" if scan is None else f"scan_{scan:03d}"
-                base = f"{prefix}_{_stamp()}"
-                folder, n = bag_folder(self._p["output_dir"], base), 1
-                while folder.exists():
-                    n += 1
-                    folder = bag_folder(self._p["output_dir"], f"{base}_{n}")
+            folder = new_bag_folder(self._p["output_dir"], name, scan=scan, rolling=rolling,
+                                    stamp=time.strftime("%Y%m%d_%H%M%S", time.gmtime()))
             bag = BagWriter(folder, storage=self._p["storage"])
         except ValueError as exc:
             text = f"cannot start recording: {exc}"
@@ -339,10 +255,7 @@ class RecorderNode(Node):
         self._bag_scan_written = None
         self._fetched = Future()
         threading.Thread(target=self._fetch, args=(self._fetched,), daemon=True).start()
-        with self._lock:
-            self._status.update(recording=True, path=str(bag.path), messages=0, bytes=0,
-                                write_s=0.0)
-            self._problem = self._warning = ""
+        self._status.opened(bag.path)
         self.get_logger().info(f"recording to {bag.path}")
         self._publish_diagnostics()
         return True, json.dumps({"path": str(bag.path), "storage": bag.storage})
@@ -354,9 +267,7 @@ class RecorderNode(Node):
             self._write_scan(log_ns, data)
         start = time.perf_counter()
         self._bag.write(topic, log_ns, data)
-        with self._lock:
-            self._status.update(messages=self._bag.messages, bytes=self._bag.bytes,
-                                write_s=self._status["write_s"] + time.perf_counter() - start)
+        self._status.wrote(self._bag.messages, self._bag.bytes, time.perf_counter() - start)
 
     def _write_scan(self, log_ns: int, diagnostics: bytes) -> None:
         """Before a diagnostics message that reports a scan new to this bag, an ``sfs/scan``
@@ -390,9 +301,7 @@ class RecorderNode(Node):
         bag, self._bag = self._bag, None
         bag.close()
         seconds = time.monotonic() - self._started
-        with self._lock:
-            self._status.update(recording=False, bags=self._status["bags"] + 1)
-            write_s = self._status["write_s"]
+        write_s = self._status.closed()
         self.get_logger().info(f"bag {bag.path} closed: {bag.messages} messages, "
                                f"{bag.bytes / 1e6:.1f} MB in {seconds:.1f} s")
         self._publish_diagnostics()
@@ -403,8 +312,7 @@ class RecorderNode(Node):
     def _abandon(self) -> None:
         """After a failed write: close what can be closed, record nothing more in this bag."""
         bag, self._bag, self._fetched = self._bag, None, None
-        with self._lock:
-            self._status["recording"] = False
+        self._status.abandoned()
         if bag is not None:
             try:
                 bag.close()
@@ -414,74 +322,29 @@ class RecorderNode(Node):
     # -- parameters (a thread per bag) -------------------------------------------------------
 
     def _fetch(self, result: Future) -> None:
-        deadline = time.monotonic() + self._p["parameter_timeout_s"]
-        nodes, unavailable = {}, {}
-        for name, client in self._parameter_clients.items():
-            try:
-                nodes[name] = self._parameters_of(client, deadline)
-            except ServiceError as exc:
-                unavailable[name] = str(exc)
-            except Exception as exc:  # noqa: BLE001 -- e.g. rclpy shut down meanwhile
-                unavailable[name] = f"{type(exc).__name__}: {exc}"
-        document = {"namespace": self.get_namespace(), "nodes": nodes, "unavailable": unavailable}
-        try:
-            session, reconstruction = session_parameters(nodes)
-            if session:
-                document.update(session=session, reconstruction=reconstruction)
-        except (KeyError, ValueError) as exc:
-            unavailable["reconstruction"] = f"its parameters do not make a session: {exc}"
+        document, unavailable = fetch_parameters(self, self._parameter_clients,
+                                                 self._p["parameter_timeout_s"])
         if unavailable:
             self._report_warning("parameters not stored: " + "; ".join(
                 f"{n}: {why}" for n, why in unavailable.items()))
         result.set_result(document)
         self._worker.submit(self._write_parameters, name="parameters")
 
-    def _parameters_of(self, client: AsyncParameterClient, deadline: float) -> dict:
-        name = client.remote_node_name
-        while not client.services_are_ready():
-            self._check_running()
-            if time.monotonic() > deadline:
-                raise ServiceError(f"node {name} offers no parameter services (waited "
-                                   f"{self._p['parameter_timeout_s']:g} s): is it running?")
-            time.sleep(0.05)
-        names = list(self._answer(client.list_parameters(), name, deadline).result.names)
-        values = self._answer(client.get_parameters(names), name, deadline).values
-        return {n: parameter_value_to_python(v) for n, v in zip(names, values)}
-
-    def _answer(self, future, name: str, deadline: float):
-        answered = threading.Event()
-        future.add_done_callback(lambda _f: answered.set())
-        while not answered.wait(0.05):
-            self._check_running()
-            if time.monotonic() > deadline:
-                future.cancel()
-                raise ServiceError(f"node {name} did not answer its parameter request within "
-                                   f"{self._p['parameter_timeout_s']:g} s")
-        return future.result()
-
-    def _check_running(self) -> None:
-        if not self.context.ok():
-            raise ServiceError("the recorder shut down before it answered")
-
     # -- diagnostics (any thread) ------------------------------------------------------------
 
     def _report_problem(self, text: str) -> None:
-        with self._lock:
-            self._problem = text
+        self._status.report(problem=text)
         self.get_logger().error(text)
         self._publish_diagnostics()
 
     def _report_warning(self, text: str) -> None:
-        with self._lock:
-            self._warning = text
+        self._status.report(warning=text)
         self.get_logger().warning(text)
 
     def _publish_diagnostics(self) -> None:
         if not self.context.ok():          # closing the bag after SIGINT shut rclpy down
             return
-        with self._lock:
-            values = dict(self._status, write_s=round(self._status["write_s"], 4))
-            problem, warning = self._problem, self._warning
+        values, problem, warning = self._status.snapshot()
         level, message = health(problem, warning, f"recording to {values['path']}"
                                 if values["recording"] else "idle")
         self._diag_pub.publish(diagnostic_array(status_name(self, "recorder"), level, message,

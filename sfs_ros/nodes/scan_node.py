@@ -1,175 +1,36 @@
 """Scan node: the operator console. Visits a plan of viewpoints and publishes tagged captures.
 
-| kind | name | type | notes |
-|---|---|---|---|
-| pub | ``joint_command`` | sensor_msgs/JointState | the next viewpoint, rad (to the motor node) |
-| sub | ``joint_states`` | sensor_msgs/JointState | encoder read-back (from the motor node) |
-| sub | ``image_raw`` | sensor_msgs/Image | the camera's frames (any driver); QoS: see below |
-| sub | ``image_raw/compressed`` | sensor_msgs/CompressedImage | instead (``image_transport``) |
-| sub | ``<image ns>/camera_info`` | sensor_msgs/CameraInfo | the driver's intrinsics |
-| pub | ``capture/image`` | sensor_msgs/Image | each view's frame, its shutter stamp |
-| pub | ``capture/joint_state`` | sensor_msgs/JointState | encoder angles at the shutter, same stamp |
-| pub | ``calibration/image``, ``calibration/joint_state`` | as ``capture/*`` | a board scan's |
-| sub | ``capture/stored`` | std_msgs/Header | receipts (reconstruction, calibration node) |
-| pub | ``/diagnostics`` | diagnostic_msgs/DiagnosticArray | progress, at 1 Hz and on every event |
-| pub | ``status`` | sfs_ros_interfaces/CellStatus | the same, typed; 1 Hz and on every change |
-| act | ``scan`` | sfs_ros_interfaces/Scan | a scan: feedback, cancel, result |
-| srv | ``~/start`` | std_srvs/Trigger | alias: a default ``scan`` goal, not followed |
-| srv | ``~/cancel`` | std_srvs/Trigger | stop the axes, keep what was captured |
-| srv | ``~/resume`` | std_srvs/Trigger | go on with the views not yet captured |
-| sub | ``carving/status`` | sfs_ros_interfaces/ReconstructionStatus | for the result |
-| cli | ``motor/home``, ``motor/stop`` | std_srvs/Trigger | the motor node's |
-| cli | ``camera/capture`` | std_srvs/Trigger | our camera's shutter (trigger ``shutter``) |
-| cli | ``carving/new_scan`` | sfs_ros_interfaces/NewScan | the carving node's reset |
-
-Names: :mod:`sfs_ros.ros.names` (the node is ``scan``, so ``~/start`` is
-``scan/start`` in the cell's namespace; the action is ``<namespace>/scan`` and the status
-``<namespace>/status``). A camera driver publishing elsewhere is connected by a remap
-(``-r image_raw:=/my_camera/image_raw``).
-
-The ``scan`` action: a goal scans the configured plan, or the goal's own (``plan_file``,
-or ``theta_rad`` / ``phi_rad`` lists visited in the order given: this scan only; a
-restarted node does not take such a scan up), and names the scan's folder in the
-reconstruction (``scan_name``, passed with its reset, ``reconstruction/new_scan``). One
-goal at a time: a goal while a scan runs is rejected. A goal that cannot be scanned (lists
-of different lengths, angles not finite or outside the carriage's range, a plan file that
-does not load, too many views, a bad name) is accepted, then aborted at once with the
-reason in the result's ``message`` (a rejection carries no reason). Feedback follows every
-change of ``status``. A cancel request stops the axes; the goal ends canceled with what
-was captured (``scan/resume`` goes on with it). The result comes once every view is
-captured and receipted: success, the scan's number, and from the reconstruction's
-``status`` its session folder and the views it stored and rejected; a scan that pauses on
-a fault aborts the goal with the reason (``scan/resume`` goes on outside the action).
-A goal's ``object`` "board" is a calibration scan: its captures go to
-``calibration/image`` + ``calibration/joint_state`` instead (segmentation and
-reconstruction never see them; the calibration node stores and receipts them), the
-reconstruction is not reset, and the result's ``views_stored`` counts the receipts.
-``status`` (sfs_ros_interfaces/CellStatus; reliable, transient local, depth 1) carries
-what the diagnostics carry, the scan's ``object`` and the last encoder angles, ``axes_connected`` meaning that
-readings came within :data:`AXES_SILENT_S`.
-
-Capture topics and receipts: reliable, volatile, depth ``queue_depth``
-(:func:`sfs_ros.ros.capture_qos`): no view may be dropped. The camera's frames
-(``image_raw``, or ``image_raw/compressed`` with ``image_transport`` compressed), their
-QoS following the publisher's (``image_reliability`` auto) and the driver's
-``camera_info``: :class:`sfs_ros.ros.driver_camera.DriverCamera`, which at each start of
-a streamed scan compares the driver's intrinsics with the rig or sets them on the
-reconstruction (``intrinsics_source``).
-
-A scan, view by view, in plan order (:class:`sfs_ros.cell.scan_plan.ScanPlan`,
-from ``plan_file`` or the ring parameters): command the viewpoint, wait until
-the encoders have settled on it (:class:`sfs_ros.cell.settle.SettleDetector`),
-take the view's frame, and tag it with the encoder reading nearest to its
-stamp: ``capture/image`` (the frame) and ``capture/joint_state`` (that
-reading) share the frame's stamp.
-``scan/start`` first resets the reconstruction and homes the axes (each can
-be switched off).
-
-Before the first capture of a scan the node waits (at most ``listen_timeout_s``;
-one INFO line naming what it waits for) until the captures will be seen, as far as
-its view of the graph tells: every node of :data:`LISTENERS` that runs in its
-namespace (segmentation, reconstruction, recorder; a board scan's calibration node
-and recorder) has its subscriptions on the topics it must get, and every
-subscription to the scan's own capture topics is matched to its publishers. The
-reconstruction's mask subscriptions are matched to the segmentation's publishers,
-not to this node's: that they exist is what it can see. A node not running is not
-waited for (a scan node alone scans). When the time is up the scan pauses naming
-what is missing (``scan/resume`` goes on).
-
-The view's frame (``camera_trigger``): ``shutter`` calls our camera node's
-``capture`` and waits for the frame it announces; ``stream`` takes the frame
-from any driver that streams ``image_raw`` (``usb_cam``, ``v4l2_camera``, a
-GenICam driver): the first frame stamped at or after the moment the axes
-settled plus ``exposure_delay_s``. Both can change between scans (they take
-effect at the next ``scan/start``).
-
-Joint states without the cell's joints (a robot arm's broadcaster on the
-same topic) are ignored: one INFO line the first time, nothing counted.
-
-The sequencing is :class:`sfs_ros.cell.scan_sequence.ScanSequence` (tested
-without processes); this node connects its ports to topics and services.
-
-Faults: a move that does not settle (timeout, stall, no encoder readings) is
-commanded again up to ``move_retries`` times, a missing frame retaken up to
-``capture_retries`` times; each retry is a WARN. When the retries are used
-up the scan **pauses** with an ERROR naming the view and the reason;
-``scan/resume`` goes on from that view once the fault is mended (the views
-captured stay captured). ``scan/cancel`` stops the axes and pauses likewise.
-
-Delivery: every capture of the scan is kept until the next ``scan/start``.
-One that the reconstruction has not receipted on ``capture/stored`` within
-``receipt_timeout_s`` is sent again (at most ``max_sends`` times in all, then
-reported as lost in transport); when a publisher of receipts appears that
-was not there before (the carving node restarted, or started late),
-every capture is sent again. The reconstruction stores
-each view once, so a view is never lost to a restarted node and never carved twice.
-
-Restarts of this node: with ``progress_dir`` (the bring-up sets
-``OUTPUT_DIR/scan_progress``), every capture is written there before it is sent, with the
-scan's number, state and receipts (:mod:`sfs_ros.cell.scan_progress`, atomic writes). A node
-started again (after SIGKILL, a crash) takes that scan up: a scan that was under way goes on
-from the first view not captured, and its captures are sent again. A capture that cannot be
-written (disk full) puts the scan in state ``waiting`` with an ERROR naming the folder and the
-space needed; it goes on by itself once the write succeeds. ``home_before_retry`` homes the
-axes before a failed move is commanded again (a restarted controller refuses moves until
-homed).
-
-Diagnostics values: ``scan`` (1 for the first ``scan/start``, then 2, ...),
-``state`` (idle, starting, running, waiting, paused, cancelled, done), ``view`` (the
-view being taken, 1-based), ``total``, ``captured``, ``receipted``,
-``resends``, ``move_retries``, ``capture_retries``, ``lost_in_transport``,
-``malformed``, this scan's seconds of ``motion_s`` (command to settled)
-and ``shutter_s`` (shutter call, or settling, to frame in hand), and its
-``trigger``. Parameters: :data:`PARAMS`.
+The sequencing is :class:`sfs_ros.cell.scan_sequence.ScanSequence` (tested without
+processes); this node connects its ports (:class:`sfs_ros.ros.scan_ports.RosPorts`) to
+topics and services, and serves the ``scan`` action. What it does, in full:
+``doc/nodes.md``; its parameters: ``doc/reference.md`` (generated from :data:`PARAMS`);
+its topics and services: ``doc/cell.md``.
 """
 
 from __future__ import annotations
 
-import json
 import math
-import struct
 import threading
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
-from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.node import Node
-from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import Image, JointState
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
-from sfs_ros.cell.capture_ledger import EncoderReading
 from sfs_ros.cell.messages import ForeignJointState
 from sfs_ros.cell.scan_goal import OBJECTS, goal_object, goal_plan
-from sfs_ros.cell.scan_plan import ScanPlan, load_plan
-from sfs_ros.cell.scan_progress import ScanProgress
-from sfs_ros.cell.scan_sequence import (
-    TRIGGERS,
-    MonotonicClock,
-    ScanSequence,
-    ScanSettings,
-    StepFailed,
-)
+from sfs_ros.cell.scan_sequence import TRIGGERS, ScanSequence
 from sfs_ros.nodes.entry import run_node
 from sfs_ros.process import configure_process
-from sfs_ros.ros import capture_qos, result_qos
-from sfs_ros.ros.convert import (
-    angles_from_joint_state,
-    diagnostic_array,
-    driver_frame,
-    health,
-    joint_state,
-)
+from sfs_ros.ros import capture_qos
+from sfs_ros.ros.convert import angles_from_joint_state, diagnostic_array, health
 from sfs_ros.ros.driver_camera import DRIVER_PARAMS, DriverCamera
 from sfs_ros.ros.names import (
-    CARVING_NODE,
-    CELL_STATUS,
     DIAGNOSTICS,
-    RECONSTRUCTION_STATUS,
     RECORDER_NODE,
-    SCAN_ACTION,
     SERVICES,
     TYPED_SERVICES,
     private,
@@ -177,36 +38,17 @@ from sfs_ros.ros.names import (
 )
 from sfs_ros.ros.pairing import stamp_key
 from sfs_ros.ros.params import Param, ParameterError, declare, read, validating_callback
-from sfs_ros.ros.services import ServiceError, call
-from sfs_ros.ros.typed import cell_status, scan_feedback
-from sfs_ros_interfaces.action import Scan
-from sfs_ros_interfaces.msg import CellStatus, ReconstructionStatus
+from sfs_ros.ros.scan_action import ScanGoals, ScanStatusBoard
+from sfs_ros.ros.scan_params import scan_plan, scan_progress, scan_settings
+from sfs_ros.ros.scan_ports import RosPorts
+from sfs_ros.ros.typed import cell_status
 from sfs_ros_interfaces.srv import NewScan
 
 __all__ = ["ScanNode", "PARAMS", "main"]
 
 NODE_NAME = "scan"
-#: A shutter call unanswered this long is sent again (a response lost in the middleware;
-#: a second frame is harmless: the first answer's frame is the one used).
-_RESEND_AFTER_S = 2.0
 #: The axes count as disconnected when no encoder reading came for this long, s.
 AXES_SILENT_S = 2.0
-#: How often a running goal looks for a cancel request, s.
-_GOAL_POLL_S = 0.1
-#: States in which a scan's run has ended.
-_ENDED = ("done", "paused", "cancelled")
-#: How often the graph is looked at while waiting for the capture subscriptions, s.
-_LISTEN_POLL_S = 0.1
-_CAPTURES = ("capture/image", "capture/joint_state")
-_MASKS = ("capture/mask", "capture/mask_joint_state")
-_BOARD = ("calibration/image", "calibration/joint_state")
-#: By the scan's object: the nodes whose subscriptions must be there before its first
-#: capture, and the topics of each.
-LISTENERS = {
-    "object": {"segmentation": _CAPTURES, CARVING_NODE: _MASKS,
-               RECORDER_NODE: _CAPTURES + _MASKS},
-    "board": {"calibration": _BOARD, RECORDER_NODE: _BOARD},
-}
 
 PARAMS: list[Param] = [
     Param("plan_file", "", "YAML scan plan (format: sfs_ros/cell/scan_plan.py); empty = the "
@@ -260,145 +102,6 @@ PARAMS: list[Param] = [
           "subscriptions that must see it, s.", bounds=(0.1, 3600.0), read_only=True),
     *DRIVER_PARAMS,
 ]
-#: Bytes of the length of the first message in a capture's bytes (big-endian).
-_LENGTH = struct.Struct(">Q")
-
-
-def scan_plan(values: dict) -> ScanPlan:
-    """The plan from the node's parameter values; :class:`ParameterError` naming the cause."""
-    if values["plan_file"].strip():
-        try:
-            return load_plan(values["plan_file"])
-        except ValueError as exc:
-            raise ParameterError("plan_file", str(exc)) from None
-    try:
-        return ScanPlan.from_rings(values["rings_phi_deg"], values["per_ring"],
-                                   values["top_view"], stagger=values["stagger"],
-                                   reorder=values["reorder"])
-    except ValueError as exc:
-        raise ParameterError("rings_phi_deg", str(exc)) from None
-
-
-def scan_settings(values: dict, *, board: bool = False) -> ScanSettings:
-    """The sequence's settings from the node's parameter values (``board``: a calibration
-    scan, which leaves the reconstruction as it is)."""
-    steps = [("reset", values["reset_reconstruction"] and not board,
-              values["service_timeout_s"]),
-             ("home", values["home_before_scan"], values["home_timeout_s"]),
-             ("listeners", True, values["listen_timeout_s"])]
-    return ScanSettings(
-        settle_tolerance_rad=math.radians(values["settle_tolerance_deg"]),
-        settle_samples=values["settle_samples"], move_timeout_s=values["move_timeout_s"],
-        stall_s=values["stall_s"], move_retries=values["move_retries"],
-        capture_timeout_s=values["capture_timeout_s"],
-        capture_retries=values["capture_retries"],
-        encoder_max_gap_s=values["encoder_max_gap_s"],
-        receipt_timeout_s=values["receipt_timeout_s"], max_sends=values["max_sends"],
-        prepare=tuple((name, timeout_s) for name, wanted, timeout_s in steps if wanted),
-        trigger=values["camera_trigger"], exposure_delay_s=values["exposure_delay_s"],
-        rehome_before_retry=values["home_before_retry"])
-
-
-class _RosPorts(MonotonicClock):
-    """The sequence's ports on the node's topics and services (called from its threads)."""
-
-    def __init__(self, node: "ScanNode"):
-        self._node = node
-
-    def command_move(self, theta_rad: float, phi_rad: float) -> None:
-        node = self._node
-        node.command_pub.publish(joint_state(theta_rad, phi_rad,
-                                             stamp=node.get_clock().now().to_msg()))
-
-    def stop_axes(self) -> None:
-        # Waited for: a stop still on its way when the next goal starts would halt its homing.
-        try:
-            answer = call(self._node.peers["stop"], Trigger.Request(),
-                          timeout_s=self._node._p["service_timeout_s"])
-        except ServiceError as exc:
-            self.log("warning", f"the axes' stop was not confirmed: {exc}")
-            return
-        if not answer.success:
-            self.log("warning", f"the axes' stop failed: {answer.message}")
-
-    def prepare(self, step: str, *, timeout_s: float, cancelled: threading.Event) -> None:
-        if step == "listeners":
-            self._node.wait_listeners(timeout_s, cancelled)
-            return
-        try:
-            # Both steps may be asked twice (a reset before the scan's first view; a home
-            # that comes while homing joins it): sent again when the answer is late, as the
-            # shutter is (services.call: a lost answer).
-            client, request = ((self._node.new_scan, NewScan.Request(
-                scan_name=self._node.scan_name)) if step == "reset"
-                else (self._node.peers[step], Trigger.Request()))
-            answer = call(client, request, timeout_s=timeout_s,
-                          cancelled=cancelled, resend_after_s=_RESEND_AFTER_S)
-        except ServiceError as exc:
-            raise StepFailed(str(exc)) from None
-        if not answer.success:
-            raise StepFailed(f"{step} failed: {answer.message}")
-
-    def stamp_now(self):
-        return stamp_key(self._node.get_clock().now().to_msg())
-
-    def shutter(self, *, timeout_s: float, cancelled: threading.Event):
-        try:
-            answer = call(self._node.peers["capture"], Trigger.Request(), timeout_s=timeout_s,
-                          cancelled=cancelled, resend_after_s=_RESEND_AFTER_S)
-        except ServiceError as exc:
-            raise StepFailed(str(exc)) from None
-        if not answer.success:
-            raise StepFailed(f"the camera took no frame: {answer.message}")
-        try:
-            return stamp_key(tuple(json.loads(answer.message)["stamp"]))
-        except (ValueError, KeyError, TypeError):
-            raise StepFailed(f"the camera's answer {answer.message!r} has no stamp; expected "
-                             "JSON with \"stamp\": [sec, nanosec]") from None
-
-    def make_capture(self, frame, stamp, reading: EncoderReading):
-        try:
-            image = driver_frame(frame)
-        except ValueError as exc:
-            raise StepFailed(f"the camera's frame cannot be read: {exc}") from None
-        return image, joint_state(reading.theta_rad, reading.phi_rad, stamp=stamp)
-
-    def send(self, capture) -> None:
-        frame, joints = capture
-        image_pub, joints_pub = self._node.outputs[self._node.scan_object]
-        image_pub.publish(frame)
-        joints_pub.publish(joints)
-
-    def encode_capture(self, capture) -> bytes:
-        frame, joints = (serialize_message(m) for m in capture)
-        return _LENGTH.pack(len(frame)) + frame + joints
-
-    def decode_capture(self, data: bytes):
-        if len(data) < _LENGTH.size:
-            raise ValueError(f"{len(data)} bytes is too short for a capture")
-        (length,) = _LENGTH.unpack_from(data)
-        if length > len(data) - _LENGTH.size:
-            raise ValueError(f"a capture of {len(data)} bytes cannot hold a frame of {length}")
-        start = _LENGTH.size
-        try:
-            return (deserialize_message(data[start:start + length], Image),
-                    deserialize_message(data[start + length:], JointState))
-        except Exception as exc:  # noqa: BLE001 -- rclpy raises several kinds for bad bytes
-            raise ValueError(f"not a capture: {exc}") from None
-
-    def log(self, level: str, text: str) -> None:
-        logger = self._node.get_logger()
-        # One call site per severity: rclpy refuses a site whose severity changes.
-        if level == "error":
-            logger.error(text)
-        elif level == "warning":
-            logger.warning(text)
-        else:
-            logger.info(text)
-
-    def changed(self) -> None:
-        self._node.publish_diagnostics()
-        self._node.publish_status()
 
 
 class ScanNode(Node):
@@ -413,34 +116,17 @@ class ScanNode(Node):
         try:
             self._p = declare(self, PARAMS)
             self.plan = scan_plan(self._p)
+            progress = scan_progress(self._p, self.plan)
         except ParameterError:
             super().destroy_node()
             raise
-        if len(self.plan) > self._p["queue_depth"]:
-            super().destroy_node()
-            raise ParameterError("queue_depth", f"got {self._p['queue_depth']}, expected at "
-                                 f"least the {len(self.plan)} views of the plan")
-        progress = None
-        if self._p["progress_dir"].strip():
-            try:
-                progress = ScanProgress(self._p["progress_dir"], self.plan.views)
-            except OSError as exc:
-                super().destroy_node()
-                raise ParameterError("progress_dir", f"cannot use {self._p['progress_dir']}: "
-                                     f"{exc}") from None
-        self._sequence = ScanSequence(self.plan.views, _RosPorts(self), scan_settings(self._p),
-                                      progress)
-        self._receivers: set[bytes] = set()   # every publisher of receipts seen (by GID)
+        self._sequence = ScanSequence(self.plan.views,
+                                      RosPorts(self, self._p["service_timeout_s"]),
+                                      scan_settings(self._p), progress)
         self.scan_name = ""                   # the reconstruction's name of the next scan
         self.scan_object = OBJECTS[0]         # what this scan is of (its captures' topics)
         self._reading = (math.nan, math.nan)  # the last encoder reading, rad
         self._reading_at = -math.inf          # when it came, time.monotonic()
-        self._changed = threading.Condition() # notified with every status published
-        self._status_lock = threading.Lock()  # one status published at a time, newest last
-        self._status: CellStatus | None = None
-        self._reconstruction = ReconstructionStatus()
-        self._goal_lock = threading.Lock()
-        self._goal_busy = False
         self._foreign_seen = False            # a joint state of another machine was logged
         self.add_on_set_parameters_callback(validating_callback(self, PARAMS, lambda _: None))
 
@@ -465,14 +151,10 @@ class ScanNode(Node):
                       for name in ("home", "stop", "capture")}
         self.new_scan = self.create_client(NewScan, TYPED_SERVICES["new_scan"],
                                            callback_group=clients)
-        self._status_pub = self.create_publisher(CellStatus, CELL_STATUS, result_qos())
-        self.create_subscription(ReconstructionStatus, RECONSTRUCTION_STATUS,
-                                 self._on_reconstruction_status, result_qos(),
-                                 callback_group=inputs)
-        self._action = ActionServer(self, Scan, SCAN_ACTION, self._execute,
-                                    goal_callback=self._on_goal,
-                                    cancel_callback=self._on_cancel_goal,
-                                    callback_group=ReentrantCallbackGroup())
+        self._board = ScanStatusBoard(self, inputs)
+        self._goals = ScanGoals(self, self._sequence, self._board, start=self._start_goal,
+                                of_board=lambda: self.scan_object == "board",
+                                service_timeout_s=self._p["service_timeout_s"])
         for name, handler in (("start", self._on_start), ("cancel", self._on_cancel),
                               ("resume", self._on_resume)):
             self.create_service(Trigger, private(f"scan/{name}"), handler, callback_group=services)
@@ -491,7 +173,7 @@ class ScanNode(Node):
         if self._worker is not None:
             self._sequence.cancel(stop_axes=False)
             self._worker.join(timeout=10.0)
-        self._action.destroy()
+        self._goals.destroy()
         super().destroy_node()
 
     # -- inputs (executor) -------------------------------------------------------------------
@@ -527,11 +209,6 @@ class ScanNode(Node):
         if self._sequence.receipt(stamp):
             self.publish_status()
 
-    def _on_reconstruction_status(self, msg: ReconstructionStatus) -> None:
-        with self._changed:
-            self._reconstruction = msg
-            self._changed.notify_all()
-
     def _malformed(self, text: str) -> None:
         self._sequence.count_malformed()
         self.get_logger().error(text)
@@ -550,11 +227,11 @@ class ScanNode(Node):
         self.publish_diagnostics()
         self.publish_status()
 
-    # -- services (executor) -----------------------------------------------------------------
+    # -- services and the scan action (executor) ---------------------------------------------
 
     def _on_start(self, _request, response):
-        with self._goal_lock:
-            if self._goal_busy:
+        with self._goals.lock:
+            if self._goals.busy:
                 response.success, response.message = False, "a scan goal is running"
                 return response
             values = read(self, PARAMS)
@@ -597,148 +274,28 @@ class ScanNode(Node):
         self._worker = threading.Thread(target=self._sequence.run, name="scan", daemon=True)
         self._worker.start()
 
-    # -- the scan action (executor) ----------------------------------------------------------
-
-    def _on_goal(self, _goal) -> GoalResponse:
-        """One goal at a time, and none while a scan runs (a bad goal is accepted, then
-        aborted with the reason: a rejection carries none)."""
-        with self._goal_lock:
-            if self._goal_busy or self._sequence.active:
-                self.get_logger().info("scan goal rejected: a scan is running")
-                return GoalResponse.REJECT
-            self._goal_busy = True
-        return GoalResponse.ACCEPT
-
-    @staticmethod
-    def _on_cancel_goal(_goal_handle) -> CancelResponse:
-        return CancelResponse.ACCEPT
-
-    def _execute(self, goal_handle) -> Scan.Result:
-        try:
-            return self._run_goal(goal_handle)
-        finally:
-            with self._goal_lock:
-                self._goal_busy = False
-
-    def _run_goal(self, goal_handle) -> Scan.Result:
-        """Start the goal's scan and follow it to its result."""
-        goal = goal_handle.request
+    def _start_goal(self, goal) -> tuple[str, int | None]:
+        """Start a goal's scan: ``(why not, None)`` or ``("", the scan's number)``."""
         try:
             plan = goal_plan(goal.plan_file, goal.theta_rad, goal.phi_rad, goal.scan_name,
                              max_views=self._p["queue_depth"])
             scan_object = goal_object(goal.object)
         except ValueError as exc:
-            return self._end_goal(goal_handle, False, f"goal refused: {exc}")
+            return f"goal refused: {exc}", None
         values = read(self, PARAMS)
         refusal = self._check_camera(values)
         if refusal:
-            return self._end_goal(goal_handle, False, f"goal refused: {refusal}")
-        with self._goal_lock:
+            return f"goal refused: {refusal}", None
+        with self._goals.lock:
             self.scan_name, self.scan_object = goal.scan_name, scan_object
             ok, message = self._sequence.start(
                 scan_settings(values, board=scan_object == "board"),
                 None if plan is None else plan.views)
         if not ok:
-            return self._end_goal(goal_handle, False, f"goal refused: {message}")
+            return f"goal refused: {message}", None
         self.get_logger().info(f"scan goal ({scan_object}): {message}")
         self._launch()
-        return self._follow(goal_handle, self._sequence.status().values["scan"])
-
-    def _follow(self, goal_handle, scan: int) -> Scan.Result:
-        """Feedback with every status until the scan's run ends and (done) every view is
-        receipted; then the goal's end."""
-        sent, cancelling = None, False
-        while True:
-            with self._changed:
-                self._changed.wait_for(lambda: self._status is not sent, _GOAL_POLL_S)
-                status = self._status
-            if goal_handle.is_cancel_requested and not cancelling:
-                cancelling = True
-                self._sequence.cancel()
-            if status is not None and status is not sent and status.scan == scan:
-                goal_handle.publish_feedback(scan_feedback(status))
-            sent = status
-            values = self._sequence.status().values
-            if values["scan"] != scan or values["state"] not in _ENDED:
-                continue
-            if values["state"] == "done" and values["receipted"] + \
-                    values["lost_in_transport"] < values["total"]:
-                continue                                 # receipts still to come
-            success = values["state"] == "done" and values["lost_in_transport"] == 0
-            return self._end_goal(goal_handle, success, status.message, values)
-
-    def _end_goal(self, goal_handle, success: bool, message: str,
-                  values: dict | None = None) -> Scan.Result:
-        """End the goal (succeeded; canceled when asked; else aborted) with its result; a
-        scan that ended done waits (``service_timeout_s`` at most) for the reconstruction's
-        status to count its views."""
-        result = Scan.Result(success=success, message=message)
-        if values is not None and self.scan_object == "board":
-            result.scan, result.views_total = values["scan"], values["total"]
-            result.views_captured = values["captured"]
-            result.views_stored = values["receipted"]      # by the calibration node
-        elif values is not None:
-            if success:
-                with self._changed:
-                    self._changed.wait_for(
-                        lambda: self._reconstruction.views_stored
-                        + len(self._reconstruction.views_rejected) >= values["total"],
-                        self._p["service_timeout_s"])
-            with self._changed:
-                reconstruction = self._reconstruction
-            result.scan, result.views_total = values["scan"], values["total"]
-            result.views_captured = values["captured"]
-            result.session_dir = reconstruction.session_dir
-            result.views_stored = reconstruction.views_stored
-            result.views_rejected = list(reconstruction.views_rejected)
-        if success:
-            goal_handle.succeed()
-        elif goal_handle.is_cancel_requested:
-            goal_handle.canceled()
-        else:
-            goal_handle.abort()
-        self.get_logger().info(f"scan goal ended: {'succeeded' if success else message}")
-        return result
-
-    # -- the graph (the scan's worker thread) ------------------------------------------------
-
-    def missing_listeners(self) -> list[str]:
-        """What keeps this scan's captures from being seen now: the subscriptions of
-        :data:`LISTENERS`' running nodes not in the graph, and subscriptions to the capture
-        topics not yet matched (empty: none)."""
-        namespace = self.get_namespace()
-        running = {name for name, space in self.get_node_names_and_namespaces()
-                   if space == namespace}
-        missing = []
-        for node, topics in LISTENERS[self.scan_object].items():
-            if node not in running:
-                continue
-            for topic in topics:
-                infos = self.get_subscriptions_info_by_topic(self.resolve_topic_name(topic))
-                if not any(i.node_name == node and i.node_namespace == namespace
-                           for i in infos):
-                    missing.append(f"{node}'s subscription to {topic}")
-        for publisher in self.outputs[self.scan_object]:
-            known = len(self.get_subscriptions_info_by_topic(publisher.topic_name))
-            if publisher.get_subscription_count() < known:
-                missing.append(f"a subscription to {publisher.topic_name} still matching")
-        return missing
-
-    def wait_listeners(self, timeout_s: float, cancelled: threading.Event) -> None:
-        """Until :meth:`missing_listeners` is empty (INFO once while waiting); StepFailed
-        naming what is missing after ``timeout_s``."""
-        deadline = time.monotonic() + timeout_s
-        said = False
-        while missing := self.missing_listeners():
-            if cancelled.is_set():
-                return
-            if time.monotonic() > deadline:
-                raise StepFailed(f"after {timeout_s:g} s the captures would still not be seen: "
-                                 f"no {', '.join(missing)}")
-            if not said:
-                said = True
-                self.get_logger().info(f"first capture waits for {', '.join(missing)}")
-            cancelled.wait(_LISTEN_POLL_S)
+        return "", self._sequence.status().values["scan"]
 
     # -- diagnostics (any thread) ------------------------------------------------------------
 
@@ -753,15 +310,10 @@ class ScanNode(Node):
 
     def publish_status(self) -> None:
         """``status`` now (and wake the goal that follows it)."""
-        with self._status_lock:
-            connected = time.monotonic() - self._reading_at <= AXES_SILENT_S
-            msg = cell_status(self._sequence.status(), self._reading, connected,
-                              stamp=self.get_clock().now().to_msg(),
-                              scan_object=self.scan_object)
-            with self._changed:
-                self._status = msg
-                self._changed.notify_all()
-            self._status_pub.publish(msg)
+        self._board.publish(lambda: cell_status(
+            self._sequence.status(), self._reading,
+            time.monotonic() - self._reading_at <= AXES_SILENT_S,
+            stamp=self.get_clock().now().to_msg(), scan_object=self.scan_object))
 
 
 def main(args=None) -> None:

@@ -27,9 +27,10 @@ from sfs_ros.core.meshing.marching import BandDistance
 from sfs_ros.core.meshing.meshers import MESHERS, HullCloud
 from sfs_ros_interfaces.msg import CarvedScan as CarvedScanMsg
 from sfs_ros_interfaces.msg import CarvedView, ViewImage
+from sfs_ros_interfaces.srv import CarveScan
 
-__all__ = ["HandOver", "carved_scan_from_msg", "carved_scan_to_msg", "view_image_from_msg",
-           "view_image_msg"]
+__all__ = ["HandOver", "carve_scan_request", "carved_scan_from_msg", "carved_scan_to_msg",
+           "view_image_from_msg", "view_image_msg"]
 
 #: JPEG quality of the views' thumbnails (pictures only: the mesh never sees them).
 THUMBNAIL_QUALITY = 90
@@ -242,3 +243,16 @@ def view_image_from_msg(msg: ViewImage) -> tuple[str, str, np.ndarray]:
                          f"{len(image.data)} bytes")
     return (msg.session_dir, msg.view_name,
             np.frombuffer(image.data, np.uint8).reshape(height, width, 3).copy())
+
+
+def carve_scan_request(options, colour: bool, images_session: str,
+                       images_held: list) -> CarveScan.Request:
+    """The ``CarveScan`` request of a reconstruction's ``options``
+    (:class:`sfs_ros.cell.mesh_options.MeshOptions`; each left empty is the carving node's
+    setting), with the images that colour the mesh when ``colour``, without those of the
+    views ``images_held`` of the scan ``images_session``."""
+    return CarveScan.Request(
+        resolution=options.resolution or 0,
+        bounds_m=[] if options.bounds_m is None else options.bounds_m.ravel().tolist(),
+        mesher=options.mesher or "", colour="yes" if colour else "no",
+        images_session=images_session, images_held=images_held)

@@ -13,9 +13,10 @@ import math
 
 from sfs_ros.cell.scan_sequence import ScanStatus
 from sfs_ros_interfaces.action import Scan
-from sfs_ros_interfaces.msg import CellStatus
+from sfs_ros_interfaces.msg import CellStatus, ReconstructionStatus
 
-__all__ = ["cell_status", "scan_feedback", "fill_reconstruct_response", "status_line"]
+__all__ = ["cell_status", "scan_feedback", "scan_result", "fill_reconstruct_response",
+           "status_line"]
 
 
 def status_line(status: ScanStatus) -> str:
@@ -71,3 +72,24 @@ def fill_reconstruct_response(response, summary: dict, *, frame_id: str):
     response.holdout_iou = math.nan if held_out is None else float(held_out)
     response.seconds = float(summary["seconds"])
     return response
+
+
+def scan_result(success: bool, message: str, values: dict | None = None,
+                reconstruction: ReconstructionStatus | None = None, *,
+                board: bool = False) -> Scan.Result:
+    """The ``Scan`` action's result: ``success`` and ``message``; with the scan's status
+    ``values``, its number and counts, the views stored counted by the receipts (a
+    ``board`` scan's: the calibration node's) or by the carving node's ``reconstruction``
+    status, with its session folder and the views it rejected."""
+    result = Scan.Result(success=success, message=message)
+    if values is None:
+        return result
+    result.scan, result.views_total = values["scan"], values["total"]
+    result.views_captured = values["captured"]
+    if board:
+        result.views_stored = values["receipted"]      # by the calibration node
+    else:
+        result.session_dir = reconstruction.session_dir
+        result.views_stored = reconstruction.views_stored
+        result.views_rejected = list(reconstruction.views_rejected)
+    return result

@@ -23,6 +23,7 @@ from .layout import (
                      STORAGES,
                      TOPICS,
                      bag_folder,
+                     new_bag_folder,
                      parameters_message,
                      scan_message,
 )
@@ -31,6 +32,7 @@ from .views import BagViewSet, read_bag
 from .writing import BagWriter
 
 __all__ = ["CAPTURE", "RESULT", "DEFAULT", "TOPICS", "PARAMETERS_TOPIC", "SCAN_TOPIC",
-           "RECORDER_TOPICS", "STORAGES", "BAG_SUFFIXES", "bag_folder", "parameters_message",
+           "RECORDER_TOPICS", "STORAGES", "BAG_SUFFIXES", "bag_folder", "new_bag_folder",
+           "parameters_message",
            "scan_message", "BagWriter", "BagMessage", "Bag", "open_bag", "BagViewSet",
            "read_bag"]

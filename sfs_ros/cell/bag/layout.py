@@ -54,7 +54,7 @@ from ..paths import confined_path
 
 __all__ = ["CAPTURE", "RESULT", "DEFAULT", "TOPICS", "PARAMETERS_TOPIC", "PARAMETERS_FORMAT",
            "SCAN_TOPIC", "RECORDER_TOPICS", "STORAGES", "BAG_SUFFIXES", "STORE", "bag_folder",
-           "parameters_message", "scan_message"]
+           "new_bag_folder", "parameters_message", "scan_message"]
 
 CAPTURE, RESULT, DEFAULT = "capture", "result", "default"
 PARAMETERS_TOPIC = "sfs/parameters"
@@ -96,6 +96,23 @@ def bag_folder(output_dir, name: str) -> Path:
         raise ValueError(f"bag name {name!r} must be 1-100 letters, digits, '_', '-' or '.', "
                          "not starting with '.', '_' or '-'")
     return confined_path(output_dir, f"bags/{name}/{name}.mcap", suffixes=(".mcap",)).parent
+
+
+def new_bag_folder(output_dir, name: str, *, scan: int | None, rolling: bool,
+                   stamp: str) -> Path:
+    """The folder of a new bag in ``output_dir``: ``name`` when given (one that exists is
+    refused when the bag is written); else ``scan_NNN_<stamp>`` for scan NNN, ``scan_<stamp>``
+    for a scan not yet reported (``rolling``: a bag opened with a scan) or ``bag_<stamp>``
+    (on request), with ``_2``, ``_3``, ... until it is new. ValueError for a bad name."""
+    if name:
+        return bag_folder(output_dir, name)
+    prefix = "bag" if not rolling else "scan" if scan is None else f"scan_{scan:03d}"
+    base = f"{prefix}_{stamp}"
+    folder, n = bag_folder(output_dir, base), 1
+    while folder.exists():
+        n += 1
+        folder = bag_folder(output_dir, f"{base}_{n}")
+    return folder
 
 
 def parameters_message(document: dict) -> bytes:
