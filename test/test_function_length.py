@@ -9,15 +9,6 @@ from pathlib import Path
 PACKAGE = Path(__file__).resolve().parents[1] / "sfs_ros"
 MAX_LINES = 100
 
-#: Functions allowed over the limit for now, as (path under sfs_ros/, qualified name).
-#: Each one is a debt: split it, then take it out of this set (the test below fails on
-#: an entry that no longer needs to be here).
-ALLOWED = {
-    # The carving node wires its parameters, topics and services in one constructor.
-    ("nodes/carving_node.py", "CarvingNode.__init__"),
-}
-
-
 def function_lengths() -> dict[tuple[str, str], int]:
     """{(path under sfs_ros/, qualified name): lines} of every function and method."""
     lengths = {}
@@ -46,15 +37,8 @@ def test_the_walk_finds_functions_methods_and_nested_ones():
 
 
 def test_no_function_is_longer_than_the_limit():
-    long = {key: n for key, n in function_lengths().items()
-            if n > MAX_LINES and key not in ALLOWED}
+    long = {key: n for key, n in function_lengths().items() if n > MAX_LINES}
     assert not long, (f"functions over {MAX_LINES} lines (split them into named steps): "
                       + ", ".join(f"sfs_ros/{path}::{name} ({n})"
                                   for (path, name), n in sorted(long.items())))
 
-
-def test_every_allowance_is_still_needed():
-    lengths = function_lengths()
-    stale = sorted(key for key in ALLOWED if lengths.get(key, 0) <= MAX_LINES)
-    assert not stale, (f"no longer over {MAX_LINES} lines (or gone): take them out of "
-                       f"ALLOWED: {stale}")
