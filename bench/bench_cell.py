@@ -34,8 +34,8 @@ from pathlib import Path
 
 import yaml
 
-from sfs_ros.cell.messages import status_namespace
-from sfs_ros.cell.scan_plan import ScanPlan
+from sfs_ros.cell_logic.messages import status_namespace
+from sfs_ros.cell_logic.scan_plan import ScanPlan
 from sfs_ros.cli.bringup import Cell, cell_nodes
 from sfs_ros.core.exchange.inputs import load_views
 from sfs_ros.core.exchange.session import write_session

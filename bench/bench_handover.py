@@ -2,7 +2,7 @@
 
 A simulated scan of the mug with the cell's camera (640 x 480, the demo's plan: three
 rings of 16 views and one from above) is received as the carving node receives it
-(:class:`sfs_ros.cell.live.LiveReconstruction`, the exact silhouettes and the images); then, for each
+(:class:`sfs_ros.cell_logic.live.LiveReconstruction`, the exact silhouettes and the images); then, for each
 mesher, with and without colour: the carving (:meth:`LiveReconstruction.carve`, the
 baseline, measured in the same run), and the hand-over: the carved scan made into its
 message, serialised, deserialised and made back (:mod:`sfs_ros.ros.carved_scan_msg`),
@@ -21,8 +21,8 @@ import tempfile
 from builtin_interfaces.msg import Time
 from rclpy.serialization import deserialize_message, serialize_message
 
-from sfs_ros.cell.live import LiveReconstruction
-from sfs_ros.cell.mesh_files import HandOver
+from sfs_ros.cell_logic.live import LiveReconstruction
+from sfs_ros.cell_logic.mesh_files import HandOver
 from sfs_ros.core.geometry.rig import rig_camera
 from sfs_ros.core.render import rasterize_silhouette
 from sfs_ros.core.simulation.objects import make_object

@@ -30,8 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
-from sfs_ros.cell.bag import open_bag
-from sfs_ros.cell.bag.layout import STORE
+from sfs_ros.cell_logic.bag import open_bag
+from sfs_ros.cell_logic.bag.layout import STORE
 from sfs_ros.core.exchange.export import load_mesh
 
 REPO = Path(__file__).resolve().parent.parent

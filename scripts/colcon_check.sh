@@ -128,7 +128,7 @@ done
     cd "$ws"
     PATH="$venv/bin:$PATH"
     "$prefix/lib/sfs_ros/sfs-reconstruct" --help > /dev/null
-    python -c "import sfs_ros.cell.bag, sfs_ros, sys; \
+    python -c "import sfs_ros.cell_logic.bag, sfs_ros, sys; \
 assert sfs_ros.__file__.startswith('$ws/install/'), sfs_ros.__file__"
     found=$(python -c "from ament_index_python.packages import get_package_share_directory as g; \
 print(g('sfs_ros'))")

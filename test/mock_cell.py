@@ -13,7 +13,7 @@ from pathlib import Path
 
 import yaml
 
-from sfs_ros.cell.scan_plan import ScanPlan
+from sfs_ros.cell_logic.scan_plan import ScanPlan
 from sfs_ros.cli.bringup import Cell, cell_nodes
 from sfs_ros.core.simulation.objects import make_object
 from sfs_ros.core.simulation.synthetic import carving_box

@@ -20,7 +20,7 @@ import pytest
 from rosbags.rosbag2 import Writer
 from rosbags.typesys import Stores, get_typestore
 
-from sfs_ros.cell.bag import (
+from sfs_ros.cell_logic.bag import (
     PARAMETERS_TOPIC,
     SCAN_TOPIC,
     TOPICS,
@@ -31,7 +31,7 @@ from sfs_ros.cell.bag import (
     read_bag,
     scan_message,
 )
-from sfs_ros.cell.live import LiveReconstruction
+from sfs_ros.cell_logic.live import LiveReconstruction
 from sfs_ros.cli.common import load_input
 from sfs_ros.core.exchange.inputs import load_views
 from sfs_ros.core.exchange.session import write_session
@@ -294,7 +294,7 @@ _KILLED_WRITER = """
 import os, signal, sys
 sys.path.insert(0, {test_dir!r})
 from test_bag import PARAMETERS_TOPIC, document, mask_messages, parameters_message, sphere_views
-from sfs_ros.cell.bag import TOPICS, BagWriter
+from sfs_ros.cell_logic.bag import TOPICS, BagWriter
 bag = BagWriter({folder!r}, storage={storage!r})
 for name, (msgtype, kind) in TOPICS.items():
     bag.add_topic("/cell/" + name, msgtype, kind=kind)

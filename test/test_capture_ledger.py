@@ -8,7 +8,7 @@ import math
 
 import pytest
 
-from sfs_ros.cell.capture_ledger import CaptureLedger, EncoderHistory, EncoderReading
+from sfs_ros.cell_logic.capture_ledger import CaptureLedger, EncoderHistory, EncoderReading
 
 TIMEOUT_S = 2.0     # receipt timeout of the ledgers below
 MAX_SENDS = 3

@@ -14,7 +14,7 @@ import pytest
 from builtin_interfaces.msg import Time
 from rclpy.serialization import deserialize_message, serialize_message
 
-from sfs_ros.cell.mesh_files import THUMBNAIL_PX, thumbnail
+from sfs_ros.cell_logic.mesh_files import THUMBNAIL_PX, thumbnail
 from sfs_ros.core.exchange.views import read_image
 from sfs_ros.core.mesh_scan import mesh_scan
 from sfs_ros.core.meshing.meshers import MESHERS, mesher

@@ -6,15 +6,15 @@ import math
 import numpy as np
 import pytest
 
-from sfs_ros.cell.carving_scan import (
+from sfs_ros.cell_logic.carving_scan import (
     CarvingScan,
     EarlierViews,
     HullSchedule,
     grid_refusal,
     memory_budget,
 )
-from sfs_ros.cell.live import OPEN_MARKER, LiveReconstruction
-from sfs_ros.cell.messages import view_key
+from sfs_ros.cell_logic.live import OPEN_MARKER, LiveReconstruction
+from sfs_ros.cell_logic.messages import view_key
 from sfs_ros.core.carving.resolution import default_memory_budget
 from sfs_ros.core.geometry.rig import RigCalibration
 

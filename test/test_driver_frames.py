@@ -11,7 +11,7 @@ import pytest
 from PIL import Image as PILImage
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
-from sfs_ros.cell.intrinsics import (
+from sfs_ros.cell_logic.intrinsics import (
     DriverIntrinsics,
     describe_differences,
     intrinsics_differences,
@@ -19,7 +19,7 @@ from sfs_ros.cell.intrinsics import (
     rig_intrinsics,
     rig_update,
 )
-from sfs_ros.cell.messages import msg_to_image
+from sfs_ros.cell_logic.messages import msg_to_image
 from sfs_ros.ros.convert import (
     DRIVER_ENCODINGS,
     bayer_to_rgb,

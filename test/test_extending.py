@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sfs_ros.cell import bag_input
+from sfs_ros.cell_logic import bag_input
 from sfs_ros.cli import reconstruct as cli
 from sfs_ros.cli.reference import DEFAULT_PATH, PROG, reference_text
 from sfs_ros.core.exchange.export import MESH_FORMATS, load_mesh

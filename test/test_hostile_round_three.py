@@ -225,7 +225,7 @@ def test_class5_a_zstd_bomb_in_a_bag_is_refused_in_bounded_memory(tmp_path, case
 
 
 def test_class5_a_sqlite_bag_row_over_the_limit_is_refused_before_it_is_read(tmp_path):
-    from sfs_ros.cell.bag.bounds import RecordTooLarge, check_storage
+    from sfs_ros.cell_logic.bag.bounds import RecordTooLarge, check_storage
 
     bag = tmp_path / "bag.db3"
     import sqlite3
@@ -239,7 +239,7 @@ def test_class5_a_sqlite_bag_row_over_the_limit_is_refused_before_it_is_read(tmp
 
 
 def test_class5_a_bag_compressed_by_rosbag2_is_refused_not_expanded(tmp_path):
-    from sfs_ros.cell.bag import open_bag
+    from sfs_ros.cell_logic.bag import open_bag
 
     bag = tmp_path / "bag"
     bag.mkdir()
@@ -255,7 +255,7 @@ def test_class5_a_bag_compressed_by_rosbag2_is_refused_not_expanded(tmp_path):
 def test_class5_bounded_decompression_gives_what_a_chunk_declares():
     from backports import zstd
 
-    from sfs_ros.cell.bag.bounds import RecordTooLarge, _bounded
+    from sfs_ros.cell_logic.bag.bounds import RecordTooLarge, _bounded
 
     decompress = _bounded(zstd.ZstdDecompressor)
     data = bytes(range(256)) * 40
@@ -451,7 +451,7 @@ def test_class6_colour_images_without_their_view_are_bounded(tmp_path):
     has come is kept whatever comes after it."""
     code = textwrap.dedent(f"""
         import numpy as np
-        from sfs_ros.cell.live import LiveReconstruction
+        from sfs_ros.cell_logic.live import LiveReconstruction
         from sfs_ros.core.exchange.limits import MAX_WAITING_BYTES
         from sfs_ros.core.geometry.rig import RigCalibration
         rig = RigCalibration(width=640, height=480)

@@ -20,7 +20,7 @@ import yaml
 from test_hostile_input import FAST, OK, REFUSED, Cases, failures
 from test_supervisor import ScriptSpec
 
-from sfs_ros.cell.bag import read_bag
+from sfs_ros.cell_logic.bag import read_bag
 from sfs_ros.cli.bringup import Cell, RestartPolicy, wait_until_signal
 from sfs_ros.cli.reconstruct import main as reconstruct_main
 from sfs_ros.core.calibration import BoardSpec
@@ -327,7 +327,7 @@ def test_class_13_a_reset_during_a_scan_is_refused_and_no_open_marker_is_left(tm
     from std_srvs.srv import Trigger
     from test_rig_runtime import _scan_report
 
-    from sfs_ros.cell.live import OPEN_MARKER
+    from sfs_ros.cell_logic.live import OPEN_MARKER
     from sfs_ros.nodes.carving_node import CarvingNode
     from sfs_ros.ros.names import DIAGNOSTICS, SERVICES
 
@@ -479,7 +479,7 @@ RESOLUTION_RANGE = RESOLUTION.bounds
 
 
 def test_class_17_the_command_line_resolution_overrides_the_bags_within_one_range(tmp_path):
-    from sfs_ros.cell.mesh_options import mesh_options
+    from sfs_ros.cell_logic.mesh_options import mesh_options
     from sfs_ros.nodes.carving_node import PARAMS
 
     node_range = next(p.bounds for p in PARAMS if p.name == "resolution")

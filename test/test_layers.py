@@ -1,6 +1,6 @@
 """The package's layers, read from the source by static import analysis (``ast``).
 
-``core`` (pure algorithms), ``hardware`` (drivers) and ``cell`` (the cell's logic and
+``core`` (pure algorithms), ``hardware`` (drivers) and ``cell_logic`` (the cell's logic and
 files) import nothing from ROS (rclpy, message packages, rosidl) nor from the layers
 above them (``sfs_ros.ros``, ``sfs_ros.nodes``, ``sfs_ros.cli``); ``core`` imports
 nothing of the package outside itself; and the core's parts (its sub-packages and
@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "sfs_ros"
-ROS_FREE = ("core", "hardware", "cell")
+ROS_FREE = ("core", "hardware", "cell_logic")
 UPPER_LAYERS = ("sfs_ros.ros", "sfs_ros.nodes", "sfs_ros.cli")
 #: Top-level ROS packages named explicitly; any ``*_msgs``, ``*_srvs``, ``*_interfaces``
 #: and ``rosidl*`` package is ROS too.
@@ -62,7 +62,7 @@ MODULES = sorted(PACKAGE.rglob("*.py"))
 
 def test_the_package_is_found():
     names = {module_name(p) for p in MODULES}
-    assert {"sfs_ros.core.pipeline", "sfs_ros.cell.live", "sfs_ros.ros.convert"} <= names
+    assert {"sfs_ros.core.pipeline", "sfs_ros.cell_logic.live", "sfs_ros.ros.convert"} <= names
 
 
 @pytest.mark.parametrize("layer", ROS_FREE)

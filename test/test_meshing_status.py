@@ -5,9 +5,9 @@ from types import SimpleNamespace
 
 import pytest
 
-from sfs_ros.cell.after_answer import products_after
-from sfs_ros.cell.mesh_options import MeshOptions, mesh_options
-from sfs_ros.cell.meshing_status import MeshingStatus
+from sfs_ros.cell_logic.after_answer import products_after
+from sfs_ros.cell_logic.mesh_options import MeshOptions, mesh_options
+from sfs_ros.cell_logic.meshing_status import MeshingStatus
 
 
 @pytest.mark.parametrize("options, default, coloured", [

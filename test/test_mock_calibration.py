@@ -26,7 +26,7 @@ import numpy as np
 import pytest
 import yaml
 
-from sfs_ros.cell.scan_plan import load_plan
+from sfs_ros.cell_logic.scan_plan import load_plan
 from sfs_ros.cli import calibrate as cli
 from sfs_ros.core.calibration import canonical
 from sfs_ros.core.exchange.session import read_session, write_session

@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from sfs_ros.cell.motor_link import LOCKED, MotorLink
+from sfs_ros.cell_logic.motor_link import LOCKED, MotorLink
 from sfs_ros.hardware.simulator import SimulatedGrbl
 
 from tolerances import HANG_S, READBACK_TOL_RAD

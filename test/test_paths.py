@@ -4,7 +4,7 @@ import os
 
 import pytest
 
-from sfs_ros.cell.paths import MAX_COMPONENT_BYTES, MAX_NAME_BYTES, confined_path
+from sfs_ros.cell_logic.paths import MAX_COMPONENT_BYTES, MAX_NAME_BYTES, confined_path
 
 MESH = (".ply", ".obj", ".stl", ".glb")
 

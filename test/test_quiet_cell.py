@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from sfs_ros.cell.bag import open_bag
+from sfs_ros.cell_logic.bag import open_bag
 from sfs_ros.ros.cell_client import CellClient
 
 from mock_cell import SCAN_TIMEOUT_S, write_config

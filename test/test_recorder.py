@@ -24,7 +24,7 @@ from rosbags.typesys import Stores, get_typestore
 from sensor_msgs.msg import Image, JointState
 from std_srvs.srv import Trigger
 
-from sfs_ros.cell.bag import open_bag, read_bag
+from sfs_ros.cell_logic.bag import open_bag, read_bag
 from sfs_ros.core.exchange.views import ViewError
 from sfs_ros.core.geometry.rig import rig_camera
 from sfs_ros.core.simulation.plan import ring_plan
@@ -142,12 +142,12 @@ def wait_views_in_bag(probe: RosProbe, folder, n: int) -> None:
             return 0
         return min(counts.get(MASKS, 0), counts.get(JOINTS, 0))
 
-    logging.getLogger("sfs_ros.cell.bag").setLevel(logging.ERROR)   # "not closed", known
+    logging.getLogger("sfs_ros.cell_logic.bag").setLevel(logging.ERROR)   # "not closed", known
     try:
         probe.spin_until(lambda: written() >= n, timeout=DELIVERY_S,
                          what=f"{n} views in the bag")
     finally:
-        logging.getLogger("sfs_ros.cell.bag").setLevel(logging.NOTSET)
+        logging.getLogger("sfs_ros.cell_logic.bag").setLevel(logging.NOTSET)
 
 
 def _stamps(view_set) -> list[tuple[int, int]]:

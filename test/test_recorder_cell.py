@@ -23,7 +23,7 @@ from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_typestore
 from std_srvs.srv import Trigger
 
-from sfs_ros.cell.bag import PARAMETERS_TOPIC, TOPICS, open_bag
+from sfs_ros.cell_logic.bag import PARAMETERS_TOPIC, TOPICS, open_bag
 from sfs_ros.core.exchange.export import load_mesh
 from sfs_ros.core.exchange.nerf import read_transforms
 from sfs_ros.core.exchange.session import read_session

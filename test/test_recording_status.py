@@ -2,8 +2,8 @@
 
 import pytest
 
-from sfs_ros.cell.bag import new_bag_folder
-from sfs_ros.cell.recording_status import RecordingStatus
+from sfs_ros.cell_logic.bag import new_bag_folder
+from sfs_ros.cell_logic.recording_status import RecordingStatus
 
 STAMP = "20261206_041500"
 

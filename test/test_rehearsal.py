@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sfs_ros.cell.rehearsal import REHEARSAL_PLAN, REHEARSAL_RIG, rehearse
+from sfs_ros.cell_logic.rehearsal import REHEARSAL_PLAN, REHEARSAL_RIG, rehearse
 from sfs_ros.core.exchange.export import load_mesh
 from sfs_ros.core.meshing.colour import MAX_COLOUR_VIEWS
 

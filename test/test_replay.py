@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from sensor_msgs.msg import Image, JointState
 
-from sfs_ros.cell.bag import TOPICS, BagWriter
+from sfs_ros.cell_logic.bag import TOPICS, BagWriter
 from sfs_ros.ros import capture_qos
 
 from ros_harness import NAMESPACE, SOURCE_ROOT, RosProbe

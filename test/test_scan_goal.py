@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import yaml
 
-from sfs_ros.cell.mesh_options import mesh_options
-from sfs_ros.cell.scan_goal import goal_plan, scan_outcome
+from sfs_ros.cell_logic.mesh_options import mesh_options
+from sfs_ros.cell_logic.scan_goal import goal_plan, scan_outcome
 
 
 def test_no_views_means_the_configured_plan():

@@ -15,7 +15,7 @@ from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Image, JointState
 from std_srvs.srv import Trigger
 
-from sfs_ros.cell.scan_plan import ScanPlan
+from sfs_ros.cell_logic.scan_plan import ScanPlan
 from sfs_ros.ros import capture_qos
 from sfs_ros.ros.convert import image_to_msg, joint_state
 from sfs_ros.ros.names import DIAGNOSTICS, SERVICES

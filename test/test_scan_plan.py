@@ -5,7 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sfs_ros.cell.scan_plan import ScanPlan, load_plan, travel_deg
+from sfs_ros.cell_logic.scan_plan import ScanPlan, load_plan, travel_deg
 from sfs_ros.core.simulation.plan import ring_plan
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "config" / "scan_plan.yaml"

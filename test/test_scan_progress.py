@@ -1,4 +1,4 @@
-"""The scan node's progress on disk (sfs_ros.cell.scan_progress) and a restarted sequence
+"""The scan node's progress on disk (sfs_ros.cell_logic.scan_progress) and a restarted sequence
 taking the scan up from it (ScanSequence.restore), with the simulated cell of
 test_scan_sequence: no processes.
 
@@ -11,9 +11,9 @@ import json
 import numpy as np
 import pytest
 
-from sfs_ros.cell.capture_ledger import EncoderReading
-from sfs_ros.cell.scan_progress import PROGRESS_FILE, SavedCapture, SavedScan, ScanProgress
-from sfs_ros.cell.scan_sequence import ScanSequence
+from sfs_ros.cell_logic.capture_ledger import EncoderReading
+from sfs_ros.cell_logic.scan_progress import PROGRESS_FILE, SavedCapture, SavedScan, ScanProgress
+from sfs_ros.cell_logic.scan_sequence import ScanSequence
 
 from test_scan_sequence import SETTINGS, VIEWS, FakeCell
 

@@ -1,4 +1,4 @@
-"""The scan's sequencing (sfs_ros.cell.scan_sequence) with a simulated cell: no processes.
+"""The scan's sequencing (sfs_ros.cell_logic.scan_sequence) with a simulated cell: no processes.
 
 The fake cell is a discrete-event simulation: a clock that only moves when the
 sequence waits (to the next scheduled event: an encoder reading, a frame, an
@@ -18,7 +18,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from sfs_ros.cell.scan_sequence import ScanSequence, ScanSettings, StepFailed
+from sfs_ros.cell_logic.scan_sequence import ScanSequence, ScanSettings, StepFailed
 
 VIEWS = np.radians([[0.0, 20.0], [90.0, 20.0], [180.0, 20.0], [270.0, 20.0], [0.0, 90.0]])
 MOVE_S = 0.5        # a move takes this long

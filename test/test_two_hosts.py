@@ -30,9 +30,9 @@ from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
-from sfs_ros.cell.bag import PARAMETERS_TOPIC, open_bag
-from sfs_ros.cell.scan_plan import ScanPlan
-from sfs_ros.cell.scan_progress import PROGRESS_FILE
+from sfs_ros.cell_logic.bag import PARAMETERS_TOPIC, open_bag
+from sfs_ros.cell_logic.scan_plan import ScanPlan
+from sfs_ros.cell_logic.scan_progress import PROGRESS_FILE
 from sfs_ros.cli.bringup import NodeSpec, select_nodes
 from sfs_ros.core.exchange.session import read_session
 

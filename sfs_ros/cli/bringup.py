@@ -33,7 +33,7 @@ Every node gets ``params_file`` last among its files (default
 ``overrides.yaml`` of the config folder, which sets nothing): a site's own
 values, without editing the installed files. A node that holds the rig
 (``rig.yaml`` among its files) also gets, after all of them, the rig applied
-last to the running cell (:data:`sfs_ros.cell.paths.APPLIED_RIG` in the output
+last to the running cell (:data:`sfs_ros.cell_logic.paths.APPLIED_RIG` in the output
 folder, :func:`sfs_ros.ros.rig_apply.apply_rig`) whenever it is started and the
 file exists, so a node started again keeps the applied rig; the start says so. The cell runs in the namespace
 :data:`sfs_ros.ros.names.NAMESPACE` unless told otherwise. :func:`select_nodes`
@@ -53,7 +53,7 @@ import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from sfs_ros.cell.paths import APPLIED_RIG
+from sfs_ros.cell_logic.paths import APPLIED_RIG
 from sfs_ros.process import KEEP_FREED_MEMORY_ENVIRONMENT, PROCESS_ENVIRONMENT
 from sfs_ros.ros.names import CONFIGURATION_ERROR, NAMESPACE
 

@@ -19,7 +19,7 @@ if TYPE_CHECKING:
 def accepted_inputs() -> str:
     """What :func:`load_input` reads, in words: every input format, the cell's rosbag2
     among them (:func:`sfs_ros.core.exchange.inputs.accepted_inputs`)."""
-    from ..cell import bag_input  # noqa: F401 - adds the rosbag2 to the input formats
+    from ..cell_logic import bag_input  # noqa: F401 - adds the rosbag2 to the input formats
     from ..core.exchange.inputs import accepted_inputs as every_format
     return every_format()
 
@@ -30,7 +30,7 @@ def load_input(path, *, captures: bool = False) -> tuple[ViewSet, dict]:
     masks) and the settings the input recorded (``{"resolution": ..., "mesher": ...}`` as
     a bag's carving node had them; empty for other inputs). Raises ViewError with one
     line."""
-    from ..cell import bag_input  # noqa: F401 - adds the rosbag2 to the input formats
+    from ..cell_logic import bag_input  # noqa: F401 - adds the rosbag2 to the input formats
     from ..core.exchange.inputs import load_views
     views = load_views(Path(path), captures=captures)
     return views, views.recorded_settings

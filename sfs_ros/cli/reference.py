@@ -92,7 +92,7 @@ def _meshers_section() -> list[str]:
 
 
 def _inputs_section() -> list[str]:
-    from ..cell import bag_input  # noqa: F401 - adds the rosbag2 to the input formats
+    from ..cell_logic import bag_input  # noqa: F401 - adds the rosbag2 to the input formats
     from ..core.exchange.inputs import INPUT_FORMATS
     rows = [f"| `{f.name}` | {_cell(f.description)} |" for f in INPUT_FORMATS.values()]
     return ["## Input formats", "",

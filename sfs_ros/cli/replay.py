@@ -52,7 +52,7 @@ def _namespace(text: str) -> str:
 
 def _plan(bag, args) -> dict[str, tuple[str, str, str]]:
     """Recorded topic -> (topic to publish on, message type, QoS kind)."""
-    from ..cell.bag import DEFAULT, TOPICS
+    from ..cell_logic.bag import DEFAULT, TOPICS
 
     namespace = bag.namespace if args.namespace is None else _namespace(args.namespace)
     names = {bag.relative(t) or t: t for t in bag.topics}
@@ -76,7 +76,7 @@ def run(args) -> dict:
     from rclpy.duration import Duration
     from rclpy.signals import SignalHandlerOptions
 
-    from ..cell.bag import CAPTURE, RESULT, open_bag
+    from ..cell_logic.bag import CAPTURE, RESULT, open_bag
     from ..ros import capture_qos, result_qos
     from ..ros.messages import message_class
 

@@ -9,7 +9,7 @@ compilation, which takes far longer than a warm reconstruction
 temporary folder, both ways the package does: offline from the images (segmentation,
 consensus, fusion, carving, meshing, evaluation) and live, view by view (incremental
 carving, then the pipeline on the received masks with colour, the mesh file and its
-pictures: :func:`sfs_ros.cell.rehearsal.rehearse`). Prints the seconds it took.
+pictures: :func:`sfs_ros.cell_logic.rehearsal.rehearse`). Prints the seconds it took.
 
 numba keys a cached kernel on its source file's content (and location: beside the file,
 or under ``NUMBA_CACHE_DIR``), its own version, the Python and the host CPU. Each copy of
@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numba
 
-from ..cell.rehearsal import REHEARSAL_PLAN, REHEARSAL_RESOLUTION, REHEARSAL_RIG, rehearse
+from ..cell_logic.rehearsal import REHEARSAL_PLAN, REHEARSAL_RESOLUTION, REHEARSAL_RIG, rehearse
 from ..core.exchange.inputs import load_views
 from ..core.exchange.session import write_session
 from ..core.pipeline import ReconstructionParams, reconstruct

@@ -8,7 +8,7 @@ The front door names what a script needs::
 
 ``load_views`` reads every input format of
 :data:`sfs_ros.core.exchange.inputs.INPUT_FORMATS`; a rosbag2 recorded by the cell once
-``sfs_ros.cell.bag_input`` is imported (it adds the format).
+``sfs_ros.cell_logic.bag_input`` is imported (it adds the format).
 
 Sub-packages, each naming its public API in its ``__init__``:
 

@@ -14,7 +14,7 @@ A ``calibrate`` goal: a ``Scan`` goal of object ``board`` with the calibration p
 by stamp, are stored in ``OUTPUT_DIR/calibration_<UTC time>/session/`` and receipted on
 ``capture/stored`` (the scan node's delivery: a capture not receipted is sent again), and
 the board looked for in each (feedback ``boards_detected``); then, in a worker thread, the
-fit of ``sfs-calibrate`` (:func:`sfs_ros.cell.calibration_run.fit_and_write`) from the
+fit of ``sfs-calibrate`` (:func:`sfs_ros.cell_logic.calibration_run.fit_and_write`) from the
 carving node's rig, which writes ``rig.yaml``, ``camera_info.yaml`` and
 ``calibration_report.yaml`` beside the session; with ``apply``, the rig is set on every
 node that holds it and kept in ``OUTPUT_DIR/calibration/rig.yaml``
@@ -43,9 +43,9 @@ from rclpy.node import Node
 from sensor_msgs.msg import Image, JointState
 from std_msgs.msg import Header
 
-from sfs_ros.cell.calibration_run import BoardCaptures, calibration_folder, fit_and_write
-from sfs_ros.cell.messages import angles_from_joint_state, msg_to_image
-from sfs_ros.cell.scan_plan import load_plan
+from sfs_ros.cell_logic.calibration_run import BoardCaptures, calibration_folder, fit_and_write
+from sfs_ros.cell_logic.messages import angles_from_joint_state, msg_to_image
+from sfs_ros.cell_logic.scan_plan import load_plan
 from sfs_ros.core.calibration import BoardSpec
 from sfs_ros.nodes.entry import run_node
 from sfs_ros.process import configure_process

@@ -1,6 +1,6 @@
 """Carving node: silhouettes in, the live hull out; the carved scan on request.
 
-It keeps the scan (:class:`sfs_ros.cell.carving_scan.CarvingScan`): each paired mask and
+It keeps the scan (:class:`sfs_ros.cell_logic.carving_scan.CarvingScan`): each paired mask and
 joint state is stored and carved into the live hull as it arrives and receipted on
 ``capture/stored``; ``carve_scan`` hands the views' carving to the meshing node. What it
 does, in full: ``doc/nodes.md``; its parameters: ``doc/reference.md`` (generated from
@@ -20,9 +20,9 @@ from rclpy.node import Node
 from sensor_msgs.msg import Image, JointState
 from std_srvs.srv import Trigger
 
-from sfs_ros.cell.carving_scan import HullSchedule, grid_refusal
-from sfs_ros.cell.mesh_options import MeshOptions
-from sfs_ros.cell.messages import check_image_size
+from sfs_ros.cell_logic.carving_scan import HullSchedule, grid_refusal
+from sfs_ros.cell_logic.mesh_options import MeshOptions
+from sfs_ros.cell_logic.messages import check_image_size
 from sfs_ros.core.meshing.meshers import MESHER
 from sfs_ros.core.resident_memory import prefault
 from sfs_ros.core.settings import BOUNDS_M, COLOUR, MAX_MEMORY, RESOLUTION

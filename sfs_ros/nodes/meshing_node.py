@@ -2,8 +2,8 @@
 
 The meshing half of the cell's reconstruction (:mod:`sfs_ros.nodes.carving_node` keeps the
 scan): ``~/reconstruct_mesh`` asks the carving node for the carved scan, meshes it in a
-worker thread (:func:`sfs_ros.cell.mesh_files.write_mesh`), answers, then publishes the
-mesh and makes the products that follow the answer (:mod:`sfs_ros.cell.after_answer`).
+worker thread (:func:`sfs_ros.cell_logic.mesh_files.write_mesh`), answers, then publishes the
+mesh and makes the products that follow the answer (:mod:`sfs_ros.cell_logic.after_answer`).
 What it does, in full: ``doc/nodes.md``; its parameters: ``doc/reference.md`` (generated
 from :data:`PARAMS`); its topics and services: ``doc/cell.md``.
 """
@@ -22,11 +22,11 @@ from shape_msgs.msg import Mesh
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker
 
-from sfs_ros.cell.after_answer import make_product, products_after, without_colour
-from sfs_ros.cell.held_images import HeldImages
-from sfs_ros.cell.mesh_files import write_mesh
-from sfs_ros.cell.mesh_options import MeshOptions, mesh_options
-from sfs_ros.cell.meshing_status import MeshingStatus
+from sfs_ros.cell_logic.after_answer import make_product, products_after, without_colour
+from sfs_ros.cell_logic.held_images import HeldImages
+from sfs_ros.cell_logic.mesh_files import write_mesh
+from sfs_ros.cell_logic.mesh_options import MeshOptions, mesh_options
+from sfs_ros.cell_logic.meshing_status import MeshingStatus
 from sfs_ros.core.meshing.decimate import decimate
 from sfs_ros.core.settings import COLOUR
 from sfs_ros.nodes.entry import run_node

@@ -1,7 +1,7 @@
 """Motor node: the turntable and carriage behind a GRBL 1.1 controller.
 
 A managed (lifecycle) node wiring ``joint_command``, ``~/home`` and ``~/stop`` to the
-controller (:class:`sfs_ros.cell.motor_link.MotorLink`), one move or homing at a time in
+controller (:class:`sfs_ros.cell_logic.motor_link.MotorLink`), one move or homing at a time in
 a worker thread, and publishing ``joint_states``. What it does, in full:
 ``doc/nodes.md``; its parameters: ``doc/reference.md`` (generated from :data:`PARAMS`);
 its topics and services: ``doc/cell.md``.
@@ -20,7 +20,7 @@ from rclpy.service import Service
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
-from sfs_ros.cell.motor_link import MotorLink
+from sfs_ros.cell_logic.motor_link import MotorLink
 from sfs_ros.hardware.driver import GrblClient, MotorAlarm
 from sfs_ros.nodes.entry import run_node
 from sfs_ros.process import configure_process

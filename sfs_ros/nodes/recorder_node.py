@@ -1,11 +1,11 @@
 """Recorder node: a scanning session as a rosbag2 (MCAP, or sqlite3 on request).
 
 It subscribes to the cell's topics from start-up (their serialized bytes) and writes
-them, in one worker thread, into a bag (:class:`sfs_ros.cell.bag.writing.BagWriter`)
+them, in one worker thread, into a bag (:class:`sfs_ros.cell_logic.bag.writing.BagWriter`)
 opened on ``~/record/start`` or (``with_scan``) with each scan, with the parameters of the
 cell's nodes (:mod:`sfs_ros.ros.parameter_fetch`). What it does, in full:
 ``doc/nodes.md``; its parameters: ``doc/reference.md`` (generated from :data:`PARAMS`);
-its topics and services: ``doc/cell.md``; the bag's layout: :mod:`sfs_ros.cell.bag.layout`.
+its topics and services: ``doc/cell.md``; the bag's layout: :mod:`sfs_ros.cell_logic.bag.layout`.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from rclpy.parameter_client import AsyncParameterClient
 from rclpy.serialization import deserialize_message
 from std_srvs.srv import Trigger
 
-from sfs_ros.cell.bag import (
+from sfs_ros.cell_logic.bag import (
     CAPTURE,
     PARAMETERS_TOPIC,
     RECORDER_TOPICS,
@@ -39,8 +39,8 @@ from sfs_ros.cell.bag import (
     parameters_message,
     scan_message,
 )
-from sfs_ros.cell.messages import scan_report
-from sfs_ros.cell.recording_status import RecordingStatus
+from sfs_ros.cell_logic.messages import scan_report
+from sfs_ros.cell_logic.recording_status import RecordingStatus
 from sfs_ros.nodes.entry import run_node
 from sfs_ros.process import configure_process
 from sfs_ros.ros import capture_qos, result_qos

@@ -1,6 +1,6 @@
 """Scan node: the operator console. Visits a plan of viewpoints and publishes tagged captures.
 
-The sequencing is :class:`sfs_ros.cell.scan_sequence.ScanSequence` (tested without
+The sequencing is :class:`sfs_ros.cell_logic.scan_sequence.ScanSequence` (tested without
 processes); this node connects its ports (:class:`sfs_ros.ros.scan_ports.RosPorts`) to
 topics and services, and serves the ``scan`` action. What it does, in full:
 ``doc/nodes.md``; its parameters: ``doc/reference.md`` (generated from :data:`PARAMS`);
@@ -20,9 +20,9 @@ from sensor_msgs.msg import Image, JointState
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
-from sfs_ros.cell.messages import ForeignJointState
-from sfs_ros.cell.scan_goal import OBJECTS, goal_object, goal_plan
-from sfs_ros.cell.scan_sequence import TRIGGERS, ScanSequence
+from sfs_ros.cell_logic.messages import ForeignJointState
+from sfs_ros.cell_logic.scan_goal import OBJECTS, goal_object, goal_plan
+from sfs_ros.cell_logic.scan_sequence import TRIGGERS, ScanSequence
 from sfs_ros.nodes.entry import run_node
 from sfs_ros.process import configure_process
 from sfs_ros.ros import capture_qos
@@ -51,7 +51,7 @@ NODE_NAME = "scan"
 AXES_SILENT_S = 2.0
 
 PARAMS: list[Param] = [
-    Param("plan_file", "", "YAML scan plan (format: sfs_ros/cell/scan_plan.py); empty = the "
+    Param("plan_file", "", "YAML scan plan (format: sfs_ros/cell_logic/scan_plan.py); empty = the "
           "ring parameters below.", read_only=True),
     Param("rings_phi_deg", [15.0, 40.0, 65.0], "Carriage elevations of the view rings, deg.",
           bounds=(-90.0, 90.0), read_only=True),

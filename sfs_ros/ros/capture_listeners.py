@@ -15,7 +15,7 @@ import time
 
 from rclpy.node import Node
 
-from sfs_ros.cell.scan_sequence import StepFailed
+from sfs_ros.cell_logic.scan_sequence import StepFailed
 from sfs_ros.ros.names import CARVING_NODE, RECORDER_NODE
 
 __all__ = ["LISTENERS", "missing_listeners", "wait_for_listeners"]

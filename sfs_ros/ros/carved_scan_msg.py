@@ -18,7 +18,7 @@ import math
 import cv2
 import numpy as np
 
-from sfs_ros.cell.mesh_files import THUMBNAIL_PX, HandOver
+from sfs_ros.cell_logic.mesh_files import THUMBNAIL_PX, HandOver
 from sfs_ros.core.carved_scan import ROLES, CarvedScan, ScanView
 from sfs_ros.core.carving.hull import occupied_bounds
 from sfs_ros.core.geometry.camera import Camera
@@ -248,7 +248,7 @@ def view_image_from_msg(msg: ViewImage) -> tuple[str, str, np.ndarray]:
 def carve_scan_request(options, colour: bool, images_session: str,
                        images_held: list) -> CarveScan.Request:
     """The ``CarveScan`` request of a reconstruction's ``options``
-    (:class:`sfs_ros.cell.mesh_options.MeshOptions`; each left empty is the carving node's
+    (:class:`sfs_ros.cell_logic.mesh_options.MeshOptions`; each left empty is the carving node's
     setting), with the images that colour the mesh when ``colour``, without those of the
     views ``images_held`` of the scan ``images_session``."""
     return CarveScan.Request(

@@ -1,7 +1,7 @@
 """The carving node's publishers: receipts, the live hull, camera poses, the views' images,
 its status and diagnostics.
 
-:class:`CarvingOutputs` publishes what :class:`sfs_ros.cell.carving_scan.CarvingScan`
+:class:`CarvingOutputs` publishes what :class:`sfs_ros.cell_logic.carving_scan.CarvingScan`
 holds, each in the turntable frame ``frame_id``; every method may be called from any
 thread.
 """
@@ -14,7 +14,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Header
 
-from sfs_ros.cell.carving_scan import CarvingScan
+from sfs_ros.cell_logic.carving_scan import CarvingScan
 from sfs_ros.ros import capture_qos, result_qos
 from sfs_ros.ros.carved_scan_msg import view_image_msg
 from sfs_ros.ros.convert import camera_poses, diagnostic_array, header, health, points_to_cloud

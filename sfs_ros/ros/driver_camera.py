@@ -23,7 +23,7 @@ with ``GetParameters``) and, by ``intrinsics_source``:
 
 * ``rig``: the scan uses the rig; a difference beyond ``intrinsics_tolerance`` is the
   :attr:`warning` (a WARN on the scan node's diagnostics) naming the parameters and the
-  differences (:mod:`sfs_ros.cell.intrinsics`); no ``camera_info`` is a WARN too;
+  differences (:mod:`sfs_ros.cell_logic.intrinsics`); no ``camera_info`` is a WARN too;
 * ``driver``: the driver's ``fx``, ``fy``, ``cx``, ``cy`` and ``distortion`` are set on
   the carving node (``SetParametersAtomically``, before the scan starts: a rig
   change is refused during a scan), so that the scan's ``reset`` carves with them; the
@@ -45,7 +45,7 @@ from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
-from sfs_ros.cell.intrinsics import (
+from sfs_ros.cell_logic.intrinsics import (
     DriverIntrinsics,
     describe_differences,
     intrinsics_differences,

@@ -22,7 +22,7 @@ partner arrives, and hands out the pair when its second half comes:
   its waiting half is dropped, and so is the other half when it comes.
 
 The stamp helpers (:func:`stamp_key`, :func:`format_stamp`, :func:`view_key`) are
-:mod:`sfs_ros.cell.messages`', named here as well.
+:mod:`sfs_ros.cell_logic.messages`', named here as well.
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ from __future__ import annotations
 from collections import OrderedDict
 from typing import Any, Callable
 
-from sfs_ros.cell.messages import Stamp, format_stamp, stamp_key, view_key
+from sfs_ros.cell_logic.messages import Stamp, format_stamp, stamp_key, view_key
 
 __all__ = ["StampPairer", "format_stamp", "stamp_key", "view_key"]
 

@@ -1,5 +1,5 @@
 """The parameters of the cell's nodes, fetched through their parameter services, as the
-recorder stores them with each bag (``sfs/parameters``, :mod:`sfs_ros.cell.bag.layout`).
+recorder stores them with each bag (``sfs/parameters``, :mod:`sfs_ros.cell_logic.bag.layout`).
 
 :func:`fetch_parameters` asks every node of its clients for all its parameters within
 one deadline, from a thread of the caller's (never the executor's: it waits); a node that
@@ -28,7 +28,7 @@ __all__ = ["fetch_parameters", "session_parameters"]
 
 
 def session_parameters(nodes: dict) -> tuple[dict, dict]:
-    """The ``session`` and ``reconstruction`` sections (:mod:`sfs_ros.cell.bag.layout`) of the
+    """The ``session`` and ``reconstruction`` sections (:mod:`sfs_ros.cell_logic.bag.layout`) of the
     fetched ``{node: {name: value}}``; empty when the carving node's are missing."""
     values = nodes.get("carving")
     if values is None:

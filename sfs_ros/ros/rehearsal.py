@@ -1,6 +1,6 @@
 """A node's rehearsal: a small simulated scan reconstructed beside the node's work at start.
 
-:func:`sfs_ros.cell.rehearsal.rehearse` loads the code a reconstruction runs, so the
+:func:`sfs_ros.cell_logic.rehearsal.rehearse` loads the code a reconstruction runs, so the
 first real one finds it loaded. It runs in a thread of its own, beside the node's
 worker (with kernels still to compile, on a fresh install, it takes minutes, and views
 and requests must not wait for it), in a folder of the node's output folder that is
@@ -16,7 +16,7 @@ import threading
 import time
 from pathlib import Path
 
-from sfs_ros.cell.rehearsal import rehearse
+from sfs_ros.cell_logic.rehearsal import rehearse
 
 __all__ = ["REHEARSAL_PREFIX", "Rehearsal"]
 

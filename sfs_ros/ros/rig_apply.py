@@ -9,7 +9,7 @@ carving node, the camera node, the TF publisher), found through their
 ``ListParameters`` services. A node that refuses (a scan under way, another
 image size) has the reason in the error, and the nodes set before it get
 their earlier rig back. Once every node took it, the rig is written
-atomically to :data:`sfs_ros.cell.paths.APPLIED_RIG` in the cell's output
+atomically to :data:`sfs_ros.cell_logic.paths.APPLIED_RIG` in the cell's output
 folder (the carving node's ``output_dir``), which ``sfs-cell`` gives
 those nodes whenever it starts one: a node started again keeps the rig.
 """
@@ -25,7 +25,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.parameter_client import AsyncParameterClient
 
-from sfs_ros.cell.paths import APPLIED_RIG
+from sfs_ros.cell_logic.paths import APPLIED_RIG
 from sfs_ros.core.calibration.outputs import yaml_document
 from sfs_ros.core.exchange.files import write_atomic
 from sfs_ros.core.geometry.rig import RigCalibration

@@ -17,8 +17,8 @@ from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 
-from sfs_ros.cell.scan_goal import scan_outcome
-from sfs_ros.cell.scan_sequence import ScanSequence
+from sfs_ros.cell_logic.scan_goal import scan_outcome
+from sfs_ros.cell_logic.scan_sequence import ScanSequence
 from sfs_ros.ros import result_qos
 from sfs_ros.ros.names import CELL_STATUS, RECONSTRUCTION_STATUS, SCAN_ACTION
 from sfs_ros.ros.typed import scan_feedback, scan_result

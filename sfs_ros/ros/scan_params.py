@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import math
 
-from sfs_ros.cell.scan_plan import ScanPlan, load_plan
-from sfs_ros.cell.scan_progress import ScanProgress
-from sfs_ros.cell.scan_sequence import ScanSettings
+from sfs_ros.cell_logic.scan_plan import ScanPlan, load_plan
+from sfs_ros.cell_logic.scan_progress import ScanProgress
+from sfs_ros.cell_logic.scan_sequence import ScanSettings
 from sfs_ros.ros.params import ParameterError
 
 __all__ = ["scan_plan", "scan_progress", "scan_settings"]

@@ -1,4 +1,4 @@
-"""The scan sequence's ports (:class:`sfs_ros.cell.scan_sequence.ScanSequence`) on the
+"""The scan sequence's ports (:class:`sfs_ros.cell_logic.scan_sequence.ScanSequence`) on the
 scan node's topics and services: moves, the shutter, captures sent and kept as bytes.
 
 A capture kept in the progress folder is its frame's and joint state's serialized
@@ -15,8 +15,8 @@ from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import Image, JointState
 from std_srvs.srv import Trigger
 
-from sfs_ros.cell.capture_ledger import EncoderReading
-from sfs_ros.cell.scan_sequence import MonotonicClock, StepFailed
+from sfs_ros.cell_logic.capture_ledger import EncoderReading
+from sfs_ros.cell_logic.scan_sequence import MonotonicClock, StepFailed
 from sfs_ros.ros.capture_listeners import wait_for_listeners
 from sfs_ros.ros.convert import driver_frame, joint_state
 from sfs_ros.ros.log import log_at

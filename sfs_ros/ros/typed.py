@@ -1,8 +1,8 @@
 """The cell's typed interfaces (``sfs_ros_interfaces``) filled from the nodes' own state.
 
-The scan node's :class:`~sfs_ros.cell.scan_sequence.ScanStatus` becomes a
+The scan node's :class:`~sfs_ros.cell_logic.scan_sequence.ScanStatus` becomes a
 ``CellStatus`` message and a ``Scan`` action feedback; a
-:meth:`~sfs_ros.cell.live.LiveReconstruction.reconstruct` summary becomes a
+:meth:`~sfs_ros.cell_logic.live.LiveReconstruction.reconstruct` summary becomes a
 ``Reconstruct`` response. Angles are radians, counts plain integers; a figure that does
 not exist (no held-out views) is NaN.
 """
@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 
-from sfs_ros.cell.scan_sequence import ScanStatus
+from sfs_ros.cell_logic.scan_sequence import ScanStatus
 from sfs_ros_interfaces.action import Scan
 from sfs_ros_interfaces.msg import CellStatus, ReconstructionStatus
 

@@ -8,8 +8,8 @@ module with its reader and one entry in the table (``doc/architecture.md``,
 holds.
 
 Formats that live above the core join the table when their module is imported: the
-cell's rosbag2 (:mod:`sfs_ros.cell.bag_input`, imported by the command-line tools; in
-a notebook, ``import sfs_ros.cell.bag_input`` before reading a bag).
+cell's rosbag2 (:mod:`sfs_ros.cell_logic.bag_input`, imported by the command-line tools; in
+a notebook, ``import sfs_ros.cell_logic.bag_input`` before reading a bag).
 """
 
 from __future__ import annotations

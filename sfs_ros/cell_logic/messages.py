@@ -3,7 +3,7 @@
 Decoders for messages however they were deserialized: rclpy's classes, or the
 ``rosbags`` package's when a bag is read without ROS. They read fields only
 (``msg.encoding``, ``msg.name``, ...), so :mod:`sfs_ros.ros.convert` and the bag
-reader (:mod:`sfs_ros.cell.bag`) share them.
+reader (:mod:`sfs_ros.cell_logic.bag`) share them.
 
 Stamps: a ``builtin_interfaces/Time`` (anything with ``sec`` and ``nanosec``)
 or a ``(sec, nanosec)`` pair. Angles in radians.

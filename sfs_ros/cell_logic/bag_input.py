@@ -5,7 +5,7 @@ Importing this module adds :data:`ROSBAG2` to the core's table of input formats
 :func:`sfs_ros.core.exchange.inputs.load_views` reads a bag like any other input: the
 command-line tools import it; a notebook imports it before reading a bag. The core
 cannot name it itself: reading a bag replays it through the cell's live reconstruction
-(:func:`sfs_ros.cell.bag.read_bag`), a floor above the core. The reader, and the
+(:func:`sfs_ros.cell_logic.bag.read_bag`), a floor above the core. The reader, and the
 ``rosbags`` package it needs, are imported only when a bag is read.
 """
 

@@ -115,7 +115,7 @@ def products_after(carved, meshed, made, output_dir, held: dict, *, texture: boo
                    refine: bool, on_mesh: Callable | None = None
                    ) -> tuple[list[Product], list[tuple[str, str]]]:
     """The products to make after the answer to the mesh ``made``
-    (:class:`sfs_ros.cell.mesh_files.MeshFiles`) of the carved scan ``carved``:
+    (:class:`sfs_ros.cell_logic.mesh_files.MeshFiles`) of the carved scan ``carved``:
     ``(products, notes)``, a product that cannot be made left out with a note
     ``(level, text)`` (``"error"`` for the texture, ``"warning"`` for the refined mesh:
     the hull's mesh is out). ``meshed``: the carved scan as the mesh was made of it

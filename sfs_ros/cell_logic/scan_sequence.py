@@ -6,7 +6,7 @@ services, and a test with fakes:
 
 * for each view not yet captured, in plan order: command the viewpoint and
   wait until the encoder readings have settled on it
-  (:class:`sfs_ros.cell.settle.SettleDetector`); take the view's frame, and
+  (:class:`sfs_ros.cell_logic.settle.SettleDetector`); take the view's frame, and
   tag it with the encoder reading whose stamp is nearest to the frame's
   (:class:`EncoderHistory`); record the capture in the :class:`CaptureLedger`
   and send it. The frame is, by ``ScanSettings.trigger``:
@@ -31,7 +31,7 @@ services, and a test with fakes:
   receipt in time are sent again, up to ``max_sends`` sends, then reported
   lost; when a receiver appears that was not there before, every capture is
   sent again;
-* with a :class:`sfs_ros.cell.scan_progress.ScanProgress`, every capture is
+* with a :class:`sfs_ros.cell_logic.scan_progress.ScanProgress`, every capture is
   written to disk before it is sent, and the scan's number, state and
   receipts with it, so that a restarted node takes up the same scan
   (:meth:`ScanSequence.restore`); a capture that cannot be written (a full

@@ -1,7 +1,7 @@
 """Rebuilding the views of a bag as the carving node received them.
 
 :func:`read_bag` gives the masks with their joint states, paired by stamp, one
-by one, in recorded order, to a :class:`~sfs_ros.cell.live.LiveReconstruction`
+by one, in recorded order, to a :class:`~sfs_ros.cell_logic.live.LiveReconstruction`
 built from the recorded reconstruction parameters, exactly as the
 carving node did; its session folder (in a temporary folder, removed
 with the view set) is then read as any session. A bag holding several scans

@@ -559,7 +559,7 @@ class LiveReconstruction:
                     resolution: int | None = None, bounds_m=None, mesher: str | None = None,
                     colour: bool | None = None) -> dict:
         """Run the full pipeline on the views received so far and write the mesh:
-        :meth:`carve`, then :func:`sfs_ros.cell.mesh_files.write_mesh`.
+        :meth:`carve`, then :func:`sfs_ros.cell_logic.mesh_files.write_mesh`.
 
         Parameters
         ----------
@@ -567,7 +567,7 @@ class LiveReconstruction:
             Mesh file name inside ``output_dir`` (format from the suffix, one of
             :data:`sfs_ros.core.exchange.export.MESH_FORMATS`; see :func:`.paths.confined_path` for what
             is refused); None: ``<scan name>.ply``. The report, a picture, a viewer
-            and a contact sheet go beside it (:mod:`sfs_ros.cell.mesh_files`).
+            and a contact sheet go beside it (:mod:`sfs_ros.cell_logic.mesh_files`).
             Existing files are replaced.
         pictures : bool, keyword-only
             Write the picture, viewer and contact sheet now (the default); False:
@@ -585,7 +585,7 @@ class LiveReconstruction:
         Returns
         -------
         dict
-            JSON-ready summary (:func:`sfs_ros.cell.mesh_files.write_mesh`); its
+            JSON-ready summary (:func:`sfs_ros.cell_logic.mesh_files.write_mesh`); its
             ``coloured_from_views`` is 0 without images (:meth:`add_colour_image`).
 
         Raises

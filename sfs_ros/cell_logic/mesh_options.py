@@ -5,7 +5,7 @@ mesh, the resolution, the carving box, the mesher, the colour, the texture and t
 file name; each left empty takes the carving or meshing node's setting. :func:`mesh_options` turns the
 request's fields into :class:`MeshOptions` (None = the node's setting) or a ValueError
 naming the field, what it was and what was expected. The file name is confined to the
-output folder: a plain name with a mesh suffix (:func:`sfs_ros.cell.paths.plain_file_name`).
+output folder: a plain name with a mesh suffix (:func:`sfs_ros.cell_logic.paths.plain_file_name`).
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """What a scan request asks for, checked before the scan starts (no ROS).
 
 A scan goal (``sfs_ros_interfaces/action/Scan``) names its views in one of three ways:
-a plan file (the format of :mod:`sfs_ros.cell.scan_plan`), explicit views as two
+a plan file (the format of :mod:`sfs_ros.cell_logic.scan_plan`), explicit views as two
 equal-length lists of encoder targets in radians (visited in the order given), or
 neither (the node's configured plan); optionally the scan's name; and what stands on the
 plate (:func:`goal_object`: the object to scan, or a calibration board). :func:`goal_plan`
@@ -75,7 +75,7 @@ def goal_plan(plan_file: str, theta_rad, phi_rad, scan_name: str, *,
         Explicit views' encoder targets, radians: theta any finite angle (taken
         modulo 2 pi), phi within the carriage's range [-pi/2, pi/2]; empty for none.
     scan_name : str
-        "" or a scan folder name (:func:`sfs_ros.cell.paths.check_scan_name_format`).
+        "" or a scan folder name (:func:`sfs_ros.cell_logic.paths.check_scan_name_format`).
     max_views : int
         Most views a scan may have (the capture topics' depth).
 
@@ -104,7 +104,7 @@ def goal_plan(plan_file: str, theta_rad, phi_rad, scan_name: str, *,
 
 def scan_outcome(values: dict, scan: int) -> bool | None:
     """Whether scan number ``scan`` succeeded, from the scan's status ``values``
-    (:attr:`sfs_ros.cell.scan_sequence.ScanStatus.values`): None while its run goes on or,
+    (:attr:`sfs_ros.cell_logic.scan_sequence.ScanStatus.values`): None while its run goes on or,
     done, receipts are still to come; True once done with every capture receipted; False
     once paused, cancelled, or done with captures lost in transport."""
     if values["scan"] != scan or values["state"] not in ENDED:
