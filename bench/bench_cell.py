@@ -34,7 +34,7 @@ from pathlib import Path
 
 import yaml
 
-from sfs_ros.cell_logic.messages import status_namespace
+from sfs_ros.cell_logic.message_fields import status_namespace
 from sfs_ros.cell_logic.scan_plan import ScanPlan
 from sfs_ros.cli.bringup import Cell, cell_nodes
 from sfs_ros.core.exchange.inputs import load_views

@@ -1,15 +1,15 @@
 """The carving node's hand-over to the meshing node: its size, and its time against the carving.
 
-A simulated scan of the mug with the cell's camera (640 x 480, the demo's plan: three
-rings of 16 views and one from above) is received as the carving node receives it
-(:class:`sfs_ros.cell_logic.live.LiveReconstruction`, the exact silhouettes and the images); then, for each
-mesher, with and without colour: the carving (:meth:`LiveReconstruction.carve`, the
-baseline, measured in the same run), and the hand-over: the carved scan made into its
-message, serialised, deserialised and made back (:mod:`sfs_ros.ros.carved_scan_msg`),
-as it crosses between the nodes (without the transport itself); with colour also as it
-crosses when the meshing node holds the images (sent as the views were stored). Ratio = carving /
-hand-over (above 1: the hand-over costs less than the carving). The serialised size
-goes in the notes.
+A simulated scan of the mug with the cell's camera (640 x 480, the demo's plan: three rings
+of 16 views and one from above) is received as the carving node receives it
+(:class:`sfs_ros.cell_logic.live_reconstruction.LiveReconstruction`, the exact silhouettes
+and the images); then, for each mesher, with and without colour: the carving
+(:meth:`LiveReconstruction.carve`, the baseline, measured in the same run), and the
+hand-over: the carved scan made into its message, serialised, deserialised and made back
+(:mod:`sfs_ros.ros.carved_scan_msg`), as it crosses between the nodes (without the transport
+itself); with colour also as it crosses when the meshing node holds the images (sent as the
+views were stored). Ratio = carving / hand-over (above 1: the hand-over costs less than the
+carving). The serialised size goes in the notes.
 
 Run: ``python -m bench.bench_handover`` (``--quick`` for the small camera).
 """
@@ -21,7 +21,7 @@ import tempfile
 from builtin_interfaces.msg import Time
 from rclpy.serialization import deserialize_message, serialize_message
 
-from sfs_ros.cell_logic.live import LiveReconstruction
+from sfs_ros.cell_logic.live_reconstruction import LiveReconstruction
 from sfs_ros.cell_logic.mesh_files import HandOver
 from sfs_ros.core.geometry.rig import rig_camera
 from sfs_ros.core.render import rasterize_silhouette

@@ -37,7 +37,7 @@ from pathlib import Path
 from typing import Callable
 
 import sfs_ros
-from sfs_ros.cell_logic.messages import status_namespace
+from sfs_ros.cell_logic.message_fields import status_namespace
 
 from waiting import wait  # noqa: F401  (for a probe spinning in its own thread)
 

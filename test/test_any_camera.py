@@ -23,7 +23,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 
-from sfs_ros.cell_logic.messages import status_namespace
+from sfs_ros.cell_logic.message_fields import status_namespace
 from sfs_ros.core.exchange.export import load_mesh
 from sfs_ros.core.geometry.grid import VoxelGrid
 from sfs_ros.core.metrics import mesh_occupancy, volume_iou

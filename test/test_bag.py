@@ -31,7 +31,7 @@ from sfs_ros.cell_logic.bag import (
     read_bag,
     scan_message,
 )
-from sfs_ros.cell_logic.live import LiveReconstruction
+from sfs_ros.cell_logic.live_reconstruction import LiveReconstruction
 from sfs_ros.cli.common import load_input
 from sfs_ros.core.exchange.inputs import load_views
 from sfs_ros.core.exchange.session import write_session

@@ -13,8 +13,8 @@ from sfs_ros.cell_logic.carving_scan import (
     grid_refusal,
     memory_budget,
 )
-from sfs_ros.cell_logic.live import OPEN_MARKER, LiveReconstruction
-from sfs_ros.cell_logic.messages import view_key
+from sfs_ros.cell_logic.live_reconstruction import OPEN_MARKER, LiveReconstruction
+from sfs_ros.cell_logic.message_fields import view_key
 from sfs_ros.core.carving.resolution import default_memory_budget
 from sfs_ros.core.geometry.rig import RigCalibration
 

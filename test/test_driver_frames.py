@@ -19,7 +19,7 @@ from sfs_ros.cell_logic.intrinsics import (
     rig_intrinsics,
     rig_update,
 )
-from sfs_ros.cell_logic.messages import msg_to_image
+from sfs_ros.cell_logic.message_fields import msg_to_image
 from sfs_ros.ros.convert import (
     DRIVER_ENCODINGS,
     bayer_to_rgb,

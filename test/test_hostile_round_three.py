@@ -146,7 +146,7 @@ def test_class1_a_bags_message_types_never_choose_a_module(tmp_path):
 
 
 def test_class1_only_known_message_packages_resolve():
-    from sfs_ros.ros.messages import message_class
+    from sfs_ros.ros.message_types import message_class
 
     assert message_class("sensor_msgs/msg/Image").__name__ == "Image"
     for msgtype in ("venv/__main__/X", "evil/msg/X", "os/msg/Path", "sensor_msgs/srv/Image",
@@ -451,7 +451,7 @@ def test_class6_colour_images_without_their_view_are_bounded(tmp_path):
     has come is kept whatever comes after it."""
     code = textwrap.dedent(f"""
         import numpy as np
-        from sfs_ros.cell_logic.live import LiveReconstruction
+        from sfs_ros.cell_logic.live_reconstruction import LiveReconstruction
         from sfs_ros.core.exchange.limits import MAX_WAITING_BYTES
         from sfs_ros.core.geometry.rig import RigCalibration
         rig = RigCalibration(width=640, height=480)

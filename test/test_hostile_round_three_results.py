@@ -327,7 +327,7 @@ def test_class_13_a_reset_during_a_scan_is_refused_and_no_open_marker_is_left(tm
     from std_srvs.srv import Trigger
     from test_rig_runtime import _scan_report
 
-    from sfs_ros.cell_logic.live import OPEN_MARKER
+    from sfs_ros.cell_logic.live_reconstruction import OPEN_MARKER
     from sfs_ros.nodes.carving_node import CarvingNode
     from sfs_ros.ros.names import DIAGNOSTICS, SERVICES
 

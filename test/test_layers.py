@@ -62,7 +62,7 @@ MODULES = sorted(PACKAGE.rglob("*.py"))
 
 def test_the_package_is_found():
     names = {module_name(p) for p in MODULES}
-    assert {"sfs_ros.core.pipeline", "sfs_ros.cell_logic.live", "sfs_ros.ros.convert"} <= names
+    assert {"sfs_ros.core.pipeline", "sfs_ros.cell_logic.live_reconstruction", "sfs_ros.ros.convert"} <= names
 
 
 @pytest.mark.parametrize("layer", ROS_FREE)

@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from sfs_ros.cell_logic.live import (
+from sfs_ros.cell_logic.live_reconstruction import (
     MASK_SEGMENTATION,
     DuplicateViewError,
     LiveReconstruction,

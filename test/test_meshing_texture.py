@@ -14,7 +14,7 @@ import trimesh
 from sensor_msgs.msg import Image
 from test_carving_meshing_nodes import PLAN, RESOLUTION, RIG, Cell, _stamp
 
-from sfs_ros.cell_logic.live import LiveReconstruction
+from sfs_ros.cell_logic.live_reconstruction import LiveReconstruction
 from sfs_ros.core.exchange.export import load_mesh, mesh_bytes
 from sfs_ros.core.geometry.rig import rig_camera
 from sfs_ros.core.mesh_scan import mesh_scan

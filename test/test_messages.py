@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from rosbags.typesys import Stores, get_typestore
 
-from sfs_ros.cell_logic.messages import (
+from sfs_ros.cell_logic.message_fields import (
     ForeignJointState,
     angles_from_joint_state,
     msg_to_image,

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from sfs_ros.cell_logic.settle import SettleDetector
+from sfs_ros.cell_logic.settle_detection import SettleDetector
 
 #: Sample period, seconds: a power of two, so sums of periods are exact in floating point.
 DT = 1.0 / 32.0

@@ -24,7 +24,7 @@ from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
 
 from sfs_ros.cell_logic.bag import open_bag
-from sfs_ros.cell_logic.messages import stamp_key, view_key
+from sfs_ros.cell_logic.message_fields import stamp_key, view_key
 from sfs_ros.cli.bringup import Cell, RestartPolicy, cell_nodes, wait_until_signal
 from sfs_ros.core.exchange.errors import ViewError
 from sfs_ros.core.exchange.session import read_session

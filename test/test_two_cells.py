@@ -38,7 +38,7 @@ from sensor_msgs.msg import CameraInfo, PointCloud2
 from std_msgs.msg import Header
 from visualization_msgs.msg import Marker
 
-from sfs_ros.cell_logic.messages import status_namespace
+from sfs_ros.cell_logic.message_fields import status_namespace
 from sfs_ros.core.exchange.session import read_session
 from sfs_ros.core.geometry.rig import rig_camera
 from sfs_ros.ros import capture_qos, result_qos

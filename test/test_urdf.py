@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import yaml
 
-from sfs_ros.cell_logic.messages import JOINT_NAMES
+from sfs_ros.cell_logic.message_fields import JOINT_NAMES
 from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
 from sfs_ros.core.geometry.urdf import (
     CAMERA_FRAME,

@@ -1,6 +1,6 @@
 """The carving node's scan without ROS: which views go into the live reconstruction.
 
-:class:`CarvingScan` holds the :class:`~sfs_ros.cell_logic.live.LiveReconstruction` (or why
+:class:`CarvingScan` holds the :class:`~sfs_ros.cell_logic.live_reconstruction.LiveReconstruction` (or why
 none can be held: a grid the memory budget cannot hold), the views a full disk refused
 (kept in memory and offered again), the keys of earlier scans' views (a late copy of one
 is not stored in the next scan) and :class:`CarvingHealth`, the counts and the problem
@@ -18,8 +18,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sfs_ros.cell_logic.live import DuplicateViewError, LiveReconstruction
-from sfs_ros.cell_logic.messages import format_stamp, view_key
+from sfs_ros.cell_logic.live_reconstruction import DuplicateViewError, LiveReconstruction
+from sfs_ros.cell_logic.message_fields import format_stamp, view_key
 from sfs_ros.core.carving.resolution import (
     default_memory_budget,
     grid_shape,

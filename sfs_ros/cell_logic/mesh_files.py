@@ -1,7 +1,7 @@
 """The meshing half of the cell: a carved scan in, the mesh, its report and pictures written.
 
 Used by the meshing node on a carved scan it received from the carving node, and
-by :meth:`sfs_ros.cell_logic.live.LiveReconstruction.reconstruct` on one it carved
+by :meth:`sfs_ros.cell_logic.live_reconstruction.LiveReconstruction.reconstruct` on one it carved
 itself: the same files either way. Output names (inside the output folder)::
 
     <name>.ply            # the mesh (.ply, .obj, .stl or .glb), default <scan name>.ply

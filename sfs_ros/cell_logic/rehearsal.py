@@ -5,7 +5,7 @@ compiled kernels from numba's disk cache, the code pages of OpenCV, SciPy and
 scikit-image, the worker threads. In the cell's nodes that reconstruct, that would add
 to the latency from the last view to the mesh (``doc/changelog.md``, 4 December, evening).
 :func:`rehearse` does it once beforehand, on a scan of 25 views of 160 x 120
-at 48^3: every stage of :meth:`~sfs_ros.cell_logic.live.LiveReconstruction.reconstruct`
+at 48^3: every stage of :meth:`~sfs_ros.cell_logic.live_reconstruction.LiveReconstruction.reconstruct`
 (carving, fusion, meshing, colour, evaluation, the files and pictures) on
 arrays of the types a real scan has. It has more views than the colour takes
 (:data:`~sfs_ros.core.meshing.colour.MAX_COLOUR_VIEWS`), so the evaluation draws
@@ -22,7 +22,7 @@ from ..core.render import rasterize_silhouette
 from ..core.simulation.objects import make_object
 from ..core.simulation.plan import ring_plan
 from ..core.simulation.synthetic import carving_box
-from .live import LiveReconstruction, mask_to_rgb
+from .live_reconstruction import LiveReconstruction, mask_to_rgb
 
 __all__ = ["REHEARSAL_RIG", "REHEARSAL_PLAN", "REHEARSAL_RESOLUTION", "rehearse"]
 

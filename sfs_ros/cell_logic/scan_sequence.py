@@ -6,7 +6,7 @@ services, and a test with fakes:
 
 * for each view not yet captured, in plan order: command the viewpoint and
   wait until the encoder readings have settled on it
-  (:class:`sfs_ros.cell_logic.settle.SettleDetector`); take the view's frame, and
+  (:class:`sfs_ros.cell_logic.settle_detection.SettleDetector`); take the view's frame, and
   tag it with the encoder reading whose stamp is nearest to the frame's
   (:class:`EncoderHistory`); record the capture in the :class:`CaptureLedger`
   and send it. The frame is, by ``ScanSettings.trigger``:
@@ -66,7 +66,7 @@ import numpy as np
 
 from .capture_ledger import CaptureLedger, EncoderHistory, EncoderReading
 from .scan_progress import SavedCapture, SavedScan, ScanProgress
-from .settle import SettleDetector
+from .settle_detection import SettleDetector
 
 __all__ = ["MonotonicClock", "ScanPorts", "ScanSequence", "ScanSettings", "ScanStatus",
            "StepFailed", "SCAN_STATES", "TRIGGERS"]

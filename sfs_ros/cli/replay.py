@@ -78,7 +78,7 @@ def run(args) -> dict:
 
     from ..cell_logic.bag import CAPTURE, RESULT, open_bag
     from ..ros import capture_qos, result_qos
-    from ..ros.messages import message_class
+    from ..ros.message_types import message_class
 
     if not args.rate > 0:
         raise ValueError(f"--rate must be > 0, got {args.rate}")

@@ -67,8 +67,8 @@ class _Finish:
         coloured = set(carved.colour_views)
         # The colour draws its views' silhouettes of the mesh with its z-buffers; the
         # others are drawn for the evaluation.
-        self.drawn = [i for i in range(len(carved.views)) if i not in coloured]
-        self.blended = threading.Event()
+        self.evaluated = [i for i in range(len(carved.views)) if i not in coloured]
+        self.colour_views_blended = threading.Event()
 
     def colour(self, closed: bool):
         carved = self.carved
@@ -79,27 +79,27 @@ class _Finish:
                     self.vertices, self.faces, carved.colour_images,
                     [carved.views[i].camera for i in carved.colour_views],
                     masks=carved.colour_masks, coverage=True, closed=closed,
-                    on_blended=self.blended.set) if carved.colour_views else None
+                    on_blended=self.colour_views_blended.set) if carved.colour_views else None
             finally:
-                self.blended.set()
+                self.colour_views_blended.set()
             self.progress("colour", 1.0)
         return found
 
-    def draw(self, closed: bool) -> list:
-        self.blended.wait()
+    def evaluate(self, closed: bool) -> list:
+        self.colour_views_blended.wait()
         carved = self.carved
         with timed(self.timings, "evaluation"):
             return reprojection_ious(self.vertices, self.faces,
-                                     [carved.views[i].camera for i in self.drawn],
-                                     [carved.masks[i] for i in self.drawn],
-                                     closed=closed) if self.drawn else []
+                                     [carved.views[i].camera for i in self.evaluated],
+                                     [carved.masks[i] for i in self.evaluated],
+                                     closed=closed) if self.evaluated else []
 
     def checks(self) -> dict:
         with timed(self.timings, "mesh_checks"):
             return check_mesh(self.vertices, self.faces).as_dict()
 
     def run(self, closed_by_construction: bool) -> tuple[dict, object, list]:
-        """``(mesh report, colours or None, silhouette IoU of the drawn views)``.
+        """``(mesh report, colours or None, silhouette IoU of the evaluated views)``.
 
         A mesh closed by construction has its checks run beside the colour and the
         evaluation, which count on a closed mesh for half their drawing (should the
@@ -109,20 +109,20 @@ class _Finish:
         expect_closed = True if report is None else bool(report["watertight"]
                                                          and report["outward"])
 
-        def checks_then_draw(closed: bool):
-            return report if report is not None else self.checks(), self.draw(closed)
+        def checks_then_evaluate(closed: bool):
+            return report if report is not None else self.checks(), self.evaluate(closed)
 
         with ThreadPoolExecutor(max_workers=1) as side:
-            beside = side.submit(checks_then_draw, expect_closed)
+            checks_and_evaluation = side.submit(checks_then_evaluate, expect_closed)
             try:
                 colours, failure = self.colour(expect_closed), None
             except ValueError as exc:   # an error of a wrong guess is no error: see below
                 colours, failure = None, exc
-            report, ious = beside.result()
+            report, ious = checks_and_evaluation.result()
         closed = bool(report["watertight"] and report["outward"])
         if closed != expect_closed:
             colours = self.colour(closed)
-            ious = self.draw(closed)
+            ious = self.evaluate(closed)
         elif failure is not None:
             raise failure
         return report, colours, ious
@@ -143,10 +143,10 @@ def mesh_scan(carved: CarvedScan, *, progress=None) -> Reconstruction:
                                                     carved.mesher_input)
         progress("meshing", 1.0)
     finish = _Finish(carved, vertices, faces, timings, progress)
-    mesh_report, colours, drawn_ious = finish.run(chosen.closed)
+    mesh_report, colours, evaluated_ious = finish.run(chosen.closed)
     with timed(timings, "evaluation"):
         progress("evaluation", 0.0)
-        per_view = per_view_ious(carved, finish.drawn, drawn_ious,
+        per_view = per_view_ious(carved, finish.evaluated, evaluated_ious,
                                  None if colours is None else colours.coverage)
         progress("evaluation", 1.0)
     report = meshing_report(carved.report, mesher=carved.mesher, mesher_stats=mesher_stats,

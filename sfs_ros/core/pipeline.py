@@ -45,7 +45,7 @@ from .stages import (
     segment_views,
 )
 
-__all__ = ["CarvedScan", "Precomputed", "ReconstructionParams", "Reconstruction", "carve_scan",
+__all__ = ["CarvedScan", "ComputedOnArrival", "ReconstructionParams", "Reconstruction", "carve_scan",
            "reconstruct"]
 
 @dataclass(frozen=True)
@@ -138,7 +138,7 @@ class ReconstructionParams:
 
 
 @dataclass(frozen=True)
-class Precomputed:
+class ComputedOnArrival:
     """What a scan received view by view computed as its views arrived (while the rig
     moved), for :func:`reconstruct` to find instead of computing it: the same result
     either way. Each part is used only for the views it holds.
@@ -220,7 +220,7 @@ def _scan_views(views: list[View], used_names: set, holdout: tuple) -> list[Scan
 def carve_scan(view_set: ViewSet, params: ReconstructionParams = ReconstructionParams(), *,
                progress: Progress | None = None, masks: dict | None = None,
                images: dict | None = None,
-               precomputed: Precomputed = Precomputed()) -> CarvedScan:
+               precomputed: ComputedOnArrival = ComputedOnArrival()) -> CarvedScan:
     """The carving half of :func:`reconstruct`: the views' hull and what its meshing needs
     (:class:`~sfs_ros.core.carved_scan.CarvedScan`), the stages of :mod:`.stages` in turn.
 
@@ -230,7 +230,7 @@ def carve_scan(view_set: ViewSet, params: ReconstructionParams = ReconstructionP
     optional): with ``params.colour``, the images that colour the mesh instead of the
     views' files (e.g. a live scan's or a bag's captures); a used view without one takes
     no part. ``precomputed`` (optional): what a live scan computed as its views arrived
-    (:class:`Precomputed`); the result is the same without.
+    (:class:`ComputedOnArrival`); the result is the same without.
 
     Views that cannot be read, have an empty silhouette or disagree with the
     others are rejected and reported, never silently used or dropped. Raises
@@ -302,7 +302,7 @@ def carve_scan(view_set: ViewSet, params: ReconstructionParams = ReconstructionP
 def reconstruct(view_set: ViewSet, params: ReconstructionParams = ReconstructionParams(), *,
                 progress: Progress | None = None, masks: dict | None = None,
                 images: dict | None = None,
-                precomputed: Precomputed = Precomputed()) -> Reconstruction:
+                precomputed: ComputedOnArrival = ComputedOnArrival()) -> Reconstruction:
     """Reconstruct the object seen in ``view_set``: :func:`carve_scan`, then
     :func:`sfs_ros.core.mesh_scan.mesh_scan` (the arguments as :func:`carve_scan`'s).
 

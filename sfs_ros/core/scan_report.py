@@ -57,15 +57,15 @@ def carving_report(*, source: str, n_views: int, params, mesher_options: dict,
     }
 
 
-def per_view_ious(carved: CarvedScan, drawn: list[int], drawn_ious: list,
+def per_view_ious(carved: CarvedScan, evaluated: list[int], evaluated_ious: list,
                   coverage: list | None) -> list[dict]:
-    """The report's per-view silhouette IoU: the views ``drawn`` (indices into
-    ``carved.views``) have their IoU in ``drawn_ious``; the coloured views' silhouettes of
+    """The report's per-view silhouette IoU: the views ``evaluated`` (indices into
+    ``carved.views``) have their IoU in ``evaluated_ious``; the coloured views' silhouettes of
     the mesh came with the colour's z-buffers (``coverage``, packed bits, the same
     pixel-centre rule); both agree with drawing every face, exact ties on the outline
     aside."""
     ious = np.empty(len(carved.views))
-    ious[drawn] = drawn_ious
+    ious[evaluated] = evaluated_ious
     for i, packed in zip(carved.colour_views, coverage or []):
         mask = carved.masks[i]
         ious[i] = silhouette_iou(

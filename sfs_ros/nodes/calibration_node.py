@@ -44,7 +44,7 @@ from sensor_msgs.msg import Image, JointState
 from std_msgs.msg import Header
 
 from sfs_ros.cell_logic.calibration_run import BoardCaptures, calibration_folder, fit_and_write
-from sfs_ros.cell_logic.messages import angles_from_joint_state, msg_to_image
+from sfs_ros.cell_logic.message_fields import angles_from_joint_state, msg_to_image
 from sfs_ros.cell_logic.scan_plan import load_plan
 from sfs_ros.core.calibration import BoardSpec
 from sfs_ros.nodes.entry import run_node

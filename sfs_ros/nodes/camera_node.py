@@ -193,7 +193,7 @@ class CameraNode(LifecycleNode):
                                             callback_group=self._grabs)
         rate_hz = self._values["rate_hz"]
         if rate_hz > 0:
-            self._stream = self.create_timer(1.0 / rate_hz, self._take,
+            self._stream = self.create_timer(1.0 / rate_hz, self._grab_and_publish,
                                              callback_group=self._grabs)
         return self._now("active")
 
@@ -256,10 +256,10 @@ class CameraNode(LifecycleNode):
                                f"{list(rig.distortion)}")
 
     def _on_capture(self, _request, response):
-        response.success, response.message = self._take()
+        response.success, response.message = self._grab_and_publish()
         return response
 
-    def _take(self) -> tuple[bool, str]:
+    def _grab_and_publish(self) -> tuple[bool, str]:
         """Grab, check and publish one frame; (success, JSON summary or the reason)."""
         stamp = self.get_clock().now().to_msg()
         width, height = self._size

@@ -22,7 +22,7 @@ from std_srvs.srv import Trigger
 
 from sfs_ros.cell_logic.carving_scan import HullSchedule, grid_refusal
 from sfs_ros.cell_logic.mesh_options import MeshOptions
-from sfs_ros.cell_logic.messages import check_image_size
+from sfs_ros.cell_logic.message_fields import check_image_size
 from sfs_ros.core.meshing.meshers import MESHER
 from sfs_ros.core.resident_memory import prefault
 from sfs_ros.core.settings import BOUNDS_M, COLOUR, MAX_MEMORY, RESOLUTION
@@ -245,7 +245,7 @@ class CarvingNode(Node):
     def _submit(self, name: str, job, *args):
         """Queue ``job(*args)`` for the worker, followed by the hull's publication when it is
         due; its future."""
-        return self._worker.submit(partial(self._then_hull, job, *args), name=name)
+        return self._worker.submit(partial(self._run_then_publish_hull, job, *args), name=name)
 
     def _new_rig(self, rig) -> None:
         """A new rig was set (a parameter thread): the next reset uses it."""
@@ -254,7 +254,7 @@ class CarvingNode(Node):
 
     # -- worker thread -----------------------------------------------------------------------
 
-    def _then_hull(self, job, *args):
+    def _run_then_publish_hull(self, job, *args):
         """Run ``job``; then publish the hull if a job changed it and no job waits or the
         period is over. ``job``'s answer."""
         answer = job(*args)

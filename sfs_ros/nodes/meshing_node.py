@@ -52,7 +52,7 @@ from sfs_ros.ros.params import Param, ParameterError, declare
 from sfs_ros.ros.rehearsal import Rehearsal
 from sfs_ros.ros.services import ServiceError, call
 from sfs_ros.ros.typed import fill_reconstruct_response
-from sfs_ros.ros.worker import Hold, Worker, internal_error
+from sfs_ros.ros.worker import JobsOnHold, Worker, internal_error
 from sfs_ros_interfaces.msg import ReconstructionStatus, ViewImage
 from sfs_ros_interfaces.srv import CarveScan, Reconstruct
 
@@ -139,7 +139,7 @@ class MeshingNode(Node):
         self._answered = self.create_timer(ANSWER_CHECK_S, self._release_after_answer,
                                            callback_group=services)
         self._answered.cancel()
-        self._after_answer: Hold | None = None
+        self._after_answer: JobsOnHold | None = None
         self._worker = Worker("meshing", on_error=self._job_failed)
         self._publish_status()
         self.get_logger().info(f"meshing into {self._output_dir}, carved scans from "

@@ -29,7 +29,7 @@ from sfs_ros.ros.lifecycle import AUTOSTART, FAILURE, SUCCESS, bring_up
 from sfs_ros.ros.log import log_at
 from sfs_ros.ros.names import DIAGNOSTICS, private, status_name
 from sfs_ros.ros.params import Param, ParameterError, declare, validating_callback
-from sfs_ros.ros.worker import Hold, JobCancelled, Worker
+from sfs_ros.ros.worker import JobCancelled, JobsOnHold, Worker
 
 __all__ = ["MotorNode", "PARAMS", "main"]
 
@@ -245,7 +245,7 @@ class MotorNode(LifecycleNode):
             hold.release()
         return future
 
-    def _interrupt(self, hold: Hold) -> None:
+    def _interrupt(self, hold: JobsOnHold) -> None:
         """Stop the axes, then release ``hold`` (the worker starts no job until then)."""
         try:
             self._link.halt()

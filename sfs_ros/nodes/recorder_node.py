@@ -39,13 +39,13 @@ from sfs_ros.cell_logic.bag import (
     parameters_message,
     scan_message,
 )
-from sfs_ros.cell_logic.messages import scan_report
+from sfs_ros.cell_logic.message_fields import scan_report
 from sfs_ros.cell_logic.recording_status import RecordingStatus
 from sfs_ros.nodes.entry import run_node
 from sfs_ros.process import configure_process
 from sfs_ros.ros import capture_qos, result_qos
 from sfs_ros.ros.convert import diagnostic_array, health
-from sfs_ros.ros.messages import message_class
+from sfs_ros.ros.message_types import message_class
 from sfs_ros.ros.names import DIAGNOSTICS, RECORDER_NODE, private, status_name
 from sfs_ros.ros.parameter_fetch import fetch_parameters
 from sfs_ros.ros.params import Param, ParameterError, declare, validating_callback

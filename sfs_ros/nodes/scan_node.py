@@ -20,7 +20,7 @@ from sensor_msgs.msg import Image, JointState
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
-from sfs_ros.cell_logic.messages import ForeignJointState
+from sfs_ros.cell_logic.message_fields import ForeignJointState
 from sfs_ros.cell_logic.scan_goal import OBJECTS, goal_object, goal_plan
 from sfs_ros.cell_logic.scan_sequence import TRIGGERS, ScanSequence
 from sfs_ros.nodes.entry import run_node

@@ -47,7 +47,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from sensor_msgs.msg import Image, JointState
 
-from sfs_ros.cell_logic.messages import check_image_size
+from sfs_ros.cell_logic.message_fields import check_image_size
 from sfs_ros.core.segment import PRESETS, SegmentationParams, segment
 from sfs_ros.nodes.entry import run_node
 from sfs_ros.process import configure_process

@@ -37,7 +37,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from tf2_msgs.msg import TFMessage
 
-from sfs_ros.cell_logic.messages import ForeignJointState
+from sfs_ros.cell_logic.message_fields import ForeignJointState
 from sfs_ros.core.geometry.frames import moving_transforms, static_transforms
 from sfs_ros.core.geometry.urdf import cell_urdf
 from sfs_ros.nodes.entry import run_node

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from sfs_ros.cell_logic.carving_scan import CarvingScan, grid_refusal, memory_budget
-from sfs_ros.cell_logic.live import LiveReconstruction, check_scan_name
+from sfs_ros.cell_logic.live_reconstruction import LiveReconstruction, check_scan_name
 from sfs_ros.cell_logic.mesh_options import MeshOptions, mesh_options
 from sfs_ros.core.exchange.views import as_bounds
 from sfs_ros.ros.params import ParameterError

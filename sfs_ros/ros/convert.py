@@ -9,7 +9,7 @@ message's buffer, writable, so copy them before changing them).
 Stamps: a ``builtin_interfaces/Time`` message or a ``(sec, nanosec)`` pair.
 Reading images and joint states needs no ROS: :func:`msg_to_image`,
 :func:`angles_from_joint_state` and :data:`JOINT_NAMES` are
-:mod:`sfs_ros.cell_logic.messages`' (the bag reader's too), named here as well.
+:mod:`sfs_ros.cell_logic.message_fields`' (the bag reader's too), named here as well.
 Angles in radians, points in metres.
 """
 
@@ -30,7 +30,7 @@ from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker
 
 from sfs_ros.cell_logic.intrinsics import DriverIntrinsics
-from sfs_ros.cell_logic.messages import (
+from sfs_ros.cell_logic.message_fields import (
     IMAGE_ENCODINGS,
     JOINT_NAMES,
     angles_from_joint_state,

@@ -217,9 +217,9 @@ class DriverCamera:
                                 f"the rig: {text} (driver against rig); the scan uses the rig "
                                 "(intrinsics_source rig)")
             return ""
-        return self._take(info, rig_values, text, timeout_s)
+        return self._apply_intrinsics(info, rig_values, text, timeout_s)
 
-    def _take(self, info: DriverIntrinsics, rig_values: dict, text: str,
+    def _apply_intrinsics(self, info: DriverIntrinsics, rig_values: dict, text: str,
               timeout_s: float) -> str:
         """Set the driver's intrinsics on the reconstruction's rig; the refusal or ""."""
         if rig_values["projection"] != "pinhole":

@@ -8,7 +8,7 @@ node's services are private to the node (``~/home`` of the node ``motor`` is
 under a generic name a robot cell already uses. Only the diagnostics are
 absolute (:data:`DIAGNOSTICS`), where the standard aggregator listens; each
 status is named ``<node's full name>: <kind>`` (``/sfs/scan: scan``), so a
-reader tells cells apart (:func:`sfs_ros.cell_logic.messages.status_namespace`).
+reader tells cells apart (:func:`sfs_ros.cell_logic.message_fields.status_namespace`).
 
 :data:`SERVICES` maps the short names a program uses
 (:class:`sfs_ros.ros.cell_client.CellClient`, the scan node's calls) to the

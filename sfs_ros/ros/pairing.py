@@ -22,7 +22,7 @@ partner arrives, and hands out the pair when its second half comes:
   its waiting half is dropped, and so is the other half when it comes.
 
 The stamp helpers (:func:`stamp_key`, :func:`format_stamp`, :func:`view_key`) are
-:mod:`sfs_ros.cell_logic.messages`', named here as well.
+:mod:`sfs_ros.cell_logic.message_fields`', named here as well.
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ from __future__ import annotations
 from collections import OrderedDict
 from typing import Any, Callable
 
-from sfs_ros.cell_logic.messages import Stamp, format_stamp, stamp_key, view_key
+from sfs_ros.cell_logic.message_fields import Stamp, format_stamp, stamp_key, view_key
 
 __all__ = ["StampPairer", "format_stamp", "stamp_key", "view_key"]
 
@@ -90,7 +90,7 @@ class StampPairer:
         self.rejected += 1
         for stream in ("a", "b"):
             if key in self._pending[stream]:
-                self._drop(stream, key, self._take(stream, key))
+                self._drop(stream, key, self._pop_pending(stream, key))
         self._finish(key, "rejected")
 
     def pending_bytes(self, stream: str) -> int:
@@ -110,10 +110,10 @@ class StampPairer:
             del self._finished[key]
             self.repeated += 1
         elif key in self._pending[own]:          # the newer copy replaces the waiting one
-            self._take(own, key)
+            self._pop_pending(own, key)
             self.repeated += 1
         if key in self._pending[other]:
-            partner = self._take(other, key)
+            partner = self._pop_pending(other, key)
             self._finish(key, "paired")
             self.pairs += 1
             return item, partner
@@ -126,10 +126,10 @@ class StampPairer:
         while len(self._pending[own]) > self.capacity or (
                 self.max_bytes is not None and self._bytes[own] > self.max_bytes):
             old_key = next(iter(self._pending[own]))
-            self._give_up(own, old_key, self._take(own, old_key), "evicted")
+            self._give_up(own, old_key, self._pop_pending(own, old_key), "evicted")
         return None
 
-    def _take(self, stream: str, key: Stamp):
+    def _pop_pending(self, stream: str, key: Stamp):
         """Remove the waiting item ``key`` of ``stream``; the item."""
         self._bytes[stream] -= self._sizes[stream].pop(key)
         return self._pending[stream].pop(key)

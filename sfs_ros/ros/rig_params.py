@@ -26,7 +26,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 
-from sfs_ros.cell_logic.messages import scan_report
+from sfs_ros.cell_logic.message_fields import scan_report
 from sfs_ros.core.geometry.rig import CONVENTIONS, RigCalibration
 from sfs_ros.ros.names import DIAGNOSTICS
 from sfs_ros.ros.params import Param, ParameterError, check, read

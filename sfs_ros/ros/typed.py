@@ -2,7 +2,7 @@
 
 The scan node's :class:`~sfs_ros.cell_logic.scan_sequence.ScanStatus` becomes a
 ``CellStatus`` message and a ``Scan`` action feedback; a
-:meth:`~sfs_ros.cell_logic.live.LiveReconstruction.reconstruct` summary becomes a
+:meth:`~sfs_ros.cell_logic.live_reconstruction.LiveReconstruction.reconstruct` summary becomes a
 ``Reconstruct`` response. Angles are radians, counts plain integers; a figure that does
 not exist (no held-out views) is NaN.
 """

@@ -31,7 +31,7 @@ from concurrent.futures import Future
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
-__all__ = ["Hold", "JobCancelled", "Worker", "internal_error"]
+__all__ = ["JobCancelled", "JobsOnHold", "Worker", "internal_error"]
 
 
 
@@ -51,7 +51,7 @@ class _Job:
     future: Future = field(default_factory=Future)
 
 
-class Hold:
+class JobsOnHold:
     """Keeps a :class:`Worker` from starting jobs until :meth:`release` (idempotent);
     also a context manager."""
 
@@ -67,7 +67,7 @@ class Hold:
             self._worker._holds -= 1
             self._worker._cv.notify_all()
 
-    def __enter__(self) -> "Hold":
+    def __enter__(self) -> "JobsOnHold":
         return self
 
     def __exit__(self, *_exc) -> None:
@@ -133,11 +133,11 @@ class Worker:
             job.future.set_exception(JobCancelled(reason))
         return len(dropped)
 
-    def hold(self) -> Hold:
+    def hold(self) -> JobsOnHold:
         """Start no further job until the returned :class:`Hold` is released."""
         with self._cv:
             self._holds += 1
-        return Hold(self)
+        return JobsOnHold(self)
 
     def stop(self, *, cancel_reason: str | None = None) -> None:
         """End the thread once the waiting jobs have run (``cancel_reason`` given: once they

@@ -2,7 +2,7 @@
 
 Nothing here imports ROS: the pure-Python ``rosbags`` package writes and reads
 the bag (rosbag2 metadata, MCAP or sqlite3 storage) and (de)serializes CDR; the
-message fields are decoded by :mod:`sfs_ros.cell_logic.messages`, as the nodes do.
+message fields are decoded by :mod:`sfs_ros.cell_logic.message_fields`, as the nodes do.
 
 * :mod:`.layout`: the topics, their types and QoS, the recorder's own records
   (``sfs/parameters``, ``sfs/scan``), where bags go;

@@ -1,7 +1,7 @@
 """Rebuilding the views of a bag as the carving node received them.
 
 :func:`read_bag` gives the masks with their joint states, paired by stamp, one
-by one, in recorded order, to a :class:`~sfs_ros.cell_logic.live.LiveReconstruction`
+by one, in recorded order, to a :class:`~sfs_ros.cell_logic.live_reconstruction.LiveReconstruction`
 built from the recorded reconstruction parameters, exactly as the
 carving node did; its session folder (in a temporary folder, removed
 with the view set) is then read as any session. A bag holding several scans
@@ -34,8 +34,8 @@ from ...core.exchange.views import ViewError, ViewSet
 from ...core.geometry.rig import RigCalibration
 from ...core.segment import SegmentationParams, segment
 from ...core.settings import RESOLUTION
-from ..live import DuplicateViewError, LiveReconstruction
-from ..messages import angles_from_joint_state, msg_to_image, scan_report, stamp_key, view_key
+from ..live_reconstruction import DuplicateViewError, LiveReconstruction
+from ..message_fields import angles_from_joint_state, msg_to_image, scan_report, stamp_key, view_key
 from .layout import PARAMETERS_FORMAT, PARAMETERS_TOPIC, SCAN_TOPIC, STORE, TOPICS
 from .reading import Bag, BagMessage, open_bag
 

@@ -61,7 +61,7 @@ from ..core.geometry.lens import ideal_camera, undistort_image, undistort_mask
 from ..core.geometry.rig import RigCalibration, rig_camera
 from ..core.meshing.hull_distance import DistanceImages
 from ..core.meshing.meshers import MESHER
-from ..core.pipeline import Precomputed, ReconstructionParams, carve_scan
+from ..core.pipeline import ComputedOnArrival, ReconstructionParams, carve_scan
 from ..core.result_files import SheetViews
 from ..core.segment import SegmentationParams
 from ..core.settings import RESOLUTION
@@ -255,7 +255,7 @@ class LiveReconstruction:
         self._requested_name = scan_name
         self.close()
         self._carver = Carver(self.grid, max_misses=self.params.max_misses)
-        self._precomputed = Precomputed(distances=DistanceImages(), box=BoxCarve(self.bounds_m))
+        self._precomputed = ComputedOnArrival(distances=DistanceImages(), box=BoxCarve(self.bounds_m))
         self._views: dict[str, _Received] = {}
         self._colour_images: dict[str, np.ndarray] = {}
         self._thumbnails: dict[str, np.ndarray] = {}   # of the images, made as they came
@@ -400,7 +400,7 @@ class LiveReconstruction:
             self._view_set = appended_view(self._view_set, self._session, name, theta, phi)
         carved = bool(mask.any())
         if carved:   # stored as taken; carved as the ideal pinhole (the mask undistorted once)
-            self._take(camera, undistort_mask(mask, camera))
+            self._carve_view(camera, undistort_mask(mask, camera))
         self._views[key] = _Received(name, np.packbits(mask, axis=None), theta, phi)
         self._colour_waiting.pop(key, None)        # its image, if it came first, is a view's
         return AddedView(key=key, file=self._session / "images" / name, carved=carved,
@@ -408,9 +408,9 @@ class LiveReconstruction:
                          n_views=len(self._views),
                          occupied_voxels=int(np.count_nonzero(self._carver.occupancy)))
 
-    def _take(self, camera, mask: np.ndarray) -> None:
+    def _carve_view(self, camera, mask: np.ndarray) -> None:
         """Carve the live hull with a non-empty mask on the ideal pinhole's pixel grid, and
-        compute what the final reconstruction will need of it (:class:`Precomputed`): its
+        compute what the final reconstruction will need of it (:class:`ComputedOnArrival`): its
         distance image and its part in the coarse carve that refines the box."""
         ideal = ideal_camera(camera)
         self._carver.add_view(ideal, mask)
@@ -444,7 +444,7 @@ class LiveReconstruction:
             mask = image > 127
             key = view_key_of(view.name)
             if mask.any():
-                self._take(view.camera, undistort_mask(mask, view.camera))
+                self._carve_view(view.camera, undistort_mask(mask, view.camera))
             self._views[key] = _Received(view.name, np.packbits(mask, axis=None),
                                          view.theta_rad, view.phi_rad)
         return f"took up the open scan {folder} with its {len(self._views)} views"
