@@ -36,7 +36,7 @@ from sfs_ros.core.geometry.rig import RigCalibration
 from sfs_ros.core.meshing.colour import vertex_colours
 from sfs_ros.core.pipeline import ReconstructionParams, reconstruct
 from sfs_ros.core.render import render_image
-from sfs_ros.core.segment import segment
+from sfs_ros.core.segmentation.segment import segment
 from sfs_ros.core.simulation.objects import make_object
 from sfs_ros.core.simulation.plan import ring_plan
 from sfs_ros.core.simulation.synthetic import carving_box, simulate_scan

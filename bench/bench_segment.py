@@ -16,7 +16,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from sfs_ros.core.segment import PRESETS, SegmentationParams, segment
+from sfs_ros.core.segmentation.segment import PRESETS, SegmentationParams, segment
 
 from .timing import best_of, main
 

@@ -38,7 +38,7 @@ from sfs_ros.core.exchange.session import write_session
 from sfs_ros.core.exchange.views import ViewError
 from sfs_ros.core.geometry.rig import rig_camera
 from sfs_ros.core.pipeline import ReconstructionParams, reconstruct
-from sfs_ros.core.segment import SegmentationParams
+from sfs_ros.core.segmentation.segment import SegmentationParams
 from sfs_ros.core.simulation.plan import ring_plan
 from sfs_ros.core.simulation.synthetic import carving_box
 

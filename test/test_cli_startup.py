@@ -45,13 +45,13 @@ def test_a_command_lines_help_loads_no_heavy_module(command):
 def test_the_help_still_lists_what_the_heavy_modules_define():
     """The names the help shows are those the pipeline uses (one source each)."""
     from sfs_ros.cli import reconstruct
-    from sfs_ros.core import segment
     from sfs_ros.core.exchange import export
     from sfs_ros.core.meshing.meshers import MESHERS
+    from sfs_ros.core.segmentation.segment import PRESETS
     from sfs_ros.core.settings import RESOLUTION
 
     text = reconstruct.build_parser().format_help()
-    for name in (*MESHERS, *segment.PRESETS, *export.SUPPORTED_SUFFIXES):
+    for name in (*MESHERS, *PRESETS, *export.SUPPORTED_SUFFIXES):
         assert name in text, name
     assert RESOLUTION.allowed() in text
 

@@ -17,7 +17,7 @@ from sfs_ros.core.geometry.camera import Camera
 from sfs_ros.core.meshing.colour import spread_views, vertex_colours, vertex_normals
 from sfs_ros.core.pipeline import ReconstructionParams, reconstruct
 from sfs_ros.core.render import rasterize_silhouette, render_image
-from sfs_ros.core.segment import segment
+from sfs_ros.core.segmentation.segment import segment
 
 RED, GREEN, BLUE = (200, 30, 30), (30, 200, 30), (30, 30, 200)
 #: Noise-free renders of constant colours: bilinear sampling and blending of a

@@ -28,7 +28,7 @@ from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
 from sfs_ros.core.meshing.colour import MAX_COLOUR_VIEWS
 from sfs_ros.core.metrics import occupancy_from_contains, volume_iou
 from sfs_ros.core.render import rasterize_silhouette, render_image
-from sfs_ros.core.segment import segment
+from sfs_ros.core.segmentation.segment import segment
 from sfs_ros.core.simulation.objects import make_object
 from sfs_ros.core.simulation.plan import ring_plan
 from sfs_ros.core.simulation.synthetic import carving_box, score_against_truth

@@ -10,7 +10,7 @@ import numpy as np
 from test_fusion import BAD, bite, scan
 
 from sfs_ros.core.geometry.grid import VoxelGrid
-from sfs_ros.core.resegment import consensus_masks, resegment, settled
+from sfs_ros.core.segmentation.consensus import consensus_masks, resegment, settled
 
 H, W = 120, 160
 YY, XX = np.mgrid[0:H, 0:W]
@@ -129,7 +129,7 @@ def settled_on_the_whole_frame(prior, mask, footprint_px):
     import cv2
 
     from sfs_ros.core.carving.fusion import deepest_cut_px
-    from sfs_ros.core.resegment import _SETTLED_FRACTION, _SETTLED_MIN_PX
+    from sfs_ros.core.segmentation.consensus import _SETTLED_FRACTION, _SETTLED_MIN_PX
 
     square = np.ones((3, 3), np.uint8)
     outside = mask.view(np.uint8) & (cv2.dilate(prior.view(np.uint8), square) == 0)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.ndimage import binary_dilation
 
-from sfs_ros.core.segment import (
+from sfs_ros.core.segmentation.segment import (
     PRESETS,
     Segmentation,
     SegmentationParams,
@@ -305,7 +305,7 @@ def test_from_dict():
 
 
 def test_graph_cut_runs_only_where_something_is_left_to_decide(monkeypatch):
-    import sfs_ros.core.segment as seg
+    import sfs_ros.core.segmentation.segment as seg
 
     cuts = []
     real = seg.cv2.grabCut
@@ -345,7 +345,7 @@ def test_the_backdrop_band_is_read_in_the_order_of_its_mask(shape, fraction):
     # The backdrop clusters sample every n-th band pixel, so the band's pixels must come
     # in the order of the full-image mask's indexing, exactly (random colours: any
     # misplaced pixel shows).
-    from sfs_ros.core.backdrop import _band_pixels, border_band
+    from sfs_ros.core.segmentation.backdrop import _band_pixels, border_band
 
     image = np.random.default_rng(1).integers(0, 256, (*shape, 3), dtype=np.uint8)
     np.testing.assert_array_equal(_band_pixels(image, fraction),
@@ -357,7 +357,7 @@ def test_backdrop_distance_is_the_smallest_mahalanobis_distance():
     # levels and A up to 1/16 (the 4-level noise floor) is below 1.3e4; float32 keeps
     # about 7 digits, so 1e-5 relative plus 1e-3 of a standard deviation bounds the
     # rounding of a handful of operations.
-    from sfs_ros.core.backdrop import BackdropModel
+    from sfs_ros.core.segmentation.backdrop import BackdropModel
 
     rng = np.random.default_rng(7)
     means = rng.uniform(0, 255, (4, 3))
@@ -404,7 +404,7 @@ def test_close_mask_on_its_box_is_the_whole_frames_closing(seed):
     # cut back. The box version must give every pixel the same value.
     import cv2
 
-    from sfs_ros.core.segment import close_mask
+    from sfs_ros.core.segmentation.segment import close_mask
 
     shape = (37 + seed, 53 + 2 * seed)
     mask = random_blobs(shape, seed)
@@ -424,7 +424,7 @@ def test_band_redecided_on_its_box_is_the_whole_frames(seed):
     # whole frame, take ``distance > _EDGE_SIGMA``; the rest keep their value.
     import cv2
 
-    from sfs_ros.core.segment import _EDGE_SIGMA, _redecide_band
+    from sfs_ros.core.segmentation.segment import _EDGE_SIGMA, _redecide_band
 
     shape = (41 + seed, 47 + 3 * seed)
     mask = random_blobs(shape, seed)

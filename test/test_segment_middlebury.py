@@ -14,7 +14,7 @@ import pytest
 
 from sfs_ros.core.exchange.middlebury import read_middlebury
 from sfs_ros.core.exchange.views import read_image
-from sfs_ros.core.segment import PRESETS, SegmentationParams, segment
+from sfs_ros.core.segmentation.segment import PRESETS, SegmentationParams, segment
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "datasets" / "middlebury"
 if not DATA.is_dir():

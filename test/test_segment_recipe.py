@@ -16,7 +16,7 @@ import pytest
 
 from sfs_ros.core.exchange.middlebury import read_middlebury
 from sfs_ros.core.exchange.views import read_image
-from sfs_ros.core.segment import segment
+from sfs_ros.core.segmentation.segment import segment
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "datasets" / "middlebury"
 

@@ -20,7 +20,7 @@ from sfs_ros.core.exchange.views import read_image
 from sfs_ros.core.geometry.rig import RigCalibration
 from sfs_ros.core.pipeline import ReconstructionParams, reconstruct
 from sfs_ros.core.render import rasterize_silhouette
-from sfs_ros.core.segment import SegmentationParams, segment
+from sfs_ros.core.segmentation.segment import SegmentationParams, segment
 from sfs_ros.core.simulation.hostile import BACKDROPS, simulate_hostile_scan
 from sfs_ros.core.simulation.objects import make_object
 from sfs_ros.core.simulation.plan import ring_plan

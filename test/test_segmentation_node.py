@@ -9,7 +9,7 @@ from sensor_msgs.msg import Image, JointState
 from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
 from sfs_ros.core.metrics import silhouette_iou
 from sfs_ros.core.render import rasterize_silhouette
-from sfs_ros.core.segment import SegmentationParams, segment
+from sfs_ros.core.segmentation.segment import SegmentationParams, segment
 from sfs_ros.core.simulation.objects import make_object
 from sfs_ros.core.simulation.plan import ring_plan
 from sfs_ros.core.simulation.synthetic import simulate_scan

@@ -10,7 +10,7 @@ Persistence and the final reconstruction share one path: each mask is stored
 as a black-and-white PNG (object 255, background 0) in a scan session folder
 (:mod:`sfs_ros.core.exchange.session`) whose ``session.yaml`` holds the rig
 calibration, the carving box and :data:`MASK_SEGMENTATION`, segmentation
-parameters under which :func:`sfs_ros.core.segment.segment` returns such an
+parameters under which :func:`sfs_ros.core.segmentation.segment.segment` returns such an
 image's mask unchanged (a fixed threshold at half scale against a black
 background, no morphology, no blob or hole filtering, no dilation). The
 reconstruction reads that folder's views (cameras, box) and takes the received
@@ -63,7 +63,7 @@ from ..core.meshing.hull_distance import DistanceImages
 from ..core.meshing.meshers import MESHER
 from ..core.pipeline import ComputedOnArrival, ReconstructionParams, carve_scan
 from ..core.result_files import SheetViews
-from ..core.segment import SegmentationParams
+from ..core.segmentation.segment import SegmentationParams
 from ..core.settings import RESOLUTION
 from .mesh_files import HandOver, mask_to_rgb, mesh_paths, thumbnail, write_mesh
 from .paths import check_scan_name_format

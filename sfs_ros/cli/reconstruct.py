@@ -32,7 +32,7 @@ from ..process import configure_process
 if TYPE_CHECKING:
     from ..core.exchange.views import ViewSet
     from ..core.result_files import SheetViews
-    from ..core.segment import SegmentationParams
+    from ..core.segmentation.segment import SegmentationParams
 
 PROG = "sfs-reconstruct"
 
@@ -40,7 +40,7 @@ PROG = "sfs-reconstruct"
 def build_parser() -> argparse.ArgumentParser:
     from ..core.exchange.export import MESH_FORMATS
     from ..core.meshing.meshers import MESHER
-    from ..core.segment_presets import PRESETS
+    from ..core.segmentation.presets import PRESETS
     from ..core.settings import BOUNDS_M, COLOUR, MAX_MEMORY, RESOLUTION
     from .common import accept_negative_numbers, accepted_inputs, add_mesher_options, add_setting
 
@@ -114,8 +114,8 @@ def _holdout_names(spec: str, names: list[str]) -> tuple[str, ...]:
 
 
 def _segmentation(args, stored: dict | None) -> SegmentationParams | None:
-    from ..core.segment import SegmentationParams
-    from ..core.segment_presets import PRESETS
+    from ..core.segmentation.presets import PRESETS
+    from ..core.segmentation.segment import SegmentationParams
 
     if args.preset is None and args.threshold is None and not args.ignore_alpha:
         return None

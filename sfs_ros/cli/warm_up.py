@@ -38,7 +38,7 @@ from ..cell_logic.rehearsal import REHEARSAL_PLAN, REHEARSAL_RESOLUTION, REHEARS
 from ..core.exchange.inputs import load_views
 from ..core.exchange.session import write_session
 from ..core.pipeline import ReconstructionParams, reconstruct
-from ..core.segment import segment
+from ..core.segmentation.segment import segment
 from ..core.simulation.objects import make_object
 from ..core.simulation.synthetic import simulate_scan
 from ..process import configure_process

@@ -17,9 +17,10 @@ Sub-packages, each naming its public API in its ``__init__``:
 * :mod:`.meshing`: cloud of points, advancing front, marching cubes, mesh checks, colour;
 * :mod:`.exchange`: views in (session, Middlebury, NeRF), meshes and poses out;
 * :mod:`.pictures`: PNG preview, HTML viewer, contact sheet;
+* :mod:`.segmentation`: silhouettes: one image's cut, the backdrop, the multi-view consensus;
 * :mod:`.simulation`: known objects, scan plans, simulated scans.
 
-At the top: :mod:`.segment` (silhouettes), :mod:`.render` (z-buffer renderer),
+At the top: :mod:`.render` (z-buffer renderer),
 :mod:`.metrics` (IoU, Chamfer), :mod:`.pipeline` (images to mesh) and
 :mod:`.result_files` (a result's mesh, report and pictures).
 Names are imported on first use, so ``import sfs_ros.core`` costs nothing.
@@ -39,8 +40,8 @@ _FRONT_DOOR = {
     "View": ".exchange",
     "export_mesh": ".exchange",
     "load_mesh": ".exchange",
-    "segment": ".segment",
-    "SegmentationParams": ".segment",
+    "segment": ".segmentation.segment",
+    "SegmentationParams": ".segmentation.segment",
     "reconstruct": ".pipeline",
     "ReconstructionParams": ".pipeline",
     "Reconstruction": ".pipeline",

@@ -27,7 +27,7 @@ from .mesh_scan import Reconstruction, mesh_scan, timed
 from .meshing.hull_distance import DistanceImages, HullDistance
 from .meshing.meshers import MESHER, Mesher, mesher
 from .scan_report import carving_report
-from .segment import SegmentationParams
+from .segmentation.segment import SegmentationParams
 from .settings import RESOLUTION
 from .stages import (
     Fused,
@@ -93,7 +93,7 @@ class ReconstructionParams:
     consensus : bool
         Re-segment every view (graph-cut segmentation only) with the projection
         of the hull all views agree on as a prior, before the fusion
-        (:mod:`sfs_ros.core.resegment`).
+        (:mod:`sfs_ros.core.segmentation.consensus`).
     colour : bool
         Colour the mesh's vertices from the images of the views used
         (:func:`sfs_ros.core.meshing.colour.vertex_colours`: the views that see each

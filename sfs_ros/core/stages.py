@@ -29,8 +29,8 @@ from .geometry.lens import distort_mask, ideal_camera, undistort_image, undistor
 from .meshing.colour import MAX_COLOUR_VIEWS, spread_views
 from .meshing.hull_distance import HullDistance
 from .refinement.scan import refine_views
-from .resegment import consensus_masks
-from .segment import SegmentationParams, segment
+from .segmentation.consensus import consensus_masks
+from .segmentation.segment import SegmentationParams, segment
 from .workers import map_in_threads
 
 __all__ = ["ColourViews", "Fused", "GridChoice", "Hull", "Resegmented", "Segmented",
@@ -240,7 +240,7 @@ class Resegmented:
 def resegment_views(segmented: Segmented, used: UsedViews, grid: VoxelGrid,
                     params: SegmentationParams) -> Resegmented:
     """The used views' masks re-segmented with the hull of all views as a prior
-    (:func:`sfs_ros.core.resegment.consensus_masks`); alpha masks are kept. The masks
+    (:func:`sfs_ros.core.segmentation.consensus.consensus_masks`); alpha masks are kept. The masks
     and cameras are on the ideal pinhole's pixel grid, so each image is undistorted
     through its lens before it is read."""
     views, lenses = segmented.views, segmented.lenses

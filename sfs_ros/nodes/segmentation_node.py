@@ -31,7 +31,7 @@ Diagnostics values: counts (masks, empty, touching_border, malformed,
 unpaired_dropped, repeats), waiting halves, and ``segment_s``, the seconds
 spent segmenting since start-up.
 
-Parameters: the fields of :class:`sfs_ros.core.segment.SegmentationParams`
+Parameters: the fields of :class:`sfs_ros.core.segmentation.segment.SegmentationParams`
 (see there) with ROS-friendly encodings, plus ``preset``, ``queue_depth``
 and the rig's ``width`` and ``height`` (read-only); see :data:`PARAMS`.
 ``preset`` (read-only) names an entry of ``PRESETS`` whose values become the
@@ -48,7 +48,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import Image, JointState
 
 from sfs_ros.cell_logic.message_fields import check_image_size
-from sfs_ros.core.segment import PRESETS, SegmentationParams, segment
+from sfs_ros.core.segmentation.segment import PRESETS, SegmentationParams, segment
 from sfs_ros.nodes.entry import run_node
 from sfs_ros.process import configure_process
 from sfs_ros.ros import capture_qos

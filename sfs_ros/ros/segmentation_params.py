@@ -7,7 +7,7 @@ into the ``segmentation`` section of a bag's parameters document.
 
 from __future__ import annotations
 
-from sfs_ros.core.segment import SegmentationParams
+from sfs_ros.core.segmentation.segment import SegmentationParams
 from sfs_ros.ros.params import Param, ParameterError
 
 __all__ = ["segmentation_param_list", "segmentation_params"]

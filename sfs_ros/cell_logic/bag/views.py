@@ -32,7 +32,7 @@ import numpy as np
 from ...core.exchange.session import read_session, write_session
 from ...core.exchange.views import ViewError, ViewSet
 from ...core.geometry.rig import RigCalibration
-from ...core.segment import SegmentationParams, segment
+from ...core.segmentation.segment import SegmentationParams, segment
 from ...core.settings import RESOLUTION
 from ..live_reconstruction import DuplicateViewError, LiveReconstruction
 from ..message_fields import angles_from_joint_state, msg_to_image, scan_report, stamp_key, view_key

@@ -58,7 +58,7 @@ import numpy as np
 from numba import njit
 
 from .backdrop import border_band, fit_backdrop
-from .segment_presets import PRESETS
+from .presets import PRESETS
 
 __all__ = ["SegmentationParams", "Segmentation", "segment", "estimate_background", "PRESETS",
            "close_mask", "fill_small_holes"]

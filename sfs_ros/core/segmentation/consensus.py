@@ -34,15 +34,15 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .carving.bounds import seen_by
-from .carving.carve import PreparedMasks, carve
-from .carving.consistency import hull_silhouettes
-from .carving.fusion import MIN_MEDIAN_IOU, deepest_cut_px, reference_misses
-from .geometry.camera import Camera
-from .geometry.grid import VoxelGrid
-from .metrics import silhouette_iou
+from ..carving.bounds import seen_by
+from ..carving.carve import PreparedMasks, carve
+from ..carving.consistency import hull_silhouettes
+from ..carving.fusion import MIN_MEDIAN_IOU, deepest_cut_px, reference_misses
+from ..geometry.camera import Camera
+from ..geometry.grid import VoxelGrid
+from ..metrics import silhouette_iou
+from ..workers import map_in_threads
 from .segment import close_mask, fill_small_holes
-from .workers import map_in_threads
 
 __all__ = ["resegment", "settled", "Consensus", "consensus_masks"]
 
