@@ -54,7 +54,14 @@ from ..core.carving.carve import Carver
 from ..core.carving.hull import surface_voxels
 from ..core.carving.resolution import BYTES_PER_VOXEL
 from ..core.exchange.limits import MAX_WAITING_BYTES
-from ..core.exchange.session import append_view, appended_view, read_session, write_session
+from ..core.exchange.session import (
+    append_view,
+    appended_view,
+    read_session,
+    stored_view_name,
+    view_key_of,
+    write_session,
+)
 from ..core.exchange.views import ViewSet, as_bounds
 from ..core.geometry.grid import VoxelGrid
 from ..core.geometry.lens import ideal_camera, undistort_image, undistort_mask
@@ -69,7 +76,7 @@ from .mesh_files import HandOver, mask_to_rgb, mesh_paths, thumbnail, write_mesh
 from .paths import check_scan_name_format
 
 __all__ = ["MASK_SEGMENTATION", "DuplicateViewError", "AddedView", "LiveReconstruction",
-           "surface_points", "mask_to_rgb", "check_scan_name", "view_key_of"]
+           "surface_points", "mask_to_rgb", "check_scan_name"]
 
 #: Segmentation under which a 0/255 mask image segments to exactly that mask.
 MASK_SEGMENTATION = SegmentationParams(
@@ -81,9 +88,6 @@ MASK_SEGMENTATION = SegmentationParams(
 #: Longest accepted view key, characters.
 MAX_KEY_CHARS = 200
 _AUTO_SCAN = re.compile(r"scan_(\d{3,})")
-_KEY_AS_FILE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,95}\.png")
-_UNSAFE = re.compile(r"[^A-Za-z0-9_.-]")
-_NAMED_KEY = re.compile(r"view_\d{3,}_([A-Za-z0-9_.-]{1,64})\.png")
 #: The file that marks the session folder of the scan being received.
 OPEN_MARKER = ".open"
 #: A reconstruction's working memory (see :attr:`LiveReconstruction.working_memory_bytes`):
@@ -129,13 +133,6 @@ def check_scan_name(output_dir, scan_name: str) -> None:
     if (Path(output_dir) / scan_name).exists():
         raise ValueError(f"scan folder {Path(output_dir) / scan_name} already exists; "
                          "choose a new scan name")
-
-
-def view_key_of(name: str) -> str:
-    """The key of a view from the name :meth:`LiveReconstruction.add_view` stored it under
-    (a key that is a file name as it is, else ``view_NNN_<key>.png``)."""
-    found = _NAMED_KEY.fullmatch(name)
-    return found.group(1) if found else name
 
 
 def surface_points(occupancy: np.ndarray, grid: VoxelGrid, max_points: int) -> np.ndarray:
@@ -328,9 +325,7 @@ class LiveReconstruction:
     # ------------------------------------------------------------ views
 
     def _file_name(self, key: str) -> str:
-        if _KEY_AS_FILE.fullmatch(key):
-            return key
-        return f"view_{len(self._views):03d}_{_UNSAFE.sub('_', key)[:64]}.png"
+        return stored_view_name(len(self._views), key)
 
     def _open_session(self, name: str, rgb: np.ndarray, theta: float, phi: float) -> Path:
         """Create this scan's session folder holding its first view."""

@@ -156,7 +156,7 @@ def _by_view(captures: ViewSet, view_set: ViewSet) -> dict:
     """{name of a bag's view: path of its captured image} (``captures``: the bag's
     captured images, named by their keys): the bag's views are the recorded masks, named
     as the carving node stored them."""
-    from ..cell_logic.live_reconstruction import view_key_of
+    from ..core.exchange.session import view_key_of
 
     paths = {Path(v.name).stem: v.image_path for v in captures.views}
     return {v.name: paths[key] for v in view_set.views if (key := view_key_of(v.name)) in paths}

@@ -67,6 +67,7 @@ import errno
 import io
 import math
 import os
+import re
 import shutil
 from pathlib import Path, PurePosixPath
 
@@ -80,7 +81,8 @@ from .limits import brief, confined_path, load_yaml, printable, read_text
 from .views import IMAGE_SUFFIXES, View, ViewError, ViewSet, as_bounds
 
 __all__ = ["FORMAT", "VERSION", "SESSION_FILE", "VIEWS_FILE", "IMAGES_DIR", "ANGLE_COLUMNS",
-           "MATRIX_COLUMNS", "read_session", "write_session", "append_view", "appended_view"]
+           "MATRIX_COLUMNS", "read_session", "write_session", "append_view", "appended_view",
+           "stored_view_name", "view_key_of"]
 
 FORMAT = "sfs_ros-session"
 VERSION = 1
@@ -90,6 +92,9 @@ IMAGES_DIR = "images"
 ANGLE_COLUMNS = ("image", "theta_rad", "phi_rad")
 MATRIX_COLUMNS = ("image",) + tuple(f"p{r}{c}" for r in (1, 2, 3) for c in (1, 2, 3, 4))
 _YAML_KEYS = ("format", "version", "rig", "bounds_m", "segmentation")
+_KEY_AS_FILE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,95}\.png")
+_UNSAFE = re.compile(r"[^A-Za-z0-9_.-]")
+_NAMED_KEY = re.compile(r"view_\d{3,}_([A-Za-z0-9_.-]{1,64})\.png")
 
 
 # ---------------------------------------------------------------- reading
@@ -239,6 +244,21 @@ def _image_files(images: Path) -> set[str]:
                 and not any(p.startswith(".") for p in rel.parts):
             found.add(rel.as_posix())
     return found
+
+
+def stored_view_name(index: int, key: str) -> str:
+    """The image file name of the ``index``-th view (from 0) stored under ``key`` (a
+    capture's stamp or name): the key itself where it is a safe PNG name, else
+    ``view_NNN_<key>.png`` with the key's unsafe characters replaced."""
+    if _KEY_AS_FILE.fullmatch(key):
+        return key
+    return f"view_{index:03d}_{_UNSAFE.sub('_', key)[:64]}.png"
+
+
+def view_key_of(name: str) -> str:
+    """The key of a view from the file name :func:`stored_view_name` gave it."""
+    found = _NAMED_KEY.fullmatch(name)
+    return found.group(1) if found else name
 
 
 def read_session(folder: Path | str) -> ViewSet:
