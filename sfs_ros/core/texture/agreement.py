@@ -75,23 +75,21 @@ def face_blur(points: np.ndarray, blend: np.ndarray, gains: np.ndarray,
     """
     m, k = points.shape[:2]
     n_levels = len(levels)
-    total = np.zeros((n_levels, m, k, 3), np.float32)
+    total = np.zeros((m, n_levels, k, 3), np.float32)
     weight_sum = np.zeros(m)
     used = [np.flatnonzero(blend[:, view] > 0) for view in range(blend.shape[1])]
-    # Each view's pixels of its faces' points, projected once for every level's reads.
-    pixels = [np.nan_to_num(cameras[view].project(points[mine].reshape(-1, 3)), nan=-1.0)
-              .astype(np.float32) for view, mine in enumerate(used)]
-
-    def read(level, view):
-        return gains[view].astype(np.float32) * interpolate(
-            levels[level][view], pixels[view][:, 0], pixels[view][:, 1],
-            kernel=kernel).reshape(-1, k, 3)
-
+    # Each view's colours at its faces' points at every level: (faces, levels, k, 3).
+    reads = []
     for view, mine in enumerate(used):
+        pixels = np.nan_to_num(cameras[view].project(points[mine].reshape(-1, 3)),
+                               nan=-1.0).astype(np.float32)
+        reads.append(gains[view].astype(np.float32) * np.stack(
+            [interpolate(levels[level][view], pixels[:, 0], pixels[:, 1],
+                         kernel=kernel).reshape(-1, k, 3) for level in range(n_levels)],
+            axis=1))
         if mine.size:
-            weight = blend[mine, view].astype(np.float32)[:, None, None]
-            for level in range(n_levels):
-                total[level, mine] += weight * read(level, view)
+            total[mine] += blend[mine, view].astype(np.float32)[:, None, None, None] \
+                * reads[view]
             weight_sum[mine] += blend[mine, view]
     error = np.zeros((m, n_levels))
     judged = np.zeros(m)
@@ -102,12 +100,10 @@ def face_blur(points: np.ndarray, blend: np.ndarray, gains: np.ndarray,
         if not left_out.any():
             continue
         mine, weight, others = mine[left_out], weight[left_out], others[left_out]
-        truth = read(0, view)[left_out]
-        for level in range(n_levels):
-            own = read(level, view)[left_out] if level else truth
-            predicted = (total[level, mine] - weight[:, None, None] * own) \
-                / others[:, None, None]
-            error[mine, level] += weight * np.square(predicted - truth).sum(axis=(1, 2))
+        own = reads[view][left_out]
+        predicted = (total[mine] - weight[:, None, None, None] * own) \
+            / others[:, None, None, None]
+        error[mine] += weight[:, None] * np.square(predicted - own[:, :1]).sum(axis=(2, 3))
         judged[mine] += weight
     error = _smoothed(error, neighbours, rings)
     judged = _smoothed(judged, neighbours, rings)

@@ -172,19 +172,24 @@ def _blend_views(colour, face, bary, vertices, faces, blend, blur, images, camer
     blend of every view with a weight for their face (``blend`` (m, V), 0: not blended),
     each view's colour (``images[blur[face]][view]``, ``blur`` (m,) the face's level of
     :func:`.agreement.blurred_views`) times its gain; returns (k,) bool the texels set."""
-    texel_weights = blend[face]                                       # (k, V)
-    blended = np.flatnonzero(texel_weights.any(axis=1))
+    blended = np.flatnonzero(blend.any(axis=1)[face])
     total = np.zeros((len(blended), 3))
     weight_sum = np.zeros(len(blended))
     points = np.einsum("kc,kcd->kd", bary[blended], vertices[faces[face[blended]]])
     level = blur[face[blended]]
     for view in range(blend.shape[1]):
-        weight = texel_weights[blended, view]
-        for blurred in np.unique(level[weight > 0]):
-            mine = np.flatnonzero((weight > 0) & (level == blurred))
-            total[mine] += weight[mine, None] * gains[view] * sample_image(
-                images[blurred][view], cameras[view], points[mine], kernel=kernel)
-            weight_sum[mine] += weight[mine]
+        weight = blend[face[blended], view]
+        mine = np.flatnonzero(weight > 0)
+        if not mine.size:
+            continue
+        pixels = np.nan_to_num(cameras[view].project(points[mine]), nan=-1.0)
+        colour_here = np.empty((len(mine), 3), np.float32)
+        for blurred in np.unique(level[mine]):
+            at = level[mine] == blurred
+            colour_here[at] = interpolate(images[blurred][view], pixels[at, 0], pixels[at, 1],
+                                          kernel=kernel)
+        total[mine] += weight[mine, None] * gains[view] * colour_here
+        weight_sum[mine] += weight[mine]
     colour[blended] = total / weight_sum[:, None]
     out = np.zeros(len(face), bool)
     out[blended] = True
