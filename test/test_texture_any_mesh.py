@@ -83,12 +83,14 @@ def side_by_side(name: str, tmp_path) -> dict:
     views = [cameras[k] for k in chosen]
     nearest = nearest_view_texture(obj.mesh.vertices, obj.mesh.faces, images, views)
     colours = vertex_colours(obj.mesh.vertices, obj.mesh.faces, images, views).colours
-    return {"texture": mean_psnr(obj, captures, textured.vertices, textured.faces,
+    psnr = {"texture": mean_psnr(obj, captures, textured.vertices, textured.faces,
                                  pixel_colors=textured.colour_at),
             "nearest view": mean_psnr(obj, captures, nearest.vertices, nearest.faces,
                                       pixel_colors=nearest.colour_at),
             "vertex colours": mean_psnr(obj, captures, obj.mesh.vertices, obj.mesh.faces,
                                         vertex_colors=colours)}
+    print(f"true {name}: " + ", ".join(f"{k} {v:.2f} dB" for k, v in psnr.items()))
+    return psnr
 
 
 def test_texture_of_the_true_cup_beats_the_nearest_view_and_vertex_colours(tmp_path):

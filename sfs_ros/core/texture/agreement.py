@@ -8,13 +8,14 @@ concavity), each view puts the surface's detail somewhere else, and a view not u
 it somewhere else again: there the mean of views blurred by about the detail's
 misplacement is nearer it (a squared error is least at the expected colour, and an
 uncertain position spreads the expectation). The views themselves tell which case a face
-is in, by leaving one out: each view's colours at the face's sample points (sharp) are
-compared with the blend of the *other* views (their weights, their gains) at each blur
-of :data:`BLUR_LEVELS_PX`, the squared differences summed over the views, weighted as in
+is in, by leaving one out: each view's colours at the face's sample points (sharp; the
+texture takes its centroid alone, its neighbours add the rest) are compared with the
+blend of the *other* views (their weights, their gains) at each blur of
+:data:`BLUR_LEVELS_PX`, the squared differences summed over the views, weighted as in
 the blend, averaged over the face and its neighbours out to :data:`SMOOTHING_RINGS`
 edges (a few points a face are a noisy sample; the mesh's error varies smoothly), and the
 face takes the blur with the least. A face blended from one view cannot be judged and
-stays sharp.
+stays sharp unless its neighbours are judged.
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ from scipy import sparse
 from ..geometry.camera import Camera
 from .levelling import interpolate
 
-__all__ = ["BLUR_LEVELS_PX", "SMOOTHING_RINGS", "blurred_views", "face_blur"]
+__all__ = ["BLUR_LEVELS_PX", "JUDGED_EVERY", "SMOOTHING_RINGS", "blurred_views", "face_blur"]
 
 #: The blurs a face may take: standard deviations of a Gaussian, pixels of its views (0:
 #: the views as taken).
@@ -36,6 +37,9 @@ BLUR_LEVELS_PX = (0.0, 1.0, 2.0, 4.0)
 #: Rings of neighbouring faces (across edges) whose leave-one-out errors are averaged with
 #: a face's own before its blur is chosen.
 SMOOTHING_RINGS = 16
+#: Every so many faces (in the mesh's order) are judged: the rings around a face hold
+#: hundreds, half of them judge it as well.
+JUDGED_EVERY = 2
 
 
 def blurred_views(images: Sequence[np.ndarray], levels_px: Sequence[float] = BLUR_LEVELS_PX
@@ -64,20 +68,23 @@ def _smoothed(values: np.ndarray, neighbours: np.ndarray, rings: int) -> np.ndar
 def face_blur(points: np.ndarray, blend: np.ndarray, gains: np.ndarray,
               levels: list[list[np.ndarray]], cameras: Sequence[Camera],
               neighbours: np.ndarray, *, kernel: str = "bilinear",
-              rings: int = SMOOTHING_RINGS) -> np.ndarray:
+              rings: int = SMOOTHING_RINGS, every: int = JUDGED_EVERY) -> np.ndarray:
     """(m,) int64 index into ``levels`` of the blur each face's blend takes (module
     docstring).
 
     ``points`` (m, k, 3) metres, sample points of each face; ``blend`` (m, V) weight of
     each view in each face (0: none); ``gains`` (V, 3) each view's colour gain; ``levels``
     the views' images at each blur (:func:`blurred_views`, the first unblurred), read
-    with ``kernel``; ``neighbours`` (m, 3) (:func:`.selection.face_neighbours`).
+    with ``kernel``; ``neighbours`` (m, 3) (:func:`.selection.face_neighbours`); every
+    ``every``-th face (in the mesh's order) is judged, the smoothing spreads the errors.
     """
     m, k = points.shape[:2]
     n_levels = len(levels)
     total = np.zeros((m, n_levels, k, 3), np.float32)
     weight_sum = np.zeros(m)
-    used = [np.flatnonzero(blend[:, view] > 0) for view in range(blend.shape[1])]
+    judged_here = np.zeros(m, bool)
+    judged_here[::max(1, int(every))] = True
+    used = [np.flatnonzero(judged_here & (blend[:, view] > 0)) for view in range(blend.shape[1])]
     # Each view's colours at its faces' points at every level: (faces, levels, k, 3).
     reads = []
     for view, mine in enumerate(used):
@@ -107,5 +114,5 @@ def face_blur(points: np.ndarray, blend: np.ndarray, gains: np.ndarray,
         judged[mine] += weight
     error = _smoothed(error, neighbours, rings)
     judged = _smoothed(judged, neighbours, rings)
-    # A face no view can be left out of (one view) keeps the unblurred blend.
+    # A face with no judged face (two views or more) within its rings stays unblurred.
     return np.where(judged > 0, np.argmin(error, axis=1), 0).astype(np.int64)

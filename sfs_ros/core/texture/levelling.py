@@ -32,8 +32,8 @@ from scipy.sparse.linalg import lsqr
 from ..geometry.camera import Camera
 from .selection import towards_camera
 
-__all__ = ["DARK", "FRONTAL_COS", "KERNELS", "interpolate", "corner_colours", "sample_image",
-           "seam_edges", "seam_offsets", "view_gains"]
+__all__ = ["COMPARED_FACES", "DARK", "FRONTAL_COS", "KERNELS", "corner_colours", "interpolate",
+           "sample_image", "seam_edges", "seam_offsets", "view_gains"]
 
 #: Samples darker than this (grey levels, any channel) are not compared: their ratio is
 #: mostly noise.
@@ -45,6 +45,8 @@ SEAM_SMOOTHING = 10
 FRONTAL_COS = 0.5
 #: The interpolations :func:`interpolate` offers, by name: OpenCV's flags.
 KERNELS = {"bilinear": cv2.INTER_LINEAR, "bicubic": cv2.INTER_CUBIC}
+#: About as many faces, evenly spread in the mesh's order, are compared for the gains.
+COMPARED_FACES = 20000
 #: Width of the maps OpenCV samples points with.
 _REMAP_WIDTH = 4096
 #: Weight of the term holding each view's log gain to 0, per seam edge of that view.
@@ -94,11 +96,14 @@ def view_gains(images: list, cameras: list[Camera], vertices: np.ndarray, faces:
     """(V, 3) float64 gain of each view and channel (module docstring): for every pair of
     views meeting at a seam edge (``seams``, :func:`seam_edges` of faces with ``labels``),
     the ratio of their mean colours over the faces both see (``seen`` (m, V) bool) within
-    acos :data:`FRONTAL_COS` of the face's normal, at the faces' centroids; ``images``
-    float32."""
+    acos :data:`FRONTAL_COS` of the face's normal, at the faces' centroids (about
+    :data:`COMPARED_FACES` of them); ``images`` float32."""
     n_views = len(cameras)
     a, b = labels[seams[:, 0]], labels[seams[:, 1]]
     pairs = np.unique(np.column_stack([np.minimum(a, b), np.maximum(a, b)]), axis=0)
+    # Means over many faces: every so many of a large mesh's hold them as well.
+    step = max(1, len(faces) // COMPARED_FACES)
+    faces, seen = faces[::step], seen[::step]
     tri = vertices[faces]
     centroid = tri.mean(axis=1)
     normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])

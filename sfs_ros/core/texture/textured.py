@@ -4,24 +4,26 @@ Each face is given one view (:mod:`.selection`: seen unhidden, frontal, near and
 neighbours from the same view where quality allows), the faces of a view make charts laid
 out as the view sees them (:mod:`.atlas`), the views' colours are levelled along the
 seams (:mod:`.levelling`), and every texel takes the colour at the texel's point of the
-face (bilinear) in the views that see the face fully, blended, each weighted by its
-quality relative to the face's best view to the power :data:`BLEND_POWER` (from
-:data:`BLEND_MIN` of it) and times its
-gain (with ``blend_power`` None: the face's one view, plus the levelling's seam offsets).
-One view per face puts the detail of that view alone, sharp, but wherever the mesh departs
-from the surface by a fraction of a millimetre that detail lands off in other directions;
-the blend keeps what the best views agree on, as sharp on a true mesh (within 0.4 dB of
-one view on the tests' true meshes, doc/benchmarks.md) and 1.5 dB nearer held-out views
-on a reconstruction. Texels around each chart repeat its
-border's colours (``padding`` of them) so that filtering does not bleed across a seam;
-the rest of the atlas is the texture's mean colour. Faces no view sees (the underside
-on the plate) take colours interpolated from their corners, each corner's colour the mean
-of its seen faces' or, for corners no view sees, harmonic interpolation along the edges
-(as the vertex colours do).
+face in the views that see the face fully (those that glimpse it, where none sees it
+fully), read bicubically (:data:`VIEW_KERNEL`), blended, each weighted by its quality
+relative to the face's best view to the power :data:`BLEND_POWER` (from
+:data:`BLEND_MIN` of it) and times its gain, and blurred as far as the views, left out
+one by one, predict one another best (:mod:`.agreement`); with ``blend_power`` None:
+the face's one view, plus the levelling's seam offsets. One view per face puts the
+detail of that view alone, sharp, but wherever the mesh departs from the surface by a
+fraction of a millimetre that detail lands off in other directions; the blend keeps what
+the views agree on and averages their noise: unblurred on a true mesh, where the views
+agree, blurred where the mesh departs from the surface (doc/benchmarks.md, the atlas).
+Texels around each chart repeat its border's colours (``padding`` of them) so that
+filtering does not bleed across a seam; the rest of the atlas is the texture's mean
+colour. Faces no view sees (the underside on the plate) take colours interpolated from
+their corners, each corner's colour the mean of its seen faces' or, for corners no view
+sees, harmonic interpolation along the edges (as the vertex colours do).
 """
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -333,6 +335,11 @@ def textured_from_labels(vertices: np.ndarray, faces: np.ndarray, labels: np.nda
         raise ValueError("levelling needs the faces each view sees (seen)")
     if kernel not in KERNELS:
         raise ValueError(f"kernel must be one of {', '.join(KERNELS)}, got {kernel!r}")
+    blur_levels_px = tuple(float(sigma) for sigma in blur_levels_px)
+    if (not blur_levels_px or blur_levels_px[0] != 0.0
+            or not all(math.isfinite(sigma) and sigma >= 0 for sigma in blur_levels_px)):
+        raise ValueError(f"blur_levels_px must be blurs >= 0 px, the first 0, got "
+                         f"{blur_levels_px}")
     seconds, start = {}, time.perf_counter()
     atlas = build_atlas(vertices, faces, labels, neighbours, cameras,
                         texels_per_pixel=texels_per_pixel, max_size=max_size, padding=padding)
