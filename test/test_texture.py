@@ -95,14 +95,14 @@ def test_texture_beats_vertex_colours_in_held_out_views(mug, scan, result, textu
                              pixel_colors=textured.colour_at)
     vertex = held_out_error(mug, captures, result.vertices, result.faces,
                             vertex_colors=result.vertex_colors)
-    # Measured 17.9 against 27.8 grey levels. The pattern's 5 mm period spans 5.8 px, so
+    # Measured 17.4 against 27.8 grey levels. The pattern's 5 mm period spans 5.8 px, so
     # a tenth of a pixel of misregistration (the hull is not the mug, the views' angles
     # are off by 3 mrad) and resampling twice cost the texture most of its error; the
     # vertices, 2-3 mm apart, cannot hold the pattern at all. (Deterministic: seeded.)
     assert texture < 0.8 * vertex
     assert texture < 23.0
     # The same as PSNR inside the true silhouette (eroded by 2 px, as above): measured
-    # 19.0 dB against 16.4 on this grid (and 19.1 against 18.9 at the pixel footprint,
+    # 19.05 dB against 16.40 on this grid (and 19.1 against 18.9 at the pixel footprint,
     # doc/benchmarks.md).
     texture_db, vertex_db = (
         np.mean([held_out_psnr(vertices, faces, camera_of(captures[i]), captures[i].image,
