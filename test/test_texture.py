@@ -26,6 +26,7 @@ from sfs_ros.core.render import rasterize_depth, rasterize_silhouette, render_im
 from sfs_ros.core.simulation.objects import fine_color_at
 from sfs_ros.core.simulation.synthetic import carving_box, simulate_scan
 from sfs_ros.core.texture import TexturedMesh, texture_mesh, texture_reconstruction
+from sfs_ros.core.texture.agreement import blurred_views
 from sfs_ros.core.texture.evaluation import held_out_psnr
 from sfs_ros.core.texture.levelling import interpolate, seam_edges
 from sfs_ros.core.texture.selection import face_neighbours
@@ -301,3 +302,28 @@ def test_bicubic_reads_a_fine_pattern_between_the_pixels_nearer_than_bilinear():
         assert np.abs(read - 3.0 * px).max() < 0.2
     with pytest.raises(ValueError, match="kernel must be one of bilinear, bicubic"):
         interpolate(image, px, py, kernel="nearest")
+
+
+def test_blurred_views_keep_the_image_at_zero_and_its_mean_when_blurred():
+    """Level 0 is the image itself; a Gaussian keeps a constant and the mean of a pattern
+    well inside the image, and takes the pattern's contrast down."""
+    x = np.arange(64.0)
+    row = 100.0 + 85.0 * np.sin(2 * np.pi * x / 5.8)
+    image = np.repeat(np.repeat(row[None, :, None], 64, axis=0), 3, axis=2).astype(np.float32)
+    levels = blurred_views([image], (0.0, 1.0, 4.0))
+    assert levels[0][0] is image
+    inner = (slice(16, 48), slice(16, 48))
+    contrast = [float(level[0][inner].std()) for level in levels]
+    assert contrast[0] > contrast[1] > contrast[2]
+    # A 5.8 px sine under a Gaussian of 1 px keeps exp(-2 pi^2 / 5.8^2) = 0.56 of its
+    # amplitude (the sampled sine's mean over whole periods: within a grey level).
+    assert contrast[1] / contrast[0] == pytest.approx(np.exp(-2 * np.pi**2 / 5.8**2), abs=0.03)
+    assert abs(float(levels[2][0][inner].mean()) - 100.0) < 1.0
+
+
+def test_texture_options_are_checked(scan, result):
+    """A kernel or blurs the texture does not offer: a clear error naming them."""
+    with pytest.raises(ValueError, match="kernel must be one of bilinear, bicubic"):
+        texture_reconstruction(scan[2], result, kernel="nearest")
+    with pytest.raises(ValueError, match="blur_levels_px must be blurs >= 0 px, the first 0"):
+        texture_reconstruction(scan[2], result, blur_levels_px=(1.0, 2.0))
