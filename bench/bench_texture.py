@@ -10,13 +10,16 @@ mug both cover, eroded by 2 px.
 
 Then the cost at default settings: the same mug, 48 views (three rings of 16), none
 held out, reconstructed as ``sfs-reconstruct`` does by default (the pixel-footprint grid,
-no colour) and textured from its own views (:func:`texture_reconstruction`, 24 of them
-spread out, and all 48): the best of three runs of each, interleaved, in the same
-process, and the texture's peak resident memory above the process's before it
-(``/proc/self/statm`` sampled every 2 ms, in the first runs on this mesh after one on a
-coarse mesh loaded the code: 24 views, then 48, which reuses what the first freed).
+refined below the hull from the views' colours, no vertex colour; and the hull alone, as
+``--no-refine``) and the refined mesh textured from its own views
+(:func:`texture_reconstruction`, 24 of them spread out, and all 48): the best of three
+runs of each, interleaved, in the same process, and the texture's peak resident memory
+above the process's before it (``/proc/self/statm`` sampled every 2 ms, in the first
+runs on this mesh after one on a coarse mesh loaded the code: 24 views, then 48, which
+reuses what the first freed).
 
-Run: ``python -m bench.bench_texture``; ``python -m bench.bench_texture --picture PNG``
+Run: ``python -m bench.bench_texture`` (``--cost``: the cost alone);
+``python -m bench.bench_texture --picture PNG``
 writes the docs' picture of a textured model (:func:`picture`).
 """
 
@@ -107,24 +110,27 @@ def cost_of_48_views(mug) -> None:
         view_set = _session(Path(tmp), mug, captures)
         small = reconstruct(view_set, ReconstructionParams(resolution=40))
         texture_reconstruction(view_set, small)                         # code loaded
-        result = reconstruct(view_set, ReconstructionParams())
+        # sfs-reconstruct's defaults: refined below the hull where the views carry colour.
+        default, hull = ReconstructionParams(refine=True), ReconstructionParams()
+        result = reconstruct(view_set, default)
         peaks = {views: timed_peak(lambda: texture_reconstruction(
             view_set, result, max_views=views))[2] for views in (24, 48)}
-        # Best of REPEATS, the two interleaved: the machine's other load comes and goes.
-        mesh_s, texture_s = {}, {}
+        # Best of REPEATS, all interleaved: the machine's other load comes and goes.
+        mesh_s, hull_s, texture_s = math.inf, math.inf, {}
         for _ in range(REPEATS):
-            mesh_s = min(mesh_s or math.inf, timed_peak(
-                lambda: reconstruct(view_set, ReconstructionParams()))[1])
+            mesh_s = min(mesh_s, timed_peak(lambda: reconstruct(view_set, default))[1])
+            hull_s = min(hull_s, timed_peak(lambda: reconstruct(view_set, hull))[1])
             for views in (24, 48):
                 textured, seconds, peak = timed_peak(
                     lambda: texture_reconstruction(view_set, result, max_views=views))
                 texture_s[views] = min(texture_s.get(views, math.inf), seconds)
         for views in (24, 48):
             textured, peak = texture_reconstruction(view_set, result, max_views=views), peaks[views]
-            print(f"48 views, {len(result.faces)} faces: reconstruction {mesh_s:.2f} s; texture "
-                  f"from {views} views {texture_s[views]:.2f} s "
-                  f"({texture_s[views] / mesh_s:.2f} x the "
-                  f"reconstruction; {({k: round(v, 2) for k, v in textured.stats['seconds'].items()})}), "  # noqa: E501
+            print(f"48 views, {len(result.faces)} faces: reconstruction {mesh_s:.2f} s (the "
+                  f"hull alone {hull_s:.2f} s); texture from {views} views {texture_s[views]:.2f} s "
+                  f"({texture_s[views] / mesh_s:.2f} x the reconstruction, "
+                  f"{texture_s[views] / hull_s:.2f} x the hull's; "
+                  f"{({k: round(v, 2) for k, v in textured.stats['seconds'].items()})}), "
                   f"peak {peak / 2**20:.0f} MiB above the process's, atlas "
                   f"{textured.stats['atlas_size']}")
 
@@ -193,5 +199,7 @@ if __name__ == "__main__":
 
     if sys.argv[1:2] == ["--picture"]:
         picture(Path(sys.argv[2]))
+    elif sys.argv[1:2] == ["--cost"]:
+        cost_of_48_views(make_object("mug"))
     else:
         main()

@@ -46,9 +46,9 @@ def test_temple_texture_and_vertex_colours_in_held_out_views(tmp_path, capsys):
     assert colour["views"] == ["templeSR0003.png", "templeSR0008.png", "templeSR0013.png"]
     print(f"temple, held out: texture {colour['texture_db']:.2f} dB, vertex colours "
           f"{colour['vertex_colours_db']:.2f} dB")
-    # Measured 18.2 dB against 18.5: the texture is NOT above the vertex colours here. The
-    # hull is not the temple (its columns and steps are concave), so the views' detail
-    # lands a few pixels off in a view 22.5 degrees away; the vertex colours, blurred over
-    # faces of 1-2 pixels, are nearer in PSNR than the texture's sharper blend.
-    assert colour["texture_db"] > colour["vertex_colours_db"] - 0.75
+    # Measured 18.83 dB against 18.76. The mesh is not the temple (its columns and steps
+    # are concave), so a view 22.5 degrees away sees the views' detail a few pixels off:
+    # there the views, left out one by one, predict one another best blurred, and the
+    # texture blurs its blend as far (unblurred, it was 18.25 dB).
+    assert colour["texture_db"] > colour["vertex_colours_db"]
     assert colour["texture_db"] > 15.0

@@ -26,8 +26,9 @@ from sfs_ros.core.render import rasterize_depth, rasterize_silhouette, render_im
 from sfs_ros.core.simulation.objects import fine_color_at
 from sfs_ros.core.simulation.synthetic import carving_box, simulate_scan
 from sfs_ros.core.texture import TexturedMesh, texture_mesh, texture_reconstruction
+from sfs_ros.core.texture.agreement import blurred_views
 from sfs_ros.core.texture.evaluation import held_out_psnr
-from sfs_ros.core.texture.levelling import seam_edges
+from sfs_ros.core.texture.levelling import interpolate, seam_edges
 from sfs_ros.core.texture.selection import face_neighbours
 
 from conftest import TEST_PLAN, TEST_RIG
@@ -95,14 +96,14 @@ def test_texture_beats_vertex_colours_in_held_out_views(mug, scan, result, textu
                              pixel_colors=textured.colour_at)
     vertex = held_out_error(mug, captures, result.vertices, result.faces,
                             vertex_colors=result.vertex_colors)
-    # Measured 17.9 against 27.8 grey levels. The pattern's 5 mm period spans 5.8 px, so
+    # Measured 17.4 against 27.8 grey levels. The pattern's 5 mm period spans 5.8 px, so
     # a tenth of a pixel of misregistration (the hull is not the mug, the views' angles
     # are off by 3 mrad) and resampling twice cost the texture most of its error; the
     # vertices, 2-3 mm apart, cannot hold the pattern at all. (Deterministic: seeded.)
     assert texture < 0.8 * vertex
     assert texture < 23.0
     # The same as PSNR inside the true silhouette (eroded by 2 px, as above): measured
-    # 19.0 dB against 16.4 on this grid (and 19.1 against 18.9 at the pixel footprint,
+    # 19.05 dB against 16.40 on this grid (and 19.1 against 18.9 at the pixel footprint,
     # doc/benchmarks.md).
     texture_db, vertex_db = (
         np.mean([held_out_psnr(vertices, faces, camera_of(captures[i]), captures[i].image,
@@ -111,6 +112,8 @@ def test_texture_beats_vertex_colours_in_held_out_views(mug, scan, result, textu
         for vertices, faces, colouring in (
             (textured.vertices, textured.faces, {"pixel_colors": textured.colour_at}),
             (result.vertices, result.faces, {"vertex_colors": result.vertex_colors})))
+    print(f"held out: texture {texture:.1f} / vertex colours {vertex:.1f} grey levels, "
+          f"{texture_db:.2f} / {vertex_db:.2f} dB")
     assert texture_db > vertex_db + 1.5, (texture_db, vertex_db)
 
 
@@ -272,3 +275,55 @@ def test_the_viewer_draws_the_texture(tmp_path):
         point *= 0.05 / np.linalg.norm(point)
         col, row = np.rint(project(point, vertices)[0]).astype(int)
         assert dominant(image, channel)[row - 2:row + 3, col - 2:col + 3].all(), (x, channel)
+
+
+def test_bicubic_reads_a_fine_pattern_between_the_pixels_nearer_than_bilinear():
+    """A sine of 5.8 px a period (the pattern's in the tests' views) sampled at the pixel
+    centres, read at points between them: straight lines from pixel to pixel cut its
+    crests short by up to ``85 (1 - cos(pi / 5.8)) = 12.3`` grey levels; the cubic
+    follows the curve."""
+    x = np.arange(64.0)
+    row = 100.0 + 85.0 * np.sin(2 * np.pi * x / 5.8)
+    image = np.repeat(np.repeat(row[None, :, None], 8, axis=0), 3, axis=2).astype(np.float32)
+    px = np.arange(10.0, 50.0, 0.37)
+    py = np.full(len(px), 4.0)
+    truth = 100.0 + 85.0 * np.sin(2 * np.pi * px / 5.8)
+    error = {kernel: interpolate(image, px, py, kernel=kernel)[:, 0] - truth
+             for kernel in ("bilinear", "bicubic")}
+    rms = {kernel: float(np.sqrt(np.mean(e * e))) for kernel, e in error.items()}
+    # Measured 11.7 (max) and 6.2 (rms) bilinear, 3.3 and 1.6 bicubic.
+    assert 10.0 < np.abs(error["bilinear"]).max() < 12.4
+    assert rms["bicubic"] < 0.35 * rms["bilinear"], rms
+    # A ramp is read exactly by either, to OpenCV's 1/32 px steps of the weights (3 grey
+    # levels a pixel: 0.1 at most, twice that for the cubic's four weights).
+    ramp = np.repeat(np.repeat((3.0 * x)[None, :, None], 8, axis=0), 3, axis=2)
+    for kernel in ("bilinear", "bicubic"):
+        read = interpolate(ramp.astype(np.float32), px, py, kernel=kernel)[:, 0]
+        assert np.abs(read - 3.0 * px).max() < 0.2
+    with pytest.raises(ValueError, match="kernel must be one of bilinear, bicubic"):
+        interpolate(image, px, py, kernel="nearest")
+
+
+def test_blurred_views_keep_the_image_at_zero_and_its_mean_when_blurred():
+    """Level 0 is the image itself; a Gaussian keeps a constant and the mean of a pattern
+    well inside the image, and takes the pattern's contrast down."""
+    x = np.arange(64.0)
+    row = 100.0 + 85.0 * np.sin(2 * np.pi * x / 5.8)
+    image = np.repeat(np.repeat(row[None, :, None], 64, axis=0), 3, axis=2).astype(np.float32)
+    levels = blurred_views([image], (0.0, 1.0, 4.0))
+    assert levels[0][0] is image
+    inner = (slice(16, 48), slice(16, 48))
+    contrast = [float(level[0][inner].std()) for level in levels]
+    assert contrast[0] > contrast[1] > contrast[2]
+    # A 5.8 px sine under a Gaussian of 1 px keeps exp(-2 pi^2 / 5.8^2) = 0.56 of its
+    # amplitude (the sampled sine's mean over whole periods: within a grey level).
+    assert contrast[1] / contrast[0] == pytest.approx(np.exp(-2 * np.pi**2 / 5.8**2), abs=0.03)
+    assert abs(float(levels[2][0][inner].mean()) - 100.0) < 1.0
+
+
+def test_texture_options_are_checked(scan, result):
+    """A kernel or blurs the texture does not offer: a clear error naming them."""
+    with pytest.raises(ValueError, match="kernel must be one of bilinear, bicubic"):
+        texture_reconstruction(scan[2], result, kernel="nearest")
+    with pytest.raises(ValueError, match="blur_levels_px must be blurs >= 0 px, the first 0"):
+        texture_reconstruction(scan[2], result, blur_levels_px=(1.0, 2.0))

@@ -7,7 +7,8 @@ for a real one, eroded by ``erode_px`` pixels (outline pixels mix object and bac
 a real image). Pixels of the region the mesh misses are drawn as the backdrop, so a
 wrong shape costs too. :func:`nearest_view_texture` is the baseline a texture is judged
 against: every face projected from the view it faces most squarely, with no visibility
-test, no seam smoothing and no levelling. :func:`held_out_colour_psnr` measures a
+test, no seam smoothing and no levelling, each view read bilinearly as a renderer's
+projective texture reads it. :func:`held_out_colour_psnr` measures a
 reconstruction's texture and vertex colours in the views it held out.
 """
 
@@ -95,12 +96,13 @@ def nearest_view_labels(vertices: np.ndarray, faces: np.ndarray,
 def nearest_view_texture(vertices, faces, images: Sequence, cameras: Sequence[Camera], *,
                          max_size: int = 4096) -> TexturedMesh:
     """The baseline texture (module docstring): each face projected from
-    :func:`nearest_view_labels`'s view, in the same atlas as
+    :func:`nearest_view_labels`'s view, read bilinearly, in the same atlas as
     :func:`~.textured.texture_mesh`'s (``images`` (H, W, 3) uint8 on ideal ``cameras``)."""
     vertices, faces = as_mesh_arrays(vertices, faces)
     labels = nearest_view_labels(vertices, faces, list(cameras))
     return textured_from_labels(vertices, faces, labels, face_neighbours(faces), images,
-                                list(cameras), level=False, max_size=max_size)
+                                list(cameras), level=False, max_size=max_size,
+                                kernel="bilinear")
 
 
 def held_out_colour_psnr(view_set, result, textured: TexturedMesh | None = None, *,

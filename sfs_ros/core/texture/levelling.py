@@ -32,8 +32,8 @@ from scipy.sparse.linalg import lsqr
 from ..geometry.camera import Camera
 from .selection import towards_camera
 
-__all__ = ["DARK", "FRONTAL_COS", "bilinear", "corner_colours", "sample_image",
-           "seam_edges", "seam_offsets", "view_gains"]
+__all__ = ["COMPARED_FACES", "DARK", "FRONTAL_COS", "KERNELS", "corner_colours", "interpolate",
+           "sample_image", "seam_edges", "seam_offsets", "view_gains"]
 
 #: Samples darker than this (grey levels, any channel) are not compared: their ratio is
 #: mostly noise.
@@ -43,29 +43,39 @@ SEAM_SMOOTHING = 10
 #: Faces a view sees more obliquely than acos of this are not compared: a pixel there
 #: spans much of the surface, and its colour is the mean of detail the other view resolves.
 FRONTAL_COS = 0.5
+#: The interpolations :func:`interpolate` offers, by name: OpenCV's flags.
+KERNELS = {"bilinear": cv2.INTER_LINEAR, "bicubic": cv2.INTER_CUBIC}
+#: About as many faces, evenly spread in the mesh's order, are compared for the gains.
+COMPARED_FACES = 20000
 #: Width of the maps OpenCV samples points with.
 _REMAP_WIDTH = 4096
 #: Weight of the term holding each view's log gain to 0, per seam edge of that view.
 _PRIOR = 0.01
 
 
-def bilinear(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+def interpolate(image: np.ndarray, x: np.ndarray, y: np.ndarray, *,
+                kernel: str = "bilinear") -> np.ndarray:
     """(k, 3) float32 ``image`` (H, W, 3) float32 at the points ``x, y`` (k,) pixels (pixel
-    ``(r, c)``'s centre at ``(c, r)``), bilinear, the border repeated beyond it."""
+    ``(r, c)``'s centre at ``(c, r)``), interpolated with ``kernel`` (:data:`KERNELS`:
+    bilinear, 2 x 2 pixels; bicubic, 4 x 4), the border repeated beyond it."""
+    if kernel not in KERNELS:
+        raise ValueError(f"kernel must be one of {', '.join(KERNELS)}, got {kernel!r}")
     k = len(x)
     rows = max(1, -(-k // _REMAP_WIDTH))            # OpenCV's maps are below 32767 a side
     maps = np.full((2, rows * _REMAP_WIDTH), -1.0, np.float32)
     maps[0, :k], maps[1, :k] = x, y
     out = cv2.remap(image, maps[0].reshape(rows, -1), maps[1].reshape(rows, -1),
-                    cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+                    KERNELS[kernel], borderMode=cv2.BORDER_REPLICATE)
     return out.reshape(-1, 3)[:k]
 
 
-def sample_image(image: np.ndarray, camera: Camera, points: np.ndarray) -> np.ndarray:
+def sample_image(image: np.ndarray, camera: Camera, points: np.ndarray, *,
+                 kernel: str = "bilinear") -> np.ndarray:
     """(k, 3) float32 colour of ``image`` (H, W, 3) float32 at the projections of ``points``
-    (k, 3) metres, bilinear (the border repeated for points projecting outside)."""
+    (k, 3) metres, interpolated with ``kernel`` (:func:`interpolate`; the border repeated for
+    points projecting outside)."""
     uv = np.nan_to_num(camera.project(points), nan=-1.0) if len(points) else np.zeros((0, 2))
-    return bilinear(image, uv[:, 0], uv[:, 1])
+    return interpolate(image, uv[:, 0], uv[:, 1], kernel=kernel)
 
 
 def seam_edges(faces: np.ndarray, labels: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
@@ -86,11 +96,14 @@ def view_gains(images: list, cameras: list[Camera], vertices: np.ndarray, faces:
     """(V, 3) float64 gain of each view and channel (module docstring): for every pair of
     views meeting at a seam edge (``seams``, :func:`seam_edges` of faces with ``labels``),
     the ratio of their mean colours over the faces both see (``seen`` (m, V) bool) within
-    acos :data:`FRONTAL_COS` of the face's normal, at the faces' centroids; ``images``
-    float32."""
+    acos :data:`FRONTAL_COS` of the face's normal, at the faces' centroids (about
+    :data:`COMPARED_FACES` of them); ``images`` float32."""
     n_views = len(cameras)
     a, b = labels[seams[:, 0]], labels[seams[:, 1]]
     pairs = np.unique(np.column_stack([np.minimum(a, b), np.maximum(a, b)]), axis=0)
+    # Means over many faces: every so many of a large mesh's hold them as well.
+    step = max(1, len(faces) // COMPARED_FACES)
+    faces, seen = faces[::step], seen[::step]
     tri = vertices[faces]
     centroid = tri.mean(axis=1)
     normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])

@@ -91,7 +91,8 @@ def towards_camera(camera: Camera, points: np.ndarray) -> np.ndarray:
     if camera.orthographic:
         return np.broadcast_to(-camera.R[2], points.shape)
     to_camera = camera.center - points
-    return to_camera / np.maximum(np.linalg.norm(to_camera, axis=1, keepdims=True), 1e-300)
+    length = np.sqrt(np.einsum("kd,kd->k", to_camera, to_camera))
+    return to_camera / np.maximum(length, 1e-300)[:, None]
 
 
 def face_quality(vertices: np.ndarray, faces: np.ndarray, camera: Camera,

@@ -4,24 +4,26 @@ Each face is given one view (:mod:`.selection`: seen unhidden, frontal, near and
 neighbours from the same view where quality allows), the faces of a view make charts laid
 out as the view sees them (:mod:`.atlas`), the views' colours are levelled along the
 seams (:mod:`.levelling`), and every texel takes the colour at the texel's point of the
-face (bilinear) in the views that see the face fully, blended, each weighted by its
-quality relative to the face's best view to the power :data:`BLEND_POWER` (from
-:data:`BLEND_MIN` of it) and times its
-gain (with ``blend_power`` None: the face's one view, plus the levelling's seam offsets).
-One view per face puts the detail of that view alone, sharp, but wherever the mesh departs
-from the surface by a fraction of a millimetre that detail lands off in other directions;
-the blend keeps what the best views agree on, as sharp on a true mesh (within 0.4 dB of
-one view on the tests' true meshes, doc/benchmarks.md) and 1.5 dB nearer held-out views
-on a reconstruction. Texels around each chart repeat its
-border's colours (``padding`` of them) so that filtering does not bleed across a seam;
-the rest of the atlas is the texture's mean colour. Faces no view sees (the underside
-on the plate) take colours interpolated from their corners, each corner's colour the mean
-of its seen faces' or, for corners no view sees, harmonic interpolation along the edges
-(as the vertex colours do).
+face in the views that see the face fully (those that glimpse it, where none sees it
+fully), read bicubically (:data:`VIEW_KERNEL`), blended, each weighted by its quality
+relative to the face's best view to the power :data:`BLEND_POWER` (from
+:data:`BLEND_MIN` of it) and times its gain, and blurred as far as the views, left out
+one by one, predict one another best (:mod:`.agreement`); with ``blend_power`` None:
+the face's one view, plus the levelling's seam offsets. One view per face puts the
+detail of that view alone, sharp, but wherever the mesh departs from the surface by a
+fraction of a millimetre that detail lands off in other directions; the blend keeps what
+the views agree on and averages their noise: unblurred on a true mesh, where the views
+agree, blurred where the mesh departs from the surface (doc/benchmarks.md, the atlas).
+Texels around each chart repeat its border's colours (``padding`` of them) so that
+filtering does not bleed across a seam; the rest of the atlas is the texture's mean
+colour. Faces no view sees (the underside on the plate) take colours interpolated from
+their corners, each corner's colour the mean of its seen faces' or, for corners no view
+sees, harmonic interpolation along the edges (as the vertex colours do).
 """
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -34,10 +36,12 @@ from ..geometry.camera import Camera
 from ..meshing.colour import check_image, fill_from_neighbours
 from ..render import as_mesh_arrays
 from ..workers import map_in_threads
+from .agreement import BLUR_LEVELS_PX, blurred_views, face_blur
 from .atlas import Atlas, build_atlas
 from .levelling import (
-    bilinear,
+    KERNELS,
     corner_colours,
+    interpolate,
     sample_image,
     seam_edges,
     seam_offsets,
@@ -52,8 +56,8 @@ from .selection import (
     sharpness,
 )
 
-__all__ = ["BLEND_MIN", "BLEND_POWER", "LEVELLING_BLUR_PX", "TEXELS_PER_PIXEL", "TexturedMesh",
-           "texture_mesh", "textured_from_labels"]
+__all__ = ["BLEND_MIN", "BLEND_POWER", "LEVELLING_BLUR_PX", "TEXELS_PER_PIXEL", "VIEW_KERNEL",
+           "TexturedMesh", "texture_mesh", "textured_from_labels"]
 
 #: Texels per pixel of a face's view along each side, by default: at 1 the texture is
 #: the views' pixels themselves, but a renderer's bilinear look-ups at a chart's border
@@ -66,7 +70,11 @@ TEXELS_PER_PIXEL = 2.0
 BLEND_POWER = 1.0
 #: Views below this share of a face's best quality are not blended into it (they would
 #: add little for a sample each).
-BLEND_MIN = 0.25
+BLEND_MIN = 0.1
+#: How a texel's colour is read from a view's pixels, by default (:data:`.levelling.KERNELS`):
+#: bicubic, since a pattern a few pixels a period lies between the pixels' samples on a
+#: curve that straight lines from pixel to pixel cut short (doc/benchmarks.md, the atlas).
+VIEW_KERNEL = "bicubic"
 #: Standard deviation (pixels) of the Gaussian blur of the images the levelling compares.
 LEVELLING_BLUR_PX = 2.0
 
@@ -108,8 +116,8 @@ class TexturedMesh:
         with ``barycentric`` (k, 3) coordinates: what a renderer draws there."""
         uv = np.einsum("kc,kcd->kd", barycentric, self.uv[self.faces[face_index]])
         height, width = self.texture.shape[:2]
-        return bilinear(self.texture.astype(np.float32), uv[:, 0] * width - 0.5,
-                        (1.0 - uv[:, 1]) * height - 0.5)
+        return interpolate(self.texture.astype(np.float32), uv[:, 0] * width - 0.5,
+                           (1.0 - uv[:, 1]) * height - 0.5)
 
     def vertex_colours(self) -> np.ndarray:
         """(k, 3) uint8 the texture at each vertex (for drawings without textures)."""
@@ -135,46 +143,59 @@ def _dilate(image: np.ndarray, filled: np.ndarray, steps: int) -> None:
 
 
 def _texels(atlas: Atlas, vertices, faces, labels, images, cameras, gains, offsets,
-            vertex_colour, blend=None) -> np.ndarray:
-    """(H, W, 3) float32 atlas: each texel of a face its view's colour at the texel's point,
-    times the view's gain plus the interpolated seam offsets (``offsets`` (m, 3, 3)); of
-    an unseen face, ``vertex_colour`` (n, 3) interpolated."""
+            vertex_colour, kernel: str, blend=None, blur=None) -> np.ndarray:
+    """(H, W, 3) float32 atlas: each texel of a face its view's colour at the texel's point
+    (interpolated with ``kernel``), times the view's gain plus the interpolated seam offsets
+    (``offsets`` (m, 3, 3)), or the blend of its views (:func:`_blend_views`); of an unseen
+    face, ``vertex_colour`` (n, 3) interpolated."""
     image = np.zeros((*atlas.shape, 3), np.float32)
     rows, cols = np.nonzero(atlas.face_index >= 0)
     face = atlas.face_index[rows, cols]
     bary = atlas.barycentric[rows, cols]
     colour = np.einsum("kc,kcd->kd", bary, vertex_colour[faces[face]])
     label = labels[face]
-    for view in np.unique(label[label >= 0]):
-        mine = np.flatnonzero(label == view)
-        points = np.einsum("kc,kcd->kd", bary[mine], vertices[faces[face[mine]]])
-        colour[mine] = (gains[view] * sample_image(images[view], cameras[view], points)
-                        + np.einsum("kc,kcd->kd", bary[mine], offsets[face[mine]]))
+    single = label >= 0
     if blend is not None:
-        _blend_views(colour, face, bary, vertices, faces, label, images, cameras, gains, blend)
+        single &= ~_blend_views(colour, face, bary, vertices, faces, blend, blur, images,
+                                cameras, gains, kernel)
+    for view in np.unique(label[single]):
+        mine = np.flatnonzero(single & (label == view))
+        points = np.einsum("kc,kcd->kd", bary[mine], vertices[faces[face[mine]]])
+        colour[mine] = (gains[view] * sample_image(images[0][view], cameras[view], points,
+                                                   kernel=kernel)
+                        + np.einsum("kc,kcd->kd", bary[mine], offsets[face[mine]]))
     image[rows, cols] = colour
     return image
 
 
-def _blend_views(colour, face, bary, vertices, faces, label, images, cameras, gains,
-                 blend) -> None:
-    """Replace ``colour`` (k, 3) of texels of seen faces by the blend of every view with a
-    weight for their face (``blend`` (m, V), 0: not blended), each view's colour times its
-    gain."""
-    seen = label >= 0
-    total = np.zeros((int(seen.sum()), 3))
-    weight_sum = np.zeros(len(total))
-    index = np.flatnonzero(seen)
-    points = np.einsum("kc,kcd->kd", bary[index], vertices[faces[face[index]]])
+def _blend_views(colour, face, bary, vertices, faces, blend, blur, images, cameras, gains,
+                 kernel: str) -> np.ndarray:
+    """Set ``colour`` (k, 3) of texels (of faces ``face`` (k,), at ``bary`` (k, 3)) to the
+    blend of every view with a weight for their face (``blend`` (m, V), 0: not blended),
+    each view's colour (``images[blur[face]][view]``, ``blur`` (m,) the face's level of
+    :func:`.agreement.blurred_views`) times its gain; returns (k,) bool the texels set."""
+    blended = np.flatnonzero(blend.any(axis=1)[face])
+    total = np.zeros((len(blended), 3))
+    weight_sum = np.zeros(len(blended))
+    points = np.einsum("kc,kcd->kd", bary[blended], vertices[faces[face[blended]]])
+    level = blur[face[blended]]
     for view in range(blend.shape[1]):
-        weight = blend[face[index], view]
+        weight = blend[face[blended], view]
         mine = np.flatnonzero(weight > 0)
-        if mine.size:
-            total[mine] += weight[mine, None] * gains[view] * sample_image(
-                images[view], cameras[view], points[mine])
-            weight_sum[mine] += weight[mine]
-    blended = weight_sum > 0
-    colour[index[blended]] = total[blended] / weight_sum[blended, None]
+        if not mine.size:
+            continue
+        pixels = np.nan_to_num(cameras[view].project(points[mine]), nan=-1.0)
+        colour_here = np.empty((len(mine), 3), np.float32)
+        for blurred in np.unique(level[mine]):
+            at = level[mine] == blurred
+            colour_here[at] = interpolate(images[blurred][view], pixels[at, 0], pixels[at, 1],
+                                          kernel=kernel)
+        total[mine] += weight[mine, None] * gains[view] * colour_here
+        weight_sum[mine] += weight[mine]
+    colour[blended] = total / weight_sum[:, None]
+    out = np.zeros(len(face), bool)
+    out[blended] = True
+    return out
 
 
 def _split_by_chart(faces: np.ndarray, atlas: Atlas, n_vertices: int) -> tuple:
@@ -228,7 +249,9 @@ def texture_mesh(vertices, faces, images: Sequence, cameras: Sequence[Camera], *
                  masks: Sequence | None = None, closed: bool = False, level: bool = True,
                  smoothness: float = SMOOTHNESS, texels_per_pixel: float = TEXELS_PER_PIXEL,
                  max_size: int = 4096, padding: int = 2,
-                 blend_power: float | None = BLEND_POWER) -> TexturedMesh:
+                 blend_power: float | None = BLEND_POWER,
+                 kernel: str = VIEW_KERNEL,
+                 blur_levels_px: Sequence[float] = BLUR_LEVELS_PX) -> TexturedMesh:
     """Texture a closed mesh from the views that see it (module docstring).
 
     Parameters
@@ -251,6 +274,12 @@ def texture_mesh(vertices, faces, images: Sequence, cameras: Sequence[Camera], *
         Largest side of the atlas and texels between charts, each side.
     blend_power : float or None
         Weights of the views blended into each texel (module docstring); None: one view.
+    kernel : str
+        How the views are read at the texels' points (:data:`.levelling.KERNELS`; default
+        :data:`VIEW_KERNEL`).
+    blur_levels_px : sequence of float >= 0
+        The blurs a blended face may take where its views disagree (:mod:`.agreement`),
+        the first 0.
 
     Returns
     -------
@@ -274,10 +303,13 @@ def texture_mesh(vertices, faces, images: Sequence, cameras: Sequence[Camera], *
     if blend_power is not None:
         best = np.maximum(quality.max(axis=1, keepdims=True), 1e-300)
         relative = quality / best
-        blend = np.where(full & (relative >= BLEND_MIN), relative ** blend_power, 0.0)
+        # A face no view sees fully blends the views that glimpse it.
+        support = np.where(full.any(axis=1, keepdims=True), full, quality > 0)
+        blend = np.where(support & (relative >= BLEND_MIN), relative ** blend_power, 0.0)
     textured = textured_from_labels(vertices, faces, labels, neighbours, images, cameras,
                                     seen=full, level=level, blend=blend, texels_per_pixel=texels_per_pixel,
-                                    max_size=max_size, padding=padding)
+                                    max_size=max_size, padding=padding, kernel=kernel,
+                                    blur_levels_px=blur_levels_px)
     textured.stats.update(labelling_sweeps=int(sweeps), smoothness=float(smoothness))
     textured.stats["seconds"] = {"selection": selection_s, **textured.stats["seconds"]}
     return textured
@@ -288,7 +320,9 @@ def textured_from_labels(vertices: np.ndarray, faces: np.ndarray, labels: np.nda
                          seen: np.ndarray | None = None, level: bool = True,
                          blend: np.ndarray | None = None,
                          texels_per_pixel: float = TEXELS_PER_PIXEL,
-                         max_size: int = 4096, padding: int = 2) -> TexturedMesh:
+                         max_size: int = 4096, padding: int = 2,
+                         kernel: str = VIEW_KERNEL,
+                         blur_levels_px: Sequence[float] = BLUR_LEVELS_PX) -> TexturedMesh:
     """The atlas, levelling and texels of :func:`texture_mesh` for faces whose views are
     chosen: ``labels`` (m,) int64 (-1: none), ``neighbours`` (m, 3)
     (:func:`.selection.face_neighbours`); ``vertices`` (n, 3) float64, ``faces`` (m, 3)
@@ -299,6 +333,13 @@ def textured_from_labels(vertices: np.ndarray, faces: np.ndarray, labels: np.nda
     offsets); the other arguments as there."""
     if level and seen is None:
         raise ValueError("levelling needs the faces each view sees (seen)")
+    if kernel not in KERNELS:
+        raise ValueError(f"kernel must be one of {', '.join(KERNELS)}, got {kernel!r}")
+    blur_levels_px = tuple(float(sigma) for sigma in blur_levels_px)
+    if (not blur_levels_px or blur_levels_px[0] != 0.0
+            or not all(math.isfinite(sigma) and sigma >= 0 for sigma in blur_levels_px)):
+        raise ValueError(f"blur_levels_px must be blurs >= 0 px, the first 0, got "
+                         f"{blur_levels_px}")
     seconds, start = {}, time.perf_counter()
     atlas = build_atlas(vertices, faces, labels, neighbours, cameras,
                         texels_per_pixel=texels_per_pixel, max_size=max_size, padding=padding)
@@ -308,8 +349,16 @@ def textured_from_labels(vertices: np.ndarray, faces: np.ndarray, labels: np.nda
     gains, offsets, vertex = _levelled(floats, cameras, vertices, faces, labels, seams, seen,
                                        level, offsets=blend is None)
     seconds["levelling"] = time.perf_counter() - start - sum(seconds.values())
+    blur = None
+    if blend is not None:
+        floats = blurred_views(floats, blur_levels_px)
+        blur = face_blur(face_samples(vertices, faces)[0][:, :1], blend, gains, floats, cameras,
+                         neighbours, kernel=kernel)
+    else:
+        floats = [floats]
+    seconds["agreement"] = time.perf_counter() - start - sum(seconds.values())
     image = _texels(atlas, vertices, faces, labels, floats, cameras, gains, offsets, vertex,
-                    blend)
+                    kernel, blend, blur)
     claimed = atlas.face_index >= 0
     _dilate(image, claimed.copy(), int(padding))
     source, new_faces, uv = _split_by_chart(faces, atlas, len(vertices))
@@ -319,6 +368,9 @@ def textured_from_labels(vertices: np.ndarray, faces: np.ndarray, labels: np.nda
              "atlas_size": [int(atlas.shape[1]), int(atlas.shape[0])],
              "atlas_use": float(claimed.mean()), "texels_per_pixel": atlas.texels_per_pixel,
              "levelled": bool(level), "gains": np.round(gains, 4).tolist(),
+             "blur_px": ({} if blur is None else
+                         {str(sigma): float(np.mean(blur[labels >= 0] == i))
+                          for i, sigma in enumerate(blur_levels_px)}),
              "seconds": seconds}
     return TexturedMesh(vertices=vertices[source], faces=new_faces, uv=uv,
                         texture=np.clip(np.rint(image), 0, 255).astype(np.uint8),
