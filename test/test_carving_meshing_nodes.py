@@ -3,6 +3,7 @@
 import json
 import signal
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -27,11 +28,11 @@ from sfs_ros.core.simulation.objects import make_object
 from sfs_ros.core.simulation.plan import ring_plan
 from sfs_ros.core.simulation.synthetic import carving_box, score_against_truth
 from sfs_ros.ros import capture_qos, result_qos
-from sfs_ros.ros.cell_client import wait_for_pictures
+from sfs_ros.ros.cell_client import CellClient, wait_for_pictures
 from sfs_ros.ros.convert import cloud_to_points, image_to_msg, joint_state, shape_to_mesh
 from sfs_ros.ros.names import DIAGNOSTICS, SERVICES
 
-from ros_harness import MESSAGE_TIMEOUT_S, NodeProcess, NodeUnderTest, keep_ours
+from ros_harness import MESSAGE_TIMEOUT_S, NAMESPACE, NodeProcess, NodeUnderTest, keep_ours
 from tolerances import MUG_IOU_29_VIEWS_MIN
 
 MODULE = "sfs_ros.nodes.carving_node"
@@ -403,3 +404,39 @@ def test_per_scan_settings_change_between_scans_and_bad_values_are_refused(scan,
     assert cell.last_values()["scan_views"] == str(len(PLAN))
     assert set_one("scan_name", "").successful                        # scan_NNN again
     assert cell.call("reset").success
+
+
+@pytest.fixture(scope="module")
+def meshing_just_restarted(cell, masks, params_file):
+    """A new scan of the mug's views; then the meshing node killed (SIGKILL) and another
+    started, not waited for (a module fixture: the new node outlives the test; the last of
+    the module's tests: the probe's clients are not matched with the new node)."""
+    assert cell.call("reset").success
+    for i, (theta, phi) in enumerate(PLAN):
+        cell.send(_stamp(500 + i), masks[i], theta, phi)
+    cell.probe.spin_until(lambda: all(_receipts(cell, _stamp(500 + i)) for i in range(len(PLAN))),
+                          what=f"the receipts of a new scan's {len(PLAN)} views",
+                          process=cell.process)
+    cell.meshing.process.send_signal(signal.SIGKILL)
+    assert cell.meshing.process.wait(timeout=30) == -signal.SIGKILL
+    cell.meshing.cleanup()
+    cell.meshing = NodeProcess(MESHING, params_file=params_file)
+
+
+def test_reconstruct_sent_at_once_to_a_restarted_meshing_node_is_answered_and_made_once(
+        meshing_just_restarted, cell):
+    """``CellClient.reconstruct`` called twice at once as soon as a restarted meshing node's
+    service shows (its endpoints may not be matched yet: a request then is lost, and the
+    client sends it again until answered). Both get the same answer, made once: the copies
+    that arrive after the first are answered as it was (one mesh written)."""
+    with CellClient(NAMESPACE, name="resending_client") as client, \
+            ThreadPoolExecutor(max_workers=2) as callers:
+        answers = list(callers.map(
+            lambda _: client.reconstruct(timeout_s=MESSAGE_TIMEOUT_S, pictures=False),
+            range(2)))
+    assert answers[0]["path"] == answers[1]["path"] and Path(answers[0]["path"]).is_file()
+    assert answers[0]["seconds"] == answers[1]["seconds"]     # one answer, given twice
+    assert answers[0]["views_used"] == len(PLAN)
+    output = cell.meshing.output()
+    assert output.count("mesh written to") == 1, output
+    assert "the same request again: answered as before" in output, output

@@ -27,6 +27,7 @@ from sfs_ros.cell_logic.held_images import HeldImages
 from sfs_ros.cell_logic.mesh_files import write_mesh
 from sfs_ros.cell_logic.mesh_options import MeshOptions, mesh_options
 from sfs_ros.cell_logic.meshing_status import MeshingStatus
+from sfs_ros.cell_logic.repeated_requests import RepeatedRequests, request_key
 from sfs_ros.core.meshing.decimate import decimate
 from sfs_ros.core.settings import COLOUR
 from sfs_ros.nodes.entry import run_node
@@ -117,6 +118,7 @@ class MeshingNode(Node):
         self._carve_client = self.create_client(CarveScan, TYPED_SERVICES["carve_scan"],
                                                 callback_group=ReentrantCallbackGroup())
         self._held = HeldImages(values["held_images_mb"] << 20)
+        self._repeats = RepeatedRequests()
         if self._held.max_bytes:
             self.create_subscription(ViewImage, VIEW_IMAGES, self._on_view_image,
                                      capture_qos(VIEW_IMAGE_DEPTH),
@@ -200,12 +202,21 @@ class MeshingNode(Node):
         carved = self._carved_scan(options, held_session, list(held))
         if isinstance(carved, str):
             return self._failed(carved)
+        # A request sent again (its first copy or answer lost): the answer made, not the
+        # mesh again, when the carving is of the same views.
+        key = request_key(options, carved.session_dir, carved.views_received)
+        repeated = self._repeats.recall(key)
+        if repeated is not None:
+            self.get_logger().info("the same request again: answered as before")
+            return repeated
         try:
             answer = self._worker.submit(lambda: self._mesh(carved, options, held_session,
                                                             held),
                                          name="mesh").result()
         except Exception as exc:  # noqa: BLE001 -- the worker reported it; the caller gets it
             answer = False, internal_error("mesh", exc), None
+        if answer[0]:
+            self._repeats.remember(key, answer)
         if self._after_answer is not None:
             self._answered.reset()
         return answer

@@ -58,6 +58,11 @@ READY = ("scan/start", "scan/cancel", "scan/resume", "reconstruct", "reset")
 
 #: Longest wait for the spinning thread to end at :meth:`CellClient.close`, s.
 CLOSE_S = 10.0
+#: Seconds without an answer after which :meth:`CellClient.reconstruct` sends its request
+#: again (then twice as long each time): a request sent to a meshing node just restarted,
+#: before it matched the client, is lost; the node answers a repeat with the answer it made
+#: (:mod:`sfs_ros.cell_logic.repeated_requests`), not with a second mesh.
+RECONSTRUCT_RESEND_S = 2.0
 #: How often :func:`wait_for_pictures` reads the report, s.
 PICTURE_POLL_S = 0.05
 #: States in which a scan is not under way (it waits for ``scan/resume``).
@@ -407,9 +412,12 @@ class CellClient:
         and ``texture`` ("yes" / "no"), ``output_name`` (each left out: the node's); the
         textured model follows the answer (:func:`wait_for_product`). With ``pictures`` the
         node answers once the picture, viewer and contact sheet are written too; without,
-        once the mesh and its report are (:func:`wait_for_pictures` waits for the rest)."""
+        once the mesh and its report are (:func:`wait_for_pictures` waits for the rest).
+        A request without an answer is sent again (:data:`RECONSTRUCT_RESEND_S`) until
+        ``timeout_s``."""
         request = Reconstruct.Request(wait_for_pictures=pictures, **options)
-        answer = call(self._reconstruct, request, timeout_s=timeout_s)
+        answer = call(self._reconstruct, request, timeout_s=timeout_s,
+                      resend_after_s=RECONSTRUCT_RESEND_S, keep_resending=True)
         if not answer.success:
             raise ScanFailed(answer.message)
         return mesh_summary(answer)

@@ -19,7 +19,7 @@ class ServiceError(RuntimeError):
 
 
 def call(client, request, *, timeout_s: float, cancelled: threading.Event | None = None,
-         resend_after_s: float | None = None):
+         resend_after_s: float | None = None, keep_resending: bool = False):
     """Call ``client`` with ``request``; the response, or :class:`ServiceError`.
 
     ``cancelled``, when set meanwhile, ends the wait early (ServiceError too).
@@ -27,7 +27,10 @@ def call(client, request, *, timeout_s: float, cancelled: threading.Event | None
     request again when no answer has come after this long. Fast DDS drops a
     response when the client's reply reader is not matched yet at the server
     (it waits 100 ms), which happens to a client just made ready on a loaded
-    machine; the first answer to come is taken.
+    machine; the first answer to come is taken. ``keep_resending``: then again
+    after twice as long each time, until the deadline (for a server that knows a
+    request sent again, however long its work takes: a request sent to a server just
+    restarted may be lost too).
     """
     deadline = time.monotonic() + timeout_s
     while not client.service_is_ready():
@@ -46,7 +49,8 @@ def call(client, request, *, timeout_s: float, cancelled: threading.Event | None
         futures.append(future)
 
     send()
-    resend_at = None if resend_after_s is None else time.monotonic() + resend_after_s
+    wait_s = resend_after_s
+    resend_at = None if wait_s is None else time.monotonic() + wait_s
     while not answered.wait(0.05):
         now = time.monotonic()
         if now > deadline or (cancelled is not None and cancelled.is_set()):
@@ -57,7 +61,8 @@ def call(client, request, *, timeout_s: float, cancelled: threading.Event | None
             raise ServiceError(f"call of {client.srv_name} {why}")
         if resend_at is not None and now > resend_at:
             send()
-            resend_at = None
+            wait_s *= 2
+            resend_at = now + wait_s if keep_resending else None
     done = next(f for f in futures if f.done())
     for future in futures:
         if future is not done:
