@@ -107,6 +107,27 @@ def test_thumbnails_cross_for_the_contact_sheet(halves, mug_views):
     assert np.abs(got.astype(int) - image).mean() <= THUMBNAIL_ERROR_MAX
 
 
+def test_thumbnails_of_the_images_the_receiver_holds_are_left_out_and_its_own_taken(
+        halves, mug_views):
+    """The receiver makes the thumbnails of the images it holds (as they come): the carved
+    scan carries only the others'."""
+    _, carved, _, _, _ = halves
+    held_name, other = carved.views[3].name, carved.views[5].name
+    images = {v.name: thumbnail(read_image(v.image_path)) for v in mug_views.views
+              if v.name in (held_name, other)}
+    msg = carved_scan_to_msg(carved, replace(HAND_OVER, thumbnails=images), stamp=_stamp(),
+                             held=frozenset({held_name}))
+    sent = {v.name: len(v.thumbnail_jpeg) for v in msg.views}
+    assert sent[held_name] == 0 and sent[other] > 0
+    own = np.full_like(images[held_name], 7)
+    _, hand_over = carved_scan_from_msg(msg, {held_name: carved.colour_images[0]},
+                                        {held_name: own})
+    assert set(hand_over.thumbnails) == {held_name, other}
+    assert hand_over.thumbnails[held_name] is own
+    assert np.abs(hand_over.thumbnails[other].astype(int) - images[other]).mean() \
+        <= THUMBNAIL_ERROR_MAX
+
+
 def test_images_the_receiver_holds_are_left_out_and_the_mesh_is_the_same(halves):
     """The meshing node holds the colour images the carving node sent as the views were
     stored: the carved scan leaves those out, and meshing it with them gives the mesh

@@ -14,15 +14,19 @@ import threading
 
 import numpy as np
 
+from .mesh_files import thumbnail
+
 __all__ = ["HeldImages"]
 
 
 class HeldImages:
-    """Colour images of one scan, ``{view name: (H, W, 3) uint8}``, at most ``max_bytes``.
+    """Colour images of one scan, ``{view name: (H, W, 3) uint8}``, at most ``max_bytes``,
+    and their thumbnails for the contact sheet (:func:`sfs_ros.cell_logic.mesh_files.thumbnail`,
+    made as the images come, so that the carved scan need not carry them either).
 
     Thread-safe: images are added from a subscription while a reconstruction reads them.
     An image of another scan (``session_dir``) replaces those held; past ``max_bytes``
-    the oldest images are given up.
+    the oldest images are given up (their thumbnails kept: a few kB each).
     """
 
     def __init__(self, max_bytes: int):
@@ -30,17 +34,26 @@ class HeldImages:
         self._lock = threading.Lock()
         self._session = ""
         self._images: dict[str, np.ndarray] = {}
+        self._thumbnails: dict[str, np.ndarray] = {}
 
     def add(self, session_dir: str, name: str, rgb: np.ndarray) -> None:
         """Hold view ``name``'s image of the scan ``session_dir``."""
+        small = thumbnail(rgb)
         with self._lock:
             if session_dir != self._session:
-                self._session, self._images = session_dir, {}
+                self._session, self._images, self._thumbnails = session_dir, {}, {}
             self._images.pop(name, None)
             self._images[name] = rgb
+            self._thumbnails[name] = small
             total = sum(image.nbytes for image in self._images.values())
             while total > self.max_bytes and self._images:
                 total -= self._images.pop(next(iter(self._images))).nbytes
+
+    def thumbnails(self, session_dir: str) -> dict[str, np.ndarray]:
+        """{view name: (h, w, 3) uint8} of the images of the scan ``session_dir`` that came
+        (empty for another scan); the dict is the caller's own."""
+        with self._lock:
+            return dict(self._thumbnails) if session_dir == self._session else {}
 
     def snapshot(self) -> tuple[str, dict[str, np.ndarray]]:
         """``(scan folder, {view name: image})`` held now; the dict is the caller's own."""

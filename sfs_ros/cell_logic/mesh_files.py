@@ -16,7 +16,6 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from functools import partial
 from pathlib import Path
 
 import cv2
@@ -95,8 +94,14 @@ def _sheet_views(carved: CarvedScan, thumbnails: dict) -> SheetViews:
     """Every segmented view: its thumbnail, else its image where the carved scan has one
     (the views that colour the mesh), else its mask; its mask and angles."""
     images = dict(zip(carved.colour_views, carved.colour_images))
+
+    def image(i: int, name: str, mask: np.ndarray) -> np.ndarray:
+        if name in thumbnails:
+            return thumbnails[name]
+        return images[i] if i in images else mask_to_rgb(mask)
+
     return SheetViews(names=[v.name for v in carved.views],
-                      images=[thumbnails.get(v.name, images.get(i, mask_to_rgb(m)))
+                      images=[image(i, v.name, m)
                               for i, (v, m) in enumerate(zip(carved.views, carved.masks))],
                       masks=list(carved.masks), angles_rad=[v.angles_rad for v in carved.views])
 
@@ -139,13 +144,18 @@ def write_mesh(carved: CarvedScan, hand_over: HandOver, output_dir, name: str | 
     result = mesh_scan(carved)
     colours = result.vertex_colors
     picture_files = dict(preview=paths["preview"], html=paths["html"],
-                         contact_sheet=paths["contact_sheet"],
-                         sheet_views=sheet_views or _sheet_views(carved, hand_over.thumbnails))
+                         contact_sheet=paths["contact_sheet"])
+
+    def views_shown() -> SheetViews:   # made when the pictures are (after the answer)
+        return sheet_views or _sheet_views(carved, hand_over.thumbnails)
+
     written = write_result(result, paths["mesh"], vertex_colors=colours, report=paths["report"],
                            extra={"session": hand_over.session_dir}, within=root,
-                           **(picture_files if pictures else {}))
-    due = None if pictures else partial(add_pictures, written, result, vertex_colors=colours,
-                                        within=root, **picture_files)
+                           **(dict(picture_files, sheet_views=views_shown()) if pictures
+                              else {}))
+    due = None if pictures else lambda: add_pictures(
+        written, result, vertex_colors=colours, within=root, sheet_views=views_shown(),
+        **picture_files)
     report = result.report
     mesh, views = report["mesh"], report["views"]
     summary = {"path": str(paths["mesh"]), "report_path": str(paths["report"]),

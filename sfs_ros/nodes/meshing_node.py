@@ -254,7 +254,8 @@ class MeshingNode(Node):
         and the products (the textured model, the refined mesh) are queued to follow the
         answer."""
         try:
-            carved, hand_over = carved_scan_from_msg(msg, held)
+            carved, hand_over = carved_scan_from_msg(msg, held,
+                                                     self._held.thumbnails(held_session))
             # Images asked for the texture alone do not colour the mesh.
             meshed = carved if options.coloured(self._values["colour"]) \
                 else without_colour(carved)

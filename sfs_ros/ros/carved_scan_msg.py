@@ -6,7 +6,7 @@ pixel; the mesher's input as it is (float32 band distances, float64 points); the
 that colour the mesh as rgb8 (sizes: ``bench/bench_handover.py``), but for those the
 receiver holds already (``held``: the carving node sends each view's image as it is
 stored, :func:`view_image_msg`); the hand-over's thumbnails, for the contact sheet only,
-as JPEG.
+as JPEG, but for the images the receiver holds (it makes those thumbnails itself).
 """
 
 from __future__ import annotations
@@ -108,7 +108,8 @@ def _mesher_fields(msg: CarvedScanMsg, mesher_input) -> None:
 def carved_scan_to_msg(carved: CarvedScan, hand_over: HandOver, *, stamp,
                        held=frozenset()) -> CarvedScanMsg:
     """The message of ``carved`` (its ``taken`` masks stay behind), stamped ``stamp``;
-    the images of the views named in ``held`` are left out (the receiver holds them)."""
+    the images of the views named in ``held``, and their thumbnails, are left out (the
+    receiver holds them)."""
     box = occupied_bounds(carved.occupancy)
     if box is None:
         raise ValueError("the carved hull is empty: nothing to hand over")
@@ -129,7 +130,9 @@ def carved_scan_to_msg(carved: CarvedScan, hand_over: HandOver, *, stamp,
     _mesher_fields(msg, carved.mesher_input)
     colours = {i: (m, image) for i, m, image in zip(carved.colour_views, carved.colour_masks,
                                                     carved.colour_images)}
-    msg.views = [_view_msg(view, mask, colours.get(i), hand_over.thumbnails.get(view.name),
+    # The receiver makes the thumbnails of the images it holds.
+    msg.views = [_view_msg(view, mask, colours.get(i),
+                           None if view.name in held else hand_over.thumbnails.get(view.name),
                            view.name in held)
                  for i, (view, mask) in enumerate(zip(carved.views, carved.masks))]
     msg.colour_views = _bytes(np.asarray(carved.colour_views, np.uint32), "I")
@@ -194,11 +197,13 @@ def _colour(view: CarvedView, width: int, height: int,
     return mask.copy(), image.reshape(height, width, 3).copy()
 
 
-def carved_scan_from_msg(msg: CarvedScanMsg,
-                         held: dict | None = None) -> tuple[CarvedScan, HandOver]:
+def carved_scan_from_msg(msg: CarvedScanMsg, held: dict | None = None,
+                         held_thumbnails: dict | None = None) -> tuple[CarvedScan, HandOver]:
     """The carved scan of a message, and what it says of its scan; ValueError naming the
     field that does not add up. ``held``: {view name: (H, W, 3) uint8} of the images
-    left out of the message (``image_held``)."""
+    left out of the message (``image_held``); ``held_thumbnails``: {view name: (h, w, 3)
+    uint8} of the views whose thumbnail the message leaves out (a view with neither
+    shows its image or its mask on the contact sheet)."""
     width, height = int(msg.image_width), int(msg.image_height)
     grid, occupancy = _grid_and_occupancy(msg)
     views, masks = zip(*[_view(v, width, height) for v in msg.views]) if msg.views else ((), ())
@@ -212,8 +217,9 @@ def carved_scan_from_msg(msg: CarvedScanMsg,
                         colour_views=colour_views, colour_masks=[m for m, _ in colours],
                         colour_images=[image for _, image in colours],
                         report=json.loads(msg.report_json or "{}"))
-    thumbnails = {v.name: _unjpeg(v.thumbnail_jpeg, v.name) for v in msg.views
-                  if len(v.thumbnail_jpeg)}
+    thumbnails = {v.name: _unjpeg(v.thumbnail_jpeg, v.name) if len(v.thumbnail_jpeg)
+                  else held_thumbnails[v.name] for v in msg.views
+                  if len(v.thumbnail_jpeg) or v.name in (held_thumbnails or {})}
     return carved, HandOver(scan_name=msg.scan_name, session_dir=msg.session_dir,
                             views_received=int(msg.views_received),
                             frame_id=msg.header.frame_id, thumbnails=thumbnails)
