@@ -17,24 +17,37 @@ and its report are written), the latency from the last view (its capture seen
 on ``capture/image``) to the mesh (the answer), from its receipt (stored) to
 the mesh, and from the last view to the pictures (written after the answer).
 
-Baseline, measured in the same run: the same views rendered, segmented,
+The latency from the last view stored is split from the mesh's report: the last
+receipt to the ``reconstruct`` call (the observer), the carving node's carve (its
+stages), the meshing node's (the answer's ``seconds``: mesh, colour, checks, evaluation,
+files) and the hand-over (the rest of the call: the carved scan's message both ways, the
+transport, the answers).
+
+Baselines, measured in the same run: the same views rendered, segmented,
 carved and meshed in one process by the core pipeline, no ROS (the
-``sfs-simulate`` path). Ratio = baseline / cell.
+``sfs-simulate`` path); and for the split, the cell's own work after the last view in
+one process: :meth:`LiveReconstruction.reconstruct` on the masks the cell stored, the
+renders as colour images, after a rehearsal. Ratio = baseline / cell.
 
 Run: ``python -m bench.bench_cell`` (``--quick``: 24 views at 128^3).
 """
 
 from __future__ import annotations
 
+import json
 import os
 import tempfile
 import threading
 import time
 from pathlib import Path
 
+import cv2
+import numpy as np
 import yaml
 
+from sfs_ros.cell_logic.live_reconstruction import LiveReconstruction
 from sfs_ros.cell_logic.message_fields import status_namespace
+from sfs_ros.cell_logic.rehearsal import rehearse
 from sfs_ros.cell_logic.scan_plan import ScanPlan
 from sfs_ros.cli.bringup import Cell, cell_nodes
 from sfs_ros.core.exchange.inputs import load_views
@@ -48,6 +61,9 @@ from sfs_ros.ros.rig_params import RIG_PARAMS, rig_calibration
 from .timing import main
 
 CONFIG = Path(__file__).resolve().parent.parent / "config"
+#: The report's stages made by the carving node (the rest by the meshing node).
+CARVING_STAGES = ("segmentation", "bounds", "consensus", "fusion", "carving", "refinement",
+                  "mesher_input")
 
 
 def _config(folder: Path, rings: dict, resolution: int) -> dict:
@@ -109,6 +125,7 @@ def _cell_run(config: Path, output: Path, total: int) -> dict:
         scan = client.start_scan()
         if not observer.all_in.wait(timeout=1800.0):
             raise RuntimeError(f"only {len(observer.receipted)} of {total} views receipted")
+        called = time.monotonic()
         summary = client.reconstruct(pictures=False)
         end = time.monotonic()
         wait_for_pictures(summary, timeout_s=120.0)
@@ -119,7 +136,14 @@ def _cell_run(config: Path, output: Path, total: int) -> dict:
         seg = _node_value(client, "segmentation", "segment_s")
         carve = _node_value(client, "carving", "carve_s")
     last_view = max(observer.seen.values())
+    stages = json.loads(Path(summary["report_path"]).read_text())["timings_s"]
+    carve_s = sum(v for k, v in stages.items() if k in CARVING_STAGES)
     return {"total_s": end - start, "latency_s": end - last_view,
+            "stored_to_call_s": called - max(observer.receipted.values()),
+            "carve_s": carve_s, "mesh_node_s": summary["seconds"],
+            "colour_s": stages.get("colour", 0.0),
+            "hand_over_s": end - called - carve_s - summary["seconds"],
+            "session": summary["session_dir"],
             "stored_latency_s": end - max(observer.receipted.values()),
             "pictures_latency_s": pictures_end - last_view,
             "motion_s": motion, "capture_s": shutter,
@@ -151,6 +175,32 @@ def _node_value(client, node: str, key: str) -> float:
         client.node.destroy_subscription(sub)
 
 
+def _cell_in_one_process(session: str, captures: list, rig, params: dict, resolution: int,
+                         folder: Path) -> dict:
+    """The cell's work after the last view in one process: the masks the cell stored (its
+    session folder), with the baseline's renders as the colour images, received by a
+    :class:`LiveReconstruction` after a rehearsal (as the nodes have); then its
+    ``reconstruct`` timed, the carving and meshing halves of it apart."""
+    folder.mkdir()
+    rehearse(folder / "rehearsal")
+    views = load_views(session).views
+    if len(views) != len(captures):
+        raise RuntimeError(f"the cell stored {len(views)} views, the plan has {len(captures)}")
+    live = LiveReconstruction(rig, np.reshape(params["bounds_m"], (2, 3)), output_dir=folder,
+                              resolution=resolution)
+    for view, capture in zip(views, captures):
+        mask = cv2.imread(str(view.image_path), cv2.IMREAD_GRAYSCALE) > 127
+        live.add_view(view.name, mask, view.theta_rad, view.phi_rad)
+        live.add_colour_image(view.name, capture.image)
+    start = time.perf_counter()
+    summary = live.reconstruct(pictures=False)
+    total = time.perf_counter() - start
+    stages = json.loads(Path(summary["report_path"]).read_text())["timings_s"]
+    carve_s = sum(v for k, v in stages.items() if k in CARVING_STAGES)
+    return {"total_s": total, "carve_s": carve_s, "mesh_s": summary["seconds"] - carve_s,
+            "colour_s": stages.get("colour", 0.0)}
+
+
 def _baseline(params: dict, plan: ScanPlan, resolution: int, folder: Path) -> dict:
     rig = rig_calibration({p.name: params[p.name] for p in RIG_PARAMS})
     mug = make_object(params["object"])
@@ -166,7 +216,7 @@ def _baseline(params: dict, plan: ScanPlan, resolution: int, folder: Path) -> di
     after_segmentation = sum(v for k, v in t.items() if k != "segmentation")
     return {"capture_s": render_s, "segmentation_s": t["segmentation"],
             "carving_s": t["carving"], "meshing_s": after_segmentation,
-            "total_s": render_s + sum(t.values())}
+            "total_s": render_s + sum(t.values()), "captures": captures, "rig": rig}
 
 
 def run(quick: bool = False) -> list[dict]:
@@ -181,6 +231,8 @@ def run(quick: bool = False) -> list[dict]:
         (root / "output").mkdir()
         cell = _cell_run(root / "config", root / "output", n)
         base = _baseline(params, plan, resolution, root / "baseline")
+        one = _cell_in_one_process(cell["session"], base["captures"], base["rig"], params,
+                                   resolution, root / "one_process")
     label = f"cell, {n} views of {params['width']}x{params['height']} at {resolution}^3"
 
     def row(stage, ours, baseline=None):
@@ -189,7 +241,10 @@ def run(quick: bool = False) -> list[dict]:
 
     notes = [f"cell: {cell['views_used']} of {n} views used; baselines are the in-process "
              "pipeline on the same views (rendering for capture; everything after "
-             "segmentation for meshing and for the latency)"]
+             "segmentation for meshing and for the latency); the split's baselines are "
+             "LiveReconstruction.reconstruct in one process on the masks the cell stored "
+             "(the cell's work after the last view, no consensus, no ROS)",
+             f"load average at the end: {os.getloadavg()[0]:.2f}"]
     return [
         row("end to end (start to mesh)", cell["total_s"], base["total_s"]),
         row("motion (move + settle)", cell["motion_s"]),
@@ -200,6 +255,13 @@ def run(quick: bool = False) -> list[dict]:
         row("meshing (reconstruct service)", cell["meshing_s"], base["meshing_s"]),
         row("latency, last view to mesh", cell["latency_s"], base["meshing_s"]),
         row("latency, last view stored to mesh", cell["stored_latency_s"], base["meshing_s"]),
+        row("stored to mesh, the same in one process", cell["stored_latency_s"],
+            one["total_s"]),
+        row(" split: last receipt to the call", cell["stored_to_call_s"]),
+        row(" split: carving node's carve", cell["carve_s"], one["carve_s"]),
+        row(" split: hand-over", cell["hand_over_s"]),
+        row(" split: meshing node", cell["mesh_node_s"], one["mesh_s"]),
+        row(" split: meshing node's colour", cell["colour_s"], one["colour_s"]),
         {**row("latency, last view to pictures", cell["pictures_latency_s"]), "notes": notes},
     ]
 
