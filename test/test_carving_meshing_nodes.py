@@ -382,7 +382,10 @@ def test_per_scan_settings_change_between_scans_and_bad_values_are_refused(scan,
     assert cell.call("reset").success
     for i in range(len(PLAN)):
         cell.send((3000 + i, 0), masks[i], *PLAN[i])
-    cell.wait_values("the second scan's views", scan_views=len(PLAN))
+    # The new views' receipts: the diagnostics of the first scan, taken before the reset,
+    # also said scan_views=len(PLAN).
+    cell.probe.spin_until(lambda: all(_receipts(cell, (3000 + i, 0)) for i in range(len(PLAN))),
+                          what="the second scan's receipts", process=cell.process)
     # The advancing front compiles its kernels on first use: a bound against a hang only.
     answer = cell.call("reconstruct", timeout=MESSAGE_TIMEOUT_S)
     assert answer.success, answer.message
