@@ -19,14 +19,17 @@ from sfs_ros.cell_logic.live_reconstruction import (
     surface_points,
 )
 from sfs_ros.cli.reconstruct import main as reconstruct_cli
+from sfs_ros.core import stages
 from sfs_ros.core.carving.carve import carve
 from sfs_ros.core.exchange.export import load_mesh
 from sfs_ros.core.exchange.inputs import load_views
 from sfs_ros.core.exchange.views import read_image
 from sfs_ros.core.geometry.grid import VoxelGrid
+from sfs_ros.core.geometry.lens import undistort_mask
 from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
 from sfs_ros.core.meshing.colour import MAX_COLOUR_VIEWS
 from sfs_ros.core.metrics import occupancy_from_contains, volume_iou
+from sfs_ros.core.pipeline import carve_scan
 from sfs_ros.core.render import rasterize_silhouette, render_image
 from sfs_ros.core.segmentation.segment import segment
 from sfs_ros.core.simulation.objects import make_object
@@ -393,6 +396,32 @@ def test_each_views_colour_image_is_the_one_the_carved_scan_hands_over(tmp_path,
                                                                 carved.colour_images)}
     assert set(handed) == set(sent)
     assert all(np.array_equal(handed[name], sent[name]) for name in handed)
+
+
+
+def test_through_a_lens_the_masks_are_undistorted_once_and_as_offline(tmp_path, box, masks,
+                                                                         monkeypatch):
+    """Through a lens that distorts, the carved scan's masks are those the offline path
+    makes of the stored session; the live scan hands over the undistortion it carved
+    with, so the pipeline does not undistort a received mask again. (A strong lens, so
+    that the mug's outline, near the image centre, moves by pixels.)"""
+    rig = dataclasses.replace(RIG, distortion=(3.0, 0.0, 0.0, 0.0, 0.0))
+    live = LiveReconstruction(rig, box, output_dir=tmp_path, resolution=32)
+    for n, ((theta, phi), mask) in enumerate(zip(PLAN[:12], masks)):
+        live.add_view(n, mask, theta, phi)
+    offline = carve_scan(load_views(live.session_dir), live.params)
+    calls = []
+
+    def counted(mask, camera):
+        calls.append(camera)
+        return undistort_mask(mask, camera)
+    monkeypatch.setattr(stages, "undistort_mask", counted)
+    carved = live.carve()
+    assert calls == []
+    assert [v.name for v in carved.views] == [v.name for v in offline.views]
+    for received, stored in zip(carved.masks, offline.masks):
+        np.testing.assert_array_equal(received, stored)
+    assert any(not np.array_equal(m, taken) for m, taken in zip(carved.masks, masks))
 
 
 # ------------------------------------------------------------------ restarts and a full disk

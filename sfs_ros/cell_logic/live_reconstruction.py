@@ -64,7 +64,7 @@ from ..core.exchange.session import (
 )
 from ..core.exchange.views import ViewSet, as_bounds
 from ..core.geometry.grid import VoxelGrid
-from ..core.geometry.lens import ideal_camera, undistort_image, undistort_mask
+from ..core.geometry.lens import ideal_camera, is_distorted, undistort_image, undistort_mask
 from ..core.geometry.rig import RigCalibration, rig_camera
 from ..core.meshing.hull_distance import DistanceImages
 from ..core.meshing.meshers import MESHER
@@ -124,6 +124,9 @@ class _Received:
     packed_mask: np.ndarray  # np.packbits of the (H, W) bool mask
     theta_rad: float
     phi_rad: float
+    #: np.packbits of the mask undistorted onto the ideal pinhole, where the lens distorts
+    #: and the mask is not empty (else None: the mask is its own undistortion, or unused)
+    packed_ideal: np.ndarray | None = None
 
 
 def check_scan_name(output_dir, scan_name: str) -> None:
@@ -317,10 +320,13 @@ class LiveReconstruction:
 
     def views(self) -> list[tuple[str, np.ndarray, float, float]]:
         """``(key, mask (H, W) bool, theta_rad, phi_rad)`` of every view received, in order."""
+        return [(key, self._unpacked(v.packed_mask), v.theta_rad, v.phi_rad)
+                for key, v in self._views.items()]
+
+    def _unpacked(self, packed: np.ndarray) -> np.ndarray:
+        """(H, W) bool of a mask packed by ``np.packbits``, the rig's size."""
         shape = (self.calibration.height, self.calibration.width)
-        count = shape[0] * shape[1]
-        return [(key, np.unpackbits(v.packed_mask, count=count).reshape(shape).astype(bool),
-                 v.theta_rad, v.phi_rad) for key, v in self._views.items()]
+        return np.unpackbits(packed, count=shape[0] * shape[1]).reshape(shape).astype(bool)
 
     # ------------------------------------------------------------ views
 
@@ -394,23 +400,26 @@ class LiveReconstruction:
             append_view(self._session, name, rgb, theta, phi)
             self._view_set = appended_view(self._view_set, self._session, name, theta, phi)
         carved = bool(mask.any())
-        if carved:   # stored as taken; carved as the ideal pinhole (the mask undistorted once)
-            self._carve_view(camera, undistort_mask(mask, camera))
-        self._views[key] = _Received(name, np.packbits(mask, axis=None), theta, phi)
+        # Stored as taken; carved as the ideal pinhole (the mask undistorted once).
+        self._views[key] = _Received(name, np.packbits(mask, axis=None), theta, phi,
+                                     self._carve_view(camera, mask) if carved else None)
         self._colour_waiting.pop(key, None)        # its image, if it came first, is a view's
         return AddedView(key=key, file=self._session / "images" / name, carved=carved,
                          reason="" if carved else "empty mask: no object to carve with",
                          n_views=len(self._views),
                          occupied_voxels=int(np.count_nonzero(self._carver.occupancy)))
 
-    def _carve_view(self, camera, mask: np.ndarray) -> None:
-        """Carve the live hull with a non-empty mask on the ideal pinhole's pixel grid, and
-        compute what the final reconstruction will need of it (:class:`ComputedOnArrival`): its
-        distance image and its part in the coarse carve that refines the box."""
-        ideal = ideal_camera(camera)
-        self._carver.add_view(ideal, mask)
-        self._precomputed.distances.add(mask)
-        self._precomputed.box.add(ideal, mask)
+    def _carve_view(self, camera, mask: np.ndarray) -> np.ndarray | None:
+        """Carve the live hull with a non-empty mask (H, W) bool as ``camera`` took it,
+        undistorted onto the ideal pinhole's pixel grid, and compute what the final
+        reconstruction will need of it (:class:`ComputedOnArrival`): its distance image
+        and its part in the coarse carve that refines the box. The undistorted mask,
+        packed, where the lens distorts (else None)."""
+        ideal, undistorted = ideal_camera(camera), undistort_mask(mask, camera)
+        self._carver.add_view(ideal, undistorted)
+        self._precomputed.distances.add(undistorted)
+        self._precomputed.box.add(ideal, undistorted)
+        return np.packbits(undistorted, axis=None) if is_distorted(camera) else None
 
     def reopen(self) -> str:
         """Take up the scan that was being received (the newest session folder marked open
@@ -438,10 +447,10 @@ class LiveReconstruction:
                 continue
             mask = image > 127
             key = view_key_of(view.name)
-            if mask.any():
-                self._carve_view(view.camera, undistort_mask(mask, view.camera))
             self._views[key] = _Received(view.name, np.packbits(mask, axis=None),
-                                         view.theta_rad, view.phi_rad)
+                                         view.theta_rad, view.phi_rad,
+                                         self._carve_view(view.camera, mask) if mask.any()
+                                         else None)
         return f"took up the open scan {folder} with its {len(self._views)} views"
 
     def add_colour_image(self, key, rgb) -> None:
@@ -536,8 +545,11 @@ class LiveReconstruction:
         images = {self._views[key].name: rgb for key, rgb in self._colour_images.items()
                   if key in self._views}
         masks = {self._views[key].name: mask for key, mask, _, _ in self.views()}
+        undistorted = {v.name: self._unpacked(v.packed_ideal) for v in self._views.values()
+                       if v.packed_ideal is not None}
         return carve_scan(view_set, replace(params, colour=bool(images) and colour is not False),
-                          masks=masks, images=images, precomputed=self._precomputed)
+                          masks=masks, images=images,
+                          precomputed=replace(self._precomputed, undistorted_masks=undistorted))
 
     def hand_over(self) -> HandOver:
         """What goes with this scan's carving: its name, session folder, views received and

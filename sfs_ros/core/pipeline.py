@@ -145,10 +145,14 @@ class ComputedOnArrival:
 
     distances : the masks' distance images, for the mesh.
     box : the coarse carve that refines an input box (:func:`.carving.bounds.refine_bounds`).
+    undistorted_masks : {view name: (H, W) bool} the given masks (``masks`` of
+        :func:`carve_scan`) already undistorted onto their views' ideal pinholes, for the
+        views whose lens distorts (the others' masks are their own undistortion).
     """
 
     distances: DistanceImages | None = None
     box: BoxCarve | None = None
+    undistorted_masks: dict = field(default_factory=dict)
 
 
 def _check_holdout(view_set: ViewSet, holdout: tuple) -> None:
@@ -246,7 +250,8 @@ def carve_scan(view_set: ViewSet, params: ReconstructionParams = ReconstructionP
     _check_holdout(view_set, params.holdout)
     _check_lenses(view_set.views)
     with timed(timings, "segmentation"):
-        segmented = segment_views(view_set, seg_params, masks or {}, progress)
+        segmented = segment_views(view_set, seg_params, masks or {}, progress,
+                                  undistorted=precomputed.undistorted_masks)
     first = _first_used(segmented, params.holdout, len(view_set.views))
     box = params.bounds_m if params.bounds_m is not None else view_set.bounds_m
     check_directions([segmented.views[i].camera for i in first],

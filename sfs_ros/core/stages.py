@@ -99,11 +99,13 @@ def _read_and_segment(view: View, params: SegmentationParams,
 
 
 def segment_views(view_set: ViewSet, params: SegmentationParams, given: dict,
-                  progress: Progress) -> Segmented:
+                  progress: Progress, undistorted: dict | None = None) -> Segmented:
     """Read and segment every view not in ``given`` ({view name: (H, W) bool silhouette
     already made}), in threads, results in input order; the views that cannot be used
     join the input's rejected ones with the reason. Each mask is segmented as taken and
-    undistorted once onto its view's ideal pinhole (:mod:`.geometry.lens`)."""
+    undistorted once onto its view's ideal pinhole (:mod:`.geometry.lens`), unless
+    ``undistorted`` ({view name: (H, W) bool}) holds that undistortion already."""
+    undistorted = undistorted or {}
     views = view_set.views
     rejected = [{"view": name, "reason": reason} for name, reason in view_set.rejected]
     kept, masks, taken = [], [], {}
@@ -115,7 +117,8 @@ def segment_views(view_set: ViewSet, params: SegmentationParams, given: dict,
             rejected.append({"view": view.name, "reason": result})
         else:
             kept.append(replace(view, camera=ideal_camera(view.camera)))
-            masks.append(undistort_mask(result, view.camera))
+            ideal = undistorted.get(view.name)
+            masks.append(undistort_mask(result, view.camera) if ideal is None else ideal)
             taken[view.name] = result
         progress("segmentation", (n + 1) / max(1, len(views)))
     return Segmented(kept, masks, taken, {v.name: v.camera for v in views}, rejected)
