@@ -34,6 +34,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from .band_cut import band_cut
 from .carving.bounds import seen_by
 from .carving.carve import PreparedMasks, carve
 from .carving.consistency import hull_silhouettes
@@ -188,9 +189,7 @@ def _graph_cut(features: np.ndarray, labels: np.ndarray) -> np.ndarray:
     # Outside the band the reduced cut stands (as sure labels); inside, the prior's.
     fine = np.where(chosen[box] > 0, cv2.GC_FGD, cv2.GC_BGD).astype(np.uint8)
     fine[band[box]] = labels[box][band[box]]
-    if np.count_nonzero((fine == cv2.GC_PR_FGD) | (fine == cv2.GC_PR_BGD)):
-        cv2.grabCut(np.ascontiguousarray(features[box]), fine, None, *models, 1,
-                    cv2.GC_EVAL_FREEZE_MODEL)
+    band_cut(np.ascontiguousarray(features[box]), fine, models)
     chosen[box] = (fine == cv2.GC_FGD) | (fine == cv2.GC_PR_FGD)
     return chosen
 
