@@ -19,7 +19,7 @@ from numba import njit
 from scipy.sparse import csr_array
 from scipy.sparse.csgraph import breadth_first_order, maximum_flow
 
-__all__ = ["band_cut", "grabcut_beta", "gmm_likelihood"]
+__all__ = ["band_cut", "coarse_to_fine_grabcut", "grabcut_beta", "gmm_likelihood"]
 
 #: GrabCut's smoothness weight (grabcut.cpp: gamma = 50); diagonal neighbours get
 #: gamma / sqrt(2).
@@ -112,6 +112,50 @@ def band_cut(image: np.ndarray, labels: np.ndarray, models: tuple[np.ndarray, np
         chosen[left] = _min_cut(int(left.sum()), number[tails], number[heads], caps,
                                 terminal[left])
     labels[free] = np.where(chosen, cv2.GC_PR_FGD, cv2.GC_PR_BGD)
+
+
+def coarse_to_fine_grabcut(features: np.ndarray, labels: np.ndarray, *, work_pixels: int,
+                           iterations: int) -> np.ndarray:
+    """GrabCut of ``features`` ((h, w, 3) uint8) from ``labels`` ((h, w) uint8 GC_*):
+    (h, w) uint8, 1 = object.
+
+    Up to ``work_pixels`` pixels it runs at full size. A larger crop is cut on a
+    reduced copy first, where the colour models are learnt; then the boundary band,
+    as wide as a working pixel on each side, is cut again at full size with those
+    models frozen (one graph cut, over the bounding box of the band only), so the
+    outline has full-resolution precision at a fraction of the cost."""
+    h, w = labels.shape
+    scale = min(1.0, float(np.sqrt(work_pixels / (h * w))))
+    if scale == 1.0:
+        work, work_labels = features, labels.copy()
+    else:
+        small = (max(8, round(w * scale)), max(8, round(h * scale)))
+        work = cv2.resize(features, small, interpolation=cv2.INTER_AREA)
+        work_labels = cv2.resize(labels, small, interpolation=cv2.INTER_NEAREST)
+    background = (work_labels == cv2.GC_BGD) | (work_labels == cv2.GC_PR_BGD)
+    if not background.any() or background.all():  # nothing to decide
+        return ((labels == cv2.GC_FGD) | (labels == cv2.GC_PR_FGD)).astype(np.uint8)
+    models = np.zeros((1, 65)), np.zeros((1, 65))
+    cv2.setRNGSeed(0)  # GrabCut seeds its GMMs by k-means: the same result every run
+    cv2.grabCut(work, work_labels, None, *models, iterations, cv2.GC_INIT_WITH_MASK)
+    chosen = ((work_labels == cv2.GC_FGD) | (work_labels == cv2.GC_PR_FGD)).astype(np.uint8)
+    if scale == 1.0:
+        return chosen
+    chosen = (cv2.resize(chosen.astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
+              > 0.5).astype(np.uint8)
+    reach = int(np.ceil(1.0 / scale)) + 1
+    square = np.ones((2 * reach + 1, 2 * reach + 1), np.uint8)
+    band = (cv2.dilate(chosen, square) > 0) & (cv2.erode(chosen, square) == 0)
+    rows, cols = np.flatnonzero(band.any(axis=1)), np.flatnonzero(band.any(axis=0))
+    if len(rows) == 0:
+        return chosen
+    box = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))
+    # Outside the band the reduced cut stands (as sure labels); inside, the prior's.
+    fine = np.where(chosen[box] > 0, cv2.GC_FGD, cv2.GC_BGD).astype(np.uint8)
+    fine[band[box]] = labels[box][band[box]]
+    band_cut(np.ascontiguousarray(features[box]), fine, models)
+    chosen[box] = (fine == cv2.GC_FGD) | (fine == cv2.GC_PR_FGD)
+    return chosen
 
 
 @njit(cache=True)
