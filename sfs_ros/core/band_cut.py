@@ -92,7 +92,7 @@ def band_cut(image: np.ndarray, labels: np.ndarray, models: tuple[np.ndarray, np
     index[free] = np.arange(n)
     rows, cols = np.nonzero(free)
     colours = image[rows, cols].astype(np.float64)
-    with np.errstate(divide="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore"):   # no probability either way: 0
         # source = object: cutting a pixel from it costs -log P(colour | backdrop)
         terminal = -np.log(gmm_likelihood(models[0], colours)) \
             + np.log(gmm_likelihood(models[1], colours))
@@ -119,11 +119,13 @@ def coarse_to_fine_grabcut(features: np.ndarray, labels: np.ndarray, *, work_pix
     """GrabCut of ``features`` ((h, w, 3) uint8) from ``labels`` ((h, w) uint8 GC_*):
     (h, w) uint8, 1 = object.
 
-    Up to ``work_pixels`` pixels it runs at full size. A larger crop is cut on a
-    reduced copy first, where the colour models are learnt; then the boundary band,
-    as wide as a working pixel on each side, is cut again at full size with those
-    models frozen (one graph cut, over the bounding box of the band only), so the
-    outline has full-resolution precision at a fraction of the cost."""
+    Up to ``work_pixels`` pixels it runs at full size (``iterations`` of GrabCut's
+    learning and cutting from ``cv2.GC_INIT_WITH_MASK``). A larger image is cut on a
+    reduced copy first, where the colour models are learnt; then the boundary band, as
+    wide as a working pixel on each side, is cut again at full size with those models
+    frozen (:func:`band_cut`, over the band's pixels alone), so the outline has
+    full-resolution precision at a fraction of the cost. Nothing is cut when the labels
+    leave no backdrop or nothing but backdrop."""
     h, w = labels.shape
     scale = min(1.0, float(np.sqrt(work_pixels / (h * w))))
     if scale == 1.0:
