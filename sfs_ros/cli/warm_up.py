@@ -32,12 +32,15 @@ import tempfile
 import time
 from pathlib import Path
 
+import cv2
 import numba
+import numpy as np
 
 from ..cell_logic.rehearsal import REHEARSAL_PLAN, REHEARSAL_RESOLUTION, REHEARSAL_RIG, rehearse
 from ..core.exchange.inputs import load_views
 from ..core.exchange.session import write_session
 from ..core.pipeline import ReconstructionParams, reconstruct
+from ..core.segmentation.band_cut import band_cut
 from ..core.segmentation.segment import segment
 from ..core.simulation.objects import make_object
 from ..core.simulation.synthetic import simulate_scan
@@ -58,6 +61,23 @@ def run(folder: Path) -> None:
                             [(c.theta_rad, c.phi_rad) for c in captures], REHEARSAL_RIG)
     reconstruct(load_views(session), ReconstructionParams(resolution=REHEARSAL_RESOLUTION))
     rehearse(folder / "live", [(segment(c.image).mask, c.image) for c in captures])
+    cut_a_band()
+
+
+def cut_a_band() -> None:
+    """The consensus' full-resolution band cut (:func:`~sfs_ros.core.segmentation.band_cut.band_cut`)
+    on a small picture: it runs only on views larger than the rehearsal's, which are cut
+    again whole."""
+    image = np.zeros((8, 8, 3), np.uint8)
+    image[:, 4:] = 200
+    labels = np.full((8, 8), cv2.GC_BGD, np.uint8)
+    labels[:, 4:] = cv2.GC_FGD
+    labels[:, 3] = cv2.GC_PR_BGD
+    labels[:, 4] = cv2.GC_PR_FGD
+    model = np.zeros((1, 65))
+    model[0, 0] = 1.0
+    model[0, 20:29] = np.eye(3).ravel()
+    band_cut(image, labels, (model, model))
 
 
 def host_cpu() -> str:
