@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from sfs_ros.core.carving.bounds import BoxCarve, refine_bounds, seen_by
+from sfs_ros.core.carving.bounds import BoxCarve, footprint_masks, refine_bounds, seen_by
 from sfs_ros.core.carving.carve import carve
 from sfs_ros.core.carving.resolution import (
     BYTES_PER_VOXEL,
@@ -124,8 +124,8 @@ def test_a_box_carve_kept_view_by_view_refines_to_the_same_box():
         assert np.array_equal(refine_bounds(cameras, masks, loose, resolution=64,
                                             max_misses=misses, known=known), expected)
         held = known.carved(grid, cameras, masks, misses, 12)
-        assert np.array_equal(held, carve(grid, cameras, masks, max_misses=misses)
-                              & seen_by(grid, cameras, 12))
+        assert np.array_equal(held, carve(grid, cameras, footprint_masks(cameras, masks, grid),
+                                          max_misses=misses) & seen_by(grid, cameras, 12))
     # Not these views, not this grid, more misses than it counts: it says so (None).
     bitten = [m.copy() for m in masks]
     bitten[3][100:, :] = False

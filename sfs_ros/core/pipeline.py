@@ -158,32 +158,35 @@ class Precomputed:
 
 
 def _read_and_segment(view: View, params: SegmentationParams,
-                      given: np.ndarray | None) -> np.ndarray | str:
-    """The view's silhouette (H, W) bool (``given``, else segmented from its image), or why
-    it cannot be used."""
+                      given: np.ndarray | None) -> tuple[np.ndarray, bool] | str:
+    """The view's silhouette (H, W) bool (``given``, else segmented from its image) and
+    whether it is exact (its image's alpha channel), or why it cannot be used."""
     if given is not None:
         expected = (view.camera.height, view.camera.width)
         if np.shape(given) != expected or np.asarray(given).dtype != np.bool_:
             return (f"given silhouette is {np.asarray(given).dtype} {np.shape(given)}, "
                     f"expected {expected} bool (the camera's size)")
-        return given if given.any() else "empty silhouette: no object found"
+        return (given, False) if given.any() else "empty silhouette: no object found"
     try:
         image = read_image(view.image_path, keep_alpha=not params.ignore_alpha,
                            expected_size=(view.camera.width, view.camera.height))
     except ValueError as err:
         return str(err)
     result = segment(image, params)
-    return "empty silhouette: no object found" if result.empty else result.mask
+    exact = image.ndim == 3 and image.shape[2] == 4 and not params.ignore_alpha
+    return "empty silhouette: no object found" if result.empty else (result.mask, exact)
 
 
 def _segment_views(views: list[View], params: SegmentationParams, progress: Progress,
-                   rejected: list[dict], given: dict) -> tuple[list[View], list[np.ndarray], dict]:
+                   rejected: list[dict], given: dict
+                   ) -> tuple[list[View], list[np.ndarray], dict, set]:
     """Read and segment every view not in ``given`` (in threads, results in input order);
     bad ones go to ``rejected`` with the reason.
 
     Returns the kept views with ideal cameras, their masks undistorted onto them
-    (:mod:`.geometry.lens`), and ``{name: mask as taken}``."""
-    kept, masks, taken = [], [], {}
+    (:mod:`.geometry.lens`), ``{name: mask as taken}`` and the names of the views whose
+    mask is their image's alpha channel (exact: the fusion never overrules it)."""
+    kept, masks, taken, exact = [], [], {}, set()
     progress("segmentation", 0.0)
     results = map_in_threads(lambda view: _read_and_segment(view, params, given.get(view.name)),
                              views)
@@ -191,12 +194,15 @@ def _segment_views(views: list[View], params: SegmentationParams, progress: Prog
         if isinstance(result, str):
             rejected.append({"view": view.name, "reason": result})
         else:
+            mask, is_exact = result
             # Segmented as taken, carved as an ideal pinhole: the mask is undistorted once.
             kept.append(replace(view, camera=ideal_camera(view.camera)))
-            masks.append(undistort_mask(result, view.camera))
-            taken[view.name] = result
+            masks.append(undistort_mask(mask, view.camera))
+            taken[view.name] = mask
+            if is_exact:
+                exact.add(view.name)
         progress("segmentation", (n + 1) / max(1, len(views)))
-    return kept, masks, taken
+    return kept, masks, taken, exact
 
 
 def _some(names: list[str], limit: int = 3) -> str:
@@ -303,8 +309,8 @@ def carve_scan(view_set: ViewSet, params: ReconstructionParams = ReconstructionP
 
     _check_lenses(view_set.views)
     with _timed(timings, "segmentation"):
-        views, masks, taken = _segment_views(view_set.views, seg_params, progress, rejected,
-                                             masks or {})
+        views, masks, taken, exact = _segment_views(view_set.views, seg_params, progress,
+                                                    rejected, masks or {})
     lenses = {v.name: v.camera for v in view_set.views}   # the cameras as taken, with their lens
     used = [i for i, v in enumerate(views) if v.name not in params.holdout]
     if not used:
@@ -394,7 +400,8 @@ def carve_scan(view_set: ViewSet, params: ReconstructionParams = ReconstructionP
             reference = (VoxelGrid(bounds[0], bounds[1], 2 * grid.voxel_size)
                          if max(grid.shape) >= 128 else grid)
             fusion = fuse_silhouettes(reference, cameras, prepared,
-                                      max_missing=params.consistency_max_missing)
+                                      max_missing=params.consistency_max_missing,
+                                      exact=[views[i].name in exact for i in used])
             for verdict in fusion.verdicts:
                 name = views[used[verdict.index]].name
                 consistency.append({"view": name, "iou": verdict.iou,
