@@ -13,7 +13,7 @@ from sfs_ros.core.carving.bounds import estimate_bounds, refine_bounds
 from sfs_ros.core.carving.fusion import reference_misses
 from sfs_ros.core.exchange.nerf import read_transforms
 from sfs_ros.core.geometry.camera import Camera
-from sfs_ros.core.pipeline import ReconstructionParams, reconstruct
+from sfs_ros.core.pipeline import reconstruct
 from sfs_ros.core.render import rasterize_silhouette, render_image
 
 SIZE_PX = 400

@@ -18,9 +18,9 @@ where a view is outvoted:
    only views at the horizon see empty (under a seat, between legs) is kept by
    the reference hull's tolerance, yet two views from far apart that agree on
    it are not a mask's mistake (a shadow or a bite is the same in neighbouring
-   views, not in views from elsewhere). Correct views cut the reference hull too (it sticks out of a true silhouette
-   by the facets one view carves), and all views of a scan cut about equally
-   deep for their silhouette's size; so the bar is set from the views
+   views, not in views from elsewhere). Correct views cut the reference hull
+   too (it sticks out of a true silhouette by the facets one view carves), and
+   all views of a scan cut about equally deep for their silhouette's size; so the bar is set from the views
    themselves: the median over views of the deepest cut relative to the
    silhouette's radius, and never below the facet depth of a round section
    (:func:`facet_depth_px`), times a safety factor. Shallower cuts are the view
