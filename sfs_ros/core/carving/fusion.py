@@ -20,10 +20,10 @@ where a view is outvoted:
    it are not a mask's mistake (a shadow or a bite is the same in neighbouring
    views, not in views from elsewhere). Correct views cut the reference hull
    too (it sticks out of a true silhouette by the facets one view carves), and
-   all views of a scan cut about equally deep for their silhouette's size; so the bar is set from the views
-   themselves: the median over views of the deepest cut relative to the
-   silhouette's radius, and never below the facet depth of a round section
-   (:func:`facet_depth_px`), times a safety factor. Shallower cuts are the view
+   all views of a scan cut about equally deep for their silhouette's size; so
+   the bar is set from the views themselves: the median over views of the
+   deepest cut relative to the silhouette's radius, and never below the facet
+   depth of a round section (:func:`facet_depth_px`), times a safety factor. Shallower cuts are the view
    doing its job (sharpening the hull) and are left alone. With few views (16
    on a ring) the facets are deep and only a gross error is outvoted: every
    view is precious there;
