@@ -6,11 +6,13 @@ optical axes, then a coarse carve inside it whose occupied voxels (grown by
 a margin) give the box. :func:`refine_bounds` then shrinks a box to a finer
 carve's hull plus a margin.
 
-Both carves are coarse, so both keep a voxel whose *footprint* meets a
-silhouette, not only one whose centre lands in it (:func:`footprint_masks`): a
-part thinner than a coarse voxel (a chair's leg, an antenna) would otherwise
-fall between the voxel centres in some views, be carved, and be cut off by
-the box in the hull.
+Both carves are coarse: a part thinner than a coarse voxel (a chair's leg, an
+antenna) can fall between the voxel centres in some views, be carved, and be
+cut off by the box in the hull. So each is carved twice, keeping the voxels
+whose centre lands in every silhouette and those whose *footprint* meets it
+(:func:`footprint_masks`); the box is the first's, reaching out to the second's
+on a side where the second reaches further than the margin and a voxel (a part
+the first lost, not the footprint's shell).
 """
 
 from __future__ import annotations
@@ -133,22 +135,35 @@ def estimate_bounds(cameras: list[Camera], masks: list[np.ndarray], *,
     """(2, 3) bounding box ``[min, max]`` of the object seen in ``masks``, metres.
 
     Carves a ``resolution``^3 grid over the region all cameras can see around
-    :func:`axes_meeting_point` (a voxel stays when its footprint meets the
-    silhouettes: :func:`footprint_masks`), keeping only voxels inside the image in at
+    :func:`axes_meeting_point`, keeping only voxels inside the image in at
     least half the views, and grows the occupied box by ``margin_voxels``
-    coarse voxels. ``max_misses`` views may see a voxel outside their mask
+    coarse voxels, reaching out to the carve of the voxels whose footprint meets the
+    silhouettes (module docstring). ``max_misses`` views may see a voxel outside their mask
     (one view that lost part of the object must not cut the box). Raises
     ``ValueError`` if nothing survives.
     """
     centre = axes_meeting_point(cameras)
     half = max(_visible_half_size(cam, centre) for cam in cameras)
     grid = VoxelGrid(centre - half, centre + half, 2 * half / resolution)
-    occupancy = carve(grid, cameras, footprint_masks(cameras, masks, grid),
-                      max_misses=max_misses, outside_image="keep")
-    ijk = np.argwhere(occupancy)
-    if len(ijk) == 0:
-        raise ValueError("cannot estimate a bounding box: the silhouettes have no common volume")
-    points = grid.index_to_world(ijk)
+    pad = (0.5 + margin_voxels) * grid.voxel_size
+    boxes = []
+    for grown in (False, True):
+        occupancy = carve(grid, cameras,
+                          footprint_masks(cameras, masks, grid) if grown else masks,
+                          max_misses=max_misses, outside_image="keep")
+        points = _framed_points(grid, occupancy, cameras)
+        boxes.append(None if points is None else
+                     np.stack([points.min(axis=0) - pad, points.max(axis=0) + pad]))
+    if boxes[1] is None:
+        raise ValueError("cannot estimate a bounding box: the silhouettes have no common volume "
+                         "in the frame of most views")
+    return _reaching(boxes[0], boxes[1], pad + grid.voxel_size)
+
+
+def _framed_points(grid: VoxelGrid, occupancy: np.ndarray, cameras: list[Camera]):
+    """(k, 3) centres of the occupied voxels inside the image in at least half the views,
+    metres; None when there is none."""
+    points = grid.index_to_world(np.argwhere(occupancy))
     in_frame = np.zeros(len(points), dtype=np.int32)
     for cam in cameras:
         uv = cam.project(points)
@@ -157,10 +172,16 @@ def estimate_bounds(cameras: list[Camera], masks: list[np.ndarray], *,
                       & (uv[:, 1] > -0.5) & (uv[:, 1] < cam.height - 0.5))
         in_frame += inside
     points = points[2 * in_frame >= len(cameras)]
-    if len(points) == 0:
-        raise ValueError("cannot estimate a bounding box: the object is out of frame in most views")
-    pad = (0.5 + margin_voxels) * grid.voxel_size
-    return np.stack([points.min(axis=0) - pad, points.max(axis=0) + pad])
+    return points if len(points) else None
+
+
+def _reaching(box: np.ndarray | None, reach: np.ndarray, beyond_m: float) -> np.ndarray:
+    """``box`` (2, 3) moved out to ``reach``'s sides that lie more than ``beyond_m``
+    further out (``reach`` itself when there is no ``box``)."""
+    if box is None:
+        return reach
+    return np.stack([np.where(reach[0] < box[0] - beyond_m, reach[0], box[0]),
+                     np.where(reach[1] > box[1] + beyond_m, reach[1], box[1])])
 
 
 class BoxCarve:
@@ -180,7 +201,7 @@ class BoxCarve:
     resolution : int, keyword-only
         Of the coarse grid, as :func:`refine_bounds`'s.
 
-    Memory: two bytes per voxel of the coarse grid (4 MiB at 128^3) and a key per view
+    Memory: three bytes per voxel of the coarse grid (6 MiB at 128^3) and a key per view
     (its camera and its packed mask).
     """
 
@@ -193,22 +214,25 @@ class BoxCarve:
         bounds = np.asarray(bounds_m, dtype=np.float64)
         self.grid = VoxelGrid.cube(bounds[0], bounds[1], resolution)
         self._misses = Carver(self.grid, max_misses=self.MOST_MISSES)
+        self._reach = Carver(self.grid, max_misses=self.MOST_MISSES)
         self._unframed = Carver(self.grid, max_misses=self.MOST_UNFRAMED,
                                 outside_image="carve")
         self._views: Counter = Counter()
 
     def add(self, camera: Camera, mask) -> None:
         """Count one more view: ``mask`` (camera.height, camera.width) bool."""
-        self._misses.add_view(camera, footprint_masks([camera], [mask], self.grid)[0])
+        self._misses.add_view(camera, mask)
+        self._reach.add_view(camera, footprint_masks([camera], [mask], self.grid)[0])
         self._unframed.add_view(camera, np.ones((camera.height, camera.width), bool))
         self._views[_view_key(camera, mask)] += 1
 
     def carved(self, grid: VoxelGrid, cameras: list[Camera], masks, max_misses: int,
-               framed_by: int) -> np.ndarray | None:
-        """(nx, ny, nz) bool: the voxels of ``grid`` at most ``max_misses`` of the views
-        miss and at least ``framed_by`` of them frame, if this store counted exactly
-        these views (``masks`` as :func:`.carve.carve` takes them) on this grid; else
-        None."""
+               framed_by: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """Two (nx, ny, nz) bool: the voxels of ``grid`` at most ``max_misses`` of the
+        views miss, and those at most that many miss with their footprint
+        (:func:`footprint_masks`), of those at least ``framed_by`` of them frame, if this
+        store counted exactly these views (``masks`` as :func:`.carve.carve` takes them)
+        on this grid; else None."""
         unframed = len(cameras) - framed_by
         if not _same_grid(grid, self.grid) or not 0 <= max_misses <= self.MOST_MISSES \
                 or not 0 <= unframed <= self.MOST_UNFRAMED:
@@ -218,7 +242,9 @@ class BoxCarve:
         if len(cameras) != sum(self._views.values()) or self._views != Counter(
                 _view_key(c, m) for c, m in zip(cameras, masks, strict=True)):
             return None
-        return self._misses.tolerating(max_misses) & self._unframed.tolerating(unframed)
+        framed = self._unframed.tolerating(unframed)
+        return (self._misses.tolerating(max_misses) & framed,
+                self._reach.tolerating(max_misses) & framed)
 
 
 def _same_grid(a: VoxelGrid, b: VoxelGrid) -> bool:
@@ -241,33 +267,36 @@ def refine_bounds(cameras: list[Camera], masks: list[np.ndarray], bounds_m, *,
     """(2, 3) box of the hull carved inside ``bounds_m`` (2, 3), grown by a margin, metres.
 
     Carves a ``resolution`` grid over ``bounds_m`` with ``max_misses`` tolerated
-    misses per voxel (so that one bad mask cannot shrink the box), a voxel staying
-    when its footprint meets the silhouettes (:func:`footprint_masks`), keeps the
+    misses per voxel (so that one bad mask cannot shrink the box), keeps the
     voxels inside the image in at least half the views (as
     :func:`estimate_bounds`: what most views cannot see is no evidence), drops specks
     (:func:`~.hull.drop_specks`), and grows the box of what is left by
     ``margin_voxels`` of that grid's voxels (a finer carve can occupy voxels
     whose coarse cell's centre was outside: half a voxel; the rest is room for
-    the surface). The result never leaves ``bounds_m``; ``bounds_m`` itself is
+    the surface), reaching out to the same carve of the voxels whose footprint meets
+    the silhouettes (module docstring). The result never leaves ``bounds_m``; ``bounds_m`` itself is
     returned when nothing survives. ``known``: the carve kept as the views arrived
     (:class:`BoxCarve`), used when it holds these views on this grid.
     """
     bounds = np.asarray(bounds_m, dtype=np.float64)
     grid = VoxelGrid.cube(bounds[0], bounds[1], resolution)
     framed_by = len(cameras) - len(cameras) // 2
-    occupancy = None if known is None else known.carved(grid, cameras, masks, max_misses,
-                                                         framed_by)
-    if occupancy is None:
-        occupancy = carve(grid, cameras, footprint_masks(cameras, masks, grid),
-                          max_misses=max_misses)
-        occupancy &= seen_by(grid, cameras, framed_by)
-    occupancy, _ = drop_specks(occupancy)
-    box = occupied_bounds(occupancy)
-    if box is None:
-        return bounds
+    carved = None if known is None else known.carved(grid, cameras, masks, max_misses,
+                                                     framed_by)
+    if carved is None:
+        framed = seen_by(grid, cameras, framed_by)
+        carved = [carve(grid, cameras, footprint_masks(cameras, masks, grid) if grown
+                        else masks, max_misses=max_misses) & framed for grown in (False, True)]
     pad = (0.5 + margin_voxels) * grid.voxel_size
-    lo = grid.index_to_world(box[0])[0] - pad
-    hi = grid.index_to_world(box[1] - 1)[0] + pad
+    boxes = []
+    for occupancy in carved:
+        box = occupied_bounds(drop_specks(occupancy)[0])
+        boxes.append(None if box is None else
+                     np.stack([grid.index_to_world(box[0])[0] - pad,
+                               grid.index_to_world(box[1] - 1)[0] + pad]))
+    if boxes[1] is None:
+        return bounds
+    lo, hi = _reaching(boxes[0], boxes[1], pad + grid.voxel_size)
     return np.stack([np.maximum(lo, bounds[0]), np.minimum(hi, bounds[1])])
 
 
