@@ -12,18 +12,15 @@ where a view is outvoted:
    view's mask, the view disagrees with (at least) all but ``k`` of the others;
 3. a disagreement *deeper* than what correct views produce is a mask error:
    those pixels are filled in the view's mask (the view is *overruled* there),
-   unless the mask is exact (an image's alpha channel), and never where a view
-   from another direction (further than :data:`_CORROBORATING_SPACING` times the
-   views' spacing) sees the same voxels outside its silhouette too: a region
-   only views at the horizon see empty (under a seat, between legs) is kept by
-   the reference hull's tolerance, yet two views from far apart that agree on
-   it are not a mask's mistake (a shadow or a bite is the same in neighbouring
-   views, not in views from elsewhere). Correct views cut the reference hull
-   too (it sticks out of a true silhouette by the facets one view carves), and
-   all views of a scan cut about equally deep for their silhouette's size; so
-   the bar is set from the views themselves: the median over views of the
-   deepest cut relative to the silhouette's radius, and never below the facet
-   depth of a round section (:func:`facet_depth_px`), times a safety factor. Shallower cuts are the view
+   unless the mask is exact (an image's alpha channel): a region only the
+   views at the horizon see empty (under a seat, between legs) is kept by the
+   reference hull's tolerance, and an exact view that carves it is right.
+   Correct views cut the reference hull too (it sticks out of a true
+   silhouette by the facets one view carves), and all views of a scan cut
+   about equally deep for their silhouette's size; so the bar is set from the
+   views themselves: the median over views of the deepest cut relative to the
+   silhouette's radius, and never below the facet depth of a round section
+   (:func:`facet_depth_px`), times a safety factor. Shallower cuts are the view
    doing its job (sharpening the hull) and are left alone. With few views (16
    on a ring) the facets are deep and only a gross error is outvoted: every
    view is precious there;
@@ -72,12 +69,6 @@ _FACET_SAFETY = 1.5
 #: 0.20 with two views in three 1 and 2.5 cm off their calibration. Masks with
 #: shadows or clutter hold more than the hull: the bar is low, for gross errors.
 MIN_MEDIAN_IOU = 0.5
-#: A view further than this many times the views' median spacing
-#: (:func:`neighbour_angle_rad`) from an overruled view is another witness: where it
-#: too sees the voxels behind the overruled pixels outside its silhouette, they stay
-#: carved. Neighbouring views share a mask's mistakes (a cast shadow, the same
-#: glare); views this far apart see the object against another part of the backdrop.
-_CORROBORATING_SPACING = 2.0
 #: Disagreements shallower than this never count as mask errors, pixels (the
 #: voxel footprint adds to it): segmentation edges are this uncertain anyway.
 _MIN_DEPTH_PX = 3.0
@@ -235,39 +226,6 @@ def _look(pair: tuple[np.ndarray, np.ndarray]) -> _Look:
                  iou=float(silhouette_iou(proj, mask)) if rows.size else 1.0)
 
 
-def _corroborated(fill: np.ndarray, box: tuple, camera: Camera, centres: np.ndarray,
-                  witnesses: list[tuple[Camera, np.ndarray]], radius_px: int) -> np.ndarray:
-    """The pixels of ``fill`` (bool, on the image's ``box``) behind which every voxel of
-    ``centres`` (n, 3) is seen outside its silhouette by a witness (camera, (H, W) bool
-    mask) that frames it; a pixel with a voxel no witness sees empty is not. Both kinds
-    are grown by ``radius_px`` (a voxel's footprint: not every pixel has a voxel centre
-    behind it), the second winning."""
-    rows, cols = box
-    pixel = np.floor(camera.project(centres) + 0.5)
-    with np.errstate(invalid="ignore"):
-        r, c = pixel[:, 1] - rows.start, pixel[:, 0] - cols.start
-        on = (r >= 0) & (r < fill.shape[0]) & (c >= 0) & (c < fill.shape[1])
-    r, c = r[on].astype(np.int64), c[on].astype(np.int64)
-    behind = fill[r, c]
-    points, r, c = centres[on][behind], r[behind], c[behind]
-    empty = np.zeros(len(points), dtype=bool)
-    for witness, mask in witnesses:
-        p = np.floor(witness.project(points) + 0.5)
-        with np.errstate(invalid="ignore"):
-            framed = (p[:, 0] >= 0) & (p[:, 0] < witness.width) & (p[:, 1] >= 0) \
-                & (p[:, 1] < witness.height)
-        seen = np.flatnonzero(framed & ~empty)
-        empty[seen] = ~mask[p[seen, 1].astype(np.int64), p[seen, 0].astype(np.int64)]
-    agreed = np.zeros(fill.shape, dtype=np.uint8)
-    agreed[r[empty], c[empty]] = 1
-    disputed = np.zeros(fill.shape, dtype=np.uint8)
-    disputed[r[~empty], c[~empty]] = 1
-    if radius_px > 0:
-        disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius_px + 1,) * 2)
-        agreed, disputed = cv2.dilate(agreed, disk), cv2.dilate(disputed, disk)
-    return (agreed > 0) & (disputed == 0) & fill
-
-
 def fuse_silhouettes(grid: VoxelGrid, cameras: Sequence[Camera], masks, *,
                      max_missing: float = 0.35, exact: Sequence[bool] | None = None) -> Fusion:
     """Decide per view and pixel where a view's mask is outvoted by the others.
@@ -316,9 +274,6 @@ def fuse_silhouettes(grid: VoxelGrid, cameras: Sequence[Camera], masks, *,
     # tolerant hull, whatever the masks say: it is no evidence, leave it out.
     hull &= seen_by(grid, cameras, k + 1)
     projections, half_px = hull_silhouettes(grid, hull, cameras)
-    centres = grid.index_to_world(np.argwhere(hull))
-    forward = np.array([c.forward for c in cameras])
-    far = np.cos(min(math.pi, _CORROBORATING_SPACING * angle))
     # How deep each view cuts into the reference hull, relative to its size. Views in
     # threads (OpenCV's distance transforms and numpy's counts release Python's lock),
     # each on the box around its mask and projection (nothing of either lies outside).
@@ -343,12 +298,7 @@ def fuse_silhouettes(grid: VoxelGrid, cameras: Sequence[Camera], masks, *,
                 r = int(math.ceil(threshold)) + 1
                 disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
                 fill = outside & (cv2.dilate(deep.view(np.uint8), disk) > 0)
-                witnesses = [(cameras[u], masks[u]) for u in np.flatnonzero(
-                    forward @ forward[v] < far)]
-                fill &= ~_corroborated(fill, look.box, cameras[v], centres, witnesses,
-                                       int(math.ceil(half_px[v])) + 1)
-                n_fill = int(np.count_nonzero(fill))
-                depth = float(dist[fill].max()) if n_fill else 0.0
+                n_fill, depth = int(np.count_nonzero(fill)), float(dist[fill].max())
         dropped = missing > max_missing
         if dropped:
             reason = (f"silhouette inconsistent with the other views as a whole: "
