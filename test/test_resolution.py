@@ -126,8 +126,8 @@ def test_a_box_carve_kept_view_by_view_refines_to_the_same_box():
         held, reach = known.carved(grid, cameras, masks, misses, 12)
         framed = seen_by(grid, cameras, 12)
         assert np.array_equal(held, carve(grid, cameras, masks, max_misses=misses) & framed)
-        assert np.array_equal(reach, carve(grid, cameras, footprint_masks(cameras, masks, grid),
-                                           max_misses=misses) & framed)
+        assert np.array_equal(reach, carve(grid, cameras, footprint_masks(cameras, masks, grid))
+                              & framed)
     # Not these views, not this grid, more misses than it counts: it says so (None).
     bitten = [m.copy() for m in masks]
     bitten[3][100:, :] = False

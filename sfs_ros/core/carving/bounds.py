@@ -8,11 +8,12 @@ carve's hull plus a margin.
 
 Both carves are coarse: a part thinner than a coarse voxel (a chair's leg, an
 antenna) can fall between the voxel centres in some views, be carved, and be
-cut off by the box in the hull. So each is carved twice, keeping the voxels
-whose centre lands in every silhouette and those whose *footprint* meets it
-(:func:`footprint_masks`); the box is the first's, reaching out to the second's
-on a side where the second reaches further than the margin and a voxel (a part
-the first lost, not the footprint's shell).
+cut off by the box in the hull. So each is also carved keeping the voxels whose
+*footprint* meets every silhouette (:func:`footprint_masks`; no miss tolerated,
+so that what one view's extra foreground leaves does not count); the box is the
+first carve's, reaching out to the second's on a side where the second reaches
+further than the margin and a voxel (a part the first lost, not the
+footprint's shell).
 """
 
 from __future__ import annotations
@@ -150,7 +151,7 @@ def estimate_bounds(cameras: list[Camera], masks: list[np.ndarray], *,
     for grown in (False, True):
         occupancy = carve(grid, cameras,
                           footprint_masks(cameras, masks, grid) if grown else masks,
-                          max_misses=max_misses, outside_image="keep")
+                          max_misses=0 if grown else max_misses, outside_image="keep")
         points = _framed_points(grid, occupancy, cameras)
         boxes.append(None if points is None else
                      np.stack([points.min(axis=0) - pad, points.max(axis=0) + pad]))
@@ -229,7 +230,7 @@ class BoxCarve:
     def carved(self, grid: VoxelGrid, cameras: list[Camera], masks, max_misses: int,
                framed_by: int) -> tuple[np.ndarray, np.ndarray] | None:
         """Two (nx, ny, nz) bool: the voxels of ``grid`` at most ``max_misses`` of the
-        views miss, and those at most that many miss with their footprint
+        views miss, and those no view misses with their footprint
         (:func:`footprint_masks`), of those at least ``framed_by`` of them frame, if this
         store counted exactly these views (``masks`` as :func:`.carve.carve` takes them)
         on this grid; else None."""
@@ -244,7 +245,7 @@ class BoxCarve:
             return None
         framed = self._unframed.tolerating(unframed)
         return (self._misses.tolerating(max_misses) & framed,
-                self._reach.tolerating(max_misses) & framed)
+                self._reach.tolerating(0) & framed)
 
 
 def _same_grid(a: VoxelGrid, b: VoxelGrid) -> bool:
@@ -285,8 +286,8 @@ def refine_bounds(cameras: list[Camera], masks: list[np.ndarray], bounds_m, *,
                                                      framed_by)
     if carved is None:
         framed = seen_by(grid, cameras, framed_by)
-        carved = [carve(grid, cameras, footprint_masks(cameras, masks, grid) if grown
-                        else masks, max_misses=max_misses) & framed for grown in (False, True)]
+        carved = [carve(grid, cameras, masks, max_misses=max_misses) & framed,
+                  carve(grid, cameras, footprint_masks(cameras, masks, grid)) & framed]
     pad = (0.5 + margin_voxels) * grid.voxel_size
     boxes = []
     for occupancy in carved:
