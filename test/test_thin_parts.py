@@ -69,8 +69,8 @@ def test_the_box_holds_parts_thinner_than_its_voxels(scene):
     # The first box is carved on a 48^3 grid over what the cameras see (0.06 units a
     # voxel here): a leg (0.04) or the antenna (0.02) falls between voxel centres in
     # some views. The box must still hold the whole object, the legs' feet and the
-    # antenna's tip (it ended 0.3 below the tip when it
-    # kept only the voxels whose centres every view saw in its silhouette).
+    # antenna's tip (it ended 0.3 below the tip when it kept only the voxels whose
+    # centres every view saw in its silhouette).
     mesh, cameras, masks = scene
     k = reference_misses(len(cameras))
     first = estimate_bounds(cameras, masks, max_misses=k)
