@@ -79,6 +79,23 @@ def test_exact_masks_are_never_overruled(projection, phis, n_theta):
     assert all(np.array_equal(a, b) for a, b in zip(fusion.masks, masks))
 
 
+def test_a_view_flagged_exact_is_not_overruled():
+    # The bitten view of the test above, flagged exact (an alpha mask): it keeps its
+    # bite, and the others are untouched; a view missing most of the hull is still dropped.
+    cams, masks = scan("pinhole", (0, 35, 70), 8)
+    damaged = list(masks)
+    damaged[BAD] = bite(masks[BAD])
+    exact = [v == BAD for v in range(len(cams))]
+    fusion = fuse_silhouettes(GRID, cams, damaged, exact=exact)
+    assert all(v.overruled_pixels == 0 and not v.dropped for v in fusion.verdicts)
+    assert np.array_equal(fusion.masks[BAD], damaged[BAD])
+    damaged[BAD] = np.zeros_like(masks[BAD])
+    damaged[BAD][:2, :2] = True
+    assert fuse_silhouettes(GRID, cams, damaged, exact=exact).verdicts[BAD].dropped
+    with pytest.raises(ValueError, match="one flag per view"):
+        fuse_silhouettes(GRID, cams, masks, exact=[True])
+
+
 def test_a_view_wrong_as_a_whole_is_dropped():
     cams, masks = scan("pinhole", (0, 35, 70), 8)
     masks[BAD] = np.roll(masks[BAD], 60, axis=1)  # another object, or a wrong calibration

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from sfs_ros.core.carving.bounds import BoxCarve, refine_bounds, seen_by
+from sfs_ros.core.carving.bounds import BoxCarve, footprint_masks, refine_bounds, seen_by
 from sfs_ros.core.carving.carve import carve
 from sfs_ros.core.carving.resolution import (
     BYTES_PER_VOXEL,
@@ -123,9 +123,11 @@ def test_a_box_carve_kept_view_by_view_refines_to_the_same_box():
         expected = refine_bounds(cameras, masks, loose, resolution=64, max_misses=misses)
         assert np.array_equal(refine_bounds(cameras, masks, loose, resolution=64,
                                             max_misses=misses, known=known), expected)
-        held = known.carved(grid, cameras, masks, misses, 12)
-        assert np.array_equal(held, carve(grid, cameras, masks, max_misses=misses)
-                              & seen_by(grid, cameras, 12))
+        held, reach = known.carved(grid, cameras, masks, misses, 12)
+        framed = seen_by(grid, cameras, 12)
+        assert np.array_equal(held, carve(grid, cameras, masks, max_misses=misses) & framed)
+        assert np.array_equal(reach, carve(grid, cameras, footprint_masks(cameras, masks, grid))
+                              & framed)
     # Not these views, not this grid, more misses than it counts: it says so (None).
     bitten = [m.copy() for m in masks]
     bitten[3][100:, :] = False

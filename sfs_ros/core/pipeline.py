@@ -277,7 +277,7 @@ def carve_scan(view_set: ViewSet, params: ReconstructionParams = ReconstructionP
     with timed(timings, "fusion"):
         if params.check_consistency and len(used.cameras) >= 3:
             fused = fuse_views(segmented.views, used, chosen, params.consistency_max_missing,
-                               progress)
+                               progress, exact=segmented.exact)
     used, rejected = fused.used, segmented.rejected + fused.dropped
     _check_left(segmented, used, rejected, chosen.bounds, params.max_misses)
 

@@ -50,6 +50,8 @@ class Segmented:
     taken : {view name: (H, W) bool silhouette as taken, through the lens}
     lenses : {view name: Camera as taken, with its lens}, every view of the input
     rejected : [{"view", "reason"}] the views of the input that could not be used
+    exact : names of the views whose mask is their image's alpha channel (exact: the
+        fusion never overrules it)
     """
 
     views: list[View]
@@ -57,6 +59,7 @@ class Segmented:
     taken: dict[str, np.ndarray]
     lenses: dict[str, Camera]
     rejected: list[dict]
+    exact: frozenset = frozenset()
 
 
 @dataclass(frozen=True)
@@ -80,22 +83,23 @@ class UsedViews:
 
 
 def _read_and_segment(view: View, params: SegmentationParams,
-                      given: np.ndarray | None) -> np.ndarray | str:
-    """The view's silhouette (H, W) bool (``given``, else segmented from its image), or why
-    it cannot be used."""
+                      given: np.ndarray | None) -> tuple[np.ndarray, bool] | str:
+    """The view's silhouette (H, W) bool (``given``, else segmented from its image) and
+    whether it is exact (its image's alpha channel), or why it cannot be used."""
     if given is not None:
         expected = (view.camera.height, view.camera.width)
         if np.shape(given) != expected or np.asarray(given).dtype != np.bool_:
             return (f"given silhouette is {np.asarray(given).dtype} {np.shape(given)}, "
                     f"expected {expected} bool (the camera's size)")
-        return given if given.any() else "empty silhouette: no object found"
+        return (given, False) if given.any() else "empty silhouette: no object found"
     try:
         image = read_image(view.image_path, keep_alpha=not params.ignore_alpha,
                            expected_size=(view.camera.width, view.camera.height))
     except ValueError as err:
         return str(err)
     result = segment(image, params)
-    return "empty silhouette: no object found" if result.empty else result.mask
+    exact = image.ndim == 3 and image.shape[2] == 4 and not params.ignore_alpha
+    return "empty silhouette: no object found" if result.empty else (result.mask, exact)
 
 
 def segment_views(view_set: ViewSet, params: SegmentationParams, given: dict,
@@ -108,7 +112,7 @@ def segment_views(view_set: ViewSet, params: SegmentationParams, given: dict,
     undistorted = undistorted or {}
     views = view_set.views
     rejected = [{"view": name, "reason": reason} for name, reason in view_set.rejected]
-    kept, masks, taken = [], [], {}
+    kept, masks, taken, exact = [], [], {}, set()
     progress("segmentation", 0.0)
     results = map_in_threads(lambda view: _read_and_segment(view, params, given.get(view.name)),
                              views)
@@ -116,12 +120,16 @@ def segment_views(view_set: ViewSet, params: SegmentationParams, given: dict,
         if isinstance(result, str):
             rejected.append({"view": view.name, "reason": result})
         else:
+            mask, is_exact = result
             kept.append(replace(view, camera=ideal_camera(view.camera)))
             ideal = undistorted.get(view.name)
-            masks.append(undistort_mask(result, view.camera) if ideal is None else ideal)
-            taken[view.name] = result
+            masks.append(undistort_mask(mask, view.camera) if ideal is None else ideal)
+            taken[view.name] = mask
+            if is_exact:
+                exact.add(view.name)
         progress("segmentation", (n + 1) / max(1, len(views)))
-    return Segmented(kept, masks, taken, {v.name: v.camera for v in views}, rejected)
+    return Segmented(kept, masks, taken, {v.name: v.camera for v in views}, rejected,
+                     frozenset(exact))
 
 
 @dataclass(frozen=True)
@@ -290,10 +298,10 @@ class Fused:
 
 
 def fuse_views(views: list[View], used: UsedViews, box: GridChoice, max_missing: float,
-               progress: Progress) -> Fused:
+               progress: Progress, exact: frozenset = frozenset()) -> Fused:
     """The used views' silhouettes fused (:func:`.carving.fusion.fuse_silhouettes`): one
-    view's mask overruled where the others agree it is wrong, a view that disagrees as a
-    whole dropped."""
+    view's mask overruled where the others agree it is wrong (never one named in
+    ``exact``, an alpha channel), a view that disagrees as a whole dropped."""
     progress("fusion", 0.0)
     grid = box.grid
     # The reference hull needs the shape, not the finest detail: voxels twice the
@@ -301,7 +309,8 @@ def fuse_views(views: list[View], used: UsedViews, box: GridChoice, max_missing:
     # view is overruled).
     reference = (VoxelGrid(box.bounds[0], box.bounds[1], 2 * grid.voxel_size)
                  if max(grid.shape) >= 128 else grid)
-    fusion = fuse_silhouettes(reference, used.cameras, used.prepared, max_missing=max_missing)
+    fusion = fuse_silhouettes(reference, used.cameras, used.prepared, max_missing=max_missing,
+                              exact=[views[i].name in exact for i in used.indices])
     consistency, dropped = [], []
     for verdict in fusion.verdicts:
         name = views[used.indices[verdict.index]].name

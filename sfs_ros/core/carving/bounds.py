@@ -5,12 +5,23 @@ two steps: the region every camera can see around the point nearest to all
 optical axes, then a coarse carve inside it whose occupied voxels (grown by
 a margin) give the box. :func:`refine_bounds` then shrinks a box to a finer
 carve's hull plus a margin.
+
+Both carves are coarse: a part thinner than a coarse voxel (a chair's leg, an
+antenna) can fall between the voxel centres in some views, be carved, and be
+cut off by the box in the hull. So each is also carved keeping the voxels whose
+*footprint* meets every silhouette (:func:`footprint_masks`; no miss tolerated,
+so that what one view's extra foreground leaves does not count); the box is the
+first carve's, reaching out to the second's on a side where the second reaches
+further than the margin and a voxel (a part the first lost, not the
+footprint's shell).
 """
 
 from __future__ import annotations
 
+import math
 from collections import Counter
 
+import cv2
 import numpy as np
 
 from ..geometry.camera import Camera
@@ -19,7 +30,7 @@ from .carve import Carver, PreparedMasks, carve
 from .hull import drop_specks, occupied_bounds
 
 __all__ = ["BoxCarve", "axes_meeting_point", "box_in_frame", "estimate_bounds",
-           "refine_bounds", "seen_by"]
+           "footprint_masks", "footprint_radius_px", "refine_bounds", "seen_by"]
 
 #: Resolution of :func:`refine_bounds`'s carve.
 REFINE_RESOLUTION = 128
@@ -69,6 +80,56 @@ def _visible_half_size(cam: Camera, centre: np.ndarray) -> float:
     return half_px * depth / min(cam.K[0, 0], cam.K[1, 1])
 
 
+def footprint_radius_px(camera: Camera, grid: VoxelGrid) -> int:
+    """Pixels a voxel of ``grid`` can reach from its centre's pixel in ``camera``'s image.
+
+    A cube of side ``s`` projects within ``R = f * s * sqrt(3) / 2 / d`` pixels of its
+    centre's projection (``d`` its depth; orthographic: ``f * s * sqrt(3) / 2``), taken
+    at the nearest depth of the grid's box (at least a tenth of its centre's) and the
+    larger focal length; the centre's pixel is within ``sqrt(2) / 2`` of the
+    projection, so pixel centres within ``R`` of it are within ``R + 0.71`` of its pixel.
+    """
+    reach = 0.5 * math.sqrt(3.0) * grid.voxel_size
+    focal = float(max(abs(camera.K[0, 0]), abs(camera.K[1, 1])))
+    if camera.orthographic:
+        return int(math.ceil(focal * reach + 0.71))
+    lo, hi = grid.bounds_min, grid.bounds_max
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                        for z in (lo[2], hi[2])])
+    centre_depth = float(camera.depth(0.5 * (lo + hi)[None])[0])
+    near = max(float(camera.depth(corners).min()), 0.1 * abs(centre_depth))
+    return int(math.ceil(focal * reach / max(near, 1e-12) + 0.71))
+
+
+def _grown(mask: np.ndarray, radius_px: int) -> np.ndarray:
+    """``mask`` (H, W) bool grown by ``radius_px`` pixels (Euclidean; the 5 x 5 chamfer
+    metric's distances, within 2 % of it, are taken 2 % long)."""
+    rows = np.flatnonzero(mask.any(axis=1))
+    if rows.size == 0 or radius_px <= 0:
+        return mask
+    cols = np.flatnonzero(mask.any(axis=0))
+    h, w = mask.shape
+    r = radius_px + 1
+    box = (slice(max(0, rows[0] - r), min(h, rows[-1] + r + 1)),
+           slice(max(0, cols[0] - r), min(w, cols[-1] + r + 1)))
+    distance = cv2.distanceTransform(np.ascontiguousarray(~mask[box]).view(np.uint8),
+                                     cv2.DIST_L2, cv2.DIST_MASK_5)
+    out = np.zeros_like(mask)
+    out[box] = distance <= 1.02 * radius_px
+    return out
+
+
+def footprint_masks(cameras: list[Camera], masks, grid: VoxelGrid) -> list[np.ndarray]:
+    """The ``masks`` (n (H, W) bool, or PreparedMasks) grown by the footprint of a voxel of
+    ``grid`` in each view (:func:`footprint_radius_px`): a voxel whose centre lands in the
+    grown mask may meet the silhouette; one outside it cannot. Carving ``grid`` with
+    them keeps every voxel any part of which every view sees in its silhouette."""
+    if isinstance(masks, PreparedMasks):
+        masks = masks.masks
+    return [_grown(np.asarray(m, dtype=bool), footprint_radius_px(c, grid))
+            for c, m in zip(cameras, masks, strict=True)]
+
+
 def estimate_bounds(cameras: list[Camera], masks: list[np.ndarray], *,
                     resolution: int = 48, margin_voxels: float = 2.0,
                     max_misses: int = 0) -> np.ndarray:
@@ -77,18 +138,33 @@ def estimate_bounds(cameras: list[Camera], masks: list[np.ndarray], *,
     Carves a ``resolution``^3 grid over the region all cameras can see around
     :func:`axes_meeting_point`, keeping only voxels inside the image in at
     least half the views, and grows the occupied box by ``margin_voxels``
-    coarse voxels. ``max_misses`` views may see a voxel outside their mask
+    coarse voxels, reaching out to the carve of the voxels whose footprint meets the
+    silhouettes (module docstring). ``max_misses`` views may see a voxel outside their mask
     (one view that lost part of the object must not cut the box). Raises
     ``ValueError`` if nothing survives.
     """
     centre = axes_meeting_point(cameras)
     half = max(_visible_half_size(cam, centre) for cam in cameras)
     grid = VoxelGrid(centre - half, centre + half, 2 * half / resolution)
-    occupancy = carve(grid, cameras, masks, max_misses=max_misses, outside_image="keep")
-    ijk = np.argwhere(occupancy)
-    if len(ijk) == 0:
-        raise ValueError("cannot estimate a bounding box: the silhouettes have no common volume")
-    points = grid.index_to_world(ijk)
+    pad = (0.5 + margin_voxels) * grid.voxel_size
+    boxes = []
+    for grown in (False, True):
+        occupancy = carve(grid, cameras,
+                          footprint_masks(cameras, masks, grid) if grown else masks,
+                          max_misses=0 if grown else max_misses, outside_image="keep")
+        points = _framed_points(grid, occupancy, cameras)
+        boxes.append(None if points is None else
+                     np.stack([points.min(axis=0) - pad, points.max(axis=0) + pad]))
+    if boxes[1] is None:
+        raise ValueError("cannot estimate a bounding box: the silhouettes have no common volume "
+                         "in the frame of most views")
+    return _reaching(boxes[0], boxes[1], pad + grid.voxel_size)
+
+
+def _framed_points(grid: VoxelGrid, occupancy: np.ndarray, cameras: list[Camera]):
+    """(k, 3) centres of the occupied voxels inside the image in at least half the views,
+    metres; None when there is none."""
+    points = grid.index_to_world(np.argwhere(occupancy))
     in_frame = np.zeros(len(points), dtype=np.int32)
     for cam in cameras:
         uv = cam.project(points)
@@ -97,10 +173,16 @@ def estimate_bounds(cameras: list[Camera], masks: list[np.ndarray], *,
                       & (uv[:, 1] > -0.5) & (uv[:, 1] < cam.height - 0.5))
         in_frame += inside
     points = points[2 * in_frame >= len(cameras)]
-    if len(points) == 0:
-        raise ValueError("cannot estimate a bounding box: the object is out of frame in most views")
-    pad = (0.5 + margin_voxels) * grid.voxel_size
-    return np.stack([points.min(axis=0) - pad, points.max(axis=0) + pad])
+    return points if len(points) else None
+
+
+def _reaching(box: np.ndarray | None, reach: np.ndarray, beyond_m: float) -> np.ndarray:
+    """``box`` (2, 3) moved out to ``reach``'s sides that lie more than ``beyond_m``
+    further out (``reach`` itself when there is no ``box``)."""
+    if box is None:
+        return reach
+    return np.stack([np.where(reach[0] < box[0] - beyond_m, reach[0], box[0]),
+                     np.where(reach[1] > box[1] + beyond_m, reach[1], box[1])])
 
 
 class BoxCarve:
@@ -120,7 +202,7 @@ class BoxCarve:
     resolution : int, keyword-only
         Of the coarse grid, as :func:`refine_bounds`'s.
 
-    Memory: two bytes per voxel of the coarse grid (4 MiB at 128^3) and a key per view
+    Memory: three bytes per voxel of the coarse grid (6 MiB at 128^3) and a key per view
     (its camera and its packed mask).
     """
 
@@ -133,6 +215,7 @@ class BoxCarve:
         bounds = np.asarray(bounds_m, dtype=np.float64)
         self.grid = VoxelGrid.cube(bounds[0], bounds[1], resolution)
         self._misses = Carver(self.grid, max_misses=self.MOST_MISSES)
+        self._reach = Carver(self.grid, max_misses=self.MOST_MISSES)
         self._unframed = Carver(self.grid, max_misses=self.MOST_UNFRAMED,
                                 outside_image="carve")
         self._views: Counter = Counter()
@@ -140,15 +223,17 @@ class BoxCarve:
     def add(self, camera: Camera, mask) -> None:
         """Count one more view: ``mask`` (camera.height, camera.width) bool."""
         self._misses.add_view(camera, mask)
+        self._reach.add_view(camera, footprint_masks([camera], [mask], self.grid)[0])
         self._unframed.add_view(camera, np.ones((camera.height, camera.width), bool))
         self._views[_view_key(camera, mask)] += 1
 
     def carved(self, grid: VoxelGrid, cameras: list[Camera], masks, max_misses: int,
-               framed_by: int) -> np.ndarray | None:
-        """(nx, ny, nz) bool: the voxels of ``grid`` at most ``max_misses`` of the views
-        miss and at least ``framed_by`` of them frame, if this store counted exactly
-        these views (``masks`` as :func:`.carve.carve` takes them) on this grid; else
-        None."""
+               framed_by: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """Two (nx, ny, nz) bool: the voxels of ``grid`` at most ``max_misses`` of the
+        views miss, and those no view misses with their footprint
+        (:func:`footprint_masks`), of those at least ``framed_by`` of them frame, if this
+        store counted exactly these views (``masks`` as :func:`.carve.carve` takes them)
+        on this grid; else None."""
         unframed = len(cameras) - framed_by
         if not _same_grid(grid, self.grid) or not 0 <= max_misses <= self.MOST_MISSES \
                 or not 0 <= unframed <= self.MOST_UNFRAMED:
@@ -158,7 +243,9 @@ class BoxCarve:
         if len(cameras) != sum(self._views.values()) or self._views != Counter(
                 _view_key(c, m) for c, m in zip(cameras, masks, strict=True)):
             return None
-        return self._misses.tolerating(max_misses) & self._unframed.tolerating(unframed)
+        framed = self._unframed.tolerating(unframed)
+        return (self._misses.tolerating(max_misses) & framed,
+                self._reach.tolerating(0) & framed)
 
 
 def _same_grid(a: VoxelGrid, b: VoxelGrid) -> bool:
@@ -187,25 +274,30 @@ def refine_bounds(cameras: list[Camera], masks: list[np.ndarray], bounds_m, *,
     (:func:`~.hull.drop_specks`), and grows the box of what is left by
     ``margin_voxels`` of that grid's voxels (a finer carve can occupy voxels
     whose coarse cell's centre was outside: half a voxel; the rest is room for
-    the surface). The result never leaves ``bounds_m``; ``bounds_m`` itself is
+    the surface), reaching out to the same carve of the voxels whose footprint meets
+    the silhouettes (module docstring). The result never leaves ``bounds_m``; ``bounds_m`` itself is
     returned when nothing survives. ``known``: the carve kept as the views arrived
     (:class:`BoxCarve`), used when it holds these views on this grid.
     """
     bounds = np.asarray(bounds_m, dtype=np.float64)
     grid = VoxelGrid.cube(bounds[0], bounds[1], resolution)
     framed_by = len(cameras) - len(cameras) // 2
-    occupancy = None if known is None else known.carved(grid, cameras, masks, max_misses,
-                                                         framed_by)
-    if occupancy is None:
-        occupancy = carve(grid, cameras, masks, max_misses=max_misses)
-        occupancy &= seen_by(grid, cameras, framed_by)
-    occupancy, _ = drop_specks(occupancy)
-    box = occupied_bounds(occupancy)
-    if box is None:
-        return bounds
+    carved = None if known is None else known.carved(grid, cameras, masks, max_misses,
+                                                     framed_by)
+    if carved is None:
+        framed = seen_by(grid, cameras, framed_by)
+        carved = [carve(grid, cameras, masks, max_misses=max_misses) & framed,
+                  carve(grid, cameras, footprint_masks(cameras, masks, grid)) & framed]
     pad = (0.5 + margin_voxels) * grid.voxel_size
-    lo = grid.index_to_world(box[0])[0] - pad
-    hi = grid.index_to_world(box[1] - 1)[0] + pad
+    boxes = []
+    for occupancy in carved:
+        box = occupied_bounds(drop_specks(occupancy)[0])
+        boxes.append(None if box is None else
+                     np.stack([grid.index_to_world(box[0])[0] - pad,
+                               grid.index_to_world(box[1] - 1)[0] + pad]))
+    if boxes[1] is None:
+        return bounds
+    lo, hi = _reaching(boxes[0], boxes[1], pad + grid.voxel_size)
     return np.stack([np.maximum(lo, bounds[0]), np.minimum(hi, bounds[1])])
 
 

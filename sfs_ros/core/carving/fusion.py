@@ -11,11 +11,14 @@ where a view is outvoted:
 2. it is projected into every view; where the projection falls outside the
    view's mask, the view disagrees with (at least) all but ``k`` of the others;
 3. a disagreement *deeper* than what correct views produce is a mask error:
-   those pixels are filled in the view's mask (the view is *overruled* there).
-   Correct views cut the reference hull too (it sticks out of a true silhouette
-   by the facets one view carves), and all views of a scan cut about equally
-   deep for their silhouette's size; so the bar is set from the views
-   themselves: the median over views of the deepest cut relative to the
+   those pixels are filled in the view's mask (the view is *overruled* there),
+   unless the mask is exact (an image's alpha channel): a region only the
+   views at the horizon see empty (under a seat, between legs) is kept by the
+   reference hull's tolerance, and an exact view that carves it is right.
+   Correct views cut the reference hull too (it sticks out of a true
+   silhouette by the facets one view carves), and all views of a scan cut
+   about equally deep for their silhouette's size; so the bar is set from the
+   views themselves: the median over views of the deepest cut relative to the
    silhouette's radius, and never below the facet depth of a round section
    (:func:`facet_depth_px`), times a safety factor. Shallower cuts are the view
    doing its job (sharpening the hull) and are left alone. With few views (16
@@ -228,7 +231,8 @@ class _Judge:
     at the reference hull's projections (whose half voxel footprint is ``half_px``, (n,)
     pixels), each projection's ``radius_px`` and deepest cut ``cut_px`` (n,), the
     ``typical`` cut relative to the radius, the ``angle`` between neighbouring views
-    (radians), the reference hull's tolerance ``k`` and ``max_missing``."""
+    (radians), the reference hull's tolerance ``k``, ``max_missing`` and which views are
+    ``exact`` (never overruled)."""
 
     masks: list
     looks: list
@@ -239,6 +243,7 @@ class _Judge:
     angle: float
     k: int
     max_missing: float
+    exact: list
 
     def verdict(self, v: int) -> tuple[np.ndarray, ViewVerdict]:
         """View ``v``'s repaired mask and verdict."""
@@ -251,7 +256,7 @@ class _Judge:
             outside, dist = look.outside, look.distance
             missing = float(np.count_nonzero(outside & (dist > floor_px))) / max(1, look.n_proj)
             deep = outside & (dist > threshold)
-            if deep.any() and missing <= max_missing:
+            if deep.any() and missing <= max_missing and not self.exact[v]:
                 # the whole gap around the deep pixels, down to the mask's edge
                 r = int(math.ceil(threshold)) + 1
                 disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
@@ -279,7 +284,7 @@ class _Judge:
 
 
 def fuse_silhouettes(grid: VoxelGrid, cameras: Sequence[Camera], masks, *,
-                     max_missing: float = 0.35) -> Fusion:
+                     max_missing: float = 0.35, exact: Sequence[bool] | None = None) -> Fusion:
     """Decide per view and pixel where a view's mask is outvoted by the others.
 
     Parameters
@@ -293,6 +298,9 @@ def fuse_silhouettes(grid: VoxelGrid, cameras: Sequence[Camera], masks, *,
         A view missing a larger fraction of the reference hull's projection
         (beyond the voxel footprint) is dropped as a whole; below, its deep
         disagreements are overruled.
+    exact : sequence of n bool, optional
+        Views whose mask is exact (an alpha channel): never overruled (still
+        dropped when they disagree as a whole). Default: none.
 
     Returns
     -------
@@ -313,6 +321,9 @@ def fuse_silhouettes(grid: VoxelGrid, cameras: Sequence[Camera], masks, *,
     prepared = masks if isinstance(masks, PreparedMasks) else PreparedMasks(cameras, masks)
     masks = prepared.masks
     n = len(cameras)
+    exact = [False] * n if exact is None else [bool(e) for e in exact]
+    if len(exact) != n:
+        raise ValueError(f"exact must give one flag per view ({n}), got {len(exact)}")
     k = reference_misses(n)
     angle = neighbour_angle_rad(cameras)
     hull = carve(grid, cameras, prepared, max_misses=k)
@@ -328,7 +339,8 @@ def fuse_silhouettes(grid: VoxelGrid, cameras: Sequence[Camera], masks, *,
     cut_px = np.array([look.cut_px for look in looks])
     typical = float(np.median(cut_px / np.maximum(radius_px, 1.0)))
 
-    judge = _Judge(masks, looks, half_px, radius_px, cut_px, typical, angle, k, max_missing)
+    judge = _Judge(masks, looks, half_px, radius_px, cut_px, typical, angle, k, max_missing,
+                   exact)
     repaired, verdicts = map(list, zip(*map_in_threads(judge.verdict, range(n))))
     median_iou = float(np.median([v.iou for v in verdicts]))
     if median_iou < MIN_MEDIAN_IOU:

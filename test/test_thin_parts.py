@@ -1,0 +1,117 @@
+"""Thin parts and regions only grazing views see: a table on thin legs with an antenna,
+seen from a hemisphere of views down to the horizon, against its exact silhouettes."""
+
+import json
+import math
+
+import cv2
+import numpy as np
+import pytest
+import trimesh
+
+from sfs_ros.core.carving.bounds import estimate_bounds, refine_bounds
+from sfs_ros.core.carving.fusion import reference_misses
+from sfs_ros.core.exchange.nerf import read_transforms
+from sfs_ros.core.geometry.camera import Camera
+from sfs_ros.core.pipeline import reconstruct
+from sfs_ros.core.render import rasterize_silhouette, render_image
+
+SIZE_PX = 400
+ANGLE_X = 0.69  # radians, as NeRF's synthetic scenes
+DISTANCE = 4.0  # world units from the origin, as NeRF's synthetic scenes
+
+
+def table() -> trimesh.Trimesh:
+    """A 1.0 x 0.8 x 0.1 slab on four legs 0.04 thick and 0.6 long, with a 0.02 thick
+    antenna 0.5 long standing on it: parts a coarse voxel (0.06) falls between."""
+    parts = [trimesh.creation.box(extents=(1.0, 0.8, 0.1),
+                                  transform=trimesh.transformations.translation_matrix((0, 0, 0.05)))]
+    for x in (-0.44, 0.44):
+        for y in (-0.34, 0.34):
+            leg = trimesh.creation.cylinder(radius=0.02, height=0.6, sections=16)
+            leg.apply_translation((x, y, -0.3))
+            parts.append(leg)
+    antenna = trimesh.creation.cylinder(radius=0.01, height=0.5, sections=12)
+    antenna.apply_translation((0.3, 0.2, 0.35))
+    parts.append(antenna)
+    return trimesh.util.concatenate(parts)
+
+
+def hemisphere_cameras() -> list[Camera]:
+    """40 views looking at the origin from ``DISTANCE``: 4 at 1 degree of elevation (the
+    only ones seeing under the slab), 12 on each of the rings at 20, 45 and 70 degrees."""
+    f = 0.5 * SIZE_PX / math.tan(0.5 * ANGLE_X)
+    K = np.array([[f, 0, SIZE_PX / 2 - 0.5], [0, f, SIZE_PX / 2 - 0.5], [0, 0, 1.0]])
+    cameras = []
+    for r, (elevation, n) in enumerate(((1.0, 4), (20.0, 12), (45.0, 12), (70.0, 12))):
+        e = math.radians(elevation)
+        for azimuth in np.radians(np.arange(n) * 360.0 / n + 11.0 * r):
+            back = np.array([math.cos(e) * math.cos(azimuth), math.cos(e) * math.sin(azimuth),
+                             math.sin(e)])
+            right = np.cross([0.0, 0.0, 1.0], back)
+            right /= np.linalg.norm(right)
+            down = np.cross(back, right) * -1.0
+            R = np.stack([right, down, -back])      # rows: camera x, y, z in the world
+            cameras.append(Camera(K=K, R=R, t=-R @ (DISTANCE * back), width=SIZE_PX,
+                                  height=SIZE_PX))
+    return cameras
+
+
+@pytest.fixture(scope="module")
+def scene():
+    mesh = table()
+    cameras = hemisphere_cameras()
+    masks = [rasterize_silhouette(mesh.vertices, mesh.faces, c) for c in cameras]
+    return mesh, cameras, masks
+
+
+def test_the_box_holds_parts_thinner_than_its_voxels(scene):
+    # The first box is carved on a 48^3 grid over what the cameras see (0.06 units a
+    # voxel here): a leg (0.04) or the antenna (0.02) falls between voxel centres in
+    # some views. The box must still hold the whole object, the legs' feet and the
+    # antenna's tip (it ended 0.3 below the tip when it kept only the voxels whose
+    # centres every view saw in its silhouette).
+    mesh, cameras, masks = scene
+    k = reference_misses(len(cameras))
+    first = estimate_bounds(cameras, masks, max_misses=k)
+    box = refine_bounds(cameras, masks, first, max_misses=k)
+    assert np.all(box[0] <= mesh.bounds[0]) and np.all(box[1] >= mesh.bounds[1])
+    # ... and stays a box around the object: the margins (2.5 voxels of the 128^3 grid
+    # over the first box) plus a voxel's footprint.
+    assert np.all(box[0] >= mesh.bounds[0] - 0.12) and np.all(box[1] <= mesh.bounds[1] + 0.12)
+
+
+def write_rgba_scan(folder, mesh, cameras, masks):
+    """The views as RGBA PNGs (alpha: the exact silhouette) and a transforms.json."""
+    colours = np.tile(np.array([[190.0, 150.0, 100.0]]), (len(mesh.vertices), 1))
+    frames = []
+    for n, (camera, mask) in enumerate(zip(cameras, masks)):
+        image = render_image(mesh.vertices, mesh.faces, camera, vertex_colors=colours,
+                             background_rgb=(0, 0, 0), noise_sigma=0.0)
+        rgba = np.dstack([image, np.where(mask, 255, 0).astype(np.uint8)])
+        cv2.imwrite(str(folder / f"r_{n}.png"), cv2.cvtColor(rgba, cv2.COLOR_RGBA2BGRA))
+        pose = np.eye(4)
+        pose[:3, :3] = camera.R.T @ np.diag([1.0, -1.0, -1.0])   # OpenCV -> OpenGL axes
+        pose[:3, 3] = camera.center
+        frames.append({"file_path": f"./r_{n}", "transform_matrix": pose.tolist()})
+    path = folder / "transforms.json"
+    path.write_text(json.dumps({"camera_angle_x": ANGLE_X, "frames": frames}))
+    return path
+
+
+def test_rgba_views_are_carved_as_their_exact_alpha(scene, tmp_path):
+    # The region under the slab is seen as empty only by the four views at 1 degree;
+    # the reference hull of the fusion, tolerating two misses, keeps parts of it. Alpha
+    # masks are exact: those views are right, not overruled, and the mesh matches every
+    # view's silhouette. Measured: mean 0.974, worst view 0.957 (the legs, 6 px wide,
+    # lose a voxel's footprint at their edges); when the box cut the legs and the
+    # grazing views were overruled: 0.966 and 0.899 (0.947 without the overruling).
+    mesh, cameras, masks = scene
+    views = read_transforms(write_rgba_scan(tmp_path, mesh, cameras, masks))
+    result = reconstruct(views)
+    assert not result.report["fusion"]["overruled"]
+    ious = []
+    for view, mask in zip(views.views, masks):
+        drawn = rasterize_silhouette(result.vertices, result.faces, view.camera)
+        ious.append(np.count_nonzero(drawn & mask) / np.count_nonzero(drawn | mask))
+    assert min(ious) > 0.94 and np.mean(ious) > 0.97, (min(ious), np.mean(ious))
