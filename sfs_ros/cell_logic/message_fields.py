@@ -17,8 +17,7 @@ import numpy as np
 
 __all__ = ["JOINT_NAMES", "IMAGE_ENCODINGS", "check_image_size", "image_rows", "stamp_key",
            "format_stamp", "view_key", "msg_to_image", "mask_from_msg", "colour_image_from_msg",
-           "angles_from_joint_state",
-           "ForeignJointState", "scan_report", "status_namespace"]
+           "angles_from_joint_state", "ForeignJointState", "scan_report", "status_namespace"]
 
 #: Joint names of the cell: turntable = theta, carriage = phi.
 JOINT_NAMES = ("turntable", "carriage")
