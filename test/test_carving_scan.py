@@ -12,6 +12,7 @@ from sfs_ros.cell_logic.carving_scan import (
     HullSchedule,
     grid_refusal,
     memory_budget,
+    reset_refusal,
 )
 from sfs_ros.cell_logic.live_reconstruction import OPEN_MARKER, LiveReconstruction
 from sfs_ros.cell_logic.message_fields import view_key
@@ -32,9 +33,17 @@ def disc() -> np.ndarray:
     return (rows - RIG.height / 2) ** 2 + (cols - RIG.width / 2) ** 2 <= 100
 
 
+#: The per-scan settings the scans of :func:`make_scan` are made with (compared only).
+SETTINGS = ("box", 16)
+
+
 def make_scan(tmp_path, folder="out") -> CarvingScan:
     return CarvingScan(LiveReconstruction(RIG, BOX, output_dir=tmp_path / folder, resolution=16),
-                       BUDGET)
+                       BUDGET, settings=SETTINGS)
+
+
+def no_new_reconstruction() -> LiveReconstruction:
+    raise AssertionError("the settings did not change: the reconstruction is reset, not made")
 
 
 def test_a_view_is_carved_receipted_and_counted(tmp_path):
@@ -81,7 +90,7 @@ def test_a_late_copy_of_an_earlier_scans_view_is_not_stored_in_the_next(tmp_path
     scan = make_scan(tmp_path)
     scan.add_view((5, 0), "camera", disc(), 0.0, 0.3)
     first = scan.live.session_dir
-    scan.new_scan(None, None)
+    assert scan.new_scan(None, SETTINGS, no_new_reconstruction) is False
     assert scan.cameras == [] and scan.health.snapshot()[0]["scan_views"] == 0
     outcome = scan.add_view((5, 0), "camera", disc(), 0.0, 0.3)
     assert outcome.kind == "stale" and outcome.receipted and not outcome.stored
@@ -95,9 +104,11 @@ def test_new_settings_make_a_new_reconstruction_and_end_the_old_scan(tmp_path):
     scan.add_view((5, 0), "camera", disc(), 0.0, 0.3)
     old, first = scan.live, scan.live.session_dir
     assert (first / OPEN_MARKER).exists()
-    scan.new_scan("named", lambda: LiveReconstruction(RIG, BOX, output_dir=tmp_path / "out",
-                                                      resolution=20, scan_name="named"))
+    assert scan.new_scan("named", ("box", 20),
+                         lambda: LiveReconstruction(RIG, BOX, output_dir=tmp_path / "out",
+                                                    resolution=20, scan_name="named"))
     assert scan.live is not old and scan.live.grid.shape[0] == 20
+    assert scan.settings == ("box", 20)
     assert not (first / OPEN_MARKER).exists()
     assert scan.add_view((5, 0), "camera", disc(), 0.0, 0.3).kind == "stale"
 
@@ -106,8 +117,36 @@ def test_a_taken_scan_name_changes_nothing(tmp_path):
     scan = make_scan(tmp_path)
     scan.add_view((5, 0), "camera", disc(), 0.0, 0.3)
     with pytest.raises(ValueError, match="scan_001"):
-        scan.new_scan("scan_001", None)
+        scan.new_scan("scan_001", SETTINGS, no_new_reconstruction)
     assert scan.live.n_views == 1 and "5_000000000" not in scan.earlier
+
+
+def test_a_scan_without_a_reconstruction_gets_one_at_its_first_new_scan(tmp_path):
+    scan = CarvingScan(None, BUDGET, "refused: too big", SETTINGS)
+    assert scan.working_memory_reserve() == 0
+    assert scan.new_scan(None, SETTINGS, lambda: LiveReconstruction(
+        RIG, BOX, output_dir=tmp_path / "out", resolution=16))
+    assert scan.live is not None and scan.refusal == ""
+    assert 0 < scan.working_memory_reserve() == min(scan.live.working_memory_bytes, BUDGET)
+
+
+def test_a_reset_is_refused_while_the_scan_node_takes_views_or_for_a_grid_too_big():
+    assert reset_refusal(None, BOX, 16, BUDGET) == ""
+    assert reset_refusal((3, "running"), BOX, 16, BUDGET) == (
+        "reset refused: the scan node reports scan 3 running; its views go to the scan open "
+        "now (cancel it first: scan/cancel, then reset)")
+    assert reset_refusal(None, BOX, 2048, 64 << 20) == grid_refusal(BOX, 2048, 64 << 20) != ""
+
+
+def test_a_colour_image_is_kept_for_its_view_or_refused_with_its_stamp(tmp_path):
+    scan = make_scan(tmp_path)
+    scan.add_view((5, 0), "camera", disc(), 0.0, 0.3)
+    image = np.full((RIG.height, RIG.width, 3), 200, np.uint8)
+    assert scan.add_colour_image((5, 0), image) == ""
+    assert scan.live.colour_image(view_key((5, 0))) is not None
+    problem = scan.add_colour_image((6, 0), image[:10])
+    assert problem.startswith("captured image at stamp 6.000000000 not kept for colour: ")
+    assert "the rig's size" in problem
 
 
 def test_earlier_views_keep_the_most_recent():

@@ -405,11 +405,11 @@ def test_class6_a_pairing_buffer_is_bounded_in_bytes_and_refuses_what_cannot_fit
 def test_class6_a_mask_or_image_not_of_the_rigs_size_is_refused_before_it_is_kept():
     from sensor_msgs.msg import Image
 
-    from sfs_ros.nodes.carving_node import _decode_mask
+    from sfs_ros.cell_logic.message_fields import mask_from_msg
 
     msg = Image(width=8000, height=6000, encoding="mono8", step=8000)   # no pixels needed
     with pytest.raises(ValueError, match="mask is 8000x6000 pixels, expected the rig's 96x72"):
-        _decode_mask(msg, (96, 72))
+        mask_from_msg(msg, (96, 72))
 
 
 @pytest.mark.ros

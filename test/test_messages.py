@@ -7,6 +7,8 @@ from rosbags.typesys import Stores, get_typestore
 from sfs_ros.cell_logic.message_fields import (
     ForeignJointState,
     angles_from_joint_state,
+    colour_image_from_msg,
+    mask_from_msg,
     msg_to_image,
     scan_report,
     status_namespace,
@@ -34,6 +36,39 @@ def test_a_padded_bgr8_image_from_rosbags_is_rgb_without_its_padding():
                                                  encoding="bgr8", is_bigendian=0, step=12,
                                                  data=rows.reshape(-1)), "sensor_msgs/msg/Image")
     np.testing.assert_array_equal(msg_to_image(msg), rgb)
+
+
+def _image(rows: np.ndarray, encoding: str, frame_id: str = ""):
+    header = T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=1, nanosec=2),
+                                      frame_id=frame_id)
+    return T["sensor_msgs/msg/Image"](header=header, height=rows.shape[0],
+                                      width=rows.shape[1],
+                                      encoding=encoding, is_bigendian=0,
+                                      step=rows[0].size, data=rows.reshape(-1))
+
+
+def test_a_mask_of_the_rigs_size_is_a_copy_with_its_frame_and_others_are_refused():
+    rows = np.array([[0, 255, 0], [255, 255, 0]], np.uint8)
+    msg = _image(rows, "mono8", "camera_optical")
+    mask, frame_id = mask_from_msg(msg, (3, 2))
+    np.testing.assert_array_equal(mask, rows)
+    assert frame_id == "camera_optical" and not np.shares_memory(mask, msg.data)
+    with pytest.raises(ValueError, match="mask is 3x2 pixels, expected the rig's 4x2"):
+        mask_from_msg(msg, (4, 2))
+    with pytest.raises(ValueError, match="mask encoding is 'rgb8', expected 'mono8'"):
+        mask_from_msg(_image(np.zeros((2, 3, 3), np.uint8), "rgb8"), (3, 2))
+
+
+def test_a_captured_image_is_rgb_of_the_rigs_size_and_a_mask_is_no_colour_image():
+    rgb = np.arange(2 * 3 * 3, dtype=np.uint8).reshape(2, 3, 3)
+    msg = _image(rgb[:, :, ::-1].copy(), "bgr8")
+    image = colour_image_from_msg(msg, (3, 2))
+    np.testing.assert_array_equal(image, rgb)
+    assert not np.shares_memory(image, msg.data)
+    with pytest.raises(ValueError, match="captured image is 3x2 pixels, expected the rig's"):
+        colour_image_from_msg(msg, (2, 3))
+    with pytest.raises(ValueError, match="encoding 'mono8', expected rgb8 or bgr8"):
+        colour_image_from_msg(_image(np.zeros((2, 3), np.uint8), "mono8"), (3, 2))
 
 
 def test_a_big_endian_mono16_image_from_rosbags_reads_its_values():

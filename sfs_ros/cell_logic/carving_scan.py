@@ -29,7 +29,8 @@ from sfs_ros.core.carving.resolution import (
 from sfs_ros.core.geometry.rig import rig_camera
 
 __all__ = ["EARLIER_VIEWS_KEPT", "CarvingHealth", "CarvingScan", "EarlierViews",
-           "HullSchedule", "ViewOutcome", "grid_refusal", "memory_budget", "store_problem"]
+           "HullSchedule", "ViewOutcome", "grid_refusal", "memory_budget", "reset_refusal",
+           "store_problem"]
 
 #: Views of earlier scans remembered by their keys, so that a late copy of one (a resend
 #: that crossed its receipt) is not stored into the next scan; the most recent are kept.
@@ -55,6 +56,19 @@ def grid_refusal(bounds_m: np.ndarray, resolution: int, budget: int) -> str:
     except ValueError as exc:
         return f"refused: {exc}"
     return ""
+
+
+def reset_refusal(capturing: tuple[int, str] | None, bounds_m: np.ndarray, resolution: int,
+                  budget: int) -> str:
+    """Why a reset cannot start a new scan now ("" if it can): the scan node is taking
+    views (``capturing``: the scan number and state it reports, None when it is not; a new
+    scan would split them over two session folders), or the grid of ``resolution`` over
+    ``bounds_m`` (2, 3) metres does not fit ``budget`` bytes (:func:`grid_refusal`)."""
+    if capturing is not None:
+        return (f"reset refused: the scan node reports scan {capturing[0]} {capturing[1]}; "
+                "its views go to the scan open now (cancel it first: scan/cancel, then "
+                "reset)")
+    return grid_refusal(bounds_m, resolution, budget)
 
 
 def store_problem(stamp, live: LiveReconstruction, exc: OSError, waiting: int) -> str:
@@ -179,12 +193,17 @@ class CarvingScan:
         The working memory a grid may take, bytes.
     cameras : list of Camera
         This scan's views' cameras, in arrival order.
+    settings : tuple
+        The per-scan settings ``live`` was made with (compared only: a new scan with
+        others needs a new reconstruction).
     """
 
-    def __init__(self, live: LiveReconstruction | None, budget: int, refusal: str = ""):
+    def __init__(self, live: LiveReconstruction | None, budget: int, refusal: str = "",
+                 settings: tuple = ()):
         self.live = live
         self.budget = budget
         self.refusal = refusal
+        self.settings = settings
         self.health = CarvingHealth(problem=refusal)
         self.unstored: dict[str, tuple] = {}   # view key -> add_view's arguments
         self.earlier = EarlierViews()
@@ -199,6 +218,20 @@ class CarvingScan:
         with self.health.lock:
             self.health.counts["scan_views"] = self.live.n_views
         return text
+
+    def working_memory_reserve(self) -> int:
+        """The heap a reconstruction of this scan needs, bytes, within the budget (0 without
+        a reconstruction)."""
+        return 0 if self.live is None else min(self.live.working_memory_bytes, self.budget)
+
+    def add_colour_image(self, stamp, image: np.ndarray) -> str:
+        """Keep the captured image (H, W, 3) uint8 RGB of the view at ``stamp`` (``(sec,
+        nanosec)``) to colour the mesh: "" or why it was not kept. Requires ``live``."""
+        try:
+            self.live.add_colour_image(view_key(stamp), image)
+        except ValueError as exc:
+            return f"captured image at stamp {format_stamp(stamp)} not kept for colour: {exc}"
+        return ""
 
     def carving_failed(self, exc: ValueError) -> str:
         """Count a carving that failed with ``exc``; its ERROR."""
@@ -267,21 +300,24 @@ class CarvingScan:
             if key in self.unstored:
                 return
 
-    def new_scan(self, name: str | None, make_live: Callable[[], LiveReconstruction] | None
-                 ) -> None:
-        """Start a new scan named ``name`` (None: the next free number): a new reconstruction
-        from ``make_live()`` when given (the settings changed), else the same one reset.
-        With no reconstruction held, ``make_live`` is required. ValueError (the scan name is
-        taken, the settings cannot make a scan): no new scan."""
+    def new_scan(self, name: str | None, settings: tuple,
+                 make_live: Callable[[], LiveReconstruction]) -> bool:
+        """Start a new scan named ``name`` (None: the next free number) with the per-scan
+        ``settings``: a new reconstruction from ``make_live()`` when none is held or the
+        settings changed, else the same one reset. Whether a new reconstruction was made;
+        ValueError (the scan name is taken, the settings cannot make a scan): no new scan."""
         earlier = [] if self.live is None else self.live.view_keys()
-        if make_live is not None:
+        changed = self.live is None or settings != self.settings
+        if changed:
             if self.live is not None:
                 self.live.close()
             self.live = make_live()
             self.refusal = ""
+            self.settings = settings
         else:
             self.live.reset(name)
         self.unstored.clear()
         self.earlier.remember(earlier)
         self.cameras = []
         self.health.new_scan()
+        return changed

@@ -16,8 +16,8 @@ import math
 import numpy as np
 
 __all__ = ["JOINT_NAMES", "IMAGE_ENCODINGS", "check_image_size", "image_rows", "stamp_key",
-           "format_stamp", "view_key", "msg_to_image", "angles_from_joint_state",
-           "ForeignJointState", "scan_report", "status_namespace"]
+           "format_stamp", "view_key", "msg_to_image", "mask_from_msg", "colour_image_from_msg",
+           "angles_from_joint_state", "ForeignJointState", "scan_report", "status_namespace"]
 
 #: Joint names of the cell: turntable = theta, carriage = phi.
 JOINT_NAMES = ("turntable", "carriage")
@@ -102,6 +102,26 @@ def msg_to_image(msg) -> np.ndarray:
         rows = rows.astype(dtype, copy=False)
     image = rows.reshape(h, w, channels) if channels > 1 else rows.reshape(h, w)
     return image[:, :, ::-1] if msg.encoding == "bgr8" else image
+
+
+def mask_from_msg(msg, size: tuple[int, int]) -> tuple[np.ndarray, str]:
+    """A mono8 mask, (H, W) uint8 (a copy), and its frame id; ValueError for another size
+    than ``size`` (the rig's width, height), another encoding or a bad layout."""
+    check_image_size(msg, size, "mask")
+    if msg.encoding != "mono8":
+        raise ValueError(f"mask encoding is {msg.encoding!r}, expected 'mono8'")
+    return msg_to_image(msg).copy(), msg.header.frame_id
+
+
+def colour_image_from_msg(msg, size: tuple[int, int]) -> np.ndarray:
+    """A captured colour image, (H, W, 3) uint8 RGB (a copy); ValueError for another size
+    than ``size`` (the rig's width, height), an encoding other than rgb8 or bgr8 or a bad
+    layout."""
+    check_image_size(msg, size, "captured image")
+    image = msg_to_image(msg)
+    if image.ndim != 3 or image.dtype != np.uint8:
+        raise ValueError(f"encoding {msg.encoding!r}, expected rgb8 or bgr8")
+    return image.copy()
 
 
 class ForeignJointState(ValueError):

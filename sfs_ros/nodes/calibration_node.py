@@ -50,10 +50,11 @@ from sfs_ros.core.calibration import BoardSpec
 from sfs_ros.nodes.entry import run_node
 from sfs_ros.process import configure_process
 from sfs_ros.ros import capture_qos
+from sfs_ros.ros.calibration_params import PARAMS
 from sfs_ros.ros.names import CALIBRATE_ACTION, SCAN_ACTION
 from sfs_ros.ros.paired_input import PairedInput, Stream
 from sfs_ros.ros.pairing import format_stamp
-from sfs_ros.ros.params import Param, ParameterError, declare
+from sfs_ros.ros.params import ParameterError, declare, output_folder
 from sfs_ros.ros.rig_apply import apply_rig, cell_rig
 from sfs_ros.ros.worker import Worker
 from sfs_ros_interfaces.action import Calibrate, Scan
@@ -65,38 +66,6 @@ NODE_NAME = "calibration"
 _SUCCEEDED = 4
 #: How often a goal waiting on the scan, the fit or the apply looks for a cancel, s.
 _POLL_S = 0.1
-
-PARAMS: list[Param] = [
-    Param("output_dir", "", "Folder that receives each calibration's folder "
-          "(calibration_<UTC time>/: session/, rig.yaml, camera_info.yaml, "
-          "calibration_report.yaml); nothing is written outside it.", read_only=True,
-          constraints="required, non-empty"),
-    Param("plan_file", "", "The calibration plan (format of config/calibration_plan.yaml) of "
-          "a goal without one.", read_only=True, constraints="required unless every goal "
-          "gives plan_file"),
-    Param("columns", 7, "Chessboard squares of the board along x.", bounds=(3, 1000),
-          read_only=True),
-    Param("rows", 5, "Chessboard squares of the board along y.", bounds=(3, 1000),
-          read_only=True),
-    Param("square_m", 0.03, "Side of a chessboard square, metres.", bounds=(1e-6, 10.0),
-          read_only=True),
-    Param("marker_m", 0.022, "Side of an ArUco marker, metres.", bounds=(1e-6, 10.0),
-          read_only=True, constraints="less than square_m"),
-    Param("dictionary", "DICT_5X5_100", "ArUco dictionary of the board (an OpenCV name).",
-          read_only=True),
-    Param("radial_terms", 2, "Radial distortion terms fitted: 2 holds k3 at 0, 3 fits it.",
-          bounds=(2, 3), read_only=True),
-    Param("max_view_rms_px", 1.0, "A view whose corners miss by more than this RMS after "
-          "the fit is rejected, pixels.", bounds=(0.01, 100.0), read_only=True),
-    Param("camera_name", "camera", "camera_name in camera_info.yaml.", read_only=True),
-    Param("queue_depth", 100, "Depth of the capture topics; at least the views of a plan.",
-          bounds=(1, 100000), read_only=True),
-    Param("scan_timeout_s", 3600.0, "Longest board scan, s.", bounds=(1.0, 86400.0),
-          read_only=True),
-    Param("apply_timeout_s", 60.0, "Deadline of reading the cell's rig and of applying the "
-          "new one, s.", bounds=(1.0, 3600.0), read_only=True),
-]
-
 
 def _decode_image(msg: Image) -> np.ndarray:
     """(H, W, 3) uint8 RGB of a capture; ValueError for another depth or a bad layout."""
@@ -128,15 +97,11 @@ class CalibrationNode(Node):
     def __init__(self, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
         p = self._p = declare(self, PARAMS)
-        if not p["output_dir"].strip():
-            super().destroy_node()
-            raise ParameterError("output_dir", "is required: the folder for the calibrations")
-        self._output = Path(p["output_dir"]).resolve()
         try:
-            self._output.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
+            self._output = output_folder(p["output_dir"], "the calibrations").resolve()
+        except ParameterError:
             super().destroy_node()
-            raise ParameterError("output_dir", str(exc)) from None
+            raise
         self._lock = threading.Lock()
         self._busy = False
         self._captures: BoardCaptures | None = None   # the goal's, while it scans

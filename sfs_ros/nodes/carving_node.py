@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import time
 import traceback
-from dataclasses import replace
 from functools import partial
 
 import numpy as np
@@ -20,18 +19,17 @@ from rclpy.node import Node
 from sensor_msgs.msg import Image, JointState
 from std_srvs.srv import Trigger
 
-from sfs_ros.cell_logic.carving_scan import HullSchedule, grid_refusal
+from sfs_ros.cell_logic.carving_scan import HullSchedule, reset_refusal
 from sfs_ros.cell_logic.mesh_options import MeshOptions
-from sfs_ros.cell_logic.message_fields import check_image_size
-from sfs_ros.core.meshing.meshers import MESHER
+from sfs_ros.cell_logic.message_fields import colour_image_from_msg, mask_from_msg
 from sfs_ros.core.resident_memory import prefault
-from sfs_ros.core.settings import BOUNDS_M, COLOUR, MAX_MEMORY, RESOLUTION
 from sfs_ros.nodes.entry import run_node
 from sfs_ros.process import configure_process
 from sfs_ros.ros import capture_qos
-from sfs_ros.ros.carved_scan_msg import carved_scan_to_msg
+from sfs_ros.ros.carve_request import carved_scan_message
 from sfs_ros.ros.carving_outputs import CarvingOutputs
 from sfs_ros.ros.carving_params import (
+    PARAMS,
     carve_options,
     check_scan_settings,
     live_reconstruction,
@@ -39,16 +37,15 @@ from sfs_ros.ros.carving_params import (
     scan_bounds,
     scan_settings,
 )
-from sfs_ros.ros.convert import angles_from_joint_state, msg_to_image
+from sfs_ros.ros.convert import angles_from_joint_state
 from sfs_ros.ros.frames import FRAME_PARAMS, frame_names
 from sfs_ros.ros.names import private
 from sfs_ros.ros.paired_input import PairedInput, Stream
-from sfs_ros.ros.pairing import format_stamp, stamp_key, view_key
-from sfs_ros.ros.params import Param, declare, read, validating_callback
+from sfs_ros.ros.pairing import stamp_key, view_key
+from sfs_ros.ros.params import declare, read, validating_callback
 from sfs_ros.ros.rehearsal import Rehearsal
 from sfs_ros.ros.rig_params import (
     CAPTURING_STATES,
-    WRITABLE_RIG_PARAMS,
     RigParameters,
     rig_calibration,
 )
@@ -60,46 +57,8 @@ __all__ = ["CarvingNode", "PARAMS", "main"]
 
 NODE_NAME = "carving"
 
-#: The node's parameters: the rig calibration, then the scan's own (the per-scan settings
-#: settable at run time, between scans).
-PARAMS: list[Param] = [
-    *WRITABLE_RIG_PARAMS,
-    Param.of(BOUNDS_M, constraints="six values, min < max on each axis; from the next reset"),
-    Param.of(RESOLUTION, constraints="the live hull's and the final reconstruction's; from "
-             "the next reset"),
-    Param.of(MESHER, constraints="from the next reset"),
-    Param("scan_name", "", "Name of the next scan's folder in output_dir and of its mesh "
-          "(<name>.ply); empty = scan_NNN, the next free number.",
-          constraints="from the next reset; 1-100 letters, digits, '_', '-', '.', a folder "
-          "not yet in output_dir"),
-    Param("output_dir", "", "Folder for scan session folders, meshes and reports (created if "
-          "needed); every file the node writes stays inside it.", read_only=True,
-          constraints="required, non-empty"),
-    Param("hull_rate_hz", 2.0, "Most hull clouds per second; the latest is always published "
-          "once the views received so far are carved.", bounds=(0.0, 1000.0), read_only=True,
-          constraints="0 = after every view"),
-    Param("max_hull_points", 100000, "Most points of a hull cloud (an evenly spaced subset "
-          "of the surface voxels beyond that).", bounds=(1, 100_000_000), read_only=True),
-    Param("queue_depth", 100, "Depth of the reliable mask topics and of the buffer of unpaired "
-          "halves per topic; at least the number of views of a scan.", bounds=(1, 100000),
-          read_only=True),
-    Param.of(COLOUR, read_only=True, constraints="the captured images on capture/image"),
-    Param.of(MAX_MEMORY, read_only=True, constraints=f"empty = {MAX_MEMORY.default_text}"),
-    Param("rehearse", True, "At start, receive and reconstruct a small simulated scan (in a "
-          "folder in output_dir, removed after) so that the first real reconstruction finds "
-          "its code loaded (about 0.2 s less from the last view to the mesh).", read_only=True),
-]
 #: How often views that could not be stored (a full disk) are tried again, s.
 STORE_RETRY_S = 1.0
-
-
-def _decode_mask(msg: Image, size: tuple[int, int]) -> tuple[np.ndarray, str]:
-    """A mono8 mask (a copy) and its frame id; ValueError for another size than ``size``
-    (the rig's width, height), another encoding or a bad layout."""
-    check_image_size(msg, size, "mask")
-    if msg.encoding != "mono8":
-        raise ValueError(f"mask encoding is {msg.encoding!r}, expected 'mono8'")
-    return msg_to_image(msg).copy(), msg.header.frame_id
 
 
 class CarvingNode(Node):
@@ -118,7 +77,6 @@ class CarvingNode(Node):
         # Frame of the hull, camera poses and carved scan: the object frame on the turntable.
         self._frame_id = frame_names(declare(self, FRAME_PARAMS)).turntable_frame
         self._scan = open_scan(values)
-        self._scan_settings = scan_settings(values)
         self.add_on_set_parameters_callback(validating_callback(
             self, PARAMS, lambda values: check_scan_settings(values, self._scan.budget)))
         self._rig = RigParameters(self, on_change=self._new_rig)
@@ -157,7 +115,7 @@ class CarvingNode(Node):
         qos = capture_qos(depth)
         self._input = PairedInput(
             self, Stream(Image, "capture/mask", "mask",
-                         lambda msg: _decode_mask(msg, self._size)),
+                         lambda msg: mask_from_msg(msg, self._size)),
             Stream(JointState, "capture/mask_joint_state", "joint state",
                    angles_from_joint_state),
             depth, qos, unit="view", on_pair=self._on_view, on_problem=self._dropped,
@@ -189,15 +147,12 @@ class CarvingNode(Node):
         """A captured image, kept to colour the mesh (its view may come before or after)."""
         try:
             stamp = stamp_key(msg.header.stamp)
-            check_image_size(msg, self._size, "captured image")
-            image = msg_to_image(msg)
-            if image.ndim != 3 or image.dtype != np.uint8:
-                raise ValueError(f"encoding {msg.encoding!r}, expected rgb8 or bgr8")
+            image = colour_image_from_msg(msg, self._size)
         except ValueError as exc:
             self._scan.health.count("malformed")
             self._report_problem(f"captured image not kept for colour: {exc}")
             return
-        self._submit("image", self._add_colour_image, stamp, image.copy())
+        self._submit("image", self._add_colour_image, stamp, image)
 
     def _on_view(self, stamp, mask_and_frame: tuple[np.ndarray, str],
                  angles: tuple[float, float]) -> None:
@@ -281,8 +236,7 @@ class CarvingNode(Node):
     def _prefault(self) -> None:
         """Touch the heap a reconstruction will need, once, before the first one (see
         :mod:`sfs_ros.core.resident_memory`); no more than the memory budget."""
-        live = self._scan.live
-        reserve = 0 if live is None else min(live.working_memory_bytes, self._scan.budget)
+        reserve = self._scan.working_memory_reserve()
         if prefault(reserve, memory_kept=self._memory_kept):
             self.get_logger().info(f"{reserve >> 20} MiB of working memory made resident")
 
@@ -295,11 +249,9 @@ class CarvingNode(Node):
         """Keep a captured image to colour the mesh."""
         if self._scan.live is None:
             return
-        try:
-            self._scan.live.add_colour_image(view_key(stamp), image)
-        except ValueError as exc:
-            self._report_problem(f"captured image at stamp {format_stamp(stamp)} not kept for "
-                                 f"colour: {exc}")
+        problem = self._scan.add_colour_image(stamp, image)
+        if problem:
+            self._report_problem(problem)
             return
         self._out.view_image(self._scan, stamp, view_key(stamp))
 
@@ -309,25 +261,19 @@ class CarvingNode(Node):
         the scan name is taken, the grid does not fit in memory or the scan node is taking
         views (a new scan would split them over two session folders): nothing changes."""
         values = read(self, PARAMS)
-        settings, name = scan_settings(values), scan_name or values["scan_name"] or None
-        capturing = self._rig.scan_in(CAPTURING_STATES)
-        refusal = (f"reset refused: the scan node reports scan {capturing[0]} {capturing[1]}; "
-                   "its views go to the scan open now (cancel it first: scan/cancel, then "
-                   "reset)" if capturing is not None
-                   else grid_refusal(scan_bounds(values), values["resolution"],
-                                     self._scan.budget))
+        name = scan_name or values["scan_name"] or None
+        refusal = reset_refusal(self._rig.scan_in(CAPTURING_STATES), scan_bounds(values),
+                                values["resolution"], self._scan.budget)
         if refusal:
             self.get_logger().error(refusal)
             return False, refusal
-        changed = self._scan.live is None or settings != self._scan_settings
         try:
-            self._scan.new_scan(name, partial(live_reconstruction, values, name)
-                                if changed else None)
+            changed = self._scan.new_scan(name, scan_settings(values),
+                                          partial(live_reconstruction, values, name))
         except ValueError as exc:
             self.get_logger().error(f"reset refused: {exc}")
             return False, f"reset refused: {exc}"
         if changed:
-            self._scan_settings = settings
             self._prefault()
             self.get_logger().info(f"new scan settings: box {values['bounds_m']}, "
                                    f"resolution {values['resolution']}, {values['mesher']}, "
@@ -362,26 +308,17 @@ class CarvingNode(Node):
         """The carved scan of the views received, with ``options``: ``(success, summary or
         the reason, the message or None)``; without the images of the views in ``held`` if
         the caller holds them of this scan (``images_session``)."""
-        live = self._scan.live
-        if live is None:
+        if self._scan.live is None:
             return False, self._scan.refusal, None
-        start = time.perf_counter()
-        try:
-            carved = live.carve(resolution=options.resolution, bounds_m=options.bounds_m,
-                                mesher=options.mesher, colour=options.colour)
-            hand_over = replace(live.hand_over(), frame_id=self._frame_id)
-            msg = carved_scan_to_msg(
-                carved, hand_over, stamp=self.get_clock().now().to_msg(),
-                held=held if images_session == hand_over.session_dir else frozenset())
-        except ValueError as exc:
-            text = self._scan.carving_failed(exc)
+        success, text, msg = carved_scan_message(
+            self._scan, options, frame_id=self._frame_id, clock=self.get_clock(),
+            images_session=images_session, held=held)
+        if success:
+            self.get_logger().info(text)
+        else:
             self.get_logger().error(text)
-            self._publish_diagnostics()
-            return False, text, None
-        text = self._scan.carved(carved, time.perf_counter() - start)
-        self.get_logger().info(text)
         self._publish_diagnostics()
-        return True, text, msg
+        return success, text, msg
 
     # -- diagnostics (any thread) ------------------------------------------------------------
 

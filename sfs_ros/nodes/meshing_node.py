@@ -13,14 +13,10 @@ from __future__ import annotations
 import json
 import traceback
 from functools import partial
-from pathlib import Path
 
-from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.node import Node
-from shape_msgs.msg import Mesh
 from std_srvs.srv import Trigger
-from visualization_msgs.msg import Marker
 
 from sfs_ros.cell_logic.after_answer import make_product, products_after, without_colour
 from sfs_ros.cell_logic.held_images import HeldImages
@@ -28,64 +24,30 @@ from sfs_ros.cell_logic.mesh_files import write_mesh
 from sfs_ros.cell_logic.mesh_options import MeshOptions, mesh_options
 from sfs_ros.cell_logic.meshing_status import MeshingStatus
 from sfs_ros.cell_logic.repeated_requests import RepeatedRequests, request_key
-from sfs_ros.core.meshing.decimate import decimate
-from sfs_ros.core.settings import COLOUR
 from sfs_ros.nodes.entry import run_node
 from sfs_ros.process import configure_process
-from sfs_ros.ros import capture_qos, result_qos
+from sfs_ros.ros import capture_qos
 from sfs_ros.ros.carved_scan_msg import (
     carve_scan_request,
     carved_scan_from_msg,
     view_image_from_msg,
 )
-from sfs_ros.ros.convert import diagnostic_array, health, mesh_to_marker, mesh_to_shape
 from sfs_ros.ros.frames import FRAME_PARAMS, frame_names
-from sfs_ros.ros.names import (
-    DIAGNOSTICS,
-    MESHING_STATUS,
-    TYPED_SERVICES,
-    VIEW_IMAGE_DEPTH,
-    VIEW_IMAGES,
-    private,
-    status_name,
-)
-from sfs_ros.ros.params import Param, ParameterError, declare
+from sfs_ros.ros.meshing_outputs import MeshingOutputs
+from sfs_ros.ros.meshing_params import PARAMS
+from sfs_ros.ros.names import TYPED_SERVICES, VIEW_IMAGE_DEPTH, VIEW_IMAGES, private
+from sfs_ros.ros.params import declare, output_folder
 from sfs_ros.ros.rehearsal import Rehearsal
 from sfs_ros.ros.services import ServiceError, call
 from sfs_ros.ros.typed import fill_reconstruct_response
 from sfs_ros.ros.worker import JobsOnHold, Worker, internal_error
-from sfs_ros_interfaces.msg import ReconstructionStatus, ViewImage
+from sfs_ros_interfaces.msg import ViewImage
 from sfs_ros_interfaces.srv import CarveScan, Reconstruct
 
 __all__ = ["MeshingNode", "PARAMS", "main"]
 
 NODE_NAME = "meshing"
 
-PARAMS: list[Param] = [
-    Param("output_dir", "", "Folder for the meshes, reports and pictures (created if needed); "
-          "every file the node writes stays inside it.", read_only=True,
-          constraints="required, non-empty"),
-    Param.of(COLOUR, read_only=True, constraints="a request's colour left empty"),
-    Param("texture", False, "Also make a textured model (<mesh stem>.textured.glb) from the "
-          "captured images, after the answer, which names it (a request's texture left "
-          "empty).", read_only=True),
-    Param("refine", False, "Also make the mesh refined below the hull from the views' "
-          "colours (<mesh stem>.refined<suffix>), after the answer, which names it; then "
-          "published in the hull's place (a request's refine left empty).", read_only=True),
-    Param("display_triangles", 10000, "Most triangles of the mesh marker (a simplified "
-          "copy by vertex clustering, 40 bytes a corner with its colour: 10 000 make 1.2 MB); "
-          "the file and mesh_shape keep the full mesh.", bounds=(100, 10_000_000),
-          constraints="used from the next reconstruction"),
-    Param("held_images_mb", 1024, "Most memory, MiB, for the colour images of the scan being "
-          "received, held so that the carved scan need not carry them (the oldest are given "
-          "up first; 0: none held, the carved scan carries them all).",
-          bounds=(0, 1 << 20), read_only=True),
-    Param("carve_timeout_s", 120.0, "How long a reconstruction waits for the carving node's "
-          "carved scan, s.", bounds=(0.1, 86400.0), read_only=True),
-    Param("rehearse", True, "At start, reconstruct a small simulated scan (in a folder in "
-          "output_dir, removed after) so that the first real mesh finds its code loaded.",
-          read_only=True),
-]
 #: Period (s) of the timer that releases the jobs after a ``reconstruct`` answer (it runs
 #: once per answer, as soon as the answer is sent).
 ANSWER_CHECK_S = 0.001
@@ -104,13 +66,7 @@ class MeshingNode(Node):
         super().__init__(NODE_NAME, **kwargs)
         values = declare(self, PARAMS)
         self._frame_id = frame_names(declare(self, FRAME_PARAMS)).turntable_frame
-        if not values["output_dir"].strip():
-            raise ParameterError("output_dir", "is required: the folder for the meshes")
-        self._output_dir = Path(values["output_dir"])
-        try:
-            self._output_dir.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise ParameterError("output_dir", str(exc)) from None
+        self._output_dir = output_folder(values["output_dir"], "the meshes")
         self._values = values
         self._status = MeshingStatus()
 
@@ -123,11 +79,7 @@ class MeshingNode(Node):
             self.create_subscription(ViewImage, VIEW_IMAGES, self._on_view_image,
                                      capture_qos(VIEW_IMAGE_DEPTH),
                                      callback_group=MutuallyExclusiveCallbackGroup())
-        self._marker_pub = self.create_publisher(Marker, "mesh", result_qos())
-        self._shape_pub = self.create_publisher(Mesh, "mesh_shape", result_qos())
-        self._diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
-        self._status_pub = self.create_publisher(
-            ReconstructionStatus, "~/" + MESHING_STATUS.split("/", 1)[1], result_qos())
+        self._out = MeshingOutputs(self, self._frame_id)
         self.create_service(Trigger, private("reconstruct"), self._on_reconstruct,
                             callback_group=services)
         self.create_service(Reconstruct, private("reconstruct_mesh"), self._on_reconstruct_mesh,
@@ -283,7 +235,7 @@ class MeshingNode(Node):
         if made.pictures_due is not None:
             self._worker.submit(partial(self._write_pictures, made.pictures_due,
                                         summary["path"]), name="pictures")
-        self._worker.submit(partial(self._publish_shape, result.vertices, result.faces),
+        self._worker.submit(partial(self._out.shape, result.vertices, result.faces),
                             name="publish the mesh")
         for product in products:
             self._worker.submit(partial(self._make_product, product, summary["report_path"]),
@@ -307,7 +259,7 @@ class MeshingNode(Node):
     def _publish_refined(self, vertices, faces, colours) -> None:
         """The refined mesh on ``mesh`` and ``mesh_shape``, in the hull's place."""
         self._publish_marker(vertices, faces, colours)
-        self._publish_shape(vertices, faces)
+        self._out.shape(vertices, faces)
 
     def _make_product(self, product, report_path: str) -> None:
         try:
@@ -327,23 +279,8 @@ class MeshingNode(Node):
 
     def _publish_marker(self, vertices, faces, colours) -> None:
         """``mesh``: the display copy, within ``display_triangles``."""
-        budget = self.get_parameter("display_triangles").value
-        vertices, faces, colours = decimate(vertices, faces, budget, colours)
-        self._publish_quietly(self._marker_pub, lambda: mesh_to_marker(
-            vertices, faces, stamp=self.get_clock().now().to_msg(), frame_id=self._frame_id,
-            vertex_colors=colours))
-
-    def _publish_shape(self, vertices, faces) -> None:
-        """``mesh_shape``: the full mesh (in the turntable frame, as ``mesh``)."""
-        self._publish_quietly(self._shape_pub, lambda: mesh_to_shape(vertices, faces))
-
-    def _publish_quietly(self, publisher, build) -> None:
-        """Publish ``build()``; nothing once the node is stopping (the mesh is in its file)."""
-        try:
-            publisher.publish(build())
-        except Exception:  # noqa: BLE001 -- rclpy's RCLError, once the node is stopping
-            if self.context.ok():
-                raise
+        self._out.display_mesh(vertices, faces, colours,
+                               self.get_parameter("display_triangles").value)
 
     def _job_failed(self, name: str, exc: Exception) -> None:
         text = internal_error(name, exc)
@@ -364,19 +301,10 @@ class MeshingNode(Node):
         self._publish_status()
 
     def _publish_status(self) -> None:
-        """``~/status``: the reconstructions made, the last mesh and its session folder,
-        the problem."""
-        msg = ReconstructionStatus(**self._status.status())
-        msg.header.stamp = self.get_clock().now().to_msg()
-        msg.header.frame_id = self._frame_id
-        self._status_pub.publish(msg)
+        self._out.status(self._status)
 
     def _publish_diagnostics(self) -> None:
-        values, problem = self._status.diagnostics()
-        level, message = health(problem, "", f"{values['reconstructions']} meshes made")
-        self._diag_pub.publish(diagnostic_array(
-            status_name(self, "meshing"), level, message, values,
-            stamp=self.get_clock().now().to_msg()))
+        self._out.diagnostics(self._status)
 
 
 def main(args=None) -> None:

@@ -16,7 +16,6 @@ import time
 import traceback
 from concurrent.futures import Future
 from functools import partial
-from pathlib import Path
 
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
@@ -31,10 +30,8 @@ from sfs_ros.cell_logic.bag import (
     RECORDER_TOPICS,
     RESULT,
     SCAN_TOPIC,
-    STORAGES,
     TOPICS,
     BagWriter,
-    bag_folder,
     new_bag_folder,
     parameters_message,
     scan_message,
@@ -48,37 +45,13 @@ from sfs_ros.ros.convert import diagnostic_array, health
 from sfs_ros.ros.message_types import message_class
 from sfs_ros.ros.names import DIAGNOSTICS, RECORDER_NODE, private, status_name
 from sfs_ros.ros.parameter_fetch import fetch_parameters
-from sfs_ros.ros.params import Param, ParameterError, declare, validating_callback
+from sfs_ros.ros.params import declare, output_folder, validating_callback
+from sfs_ros.ros.recorder_params import BAG_NAME, PARAMS, check_bag_name
 from sfs_ros.ros.worker import Worker
 
 __all__ = ["RecorderNode", "PARAMS", "main"]
 
 NODE_NAME = RECORDER_NODE
-
-BAG_NAME = Param("bag_name", "", "Name of the next bag's folder under <output_dir>/bags; "
-                 "empty = automatic (bag_<UTC time>, scan_<NNN>_<UTC time>).",
-                 constraints="empty, or 1-100 letters, digits, '_', '-', '.'; a bag that "
-                             "exists is refused")
-PARAMS: list[Param] = [
-    Param("output_dir", "", "Folder whose bags/ sub-folder receives the bags (created if "
-          "needed); every file the node writes stays inside it.", read_only=True,
-          constraints="required, non-empty"),
-    Param("storage", STORAGES[0], "Storage of the bags.", choices=STORAGES, read_only=True),
-    BAG_NAME,
-    Param("with_scan", False, "Also open a new bag when a scan starts (and keep recording until "
-          "recorder/stop, the next scan or shutdown).", read_only=True),
-    Param("parameter_nodes", ["carving", "meshing", "segmentation", "scan", "camera"], "Nodes "
-          "(names relative to this node's namespace) whose parameters each bag stores.",
-          read_only=True),
-    Param("parameter_timeout_s", 20.0, "Longest wait for the parameters of all parameter_nodes, "
-          "s (they come in milliseconds; a loaded machine can take seconds, and a bag "
-          "without them cannot be reconstructed offline).", bounds=(0.1, 600.0),
-          read_only=True),
-    Param("queue_depth", 100, "Depth of the reliable capture topics; at least the number of "
-          "views of a scan.", bounds=(1, 100000), read_only=True),
-]
-
-
 
 class RecorderNode(Node):
     """Records the cell's topics into rosbag2 bags on request or with each scan.
@@ -91,15 +64,10 @@ class RecorderNode(Node):
         self._worker = None   # started last; a node refused at start-up has none to stop
         super().__init__(NODE_NAME, **kwargs)
         p = self._p = declare(self, PARAMS)
-        if not p["output_dir"].strip():
-            raise ParameterError("output_dir", "is required: the folder for the bags")
-        try:
-            (Path(p["output_dir"]) / "bags").mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise ParameterError("output_dir", str(exc)) from None
-        self._check_name({"bag_name": p["bag_name"]})
-        self.add_on_set_parameters_callback(
-            validating_callback(self, [BAG_NAME], self._check_name))
+        bags = output_folder(p["output_dir"], "the bags", "bags")
+        check_bag_name(p["output_dir"], {"bag_name": p["bag_name"]})
+        self.add_on_set_parameters_callback(validating_callback(
+            self, [BAG_NAME], partial(check_bag_name, p["output_dir"])))
 
         self._status = RecordingStatus(p["storage"])
         self._last_ns = 0
@@ -142,15 +110,8 @@ class RecorderNode(Node):
         self.create_timer(1.0, self._publish_diagnostics, callback_group=inputs)
         self._worker = Worker("recorder", on_error=self._job_failed)
         self.get_logger().info(
-            f"recording into {Path(p['output_dir']) / 'bags'} ({p['storage']}"
+            f"recording into {bags} ({p['storage']}"
             f"{', a bag per scan' if p['with_scan'] else ''}): call recorder/start")
-
-    def _check_name(self, values: dict) -> None:
-        if values["bag_name"]:
-            try:
-                bag_folder(self._p["output_dir"], values["bag_name"])
-            except ValueError as exc:
-                raise ParameterError("bag_name", str(exc)) from None
 
     def destroy_node(self) -> None:
         """Write what is queued, close the bag, stop the worker, then destroy the node."""

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Callable, Sequence
 
 from rcl_interfaces.msg import (
@@ -174,6 +175,20 @@ def read(node: Node, params: Sequence[Param]) -> dict[str, Any]:
         value = node.get_parameter(param.name).value
         values[param.name] = list(value) if isinstance(param.default, list) else value
     return values
+
+
+def output_folder(value: str, purpose: str, subfolder: str = "") -> Path:
+    """The folder the ``output_dir`` parameter (``value``) names, its ``subfolder`` (if
+    any) created if needed; :class:`ParameterError` naming ``output_dir`` for an empty
+    ``value`` ("is required: the folder for ``purpose``") or a folder that cannot be made."""
+    if not value.strip():
+        raise ParameterError("output_dir", f"is required: the folder for {purpose}")
+    folder = Path(value) / subfolder if subfolder else Path(value)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ParameterError("output_dir", str(exc)) from None
+    return folder
 
 
 def validating_callback(node: Node, params: Sequence[Param],
