@@ -7,9 +7,10 @@ again (:meth:`sfs_ros.ros.cell_client.CellClient.reconstruct`); a request carrie
 of its own a server could see, and a resend is a new call. So the server recognises a
 repeat by what is asked: the same options, carved of the same views, answered a moment
 ago. Requests wait in line while one is made (one at a time), so the repeats of a
-long reconstruction come right after its answer, within :data:`REPEAT_WINDOW_S`; a
-request later than that, one that asks anything else or one of a scan that changed is
-made afresh (so are the copies of a request that failed).
+long reconstruction come right after its answer; :data:`REPEAT_WINDOW_S` leaves room for
+a loaded machine, where the line moves slowly. A request later than that, one that asks
+anything else or one of a scan that changed is made afresh (so are the copies of a
+request that failed).
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ from .mesh_options import MeshOptions
 __all__ = ["REPEAT_WINDOW_S", "RepeatedRequests", "request_key"]
 
 #: Seconds after an answer during which the same request on the same scan is a repeat.
-REPEAT_WINDOW_S = 5.0
+REPEAT_WINDOW_S = 30.0
 
 
 def request_key(options: MeshOptions, scan: str, views_received: int) -> tuple:
