@@ -275,12 +275,10 @@ class LiveReconstruction:
     def working_memory_bytes(self) -> int:
         """Memory a scan and its reconstruction are expected to take at their peak, bytes:
         :data:`WORKING_MEMORY_PER_VOXEL` per voxel of the live grid and
-        :data:`WORKING_MEMORY_BASE`. Measured in the cell's node (72 views of 640 x 480,
-        a live grid of 5.0 M voxels at resolution 192, the colour beside the checks and
-        the evaluation): with the 293 MiB this gives, the first reconstruction after the
-        scan took 1 300-2 400 page faults and the node held 580-590 MB; with twice that,
-        94 faults and 817 MB, no faster. The final grid is the tight box at the same
-        resolution: at most the live grid's voxels."""
+        :data:`WORKING_MEMORY_BASE`, as measured in the cell's node (twice as much
+        touched in advance bought no speed: ``doc/changelog.md``, 4 December, evening).
+        The final grid is the tight box at the same resolution: at most the live grid's
+        voxels."""
         return WORKING_MEMORY_BASE + WORKING_MEMORY_PER_VOXEL * int(np.prod(self.grid.shape))
 
     @property

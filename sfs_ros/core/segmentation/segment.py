@@ -165,10 +165,10 @@ class SegmentationParams:
         Interior holes smaller than this fraction of the object area are filled.
     dilate_px : int >= 0
         Final dilation radius, for conservative silhouettes: carving tests
-        pixel centres and shaves 0.1-0.3 % of true volume without it. Off by
+        pixel centres and shaves a sliver of true volume without it. Off by
         default: one pixel swells the hull by a pixel's footprint on every
-        side (+7 % volume for a 64 mm mug at 0.86 mm per pixel). The presets
-        for photographs with soft edges set 1.
+        side (both measured in ``doc/accuracy.md``). The presets for
+        photographs with soft edges set 1.
     min_area_fraction : float in [0, 1)
         A result whose largest component covers less than this fraction of the
         image is reported empty.
