@@ -352,7 +352,7 @@ def build_atlas(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray,
         charted = np.flatnonzero(~cells)
         face_id, bary, again, overlapping_charted = rasterize_atlas(corners[charted], shape)
         if not again:
-            face_id = np.where(face_id >= 0, charted[np.maximum(face_id, 0)], -1)
+            face_id = np.where(face_id >= 0, np.append(charted, -1)[face_id], -1)
             if block is not None:
                 _fill_cells(face_id, bary, cells, block, cell)
             # A face in a cell has corners of its own.
