@@ -7,10 +7,11 @@ import numpy as np
 import trimesh
 
 from sfs_ros.core.geometry.camera import Camera
+from sfs_ros.core.meshing.colour import view_sight
 from sfs_ros.core.render import render_image
 from sfs_ros.core.texture import texture_mesh
 from sfs_ros.core.texture.atlas import CELL_TEXELS, build_atlas, rasterize_atlas
-from sfs_ros.core.texture.selection import face_neighbours
+from sfs_ros.core.texture.selection import face_neighbours, farthest_around
 
 #: Side of the atlas the tests allow, texels: far less than one chart with padding per
 #: unseen face needs (5 x 5 texels each at least, against 4 or 1 for a cell).
@@ -109,3 +110,40 @@ def test_seen_charts_that_do_not_fit_are_scaled_down():
                         texels_per_pixel=asked, max_size=MAX_SIZE)
     assert max(atlas.shape) <= MAX_SIZE
     assert atlas.texels_per_pixel < asked
+
+
+def test_farthest_around_is_the_farthest_finite_depth_of_nine_pixels():
+    zbuf = np.full((4, 4), np.inf)
+    zbuf[:2, :2] = [[1.0, 2.0], [4.0, 3.0]]
+    inf = np.inf
+    expected = np.array([[4.0, 4.0, 3.0, inf],
+                         [4.0, 4.0, 3.0, inf],
+                         [4.0, 4.0, 3.0, inf],
+                         [inf, inf, inf, inf]])
+    np.testing.assert_array_equal(farthest_around(zbuf), expected)
+
+
+def test_a_point_between_pixel_centres_is_hidden_only_behind_all_four():
+    """A step in an orthographic z-buffer: columns up to 49 show a surface at depth 1 m,
+    columns from 50 one 3 footprints nearer (below the depth steps that make an edge). A
+    point of the far surface a fraction ``a`` of a pixel right of column 49, facing the
+    camera (tolerance: one footprint), lies ``3 a`` footprints behind the z-buffer read
+    bilinearly: that reading hides it for ``a > 1/3``. It lies behind the nearer surface
+    at one, two or none of the four pixel centres around it, not all: it is seen. At
+    column 50.5 the nine pixels around column 50 reach the far surface and those around
+    51 do not: the reading is 1.5 footprints in front, hidden; from column 51 on, hidden
+    either way."""
+    f = 1000.0                                    # pixels per metre: a 1 mm footprint
+    camera = Camera(K=np.array([[f, 0, 0], [0, f, 0], [0, 0, 1]]), R=np.eye(3),
+                    t=np.zeros(3), width=100, height=100, orthographic=True)
+    zbuf = np.full((100, 100), 1.0)
+    zbuf[:, 50:] = 1.0 - 3.0 / f
+    fractions = np.array([0.1, 0.25, 0.3, 0.4, 0.6, 0.9, 1.5, 2.5])
+    points = np.stack([(49.0 + fractions) / f, np.full(len(fractions), 50.3 / f),
+                       np.ones(len(fractions))], axis=1)
+    normals = np.tile([0.0, 0.0, -1.0], (len(fractions), 1))
+    blended = view_sight(camera, points, normals, zbuf, None).hidden
+    behind_all = view_sight(camera, points, normals, zbuf, None,
+                            depth_zbuf=farthest_around(zbuf)).hidden
+    np.testing.assert_array_equal(blended, 3 * np.minimum(fractions, 1.0) > 1.0)
+    np.testing.assert_array_equal(behind_all, fractions >= 1.5)
