@@ -145,9 +145,9 @@ def _chart_corners(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray,
                    chart: np.ndarray, celled: np.ndarray, cameras: list[Camera],
                    scale: float) -> tuple[np.ndarray, np.ndarray]:
     """(m, 3, 2) corners of each face in its chart before packing: its view's pixels times
-    ``scale``; an unseen face's plane (:func:`_plane_corners`); and (m,) bool ``celled``
-    (m,) bool grown by the unseen faces whose patch is not flat (their corners are left
-    zero: :func:`cell_corners` places them)."""
+    ``scale``; an unseen face's plane (:func:`_plane_corners`); and the faces that take
+    cells, (m,) bool: ``celled`` (m,) bool and the unseen faces whose patch is not flat
+    (their corners are left zero: :func:`_pack` places them)."""
     corners = np.zeros((len(faces), 3, 2))
     unseen = np.flatnonzero((labels < 0) & ~celled)
     celled = celled | (labels < 0)
