@@ -326,12 +326,15 @@ class ViewSight:
 
 def view_sight(camera: Camera, points: np.ndarray, normals: np.ndarray, zbuf: np.ndarray | None,
                mask: np.ndarray | None, *, angle_power: float = 2.0, min_cos: float = 0.2,
-               edge_ramp_px: float = 3.0, depth_tolerance_px: float = 1.0) -> ViewSight:
+               edge_ramp_px: float = 3.0, depth_tolerance_px: float = 1.0,
+               depth_zbuf: np.ndarray | None = None) -> ViewSight:
     """Which of ``points`` (k, 3) metres, with unit ``normals`` (k, 3), ``camera`` sees and
     how well: the test and weight :func:`vertex_colours` blends with, against the mesh's
     z-buffer ``zbuf`` (H, W) metres (:func:`~sfs_ros.core.render.rasterize_depth`; None:
     no occlusion test) and the silhouette ``mask`` (H, W) bool (optional). The options
-    are :func:`vertex_colours`'s."""
+    are :func:`vertex_colours`'s; ``depth_zbuf`` (H, W) metres, when given, is the
+    z-buffer the depth test reads instead of ``zbuf`` (whose outline and depth steps
+    still make the edges)."""
     points = np.ascontiguousarray(points, dtype=np.float64)
     u, v, z, cos = _view_of(camera, points, np.ascontiguousarray(normals, dtype=np.float64))
     inside = _in_image(u, v, camera)
@@ -342,7 +345,8 @@ def view_sight(camera: Camera, points: np.ndarray, normals: np.ndarray, zbuf: np
     w, h = np.empty(len(idx)), np.empty(len(idx), bool)
     _sight_weights(u[idx], v[idx], z[idx], cos[idx],
                    _planes(_edge_distance_px(zbuf, mask, camera), np.float32),
-                   _planes(zbuf, np.float64), min_cos, angle_power, edge_ramp_px,
+                   _planes(zbuf if depth_zbuf is None else depth_zbuf, np.float64), min_cos,
+                   angle_power, edge_ramp_px,
                    depth_tolerance_px, per_metre, constant, w, h)
     weights[idx], hidden[idx] = w, h
     return ViewSight(u=u, v=v, weight=weights, hidden=hidden)

@@ -9,15 +9,22 @@ per metre on the object as many as the view's pixels per metre there). Faces no 
 sees (the underside on the plate) are grouped by the axis (+-X, +-Y, +-Z) their normal
 is nearest, and each connected patch of one group is projected onto the plane across
 its mean normal when every face turns within 60 degrees of it, at half the seen charts' median
-texels per metre (its colours are interpolated, smooth); otherwise each of its faces is
-a chart of its own, a right triangle of :data:`UNSEEN_TEXELS` texels a leg. Faces that
-would still overlap another in the atlas (a patch seen partly hidden, a curved unseen
-patch) are made charts of their own (a whole unseen patch at once) and the atlas is laid
-out again.
+texels per metre (its colours are interpolated, smooth); otherwise (a curved patch) its
+faces take *cells*. A cell is :data:`CELL_TEXELS` x :data:`CELL_TEXELS` texels of one
+colour, the face's at its centroid, and the face's corners lie inside it, a quarter of a
+texel from its border, so that a bilinear look-up anywhere in the face reads its own
+cell alone: the cells of all such faces are packed side by side as one rectangle, with
+no padding between them. Seen faces that would still overlap another in the atlas (a
+patch seen partly hidden) are made charts of their own (after :data:`_SPLIT_TRIES`
+tries, cells), the faces of a curved unseen patch that would overlap take cells, and
+the atlas is laid out again.
 
 Charts are packed as rectangles on shelves (tallest first), ``2 * padding`` texels
 apart, into an atlas about as wide as high; when that exceeds ``max_size`` texels a
-side, the charts are scaled down to fit. Texel ``(r, c)``'s centre is the point
+side, the charts are scaled down to fit (fewer texels per pixel, down to
+:data:`MIN_SCALE` of the asked density), and when the charts' padding alone does not
+fit (a mesh of many faces in many small charts), the charts of fewest faces take cells,
+more at each try, until the atlas fits. Texel ``(r, c)``'s centre is the point
 ``(c, r)`` of the atlas's coordinates (the renderer's pixel-centre convention, whose
 edge rule gives each texel centre to one face at most: :mod:`sfs_ros.core.render`), and
 a corner at ``(x, y)`` has the texture coordinates ``((x + 0.5) / W, 1 - (y + 0.5) / H)``
@@ -26,6 +33,7 @@ a corner at ``(x, y)`` has the texture coordinates ``((x + 0.5) / W, 1 - (y + 0.
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -37,14 +45,19 @@ from scipy.sparse import csgraph
 from ..geometry.camera import Camera
 from ..render import covered_point, edge_tuple, pixel_box, triangle_edges
 
-__all__ = ["UNSEEN_TEXELS", "Atlas", "build_atlas", "chart_of_faces"]
+__all__ = ["CELL_TEXELS", "MIN_SCALE", "Atlas", "build_atlas", "cell_corners", "chart_of_faces"]
 
-#: Leg of the right triangle a face no view sees takes in the atlas, texels (its colour
-#: is interpolated from its corners: a few texels hold it).
-UNSEEN_TEXELS = 4.0
+#: Side of the cell of one colour a face takes when it has no chart (module docstring),
+#: texels: 2 x 2 texels hold a bilinear look-up anywhere inside the face's corners; a mesh
+#: of more faces than the atlas holds so takes cells of one texel (a look-up then mixes a
+#: quarter of the next cells' colours in at most).
+CELL_TEXELS = 2
+#: The charts are scaled down to at most this share of the asked texels per pixel before
+#: small charts are given cells instead.
+MIN_SCALE = 0.25
 #: Times the charts may be scaled down to fit ``max_size``.
 _FIT_TRIES = 6
-#: Times overlapping faces may be split off into charts of their own.
+#: Times overlapping faces are split off into charts of their own before they take cells.
 _SPLIT_TRIES = 4
 #: A patch no view sees is projected onto a plane when its faces' normals are all within
 #: acos of this of their mean.
@@ -129,20 +142,21 @@ def _plane_corners(corners_3d: np.ndarray, chart: np.ndarray, unseen: np.ndarray
 
 
 def _chart_corners(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray,
-                   chart: np.ndarray, alone: np.ndarray, cameras: list[Camera],
-                   scale: float) -> np.ndarray:
+                   chart: np.ndarray, celled: np.ndarray, cameras: list[Camera],
+                   scale: float) -> tuple[np.ndarray, np.ndarray]:
     """(m, 3, 2) corners of each face in its chart before packing: its view's pixels times
-    ``scale``; an unseen face's plane (:func:`_plane_corners`), or when it is ``alone``
-    (m,) bool or its patch is not flat, the unseen faces' triangle."""
-    corners = np.empty((len(faces), 3, 2))
-    corners[:] = [[0.0, 0.0], [UNSEEN_TEXELS, 0.0], [0.0, UNSEEN_TEXELS]]
+    ``scale``; an unseen face's plane (:func:`_plane_corners`); and the faces that take
+    cells, (m,) bool: ``celled`` (m,) bool and the unseen faces whose patch is not flat
+    (their corners are left zero: :func:`_pack` places them)."""
+    corners = np.zeros((len(faces), 3, 2))
+    unseen = np.flatnonzero((labels < 0) & ~celled)
+    celled = celled | (labels < 0)
     for label, camera in enumerate(cameras):
-        mine = np.flatnonzero(labels == label)
+        mine = np.flatnonzero((labels == label) & ~celled)
         if mine.size:
             corners[mine] = scale * camera.project(vertices[faces[mine]].reshape(-1, 3)
                                                    ).reshape(-1, 3, 2)
-    unseen = np.flatnonzero((labels < 0) & ~alone)
-    seen = labels >= 0
+    seen = (labels >= 0) & ~celled
     if unseen.size and seen.any():
         d1, d2 = corners[seen, 1] - corners[seen, 0], corners[seen, 2] - corners[seen, 0]
         texel_area = 0.5 * np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])
@@ -151,40 +165,80 @@ def _chart_corners(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray,
         texels_per_m = 0.5 * float(np.median(np.sqrt(texel_area / np.maximum(area, 1e-300))))
         plane, flat = _plane_corners(vertices[faces], chart, unseen, texels_per_m)
         corners[unseen[flat]] = plane[flat]
-    return corners
+        celled[unseen[flat]] = False
+    return corners, celled
+
+
+def cell_corners(count: int, side: int, columns: int) -> np.ndarray:
+    """(count, 3, 2) corners of ``count`` faces in cells of ``side`` texels, ``columns``
+    cells a row, face k in cell ``(k % columns, k // columns)`` of a block whose first
+    texel centre is (0, 0): the corners a quarter of a texel inside the cell's texel
+    centres, so that a bilinear look-up in the face reads that cell's texels alone."""
+    k = np.arange(count)
+    origin = side * np.stack([k % columns, k // columns], axis=1).astype(np.float64)
+    # Between the four texel centres of a cell of 2, or within a quarter of a texel of
+    # the one centre of a cell of 1.
+    low, high = (0.25, 0.75) if side > 1 else (-0.25, 0.25)
+    shape = np.array([[low, low], [high, low], [low, high]])
+    return origin[:, None, :] + shape[None]
 
 
 def _shelves(sizes: np.ndarray, width: int) -> tuple[np.ndarray, int]:
     """Shelf packing of rectangles ``sizes`` (k, 2) (width, height), tallest first, into a
     strip ``width`` wide: (k, 2) their top-left corners and the strip's height."""
     origin = np.zeros((len(sizes), 2))
+    height = _shelve(np.ascontiguousarray(sizes, np.float64),
+                     np.argsort(-sizes[:, 1], kind="stable"), float(width), origin)
+    return origin, int(math.ceil(height))
+
+
+@njit(cache=True, nogil=True)
+def _shelve(sizes, order, width, origin):
+    """:func:`_shelves`' loop: fills ``origin`` (k, 2), returns the strip's height."""
     x = y = shelf = 0.0
-    for k in np.argsort(-sizes[:, 1], kind="stable"):
-        w, h = sizes[k]
+    for k in order:
+        w, h = sizes[k, 0], sizes[k, 1]
         if x + w > width:
             x, y, shelf = 0.0, y + shelf, 0.0
-        origin[k] = (x, y)
+        origin[k, 0] = x
+        origin[k, 1] = y
         x, shelf = x + w, max(shelf, h)
-    return origin, int(math.ceil(y + shelf))
+    return y + shelf
 
 
-def _pack(corners: np.ndarray, chart: np.ndarray, padding: int) -> tuple[np.ndarray, tuple]:
-    """Move each chart's corners (m, 3, 2) to its place in the atlas: returns them and the
-    atlas's shape (H, W), each a multiple of 4 texels."""
-    n = int(chart.max()) + 1
-    flat_chart = np.repeat(chart, 3)
-    points = corners.reshape(-1, 2)
+def _pack(corners: np.ndarray, chart: np.ndarray, celled: np.ndarray, padding: int,
+          cell: int) -> tuple[np.ndarray, tuple, tuple | None]:
+    """Move each chart's corners (m, 3, 2) to its place in the atlas, the ``celled`` (m,)
+    faces' into one block of cells of ``cell`` texels (:func:`cell_corners`): returns
+    them, the atlas's shape (H, W), each a multiple of 4 texels, and the block's first
+    texel and shape ``(row, column, rows, columns)`` in cells (None without cells)."""
+    charted = np.flatnonzero(~celled)
+    group = np.unique(chart[charted], return_inverse=True)[1]
+    n = int(group.max()) + 1 if charted.size else 0
+    flat_group = np.repeat(group, 3)
+    points = corners[charted].reshape(-1, 2)
     low = np.full((n, 2), np.inf)
     high = np.full((n, 2), -np.inf)
-    np.minimum.at(low, flat_chart, points)
-    np.maximum.at(high, flat_chart, points)
+    np.minimum.at(low, flat_group, points)
+    np.maximum.at(high, flat_group, points)
     low = np.floor(low)                     # texel centres on whole coordinates
     sizes = np.ceil(high - low) + 1 + 2 * padding
+    n_cells = int(celled.sum())
+    columns = max(1, math.ceil(math.sqrt(n_cells)))
+    if n_cells:
+        rows = math.ceil(n_cells / columns)
+        sizes = np.concatenate([sizes, [[cell * columns + 2 * padding, cell * rows + 2 * padding]]])
     width = int(max(sizes[:, 0].max(), math.ceil(math.sqrt(1.05 * np.prod(sizes, axis=1).sum()))))
     width = 4 * math.ceil(width / 4)
     origin, height = _shelves(sizes, width)
-    moved = points - low[flat_chart] + origin[flat_chart] + padding
-    return moved.reshape(-1, 3, 2), (4 * math.ceil(height / 4), width)
+    out = np.empty_like(corners)
+    out[charted] = (points - low[flat_group] + origin[flat_group] + padding).reshape(-1, 3, 2)
+    block = None
+    if n_cells:
+        top_left = origin[-1] + padding
+        out[celled] = cell_corners(n_cells, cell, columns) + top_left
+        block = (int(top_left[1]), int(top_left[0]), rows, columns)
+    return out, (4 * math.ceil(height / 4), width), block
 
 
 @njit(cache=True, nogil=True)
@@ -230,17 +284,45 @@ def rasterize_atlas(corners: np.ndarray, shape: tuple) -> tuple:
     return face_id, bary, again, overlapping
 
 
-def _layout(vertices, faces, labels, chart, alone, cameras, scale: float, padding: int,
+def _fill_cells(face_id: np.ndarray, bary: np.ndarray, celled: np.ndarray, block: tuple,
+                cell: int) -> None:
+    """Give each texel of the cells of the ``celled`` (m,) faces (``block`` and ``cell``
+    from :func:`_pack`) to its face, at the face's centroid."""
+    faces = np.flatnonzero(celled)
+    row, column, _, columns = block
+    k = np.arange(len(faces))
+    for dr in range(cell):
+        for dc in range(cell):
+            r, c = row + cell * (k // columns) + dr, column + cell * (k % columns) + dc
+            face_id[r, c] = faces
+            bary[r, c] = 1.0 / 3.0
+
+
+def _layout(vertices, faces, labels, chart, celled, cameras, scale: float, padding: int,
             max_size: int) -> tuple:
-    """Corners (m, 3, 2), shape and scale of the packed charts, scaled down to fit."""
-    for _ in range(_FIT_TRIES):
-        corners, shape = _pack(_chart_corners(vertices, faces, labels, chart, alone, cameras,
-                                              scale), chart, padding)
-        if max(shape) <= max_size:
-            return corners, shape, scale
-        scale *= 0.97 * max_size / max(shape)
-    raise ValueError(f"the charts do not fit a {max_size} texel atlas (too many faces "
-                     "for its padding): allow a larger max_size")
+    """Corners (m, 3, 2), shape, scale, cell faces (m,) bool, cells' block and side of
+    the packed charts: scaled down to fit, down to :data:`MIN_SCALE`, then the charts of
+    fewest faces given cells until they fit."""
+    asked = scale
+    faces_in = np.bincount(chart, minlength=int(chart.max()) + 1)[chart]
+    fewest = 1
+    while True:
+        for _ in range(_FIT_TRIES):
+            corners, cells = _chart_corners(vertices, faces, labels, chart, celled, cameras,
+                                            scale)
+            cell = CELL_TEXELS if CELL_TEXELS ** 2 * cells.sum() <= 0.5 * max_size ** 2 else 1
+            corners, shape, block = _pack(corners, chart, cells, padding, cell)
+            if max(shape) <= max_size:
+                return corners, shape, scale, cells, block, cell
+            if scale <= MIN_SCALE * asked:
+                break
+            scale = max(MIN_SCALE * asked, scale * 0.97 * max_size / max(shape))
+        if cells.all():
+            raise ValueError(f"the mesh's {len(faces)} faces do not fit a {max_size} texel "
+                             "atlas even at one texel each: allow a larger max_size or "
+                             "simplify the mesh")
+        fewest *= 4
+        celled = celled | (faces_in < fewest)
 
 
 def build_atlas(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray,
@@ -260,18 +342,30 @@ def build_atlas(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray,
     patch = chart_of_faces(np.where(labels >= 0, labels, -1 - _nearest_axis(vertices, faces)),
                            neighbours)
     alone = np.zeros(len(faces), bool)
-    for _ in range(_SPLIT_TRIES):
-        chart = np.where(alone, patch.max() + 1 + np.arange(len(faces)), patch)
+    celled = np.zeros(len(faces), bool)
+    for split in itertools.count():
+        chart = np.where(alone | celled, patch.max() + 1 + np.arange(len(faces)), patch)
         chart = np.unique(chart, return_inverse=True)[1].astype(np.int64)
-        corners, shape, scale = _layout(vertices, faces, labels, chart, alone, cameras,
-                                        float(texels_per_pixel), int(padding), int(max_size))
-        face_id, bary, again, overlapping = rasterize_atlas(corners, shape)
+        corners, shape, scale, cells, block, cell = _layout(
+            vertices, faces, labels, chart, celled, cameras, float(texels_per_pixel),
+            int(padding), int(max_size))
+        charted = np.flatnonzero(~cells)
+        face_id, bary, again, overlapping_charted = rasterize_atlas(corners[charted], shape)
         if not again:
-            return Atlas(shape=shape, corners=corners, chart=chart, face_index=face_id,
-                         barycentric=bary, texels_per_pixel=scale)
-        # A patch no view sees overlaps where it curves: all its faces go alone at once
-        # (their colours are interpolated, a few texels hold them) rather than ring by ring.
+            face_id = np.where(face_id >= 0, np.append(charted, -1)[face_id], -1)
+            if block is not None:
+                _fill_cells(face_id, bary, cells, block, cell)
+            # A face in a cell has corners of its own.
+            chart = np.where(cells, chart.max() + 1 + np.arange(len(faces)), chart)
+            return Atlas(shape=shape, corners=corners,
+                         chart=np.unique(chart, return_inverse=True)[1].astype(np.int64),
+                         face_index=face_id, barycentric=bary, texels_per_pixel=scale)
+        overlapping = np.zeros(len(faces), bool)
+        overlapping[charted] = overlapping_charted
+        # A patch no view sees overlaps where it curves: all its faces take cells at once
+        # (their colours are interpolated, smooth) rather than ring by ring. Seen faces
+        # that still overlap after a few splits (folds finer than a texel, met again at
+        # each new scale) take cells too: cells never overlap, so this ends.
         curved = np.isin(chart, chart[overlapping & (labels < 0)])
-        alone |= overlapping | curved
-    raise ValueError(f"{again} texels of the atlas are claimed by two faces after splitting "
-                     "the overlapping faces off: the mesh folds on itself")
+        celled |= curved | (overlapping if split >= _SPLIT_TRIES else False)
+        alone |= overlapping & ~celled

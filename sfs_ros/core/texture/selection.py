@@ -5,7 +5,12 @@ A view *sees* a face when it sees four points of it (the centroid and the three 
 pulled :data:`CORNER_PULL` of the way towards it) by the test the vertex colours use
 (:func:`~sfs_ros.core.meshing.colour.view_sight`): in the image, facing the camera,
 inside the silhouette, off its edges and depth steps, and not hidden by the mesh (its
-z-buffer). The face's quality in that view is
+z-buffer). A face may be smaller than a pixel, and the z-buffer holds the surface at
+the pixel centres only: a point is hidden when it lies behind the surface drawn at every
+one of the four pixel centres around it (at least: :func:`farthest_around`), by more than the
+sight test's tolerance (a pixel's footprint, more on a slope), not behind their
+bilinear blend: a sub-pixel face that loses the pixel centres to its neighbours is
+still seen. The face's quality in that view is
 
     ``q = min(weights of the four points) * projected area (pixels^2) * sharpness``,
 
@@ -32,12 +37,14 @@ from __future__ import annotations
 import cv2
 import numpy as np
 from numba import njit
+from scipy import ndimage
 
 from ..geometry.camera import Camera
 from ..meshing.colour import view_sight
 from ..render import rasterize_depth
 
 __all__ = ["CORNER_PULL", "GLIMPSE", "GLIMPSE_WEIGHT", "SMOOTHNESS", "face_neighbours", "face_quality",
+           "farthest_around",
            "label_faces", "towards_camera",
            "sharpness"]
 
@@ -110,23 +117,37 @@ def face_quality(vertices: np.ndarray, faces: np.ndarray, camera: Camera,
     """
     points, normals = face_samples(vertices, faces) if samples is None else samples
     zbuf = rasterize_depth(vertices, faces, camera, closed=closed)
+    behind_all = farthest_around(zbuf)
     # Only faces turned towards the camera can pass (the sight test's angle, less a
     # margin for the samples' directions): the others are not tested.
     cos = np.einsum("md,md->m", normals, towards_camera(camera, points[:, 0]))
     facing = np.flatnonzero(cos > _FACING_COS)
     sight = view_sight(camera, points[facing].reshape(-1, 3), np.repeat(normals[facing], 4, axis=0),
-                       zbuf, mask)
+                       zbuf, mask, depth_zbuf=behind_all)
     weight = np.zeros(len(faces))
     weight[facing] = sight.weight.reshape(-1, 4).min(axis=1)
     full = weight > 0
     glimpsed = facing[~full[facing]]
     weight[glimpsed] = GLIMPSE_WEIGHT * view_sight(camera, points[glimpsed, 0], normals[glimpsed],
-                                                   zbuf, mask, **GLIMPSE).weight
+                                                   zbuf, mask, depth_zbuf=behind_all,
+                                                   **GLIMPSE).weight
     area_px = np.zeros(len(faces))
     u, v = sight.u.reshape(-1, 4)[:, 1:], sight.v.reshape(-1, 4)[:, 1:]
     area_px[facing] = 0.5 * np.abs((u[:, 1] - u[:, 0]) * (v[:, 2] - v[:, 0])
                                    - (u[:, 2] - u[:, 0]) * (v[:, 1] - v[:, 0])) / (1 - CORNER_PULL) ** 2
     return np.where(weight > 0, weight * np.nan_to_num(area_px), 0.0), full
+
+
+def farthest_around(zbuf: np.ndarray) -> np.ndarray:
+    """(H, W) float64: each pixel's farthest finite depth among the 3 x 3 pixels around it
+    in ``zbuf`` (H, W) metres (inf where all nine are inf).
+
+    Read bilinearly at a point, this is at least the farthest depth drawn at the four
+    pixel centres around the point (each of the four values read covers all four): a
+    point behind it is behind the surface at every one of them (module docstring)."""
+    out = ndimage.maximum_filter(np.where(np.isfinite(zbuf), zbuf, -np.inf), size=3,
+                                 mode="nearest")
+    return np.where(np.isneginf(out), np.inf, out)
 
 
 def face_neighbours(faces: np.ndarray) -> np.ndarray:
