@@ -176,6 +176,40 @@ def test_a_stop_signal_closes_the_bag_with_every_view_and_the_parameters(
     assert [(v.theta_rad, v.phi_rad) for v in view_set.views] == [(t, p) for _, _, t, p in views]
 
 
+
+def test_a_stop_while_a_node_does_not_answer_for_the_parameters_closes_the_bag_at_once(
+        recorder_factory, probe, views):
+    """A node of ``parameter_nodes`` that never answers (one restarting, or gone) holds the
+    parameters' fetch until its deadline; a stop meanwhile gives it up: the recorder ends
+    cleanly long before that deadline (a cell's stop waits 10 s before SIGTERM), the bag
+    closed with every view and the parameters that came."""
+    deadline_s = 300.0
+    recorder = recorder_factory(parameter_nodes=["carving", "no_such_node"],
+                                parameter_timeout_s=deadline_s)
+    path = recorder.start()
+    publish(probe, views)
+
+    def masks_written() -> int:
+        try:
+            return open_bag(path).counts.get(MASKS, 0)
+        except ViewError:                                     # created, nothing flushed yet
+            return 0
+    logging.getLogger("sfs_ros.cell_logic.bag").setLevel(logging.ERROR)   # "not closed", known
+    try:
+        probe.spin_until(lambda: masks_written() >= len(views), timeout=DELIVERY_S,
+                         what="the views in the bag")
+    finally:
+        logging.getLogger("sfs_ros.cell_logic.bag").setLevel(logging.NOTSET)
+    recorder.process.process.send_signal(signal.SIGINT)
+    assert recorder.process.wait_exit(timeout=deadline_s / 2) == 0
+    output = recorder.process.output()
+    assert "Traceback" not in output and "no_such_node" in output, output
+    with Reader(path) as reader:                              # closed: metadata.yaml written
+        counts = {c.topic: c.msgcount for c in reader.connections}
+    assert counts[MASKS] == len(views) and counts[f"{NAMESPACE}/sfs/parameters"] == 1
+    assert read_bag(path).calibration == TEST_RIG             # the carving node's came
+
+
 def test_sqlite3_storage_on_request(recorder_factory, probe, views):
     recorder = recorder_factory(storage="sqlite3")
     path = recorder.start()

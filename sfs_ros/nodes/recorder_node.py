@@ -75,6 +75,7 @@ class RecorderNode(Node):
         self._bag_scan: int | None = None     # the scan the open bag holds, if known
         self._bag: BagWriter | None = None           # worker thread only
         self._fetched: Future | None = None
+        self._stopping = threading.Event()     # set as the node stops: a fetch gives up
         self._started = 0.0
 
         inputs = MutuallyExclusiveCallbackGroup()     # in order: strictly increasing log times
@@ -114,7 +115,10 @@ class RecorderNode(Node):
             f"{', a bag per scan' if p['with_scan'] else ''}): call recorder/start")
 
     def destroy_node(self) -> None:
-        """Write what is queued, close the bag, stop the worker, then destroy the node."""
+        """Write what is queued, close the bag, stop the worker, then destroy the node. A
+        fetch of parameters still waiting (a node that does not answer) gives up at once:
+        the bag is closed with what came."""
+        self._stopping.set()
         if self._worker is not None:
             self._worker.submit(self._close, name="close")
             self._worker.stop()
@@ -284,7 +288,8 @@ class RecorderNode(Node):
 
     def _fetch(self, result: Future) -> None:
         document, unavailable = fetch_parameters(self, self._parameter_clients,
-                                                 self._p["parameter_timeout_s"])
+                                                 self._p["parameter_timeout_s"],
+                                                 stopping=self._stopping)
         if unavailable:
             self._report_warning("parameters not stored: " + "; ".join(
                 f"{n}: {why}" for n, why in unavailable.items()))

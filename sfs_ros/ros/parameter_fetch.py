@@ -41,15 +41,18 @@ def session_parameters(nodes: dict) -> tuple[dict, dict]:
 
 
 def fetch_parameters(node: Node, clients: dict[str, AsyncParameterClient],
-                     timeout_s: float) -> tuple[dict, dict]:
+                     timeout_s: float, *, stopping: threading.Event | None = None
+                     ) -> tuple[dict, dict]:
     """``(document, unavailable)``: the parameters of the nodes of ``clients`` (by name)
     fetched within ``timeout_s`` together, in ``node``'s namespace, and why each node
-    (or the session sections) is missing."""
+    (or the session sections) is missing. Once ``stopping`` is set (the caller stops), the
+    nodes not answered yet are given up at once."""
     deadline = time.monotonic() + timeout_s
+    stopping = stopping or threading.Event()
     nodes, unavailable = {}, {}
     for name, client in clients.items():
         try:
-            nodes[name] = _parameters_of(node, client, deadline, timeout_s)
+            nodes[name] = _parameters_of(node, client, deadline, timeout_s, stopping)
         except ServiceError as exc:
             unavailable[name] = str(exc)
         except Exception as exc:  # noqa: BLE001 -- e.g. rclpy shut down meanwhile
@@ -65,25 +68,31 @@ def fetch_parameters(node: Node, clients: dict[str, AsyncParameterClient],
 
 
 def _parameters_of(node: Node, client: AsyncParameterClient, deadline: float,
-                   timeout_s: float) -> dict:
+                   timeout_s: float, stopping: threading.Event) -> dict:
     name = client.remote_node_name
     while not client.services_are_ready():
-        _check_running(node)
+        _check_running(node, stopping)
         if time.monotonic() > deadline:
             raise ServiceError(f"node {name} offers no parameter services (waited "
                                f"{timeout_s:g} s): is it running?")
         time.sleep(0.05)
-    names = list(_answer(node, client.list_parameters(), name, deadline,
-                         timeout_s).result.names)
-    values = _answer(node, client.get_parameters(names), name, deadline, timeout_s).values
+    names = list(_answer(node, client.list_parameters(), name, deadline, timeout_s,
+                         stopping).result.names)
+    values = _answer(node, client.get_parameters(names), name, deadline, timeout_s,
+                     stopping).values
     return {n: parameter_value_to_python(v) for n, v in zip(names, values)}
 
 
-def _answer(node: Node, future, name: str, deadline: float, timeout_s: float):
+def _answer(node: Node, future, name: str, deadline: float, timeout_s: float,
+            stopping: threading.Event):
     answered = threading.Event()
     future.add_done_callback(lambda _f: answered.set())
     while not answered.wait(0.05):
-        _check_running(node)
+        try:
+            _check_running(node, stopping)
+        except ServiceError:
+            future.cancel()
+            raise
         if time.monotonic() > deadline:
             future.cancel()
             raise ServiceError(f"node {name} did not answer its parameter request within "
@@ -91,6 +100,6 @@ def _answer(node: Node, future, name: str, deadline: float, timeout_s: float):
     return future.result()
 
 
-def _check_running(node: Node) -> None:
-    if not node.context.ok():
-        raise ServiceError("the recorder shut down before it answered")
+def _check_running(node: Node, stopping: threading.Event) -> None:
+    if stopping.is_set() or not node.context.ok():
+        raise ServiceError("the recorder stopped before it answered")
