@@ -541,15 +541,15 @@ def test_class_19_options_that_cannot_be_met_are_named(base, tmp_path):
     status, lines, _ = reconstruct([base, "-o", tmp_path / "m.ply", "--voxel-size", "0.00005",
                                     "--max-memory", "900G", "-q"])
     assert status == 2 and len(lines) == 1, lines
-    assert "needs 139.25 GiB and has more than the 1074 M voxels a grid may have" in lines[0]
+    assert "needs 177.21 GiB and has more than the 1074 M voxels a grid may have" in lines[0]
     assert "--max-memory" not in lines[0] and "coarser resolution" in lines[0]
     # A voxel larger than the box: what was asked, the box, and the largest voxel it takes.
-    for size, voxels in (("1e3", "0.000106"), ("0.05", "2.12")):
+    for size, voxels in (("1e3", "0.000116"), ("0.05", "2.33")):
         status, lines, _ = reconstruct([base, "-o", tmp_path / "m.ply", "--voxel-size", size,
                                         "-q"])
         assert lines == [f"sfs-reconstruct: error: the voxel size asked for ({float(size):g} m) "
-                         f"is too coarse for the carving box: its longest side is 0.1059 m, "
-                         f"{voxels} voxel(s); expected voxels of at most 0.01324 m (at least "
+                         f"is too coarse for the carving box: its longest side is 0.1163 m, "
+                         f"{voxels} voxel(s); expected voxels of at most 0.01453 m (at least "
                          f"{RESOLUTION_RANGE[0]} along the box's longest side)"], lines
     status, lines, _ = reconstruct([base, "-o", tmp_path / "m.ply", "--voxel-size", "inf", "-q"])
     assert lines == ["sfs-reconstruct: error: voxel size must be a finite number of metres > 0, "

@@ -62,6 +62,7 @@ class RecorderNode(Node):
 
     def __init__(self, **kwargs):
         self._worker = None   # started last; a node refused at start-up has none to stop
+        self._stopping = threading.Event()     # set as the node stops: a fetch gives up
         super().__init__(NODE_NAME, **kwargs)
         p = self._p = declare(self, PARAMS)
         bags = output_folder(p["output_dir"], "the bags", "bags")
@@ -75,7 +76,6 @@ class RecorderNode(Node):
         self._bag_scan: int | None = None     # the scan the open bag holds, if known
         self._bag: BagWriter | None = None           # worker thread only
         self._fetched: Future | None = None
-        self._stopping = threading.Event()     # set as the node stops: a fetch gives up
         self._started = 0.0
 
         inputs = MutuallyExclusiveCallbackGroup()     # in order: strictly increasing log times
