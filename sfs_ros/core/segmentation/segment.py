@@ -58,6 +58,7 @@ import numpy as np
 from numba import njit
 
 from .backdrop import border_band, fit_backdrop
+from .grabcut import grabcut
 from .presets import PRESETS
 
 __all__ = ["SegmentationParams", "Segmentation", "segment", "estimate_background", "PRESETS",
@@ -789,8 +790,7 @@ def _graph_cut_mask(rgb: np.ndarray, params: SegmentationParams) -> tuple[np.nda
             <= _DECIDED_FRACTION * np.count_nonzero(labels == cv2.GC_PR_FGD) else np.s_[:, :]
         cut = np.ascontiguousarray(labels[window])
         if np.count_nonzero((cut == cv2.GC_BGD) | (cut == cv2.GC_PR_BGD)):
-            cv2.grabCut(np.ascontiguousarray(small[window]), cut, None, np.zeros((1, 65)),
-                        np.zeros((1, 65)), _GRABCUT_ITERATIONS, cv2.GC_INIT_WITH_MASK)
+            grabcut(small[window], cut, _GRABCUT_ITERATIONS)
             labels[window] = cut
     chosen = ((labels == cv2.GC_FGD) | (labels == cv2.GC_PR_FGD)).astype(np.float32)
     mask = (cv2.resize(chosen, (w, h), interpolation=cv2.INTER_LINEAR) > 0.5).astype(np.uint8)

@@ -1,0 +1,533 @@
+"""GrabCut as OpenCV computes it, the same labels for less work.
+
+``grabcut(image, labels, iterations)`` gives the labels ``cv2.grabCut(image, labels,
+None, bgd, fgd, iterations, cv2.GC_INIT_WITH_MASK)`` gives, bit for bit: the same
+k-means start (OpenCV's own ``cv2.kmeans``, on the same samples, drawing from the
+same random generator), the same colour models learnt in the same order of sums, the
+same graph (vertices in raster order, each pixel's edges to its left, up-left, up and
+up-right neighbours in that order, GrabCut's weights) and the same max-flow
+(Boykov-Kolmogorov's search trees as OpenCV's ``GCGraph`` grows, augments and repairs
+them), so that even a tie between two minimum cuts goes the same way.
+
+What it saves: OpenCV evaluates each Gaussian of a colour model at every pixel, five
+per pixel to pick its component and ten more for its data term, and builds the graph
+anew each iteration. Here each distinct colour of the image (a few thousand on a
+photograph, most of the backdrop sharing a few hundred) is evaluated once an
+iteration, and the graph's links, which depend on the image alone, are built once.
+"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+from numba import njit
+
+__all__ = ["grabcut"]
+
+#: GrabCut's constants (OpenCV's grabcut.cpp): Gaussians per colour model, smoothness
+#: weight, k-means iterations of the start.
+_COMPONENTS = 5
+_GAMMA = 50.0
+_KMEANS_ITERATIONS = 10
+#: GrabCut's weight of a sure pixel's terminal link (9 gamma).
+_LAMBDA = 9 * _GAMMA
+#: GrabCut divides gamma by the square root of 2 taken in single precision.
+_GAMMA_DIAGONAL = _GAMMA / float(np.sqrt(np.float32(2.0)))
+#: A covariance whose determinant is at most this gets this much added to its diagonal.
+_SINGULAR_DETERMINANT = 1e-6
+_SINGULAR_FIX = 0.01
+#: A determinant at most this after the widening is an error (OpenCV asserts).
+_EPSILON = float(np.finfo(np.float64).eps)
+_BGD, _FGD, _PR_BGD, _PR_FGD = cv2.GC_BGD, cv2.GC_FGD, cv2.GC_PR_BGD, cv2.GC_PR_FGD
+#: BK's special parents: a search tree's root's link, and a vertex cut off its tree.
+_TERMINAL, _ORPHAN = -1, -2
+_INT_MAX = 2147483647
+#: A component is picked by the logarithm of its density when that is above this (the
+#: density far from underflow) and leads the next by this margin (relative).
+_LOG_NORMAL = -700.0
+_LOG_MARGIN = 1e-9
+#: Largest squared colour difference of two uint8 RGB pixels.
+_MAX_SQUARED_DIFFERENCE = 3 * 255 ** 2
+
+
+def grabcut(image: np.ndarray, labels: np.ndarray, iterations: int) -> None:
+    """Decide the probable pixels of ``labels`` in place, as ``cv2.grabCut`` with
+    ``GC_INIT_WITH_MASK`` and ``iterations`` iterations does.
+
+    image : (h, w, 3) uint8; labels : (h, w) uint8 ``cv2.GC_*`` values, with at least one
+    backdrop (sure or probable) and one object pixel. The k-means start draws from
+    OpenCV's random generator of the calling thread, as ``cv2.grabCut`` does.
+    """
+    image = np.ascontiguousarray(image, np.uint8)
+    if image.ndim != 3 or image.shape[2] != 3 or labels.shape != image.shape[:2] \
+            or labels.dtype != np.uint8:
+        raise ValueError(f"expected an (h, w, 3) uint8 image and (h, w) uint8 labels, got "
+                         f"{image.shape} {image.dtype} and {labels.shape} {labels.dtype}")
+    backdrop = (labels == _BGD) | (labels == _PR_BGD)
+    if backdrop.all() or not backdrop.any():
+        raise ValueError("the labels must hold both backdrop and object pixels")
+    colours, colour_of = _distinct_colours(image.reshape(-1, 3))
+    models = np.zeros((2, _COMPONENTS, 13))  # per model and component: weight, mean, covariance
+    start = np.zeros(labels.size, np.int32)
+    for side, members in enumerate((backdrop.ravel(), ~backdrop.ravel())):
+        samples = image.reshape(-1, 3)[members].astype(np.float32)
+        _, components, _ = cv2.kmeans(samples, min(_COMPONENTS, len(samples)), None,
+                                      (cv2.TERM_CRITERIA_MAX_ITER, _KMEANS_ITERATIONS, 0.0), 1,
+                                      cv2.KMEANS_PP_CENTERS)
+        start[members] = components.ravel()
+    flat = labels.reshape(-1).copy()
+    _learn(image.reshape(-1, 3), flat, start, models)
+    probable = (flat == _PR_BGD) | (flat == _PR_FGD)
+    first, head, after, capacity, fold = _graph(image, _beta(image), probable.reshape(labels.shape),
+                                                labels)
+    where = np.flatnonzero(probable)
+    for _ in range(iterations):
+        excess = _relearn(flat, colours, colour_of, where, fold, models)
+        source = _max_flow(first, head, after, capacity.copy(), excess)
+        flat[probable] = np.where(source, _PR_FGD, _PR_BGD)
+    labels[...] = flat.reshape(labels.shape)
+
+
+@njit(cache=True)
+def _distinct_colours(pixels):
+    """The distinct colours of (n, 3) uint8 ``pixels`` in order of first appearance,
+    (c, 3) float64, and each pixel's, (n,) int32 (an open-addressing hash table)."""
+    n = pixels.shape[0]
+    size = 1
+    while size < 2 * n:
+        size *= 2
+    slots = np.full(size, -1, np.int64)        # colour code of the slot; -1: empty
+    ids = np.empty(size, np.int32)
+    colours = np.empty((n, 3))
+    colour_of = np.empty(n, np.int32)
+    c = 0
+    for i in range(n):
+        code = (np.int64(pixels[i, 0]) << 16) | (np.int64(pixels[i, 1]) << 8) | pixels[i, 2]
+        slot = (code * 2654435761) & (size - 1)
+        while slots[slot] != -1 and slots[slot] != code:
+            slot = (slot + 1) & (size - 1)
+        if slots[slot] == -1:
+            slots[slot] = code
+            ids[slot] = c
+            for a in range(3):
+                colours[c, a] = pixels[i, a]
+            c += 1
+        colour_of[i] = ids[slot]
+    return colours[:c], colour_of
+
+
+@njit(cache=True)
+def _beta(image):
+    """GrabCut's contrast scale of (h, w, 3) uint8 ``image``: 1 / (2 x the mean squared
+    colour difference of neighbouring pixels), summed in OpenCV's order; 0 for a flat
+    image."""
+    h, w = image.shape[:2]
+    total = 0.0
+    for y in range(h):
+        for x in range(w):
+            for dy, dx in ((0, -1), (-1, -1), (-1, 0), (-1, 1)):
+                yy, xx = y + dy, x + dx
+                if yy < 0 or xx < 0 or xx >= w:
+                    continue
+                d0 = float(image[y, x, 0]) - float(image[yy, xx, 0])
+                d1 = float(image[y, x, 1]) - float(image[yy, xx, 1])
+                d2 = float(image[y, x, 2]) - float(image[yy, xx, 2])
+                total += d0 * d0 + d1 * d1 + d2 * d2
+    if total <= _EPSILON:
+        return 0.0
+    return 1.0 / (2.0 * total / (4 * w * h - 3 * w - 3 * h + 2))
+
+
+@njit(cache=True)
+def _graph(image, beta, probable, labels):
+    """GrabCut's graph over the probable pixels of (h, w, 3) uint8 ``image``, stored as
+    OpenCV's ``GCGraph`` stores its graph: (v,) int64 first edge of each vertex (0: none;
+    the probable pixels in raster order), and per edge (2 per link, the pair ``2k, 2k + 1``)
+    its (m,) int64 head and next edge of its tail, and (m,) float64 capacity; and (v,)
+    float64 the links to sure pixels, folded into the terminal weights (+ towards the
+    object).
+
+    A sure pixel's terminal weight (9 gamma) outweighs all its links (at most
+    4 (1 + 1 / sqrt 2) gamma): it is on its own side in every minimum cut, and its link to
+    a probable pixel counts as that pixel's terminal weight towards that side."""
+    h, w = image.shape[:2]
+    index = np.full(h * w, -1, np.int64)
+    n = 0
+    for y in range(h):
+        for x in range(w):
+            if probable[y, x]:
+                index[y * w + x] = n
+                n += 1
+    m = 8 * n + 2
+    first = np.zeros(n, np.int64)
+    head = np.zeros(m, np.int64)
+    after = np.zeros(m, np.int64)
+    capacity = np.zeros(m)
+    fold = np.zeros(n)
+    contrast = np.full(_MAX_SQUARED_DIFFERENCE + 1, -1.0)  # exp(-beta d^2), on first use
+    e = 2  # edge 0 would end its tail's list (and edge 1 make a parent of none): unused
+    for y in range(h):
+        for x in range(w):
+            for dy, dx, gamma in ((0, -1, _GAMMA), (-1, -1, _GAMMA_DIAGONAL), (-1, 0, _GAMMA),
+                                  (-1, 1, _GAMMA_DIAGONAL)):
+                yy, xx = y + dy, x + dx
+                if yy < 0 or xx < 0 or xx >= w:
+                    continue
+                i, j = index[y * w + x], index[yy * w + xx]
+                if i < 0 and j < 0:
+                    continue
+                d0 = float(image[y, x, 0]) - float(image[yy, xx, 0])
+                d1 = float(image[y, x, 1]) - float(image[yy, xx, 1])
+                d2 = float(image[y, x, 2]) - float(image[yy, xx, 2])
+                squared = d0 * d0 + d1 * d1 + d2 * d2
+                k = int(squared)
+                if contrast[k] < 0:
+                    contrast[k] = math.exp(-beta * squared)
+                weight = gamma * contrast[k]
+                if j < 0:
+                    fold[i] += weight if labels[yy, xx] == _FGD else -weight
+                elif i < 0:
+                    fold[j] += weight if labels[y, x] == _FGD else -weight
+                else:
+                    head[e], after[e], capacity[e] = j, first[i], weight
+                    first[i] = e
+                    head[e + 1], after[e + 1], capacity[e + 1] = i, first[j], weight
+                    first[j] = e + 1
+                    e += 2
+    return first, head[:e], after[:e], capacity[:e], fold
+
+
+@njit(cache=True)
+def _learn(pixels, labels, components, models):
+    """Fit both colour models ((2, 5, 13) float64: per model, backdrop then object, and
+    component its weight, mean (3) and covariance (9), in place) to (n, 3) uint8
+    ``pixels`` with (n,) uint8 GC ``labels`` and (n,) int32 ``components``."""
+    sums = np.zeros((2, _COMPONENTS, 12))
+    counts = np.zeros((2, _COMPONENTS), np.int64)
+    for i in range(pixels.shape[0]):
+        side = 0 if labels[i] == _BGD or labels[i] == _PR_BGD else 1
+        _add(sums[side, components[i]], counts[side], components[i], float(pixels[i, 0]),
+             float(pixels[i, 1]), float(pixels[i, 2]), 1)
+    _fit(models, sums, counts)
+
+
+@njit(cache=True, inline="always")
+def _add(sums, counts, k, r, g, b, times):
+    """Add ``times`` samples of colour (r, g, b) to component k's (12,) ``sums`` (of the
+    colour and of its products) and ``counts``. Every sum is a whole number below 2^53,
+    exact in float64: the order of the additions does not matter."""
+    counts[k] += times
+    colour = (r, g, b)
+    for a in range(3):
+        sums[a] += times * colour[a]
+        for c in range(3):
+            sums[3 + 3 * a + c] += times * colour[a] * colour[c]
+
+
+@njit(cache=True)
+def _fit(models, sums, counts):
+    """Both colour models ((2, 5, 13), in place) from their components' (2, 5, 12) sums
+    and (2, 5) counts, as OpenCV's ``GMM`` learns: weights by count, the mean by the
+    reciprocal of the count, a nearly singular covariance widened."""
+    for side in range(2):
+        total = counts[side].sum()
+        for k in range(_COMPONENTS):
+            model = models[side, k]
+            n = counts[side, k]
+            if n == 0:
+                model[0] = 0.0
+                continue
+            inv_n = 1.0 / n
+            model[0] = n / total
+            for a in range(3):
+                model[1 + a] = sums[side, k, a] * inv_n
+            for a in range(3):
+                for b in range(3):
+                    model[4 + 3 * a + b] = sums[side, k, 3 + 3 * a + b] * inv_n \
+                        - model[1 + a] * model[1 + b]
+            if _determinant(model[4:13]) <= _SINGULAR_DETERMINANT:
+                for a in range(3):
+                    model[4 + 4 * a] += _SINGULAR_FIX
+
+
+@njit(cache=True)
+def _determinant(c):
+    """Determinant of a 3 x 3 matrix given row by row ((9,)), in OpenCV's order."""
+    return c[0] * (c[4] * c[8] - c[5] * c[7]) - c[1] * (c[3] * c[8] - c[5] * c[6]) \
+        + c[2] * (c[3] * c[7] - c[4] * c[6])
+
+
+@njit(cache=True)
+def _gaussians(models):
+    """Per model and component, what OpenCV evaluates a Gaussian with: (2, 5, 13)
+    float64 weight (0: unused), mean (3), inverse covariance (9, as OpenCV indexes it:
+    ``inverse[a][b]`` at ``3 a + b``), ``1 / sqrt(determinant)`` and its logarithm."""
+    out = np.zeros((2, _COMPONENTS, 15))
+    for side in range(2):
+        for k in range(_COMPONENTS):
+            model = models[side, k]
+            if model[0] <= 0:
+                continue
+            c = model[4:13]
+            determinant = _determinant(c)
+            if determinant <= _EPSILON:
+                raise ValueError("a colour model's covariance is singular")
+            inv = 1.0 / determinant
+            g = out[side, k]
+            g[0] = model[0]
+            g[1:4] = model[1:4]
+            g[4] = (c[4] * c[8] - c[5] * c[7]) * inv
+            g[7] = -(c[3] * c[8] - c[5] * c[6]) * inv
+            g[10] = (c[3] * c[7] - c[4] * c[6]) * inv
+            g[5] = -(c[1] * c[8] - c[2] * c[7]) * inv
+            g[8] = (c[0] * c[8] - c[2] * c[6]) * inv
+            g[11] = -(c[0] * c[7] - c[1] * c[6]) * inv
+            g[6] = (c[1] * c[5] - c[2] * c[4]) * inv
+            g[9] = -(c[0] * c[5] - c[2] * c[3]) * inv
+            g[12] = (c[0] * c[4] - c[1] * c[3]) * inv
+            g[13] = 1.0 / math.sqrt(determinant)
+            g[14] = math.log(g[13])
+    return out
+
+
+@njit(cache=True)
+def _likeliest(g, r, gr, b):
+    """The component of a colour model ((5, 15) from :func:`_gaussians`) OpenCV assigns
+    colour (r, gr, b) to: the first of the largest densities. Picked by the logarithms of
+    the densities, without an exponential, when the largest leads the next by far more
+    than their rounding (1e-9 against errors of 1e-15); by the densities as OpenCV
+    computes them otherwise (near ties, or densities that underflow)."""
+    best, second, k_best = -np.inf, -np.inf, 0
+    for k in range(_COMPONENTS):
+        if g[k, 0] <= 0:
+            continue
+        q = g[k, 14] - 0.5 * _mahalanobis(g[k], r, gr, b)
+        if q > best:
+            best, second, k_best = q, best, k
+        elif q > second:
+            second = q
+    if best > _LOG_NORMAL and best - second > _LOG_MARGIN * (1.0 + abs(best)):
+        return k_best
+    k_best, top = 0, 0.0
+    for k in range(_COMPONENTS):
+        p = _density(g[k], r, gr, b)
+        if p > top:
+            k_best, top = k, p
+    return k_best
+
+
+@njit(cache=True)
+def _mahalanobis(g, r, gr, b):
+    """Squared Mahalanobis distance of colour (r, gr, b) to a Gaussian ((15,) from
+    :func:`_gaussians`), in OpenCV's order of operations."""
+    d0, d1, d2 = r - g[1], gr - g[2], b - g[3]
+    return d0 * (d0 * g[4] + d1 * g[7] + d2 * g[10]) \
+        + d1 * (d0 * g[5] + d1 * g[8] + d2 * g[11]) \
+        + d2 * (d0 * g[6] + d1 * g[9] + d2 * g[12])
+
+
+@njit(cache=True)
+def _density(g, r, gr, b):
+    """One Gaussian ((15,) from :func:`_gaussians`) at colour (r, gr, b), without its
+    weight, in OpenCV's order of operations; 0 for an unused component."""
+    if g[0] <= 0:
+        return 0.0
+    return g[13] * math.exp(-0.5 * _mahalanobis(g, r, gr, b))
+
+
+@njit(cache=True)
+def _relearn(labels, colours, colour_of, probable, fold, models):
+    """The first half of a GrabCut iteration: each pixel's component under the model of
+    its side in (n,) uint8 ``labels``, the models learnt again ((2, 5, 13), in place),
+    and the probable pixels' terminal weights, source minus sink, with their ``fold``
+    ((v,) float64, from :func:`_graph`) added: (v,) float64.
+
+    colours : (c, 3) float64 distinct colours; colour_of : (n,) int32 each pixel's;
+    probable : (v,) int64 the probable pixels. Pixels of one colour and side share their
+    component, so each colour is evaluated once per side."""
+    n, nc = labels.shape[0], colours.shape[0]
+    members = np.zeros((2, nc), np.int64)      # pixels of each colour on each side
+    for i in range(n):
+        side = 0 if labels[i] == _BGD or labels[i] == _PR_BGD else 1
+        members[side, colour_of[i]] += 1
+    g = _gaussians(models)
+    sums = np.zeros((2, _COMPONENTS, 12))
+    counts = np.zeros((2, _COMPONENTS), np.int64)
+    for j in range(nc):
+        r, gr, b = colours[j, 0], colours[j, 1], colours[j, 2]
+        for side in range(2):
+            if members[side, j] > 0:
+                k = _likeliest(g[side], r, gr, b)
+                _add(sums[side, k], counts[side], k, r, gr, b, members[side, j])
+    _fit(models, sums, counts)
+    g = _gaussians(models)
+    computed = np.zeros(nc, np.bool_)
+    data = np.zeros(nc)                        # source minus sink weight of each colour
+    excess = np.empty(probable.shape[0])
+    for v in range(probable.shape[0]):
+        j = colour_of[probable[v]]
+        if not computed[j]:
+            r, gr, b = colours[j, 0], colours[j, 1], colours[j, 2]
+            backdrop, thing = 0.0, 0.0
+            for k in range(_COMPONENTS):
+                backdrop += g[0, k, 0] * _density(g[0, k], r, gr, b)
+            for k in range(_COMPONENTS):
+                thing += g[1, k, 0] * _density(g[1, k], r, gr, b)
+            data[j] = -math.log(backdrop) - -math.log(thing)
+            computed[j] = True
+        excess[v] = data[j] + fold[v]
+    return excess
+
+
+@njit(cache=True)
+def _max_flow(first, head, after, capacity, excess):
+    """Boykov-Kolmogorov max-flow as OpenCV's ``GCGraph::maxFlow`` runs it, step for step.
+
+    first, head, after : the links (:func:`_graph`); capacity : (m,) float64, used up in
+    place; excess : (n,) float64 source minus sink weight of each vertex, in place.
+    Returns (n,) bool, the vertices on the source's side (OpenCV's ``inSourceSegment``:
+    those not ending in the sink's tree).
+    """
+    n = first.shape[0]
+    nil = n                                    # the active queue's end marker
+    queued = np.full(n + 1, -1, np.int64)      # next in the active queue; -1: not queued
+    parent = np.zeros(n, np.int64)             # edge to the parent; 0: free
+    stamp = np.zeros(n, np.int64)
+    dist = np.zeros(n, np.int64)
+    tree = np.zeros(n, np.uint8)               # 0: the source's, 1: the sink's
+    orphans = np.empty(n + 1, np.int64)
+    n_orphans = 0
+    queued[nil] = nil
+    last = nil
+    for i in range(n):
+        if excess[i] != 0:
+            queued[last] = i
+            last = i
+            dist[i] = 1
+            parent[i] = _TERMINAL
+            tree[i] = 1 if excess[i] < 0 else 0
+    front = queued[nil]
+    queued[last] = nil
+    queued[nil] = -1
+    now = 0
+    while True:
+        # Grow both trees from the active vertices until an edge joins them.
+        e0 = -1
+        while front != nil:
+            v = front
+            if parent[v] != 0:
+                vt = tree[v]
+                ei = first[v]
+                while ei != 0:
+                    if capacity[ei ^ vt] != 0:
+                        u = head[ei]
+                        if parent[u] == 0:
+                            tree[u] = vt
+                            parent[u] = ei ^ 1
+                            stamp[u] = stamp[v]
+                            dist[u] = dist[v] + 1
+                            if queued[u] == -1:
+                                queued[u] = nil
+                                queued[last] = u
+                                last = u
+                        elif tree[u] != vt:
+                            e0 = ei ^ vt
+                            break
+                        elif dist[u] > dist[v] + 1 and stamp[u] <= stamp[v]:
+                            parent[u] = ei ^ 1
+                            stamp[u] = stamp[v]
+                            dist[u] = dist[v] + 1
+                    ei = after[ei]
+                if e0 > 0:
+                    break
+            front = queued[front]
+            queued[v] = -1
+        if e0 <= 0:
+            break
+        # The path's bottleneck, then the flow pushed along it; saturated links orphan.
+        bottleneck = capacity[e0]
+        for k in (1, 0):
+            v = head[e0 ^ k]
+            while parent[v] >= 0:
+                ei = parent[v]
+                bottleneck = min(bottleneck, capacity[ei ^ k])
+                v = head[ei]
+            bottleneck = min(bottleneck, abs(excess[v]))
+        capacity[e0] -= bottleneck
+        capacity[e0 ^ 1] += bottleneck
+        for k in (1, 0):
+            v = head[e0 ^ k]
+            while parent[v] >= 0:
+                ei = parent[v]
+                capacity[ei ^ (k ^ 1)] += bottleneck
+                capacity[ei ^ k] -= bottleneck
+                if capacity[ei ^ k] == 0:
+                    orphans[n_orphans] = v
+                    n_orphans += 1
+                    parent[v] = _ORPHAN
+                v = head[ei]
+            excess[v] = excess[v] + bottleneck * (1 - k * 2)
+            if excess[v] == 0:
+                orphans[n_orphans] = v
+                n_orphans += 1
+                parent[v] = _ORPHAN
+        # Adopt the orphans: a new parent in their tree, or free them.
+        now += 1
+        while n_orphans > 0:
+            n_orphans -= 1
+            v = orphans[n_orphans]
+            best, e0 = _INT_MAX, 0
+            vt = tree[v]
+            ei = first[v]
+            while ei != 0:
+                u = head[ei]
+                if capacity[ei ^ (vt ^ 1)] != 0 and tree[u] == vt and parent[u] != 0:
+                    d = 0
+                    while True:                # the distance to the tree's root
+                        if stamp[u] == now:
+                            d += dist[u]
+                            break
+                        ej = parent[u]
+                        d += 1
+                        if ej < 0:
+                            if ej == _ORPHAN:
+                                d = _INT_MAX - 1
+                            else:
+                                stamp[u] = now
+                                dist[u] = 1
+                            break
+                        u = head[ej]
+                    d += 1
+                    if d < _INT_MAX:
+                        if d < best:
+                            best, e0 = d, ei
+                        u = head[ei]
+                        while stamp[u] != now:
+                            stamp[u] = now
+                            d -= 1
+                            dist[u] = d
+                            u = head[parent[u]]
+                ei = after[ei]
+            parent[v] = e0
+            if e0 > 0:
+                stamp[v] = now
+                dist[v] = best
+                continue
+            stamp[v] = 0
+            ei = first[v]
+            while ei != 0:
+                u = head[ei]
+                ej = parent[u]
+                if tree[u] == vt and ej != 0:
+                    if capacity[ei ^ (vt ^ 1)] != 0 and queued[u] == -1:
+                        queued[u] = nil
+                        queued[last] = u
+                        last = u
+                    if ej > 0 and head[ej] == v:
+                        orphans[n_orphans] = u
+                        n_orphans += 1
+                        parent[u] = _ORPHAN
+                ei = after[ei]
+    return tree == 0
