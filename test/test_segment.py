@@ -308,13 +308,13 @@ def test_graph_cut_runs_only_where_something_is_left_to_decide(monkeypatch):
     import sfs_ros.core.segmentation.segment as seg
 
     cuts = []
-    real = seg.cv2.grabCut
+    real = seg.grabcut
 
     def counted(*args):
         cuts.append(1)
         return real(*args)
 
-    monkeypatch.setattr(seg.cv2, "grabCut", counted)
+    monkeypatch.setattr(seg, "grabcut", counted)
     # A plain ellipse, strongly coloured, on a flat white backdrop: every pixel is either
     # far from the backdrop or sure backdrop, so the first labels are the answer.
     yy, xx = np.mgrid[0:H, 0:W]
