@@ -1,4 +1,4 @@
-"""Our GrabCut against OpenCV's: the same labels, bit for bit.
+"""Our GrabCut and k-means against OpenCV's: the same labels, bit for bit.
 
 :func:`grabcut` promises ``cv2.grabCut(..., GC_INIT_WITH_MASK)``'s labels: the same
 k-means start from the same random generator, the same colour models and the same
@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from sfs_ros.core.segmentation.grabcut import grabcut
+from sfs_ros.core.segmentation.kmeans import OpenCVRandom, distinct_colours, kmeans_colours
 
 
 def _picture(seed: int, h: int = 90, w: int = 120) -> tuple[np.ndarray, np.ndarray]:
@@ -52,8 +53,7 @@ def _both(image: np.ndarray, labels: np.ndarray, iterations: int, seed: int):
     cv2.setRNGSeed(seed)
     cv2.grabCut(image, theirs, None, np.zeros((1, 65)), np.zeros((1, 65)), iterations,
                 cv2.GC_INIT_WITH_MASK)
-    cv2.setRNGSeed(seed)
-    grabcut(image, ours, iterations)
+    grabcut(image, ours, iterations, OpenCVRandom(seed))
     return theirs, ours
 
 
@@ -89,6 +89,45 @@ def test_a_flat_picture_and_a_side_of_three_pixels():
 def test_labels_without_both_sides_are_refused():
     image, _ = _picture(7, 20, 20)
     with pytest.raises(ValueError, match="both backdrop and object"):
-        grabcut(image, np.full((20, 20), cv2.GC_PR_BGD, np.uint8), 1)
+        grabcut(image, np.full((20, 20), cv2.GC_PR_BGD, np.uint8), 1, OpenCVRandom())
     with pytest.raises(ValueError, match=r"\(h, w, 3\) uint8 image"):
-        grabcut(image[..., 0], np.full((20, 20), cv2.GC_PR_BGD, np.uint8), 1)
+        grabcut(image[..., 0], np.full((20, 20), cv2.GC_PR_BGD, np.uint8), 1, OpenCVRandom())
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+@pytest.mark.parametrize("k, criteria", [(5, (cv2.TERM_CRITERIA_MAX_ITER, 10, 0.0)),
+                                         (6, (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER,
+                                              20, 0.5)),
+                                         (1, (cv2.TERM_CRITERIA_MAX_ITER, 10, 0.0))])
+def test_the_kmeans_is_opencvs_and_draws_as_much(seed, k, criteria):
+    """Our k-means against ``cv2.kmeans`` (k-means++ start, one attempt) on a picture's
+    colours, twice in a row from one seed: the same labels, so the same draws too."""
+    image, _ = _picture(seed)
+    pixels = image.reshape(-1, 3)
+    random = OpenCVRandom(seed)
+    cv2.setRNGSeed(seed)
+    for samples in (pixels[::3], pixels[1::2]):
+        _, theirs, _ = cv2.kmeans(samples.astype(np.float32), k, None, criteria, 1,
+                                  cv2.KMEANS_PP_CENTERS)
+        colours, colour_of = distinct_colours(np.ascontiguousarray(samples))
+        eps = criteria[2] if criteria[0] & cv2.TERM_CRITERIA_EPS else None
+        ours = kmeans_colours(colours, colour_of, k, random, max_iterations=criteria[1],
+                              epsilon=eps)
+        assert np.array_equal(ours, theirs.ravel())
+
+
+def test_an_emptied_cluster_is_refilled_as_opencv_does():
+    """Three colours for five clusters: k-means++ draws a colour twice, one of the two
+    clusters stays empty and takes the farthest sample of the largest."""
+    samples = np.full((400, 3), 90, np.uint8)
+    samples[::7] = (10, 20, 30)
+    samples[::11] = (200, 10, 10)
+    for seed in range(6):
+        cv2.setRNGSeed(seed)
+        _, theirs, _ = cv2.kmeans(samples.astype(np.float32), 5, None,
+                                  (cv2.TERM_CRITERIA_MAX_ITER, 10, 0.0), 1, cv2.KMEANS_PP_CENTERS)
+        colours, colour_of = distinct_colours(samples)
+        ours = kmeans_colours(colours, colour_of, 5, OpenCVRandom(seed), max_iterations=10)
+        assert np.array_equal(ours, theirs.ravel())
+        # Five clusters out of three colours: some colour is split, as OpenCV splits it.
+        assert len(np.unique(ours)) == 5

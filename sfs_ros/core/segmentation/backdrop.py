@@ -18,6 +18,8 @@ import cv2
 import numpy as np
 from numba import njit
 
+from .kmeans import OpenCVRandom, distinct_colours, kmeans_colours
+
 __all__ = ["BackdropModel", "fit_backdrop", "border_band"]
 
 #: Noise floor of every cluster's standard deviation, grey levels (0..255): a
@@ -141,24 +143,24 @@ def _band_pixels(rgb: np.ndarray, border_fraction: float) -> np.ndarray:
                            rgb[h - b:].reshape(-1, 3)])
 
 
-def fit_backdrop(rgb: np.ndarray, *, border_fraction: float = 0.02,
-                 cover: float = 0.9) -> BackdropModel:
+def fit_backdrop(rgb: np.ndarray, *, border_fraction: float = 0.02, cover: float = 0.9,
+                 random: OpenCVRandom | None = None) -> BackdropModel:
     """Fit the backdrop clusters to the border band of ``rgb`` ((H, W, 3) uint8).
 
     Clusters are kept largest first until they hold ``cover`` of the band's
     pixels: an object touching the frame, holding less than ``1 - cover`` of
-    the band, stays out of the backdrop. Deterministic (fixed k-means seed).
+    the band, stays out of the backdrop. Deterministic: the k-means (OpenCV's) draws
+    from ``random``, OpenCV's generator seeded with 0 when None (advanced in place).
     """
     if not 0 < cover <= 1:
         raise ValueError(f"cover must be in (0, 1], got {cover}")
-    pixels = _band_pixels(rgb, border_fraction).astype(np.float32)
-    pixels = pixels[:: max(1, len(pixels) // _SAMPLES)]  # an even subsample along the border
-    colours = pixels.astype(np.int32) @ np.array([65536, 256, 1], np.int32)  # one key per RGB
-    k = min(_CLUSTERS, len(np.unique(colours)))
-    cv2.setRNGSeed(0)
-    criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 20, 0.5)
-    _, labels, _ = cv2.kmeans(pixels, k, None, criteria, 1, cv2.KMEANS_PP_CENTERS)
-    labels = labels.ravel()
+    band = _band_pixels(rgb, border_fraction)
+    band = np.ascontiguousarray(band[:: max(1, len(band) // _SAMPLES)])  # even along the border
+    colours, colour_of = distinct_colours(band)
+    k = min(_CLUSTERS, len(colours))
+    labels = kmeans_colours(colours, colour_of, k, OpenCVRandom(0) if random is None else random,
+                            max_iterations=20, epsilon=0.5)
+    pixels = band.astype(np.float32)
     counts = np.bincount(labels, minlength=k)
     means, inverses, held = [], [], 0
     for j in np.argsort(-counts):

@@ -24,6 +24,8 @@ import cv2
 import numpy as np
 from numba import njit
 
+from .kmeans import OpenCVRandom, distinct_colours, kmeans_colours
+
 __all__ = ["grabcut"]
 
 #: GrabCut's constants (OpenCV's grabcut.cpp): Gaussians per colour model, smoothness
@@ -52,13 +54,15 @@ _LOG_MARGIN = 1e-9
 _MAX_SQUARED_DIFFERENCE = 3 * 255 ** 2
 
 
-def grabcut(image: np.ndarray, labels: np.ndarray, iterations: int) -> None:
+def grabcut(image: np.ndarray, labels: np.ndarray, iterations: int,
+            random: OpenCVRandom) -> None:
     """Decide the probable pixels of ``labels`` in place, as ``cv2.grabCut`` with
     ``GC_INIT_WITH_MASK`` and ``iterations`` iterations does.
 
     image : (h, w, 3) uint8; labels : (h, w) uint8 ``cv2.GC_*`` values, with at least one
-    backdrop (sure or probable) and one object pixel. The k-means start draws from
-    OpenCV's random generator of the calling thread, as ``cv2.grabCut`` does.
+    backdrop (sure or probable) and one object pixel; random : the generator the k-means
+    start draws from (advanced), where ``cv2.grabCut`` draws from OpenCV's generator of
+    the calling thread: in the same state, the labels are the same.
     """
     image = np.ascontiguousarray(image, np.uint8)
     if image.ndim != 3 or image.shape[2] != 3 or labels.shape != image.shape[:2] \
@@ -68,15 +72,13 @@ def grabcut(image: np.ndarray, labels: np.ndarray, iterations: int) -> None:
     backdrop = (labels == _BGD) | (labels == _PR_BGD)
     if backdrop.all() or not backdrop.any():
         raise ValueError("the labels must hold both backdrop and object pixels")
-    colours, colour_of = _distinct_colours(image.reshape(-1, 3))
+    colours, colour_of = distinct_colours(image.reshape(-1, 3))
     models = np.zeros((2, _COMPONENTS, 13))  # per model and component: weight, mean, covariance
     start = np.zeros(labels.size, np.int32)
-    for side, members in enumerate((backdrop.ravel(), ~backdrop.ravel())):
-        samples = image.reshape(-1, 3)[members].astype(np.float32)
-        _, components, _ = cv2.kmeans(samples, min(_COMPONENTS, len(samples)), None,
-                                      (cv2.TERM_CRITERIA_MAX_ITER, _KMEANS_ITERATIONS, 0.0), 1,
-                                      cv2.KMEANS_PP_CENTERS)
-        start[members] = components.ravel()
+    for members in (backdrop.ravel(), ~backdrop.ravel()):
+        start[members] = kmeans_colours(colours, colour_of[members],
+                                        min(_COMPONENTS, int(members.sum())), random,
+                                        max_iterations=_KMEANS_ITERATIONS)
     flat = labels.reshape(-1).copy()
     _learn(image.reshape(-1, 3), flat, start, models)
     probable = (flat == _PR_BGD) | (flat == _PR_FGD)
@@ -88,34 +90,6 @@ def grabcut(image: np.ndarray, labels: np.ndarray, iterations: int) -> None:
         source = _max_flow(first, head, after, capacity.copy(), excess)
         flat[probable] = np.where(source, _PR_FGD, _PR_BGD)
     labels[...] = flat.reshape(labels.shape)
-
-
-@njit(cache=True)
-def _distinct_colours(pixels):
-    """The distinct colours of (n, 3) uint8 ``pixels`` in order of first appearance,
-    (c, 3) float64, and each pixel's, (n,) int32 (an open-addressing hash table)."""
-    n = pixels.shape[0]
-    size = 1
-    while size < 2 * n:
-        size *= 2
-    slots = np.full(size, -1, np.int64)        # colour code of the slot; -1: empty
-    ids = np.empty(size, np.int32)
-    colours = np.empty((n, 3))
-    colour_of = np.empty(n, np.int32)
-    c = 0
-    for i in range(n):
-        code = (np.int64(pixels[i, 0]) << 16) | (np.int64(pixels[i, 1]) << 8) | pixels[i, 2]
-        slot = (code * 2654435761) & (size - 1)
-        while slots[slot] != -1 and slots[slot] != code:
-            slot = (slot + 1) & (size - 1)
-        if slots[slot] == -1:
-            slots[slot] = code
-            ids[slot] = c
-            for a in range(3):
-                colours[c, a] = pixels[i, a]
-            c += 1
-        colour_of[i] = ids[slot]
-    return colours[:c], colour_of
 
 
 @njit(cache=True)

@@ -59,6 +59,7 @@ from numba import njit
 
 from .backdrop import border_band, fit_backdrop
 from .grabcut import grabcut
+from .kmeans import OpenCVRandom
 from .presets import PRESETS
 
 __all__ = ["SegmentationParams", "Segmentation", "segment", "estimate_background", "PRESETS",
@@ -735,7 +736,8 @@ def _undecided_window(labels: np.ndarray) -> tuple[slice, slice]:
 def _graph_cut_mask(rgb: np.ndarray, params: SegmentationParams) -> tuple[np.ndarray, np.ndarray, float]:
     """Graph-cut method up to the closing: (mask (H, W) uint8, backdrop colour (3,), object_sigma)."""
     h, w = rgb.shape[:2]
-    backdrop = fit_backdrop(rgb, border_fraction=params.border_fraction)
+    random = OpenCVRandom(0)  # the backdrop's k-means draws first, then the GrabCut's
+    backdrop = fit_backdrop(rgb, border_fraction=params.border_fraction, random=random)
     scale = min(1.0, float(np.sqrt(_WORK_PIXELS / (h * w))))
     size = (max(8, round(w * scale)), max(8, round(h * scale)))
     distance = backdrop.distance(rgb)
@@ -790,7 +792,7 @@ def _graph_cut_mask(rgb: np.ndarray, params: SegmentationParams) -> tuple[np.nda
             <= _DECIDED_FRACTION * np.count_nonzero(labels == cv2.GC_PR_FGD) else np.s_[:, :]
         cut = np.ascontiguousarray(labels[window])
         if np.count_nonzero((cut == cv2.GC_BGD) | (cut == cv2.GC_PR_BGD)):
-            grabcut(small[window], cut, _GRABCUT_ITERATIONS)
+            grabcut(small[window], cut, _GRABCUT_ITERATIONS, random)
             labels[window] = cut
     chosen = ((labels == cv2.GC_FGD) | (labels == cv2.GC_PR_FGD)).astype(np.float32)
     mask = (cv2.resize(chosen, (w, h), interpolation=cv2.INTER_LINEAR) > 0.5).astype(np.uint8)
