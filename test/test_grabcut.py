@@ -48,12 +48,15 @@ def _loose_labels(truth: np.ndarray, seed: int) -> np.ndarray:
 
 
 def _both(image: np.ndarray, labels: np.ndarray, iterations: int, seed: int):
-    """(OpenCV's labels, ours) from the same start and the same seed."""
+    """(OpenCV's labels, ours) from the same start and the same seed; the colour models
+    must be OpenCV's too."""
     theirs, ours = labels.copy(), labels.copy()
+    models = np.zeros((1, 65)), np.zeros((1, 65))
     cv2.setRNGSeed(seed)
-    cv2.grabCut(image, theirs, None, np.zeros((1, 65)), np.zeros((1, 65)), iterations,
-                cv2.GC_INIT_WITH_MASK)
-    grabcut(image, ours, iterations, OpenCVRandom(seed))
+    cv2.grabCut(image, theirs, None, *models, iterations, cv2.GC_INIT_WITH_MASK)
+    our_models = grabcut(image, ours, iterations, OpenCVRandom(seed))
+    for model, ours_model in zip(models, our_models):
+        assert np.array_equal(ours_model, model)
     return theirs, ours
 
 

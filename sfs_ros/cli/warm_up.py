@@ -41,6 +41,8 @@ from ..core.exchange.inputs import load_views
 from ..core.exchange.session import write_session
 from ..core.pipeline import ReconstructionParams, reconstruct
 from ..core.segmentation.band_cut import band_cut
+from ..core.segmentation.grabcut import grabcut
+from ..core.segmentation.kmeans import OpenCVRandom
 from ..core.segmentation.segment import segment
 from ..core.simulation.objects import make_object
 from ..core.simulation.synthetic import simulate_scan
@@ -62,6 +64,7 @@ def run(folder: Path) -> None:
     reconstruct(load_views(session), ReconstructionParams(resolution=REHEARSAL_RESOLUTION))
     rehearse(folder / "live", [(segment(c.image).mask, c.image) for c in captures])
     cut_a_band()
+    grabcut_a_picture()
 
 
 def cut_a_band() -> None:
@@ -78,6 +81,17 @@ def cut_a_band() -> None:
     model[0, 0] = 1.0
     model[0, 20:29] = np.eye(3).ravel()
     band_cut(image, labels, (model, model))
+
+
+def grabcut_a_picture() -> None:
+    """The segmentation's GrabCut (:func:`~sfs_ros.core.segmentation.grabcut.grabcut`) on
+    a small picture: the rehearsal's renders may leave it nothing to decide."""
+    image = np.zeros((8, 8, 3), np.uint8)
+    image[:, 4:] = 200
+    labels = np.full((8, 8), cv2.GC_PR_BGD, np.uint8)
+    labels[:, 4:] = cv2.GC_PR_FGD
+    labels[:, 0] = cv2.GC_BGD
+    grabcut(image, labels, 1, OpenCVRandom())
 
 
 def host_cpu() -> str:

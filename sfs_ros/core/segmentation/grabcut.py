@@ -55,14 +55,16 @@ _MAX_SQUARED_DIFFERENCE = 3 * 255 ** 2
 
 
 def grabcut(image: np.ndarray, labels: np.ndarray, iterations: int,
-            random: OpenCVRandom) -> None:
+            random: OpenCVRandom) -> tuple[np.ndarray, np.ndarray]:
     """Decide the probable pixels of ``labels`` in place, as ``cv2.grabCut`` with
     ``GC_INIT_WITH_MASK`` and ``iterations`` iterations does.
 
     image : (h, w, 3) uint8; labels : (h, w) uint8 ``cv2.GC_*`` values, with at least one
     backdrop (sure or probable) and one object pixel; random : the generator the k-means
     start draws from (advanced), where ``cv2.grabCut`` draws from OpenCV's generator of
-    the calling thread: in the same state, the labels are the same.
+    the calling thread: in the same state, the labels are the same. Returns the
+    backdrop's and the object's colour models, (1, 65) float64 each, as ``cv2.grabCut``
+    leaves them (5 weights, 5 x 3 means, 5 x 3 x 3 covariances).
     """
     image = np.ascontiguousarray(image, np.uint8)
     if image.ndim != 3 or image.shape[2] != 3 or labels.shape != image.shape[:2] \
@@ -90,6 +92,8 @@ def grabcut(image: np.ndarray, labels: np.ndarray, iterations: int,
         source = _max_flow(first, head, after, capacity.copy(), excess)
         flat[probable] = np.where(source, _PR_FGD, _PR_BGD)
     labels[...] = flat.reshape(labels.shape)
+    return tuple(np.concatenate([m[:, 0], m[:, 1:4].ravel(), m[:, 4:13].ravel()])[None]
+                 for m in models)
 
 
 @njit(cache=True)
