@@ -6,12 +6,16 @@ fixed threshold on the largest channel difference to a known background (one
 numpy expression, no estimation, morphology or connectivity test), measured
 in the same run. Ratio = baseline / ours (below 1: ours does more work).
 The default (graph cut) is also timed against decoding the same image from a
-PNG file in memory, the work every view costs anyway.
+PNG file in memory, the work every view costs anyway, and, where the Middlebury rings
+are beside the repository (``../shared/datasets/middlebury``), on their photographs
+against ``cv2.imread`` of each (the time per photograph, each ring best of the repeats).
 
 Run: ``python -m bench.bench_segment`` (``--quick`` for fewer repeats).
 """
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -21,6 +25,8 @@ from sfs_ros.core.segmentation.segment import PRESETS, SegmentationParams, segme
 from .timing import best_of, main
 
 SIZES = ((800, 800), (1024, 1024), (1280, 800))  # (width, height)
+MIDDLEBURY = Path(__file__).resolve().parents[2] / "shared" / "datasets" / "middlebury"
+RINGS = ("dinoSparseRing", "templeSparseRing")
 BACKDROPS = {"white": (240, 240, 235), "black": (12, 10, 14)}
 
 
@@ -72,6 +78,25 @@ def run(quick: bool = False) -> list[dict]:
                 rows.append({"name": f"segment {width}x{height} {backdrop_name}: {label}",
                              "seconds": seconds, "baseline_seconds": baseline,
                              "ratio": baseline / seconds})
+    return rows + middlebury_rows(repeats)
+
+
+def middlebury_rows(repeats: int) -> list[dict]:
+    """The default on each Middlebury ring's photographs against decoding them: seconds
+    per photograph; a note instead where the rings are absent."""
+    rows = []
+    for ring in RINGS:
+        files = sorted((MIDDLEBURY / ring).glob("*.png"))
+        if not files:
+            rows.append({"name": f"segment Middlebury {ring}: not found", "seconds": 0.0,
+                         "baseline_seconds": None, "ratio": None,
+                         "notes": [f"no photographs under {MIDDLEBURY / ring}: row skipped"]})
+            continue
+        images = [cv2.cvtColor(cv2.imread(str(f)), cv2.COLOR_BGR2RGB) for f in files]
+        decode = best_of(lambda: [cv2.imread(str(f)) for f in files], repeats) / len(files)
+        seconds = best_of(lambda: [segment(image) for image in images], repeats) / len(files)
+        rows.append({"name": f"segment {ring} ({len(files)} photos): default vs imread, each",
+                     "seconds": seconds, "baseline_seconds": decode, "ratio": decode / seconds})
     return rows
 
 

@@ -96,7 +96,7 @@ def grabcut(image: np.ndarray, labels: np.ndarray, iterations: int,
                  for m in models)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _beta(image):
     """GrabCut's contrast scale of (h, w, 3) uint8 ``image``: 1 / (2 x the mean squared
     colour difference of neighbouring pixels), summed in OpenCV's order; 0 for a flat
@@ -118,7 +118,7 @@ def _beta(image):
     return 1.0 / (2.0 * total / (4 * w * h - 3 * w - 3 * h + 2))
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _graph(image, beta, probable, labels):
     """GrabCut's graph over the probable pixels of (h, w, 3) uint8 ``image``, stored as
     OpenCV's ``GCGraph`` stores its graph: (v,) int64 first edge of each vertex (0: none;
@@ -177,7 +177,7 @@ def _graph(image, beta, probable, labels):
     return first, head[:e], after[:e], capacity[:e], fold
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _learn(pixels, labels, components, models):
     """Fit both colour models ((2, 5, 13) float64: per model, backdrop then object, and
     component its weight, mean (3) and covariance (9), in place) to (n, 3) uint8
@@ -191,7 +191,7 @@ def _learn(pixels, labels, components, models):
     _fit(models, sums, counts)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True, inline="always")
 def _add(sums, counts, k, r, g, b, times):
     """Add ``times`` samples of colour (r, g, b) to component k's (12,) ``sums`` (of the
     colour and of its products) and ``counts``. Every sum is a whole number below 2^53,
@@ -204,7 +204,7 @@ def _add(sums, counts, k, r, g, b, times):
             sums[3 + 3 * a + c] += times * colour[a] * colour[c]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _fit(models, sums, counts):
     """Both colour models ((2, 5, 13), in place) from their components' (2, 5, 12) sums
     and (2, 5) counts, as OpenCV's ``GMM`` learns: weights by count, the mean by the
@@ -230,14 +230,14 @@ def _fit(models, sums, counts):
                     model[4 + 4 * a] += _SINGULAR_FIX
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _determinant(c):
     """Determinant of a 3 x 3 matrix given row by row ((9,)), in OpenCV's order."""
     return c[0] * (c[4] * c[8] - c[5] * c[7]) - c[1] * (c[3] * c[8] - c[5] * c[6]) \
         + c[2] * (c[3] * c[7] - c[4] * c[6])
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _gaussians(models):
     """Per model and component, what OpenCV evaluates a Gaussian with: (2, 5, 13)
     float64 weight (0: unused), mean (3), inverse covariance (9, as OpenCV indexes it:
@@ -270,7 +270,7 @@ def _gaussians(models):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _likeliest(g, r, gr, b):
     """The component of a colour model ((5, 15) from :func:`_gaussians`) OpenCV assigns
     colour (r, gr, b) to: the first of the largest densities. Picked by the logarithms of
@@ -296,7 +296,7 @@ def _likeliest(g, r, gr, b):
     return k_best
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _mahalanobis(g, r, gr, b):
     """Squared Mahalanobis distance of colour (r, gr, b) to a Gaussian ((15,) from
     :func:`_gaussians`), in OpenCV's order of operations."""
@@ -306,7 +306,7 @@ def _mahalanobis(g, r, gr, b):
         + d2 * (d0 * g[6] + d1 * g[9] + d2 * g[12])
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _density(g, r, gr, b):
     """One Gaussian ((15,) from :func:`_gaussians`) at colour (r, gr, b), without its
     weight, in OpenCV's order of operations; 0 for an unused component."""
@@ -315,7 +315,7 @@ def _density(g, r, gr, b):
     return g[13] * math.exp(-0.5 * _mahalanobis(g, r, gr, b))
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _relearn(labels, colours, colour_of, probable, fold, models):
     """The first half of a GrabCut iteration: each pixel's component under the model of
     its side in (n,) uint8 ``labels``, the models learnt again ((2, 5, 13), in place),
@@ -359,7 +359,7 @@ def _relearn(labels, colours, colour_of, probable, fold, models):
     return excess
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _max_flow(first, head, after, capacity, excess):
     """Boykov-Kolmogorov max-flow as OpenCV's ``GCGraph::maxFlow`` runs it, step for step.
 

@@ -37,7 +37,7 @@ class OpenCVRandom:
         self.state = np.array([seed if seed else 0xFFFFFFFF], np.uint64)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True, inline="always")
 def _draw(state):
     """cv::RNG::next(): the next 32-bit draw (as uint64) of (1,) uint64 ``state``."""
     s = state[0]
@@ -46,7 +46,7 @@ def _draw(state):
     return s & _LOW_32
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def distinct_colours(pixels):
     """The distinct colours of (n, 3) uint8 ``pixels`` in order of first appearance,
     (c, 3) float64, and each pixel's, (n,) int32 (an open-addressing hash table)."""
@@ -74,7 +74,7 @@ def distinct_colours(pixels):
     return colours[:c], colour_of
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True, inline="always")
 def _unit(state):
     """cv::RNG's double in [0, 1): two draws, the first the high 32 bits."""
     high = _draw(state)
@@ -101,7 +101,7 @@ def kmeans_colours(colours: np.ndarray, colour_of: np.ndarray, k: int, random: O
                    np.ascontiguousarray(colour_of, np.int32), k, count, eps * eps, random.state)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True, inline="always")
 def _squared(a, b):
     """hal::normL2Sqr_ of two (3,) float32 rows, in single precision and OpenCV's order."""
     d = np.float32(0.0)
@@ -111,7 +111,7 @@ def _squared(a, b):
     return d
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _to_centre(colours, centre, used, out):
     """(c,) float32 squared distance of every used colour to (3,) float32 ``centre``."""
     for c in range(colours.shape[0]):
@@ -119,7 +119,7 @@ def _to_centre(colours, centre, used, out):
             out[c] = _squared(colours[c], centre)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _kmeans(colours, colour_of, k, max_count, epsilon_sq, state):
     n = colour_of.shape[0]
     nc = colours.shape[0]
@@ -147,7 +147,7 @@ def _kmeans(colours, colour_of, k, max_count, epsilon_sq, state):
         _assign(colours, colour_of, used, centres, best, labels)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _plus_plus(colours, colour_of, used, k, state):
     """OpenCV's generateCentersPP: (k, 3) float32 centres, samples drawn by k-means++."""
     n = colour_of.shape[0]
@@ -191,7 +191,7 @@ def _plus_plus(colours, colour_of, used, k, state):
     return centres
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _unrolled_sum(values):
     """OpenCV's sum of (n,) float32 ``values`` into a double: eight at a time added in
     single precision, then each group to the total."""
@@ -208,7 +208,7 @@ def _unrolled_sum(values):
     return s
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _assign(colours, colour_of, used, centres, best, labels):
     """Each sample's nearest centre (the first of equals), through its colour's."""
     k = centres.shape[0]
@@ -225,7 +225,7 @@ def _assign(colours, colour_of, used, centres, best, labels):
         labels[i] = best[colour_of[i]]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _centres(colours, colour_of, labels, k):
     """The clusters' means (k, 3) float32, as OpenCV computes them: sums in single
     precision, times the reciprocal of the count; an empty cluster takes the sample
