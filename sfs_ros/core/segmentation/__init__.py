@@ -3,6 +3,8 @@
 * :mod:`.segment`: one image's mask, by a graph cut on a backdrop model (the default) or
   a threshold;
 * :mod:`.backdrop`: the backdrop's colour clusters, learnt from the image border;
+* :mod:`.grabcut` and :mod:`.kmeans`: OpenCV's GrabCut and k-means, the same results bit
+  for bit, for less work;
 * :mod:`.consensus`: a view cut again with the hull of all views as its prior;
 * :mod:`.presets`: the threshold method's settings by capture setting (plain data).
 

@@ -11,8 +11,9 @@ colours (the white top of an object seen from above against a white sweep
 beyond a grey plate); border-connected pixels
 close to one as sure backdrop (an opening first cuts thin dark details, e.g.
 a shadowed crease on the object, out of the sure part). A GrabCut (colour
-GMMs + graph cut) on a copy of about 40 000 pixels decides (unless these first
-labels leave next to nothing undecided: a plain backdrop); the boundary is
+GMMs + graph cut; :mod:`.grabcut`, OpenCV's labels for less work) on a copy of about
+40 000 pixels decides (unless these first labels leave next to nothing undecided: a
+plain backdrop); the boundary is
 then re-decided at full resolution in a band as wide as a working pixel (a
 pixel is object when it is more than 1.5 standard deviations from the
 backdrop: the partly covered pixels of a soft edge count). A closing
