@@ -373,145 +373,188 @@ def _max_flow(first, head, after, capacity, excess):
     place; excess : (n,) float64 source minus sink weight of each vertex, in place.
     Returns (n,) bool, the vertices on the source's side (OpenCV's ``inSourceSegment``:
     those not ending in the sink's tree).
+
+    Each vertex's state: ``parent``, the edge from its parent (0: free, or
+    :data:`_TERMINAL`, :data:`_ORPHAN`); ``tree``, 0 the source's, 1 the sink's;
+    ``stamp`` and ``dist``, when its distance to the root was last known and that
+    distance; ``queued``, the next vertex in the queue of active vertices (-1: not in it;
+    the queue ends at the marker ``n``).
     """
     n = first.shape[0]
-    nil = n                                    # the active queue's end marker
-    queued = np.full(n + 1, -1, np.int64)      # next in the active queue; -1: not queued
-    parent = np.zeros(n, np.int64)             # edge to the parent; 0: free
+    queued = np.full(n + 1, -1, np.int64)
+    parent = np.zeros(n, np.int64)
     stamp = np.zeros(n, np.int64)
     dist = np.zeros(n, np.int64)
-    tree = np.zeros(n, np.uint8)               # 0: the source's, 1: the sink's
+    tree = np.zeros(n, np.uint8)
     orphans = np.empty(n + 1, np.int64)
-    n_orphans = 0
-    queued[nil] = nil
-    last = nil
-    for i in range(n):
+    queued[n] = n
+    last = n
+    for i in range(n):                         # every vertex with a terminal weight: a root
         if excess[i] != 0:
             queued[last] = i
             last = i
             dist[i] = 1
             parent[i] = _TERMINAL
             tree[i] = 1 if excess[i] < 0 else 0
-    front = queued[nil]
-    queued[last] = nil
-    queued[nil] = -1
+    front = queued[n]
+    queued[last] = n
+    queued[n] = -1
     now = 0
     while True:
-        # Grow both trees from the active vertices until an edge joins them.
-        e0 = -1
-        while front != nil:
-            v = front
-            if parent[v] != 0:
-                vt = tree[v]
-                ei = first[v]
-                while ei != 0:
-                    if capacity[ei ^ vt] != 0:
-                        u = head[ei]
-                        if parent[u] == 0:
-                            tree[u] = vt
-                            parent[u] = ei ^ 1
-                            stamp[u] = stamp[v]
-                            dist[u] = dist[v] + 1
-                            if queued[u] == -1:
-                                queued[u] = nil
-                                queued[last] = u
-                                last = u
-                        elif tree[u] != vt:
-                            e0 = ei ^ vt
-                            break
-                        elif dist[u] > dist[v] + 1 and stamp[u] <= stamp[v]:
-                            parent[u] = ei ^ 1
-                            stamp[u] = stamp[v]
-                            dist[u] = dist[v] + 1
-                    ei = after[ei]
-                if e0 > 0:
-                    break
-            front = queued[front]
-            queued[v] = -1
+        e0, front, last = _grow(first, head, after, capacity, parent, stamp, dist, tree, queued,
+                                front, last)
         if e0 <= 0:
-            break
-        # The path's bottleneck, then the flow pushed along it; saturated links orphan.
-        bottleneck = capacity[e0]
-        for k in (1, 0):
-            v = head[e0 ^ k]
-            while parent[v] >= 0:
-                ei = parent[v]
-                bottleneck = min(bottleneck, capacity[ei ^ k])
-                v = head[ei]
-            bottleneck = min(bottleneck, abs(excess[v]))
-        capacity[e0] -= bottleneck
-        capacity[e0 ^ 1] += bottleneck
-        for k in (1, 0):
-            v = head[e0 ^ k]
-            while parent[v] >= 0:
-                ei = parent[v]
-                capacity[ei ^ (k ^ 1)] += bottleneck
-                capacity[ei ^ k] -= bottleneck
-                if capacity[ei ^ k] == 0:
-                    orphans[n_orphans] = v
-                    n_orphans += 1
-                    parent[v] = _ORPHAN
-                v = head[ei]
-            excess[v] = excess[v] + bottleneck * (1 - k * 2)
-            if excess[v] == 0:
-                orphans[n_orphans] = v
-                n_orphans += 1
-                parent[v] = _ORPHAN
-        # Adopt the orphans: a new parent in their tree, or free them.
+            return tree == 0
+        n_orphans = _augment(e0, head, capacity, excess, parent, orphans)
         now += 1
-        while n_orphans > 0:
-            n_orphans -= 1
-            v = orphans[n_orphans]
-            best, e0 = _INT_MAX, 0
+        last = _adopt(first, head, after, capacity, parent, stamp, dist, tree, queued, orphans,
+                      n_orphans, last, now)
+
+
+@njit(cache=True, nogil=True)
+def _grow(first, head, after, capacity, parent, stamp, dist, tree, queued, front, last):
+    """Grow both search trees from the active vertices (:func:`_max_flow`'s state, in
+    place) until an edge joins them: (that edge, from the source's side, or <= 0 when
+    none is left; the queue's new front and last vertex)."""
+    nil = first.shape[0]
+    e0 = -1
+    while front != nil:
+        v = front
+        if parent[v] != 0:
             vt = tree[v]
             ei = first[v]
             while ei != 0:
-                u = head[ei]
-                if capacity[ei ^ (vt ^ 1)] != 0 and tree[u] == vt and parent[u] != 0:
-                    d = 0
-                    while True:                # the distance to the tree's root
-                        if stamp[u] == now:
-                            d += dist[u]
-                            break
-                        ej = parent[u]
-                        d += 1
-                        if ej < 0:
-                            if ej == _ORPHAN:
-                                d = _INT_MAX - 1
-                            else:
-                                stamp[u] = now
-                                dist[u] = 1
-                            break
-                        u = head[ej]
-                    d += 1
-                    if d < _INT_MAX:
-                        if d < best:
-                            best, e0 = d, ei
-                        u = head[ei]
-                        while stamp[u] != now:
-                            stamp[u] = now
-                            d -= 1
-                            dist[u] = d
-                            u = head[parent[u]]
+                if capacity[ei ^ vt] != 0:
+                    u = head[ei]
+                    if parent[u] == 0:
+                        tree[u] = vt
+                        parent[u] = ei ^ 1
+                        stamp[u] = stamp[v]
+                        dist[u] = dist[v] + 1
+                        if queued[u] == -1:
+                            queued[u] = nil
+                            queued[last] = u
+                            last = u
+                    elif tree[u] != vt:
+                        e0 = ei ^ vt
+                        break
+                    elif dist[u] > dist[v] + 1 and stamp[u] <= stamp[v]:
+                        parent[u] = ei ^ 1
+                        stamp[u] = stamp[v]
+                        dist[u] = dist[v] + 1
                 ei = after[ei]
-            parent[v] = e0
             if e0 > 0:
-                stamp[v] = now
-                dist[v] = best
-                continue
-            stamp[v] = 0
-            ei = first[v]
-            while ei != 0:
-                u = head[ei]
+                return e0, front, last
+        front = queued[front]
+        queued[v] = -1
+    return e0, front, last
+
+
+@njit(cache=True, nogil=True)
+def _augment(e0, head, capacity, excess, parent, orphans):
+    """Push the bottleneck of the path through edge ``e0`` from the source to the sink;
+    the vertices whose link to their parent or terminal it saturates become orphans
+    (listed in ``orphans``). Returns their number."""
+    bottleneck = capacity[e0]
+    for k in (1, 0):
+        v = head[e0 ^ k]
+        while parent[v] >= 0:
+            ei = parent[v]
+            bottleneck = min(bottleneck, capacity[ei ^ k])
+            v = head[ei]
+        bottleneck = min(bottleneck, abs(excess[v]))
+    capacity[e0] -= bottleneck
+    capacity[e0 ^ 1] += bottleneck
+    n_orphans = 0
+    for k in (1, 0):
+        v = head[e0 ^ k]
+        while parent[v] >= 0:
+            ei = parent[v]
+            capacity[ei ^ (k ^ 1)] += bottleneck
+            capacity[ei ^ k] -= bottleneck
+            if capacity[ei ^ k] == 0:
+                orphans[n_orphans] = v
+                n_orphans += 1
+                parent[v] = _ORPHAN
+            v = head[ei]
+        excess[v] = excess[v] + bottleneck * (1 - k * 2)
+        if excess[v] == 0:
+            orphans[n_orphans] = v
+            n_orphans += 1
+            parent[v] = _ORPHAN
+    return n_orphans
+
+
+@njit(cache=True, nogil=True)
+def _adopt(first, head, after, capacity, parent, stamp, dist, tree, queued, orphans,
+           n_orphans, last, now):
+    """Give each orphan (the last listed first) the nearest parent left in its tree, or
+    free it, queueing its neighbours in the tree and orphaning its children. Returns the
+    queue's last vertex."""
+    nil = first.shape[0]
+    while n_orphans > 0:
+        n_orphans -= 1
+        v = orphans[n_orphans]
+        e0, best = _new_parent(v, first, head, after, capacity, parent, stamp, dist, tree, now)
+        parent[v] = e0
+        if e0 > 0:
+            stamp[v] = now
+            dist[v] = best
+            continue
+        stamp[v] = 0
+        vt = tree[v]
+        ei = first[v]
+        while ei != 0:
+            u = head[ei]
+            ej = parent[u]
+            if tree[u] == vt and ej != 0:
+                if capacity[ei ^ (vt ^ 1)] != 0 and queued[u] == -1:
+                    queued[u] = nil
+                    queued[last] = u
+                    last = u
+                if ej > 0 and head[ej] == v:
+                    orphans[n_orphans] = u
+                    n_orphans += 1
+                    parent[u] = _ORPHAN
+            ei = after[ei]
+    return last
+
+
+@njit(cache=True, nogil=True)
+def _new_parent(v, first, head, after, capacity, parent, stamp, dist, tree, now):
+    """Orphan ``v``'s nearest parent in its tree through an unsaturated edge: (that edge,
+    0 when there is none; its distance to the root), the distances found on the way
+    stamped ``now``."""
+    best, e0 = _INT_MAX, 0
+    vt = tree[v]
+    ei = first[v]
+    while ei != 0:
+        u = head[ei]
+        if capacity[ei ^ (vt ^ 1)] != 0 and tree[u] == vt and parent[u] != 0:
+            d = 0
+            while True:                        # the distance to the tree's root
+                if stamp[u] == now:
+                    d += dist[u]
+                    break
                 ej = parent[u]
-                if tree[u] == vt and ej != 0:
-                    if capacity[ei ^ (vt ^ 1)] != 0 and queued[u] == -1:
-                        queued[u] = nil
-                        queued[last] = u
-                        last = u
-                    if ej > 0 and head[ej] == v:
-                        orphans[n_orphans] = u
-                        n_orphans += 1
-                        parent[u] = _ORPHAN
-                ei = after[ei]
-    return tree == 0
+                d += 1
+                if ej < 0:
+                    if ej == _ORPHAN:
+                        d = _INT_MAX - 1
+                    else:
+                        stamp[u] = now
+                        dist[u] = 1
+                    break
+                u = head[ej]
+            d += 1
+            if d < _INT_MAX:
+                if d < best:
+                    best, e0 = d, ei
+                u = head[ei]
+                while stamp[u] != now:
+                    stamp[u] = now
+                    d -= 1
+                    dist[u] = d
+                    u = head[parent[u]]
+        ei = after[ei]
+    return e0, best
