@@ -144,7 +144,7 @@ def _graph(image, beta, probable, labels):
             if probable[y, x]:
                 index[y * w + x] = n
                 n += 1
-    m = 8 * n + 2
+    m = 8 * n + 2  # each link made once, by its later pixel, a probable one: 4 per vertex
     first = np.zeros(n, np.int64)
     head = np.zeros(m, np.int64)
     after = np.zeros(m, np.int64)
@@ -245,7 +245,7 @@ def _determinant(c):
 
 @njit(cache=True, nogil=True)
 def _gaussians(models):
-    """Per model and component, what OpenCV evaluates a Gaussian with: (2, 5, 13)
+    """Per model and component, what OpenCV evaluates a Gaussian with: (2, 5, 15)
     float64 weight (0: unused), mean (3), inverse covariance (9, as OpenCV indexes it:
     ``inverse[a][b]`` at ``3 a + b``), ``1 / sqrt(determinant)`` and its logarithm."""
     out = np.zeros((2, _COMPONENTS, 15))
