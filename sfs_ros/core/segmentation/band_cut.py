@@ -19,6 +19,9 @@ from numba import njit
 from scipy.sparse import csr_array
 from scipy.sparse.csgraph import breadth_first_order, maximum_flow
 
+from .grabcut import grabcut
+from .kmeans import OpenCVRandom
+
 __all__ = ["band_cut", "coarse_to_fine_grabcut", "grabcut_beta", "gmm_likelihood"]
 
 #: GrabCut's smoothness weight (grabcut.cpp: gamma = 50); diagonal neighbours get
@@ -137,9 +140,8 @@ def coarse_to_fine_grabcut(features: np.ndarray, labels: np.ndarray, *, work_pix
     background = (work_labels == cv2.GC_BGD) | (work_labels == cv2.GC_PR_BGD)
     if not background.any() or background.all():  # nothing to decide
         return ((labels == cv2.GC_FGD) | (labels == cv2.GC_PR_FGD)).astype(np.uint8)
-    models = np.zeros((1, 65)), np.zeros((1, 65))
-    cv2.setRNGSeed(0)  # GrabCut seeds its GMMs by k-means: the same result every run
-    cv2.grabCut(work, work_labels, None, *models, iterations, cv2.GC_INIT_WITH_MASK)
+    # GrabCut seeds its colour models by k-means: from a fixed seed, the same result every run.
+    models = grabcut(work, work_labels, iterations, OpenCVRandom(0))
     chosen = ((work_labels == cv2.GC_FGD) | (work_labels == cv2.GC_PR_FGD)).astype(np.uint8)
     if scale == 1.0:
         return chosen
