@@ -129,8 +129,8 @@ def band_voxel_indices(crop: np.ndarray, band: int) -> np.ndarray:
     whose (2 band + 1)^3 cube, beyond the array empty, holds both an occupied and an
     empty voxel. Found from the occupied runs along z of each column
     (:func:`~sfs_ros.core.carving.hull.column_runs`), in compiled passes over the
-    x-planes (a count, then the indices): the runs' ends and the count of occupied
-    columns around each voxel say it, with no pass over the whole volume per step."""
+    x-planes (a count, then the indices), as intervals of z (:func:`_band_pass`): no
+    pass over the whole volume per step, and no (n, 3) search of a dense mask."""
     crop = np.ascontiguousarray(crop, dtype=bool)
     column_start, run_lo, run_hi = column_runs(crop)
     nx, ny, nz = crop.shape
@@ -395,7 +395,7 @@ def _band_volume(crop, voxels, values, pad, volume, cubes):
         for j in range(ny):
             for k in range(nz):
                 volume[i, j, k] = pad if crop[i, j, k] else -pad
-    for n in prange(voxels.shape[0]):
+    for n in prange(voxels.shape[0]):   # (neighbours may set the same mask byte: to True)
         i, j, k = voxels[n, 0], voxels[n, 1], voxels[n, 2]
         volume[i, j, k] = -values[n]
         for di in range(min(2, nx - i)):
