@@ -133,7 +133,7 @@ def _runs_pass(occ, column_start, run_lo, run_hi):
     for i in prange(nx):
         for j in range(ny):
             c = i * ny + j
-            r = column_start[c]
+            r = column_start[c] if fill else 0
             n = 0
             for k in range(nz):
                 if occ[i, j, k]:
