@@ -7,9 +7,9 @@ from scipy import ndimage
 from sfs_ros.core.geometry.grid import VoxelGrid
 from sfs_ros.core.meshing.marching import (
     LEVEL,
+    _band_volume,
     _contour,
-    _cube_grow,
-    _cubes_with_a_corner_in,
+    band_voxel_indices,
     marching_cubes_mesh,
 )
 from sfs_ros.core.meshing.mesh_checks import check_mesh
@@ -140,20 +140,22 @@ def test_invalid_input():
         marching_cubes_mesh(single, grid, smooth_sigma_vox=2.0)
 
 
-@pytest.mark.parametrize("steps", [1, 2])
-def test_cube_grow_is_scipy_binary_dilation_and_erosion(steps):
-    # The band of the hull mesher: the separable cube against scipy's 3^3 structure
-    # applied ``steps`` times (erosion with empty space beyond the array).
+@pytest.mark.parametrize("steps", [1, 2, 3])
+def test_band_voxels_are_scipy_dilation_less_erosion(steps):
+    # The band of the hull mesher, found from the columns' runs, against scipy's 3^3
+    # cube applied ``steps`` times (erosion with empty space beyond the array), on
+    # volumes touching the array's sides, sparse and dense, with several runs a column.
     rng = np.random.default_rng(steps)
     cube = np.ones((3, 3, 3), bool)
-    for shape in ((9, 7, 8), (2, 5, 3), (12, 1, 6)):
-        volume = rng.random(shape) < 0.6
-        np.testing.assert_array_equal(
-            _cube_grow(volume, steps, dilate=True),
-            ndimage.binary_dilation(volume, cube, iterations=steps))
-        np.testing.assert_array_equal(
-            _cube_grow(volume, steps, dilate=False),
-            ndimage.binary_erosion(volume, cube, iterations=steps, border_value=0))
+    for shape in ((9, 7, 8), (2, 5, 3), (12, 1, 6), (17, 19, 23)):
+        for fill in (0.1, 0.6, 0.95):
+            volume = rng.random(shape) < fill
+            expected = (ndimage.binary_dilation(volume, cube, iterations=steps)
+                        & ~ndimage.binary_erosion(volume, cube, iterations=steps,
+                                                  border_value=0))
+            np.testing.assert_array_equal(band_voxel_indices(volume, steps),
+                                          np.argwhere(expected))
+    assert band_voxel_indices(np.zeros((4, 5, 6), bool), steps).shape == (0, 3)
 
 
 def test_contouring_only_the_cubes_with_a_corner_in_the_band_gives_the_same_mesh():
@@ -166,8 +168,12 @@ def test_contouring_only_the_cubes_with_a_corner_in_the_band_gives_the_same_mesh
     band = np.abs(depth) < 1.5
     volume = np.where(band, depth, np.sign(depth) * 2.0).astype(np.float32)
     whole = _contour(volume, 0.0, np.zeros(3, np.int64), grid)
-    banded = _contour(volume, 0.0, np.zeros(3, np.int64), grid,
-                      cubes=_cubes_with_a_corner_in(band))
+    voxels = np.argwhere(band)
+    built = np.empty(volume.shape, np.float32)
+    cubes = np.zeros(volume.shape, bool)
+    _band_volume(depth > 0, voxels, -volume[band], np.float32(2.0), built, cubes)
+    np.testing.assert_array_equal(built, volume)
+    banded = _contour(volume, 0.0, np.zeros(3, np.int64), grid, cubes=cubes)
     assert len(whole[1]) > 1000
     for a, b in zip(whole, banded):
         np.testing.assert_array_equal(a, b)

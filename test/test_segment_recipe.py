@@ -1,6 +1,6 @@
 """Default segmentation (no preset) of the Middlebury rings against the datasets' own masks.
 
-The reference is the recipe of the datasets' README, implemented here: the
+The reference is the recipe of the datasets' README (``readme_mask``): the
 largest of the three channels above 0.19 of full scale (0.3 for the temple,
 whose dark cloth passes 0.19), dilated by 10 px (21x21 square), eroded by
 7 px (15x15 square), blobs under 1 % of the largest dropped. Reads
@@ -10,11 +10,11 @@ reason, when it is absent.
 
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 
 from sfs_ros.core.exchange.middlebury import read_middlebury
+from sfs_ros.core.exchange.middlebury import readme_mask as recipe_mask
 from sfs_ros.core.exchange.views import read_image
 from sfs_ros.core.segmentation.segment import segment
 
@@ -33,18 +33,6 @@ SETS = {
     "dino": ("dinoSparseRing/dinoSR_par.txt", 0.19, 0.967),
     "temple": ("templeSparseRing/templeSR_par.txt", 0.3, 0.960),
 }
-
-
-def recipe_mask(image: np.ndarray, threshold: float) -> np.ndarray:
-    """(H, W) bool: the README's silhouette of an (H, W, 3) uint8 image."""
-    mask = (image.max(axis=2) > threshold * 255).astype(np.uint8)
-    mask = cv2.erode(cv2.dilate(mask, np.ones((21, 21), np.uint8)), np.ones((15, 15), np.uint8))
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
-    if n <= 1:
-        return mask.astype(bool)
-    areas = stats[1:, cv2.CC_STAT_AREA]
-    keep = np.concatenate([[False], areas >= 0.01 * areas.max()])
-    return keep[labels]
 
 
 def test_recipe_mask_drops_specks_and_bridges_cracks():

@@ -59,7 +59,7 @@ def timed(seconds: dict[str, float], stage: str):
 class _Finish:
     """Colour, checks and evaluation of one mesh, overlapped: the colour (one core) runs
     beside the checks and then the evaluation (both cores), which waits for the colour's
-    views to be blended."""
+    views to be blended; with no colour, the checks run beside the evaluation."""
 
     def __init__(self, carved: CarvedScan, vertices, faces, timings: dict, progress):
         self.carved, self.vertices, self.faces = carved, vertices, faces
@@ -104,13 +104,17 @@ class _Finish:
         A mesh closed by construction has its checks run beside the colour and the
         evaluation, which count on a closed mesh for half their drawing (should the
         checks find it otherwise, both are done again, the same as one after the
-        other). Another mesher's mesh is checked first."""
-        report = None if closed_by_construction else self.checks()
-        expect_closed = True if report is None else bool(report["watertight"]
-                                                         and report["outward"])
+        other): on the evaluation's thread before it while the colour runs, or with no
+        colour on this thread while the evaluation runs. Another mesher's mesh is
+        checked first."""
+        given = None if closed_by_construction else self.checks()
+        expect_closed = True if given is None else bool(given["watertight"]
+                                                        and given["outward"])
+        checks_here = given is None and not self.carved.colour_views
 
         def checks_then_evaluate(closed: bool):
-            return report if report is not None else self.checks(), self.evaluate(closed)
+            checked = None if given is not None or checks_here else self.checks()
+            return checked, self.evaluate(closed)
 
         with ThreadPoolExecutor(max_workers=1) as side:
             checks_and_evaluation = side.submit(checks_then_evaluate, expect_closed)
@@ -118,7 +122,9 @@ class _Finish:
                 colours, failure = self.colour(expect_closed), None
             except ValueError as exc:   # an error of a wrong guess is no error: see below
                 colours, failure = None, exc
-            report, ious = checks_and_evaluation.result()
+            checked_here = self.checks() if checks_here else None
+            checked_there, ious = checks_and_evaluation.result()
+        report = given or checked_here or checked_there
         closed = bool(report["watertight"] and report["outward"])
         if closed != expect_closed:
             colours = self.colour(closed)

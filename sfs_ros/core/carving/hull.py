@@ -7,7 +7,7 @@ from numba import njit, prange
 
 from ..union_find import join, settle
 
-__all__ = ["drop_specks", "occupied_bounds", "surface_voxels"]
+__all__ = ["column_runs", "drop_specks", "occupied_bounds", "surface_voxels"]
 
 
 def drop_specks(occupancy: np.ndarray, *, min_fraction: float = 0.01) -> tuple[np.ndarray, int]:
@@ -34,7 +34,7 @@ def drop_specks(occupancy: np.ndarray, *, min_fraction: float = 0.01) -> tuple[n
     occ = np.ascontiguousarray(occupancy, dtype=bool)
     if occ.ndim != 3:
         raise ValueError(f"occupancy must be an (nx, ny, nz) array, got shape {occ.shape}")
-    column_start, run_lo, run_hi = _column_runs(occ)
+    column_start, run_lo, run_hi = column_runs(occ)
     part = _run_parts(column_start, run_lo, run_hi, occ.shape[1])
     sizes = np.bincount(part, weights=run_hi - run_lo + 1).astype(np.int64)
     n = np.count_nonzero(sizes)
@@ -107,33 +107,44 @@ def _surface_pass(occ, lo, hi, counts, out):
             counts[1 + p] = row
 
 
-@njit(cache=True)
-def _column_runs(occ):
-    """The occupied runs along z of every (i, j) column: column ``c = i * ny + j`` holds
-    runs ``column_start[c]:column_start[c + 1]``, run r covering ``z = run_lo[r] ..
-    run_hi[r]`` (inclusive), in increasing z."""
-    nx, ny, nz = occ.shape
+def column_runs(occ: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The occupied runs along z of every (i, j) column of a C-ordered 3-D bool ``occ``:
+    column ``c = i * ny + j`` holds runs ``column_start[c]:column_start[c + 1]``, run r
+    covering ``z = run_lo[r] .. run_hi[r]`` (inclusive), in increasing z; all three
+    int64. In compiled passes over the x-planes: a count, then the runs."""
+    nx, ny, _ = occ.shape
     column_start = np.zeros(nx * ny + 1, np.int64)
-    n = 0
-    for i in range(nx):
+    _runs_pass(occ, column_start, np.zeros(0, np.int64), np.zeros(0, np.int64))
+    np.cumsum(column_start, out=column_start)
+    run_lo = np.empty(column_start[-1], np.int64)
+    run_hi = np.empty(column_start[-1], np.int64)
+    if len(run_lo):
+        _runs_pass(occ, column_start, run_lo, run_hi)
+    return column_start, run_lo, run_hi
+
+
+@njit(parallel=True, cache=True, nogil=True)
+def _runs_pass(occ, column_start, run_lo, run_hi):
+    """With empty ``run_lo``: ``column_start[c + 1]`` = the runs of column c. Else
+    (``column_start`` their running sum from 0): the runs, column c's from
+    ``column_start[c]``."""
+    nx, ny, nz = occ.shape
+    fill = run_lo.shape[0] > 0
+    for i in prange(nx):
         for j in range(ny):
-            for k in range(nz):
-                if occ[i, j, k] and (k == 0 or not occ[i, j, k - 1]):
-                    n += 1
-            column_start[i * ny + j + 1] = n
-    run_lo = np.empty(n, np.int64)
-    run_hi = np.empty(n, np.int64)
-    r = 0
-    for i in range(nx):
-        for j in range(ny):
+            c = i * ny + j
+            r = column_start[c] if fill else 0
+            n = 0
             for k in range(nz):
                 if occ[i, j, k]:
                     if k == 0 or not occ[i, j, k - 1]:
-                        run_lo[r] = k
-                    if k == nz - 1 or not occ[i, j, k + 1]:
-                        run_hi[r] = k
-                        r += 1
-    return column_start, run_lo, run_hi
+                        if fill:
+                            run_lo[r + n] = k
+                        n += 1
+                    if fill and (k == nz - 1 or not occ[i, j, k + 1]):
+                        run_hi[r + n - 1] = k
+            if not fill:
+                column_start[c + 1] = n
 
 
 @njit(cache=True)
