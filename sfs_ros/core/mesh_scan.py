@@ -77,7 +77,7 @@ class _Finish:
         # others are drawn for the evaluation.
         drawn = [i for i in range(len(carved.views)) if i not in coloured]
         self.evaluated = [i for i in drawn if not defer or carved.views[i].role == "held-out"]
-        self.deferred = [i for i in drawn if i not in set(self.evaluated)]
+        self.deferred = sorted(set(drawn) - set(self.evaluated))
         self.colour_views_blended = threading.Event()
 
     def colour(self, closed: bool):
