@@ -21,7 +21,9 @@ The latency from the last view stored is split from the mesh's report: the last
 receipt to the ``reconstruct`` call (the observer), the carving node's carve (its
 stages), the meshing node's (the answer's ``seconds``: mesh, colour, checks, evaluation,
 files) and the hand-over (the rest of the call: the carved scan's message both ways, the
-transport, the answers).
+transport, the answers). Beside it, the CPU time (user + system, from ``/proc``, 10 ms
+steps) each node's process spent from the last receipt to the answer: on a busy machine
+the wall times follow the load, the CPU the work.
 
 Baselines, measured in the same run: the same views rendered, segmented,
 carved and meshed in one process by the core pipeline, no ROS (the
@@ -117,7 +119,7 @@ def _cell_run(config: Path, output: Path, total: int) -> dict:
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     namespace = f"/sfs_bench_{os.getpid()}"
     with open(output / "cell.log", "w") as log, \
-            Cell(cell_nodes(config, output, mock=True), namespace=namespace, log=log), \
+            Cell(cell_nodes(config, output, mock=True), namespace=namespace, log=log) as cell, \
             CellClient(namespace, name="bench_observer") as client:
         observer = Observer(client, total)
         client.wait_ready(timeout_s=120.0)
@@ -125,9 +127,11 @@ def _cell_run(config: Path, output: Path, total: int) -> dict:
         scan = client.start_scan()
         if not observer.all_in.wait(timeout=1800.0):
             raise RuntimeError(f"only {len(observer.receipted)} of {total} views receipted")
+        cpu_before = _cpu_by_node(cell)
         called = time.monotonic()
         summary = client.reconstruct(pictures=False)
         end = time.monotonic()
+        cpu = {name: s - cpu_before[name] for name, s in _cpu_by_node(cell).items()}
         wait_for_pictures(summary, timeout_s=120.0)
         pictures_end = time.monotonic()
         client.wait_scan_done(scan, timeout_s=30.0)
@@ -149,7 +153,20 @@ def _cell_run(config: Path, output: Path, total: int) -> dict:
             "motion_s": motion, "capture_s": shutter,
             "segmentation_s": seg, "carving_s": carve,
             "transport_s": observer.in_flight_s() - seg - carve,
-            "meshing_s": summary["seconds"], "views_used": summary["views_used"]}
+            "meshing_s": summary["seconds"], "views_used": summary["views_used"],
+            "cpu_carving_s": cpu["carving"], "cpu_meshing_s": cpu["meshing"],
+            "cpu_cell_s": sum(cpu.values()), "cpu_by_node": cpu}
+
+
+def _cpu_s(pid: int) -> float:
+    """User + system CPU time of process ``pid`` so far, seconds (Linux ``/proc``)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def _cpu_by_node(cell) -> dict[str, float]:
+    """{node name: CPU seconds so far} of the cell's processes."""
+    return {name: _cpu_s(process.pid) for name, process in cell.processes.items()}
 
 
 def _node_value(client, node: str, key: str) -> float:
@@ -192,13 +209,13 @@ def _cell_in_one_process(session: str, captures: list, rig, params: dict, resolu
         mask = cv2.imread(str(view.image_path), cv2.IMREAD_GRAYSCALE) > 127
         live.add_view(view.name, mask, view.theta_rad, view.phi_rad)
         live.add_colour_image(view.name, capture.image)
-    start = time.perf_counter()
+    start, cpu_start = time.perf_counter(), time.process_time()
     summary = live.reconstruct(pictures=False)
-    total = time.perf_counter() - start
+    total, cpu = time.perf_counter() - start, time.process_time() - cpu_start
     stages = json.loads(Path(summary["report_path"]).read_text())["timings_s"]
     carve_s = sum(v for k, v in stages.items() if k in CARVING_STAGES)
     return {"total_s": total, "carve_s": carve_s, "mesh_s": summary["seconds"] - carve_s,
-            "colour_s": stages.get("colour", 0.0)}
+            "colour_s": stages.get("colour", 0.0), "cpu_s": cpu}
 
 
 def _baseline(params: dict, plan: ScanPlan, resolution: int, folder: Path) -> dict:
@@ -243,7 +260,10 @@ def run(quick: bool = False) -> list[dict]:
              "pipeline on the same views (rendering for capture; everything after "
              "segmentation for meshing and for the latency); the split's baselines are "
              "LiveReconstruction.reconstruct in one process on the masks the cell stored "
-             "(the cell's work after the last view, no consensus, no ROS)",
+             "(the cell's work after the last view, no consensus, no ROS); the CPU rows' "
+             "baseline is that call's CPU time (process_time)",
+             "CPU from the last receipt to the mesh by process: " + ", ".join(
+                 f"{name} {s:.2f} s" for name, s in cell["cpu_by_node"].items()),
              f"load average at the end: {os.getloadavg()[0]:.2f}"]
     return [
         row("end to end (start to mesh)", cell["total_s"], base["total_s"]),
@@ -262,6 +282,11 @@ def run(quick: bool = False) -> list[dict]:
         row(" split: hand-over", cell["hand_over_s"]),
         row(" split: meshing node", cell["mesh_node_s"], one["mesh_s"]),
         row(" split: meshing node's colour", cell["colour_s"], one["colour_s"]),
+        row("CPU from the last receipt to the mesh, carving + meshing nodes",
+            cell["cpu_carving_s"] + cell["cpu_meshing_s"], one["cpu_s"]),
+        row(" CPU: carving node", cell["cpu_carving_s"]),
+        row(" CPU: meshing node", cell["cpu_meshing_s"]),
+        row(" CPU: every process of the cell", cell["cpu_cell_s"]),
         {**row("latency, last view to pictures", cell["pictures_latency_s"]), "notes": notes},
     ]
 

@@ -59,6 +59,9 @@ def generate_launch_description():
         # As sfs-cell (sfs_ros.process.PROCESS_ENVIRONMENT): in place before NumPy loads BLAS.
         SetEnvironmentVariable('OPENBLAS_NUM_THREADS', EnvironmentVariable(
             'OPENBLAS_NUM_THREADS', default_value='1')),
+        # and before numba loads OpenMP, whose threads then wait asleep.
+        SetEnvironmentVariable('OMP_WAIT_POLICY', EnvironmentVariable(
+            'OMP_WAIT_POLICY', default_value='PASSIVE')),
         DeclareLaunchArgument('port', default_value='/dev/ttyACM0',
                               description="The motor controller's serial port"),
         DeclareLaunchArgument('camera_device', default_value='0',

@@ -68,6 +68,9 @@ def generate_launch_description():
         # As sfs-cell (sfs_ros.process.PROCESS_ENVIRONMENT): in place before NumPy loads BLAS.
         SetEnvironmentVariable('OPENBLAS_NUM_THREADS', EnvironmentVariable(
             'OPENBLAS_NUM_THREADS', default_value='1')),
+        # and before numba loads OpenMP, whose threads then wait asleep.
+        SetEnvironmentVariable('OMP_WAIT_POLICY', EnvironmentVariable(
+            'OMP_WAIT_POLICY', default_value='PASSIVE')),
         DeclareLaunchArgument('camera_topic', default_value='',
                               description="Image topic of a real camera's driver (usb_cam, "
                                           "v4l2_camera, GenICam) to scan with the simulated "

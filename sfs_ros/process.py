@@ -2,7 +2,7 @@
 module of the package changes nothing (no environment variable, no malloc setting, no
 thread).
 
-:func:`configure_process` makes two settings, each of which only takes if it is in place
+:func:`configure_process` makes three settings, each of which only takes if it is in place
 before something else happens in the process:
 
 * **BLAS threads.** Per-view work runs in the package's own threads (and numba's); BLAS
@@ -20,6 +20,12 @@ before something else happens in the process:
   call limits the loaded OpenBLAS to that count through its own
   ``openblas_set_num_threads``: its calls then run on one thread as well, though its
   idle threads were started. A value the user set wins.
+* **OpenMP threads wait asleep.** numba's parallel kernels run on GNU OpenMP, whose
+  threads otherwise spin for a few milliseconds after each kernel before they sleep: a
+  reconstruction's kernels, with Python work between them, then burn a core's worth of
+  those milliseconds that the next stage (or another node) needs (``doc/benchmarks.md``,
+  "Where the time goes after the last view"). ``OMP_WAIT_POLICY=PASSIVE`` makes them wait
+  asleep; OpenMP reads it when numba first loads it, at the first parallel kernel.
 * **malloc** (``keep_freed_memory``: the carving and meshing nodes, ``sfs-reconstruct``
   and ``sfs-simulate``):
   :func:`sfs_ros.core.resident_memory.keep_freed_memory` makes malloc keep what it frees,
@@ -38,7 +44,7 @@ import sys
 __all__ = ["PROCESS_ENVIRONMENT", "KEEP_FREED_MEMORY_ENVIRONMENT", "configure_process"]
 
 #: What every process of the package runs with (a variable already set is left as it is).
-PROCESS_ENVIRONMENT = {"OPENBLAS_NUM_THREADS": "1"}
+PROCESS_ENVIRONMENT = {"OPENBLAS_NUM_THREADS": "1", "OMP_WAIT_POLICY": "PASSIVE"}
 #: glibc's malloc settings of :func:`~sfs_ros.core.resident_memory.keep_freed_memory`
 #: (one arena, no mmap, no trimming: the largest size_t), read when a process starts.
 KEEP_FREED_MEMORY_ENVIRONMENT = {"MALLOC_ARENA_MAX": "1", "MALLOC_MMAP_MAX_": "0",

@@ -173,3 +173,26 @@ def test_every_mesher_has_two_halves_and_takes_its_own_options():
         assert ReconstructionParams(mesher=name, mesher_options=defaults).mesher_options == defaults
     with pytest.raises(ValueError, match="mesher must be one of"):
         mesher("poisson")
+
+
+def test_a_deferred_evaluation_answers_the_held_out_views_and_completes_the_report_later(
+        mug_views):
+    held_out = mug_views.views[5].name
+    carved = carve_scan(mug_views, ReconstructionParams(resolution=48, colour=True,
+                                                        holdout=(held_out,)))
+    at_once = mesh_scan(carved)
+    later = mesh_scan(carved, defer_evaluation=True)
+    assert at_once.evaluation_due is None and later.evaluation_due is not None
+    # The mesh and its colours do not wait; the held-out view's IoU (the answer's
+    # holdout_iou) is there, the others' come with the call.
+    assert later.vertices.tobytes() == at_once.vertices.tobytes()
+    assert later.vertex_colors.tobytes() == at_once.vertex_colors.tobytes()
+    before = later.report["silhouette_iou"]
+    iou = {v["view"]: v["silhouette_iou"] for v in before["per_view"]}
+    assert iou.pop(held_out) is not None and set(iou.values()) == {None}
+    assert before["mean_used"] is None
+    assert before["mean_held_out"] == at_once.report["silhouette_iou"]["mean_held_out"]
+    later.evaluation_due()
+    assert later.evaluation_due is None
+    assert later.report["silhouette_iou"] == at_once.report["silhouette_iou"]
+    assert _without_times(later.report) == _without_times(at_once.report)

@@ -215,21 +215,31 @@ def test_masks_survive_png_and_segmentation_unchanged(tmp_path, box):
 
 
 def test_pictures_put_off_are_written_later_and_then_named_in_the_report(tmp_path, box, masks):
-    live = small_live(tmp_path, box)
+    live, at_once = small_live(tmp_path, box), small_live(tmp_path / "at_once", box)
     for n in range(0, len(PLAN), 6):
         live.add_view(n, masks[n], *PLAN[n])
+        at_once.add_view(n, masks[n], *PLAN[n])
     result = live.reconstruct("quick.ply", pictures=False)
     report = json.loads(open(result["report_path"]).read())
     pictures = {"preview": result["preview_path"], "html": result["html_path"],
                 "contact_sheet": result["contact_sheet_path"]}
-    # The mesh and its report now; no picture yet, and the report names none.
+    # The mesh and its report now; no picture yet, and the report names none. The views
+    # (none coloured here) are drawn for their silhouette IoU with the pictures.
     assert os.path.isfile(result["path"]) and not set(pictures) & set(report)
     assert not any(os.path.exists(path) for path in pictures.values())
+    assert result["silhouette_iou_mean"] is None and report["silhouette_iou"]["mean_used"] is None
+    assert {v["silhouette_iou"] for v in report["silhouette_iou"]["per_view"]} == {None}
     mesh_bytes = open(result["path"], "rb").read()
     live.reset()                      # a new scan does not lose the last one's pictures
     assert live.write_pictures() is True
     report_after = json.loads(open(result["report_path"]).read())
-    assert report_after == {**report, **pictures}
+    # The IoUs those of the same views reconstructed with the pictures at once.
+    expected = json.loads(open(at_once.reconstruct("quick.ply")["report_path"]).read())
+    assert report_after["silhouette_iou"] == expected["silhouette_iou"]
+    assert report_after["silhouette_iou"]["mean_used"] >= HULL_REPROJECTION_IOU_MIN
+    assert report_after["timings_s"]["evaluation"] > report["timings_s"]["evaluation"]
+    assert report_after == {**report, **pictures, "silhouette_iou": expected["silhouette_iou"],
+                            "timings_s": report_after["timings_s"]}
     assert all(os.path.isfile(path) for path in pictures.values())
     assert open(result["path"], "rb").read() == mesh_bytes
     assert live.write_pictures() is False           # once only

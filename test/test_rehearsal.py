@@ -16,13 +16,14 @@ def test_rehearsal_reconstructs_the_mug_with_its_files(tmp_path):
     assert summary["views_used"] == len(REHEARSAL_PLAN) == 25
     # More views than the colour takes: the evaluation draws the others, as in a real scan.
     assert summary["watertight"] and summary["coloured_from_views"] == MAX_COLOUR_VIEWS < 25
-    # The mesh against the exact silhouettes it was made from, at 48^3 on 160 x 120:
-    # 0.984 measured; a mesh far from the mug (a box, an empty scan) is below 0.9.
-    assert summary["silhouette_iou_mean"] >= 0.96
     vertices, faces = load_mesh(summary["path"])
     assert len(faces) == summary["n_faces"] > 1000
     assert Path(summary["path"]).resolve().is_relative_to(tmp_path.resolve())
     report = json.loads(Path(summary["report_path"]).read_text())
+    # The mesh against the exact silhouettes it was made from, at 48^3 on 160 x 120
+    # (drawn into the views the colour does not draw with the pictures, after the mesh):
+    # 0.984 measured; a mesh far from the mug (a box, an empty scan) is below 0.9.
+    assert report["silhouette_iou"]["mean_used"] >= 0.96
     for key in ("preview", "html", "contact_sheet"):      # the pictures came after the mesh
         assert Path(report[key]).is_file()
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import cv2
@@ -62,9 +62,10 @@ def thumbnail(rgb: np.ndarray) -> np.ndarray:
 @dataclass(frozen=True)
 class MeshFiles:
     """What :func:`write_mesh` made: ``summary`` (JSON-ready, see :func:`write_mesh`),
-    the ``result``, and ``pictures_due``: a callable that writes the pictures when they
-    were deferred (then the report again, naming them; OSError if they cannot be
-    written), else None."""
+    the ``result``, and ``pictures_due``: a callable that, when they were deferred, draws
+    the views the evaluation left, writes the pictures, then the report again, naming them
+    with the views' silhouette IoU complete (OSError if they cannot be written), else
+    None."""
 
     summary: dict
     result: Reconstruction
@@ -121,7 +122,10 @@ def write_mesh(carved: CarvedScan, hand_over: HandOver, output_dir, name: str | 
         are replaced.
     pictures : bool, keyword-only
         Write the picture, viewer and contact sheet now; False: only the mesh and its
-        report, the pictures when ``pictures_due`` is called.
+        report, the pictures when ``pictures_due`` is called, which first draws the mesh
+        into the views the colour did not draw and that were not held out (their
+        silhouette IoU in the report, and the summary's ``silhouette_iou_mean``, are None
+        until then: :func:`sfs_ros.core.mesh_scan.mesh_scan`'s ``defer_evaluation``).
     sheet_views : SheetViews or None, keyword-only
         The contact sheet's views; None: those of ``carved`` with ``hand_over``'s
         thumbnails (else the images it carries, else the masks).
@@ -141,7 +145,7 @@ def write_mesh(carved: CarvedScan, hand_over: HandOver, output_dir, name: str | 
     start = time.perf_counter()
     paths = mesh_paths(output_dir, name or f"{hand_over.scan_name}.ply")
     root = Path(output_dir).resolve()
-    result = mesh_scan(carved)
+    result = mesh_scan(carved, defer_evaluation=not pictures)
     colours = result.vertex_colors
     picture_files = dict(preview=paths["preview"], html=paths["html"],
                          contact_sheet=paths["contact_sheet"])
@@ -153,9 +157,15 @@ def write_mesh(carved: CarvedScan, hand_over: HandOver, output_dir, name: str | 
                            extra={"session": hand_over.session_dir}, within=root,
                            **(dict(picture_files, sheet_views=views_shown()) if pictures
                               else {}))
-    due = None if pictures else lambda: add_pictures(
-        written, result, vertex_colors=colours, within=root, sheet_views=views_shown(),
-        **picture_files)
+
+    def pictures_due() -> None:   # after the answer: the evaluation left, then the pictures
+        if result.evaluation_due is not None:
+            result.evaluation_due()
+        add_pictures(replace(written, document={**written.document, **result.report}), result,
+                     vertex_colors=colours, within=root, sheet_views=views_shown(),
+                     **picture_files)
+
+    due = None if pictures else pictures_due
     report = result.report
     mesh, views = report["mesh"], report["views"]
     summary = {"path": str(paths["mesh"]), "report_path": str(paths["report"]),

@@ -2,13 +2,15 @@
 
 Stages (each timed in the report): meshing (the mesher's second half), mesh
 checks, colour (when the carving chose views to colour from), reprojection of
-the mesh into every view.
+the mesh into every view (the evaluation; of the views used and rejected, it may be left
+for after the mesh is answered: :func:`mesh_scan`'s ``defer_evaluation``).
 """
 
 from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -21,7 +23,7 @@ from .meshing.colour import vertex_colours
 from .meshing.mesh_checks import check_mesh
 from .meshing.meshers import mesher
 from .metrics import reprojection_ious
-from .scan_report import meshing_report, per_view_ious
+from .scan_report import meshing_report, per_view_ious, silhouette_iou_section
 
 __all__ = ["Reconstruction", "mesh_scan", "timed"]
 
@@ -35,6 +37,9 @@ class Reconstruction:
     vertex_colors : (n, 3) uint8 RGB when coloured, else None;
     masks : {view name: (H, W) bool} silhouette of every view read and segmented, as taken
         (through the lens; carving used it undistorted, :mod:`.geometry.lens`).
+    evaluation_due : with :func:`mesh_scan`'s ``defer_evaluation``, the drawing of the views
+        left out of the evaluation (called once, no arguments: it completes ``report``'s
+        ``silhouette_iou`` and its ``evaluation`` time in place); else None.
     """
 
     vertices: np.ndarray
@@ -44,6 +49,7 @@ class Reconstruction:
     report: dict = field(default_factory=dict)
     vertex_colors: np.ndarray | None = None
     masks: dict = field(default_factory=dict)
+    evaluation_due: Callable[[], None] | None = None
 
 
 @contextmanager
@@ -59,15 +65,20 @@ def timed(seconds: dict[str, float], stage: str):
 class _Finish:
     """Colour, checks and evaluation of one mesh, overlapped: the colour (one core) runs
     beside the checks and then the evaluation (both cores), which waits for the colour's
-    views to be blended; with no colour, the checks run beside the evaluation."""
+    views to be blended; with no colour, the checks run beside the evaluation. With
+    ``defer``, the evaluation draws only the held-out views (:attr:`deferred`: the others
+    it does not draw)."""
 
-    def __init__(self, carved: CarvedScan, vertices, faces, timings: dict, progress):
+    def __init__(self, carved: CarvedScan, vertices, faces, timings: dict, progress,
+                 defer: bool = False):
         self.carved, self.vertices, self.faces = carved, vertices, faces
         self.timings, self.progress = timings, progress
         coloured = set(carved.colour_views)
         # The colour draws its views' silhouettes of the mesh with its z-buffers; the
         # others are drawn for the evaluation.
-        self.evaluated = [i for i in range(len(carved.views)) if i not in coloured]
+        drawn = [i for i in range(len(carved.views)) if i not in coloured]
+        self.evaluated = [i for i in drawn if not defer or carved.views[i].role == "held-out"]
+        self.deferred = sorted(set(drawn) - set(self.evaluated))
         self.colour_views_blended = threading.Event()
 
     def colour(self, closed: bool):
@@ -85,14 +96,16 @@ class _Finish:
             self.progress("colour", 1.0)
         return found
 
-    def evaluate(self, closed: bool) -> list:
+    def evaluate(self, closed: bool, views: list[int] | None = None) -> list:
+        """The silhouette IoU of ``views`` (indices; None: :attr:`evaluated`), once the
+        colour's views are blended."""
         self.colour_views_blended.wait()
-        carved = self.carved
+        carved, views = self.carved, self.evaluated if views is None else views
         with timed(self.timings, "evaluation"):
             return reprojection_ious(self.vertices, self.faces,
-                                     [carved.views[i].camera for i in self.evaluated],
-                                     [carved.masks[i] for i in self.evaluated],
-                                     closed=closed) if self.evaluated else []
+                                     [carved.views[i].camera for i in views],
+                                     [carved.masks[i] for i in views],
+                                     closed=closed) if views else []
 
     def checks(self) -> dict:
         with timed(self.timings, "mesh_checks"):
@@ -134,11 +147,15 @@ class _Finish:
         return report, colours, ious
 
 
-def mesh_scan(carved: CarvedScan, *, progress=None) -> Reconstruction:
+def mesh_scan(carved: CarvedScan, *, progress=None,
+              defer_evaluation: bool = False) -> Reconstruction:
     """Mesh, check, colour and evaluate a carved scan; the report joins the carving's.
 
-    ``progress``: (stage name, fraction done) callback. Raises ``ValueError`` with a
-    one-line reason when the mesher cannot mesh the input.
+    ``progress``: (stage name, fraction done) callback. ``defer_evaluation``: the silhouette
+    IoU of the views used and rejected (those the colour does not draw are drawn then) is
+    made by the result's ``evaluation_due``, not now (it, and the mean of the used views,
+    are None in the report until then); the held-out views are drawn now. Raises
+    ``ValueError`` with a one-line reason when the mesher cannot mesh the input.
     """
     progress = progress or (lambda stage, fraction: None)
     timings: dict[str, float] = {}
@@ -148,18 +165,34 @@ def mesh_scan(carved: CarvedScan, *, progress=None) -> Reconstruction:
         vertices, faces, mesher_stats = chosen.mesh(carved.occupancy, carved.grid,
                                                     carved.mesher_input)
         progress("meshing", 1.0)
-    finish = _Finish(carved, vertices, faces, timings, progress)
+    finish = _Finish(carved, vertices, faces, timings, progress, defer=defer_evaluation)
     mesh_report, colours, evaluated_ious = finish.run(chosen.closed)
+    coverage = None if colours is None else colours.coverage
+    deferred = defer_evaluation and bool(finish.deferred or coverage)
     with timed(timings, "evaluation"):
         progress("evaluation", 0.0)
         per_view = per_view_ious(carved, finish.evaluated, evaluated_ious,
-                                 None if colours is None else colours.coverage)
+                                 None if deferred else coverage)
         progress("evaluation", 1.0)
     report = meshing_report(carved.report, mesher=carved.mesher, mesher_stats=mesher_stats,
                             mesh_checks=mesh_report,
                             colour_stats=None if colours is None else colours.stats,
                             per_view=per_view, timings=timings)
-    return Reconstruction(vertices=vertices, faces=faces, occupancy=carved.occupancy,
-                          grid=carved.grid, report=report,
-                          vertex_colors=None if colours is None else colours.colours,
-                          masks=carved.taken)
+    result = Reconstruction(vertices=vertices, faces=faces, occupancy=carved.occupancy,
+                            grid=carved.grid, report=report,
+                            vertex_colors=None if colours is None else colours.colours,
+                            masks=carved.taken)
+    if deferred:
+        closed = bool(mesh_report["watertight"] and mesh_report["outward"])
+
+        def evaluate_deferred() -> None:
+            result.evaluation_due = None
+            views = finish.evaluated + finish.deferred
+            ious = [*evaluated_ious, *finish.evaluate(closed, finish.deferred)]
+            with timed(timings, "evaluation"):
+                per_view_all = per_view_ious(carved, views, ious, coverage)
+            report["silhouette_iou"] = silhouette_iou_section(per_view_all)
+            report["timings_s"]["evaluation"] = timings["evaluation"]
+
+        result.evaluation_due = evaluate_deferred
+    return result

@@ -18,7 +18,8 @@ if TYPE_CHECKING:
     from .carved_scan import CarvedScan
     from .stages import Fused, GridChoice, Hull, Segmented, UsedViews
 
-__all__ = ["SILHOUETTE_IOU_MEANING", "carving_report", "meshing_report", "per_view_ious"]
+__all__ = ["SILHOUETTE_IOU_MEANING", "carving_report", "meshing_report", "per_view_ious",
+           "silhouette_iou_section"]
 
 #: What the report's silhouette IoU is, written into every report beside it.
 SILHOUETTE_IOU_MEANING = (
@@ -63,20 +64,31 @@ def per_view_ious(carved: CarvedScan, evaluated: list[int], evaluated_ious: list
     ``carved.views``) have their IoU in ``evaluated_ious``; the coloured views' silhouettes of
     the mesh came with the colour's z-buffers (``coverage``, packed bits, the same
     pixel-centre rule); both agree with drawing every face, exact ties on the outline
-    aside."""
-    ious = np.empty(len(carved.views))
-    ious[evaluated] = evaluated_ious
+    aside. A view in neither (its drawing left for later) has None."""
+    ious: list = [None] * len(carved.views)
+    for i, iou in zip(evaluated, evaluated_ious):
+        ious[i] = float(iou)
     for i, packed in zip(carved.colour_views, coverage or []):
         mask = carved.masks[i]
-        ious[i] = silhouette_iou(
-            np.unpackbits(packed, count=mask.size).reshape(mask.shape).view(bool), mask)
-    return [{"view": view.name, "role": view.role, "silhouette_iou": float(iou)}
+        ious[i] = float(silhouette_iou(
+            np.unpackbits(packed, count=mask.size).reshape(mask.shape).view(bool), mask))
+    return [{"view": view.name, "role": view.role, "silhouette_iou": iou}
             for view, iou in zip(carved.views, ious)]
 
 
 def _mean_iou(per_view: list, role: str) -> float | None:
+    """The mean IoU of the views of ``role``; None when there are none, or one is not drawn
+    yet."""
     values = [p["silhouette_iou"] for p in per_view if p["role"] == role]
-    return float(np.mean(values)) if values else None
+    return float(np.mean(values)) if values and None not in values else None
+
+
+def silhouette_iou_section(per_view: list[dict]) -> dict:
+    """The report's ``silhouette_iou``: its meaning, ``per_view`` and the means of the used
+    and held-out views."""
+    return {"meaning": SILHOUETTE_IOU_MEANING, "per_view": per_view,
+            "mean_used": _mean_iou(per_view, "used"),
+            "mean_held_out": _mean_iou(per_view, "held-out")}
 
 
 def meshing_report(carving: dict, *, mesher: str, mesher_stats: dict, mesh_checks: dict,
@@ -91,8 +103,6 @@ def meshing_report(carving: dict, *, mesher: str, mesher_stats: dict, mesh_check
         "mesher": {"name": mesher, **mesher_stats},
         "mesh": mesh_checks,
         **({"colour": colour_stats} if colour_stats is not None else {}),
-        "silhouette_iou": {"meaning": SILHOUETTE_IOU_MEANING, "per_view": per_view,
-                           "mean_used": _mean_iou(per_view, "used"),
-                           "mean_held_out": _mean_iou(per_view, "held-out")},
+        "silhouette_iou": silhouette_iou_section(per_view),
         "timings_s": {**carving.get("timings_s", {}), **timings},
     }
