@@ -28,10 +28,10 @@ A mask given with its coverage (an image's alpha channel, antialiased: the
 fraction of each pixel the object covers) knows its boundary to a fraction of
 a pixel: each boundary pixel's coverage and the direction of its gradient
 place the edge through it (Gustavson and Strand's anti-aliased distance
-transform, 2011), and every pixel's distance moves by what its nearest
-boundary pixel's moved. Without it the hull is biased inward: each view's
-binary boundary lies up to half a pixel inside the true silhouette somewhere
-along a slanted edge, and the hull keeps only what every view keeps.
+transform, 2011), and the pixels around move with the nearest of them.
+Without it the hull is biased inward: each view's binary boundary lies up to
+half a pixel inside the true silhouette somewhere along a slanted edge, and
+the hull keeps only what every view keeps.
 
 A view on which a point projects outside the image (or behind a pinhole
 camera) knows nothing about it, as for the carver (``outside_image="keep"``);
@@ -87,7 +87,7 @@ def _silhouette_distance(mask: np.ndarray,
     Parameters
     ----------
     mask : (H, W) bool
-    coverage : (H, W) float32 in [0, 1] or None
+    coverage : (H, W) uint8 (0..255) or float (0..1), or None
         The fraction of each pixel the object covers (the mask's antialiased
         alpha): places the boundary within the pixels along it
         (:func:`_coverage_correction`). None: half-way between pixel centres.
@@ -120,8 +120,11 @@ def _silhouette_distance(mask: np.ndarray,
     distance = np.clip(np.where(crop.astype(bool), 0.5 - inside, outside - 0.5),
                        -MAX_DISTANCE_PX, MAX_DISTANCE_PX).astype(np.float32)
     if coverage is not None:
-        covered = np.pad(coverage[v0:v1, u0:u1], ((0, crop.shape[0] - (v1 - v0)),
-                                                  (0, crop.shape[1] - (u1 - u0))), mode="edge")
+        covered = np.asarray(coverage[v0:v1, u0:u1], dtype=np.float32)
+        if coverage.dtype == np.uint8:
+            covered /= np.float32(255.0)
+        covered = np.pad(covered, ((0, crop.shape[0] - (v1 - v0)),
+                                   (0, crop.shape[1] - (u1 - u0))), mode="edge")
         distance += _coverage_correction(distance, crop.astype(bool), covered)
     return distance, u0, v0
 
@@ -471,8 +474,8 @@ def _project_kernel(hull, points, unit, steps, bisections, top, moved, found):
 
 
 def _check_coverage(masks: list, coverage) -> list:
-    """One (H, W) float32 coverage in [0, 1] or None per mask; ValueError naming the view
-    whose coverage does not fit its mask."""
+    """One (H, W) array or None per mask; ValueError naming the view whose coverage does
+    not fit its mask."""
     if coverage is None:
         return [None] * len(masks)
     coverage = list(coverage)
@@ -486,8 +489,6 @@ def _check_coverage(masks: list, coverage) -> list:
             if alpha.shape != mask.shape:
                 raise ValueError(f"view {index}: coverage is {alpha.shape}, expected its "
                                  f"mask's {mask.shape}")
-            alpha = (alpha / np.float32(255.0) if alpha.dtype == np.uint8 else alpha
-                     ).astype(np.float32)
         out.append(alpha)
     return out
 
@@ -511,8 +512,9 @@ class HullDistance:
         Distance images computed beforehand; a mask not among them is computed here.
     coverage : sequence of (H, W) uint8 (0..255) or float (0..1) or None, keyword-only
         Per view, the fraction of each pixel the object covers (an antialiased alpha
-        channel whose threshold gave the mask), or None: the boundary is then placed
-        within the pixels along it (module docstring). None: no view has one.
+        channel whose threshold gave the mask), which places its silhouette's edge
+        within the pixels (module docstring); None for a view without. None: no view
+        has one.
 
     Memory: one float32 distance image per view, cropped to the silhouette's
     bounding box plus ``CROP_MARGIN_PX``.
