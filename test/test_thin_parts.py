@@ -147,9 +147,9 @@ def test_an_antialiased_alpha_places_the_surface_within_the_pixels(scene, tmp_pa
     # (each view's edge up to half a pixel inside the object somewhere along a slanted
     # edge, and the hull keeps only what every view keeps): the legs and the antenna,
     # 3 to 6 px wide, lose most. The coverage places each view's edge within its
-    # pixels. Measured: 0.9787 with the binary masks, 0.9847 with their coverage
-    # (the mesh on a grid of the pixel's footprint; 0.9821 and 0.9888 on a grid twice
-    # as fine, where marching cubes cuts the hull's sharp edges less).
+    # pixels. Measured: 0.9786 with the binary masks, 0.9843 with their coverage (the
+    # hull alone on a grid twice as fine, where marching cubes cuts the hull's sharp
+    # edges less: 0.9821 and 0.9886).
     mesh, cameras, _ = scene
     alphas = [coverage(mesh, camera) for camera in cameras]
     masks = [alpha > 127 for alpha in alphas]
