@@ -324,3 +324,83 @@ def test_distance_images_given_beforehand_give_the_same_hull():
     assert not np.array_equal(punched_expected, expected)   # the hole is seen: can fail
     with pytest.raises(ValueError, match="empty"):
         known.add(np.zeros((SPHERE_IMAGE, SPHERE_IMAGE), bool))
+
+
+def disk_coverage(width, height, centre_uv, radius_px, samples=16):
+    """(H, W) float32: the fraction of each pixel (centres on integers) inside the disk,
+    from ``samples`` x ``samples`` points a pixel."""
+    offsets = (np.arange(samples) + 0.5) / samples - 0.5
+    u = (np.arange(width)[:, None] + offsets).ravel()
+    v = (np.arange(height)[:, None] + offsets).ravel()
+    inside = (u[None, :] - centre_uv[0]) ** 2 + (v[:, None] - centre_uv[1]) ** 2 < radius_px ** 2
+    return inside.reshape(height, samples, width, samples).mean(axis=(1, 3)).astype(np.float32)
+
+
+def points_at_pixels(camera, u, v, depth):
+    """World points an orthographic ``camera`` sees at pixels ``(u, v)`` (n,), ``depth`` ahead."""
+    K = camera.K
+    xc = np.column_stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1],
+                          np.full(len(u), depth)])
+    return (xc - camera.t) @ camera.R
+
+
+def test_coverage_places_the_silhouette_edge_within_the_pixels():
+    # A straight edge 0.3 px into a column of pixels (their coverage 0.8): the binary
+    # mask puts it on the pixel edge, 0.2 px off; the coverage puts it where it is
+    # (Gustavson and Strand's edge distance is exact for a straight edge). At 0.1 px
+    # into the column the pixel centres stay the margin (a quarter pixel) inside.
+    camera = looking_along([1.0, 0.0, 0.0], orthographic=True, scale=1000.0,
+                           width=WIDTH, height=HEIGHT)
+    px = 1.0 / 1000.0
+    rng = np.random.default_rng(5)
+    for into, placed in ((0.3, 0.3), (0.1, 0.25)):
+        alpha = np.zeros((HEIGHT, WIDTH), np.float32)
+        alpha[:, :50] = 1.0
+        alpha[:, 50] = 0.5 + into
+        mask = alpha > 0.5
+        at = points_near_column(camera, np.full(50, 50.0 + placed), rng)
+        assert np.allclose(HullDistance([camera], [mask])(at) / px, placed - 0.5, atol=1e-4)
+        assert np.allclose(HullDistance([camera], [mask], coverage=[alpha])(at) / px, 0.0,
+                           atol=1e-4)
+
+
+def test_coverage_places_a_round_edge_within_the_margin():
+    # A disk's antialiased alpha: the binary mask's edge follows the pixel staircase (up
+    # to half a pixel off the circle, 0.2 px on average); with the coverage, 0.07 px on
+    # average, and a quarter pixel at most (where the circle passes nearer a pixel
+    # centre than the margin); the same with the coverage rounded to 8 bits.
+    camera = looking_along([1.0, 0.0, 0.0], orthographic=True, scale=1000.0,
+                           width=WIDTH, height=HEIGHT)
+    centre, radius = np.array([97.3, 81.6]), 31.7
+    coverage = disk_coverage(WIDTH, HEIGHT, centre, radius)
+    mask = coverage > 0.5
+    angle = np.linspace(0.0, 2.0 * np.pi, 720, endpoint=False)
+    on_circle = points_at_pixels(camera, centre[0] + radius * np.cos(angle),
+                                 centre[1] + radius * np.sin(angle), 0.5)
+    px = 1.0 / 1000.0
+    binary = HullDistance([camera], [mask])(on_circle) / px
+    assert np.abs(binary).max() > 0.45 and np.abs(binary).mean() > 0.15
+    for given in (coverage, np.round(255 * coverage).astype(np.uint8)):
+        hull = HullDistance([camera], [mask], coverage=[given])
+        error = np.abs(hull(on_circle) / px)
+        assert error.max() < 0.26 and error.mean() < 0.09, (error.max(), error.mean())
+        # A pixel and a half out and in, the coverage moves the distance by half a
+        # pixel at most.
+        for step in (-1.5, 1.5):
+            off = points_at_pixels(camera, centre[0] + (radius + step) * np.cos(angle),
+                                   centre[1] + (radius + step) * np.sin(angle), 0.5)
+            moved = hull(off) - HullDistance([camera], [mask])(off)
+            assert np.abs(moved).max() <= 0.5 * px + 1e-9
+        # The floor still leaves out only views below it everywhere (the slack).
+        assert np.allclose(hull(on_circle, floor_m=-2 * px),
+                           np.maximum(hull(on_circle), -2 * px))
+
+
+def test_coverage_of_the_wrong_size_is_refused():
+    camera = looking_along([1.0, 0.0, 0.0], orthographic=True, scale=1000.0,
+                           width=WIDTH, height=HEIGHT)
+    mask = half_plane(camera, 50)
+    with pytest.raises(ValueError, match=r"view 0: coverage is \(159, 200\), expected"):
+        HullDistance([camera], [mask], coverage=[np.ones((HEIGHT - 1, WIDTH))])
+    with pytest.raises(ValueError, match="one image \\(or None\\) per view"):
+        HullDistance([camera], [mask], coverage=[None, None])

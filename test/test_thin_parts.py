@@ -81,14 +81,29 @@ def test_the_box_holds_parts_thinner_than_its_voxels(scene):
     assert np.all(box[0] >= mesh.bounds[0] - 0.12) and np.all(box[1] <= mesh.bounds[1] + 0.12)
 
 
-def write_rgba_scan(folder, mesh, cameras, masks):
-    """The views as RGBA PNGs (alpha: the exact silhouette) and a transforms.json."""
+def coverage(mesh, camera, samples=4) -> np.ndarray:
+    """(H, W) uint8: the fraction of each pixel the mesh covers (0..255), from
+    ``samples`` x ``samples`` points a pixel, as a renderer's antialiased alpha."""
+    K = camera.K.copy()
+    K[:2, :2] *= samples
+    K[:2, 2] = samples * (K[:2, 2] + 0.5) - 0.5   # pixel centres on integers at both sizes
+    fine = Camera(K=K, R=camera.R, t=camera.t, width=samples * camera.width,
+                  height=samples * camera.height)
+    hits = rasterize_silhouette(mesh.vertices, mesh.faces, fine).astype(np.float32)
+    alpha = cv2.resize(hits, (camera.width, camera.height), interpolation=cv2.INTER_AREA)
+    return np.round(255.0 * alpha).astype(np.uint8)
+
+
+def write_rgba_scan(folder, mesh, cameras, alphas):
+    """The views as RGBA PNGs with the given alpha channels (bool: 0 or 255) and a
+    transforms.json."""
     colours = np.tile(np.array([[190.0, 150.0, 100.0]]), (len(mesh.vertices), 1))
     frames = []
-    for n, (camera, mask) in enumerate(zip(cameras, masks)):
+    for n, (camera, alpha) in enumerate(zip(cameras, alphas)):
         image = render_image(mesh.vertices, mesh.faces, camera, vertex_colors=colours,
                              background_rgb=(0, 0, 0), noise_sigma=0.0)
-        rgba = np.dstack([image, np.where(mask, 255, 0).astype(np.uint8)])
+        alpha = np.where(alpha, 255, 0).astype(np.uint8) if alpha.dtype == bool else alpha
+        rgba = np.dstack([image, alpha])
         cv2.imwrite(str(folder / f"r_{n}.png"), cv2.cvtColor(rgba, cv2.COLOR_RGBA2BGRA))
         pose = np.eye(4)
         pose[:3, :3] = camera.R.T @ np.diag([1.0, -1.0, -1.0])   # OpenCV -> OpenGL axes
@@ -115,3 +130,33 @@ def test_rgba_views_are_carved_as_their_exact_alpha(scene, tmp_path):
         drawn = rasterize_silhouette(result.vertices, result.faces, view.camera)
         ious.append(np.count_nonzero(drawn & mask) / np.count_nonzero(drawn | mask))
     assert min(ious) > 0.94 and np.mean(ious) > 0.97, (min(ious), np.mean(ious))
+
+
+def mean_iou(result, cameras, masks) -> float:
+    """Mean over views of the mesh's silhouette's IoU with ``masks``."""
+    ious = []
+    for camera, mask in zip(cameras, masks):
+        drawn = rasterize_silhouette(result.vertices, result.faces, camera)
+        ious.append(np.count_nonzero(drawn & mask) / np.count_nonzero(drawn | mask))
+    return float(np.mean(ious))
+
+
+def test_an_antialiased_alpha_places_the_surface_within_the_pixels(scene, tmp_path):
+    # The same views with a renderer's antialiased alpha (4 x 4 samples a pixel), the
+    # mask its threshold (> 127): the hull of binary masks lies inside the silhouettes
+    # (each view's edge up to half a pixel inside the object somewhere along a slanted
+    # edge, and the hull keeps only what every view keeps): the legs and the antenna,
+    # 3 to 6 px wide, lose most. The coverage places each view's edge within its
+    # pixels. Measured: 0.9786 with the binary masks, 0.9843 with their coverage (the
+    # hull alone on a grid twice as fine, where marching cubes cuts the hull's sharp
+    # edges less: 0.9821 and 0.9886).
+    mesh, cameras, _ = scene
+    alphas = [coverage(mesh, camera) for camera in cameras]
+    masks = [alpha > 127 for alpha in alphas]
+    results = {}
+    for name, given in (("binary", masks), ("antialiased", alphas)):
+        folder = tmp_path / name
+        folder.mkdir()
+        results[name] = mean_iou(reconstruct(read_transforms(
+            write_rgba_scan(folder, mesh, cameras, given))), cameras, masks)
+    assert results["antialiased"] > results["binary"] + 0.004, results

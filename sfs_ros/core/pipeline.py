@@ -283,9 +283,11 @@ def carve_scan(view_set: ViewSet, params: ReconstructionParams = ReconstructionP
 
     with timed(timings, "carving"):
         occupancy, specks_removed = carve_hull(grid, used, params.max_misses, progress)
-    hull = Hull(occupancy, HullDistance(used.cameras, used.masks, max_misses=params.max_misses,
-                                        bounds_m=(grid.bounds_min, grid.bounds_max),
-                                        known=precomputed.distances), specks_removed)
+    hull = Hull(occupancy, HullDistance(
+        used.cameras, used.masks, max_misses=params.max_misses,
+        bounds_m=(grid.bounds_min, grid.bounds_max), known=precomputed.distances,
+        coverage=[segmented.coverage.get(name) for name in used.names(segmented.views)]),
+        specks_removed)
     if params.refine:
         with timed(timings, "refinement"):
             hull = refine_hull(hull, grid, segmented, used, images, progress)

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -52,6 +52,9 @@ class Segmented:
     rejected : [{"view", "reason"}] the views of the input that could not be used
     exact : names of the views whose mask is their image's alpha channel (exact: the
         fusion never overrules it)
+    coverage : {view name: (H, W) uint8 alpha channel, undistorted} of those views: the
+        fraction of each pixel the object covers, which places the hull's surface within
+        the pixels along the silhouette (:class:`.meshing.hull_distance.HullDistance`)
     """
 
     views: list[View]
@@ -60,6 +63,7 @@ class Segmented:
     lenses: dict[str, Camera]
     rejected: list[dict]
     exact: frozenset = frozenset()
+    coverage: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -83,15 +87,16 @@ class UsedViews:
 
 
 def _read_and_segment(view: View, params: SegmentationParams,
-                      given: np.ndarray | None) -> tuple[np.ndarray, bool] | str:
+                      given: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None] | str:
     """The view's silhouette (H, W) bool (``given``, else segmented from its image) and
-    whether it is exact (its image's alpha channel), or why it cannot be used."""
+    the alpha channel (H, W) uint8 it is exact from (None: segmented or given), or why
+    the view cannot be used."""
     if given is not None:
         expected = (view.camera.height, view.camera.width)
         if np.shape(given) != expected or np.asarray(given).dtype != np.bool_:
             return (f"given silhouette is {np.asarray(given).dtype} {np.shape(given)}, "
                     f"expected {expected} bool (the camera's size)")
-        return (given, False) if given.any() else "empty silhouette: no object found"
+        return (given, None) if given.any() else "empty silhouette: no object found"
     try:
         image = read_image(view.image_path, keep_alpha=not params.ignore_alpha,
                            expected_size=(view.camera.width, view.camera.height))
@@ -99,7 +104,8 @@ def _read_and_segment(view: View, params: SegmentationParams,
         return str(err)
     result = segment(image, params)
     exact = image.ndim == 3 and image.shape[2] == 4 and not params.ignore_alpha
-    return "empty silhouette: no object found" if result.empty else (result.mask, exact)
+    alpha = image[:, :, 3].copy() if exact else None
+    return "empty silhouette: no object found" if result.empty else (result.mask, alpha)
 
 
 def segment_views(view_set: ViewSet, params: SegmentationParams, given: dict,
@@ -112,7 +118,7 @@ def segment_views(view_set: ViewSet, params: SegmentationParams, given: dict,
     undistorted = undistorted or {}
     views = view_set.views
     rejected = [{"view": name, "reason": reason} for name, reason in view_set.rejected]
-    kept, masks, taken, exact = [], [], {}, set()
+    kept, masks, taken, coverage = [], [], {}, {}
     progress("segmentation", 0.0)
     results = map_in_threads(lambda view: _read_and_segment(view, params, given.get(view.name)),
                              views)
@@ -120,16 +126,16 @@ def segment_views(view_set: ViewSet, params: SegmentationParams, given: dict,
         if isinstance(result, str):
             rejected.append({"view": view.name, "reason": result})
         else:
-            mask, is_exact = result
+            mask, alpha = result
             kept.append(replace(view, camera=ideal_camera(view.camera)))
             ideal = undistorted.get(view.name)
             masks.append(undistort_mask(mask, view.camera) if ideal is None else ideal)
             taken[view.name] = mask
-            if is_exact:
-                exact.add(view.name)
+            if alpha is not None:
+                coverage[view.name] = undistort_image(alpha, view.camera)
         progress("segmentation", (n + 1) / max(1, len(views)))
     return Segmented(kept, masks, taken, {v.name: v.camera for v in views}, rejected,
-                     frozenset(exact))
+                     frozenset(coverage), coverage)
 
 
 @dataclass(frozen=True)

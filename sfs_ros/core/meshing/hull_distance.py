@@ -24,6 +24,15 @@ straight row or column and cuts the corners of a pixel staircase (a 45-degree
 edge comes out straight); an edge at a shallow angle to the pixel rows keeps
 its half-pixel steps, which is all a binary mask tells of it.
 
+A mask given with its coverage (an image's alpha channel, antialiased: the
+fraction of each pixel the object covers) knows its boundary to a fraction of
+a pixel: each boundary pixel's coverage and the direction of its gradient
+place the edge through it (Gustavson and Strand's anti-aliased distance
+transform, 2011), and the pixels around move with the nearest of them.
+Without it the hull is biased inward: each view's binary boundary lies up to
+half a pixel inside the true silhouette somewhere along a slanted edge, and
+the hull keeps only what every view keeps.
+
 A view on which a point projects outside the image (or behind a pinhole
 camera) knows nothing about it, as for the carver (``outside_image="keep"``);
 the carving box bounds the hull too (its signed distance joins the views').
@@ -51,6 +60,19 @@ CROP_MARGIN_PX = 8
 #: Distances are clipped to this many pixels (a mask filling its whole crop
 #: has no boundary, and OpenCV then reports ~1.8e19).
 MAX_DISTANCE_PX = 1.0e6
+#: A boundary pixel's centre stays at least this far on its side of the edge its
+#: coverage places, pixels: the mask decides every pixel centre (as the carver's
+#: pixel test does), the coverage only where between them the edge runs. Half a
+#: pixel would be the binary mask's own edge; none would leave a pixel half covered
+#: (its centre on the edge) to chance.
+_DECIDED_MARGIN_PX = 0.25
+#: Pixels this far (or nearer) from a pixel the edge crosses move with it; farther
+#: ones keep their distance (the zero level lies within a pixel of those pixels).
+_COVERAGE_REACH_PX = 2.0
+#: How much the coverage of a mask (:func:`_coverage_correction`) moves its
+#: distance image at most, from one pixel to another, pixels: a boundary pixel
+#: moves by at most half a pixel either way.
+_COVERAGE_SLACK_PX = 1.0
 #: Samples along each line in :meth:`HullDistance.project`, each side of the
 #: point, that find the crossing; then bisections that place it (the bilinear,
 #: max-of-views distance has kinks, where regula falsi is no faster).
@@ -58,12 +80,17 @@ _SEARCH_STEPS = 4
 _BISECTIONS = 20
 
 
-def _silhouette_distance(mask: np.ndarray) -> tuple[np.ndarray, int, int]:
+def _silhouette_distance(mask: np.ndarray,
+                         coverage: np.ndarray | None = None) -> tuple[np.ndarray, int, int]:
     """Signed distance image of one mask, cropped around the foreground.
 
     Parameters
     ----------
     mask : (H, W) bool
+    coverage : (H, W) uint8 (0..255) or float (0..1), or None
+        The fraction of each pixel the object covers (the mask's antialiased
+        alpha): places the boundary within the pixels along it
+        (:func:`_coverage_correction`). None: half-way between pixel centres.
 
     Returns
     -------
@@ -90,8 +117,74 @@ def _silhouette_distance(mask: np.ndarray) -> tuple[np.ndarray, int, int]:
     # zero, so a silhouette cut by the image border has no boundary there.
     inside = cv2.distanceTransform(crop, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
     outside = cv2.distanceTransform(1 - crop, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-    distance = np.where(crop.astype(bool), 0.5 - inside, outside - 0.5)
-    return np.clip(distance, -MAX_DISTANCE_PX, MAX_DISTANCE_PX).astype(np.float32), u0, v0
+    distance = np.clip(np.where(crop.astype(bool), 0.5 - inside, outside - 0.5),
+                       -MAX_DISTANCE_PX, MAX_DISTANCE_PX).astype(np.float32)
+    if coverage is not None:
+        covered = np.asarray(coverage[v0:v1, u0:u1], dtype=np.float32)
+        if coverage.dtype == np.uint8:
+            covered /= np.float32(255.0)
+        covered = np.pad(covered, ((0, crop.shape[0] - (v1 - v0)),
+                                   (0, crop.shape[1] - (u1 - u0))), mode="edge")
+        distance += _coverage_correction(distance, crop.astype(bool), covered)
+    return distance, u0, v0
+
+
+@njit(cache=True)
+def _edge_distances(coverage, gx, gy, rows, cols, out):
+    """``out[k]``: signed distance (pixels, positive outside) from the centre of pixel
+    ``(rows[k], cols[k])`` to the straight edge that covers ``coverage`` of it with its
+    normal along the coverage gradient ``(gx, gy)`` (Gustavson and Strand's ``edgedf``:
+    linear in the coverage where the edge crosses the pixel's middle, quadratic where it
+    cuts a corner)."""
+    for k in range(rows.size):
+        a = min(max(coverage[rows[k], cols[k]], 0.0), 1.0)
+        x, y = abs(gx[rows[k], cols[k]]), abs(gy[rows[k], cols[k]])
+        if x == 0.0 or y == 0.0:
+            out[k] = 0.5 - a  # an edge along the pixel rows or columns (or no gradient)
+            continue
+        length = math.sqrt(x * x + y * y)
+        x, y = max(x, y) / length, min(x, y) / length
+        corner = 0.5 * y / x  # the coverage where the edge leaves the pixel's corner
+        if a < corner:
+            out[k] = 0.5 * (x + y) - math.sqrt(2.0 * x * y * a)
+        elif a < 1.0 - corner:
+            out[k] = (0.5 - a) * x
+        else:
+            out[k] = -0.5 * (x + y) + math.sqrt(2.0 * x * y * (1.0 - a))
+
+
+def _coverage_correction(distance: np.ndarray, inside: np.ndarray,
+                         coverage: np.ndarray) -> np.ndarray:
+    """(h, w) float32, pixels, to add to ``distance`` (the binary mask ``inside``'s signed
+    distance image) for the edge the ``coverage`` (h, w, in [0, 1]) places.
+
+    The mask's boundary pixels (a 4-neighbour on the other side) that the edge
+    crosses (coverage strictly between 0 and 1) get the distance
+    :func:`_edge_distances` gives them, kept on their side of the mask; every pixel
+    within ``_COVERAGE_REACH_PX`` of one moves by as much as the nearest did (a fully
+    covered or empty pixel beside it knows no more than that the edge is not in it).
+    The move lies in [-1/2, 1/2] pixel (:data:`_COVERAGE_SLACK_PX`).
+    """
+    cross = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
+    mask = inside.view(np.uint8)
+    alpha = np.ascontiguousarray(coverage, dtype=np.float32)
+    crossed = (cv2.dilate(mask, cross) != cv2.erode(mask, cross)) & (alpha > 0) & (alpha < 1)
+    rows, cols = np.nonzero(crossed)
+    if rows.size == 0:
+        return np.zeros_like(distance)
+    edge = np.empty(rows.size, np.float32)
+    _edge_distances(alpha, cv2.Sobel(alpha, cv2.CV_32F, 1, 0, ksize=3),
+                    cv2.Sobel(alpha, cv2.CV_32F, 0, 1, ksize=3), rows, cols, edge)
+    edge = np.where(inside[rows, cols], np.minimum(edge, -_DECIDED_MARGIN_PX),
+                    np.maximum(edge, _DECIDED_MARGIN_PX))
+    move = np.clip(edge - distance[rows, cols], -0.5 * _COVERAGE_SLACK_PX,
+                   0.5 * _COVERAGE_SLACK_PX)
+    reach, nearest = cv2.distanceTransformWithLabels(
+        (~crossed).view(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_5,
+        labelType=cv2.DIST_LABEL_PIXEL)
+    by_label = np.zeros(int(nearest.max()) + 1, np.float32)
+    by_label[nearest[rows, cols]] = move
+    return np.where(reach <= _COVERAGE_REACH_PX, by_label[nearest], np.float32(0.0))
 
 
 class DistanceImages:
@@ -177,7 +270,8 @@ def _pixel(proj, orthographic, v, x, y, z):
 def _view_value(hull, v, x, y, z):
     """Signed distance (metres) of the point ``(x, y, z)`` to view ``v``'s silhouette cone;
     -inf where the view knows nothing of the point (behind it, or outside its image)."""
-    proj, orthographic, metres_per_px, image_size, crops, images, margin, _, _ = hull
+    proj, orthographic, metres_per_px, image_size = hull[0], hull[1], hull[2], hull[3]
+    crops, images, margin = hull[4], hull[5], hull[6]
     hu, hv, depth = _pixel(proj, orthographic, v, x, y, z)
     if depth <= 0.0:
         return -np.inf
@@ -269,11 +363,12 @@ def _below_floor(hull, v, lo, hi, floor):
 
     The distance image is interpolated bilinearly from pixel values whose
     4-neighbours differ by at most 1 px, so it changes by at most sqrt(2) px per
-    pixel moved (:data:`_MAX_SLOPE`). The box projects into the convex hull of its
-    corners' projections (all in front of the camera), so no point of it projects
-    farther from the centre's projection than a corner does; and no point is nearer
-    the camera than the nearest corner. A point that projects outside the image has
-    the value -inf.
+    pixel moved (:data:`_MAX_SLOPE`), plus the view's slack (a mask's coverage moves
+    its pixels by different amounts, :data:`_COVERAGE_SLACK_PX`). The box projects
+    into the convex hull of its corners' projections (all in front of the camera), so
+    no point of it projects farther from the centre's projection than a corner does;
+    and no point is nearer the camera than the nearest corner. A point that projects
+    outside the image has the value -inf.
     """
     proj, orthographic, metres_per_px, image_size = hull[0], hull[1], hull[2], hull[3]
     width, height = image_size[v, 0], image_size[v, 1]
@@ -292,7 +387,7 @@ def _below_floor(hull, v, lo, hi, floor):
     crops, images, margin = hull[4], hull[5], hull[6]
     centre = _sample(images, crops[v, 0], crops[v, 1], crops[v, 2], crops[v, 3], crops[v, 4],
                      margin, min(max(uc, 0.0), width - 1.0), min(max(vc, 0.0), height - 1.0))
-    bound = centre + _MAX_SLOPE * reach
+    bound = centre + _MAX_SLOPE * reach + hull[9][v]
     return bound < 0.0 and metres_per_px[v] * nearest * bound < floor
 
 
@@ -378,6 +473,26 @@ def _project_kernel(hull, points, unit, steps, bisections, top, moved, found):
         moved[p, 2] = z + t * uz
 
 
+def _check_coverage(masks: list, coverage) -> list:
+    """One (H, W) array or None per mask; ValueError naming the view whose coverage does
+    not fit its mask."""
+    if coverage is None:
+        return [None] * len(masks)
+    coverage = list(coverage)
+    if len(coverage) != len(masks):
+        raise ValueError(f"coverage must give one image (or None) per view ({len(masks)}), "
+                         f"got {len(coverage)}")
+    out = []
+    for index, (mask, alpha) in enumerate(zip(masks, coverage)):
+        if alpha is not None:
+            alpha = np.asarray(alpha)
+            if alpha.shape != mask.shape:
+                raise ValueError(f"view {index}: coverage is {alpha.shape}, expected its "
+                                 f"mask's {mask.shape}")
+        out.append(alpha)
+    return out
+
+
 class HullDistance:
     """Signed distance to the visual hull of calibrated silhouettes (metres, positive outside).
 
@@ -395,13 +510,18 @@ class HullDistance:
         The carving box ``[min, max]``, metres; the hull is cut by it. None: no box.
     known : DistanceImages or None, keyword-only
         Distance images computed beforehand; a mask not among them is computed here.
+    coverage : sequence of (H, W) uint8 (0..255) or float (0..1) or None, keyword-only
+        Per view, the fraction of each pixel the object covers (an antialiased alpha
+        channel whose threshold gave the mask), which places its silhouette's edge
+        within the pixels (module docstring); None for a view without. None: no view
+        has one.
 
     Memory: one float32 distance image per view, cropped to the silhouette's
     bounding box plus ``CROP_MARGIN_PX``.
     """
 
     def __init__(self, cameras: Sequence[Camera], masks, *, max_misses: int = 0,
-                 bounds_m=None, known: DistanceImages | None = None):
+                 bounds_m=None, known: DistanceImages | None = None, coverage=None):
         cameras = list(cameras)
         if not cameras:
             raise ValueError("need at least one camera and mask to define a hull")
@@ -416,9 +536,12 @@ class HullDistance:
             if box.shape != (2, 3) or np.any(np.isnan(box)) or np.any(box[1] <= box[0]):
                 raise ValueError(f"bounds_m must be [[xmin, ymin, zmin], [xmax, ymax, zmax]] "
                                  f"with min < max, got {box.tolist()}")
+        coverage = _check_coverage(masks, coverage)
         images, crops, offset = [], [], 0
-        distances = map_in_threads(_silhouette_distance if known is None else known.get,
-                                   masks)  # in order, in threads
+        known_image = _silhouette_distance if known is None else known.get
+        distances = map_in_threads(  # in order, in threads
+            lambda pair: known_image(pair[0]) if pair[1] is None else _silhouette_distance(*pair),
+            zip(masks, coverage))
         for index in range(len(masks)):
             try:
                 distance, u0, v0 = next(distances)
@@ -440,6 +563,7 @@ class HullDistance:
             float(CROP_MARGIN_PX) - 0.5,
             np.ascontiguousarray(box[0]),
             np.ascontiguousarray(box[1]),
+            np.array([0.0 if c is None else _COVERAGE_SLACK_PX for c in coverage]),
         )
 
     def __call__(self, points, *, floor_m: float | None = None) -> np.ndarray:
