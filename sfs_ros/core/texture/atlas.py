@@ -326,13 +326,13 @@ def _fit_factor(sizes: np.ndarray, fixed: np.ndarray, target: float) -> float:
     which ``fixed`` (k, 2) (padding, rounding, the cells' block) does not scale, packed
     as :func:`_pack` does. 0 when none is."""
     scaled = np.maximum(sizes - fixed, 0.0)
-    order = np.argsort(-sizes[:, 1], kind="stable")    # the charts' keep their order
+    order = np.argsort(-sizes[:, 1], kind="stable")    # the charts' order at any factor
     origin = np.zeros((len(sizes), 2))
 
     def side(factor: float) -> float:
         resized = factor * scaled + fixed
         width = _strip_width(resized)
-        return max(width, _shelve(resized, order, float(width), origin))
+        return max(width, 4 * math.ceil(_shelve(resized, order, float(width), origin) / 4))
 
     low, high = 0.0, 1.0
     if side(low) > target:
