@@ -206,21 +206,44 @@ def _shelve(sizes, order, width, origin):
     return y + shelf
 
 
+def _chart_bounds(corners: np.ndarray, chart: np.ndarray) -> tuple:
+    """Each face's group (k,) int64 (its chart's rank among the charts of ``chart`` (k,))
+    and each group's least and greatest corner coordinates, (n, 2) each, of faces with
+    ``corners`` (k, 3, 2): a reduction over the faces sorted by chart."""
+    if not len(chart):
+        return np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 2))
+    order = np.argsort(chart, kind="stable")
+    ranked = chart[order]
+    first = np.concatenate([[True], ranked[1:] != ranked[:-1]])
+    group = np.empty(len(chart), np.int64)
+    group[order] = np.cumsum(first) - 1
+    start = np.flatnonzero(first)
+    corners = corners[order]
+    low = np.minimum.reduceat(np.minimum(np.minimum(corners[:, 0], corners[:, 1]), corners[:, 2]),
+                              start, axis=0)
+    high = np.maximum.reduceat(np.maximum(np.maximum(corners[:, 0], corners[:, 1]), corners[:, 2]),
+                               start, axis=0)
+    return group, low, high
+
+
+def _strip_width(sizes: np.ndarray) -> int:
+    """Width of the strip rectangles ``sizes`` (k, 2) are packed into, texels: about the
+    side of a square of their total area, at least the widest, a multiple of 4."""
+    width = int(max(sizes[:, 0].max(), math.ceil(math.sqrt(1.05 * np.prod(sizes, axis=1).sum()))))
+    return 4 * math.ceil(width / 4)
+
+
 def _pack(corners: np.ndarray, chart: np.ndarray, celled: np.ndarray, padding: int,
-          cell: int) -> tuple[np.ndarray, tuple, tuple | None]:
+          cell: int) -> tuple[np.ndarray, tuple, tuple | None, np.ndarray]:
     """Move each chart's corners (m, 3, 2) to its place in the atlas, the ``celled`` (m,)
     faces' into one block of cells of ``cell`` texels (:func:`cell_corners`): returns
-    them, the atlas's shape (H, W), each a multiple of 4 texels, and the block's first
-    texel and shape ``(row, column, rows, columns)`` in cells (None without cells)."""
+    them, the atlas's shape (H, W), each a multiple of 4 texels, the block's first
+    texel and shape ``(row, column, rows, columns)`` in cells (None without cells), and
+    the rectangles packed (k, 2) (width, height) texels with padding, the block's last."""
     charted = np.flatnonzero(~celled)
-    group = np.unique(chart[charted], return_inverse=True)[1]
-    n = int(group.max()) + 1 if charted.size else 0
+    group, low, high = _chart_bounds(corners[charted], chart[charted])
     flat_group = np.repeat(group, 3)
     points = corners[charted].reshape(-1, 2)
-    low = np.full((n, 2), np.inf)
-    high = np.full((n, 2), -np.inf)
-    np.minimum.at(low, flat_group, points)
-    np.maximum.at(high, flat_group, points)
     low = np.floor(low)                     # texel centres on whole coordinates
     sizes = np.ceil(high - low) + 1 + 2 * padding
     n_cells = int(celled.sum())
@@ -228,8 +251,7 @@ def _pack(corners: np.ndarray, chart: np.ndarray, celled: np.ndarray, padding: i
     if n_cells:
         rows = math.ceil(n_cells / columns)
         sizes = np.concatenate([sizes, [[cell * columns + 2 * padding, cell * rows + 2 * padding]]])
-    width = int(max(sizes[:, 0].max(), math.ceil(math.sqrt(1.05 * np.prod(sizes, axis=1).sum()))))
-    width = 4 * math.ceil(width / 4)
+    width = _strip_width(sizes)
     origin, height = _shelves(sizes, width)
     out = np.empty_like(corners)
     out[charted] = (points - low[flat_group] + origin[flat_group] + padding).reshape(-1, 3, 2)
@@ -238,7 +260,7 @@ def _pack(corners: np.ndarray, chart: np.ndarray, celled: np.ndarray, padding: i
         top_left = origin[-1] + padding
         out[celled] = cell_corners(n_cells, cell, columns) + top_left
         block = (int(top_left[1]), int(top_left[0]), rows, columns)
-    return out, (4 * math.ceil(height / 4), width), block
+    return out, (4 * math.ceil(height / 4), width), block, sizes
 
 
 @njit(cache=True, nogil=True)
@@ -298,11 +320,35 @@ def _fill_cells(face_id: np.ndarray, bary: np.ndarray, celled: np.ndarray, block
             bary[r, c] = 1.0 / 3.0
 
 
+def _fit_factor(sizes: np.ndarray, fixed: np.ndarray, target: float) -> float:
+    """The largest factor of the charts' scale, to 1/1024, at which their packing's
+    largest side is at most ``target`` texels: rectangles ``sizes`` (k, 2) texels, of
+    which ``fixed`` (k, 2) (padding, rounding, the cells' block) does not scale, packed
+    as :func:`_pack` does. 0 when none is."""
+    scaled = np.maximum(sizes - fixed, 0.0)
+    order = np.argsort(-sizes[:, 1], kind="stable")    # the charts' order at any factor
+    origin = np.zeros((len(sizes), 2))
+
+    def side(factor: float) -> float:
+        resized = factor * scaled + fixed
+        width = _strip_width(resized)
+        return max(width, 4 * math.ceil(_shelve(resized, order, float(width), origin) / 4))
+
+    low, high = 0.0, 1.0
+    if side(low) > target:
+        return 0.0
+    for _ in range(10):
+        middle = 0.5 * (low + high)
+        low, high = (middle, high) if side(middle) <= target else (low, middle)
+    return low
+
+
 def _layout(vertices, faces, labels, chart, celled, cameras, scale: float, padding: int,
             max_size: int) -> tuple:
     """Corners (m, 3, 2), shape, scale, cell faces (m,) bool, cells' block and side of
-    the packed charts: scaled down to fit, down to :data:`MIN_SCALE`, then the charts of
-    fewest faces given cells until they fit."""
+    the packed charts: scaled down to fit (to the scale at which the charts' rectangles
+    pack in ``max_size``: :func:`_fit_factor`), down to :data:`MIN_SCALE`, then the
+    charts of fewest faces given cells until they fit."""
     asked = scale
     faces_in = np.bincount(chart, minlength=int(chart.max()) + 1)[chart]
     fewest = 1
@@ -311,12 +357,17 @@ def _layout(vertices, faces, labels, chart, celled, cameras, scale: float, paddi
             corners, cells = _chart_corners(vertices, faces, labels, chart, celled, cameras,
                                             scale)
             cell = CELL_TEXELS if CELL_TEXELS ** 2 * cells.sum() <= 0.5 * max_size ** 2 else 1
-            corners, shape, block = _pack(corners, chart, cells, padding, cell)
+            corners, shape, block, sizes = _pack(corners, chart, cells, padding, cell)
             if max(shape) <= max_size:
                 return corners, shape, scale, cells, block, cell
             if scale <= MIN_SCALE * asked:
                 break
-            scale = max(MIN_SCALE * asked, scale * 0.97 * max_size / max(shape))
+            fixed = np.full_like(sizes, 2.0 + 2 * padding)
+            if block is not None:
+                fixed[-1] = sizes[-1]
+            # The packing the charts' sizes predict, or at least the old side's ratio.
+            scale = max(MIN_SCALE * asked, scale * min(_fit_factor(sizes, fixed, 0.99 * max_size),
+                                                       0.99 * max_size / max(shape)))
         if cells.all():
             raise ValueError(f"the mesh's {len(faces)} faces do not fit a {max_size} texel "
                              "atlas even at one texel each: allow a larger max_size or "
