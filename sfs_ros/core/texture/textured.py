@@ -352,7 +352,8 @@ def textured_from_labels(vertices: np.ndarray, faces: np.ndarray, labels: np.nda
     blur = None
     if blend is not None:
         floats = blurred_views(floats, blur_levels_px)
-        blur = face_blur(face_samples(vertices, faces)[0][:, :1], blend, gains, floats, cameras,
+        # Judged at each face's centroid (its first sample point).
+        blur = face_blur(vertices[faces].mean(axis=1, keepdims=True), blend, gains, floats, cameras,
                          neighbours, kernel=kernel)
     else:
         floats = [floats]
