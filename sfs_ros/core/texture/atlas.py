@@ -111,19 +111,18 @@ def chart_of_faces(labels: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
     return csgraph.connected_components(graph, directed=False)[1].astype(np.int64)
 
 
-def _nearest_axis(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(m,) int64 the axis +X, +Y, +Z, -X, -Y, -Z (0..5) nearest each face's normal."""
-    tri = vertices[faces]
-    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+def _nearest_axis(normal: np.ndarray) -> np.ndarray:
+    """(m,) int64 the axis +X, +Y, +Z, -X, -Y, -Z (0..5) nearest each face's ``normal``
+    (m, 3)."""
     return np.argmax(np.concatenate([normal, -normal], axis=1), axis=1).astype(np.int64)
 
 
-def _plane_axes(corners_3d: np.ndarray, patch: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Coordinates (k, 3, 2) of faces with corners ``corners_3d`` (k, 3, 3) metres on the
-    plane across their patch's mean normal (``patch`` (k,) their patches), metres; and
-    (k,) bool where the patch is flat enough (:data:`_FLAT_COS`) for it."""
-    normal = np.cross(corners_3d[:, 1] - corners_3d[:, 0],
-                      corners_3d[:, 2] - corners_3d[:, 0])              # twice the area
+def _plane_axes(corners_3d: np.ndarray, normal: np.ndarray,
+                patch: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Coordinates (k, 3, 2) of faces with corners ``corners_3d`` (k, 3, 3) metres and
+    normals ``normal`` (k, 3) (twice their area long) on the plane across their patch's
+    mean normal (``patch`` (k,) their patches), metres; and (k,) bool where the patch is
+    flat enough (:data:`_FLAT_COS`) for it."""
     _, local = np.unique(patch, return_inverse=True)
     mean = np.zeros((local.max() + 1, 3))
     np.add.at(mean, local, normal)
@@ -162,22 +161,21 @@ class _UnitCharts:
     area: np.ndarray
 
     @classmethod
-    def of(cls, vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray, patch: np.ndarray,
+    def of(cls, tri: np.ndarray, normal: np.ndarray, labels: np.ndarray, patch: np.ndarray,
            cameras: list[Camera]) -> _UnitCharts:
-        """The unit charts of faces labelled ``labels`` (m,) (-1: unseen) in ``patch`` (m,)
-        (the unseen faces' patches flattened each onto its plane)."""
-        corners = np.zeros((len(faces), 3, 2))
+        """The unit charts of faces with corners ``tri`` (m, 3, 3) metres and normals
+        ``normal`` (m, 3) (twice their area long) labelled ``labels`` (m,) (-1: unseen) in
+        ``patch`` (m,) (the unseen faces' patches flattened each onto its plane)."""
+        corners = np.zeros((len(tri), 3, 2))
         for label, camera in enumerate(cameras):
             mine = np.flatnonzero(labels == label)
             if mine.size:
-                corners[mine] = camera.project(vertices[faces[mine]].reshape(-1, 3)
-                                               ).reshape(-1, 3, 2)
-        tri = vertices[faces]
-        area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+                corners[mine] = camera.project(tri[mine].reshape(-1, 3)).reshape(-1, 3, 2)
+        area = 0.5 * np.linalg.norm(normal, axis=1)
         unseen = np.flatnonzero(labels < 0)
-        curved = np.zeros(len(faces), bool)
+        curved = np.zeros(len(tri), bool)
         if unseen.size:
-            plane, flat = _plane_axes(tri[unseen], patch[unseen])
+            plane, flat = _plane_axes(tri[unseen], normal[unseen], patch[unseen])
             corners[unseen] = plane
             curved[unseen] = ~flat
         return cls(corners=corners, curved=curved, area=area)
@@ -186,10 +184,22 @@ class _UnitCharts:
 def _plane_density(unit: _UnitCharts, seen: np.ndarray, scale: float) -> float:
     """Texels per metre of the unseen faces' planes: half the median over the ``seen``
     (k,) faces' charts at ``scale`` texels per pixel."""
-    corners = scale * unit.corners[seen]
-    d1, d2 = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
-    texel_area = 0.5 * np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])
-    return 0.5 * float(np.median(np.sqrt(texel_area / np.maximum(unit.area[seen], 1e-300))))
+    texels_per_m = np.empty(len(seen))
+    _texels_per_metre(unit.corners, unit.area, seen, scale, texels_per_m)
+    return 0.5 * float(np.median(texels_per_m))
+
+
+@njit(cache=True, nogil=True)
+def _texels_per_metre(corners, area, seen, scale, out):
+    """:func:`_plane_density`'s loop: the square root of each ``seen`` (k,) face's area in
+    texels (its ``corners`` (m, 3, 2) times ``scale``) over its ``area`` (m,) into ``out``."""
+    for i in range(seen.shape[0]):
+        f = seen[i]
+        x0, y0 = scale * corners[f, 0, 0], scale * corners[f, 0, 1]
+        d1x, d1y = scale * corners[f, 1, 0] - x0, scale * corners[f, 1, 1] - y0
+        d2x, d2y = scale * corners[f, 2, 0] - x0, scale * corners[f, 2, 1] - y0
+        texel_area = 0.5 * abs(d1x * d2y - d1y * d2x)
+        out[i] = np.sqrt(texel_area / max(area[f], 1e-300))
 
 
 def cell_corners(count: int, side: int, columns: int) -> np.ndarray:
@@ -235,6 +245,14 @@ def _dense(ids: np.ndarray) -> np.ndarray:
     present = np.zeros(int(ids.max()) + 1 if len(ids) else 0, bool)
     present[ids] = True
     return (np.cumsum(present) - 1)[ids]
+
+
+def _members(ids: np.ndarray, chosen: np.ndarray) -> np.ndarray:
+    """(k,) bool where ``ids`` (k,) int >= 0 is one of ``chosen`` (``np.isin`` without
+    sorting)."""
+    table = np.zeros(int(ids.max()) + 1 if len(ids) else 0, bool)
+    table[chosen] = True
+    return table[ids]
 
 
 def _chart_bounds(corners: np.ndarray, chart: np.ndarray) -> tuple:
@@ -493,9 +511,11 @@ def build_atlas(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray,
     if int(padding) < 1 or int(max_size) < 64:
         raise ValueError(f"padding must be >= 1 texel and max_size >= 64, got {padding}, "
                          f"{max_size}")
-    patch = chart_of_faces(np.where(labels >= 0, labels, -1 - _nearest_axis(vertices, faces)),
-                           neighbours)
-    unit = _UnitCharts.of(vertices, faces, labels, patch, cameras)
+    tri = vertices[faces]
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])     # twice the area
+    patch = chart_of_faces(np.where(labels >= 0, labels, -1 - _nearest_axis(normal)), neighbours)
+    unit = _UnitCharts.of(tri, normal, labels, patch, cameras)
+    del tri, normal
     alone = np.zeros(len(faces), bool)
     celled = np.zeros(len(faces), bool)
     for split in itertools.count():
@@ -519,6 +539,6 @@ def build_atlas(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray,
         # (their colours are interpolated, smooth) rather than ring by ring. Seen faces
         # that still overlap after a few splits (folds finer than a texel, met again at
         # each new scale) take cells too: cells never overlap, so this ends.
-        curved = np.isin(chart, chart[overlapping & (labels < 0)])
+        curved = _members(chart, chart[overlapping & (labels < 0)])
         celled |= curved | (overlapping if split >= _SPLIT_TRIES else False)
         alone |= overlapping & ~celled
