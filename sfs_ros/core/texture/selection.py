@@ -241,7 +241,9 @@ def label_faces(quality: np.ndarray, neighbours: np.ndarray, *,
         raise ValueError(f"smoothness must be a finite number >= 0, got {smoothness}")
     best = quality.max(axis=1)
     labels = np.where(best > 0, quality.argmax(axis=1), -1).astype(np.int64)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        cost = np.where(quality > 0, 1.0 - quality / best[:, None], np.inf)
+    # Only the seen faces' costs are read (often a minority of a refined mesh's faces).
+    seen = np.flatnonzero(best > 0)
+    cost = np.full(quality.shape, np.inf)
+    cost[seen] = np.where(quality[seen] > 0, 1.0 - quality[seen] / best[seen, None], np.inf)
     sweeps = _icm(cost, neighbours, labels, float(smoothness), MAX_SWEEPS) if smoothness else 0
     return labels, sweeps

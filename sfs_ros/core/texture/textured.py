@@ -301,11 +301,12 @@ def texture_mesh(vertices, faces, images: Sequence, cameras: Sequence[Camera], *
     selection_s = time.perf_counter() - start
     blend = None
     if blend_power is not None:
-        best = np.maximum(quality.max(axis=1, keepdims=True), 1e-300)
-        relative = quality / best
+        blend = np.zeros(quality.shape)
+        seen = np.flatnonzero(labels >= 0)
+        relative = quality[seen] / np.maximum(quality[seen].max(axis=1, keepdims=True), 1e-300)
         # A face no view sees fully blends the views that glimpse it.
-        support = np.where(full.any(axis=1, keepdims=True), full, quality > 0)
-        blend = np.where(support & (relative >= BLEND_MIN), relative ** blend_power, 0.0)
+        support = np.where(full[seen].any(axis=1, keepdims=True), full[seen], quality[seen] > 0)
+        blend[seen] = np.where(support & (relative >= BLEND_MIN), relative ** blend_power, 0.0)
     textured = textured_from_labels(vertices, faces, labels, neighbours, images, cameras,
                                     seen=full, level=level, blend=blend, texels_per_pixel=texels_per_pixel,
                                     max_size=max_size, padding=padding, kernel=kernel,
