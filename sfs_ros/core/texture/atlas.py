@@ -369,29 +369,6 @@ def _fill_cells(face_id: np.ndarray, bary: np.ndarray, celled: np.ndarray, block
             bary[r, c] = 1.0 / 3.0
 
 
-def _fit_factor(sizes: np.ndarray, fixed: np.ndarray, target: float) -> float:
-    """The largest factor of the charts' scale, to 1/1024, at which their packing's
-    largest side is at most ``target`` texels: rectangles ``sizes`` (k, 2) texels, of
-    which ``fixed`` (k, 2) (padding, rounding, the cells' block) does not scale, packed
-    as :func:`_pack` does. 0 when none is."""
-    scaled = np.maximum(sizes - fixed, 0.0)
-    order = np.argsort(-sizes[:, 1], kind="stable")    # the charts' order at any factor
-    origin = np.zeros((len(sizes), 2))
-
-    def side(factor: float) -> float:
-        resized = factor * scaled + fixed
-        width = _strip_width(resized)
-        return max(width, 4 * math.ceil(_shelve(resized, order, float(width), origin) / 4))
-
-    low, high = 0.0, 1.0
-    if side(low) > target:
-        return 0.0
-    for _ in range(10):
-        middle = 0.5 * (low + high)
-        low, high = (middle, high) if side(middle) <= target else (low, middle)
-    return low
-
-
 @dataclass(frozen=True)
 class _Charts:
     """The charts of one split (:func:`build_atlas`) at unit density: of the faces not in
@@ -422,9 +399,8 @@ class _Charts:
 def _layout(unit: _UnitCharts, labels, chart, celled, scale: float, padding: int,
             max_size: int) -> tuple:
     """Corners (m, 3, 2), shape, scale, cell faces (m,) bool, cells' block and side of
-    the packed charts: scaled down to fit (to the scale at which the charts' rectangles
-    pack in ``max_size``: :func:`_fit_factor`), down to :data:`MIN_SCALE`, then the
-    charts of fewest faces given cells until they fit."""
+    the packed charts: scaled down to fit, down to :data:`MIN_SCALE`, then the charts of
+    fewest faces given cells until they fit."""
     asked = scale
     cells = celled | unit.curved
     charts = _Charts.of(unit, labels, chart, cells)
@@ -457,12 +433,7 @@ def _layout(unit: _UnitCharts, labels, chart, celled, scale: float, padding: int
                         cell)
             if scale <= MIN_SCALE * asked:
                 break
-            fixed = np.full_like(sizes, 2.0 + 2 * padding)
-            if block_size is not None:
-                fixed[-1] = sizes[-1]
-            # The packing the charts' sizes predict, or at least the old side's ratio.
-            scale = max(MIN_SCALE * asked, scale * min(_fit_factor(sizes, fixed, 0.99 * max_size),
-                                                       0.99 * max_size / max(shape)))
+            scale = max(MIN_SCALE * asked, scale * 0.97 * max_size / max(shape))
         if in_cells.all():
             raise ValueError(f"the mesh's {len(labels)} faces do not fit a {max_size} texel "
                              "atlas even at one texel each: allow a larger max_size or "
