@@ -18,9 +18,16 @@ above the process's before it (``/proc/self/statm`` sampled every 2 ms, in the f
 runs on this mesh after one on a coarse mesh loaded the code: 24 views, then 48, which
 reuses what the first freed).
 
-Run: ``python -m bench.bench_texture`` (``--cost``: the cost alone);
-``python -m bench.bench_texture --picture PNG``
-writes the docs' picture of a textured model (:func:`picture`).
+Then, where the Middlebury data sets lie beside the repository
+(``../shared/datasets/middlebury``; said and skipped where they do not), the same cost on
+real photographs: the temple's 16 views reconstructed as ``sfs-reconstruct --preset
+middlebury-temple`` does by default (refined, the pixel-footprint grid: millions of faces,
+most of them seen by no view) and textured, one run of each in the same process
+(:func:`cost_of_the_temple`).
+
+Run: ``python -m bench.bench_texture`` (``--cost``: the costs alone; ``--temple``: the
+temple's alone); ``python -m bench.bench_texture --picture PNG`` writes the docs'
+picture of a textured model (:func:`picture`).
 """
 
 from __future__ import annotations
@@ -40,6 +47,8 @@ from sfs_ros.core.exchange.session import write_session
 from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
 from sfs_ros.core.pipeline import ReconstructionParams, reconstruct
 from sfs_ros.core.render import rasterize_silhouette, render_image
+from sfs_ros.core.segmentation.presets import PRESETS
+from sfs_ros.core.segmentation.segment import SegmentationParams
 from sfs_ros.core.simulation.objects import fine_color_at, make_object
 from sfs_ros.core.simulation.plan import ring_plan
 from sfs_ros.core.simulation.synthetic import carving_box, simulate_scan
@@ -48,6 +57,9 @@ from sfs_ros.core.texture import texture_reconstruction
 RIG = RigCalibration(width=320, height=240, projection="pinhole", fx=700.0, fy=700.0,
                      camera_distance_m=0.6, aim_point_m=(0.0, 0.0, 0.04))
 PLAN = ring_plan([15.0, 40.0, 65.0], 16, top_view=True)
+#: The Middlebury temple's sparse ring, where the data sets lie beside the repository.
+TEMPLE = (Path(__file__).resolve().parents[2] / "shared" / "datasets" / "middlebury"
+          / "templeSparseRing" / "templeSR_par.txt")
 HELD_OUT = (3, 21, 38, 48)
 #: Grids: 40 and 64 voxels a side, and None (the pixel footprint, 0.84 mm voxels).
 RESOLUTIONS = (40, 64, None)
@@ -135,6 +147,28 @@ def cost_of_48_views(mug) -> None:
                   f"{textured.stats['atlas_size']}")
 
 
+def cost_of_the_temple(par: Path = TEMPLE) -> None:
+    """Texture against reconstruction at default settings on the Middlebury temple (module
+    docstring); says so and returns where the data set is absent."""
+    if not par.is_file():
+        print(f"the temple: skipped, the Middlebury data set is not at {par}")
+        return
+    view_set = load_views(par)
+    params = ReconstructionParams(refine=True, segmentation=SegmentationParams.from_dict(
+        PRESETS["middlebury-temple"]))
+    start = time.perf_counter()
+    result = reconstruct(view_set, params)
+    mesh_s = time.perf_counter() - start
+    textured, texture_s, peak = timed_peak(lambda: texture_reconstruction(view_set, result))
+    stats = textured.stats
+    print(f"the temple, {len(view_set.views)} views, {stats['faces']} faces "
+          f"({stats['unseen_faces']} seen by no view): reconstruction {mesh_s:.2f} s, texture "
+          f"{texture_s:.2f} s ({texture_s / mesh_s:.2f} x; "
+          f"{({k: round(v, 2) for k, v in stats['seconds'].items()})}), peak "
+          f"{peak / 2**20:.0f} MiB above the process's, atlas {stats['atlas_size']} at "
+          f"{stats['texels_per_pixel']:.2f} texels a pixel, {stats['charts']} charts")
+
+
 def main() -> None:
     mug = make_object("mug")
     captures = simulate_scan(mug, RIG, PLAN, seed=1, surface_color=fine_color_at, ambient=1.0)
@@ -158,8 +192,7 @@ def main() -> None:
                   f"texture {held_out_error(mug, captures, textured.vertices, textured.faces, pixel_colors=textured.colour_at):.1f}, "  # noqa: E501
                   f"vertex colours {held_out_error(mug, captures, result.vertices, result.faces, vertex_colors=result.vertex_colors):.1f}")  # noqa: E501
     cost_of_48_views(mug)
-
-
+    cost_of_the_temple()
 
 
 def picture(path: Path, name: str = "barrel") -> None:
@@ -201,5 +234,8 @@ if __name__ == "__main__":
         picture(Path(sys.argv[2]))
     elif sys.argv[1:2] == ["--cost"]:
         cost_of_48_views(make_object("mug"))
+        cost_of_the_temple()
+    elif sys.argv[1:2] == ["--temple"]:
+        cost_of_the_temple()
     else:
         main()

@@ -112,7 +112,7 @@ def face_blur(points: np.ndarray, blend: np.ndarray, gains: np.ndarray,
             / others[:, None, None, None]
         error[mine] += weight[:, None] * np.square(predicted - own[:, :1]).sum(axis=(2, 3))
         judged[mine] += weight
-    error = _smoothed(error, neighbours, rings)
-    judged = _smoothed(judged, neighbours, rings)
+    smoothed = _smoothed(np.column_stack([error, judged]), neighbours, rings)
+    error, judged = smoothed[:, :-1], smoothed[:, -1]
     # A face with no judged face (two views or more) within its rings stays unblurred.
     return np.where(judged > 0, np.argmin(error, axis=1), 0).astype(np.int64)

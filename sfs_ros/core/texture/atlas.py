@@ -111,21 +111,19 @@ def chart_of_faces(labels: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
     return csgraph.connected_components(graph, directed=False)[1].astype(np.int64)
 
 
-def _nearest_axis(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(m,) int64 the axis +X, +Y, +Z, -X, -Y, -Z (0..5) nearest each face's normal."""
-    tri = vertices[faces]
-    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+def _nearest_axis(normal: np.ndarray) -> np.ndarray:
+    """(m,) int64 the axis +X, +Y, +Z, -X, -Y, -Z (0..5) nearest each face's ``normal``
+    (m, 3)."""
     return np.argmax(np.concatenate([normal, -normal], axis=1), axis=1).astype(np.int64)
 
 
-def _plane_corners(corners_3d: np.ndarray, chart: np.ndarray, unseen: np.ndarray,
-                   texels_per_m: float) -> tuple[np.ndarray, np.ndarray]:
-    """Corners (k, 3, 2) of the unseen faces ``unseen`` (k,) projected onto the plane
-    across their chart's mean normal, texels; and (k,) bool where the chart is flat
-    enough (:data:`_FLAT_COS`) for it."""
-    tri = corners_3d[unseen]
-    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])     # twice the area
-    _, local = np.unique(chart[unseen], return_inverse=True)
+def _plane_axes(corners_3d: np.ndarray, normal: np.ndarray,
+                patch: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Coordinates (k, 3, 2) of faces with corners ``corners_3d`` (k, 3, 3) metres and
+    normals ``normal`` (k, 3) (twice their area long) on the plane across their patch's
+    mean normal (``patch`` (k,) their patches), metres; and (k,) bool where the patch is
+    flat enough (:data:`_FLAT_COS`) for it."""
+    _, local = np.unique(patch, return_inverse=True)
     mean = np.zeros((local.max() + 1, 3))
     np.add.at(mean, local, normal)
     mean /= np.maximum(np.linalg.norm(mean, axis=1, keepdims=True), 1e-300)
@@ -136,37 +134,72 @@ def _plane_corners(corners_3d: np.ndarray, chart: np.ndarray, unseen: np.ndarray
         np.linalg.norm(normal, axis=1), 1e-300)
     flat = np.ones(len(mean), bool)
     np.logical_and.at(flat, local, cos > _FLAT_COS)
-    plane = texels_per_m * np.stack([np.einsum("kcd,kd->kc", tri, axis_u[local]),
-                                     np.einsum("kcd,kd->kc", tri, axis_v[local])], axis=-1)
+    plane = np.stack([np.einsum("kcd,kd->kc", corners_3d, axis_u[local]),
+                      np.einsum("kcd,kd->kc", corners_3d, axis_v[local])], axis=-1)
     return plane, flat[local]
 
 
-def _chart_corners(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray,
-                   chart: np.ndarray, celled: np.ndarray, cameras: list[Camera],
-                   scale: float) -> tuple[np.ndarray, np.ndarray]:
-    """(m, 3, 2) corners of each face in its chart before packing: its view's pixels times
-    ``scale``; an unseen face's plane (:func:`_plane_corners`); and the faces that take
-    cells, (m,) bool: ``celled`` (m,) bool and the unseen faces whose patch is not flat
-    (their corners are left zero: :func:`_pack` places them)."""
-    corners = np.zeros((len(faces), 3, 2))
-    unseen = np.flatnonzero((labels < 0) & ~celled)
-    celled = celled | (labels < 0)
-    for label, camera in enumerate(cameras):
-        mine = np.flatnonzero((labels == label) & ~celled)
-        if mine.size:
-            corners[mine] = scale * camera.project(vertices[faces[mine]].reshape(-1, 3)
-                                                   ).reshape(-1, 3, 2)
-    seen = (labels >= 0) & ~celled
-    if unseen.size and seen.any():
-        d1, d2 = corners[seen, 1] - corners[seen, 0], corners[seen, 2] - corners[seen, 0]
-        texel_area = 0.5 * np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])
-        tri = vertices[faces[seen]]
-        area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-        texels_per_m = 0.5 * float(np.median(np.sqrt(texel_area / np.maximum(area, 1e-300))))
-        plane, flat = _plane_corners(vertices[faces], chart, unseen, texels_per_m)
-        corners[unseen[flat]] = plane[flat]
-        celled[unseen[flat]] = False
-    return corners, celled
+@dataclass(frozen=True)
+class _UnitCharts:
+    """Each face's corners in its chart before packing and scaling, computed once for all
+    the layouts tried (scaling a chart scales its bounds exactly: a product rounds
+    monotonically).
+
+    Attributes
+    ----------
+    corners : (m, 3, 2) float64
+        A seen face's corners in its view's pixels; an unseen face's on its patch's
+        plane (:func:`_plane_axes`), metres; zero for an unseen face of a curved patch.
+    curved : (m,) bool
+        The unseen faces whose patch is not flat: they take cells.
+    area : (m,) float64
+        Each face's area, square metres.
+    """
+
+    corners: np.ndarray
+    curved: np.ndarray
+    area: np.ndarray
+
+    @classmethod
+    def of(cls, tri: np.ndarray, normal: np.ndarray, labels: np.ndarray, patch: np.ndarray,
+           cameras: list[Camera]) -> _UnitCharts:
+        """The unit charts of faces with corners ``tri`` (m, 3, 3) metres and normals
+        ``normal`` (m, 3) (twice their area long) labelled ``labels`` (m,) (-1: unseen) in
+        ``patch`` (m,) (the unseen faces' patches flattened each onto its plane)."""
+        corners = np.zeros((len(tri), 3, 2))
+        for label, camera in enumerate(cameras):
+            mine = np.flatnonzero(labels == label)
+            if mine.size:
+                corners[mine] = camera.project(tri[mine].reshape(-1, 3)).reshape(-1, 3, 2)
+        area = 0.5 * np.linalg.norm(normal, axis=1)
+        unseen = np.flatnonzero(labels < 0)
+        curved = np.zeros(len(tri), bool)
+        if unseen.size:
+            plane, flat = _plane_axes(tri[unseen], normal[unseen], patch[unseen])
+            corners[unseen] = plane
+            curved[unseen] = ~flat
+        return cls(corners=corners, curved=curved, area=area)
+
+
+def _plane_density(unit: _UnitCharts, seen: np.ndarray, scale: float) -> float:
+    """Texels per metre of the unseen faces' planes: half the median over the ``seen``
+    (k,) faces' charts at ``scale`` texels per pixel."""
+    texels_per_m = np.empty(len(seen))
+    _texels_per_metre(unit.corners, unit.area, seen, scale, texels_per_m)
+    return 0.5 * float(np.median(texels_per_m))
+
+
+@njit(cache=True, nogil=True)
+def _texels_per_metre(corners, area, seen, scale, out):
+    """:func:`_plane_density`'s loop: the square root of each ``seen`` (k,) face's area in
+    texels (its ``corners`` (m, 3, 2) times ``scale``) over its ``area`` (m,) into ``out``."""
+    for i in range(seen.shape[0]):
+        f = seen[i]
+        x0, y0 = scale * corners[f, 0, 0], scale * corners[f, 0, 1]
+        d1x, d1y = scale * corners[f, 1, 0] - x0, scale * corners[f, 1, 1] - y0
+        d2x, d2y = scale * corners[f, 2, 0] - x0, scale * corners[f, 2, 1] - y0
+        texel_area = 0.5 * abs(d1x * d2y - d1y * d2x)
+        out[i] = np.sqrt(texel_area / max(area[f], 1e-300))
 
 
 def cell_corners(count: int, side: int, columns: int) -> np.ndarray:
@@ -206,39 +239,77 @@ def _shelve(sizes, order, width, origin):
     return y + shelf
 
 
-def _pack(corners: np.ndarray, chart: np.ndarray, celled: np.ndarray, padding: int,
-          cell: int) -> tuple[np.ndarray, tuple, tuple | None]:
-    """Move each chart's corners (m, 3, 2) to its place in the atlas, the ``celled`` (m,)
-    faces' into one block of cells of ``cell`` texels (:func:`cell_corners`): returns
-    them, the atlas's shape (H, W), each a multiple of 4 texels, and the block's first
-    texel and shape ``(row, column, rows, columns)`` in cells (None without cells)."""
-    charted = np.flatnonzero(~celled)
-    group = np.unique(chart[charted], return_inverse=True)[1]
-    n = int(group.max()) + 1 if charted.size else 0
-    flat_group = np.repeat(group, 3)
-    points = corners[charted].reshape(-1, 2)
-    low = np.full((n, 2), np.inf)
-    high = np.full((n, 2), -np.inf)
-    np.minimum.at(low, flat_group, points)
-    np.maximum.at(high, flat_group, points)
-    low = np.floor(low)                     # texel centres on whole coordinates
-    sizes = np.ceil(high - low) + 1 + 2 * padding
-    n_cells = int(celled.sum())
-    columns = max(1, math.ceil(math.sqrt(n_cells)))
-    if n_cells:
-        rows = math.ceil(n_cells / columns)
-        sizes = np.concatenate([sizes, [[cell * columns + 2 * padding, cell * rows + 2 * padding]]])
+def _dense(ids: np.ndarray) -> np.ndarray:
+    """(k,) int64 the rank of each of ``ids`` (k,) int >= 0 among their distinct values
+    (``np.unique``'s inverse, without sorting)."""
+    present = np.zeros(int(ids.max()) + 1 if len(ids) else 0, bool)
+    present[ids] = True
+    return (np.cumsum(present) - 1)[ids]
+
+
+def _members(ids: np.ndarray, chosen: np.ndarray) -> np.ndarray:
+    """(k,) bool where ``ids`` (k,) int >= 0 is one of ``chosen`` (``np.isin`` without
+    sorting)."""
+    table = np.zeros(int(ids.max()) + 1 if len(ids) else 0, bool)
+    table[chosen] = True
+    return table[ids]
+
+
+def _chart_bounds(corners: np.ndarray, chart: np.ndarray) -> tuple:
+    """Each face's group (k,) int64 (its chart's rank among the charts of ``chart`` (k,)
+    int >= 0) and each group's least and greatest corner coordinates, (n, 2) each, of
+    faces with ``corners`` (k, 3, 2)."""
+    group = _dense(chart)
+    n = int(group.max()) + 1 if len(group) else 0
+    low, high = np.full((n, 2), np.inf), np.full((n, 2), -np.inf)
+    _reduce_bounds(np.ascontiguousarray(corners, np.float64), group, low, high)
+    return group, low, high
+
+
+@njit(cache=True, nogil=True)
+def _reduce_bounds(corners, group, low, high):
+    """:func:`_chart_bounds`' loop: the least and greatest corner of each group into
+    ``low`` and ``high`` (n, 2), which start at +inf and -inf."""
+    for f in range(corners.shape[0]):
+        g = group[f]
+        for k in range(3):
+            for d in range(2):
+                x = corners[f, k, d]
+                if x < low[g, d]:
+                    low[g, d] = x
+                if x > high[g, d]:
+                    high[g, d] = x
+
+
+def _strip_width(sizes: np.ndarray) -> int:
+    """Width of the strip rectangles ``sizes`` (k, 2) are packed into, texels: about the
+    side of a square of their total area, at least the widest, a multiple of 4."""
     width = int(max(sizes[:, 0].max(), math.ceil(math.sqrt(1.05 * np.prod(sizes, axis=1).sum()))))
-    width = 4 * math.ceil(width / 4)
-    origin, height = _shelves(sizes, width)
-    out = np.empty_like(corners)
-    out[charted] = (points - low[flat_group] + origin[flat_group] + padding).reshape(-1, 3, 2)
-    block = None
-    if n_cells:
-        top_left = origin[-1] + padding
-        out[celled] = cell_corners(n_cells, cell, columns) + top_left
-        block = (int(top_left[1]), int(top_left[0]), rows, columns)
-    return out, (4 * math.ceil(height / 4), width), block
+    return 4 * math.ceil(width / 4)
+
+
+def _cell_block(n_cells: int, cell: int, padding: int) -> tuple[int, np.ndarray | None]:
+    """Columns of the block of ``n_cells`` cells of ``cell`` texels, and its rectangle
+    (1, 2) (width, height) texels with ``padding`` (None without cells)."""
+    columns = max(1, math.ceil(math.sqrt(n_cells)))
+    if not n_cells:
+        return columns, None
+    rows = math.ceil(n_cells / columns)
+    return columns, np.array([[cell * columns + 2 * padding, cell * rows + 2 * padding]], float)
+
+
+@njit(cache=True, nogil=True)
+def _place(unit_corners, faces, group, density, low, origin, padding, out):
+    """Corners of ``faces`` (k,) in charts ``group`` (k,) into ``out`` (m, 3, 2): their
+    ``unit_corners`` (m, 3, 2) times their chart's ``density`` (n,), moved from the
+    chart's least corner ``low`` (n, 2) (whole texels) to its ``origin`` (n, 2) in the
+    atlas, ``padding`` texels in."""
+    for i in range(faces.shape[0]):
+        f, g = faces[i], group[i]
+        for k in range(3):
+            for d in range(2):
+                out[f, k, d] = density[g] * unit_corners[f, k, d] - low[g, d] + origin[g, d] \
+                    + padding
 
 
 @njit(cache=True, nogil=True)
@@ -298,31 +369,103 @@ def _fill_cells(face_id: np.ndarray, bary: np.ndarray, celled: np.ndarray, block
             bary[r, c] = 1.0 / 3.0
 
 
-def _layout(vertices, faces, labels, chart, celled, cameras, scale: float, padding: int,
+@dataclass(frozen=True)
+class _Charts:
+    """The charts of one split (:func:`build_atlas`) at unit density: of the faces not in
+    cells (``charted`` (k,), ``group`` (k,) each one's chart by rank), each chart's least
+    and greatest corner (n, 2) (:func:`_chart_bounds`), its faces (n,) and whether its
+    view sees it (n,) bool (else: an unseen plane)."""
+
+    charted: np.ndarray
+    group: np.ndarray
+    low: np.ndarray
+    high: np.ndarray
+    faces_in: np.ndarray
+    seen: np.ndarray
+
+    @classmethod
+    def of(cls, unit: _UnitCharts, labels: np.ndarray, chart: np.ndarray,
+           cells: np.ndarray) -> _Charts:
+        """The charts ``chart`` (m,) of the faces not in ``cells`` (m,) bool."""
+        charted = np.flatnonzero(~cells)
+        group, low, high = _chart_bounds(unit.corners[charted], chart[charted])
+        member = np.zeros(len(low), np.int64)
+        member[group] = charted
+        faces_in = np.bincount(chart, minlength=int(chart.max()) + 1)[chart[member]]
+        return cls(charted=charted, group=group, low=low, high=high, faces_in=faces_in,
+                   seen=labels[member] >= 0)
+
+
+def _layout(unit: _UnitCharts, labels, chart, celled, scale: float, padding: int,
             max_size: int) -> tuple:
     """Corners (m, 3, 2), shape, scale, cell faces (m,) bool, cells' block and side of
     the packed charts: scaled down to fit, down to :data:`MIN_SCALE`, then the charts of
     fewest faces given cells until they fit."""
     asked = scale
-    faces_in = np.bincount(chart, minlength=int(chart.max()) + 1)[chart]
+    cells = celled | unit.curved
+    charts = _Charts.of(unit, labels, chart, cells)
     fewest = 1
     while True:
+        kept = charts.faces_in >= fewest
+        if not (kept & charts.seen).any():        # planes take their density from views
+            kept &= charts.seen
+        in_cells = np.ones(len(labels), bool)
+        in_cells[charts.charted[kept[charts.group]]] = False
+        seen_faces = np.flatnonzero(~in_cells & (labels >= 0))
+        n_cells = int(in_cells.sum())
+        cell = CELL_TEXELS if CELL_TEXELS ** 2 * n_cells <= 0.5 * max_size ** 2 else 1
+        columns, block_size = _cell_block(n_cells, cell, padding)
+        planes = (kept & ~charts.seen).any()
         for _ in range(_FIT_TRIES):
-            corners, cells = _chart_corners(vertices, faces, labels, chart, celled, cameras,
-                                            scale)
-            cell = CELL_TEXELS if CELL_TEXELS ** 2 * cells.sum() <= 0.5 * max_size ** 2 else 1
-            corners, shape, block = _pack(corners, chart, cells, padding, cell)
+            plane = _plane_density(unit, seen_faces, scale) if planes else 0.0
+            density = np.where(charts.seen, scale, plane)[kept, None]
+            low = np.floor(density * charts.low[kept])    # texel centres on whole coordinates
+            sizes = np.ceil(density * charts.high[kept] - low) + 1 + 2 * padding
+            if block_size is not None:
+                sizes = np.concatenate([sizes, block_size])
+            width = _strip_width(sizes)
+            origin, height = _shelves(sizes, width)
+            shape = (4 * math.ceil(height / 4), width)
             if max(shape) <= max_size:
-                return corners, shape, scale, cells, block, cell
+                return (_layout_corners(unit, charts, kept, density, low, origin, padding,
+                                        in_cells, cell, columns),
+                        shape, scale, in_cells, _block_of(origin, padding, n_cells, columns),
+                        cell)
             if scale <= MIN_SCALE * asked:
                 break
             scale = max(MIN_SCALE * asked, scale * 0.97 * max_size / max(shape))
-        if cells.all():
-            raise ValueError(f"the mesh's {len(faces)} faces do not fit a {max_size} texel "
+        if in_cells.all():
+            raise ValueError(f"the mesh's {len(labels)} faces do not fit a {max_size} texel "
                              "atlas even at one texel each: allow a larger max_size or "
                              "simplify the mesh")
         fewest *= 4
-        celled = celled | (faces_in < fewest)
+
+
+def _block_of(origin: np.ndarray, padding: int, n_cells: int, columns: int) -> tuple | None:
+    """The cells' block's first texel and shape ``(row, column, rows, columns)`` in cells
+    (its rectangle packed last at ``origin[-1]``), None without cells."""
+    if not n_cells:
+        return None
+    top_left = origin[-1] + padding
+    return (int(top_left[1]), int(top_left[0]), math.ceil(n_cells / columns), columns)
+
+
+def _layout_corners(unit: _UnitCharts, charts: _Charts, kept: np.ndarray, density: np.ndarray,
+                    low: np.ndarray, origin: np.ndarray, padding: int, in_cells: np.ndarray,
+                    cell: int, columns: int) -> np.ndarray:
+    """(m, 3, 2) every face's corners in the atlas: of the ``kept`` (n,) charts at their
+    ``density`` (k, 1) texels per unit, moved to their ``origin``; of the faces
+    ``in_cells`` (m,), in the cells' block packed last (:func:`cell_corners`)."""
+    rank = np.cumsum(kept) - 1
+    mine = kept[charts.group]
+    faces, group = charts.charted[mine], rank[charts.group[mine]]
+    out = np.empty((len(in_cells), 3, 2))
+    _place(unit.corners, faces, group, np.ascontiguousarray(density[:, 0]), low, origin,
+           float(padding), out)
+    n_cells = int(in_cells.sum())
+    if n_cells:
+        out[in_cells] = cell_corners(n_cells, cell, columns) + (origin[-1] + padding)
+    return out
 
 
 def build_atlas(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray,
@@ -339,16 +482,17 @@ def build_atlas(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray,
     if int(padding) < 1 or int(max_size) < 64:
         raise ValueError(f"padding must be >= 1 texel and max_size >= 64, got {padding}, "
                          f"{max_size}")
-    patch = chart_of_faces(np.where(labels >= 0, labels, -1 - _nearest_axis(vertices, faces)),
-                           neighbours)
+    tri = vertices[faces]
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])     # twice the area
+    patch = chart_of_faces(np.where(labels >= 0, labels, -1 - _nearest_axis(normal)), neighbours)
+    unit = _UnitCharts.of(tri, normal, labels, patch, cameras)
+    del tri, normal
     alone = np.zeros(len(faces), bool)
     celled = np.zeros(len(faces), bool)
     for split in itertools.count():
-        chart = np.where(alone | celled, patch.max() + 1 + np.arange(len(faces)), patch)
-        chart = np.unique(chart, return_inverse=True)[1].astype(np.int64)
+        chart = _dense(np.where(alone | celled, patch.max() + 1 + np.arange(len(faces)), patch))
         corners, shape, scale, cells, block, cell = _layout(
-            vertices, faces, labels, chart, celled, cameras, float(texels_per_pixel),
-            int(padding), int(max_size))
+            unit, labels, chart, celled, float(texels_per_pixel), int(padding), int(max_size))
         charted = np.flatnonzero(~cells)
         face_id, bary, again, overlapping_charted = rasterize_atlas(corners[charted], shape)
         if not again:
@@ -358,7 +502,7 @@ def build_atlas(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray,
             # A face in a cell has corners of its own.
             chart = np.where(cells, chart.max() + 1 + np.arange(len(faces)), chart)
             return Atlas(shape=shape, corners=corners,
-                         chart=np.unique(chart, return_inverse=True)[1].astype(np.int64),
+                         chart=_dense(chart),
                          face_index=face_id, barycentric=bary, texels_per_pixel=scale)
         overlapping = np.zeros(len(faces), bool)
         overlapping[charted] = overlapping_charted
@@ -366,6 +510,6 @@ def build_atlas(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray,
         # (their colours are interpolated, smooth) rather than ring by ring. Seen faces
         # that still overlap after a few splits (folds finer than a texel, met again at
         # each new scale) take cells too: cells never overlap, so this ends.
-        curved = np.isin(chart, chart[overlapping & (labels < 0)])
+        curved = _members(chart, chart[overlapping & (labels < 0)])
         celled |= curved | (overlapping if split >= _SPLIT_TRIES else False)
         alone |= overlapping & ~celled

@@ -120,22 +120,58 @@ def face_quality(vertices: np.ndarray, faces: np.ndarray, camera: Camera,
     behind_all = farthest_around(zbuf)
     # Only faces turned towards the camera can pass (the sight test's angle, less a
     # margin for the samples' directions): the others are not tested.
-    cos = np.einsum("md,md->m", normals, towards_camera(camera, points[:, 0]))
-    facing = np.flatnonzero(cos > _FACING_COS)
-    sight = view_sight(camera, points[facing].reshape(-1, 3), np.repeat(normals[facing], 4, axis=0),
-                       zbuf, mask, depth_zbuf=behind_all)
+    facing = np.flatnonzero(_facing_cos(camera, points[:, 0], normals) > _FACING_COS)
+
+    def sight(chosen: np.ndarray, corners: bool = False, **options):
+        """The sight test of the centroids (or the three pulled corners) of ``chosen``."""
+        at = slice(1, 4) if corners else slice(0, 1)
+        return view_sight(camera, points[chosen, at].reshape(-1, 3),
+                          np.repeat(normals[chosen], at.stop - at.start, axis=0), zbuf, mask,
+                          depth_zbuf=behind_all, **options)
+
+    # The glimpse of every facing face first: its narrower ramp off the edges weighs a
+    # point above zero exactly where the full test does (the ramps start at one margin),
+    # so the faces it finds are those whose centroid passes the full test, and the
+    # others (most, on a refined mesh) need no other point tested.
     weight = np.zeros(len(faces))
-    weight[facing] = sight.weight.reshape(-1, 4).min(axis=1)
-    full = weight > 0
-    glimpsed = facing[~full[facing]]
-    weight[glimpsed] = GLIMPSE_WEIGHT * view_sight(camera, points[glimpsed, 0], normals[glimpsed],
-                                                   zbuf, mask, depth_zbuf=behind_all,
-                                                   **GLIMPSE).weight
+    weight[facing] = GLIMPSE_WEIGHT * sight(facing, **GLIMPSE).weight
+    candidates = facing[weight[facing] > 0]
+    at_corners = sight(candidates, corners=True)
+    least = np.minimum(sight(candidates).weight, at_corners.weight.reshape(-1, 3).min(axis=1))
+    full = np.zeros(len(faces), bool)
+    full[candidates] = least > 0
+    weight[full] = least[least > 0]
     area_px = np.zeros(len(faces))
-    u, v = sight.u.reshape(-1, 4)[:, 1:], sight.v.reshape(-1, 4)[:, 1:]
-    area_px[facing] = 0.5 * np.abs((u[:, 1] - u[:, 0]) * (v[:, 2] - v[:, 0])
-                                   - (u[:, 2] - u[:, 0]) * (v[:, 1] - v[:, 0])) / (1 - CORNER_PULL) ** 2
+    area_px[candidates] = _projected_area(at_corners)
     return np.where(weight > 0, weight * np.nan_to_num(area_px), 0.0), full
+
+
+def _facing_cos(camera: Camera, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """(m,) cosine between each unit normal (m, 3) and the direction from its point
+    (m, 3) metres towards ``camera``."""
+    if camera.orthographic:
+        return normals @ -camera.R[2]
+    out = np.empty(len(points))
+    _cos_towards(points, normals, camera.center, out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _cos_towards(points, normals, centre, out):
+    """:func:`_facing_cos` of a pinhole camera at ``centre`` (3,) metres, into ``out``."""
+    for i in range(points.shape[0]):
+        dx, dy, dz = centre[0] - points[i, 0], centre[1] - points[i, 1], centre[2] - points[i, 2]
+        length = max(np.sqrt(dx * dx + dy * dy + dz * dz), 1e-300)
+        out[i] = (normals[i, 0] * dx + normals[i, 1] * dy + normals[i, 2] * dz) / length
+
+
+def _projected_area(corners) -> np.ndarray:
+    """(k,) area in pixels^2 of the faces whose three pulled corners' sight test
+    (``corners.u``, ``corners.v`` (3k,)) is given, scaled back to the whole face (NaN
+    where a corner falls outside the image)."""
+    u, v = corners.u.reshape(-1, 3), corners.v.reshape(-1, 3)
+    return 0.5 * np.abs((u[:, 1] - u[:, 0]) * (v[:, 2] - v[:, 0])
+                        - (u[:, 2] - u[:, 0]) * (v[:, 1] - v[:, 0])) / (1 - CORNER_PULL) ** 2
 
 
 def farthest_around(zbuf: np.ndarray) -> np.ndarray:
@@ -205,7 +241,9 @@ def label_faces(quality: np.ndarray, neighbours: np.ndarray, *,
         raise ValueError(f"smoothness must be a finite number >= 0, got {smoothness}")
     best = quality.max(axis=1)
     labels = np.where(best > 0, quality.argmax(axis=1), -1).astype(np.int64)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        cost = np.where(quality > 0, 1.0 - quality / best[:, None], np.inf)
+    # Only the seen faces' costs are read (often a minority of a refined mesh's faces).
+    seen = np.flatnonzero(best > 0)
+    cost = np.full(quality.shape, np.inf)
+    cost[seen] = np.where(quality[seen] > 0, 1.0 - quality[seen] / best[seen, None], np.inf)
     sweeps = _icm(cost, neighbours, labels, float(smoothness), MAX_SWEEPS) if smoothness else 0
     return labels, sweeps

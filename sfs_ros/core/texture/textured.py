@@ -100,7 +100,8 @@ class TexturedMesh:
         faces no view sees.
     stats : dict
         JSON-ready figures: faces, views, charts, seam edges, atlas size and use,
-        gains, seconds per step.
+        gains, seconds per step (the atlas made beside the levelling and
+        the agreement test).
     """
 
     vertices: np.ndarray
@@ -196,6 +197,31 @@ def _blend_views(colour, face, bary, vertices, faces, blend, blur, images, camer
     out = np.zeros(len(face), bool)
     out[blended] = True
     return out
+
+
+def _views_colours(vertices, faces, labels, neighbours, images, cameras, seen, level: bool,
+                   blend, kernel: str, blur_levels_px: tuple) -> tuple:
+    """What :func:`textured_from_labels` reads the views with: ``(floats, seams, gains,
+    offsets, vertex colours, blur)`` (the images as float32 at each blur of
+    ``blur_levels_px``, the seam edges, :func:`_levelled`'s, and each face's blur of
+    :func:`.agreement.face_blur`, None without a ``blend``), and the seconds of the
+    levelling and the agreement test."""
+    seconds, start = {}, time.perf_counter()
+    floats = [image.astype(np.float32) for image in images]
+    seams = seam_edges(faces, labels, neighbours)
+    gains, offsets, vertex = _levelled(floats, cameras, vertices, faces, labels, seams, seen,
+                                       level, offsets=blend is None)
+    seconds["levelling"] = time.perf_counter() - start
+    blur = None
+    if blend is not None:
+        floats = blurred_views(floats, blur_levels_px)
+        # Judged at each face's centroid (its first sample point).
+        blur = face_blur(vertices[faces].mean(axis=1, keepdims=True), blend, gains, floats,
+                         cameras, neighbours, kernel=kernel)
+    else:
+        floats = [floats]
+    seconds["agreement"] = time.perf_counter() - start - seconds["levelling"]
+    return (floats, seams, gains, offsets, vertex, blur), seconds
 
 
 def _split_by_chart(faces: np.ndarray, atlas: Atlas, n_vertices: int) -> tuple:
@@ -301,11 +327,12 @@ def texture_mesh(vertices, faces, images: Sequence, cameras: Sequence[Camera], *
     selection_s = time.perf_counter() - start
     blend = None
     if blend_power is not None:
-        best = np.maximum(quality.max(axis=1, keepdims=True), 1e-300)
-        relative = quality / best
+        blend = np.zeros(quality.shape)
+        seen = np.flatnonzero(labels >= 0)
+        relative = quality[seen] / np.maximum(quality[seen].max(axis=1, keepdims=True), 1e-300)
         # A face no view sees fully blends the views that glimpse it.
-        support = np.where(full.any(axis=1, keepdims=True), full, quality > 0)
-        blend = np.where(support & (relative >= BLEND_MIN), relative ** blend_power, 0.0)
+        support = np.where(full[seen].any(axis=1, keepdims=True), full[seen], quality[seen] > 0)
+        blend[seen] = np.where(support & (relative >= BLEND_MIN), relative ** blend_power, 0.0)
     textured = textured_from_labels(vertices, faces, labels, neighbours, images, cameras,
                                     seen=full, level=level, blend=blend, texels_per_pixel=texels_per_pixel,
                                     max_size=max_size, padding=padding, kernel=kernel,
@@ -340,29 +367,29 @@ def textured_from_labels(vertices: np.ndarray, faces: np.ndarray, labels: np.nda
             or not all(math.isfinite(sigma) and sigma >= 0 for sigma in blur_levels_px)):
         raise ValueError(f"blur_levels_px must be blurs >= 0 px, the first 0, got "
                          f"{blur_levels_px}")
-    seconds, start = {}, time.perf_counter()
-    atlas = build_atlas(vertices, faces, labels, neighbours, cameras,
-                        texels_per_pixel=texels_per_pixel, max_size=max_size, padding=padding)
-    seconds["atlas"] = time.perf_counter() - start
-    floats = [image.astype(np.float32) for image in images]
-    seams = seam_edges(faces, labels, neighbours)
-    gains, offsets, vertex = _levelled(floats, cameras, vertices, faces, labels, seams, seen,
-                                       level, offsets=blend is None)
-    seconds["levelling"] = time.perf_counter() - start - sum(seconds.values())
-    blur = None
-    if blend is not None:
-        floats = blurred_views(floats, blur_levels_px)
-        blur = face_blur(face_samples(vertices, faces)[0][:, :1], blend, gains, floats, cameras,
-                         neighbours, kernel=kernel)
-    else:
-        floats = [floats]
-    seconds["agreement"] = time.perf_counter() - start - sum(seconds.values())
+
+    def atlas_step():
+        start = time.perf_counter()
+        atlas = build_atlas(vertices, faces, labels, neighbours, cameras,
+                            texels_per_pixel=texels_per_pixel, max_size=max_size,
+                            padding=padding)
+        return atlas, {"atlas": time.perf_counter() - start}
+
+    def colour_step():
+        return _views_colours(vertices, faces, labels, neighbours, images, cameras, seen,
+                              level, blend, kernel, blur_levels_px)
+
+    # The atlas and the views' colours meet only in the texels: made side by side.
+    (atlas, seconds), ((floats, seams, gains, offsets, vertex, blur), colour_seconds) = \
+        map_in_threads(lambda step: step(), (atlas_step, colour_step))
+    seconds.update(colour_seconds)
+    start = time.perf_counter()
     image = _texels(atlas, vertices, faces, labels, floats, cameras, gains, offsets, vertex,
                     kernel, blend, blur)
     claimed = atlas.face_index >= 0
     _dilate(image, claimed.copy(), int(padding))
     source, new_faces, uv = _split_by_chart(faces, atlas, len(vertices))
-    seconds["texels"] = time.perf_counter() - start - sum(seconds.values())
+    seconds["texels"] = time.perf_counter() - start
     stats = {"faces": int(len(faces)), "views": len(cameras), "unseen_faces": int((labels < 0).sum()),
              "charts": int(atlas.chart.max()) + 1, "seam_edges": int(len(seams)),
              "atlas_size": [int(atlas.shape[1]), int(atlas.shape[0])],
