@@ -13,6 +13,7 @@ report, which :mod:`sfs_ros.core.scan_report` assembles from the stages' pieces.
 from __future__ import annotations
 
 import math
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -281,13 +282,16 @@ def carve_scan(view_set: ViewSet, params: ReconstructionParams = ReconstructionP
     used, rejected = fused.used, segmented.rejected + fused.dropped
     _check_left(segmented, used, rejected, chosen.bounds, params.max_misses)
 
-    with timed(timings, "carving"):
-        occupancy, specks_removed = carve_hull(grid, used, params.max_misses, progress)
-    hull = Hull(occupancy, HullDistance(
-        used.cameras, used.masks, max_misses=params.max_misses,
-        bounds_m=(grid.bounds_min, grid.bounds_max), known=precomputed.distances,
-        coverage=[segmented.coverage.get(name) for name in used.names(segmented.views)]),
-        specks_removed)
+    # The views' distance images (per view, in threads) are made while the hull is
+    # carved: they need the masks alone.
+    with ThreadPoolExecutor(max_workers=1) as beside:
+        distance = beside.submit(
+            HullDistance, used.cameras, used.masks, max_misses=params.max_misses,
+            bounds_m=(grid.bounds_min, grid.bounds_max), known=precomputed.distances,
+            coverage=[segmented.coverage.get(name) for name in used.names(segmented.views)])
+        with timed(timings, "carving"):
+            occupancy, specks_removed = carve_hull(grid, used, params.max_misses, progress)
+        hull = Hull(occupancy, distance.result(), specks_removed)
     if params.refine:
         with timed(timings, "refinement"):
             hull = refine_hull(hull, grid, segmented, used, images, progress)

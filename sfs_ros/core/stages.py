@@ -86,32 +86,50 @@ class UsedViews:
         return [views[i].name for i in self.indices]
 
 
-def _read_and_segment(view: View, params: SegmentationParams,
-                      given: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None] | str:
-    """The view's silhouette (H, W) bool (``given``, else segmented from its image) and
-    the alpha channel (H, W) uint8 it is exact from (None: segmented or given), or why
-    the view cannot be used."""
+@dataclass(frozen=True)
+class _ViewMask:
+    """One view's silhouette (H, W) bool as taken (``taken``) and undistorted onto its
+    ideal pinhole (``ideal``), and the alpha channel it is exact from, undistorted
+    (``coverage``, (H, W) uint8; None: segmented or given)."""
+
+    taken: np.ndarray
+    ideal: np.ndarray
+    coverage: np.ndarray | None
+
+
+def _read_and_segment(view: View, params: SegmentationParams, given: np.ndarray | None,
+                      undistorted: np.ndarray | None) -> _ViewMask | str:
+    """The view's silhouette (``given``, else segmented from its image) and what it is
+    exact from, each undistorted (``undistorted``: the mask's undistortion already made),
+    or why the view cannot be used."""
     if given is not None:
         expected = (view.camera.height, view.camera.width)
         if np.shape(given) != expected or np.asarray(given).dtype != np.bool_:
             return (f"given silhouette is {np.asarray(given).dtype} {np.shape(given)}, "
                     f"expected {expected} bool (the camera's size)")
-        return (given, None) if given.any() else "empty silhouette: no object found"
-    try:
-        image = read_image(view.image_path, keep_alpha=not params.ignore_alpha,
-                           expected_size=(view.camera.width, view.camera.height))
-    except ValueError as err:
-        return str(err)
-    result = segment(image, params)
-    exact = image.ndim == 3 and image.shape[2] == 4 and not params.ignore_alpha
-    alpha = image[:, :, 3].copy() if exact else None
-    return "empty silhouette: no object found" if result.empty else (result.mask, alpha)
+        if not given.any():
+            return "empty silhouette: no object found"
+        mask, alpha = given, None
+    else:
+        try:
+            image = read_image(view.image_path, keep_alpha=not params.ignore_alpha,
+                               expected_size=(view.camera.width, view.camera.height))
+        except ValueError as err:
+            return str(err)
+        result = segment(image, params)
+        if result.empty:
+            return "empty silhouette: no object found"
+        exact = image.ndim == 3 and image.shape[2] == 4 and not params.ignore_alpha
+        mask, alpha = result.mask, (image[:, :, 3].copy() if exact else None)
+    ideal = undistort_mask(mask, view.camera) if undistorted is None else undistorted
+    return _ViewMask(mask, ideal, None if alpha is None else undistort_image(alpha, view.camera))
 
 
 def segment_views(view_set: ViewSet, params: SegmentationParams, given: dict,
                   progress: Progress, undistorted: dict | None = None) -> Segmented:
-    """Read and segment every view not in ``given`` ({view name: (H, W) bool silhouette
-    already made}), in threads, results in input order; the views that cannot be used
+    """Read, segment and undistort every view not in ``given`` ({view name: (H, W) bool
+    silhouette already made}), in threads (one view's decoding beside another's
+    segmentation), results in input order; the views that cannot be used
     join the input's rejected ones with the reason. Each mask is segmented as taken and
     undistorted once onto its view's ideal pinhole (:mod:`.geometry.lens`), unless
     ``undistorted`` ({view name: (H, W) bool}) holds that undistortion already."""
@@ -120,19 +138,18 @@ def segment_views(view_set: ViewSet, params: SegmentationParams, given: dict,
     rejected = [{"view": name, "reason": reason} for name, reason in view_set.rejected]
     kept, masks, taken, coverage = [], [], {}, {}
     progress("segmentation", 0.0)
-    results = map_in_threads(lambda view: _read_and_segment(view, params, given.get(view.name)),
-                             views)
+    results = map_in_threads(
+        lambda view: _read_and_segment(view, params, given.get(view.name),
+                                       undistorted.get(view.name)), views)
     for n, (view, result) in enumerate(zip(views, results)):
         if isinstance(result, str):
             rejected.append({"view": view.name, "reason": result})
         else:
-            mask, alpha = result
             kept.append(replace(view, camera=ideal_camera(view.camera)))
-            ideal = undistorted.get(view.name)
-            masks.append(undistort_mask(mask, view.camera) if ideal is None else ideal)
-            taken[view.name] = mask
-            if alpha is not None:
-                coverage[view.name] = undistort_image(alpha, view.camera)
+            masks.append(result.ideal)
+            taken[view.name] = result.taken
+            if result.coverage is not None:
+                coverage[view.name] = result.coverage
         progress("segmentation", (n + 1) / max(1, len(views)))
     return Segmented(kept, masks, taken, {v.name: v.camera for v in views}, rejected,
                      frozenset(coverage), coverage)
@@ -284,9 +301,11 @@ def resegment_views(segmented: Segmented, used: UsedViews, grid: VoxelGrid,
     if not consensus.applied:
         return Resegmented(segmented, used, report)
     masks, taken = list(segmented.masks), dict(segmented.taken)
-    for i, mask in zip(used.indices, consensus.masks):
+    through_lens = map_in_threads(lambda pair: distort_mask(pair[1], lenses[views[pair[0]].name]),
+                                  zip(used.indices, consensus.masks))
+    for i, mask, as_taken in zip(used.indices, consensus.masks, through_lens):
         masks[i] = mask
-        taken[views[i].name] = distort_mask(mask, lenses[views[i].name])
+        taken[views[i].name] = as_taken
     return Resegmented(replace(segmented, masks=masks, taken=taken),
                        UsedViews.of(views, used.indices, consensus.masks), report)
 
@@ -385,8 +404,8 @@ def refine_hull(hull: Hull, grid: VoxelGrid, segmented: Segmented, used: UsedVie
         refined = replace(hull, refinement={"applied": False,
                                             "reason": "not every view used has an image"})
     else:
-        rgb = [undistort_image(colour_image(v, images), segmented.lenses[v.name])
-               for v in views]
+        rgb = list(map_in_threads(
+            lambda v: undistort_image(colour_image(v, images), segmented.lenses[v.name]), views))
         occupancy, distance, report = refine_views(hull.occupancy, grid, used.cameras,
                                                    used.masks, rgb, hull.distance)
         refined = replace(hull, occupancy=occupancy, distance=distance, refinement=report)
@@ -415,6 +434,6 @@ def choose_colour_views(segmented: Segmented, used: UsedViews, images: dict | No
     coloured = [coloured[k] for k in spread_views([used.cameras[n] for n in coloured],
                                                   MAX_COLOUR_VIEWS)] if coloured else []
     chosen = [used.indices[n] for n in coloured]
-    return ColourViews(chosen, [used.masks[n] for n in coloured],
-                       [undistort_image(colour_image(views[i], images),
-                                        segmented.lenses[views[i].name]) for i in chosen])
+    return ColourViews(chosen, [used.masks[n] for n in coloured], list(map_in_threads(
+        lambda i: undistort_image(colour_image(views[i], images), segmented.lenses[views[i].name]),
+        chosen)))
