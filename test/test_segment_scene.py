@@ -87,8 +87,9 @@ def test_dark_sector_darkens_only_the_object_facing_it(mug):
         darker += np.count_nonzero(np.abs(a.image.astype(np.int16) - b.image).max(axis=2) > 40)
     # Four views around the object: together they see the dark third.
     assert darker > 0.1 * sum(np.count_nonzero(c.object_mask) for c in dark)
-    with pytest.raises(ValueError, match="dark_rgb"):
-        simulate_hostile_scan(mug, RIG, plan, dark_rgb=(300, 0, 0))
+    for bad in ((300, 0, 0), (20, 20), ("a", "b", "c"), (np.nan, 0, 0)):
+        with pytest.raises(ValueError, match="dark_rgb"):
+            simulate_hostile_scan(mug, RIG, plan, dark_rgb=bad)
 
 
 def test_default_segmentation_on_the_hostile_scene(scene):

@@ -117,10 +117,13 @@ def _surface_points_normals(vertices, faces, normals, face_id, bary, pixels):
 def _check_options(backdrop: str, plate_radius_factor: float, out_of_frame_every: int,
                    out_fraction: float, stripe_period_m: float, dark_rgb) -> None:
     """ValueError naming the first of :func:`simulate_hostile_scan`'s options out of range."""
-    if dark_rgb is not None and not (np.shape(dark_rgb) == (3,) and np.all(np.isfinite(dark_rgb))
-                                     and np.all((np.asarray(dark_rgb) >= 0)
-                                                & (np.asarray(dark_rgb) <= 255))):
-        raise ValueError(f"dark_rgb must be None or three values in [0, 255], got {dark_rgb!r}")
+    if dark_rgb is not None:
+        try:
+            rgb = np.asarray(dark_rgb, np.float64)
+        except (TypeError, ValueError):
+            rgb = np.full(1, np.nan)
+        if rgb.shape != (3,) or not np.all((rgb >= 0) & (rgb <= 255)):  # NaN fails too
+            raise ValueError(f"dark_rgb must be None or three values in [0, 255], got {dark_rgb!r}")
     if backdrop not in BACKDROPS:
         raise ValueError(f"backdrop must be one of {sorted(BACKDROPS)}, got {backdrop!r}")
     if not plate_radius_factor > 1:
