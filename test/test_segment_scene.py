@@ -74,6 +74,24 @@ def test_scene_ground_truth_is_the_object_alone(scene, mug):
         assert differs.mean() > 0.25
 
 
+def test_dark_sector_darkens_only_the_object_facing_it(mug):
+    plan = PLAN[4:8]
+    plain = simulate_hostile_scan(mug, RIG, plan, backdrop="black", seed=3)
+    dark = simulate_hostile_scan(mug, RIG, plan, backdrop="black", dark_rgb=(20, 18, 22), seed=3)
+    darker = 0
+    for a, b in zip(plain, dark):
+        np.testing.assert_array_equal(a.object_mask, b.object_mask)
+        # Same scene, same noise: only the object's own pixels can differ, never brighter.
+        np.testing.assert_array_equal(a.image[~a.object_mask], b.image[~b.object_mask])
+        assert np.all(b.image[b.object_mask] <= a.image[a.object_mask])
+        darker += np.count_nonzero(np.abs(a.image.astype(np.int16) - b.image).max(axis=2) > 40)
+    # Four views around the object: together they see the dark third.
+    assert darker > 0.1 * sum(np.count_nonzero(c.object_mask) for c in dark)
+    for bad in ((300, 0, 0), (20, 20), ("a", "b", "c"), (np.nan, 0, 0)):
+        with pytest.raises(ValueError, match="dark_rgb"):
+            simulate_hostile_scan(mug, RIG, plan, dark_rgb=bad)
+
+
 def test_default_segmentation_on_the_hostile_scene(scene):
     backdrop, captures = scene
     ious = [iou(segment(c.image).mask, c.object_mask) for c in captures]

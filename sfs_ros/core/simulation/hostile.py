@@ -11,7 +11,9 @@ cell also shows, in the same picture:
 * **specular highlights** on the object (Blinn-Phong, saturated to white) and
   **dark detail** on it (near-black dashes, like paint marks or deep shadows);
 * the object **touching the frame** in some views (the principal point moved
-  so that part of it falls outside the image).
+  so that part of it falls outside the image);
+* optionally a **dark sector** of the object (a third of it around the axis, facing +X,
+  in a dark colour), dark on a black backdrop and next to its own cast shadow.
 
 The exact object silhouette is kept for every view (``object_mask``): it is
 the set of pixel centres whose nearest surface belongs to the object, computed
@@ -113,8 +115,15 @@ def _surface_points_normals(vertices, faces, normals, face_id, bary, pixels):
 
 
 def _check_options(backdrop: str, plate_radius_factor: float, out_of_frame_every: int,
-                   out_fraction: float, stripe_period_m: float) -> None:
+                   out_fraction: float, stripe_period_m: float, dark_rgb) -> None:
     """ValueError naming the first of :func:`simulate_hostile_scan`'s options out of range."""
+    if dark_rgb is not None:
+        try:
+            rgb = np.asarray(dark_rgb, np.float64)
+        except (TypeError, ValueError):
+            rgb = np.full(1, np.nan)
+        if rgb.shape != (3,) or not np.all((rgb >= 0) & (rgb <= 255)):  # NaN fails too
+            raise ValueError(f"dark_rgb must be None or three values in [0, 255], got {dark_rgb!r}")
     if backdrop not in BACKDROPS:
         raise ValueError(f"backdrop must be one of {sorted(BACKDROPS)}, got {backdrop!r}")
     if not plate_radius_factor > 1:
@@ -143,12 +152,16 @@ class _Scene:
     background: np.ndarray
 
     @classmethod
-    def of(cls, obj: SyntheticObject, plate_radius_factor: float, backdrop: str) -> _Scene:
+    def of(cls, obj: SyntheticObject, plate_radius_factor: float, backdrop: str,
+           dark_rgb=None) -> _Scene:
         plate = _plate_mesh(obj, plate_radius_factor)
         obj_v, obj_f = obj.mesh.vertices, obj.mesh.faces
         vertices = np.vstack([obj_v, plate.vertices])
         faces = np.vstack([obj_f, plate.faces + len(obj_v)])
         albedo = 0.7 * np.asarray(_OBJECT_RGB, np.float64) + 0.3 * obj.color_at(obj_v)
+        if dark_rgb is not None:  # the third of the object around the axis facing +X
+            dark = np.cos(np.arctan2(obj_v[:, 1], obj_v[:, 0])) > 0.5
+            albedo[dark] = np.asarray(dark_rgb, np.float64)
         colours = np.vstack([albedo, np.tile(np.asarray(_PLATE_RGB, np.float64),
                                              (len(plate.vertices), 1))])
         return cls(vertices, faces, colours, corner_normals(vertices, faces), obj_v, obj_f,
@@ -212,7 +225,7 @@ def simulate_hostile_scan(obj: SyntheticObject, calibration: RigCalibration, pla
                           backdrop: str = "black", plate_radius_factor: float = 2.5,
                           out_of_frame_every: int = 4, out_fraction: float = 0.15,
                           stripe_period_m: float = 0.02, noise_sigma: float = 2.0,
-                          seed: int = 0) -> list[SceneCapture]:
+                          dark_rgb=None, seed: int = 0) -> list[SceneCapture]:
     """Render ``obj`` in a hostile cell from every ``(theta_rad, phi_rad)`` row of ``plan`` (n, 2).
 
     Parameters
@@ -232,6 +245,9 @@ def simulate_hostile_scan(obj: SyntheticObject, calibration: RigCalibration, pla
         three arcs; about a sixth of each period is near-black).
     noise_sigma : float >= 0
         Gaussian noise, grey levels.
+    dark_rgb : None or 3 values in [0, 255]
+        The colour (RGB albedo) of a dark third of the object: the vertices whose
+        azimuth is within 60 degrees of +X. None: no dark part.
     seed : int
 
     Returns
@@ -239,10 +255,10 @@ def simulate_hostile_scan(obj: SyntheticObject, calibration: RigCalibration, pla
     list of SceneCapture, in plan order.
     """
     _check_options(backdrop, plate_radius_factor, out_of_frame_every, out_fraction,
-                   stripe_period_m)
+                   stripe_period_m, dark_rgb)
     plan = np.asarray(plan, dtype=np.float64).reshape(-1, 2)
     rng = np.random.default_rng(seed)
-    scene = _Scene.of(obj, plate_radius_factor, backdrop)
+    scene = _Scene.of(obj, plate_radius_factor, backdrop, dark_rgb)
     captures = []
     for n, (theta, phi) in enumerate(plan):
         camera = rig_camera(float(theta), float(phi), calibration)
