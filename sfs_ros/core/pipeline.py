@@ -171,18 +171,26 @@ class ExpectedCarves:
     ``resolution`` voxels along the longest side (the box refined by ``box``, the coarse
     carve kept of the same views, as :func:`.stages.choose_grid` refines it). When a
     view changes that grid (it shrinks the box), the carves start again on the new one
-    with every view so far: the box settles within the first views. A reconstruction
-    that chooses another grid, or carves other masks, carves anew: the same result.
+    with every view so far: the box settles within the first views. Starting again
+    waits until the views have grown by a quarter since the last start
+    (:data:`RESTART_GROWTH`), so that a box that never settles costs a few carves per
+    view, not one per view so far. A reconstruction that chooses another grid, or
+    carves other masks, carves anew: the same result.
 
     Memory: a byte per voxel of the grid and of the reference grid, and each view's
     packed mask.
     """
+
+    #: The carves start again on a new grid only once the views have grown by this
+    #: factor since they last started.
+    RESTART_GROWTH = 1.25
 
     def __init__(self, bounds_m, resolution: int, max_misses: int, box: BoxCarve):
         self._bounds = as_bounds(bounds_m, what="bounds_m")
         self._resolution, self._max_misses, self._box = int(resolution), int(max_misses), box
         self._views: list[tuple] = []   # (camera, packed mask, mask shape)
         self._grid: VoxelGrid | None = None
+        self._started_with = 0   # views when the carves last started
         self.carves: tuple = ()
 
     def _expected_grid(self) -> tuple[np.ndarray, VoxelGrid] | None:
@@ -216,7 +224,10 @@ class ExpectedCarves:
             for store in self.carves:
                 store.add(camera, mask)
             return
-        self._grid = grid
+        self._grid, self.carves = None, ()
+        if len(self._views) < self.RESTART_GROWTH * self._started_with:
+            return
+        self._grid, self._started_with = grid, len(self._views)
         self.carves = (KeptCarve(grid, most_misses=self._max_misses),
                        KeptCarve(fusion_grid(bounds, grid), most_misses=BoxCarve.MOST_MISSES))
         for index, (view_camera, _, _) in enumerate(self._views):
