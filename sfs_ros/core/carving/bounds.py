@@ -250,7 +250,8 @@ class BoxCarve:
     def refined(self, max_misses: int) -> np.ndarray:
         """(2, 3) box, metres: what :func:`refine_bounds` gives for this store's box and
         resolution, the views counted and ``max_misses`` (at most :attr:`MOST_MISSES`),
-        without their masks."""
+        without their masks (up to ``2 * MOST_UNFRAMED + 1`` views: past that, the voxels
+        framed by all but ``MOST_UNFRAMED`` of them: a box no larger)."""
         if not 0 <= max_misses <= self.MOST_MISSES:
             raise ValueError(f"max_misses must lie in [0, {self.MOST_MISSES}], got {max_misses}")
         n = sum(self._views.values())
