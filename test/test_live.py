@@ -3,6 +3,7 @@
 import csv
 import dataclasses
 import errno
+import importlib
 import json
 import math
 import os
@@ -198,6 +199,30 @@ def test_persisted_session_reloads_and_reconstructs_offline_to_the_same_mesh(sca
     offline_v, offline_f = load_mesh(out)
     np.testing.assert_array_equal(offline_v, live_v)
     np.testing.assert_array_equal(offline_f, live_f)
+
+
+def test_the_hull_is_counted_as_the_views_arrive(scan, monkeypatch):
+    # The grid the reconstruction chooses and the fusion's reference grid are carved
+    # view by view as the views arrive: the reconstruction carves neither with all the
+    # views again (at most a repaired view alone); the same hull, as the offline path's
+    # (test above).
+    live, _, _ = scan
+    carving = importlib.import_module("sfs_ros.core.carving.carve")
+    real, carves = carving.carve, []
+
+    def counted(grid, cameras, masks, **options):
+        carves.append(len(cameras))
+        return real(grid, cameras, masks, **options)
+
+    monkeypatch.setattr(carving, "carve", counted)
+    carved = live.carve()
+    assert carved.report["fusion"] is not None
+    assert all(n == 1 for n in carves), carves
+    monkeypatch.undo()
+    np.testing.assert_array_equal(carved.occupancy, carve_scan(
+        load_views(live.session_dir), live.params, masks=dict(
+            (v.name, mask) for v, (_, mask, _, _) in zip(load_views(live.session_dir).views,
+                                                        live.views()))).occupancy)
 
 
 def test_masks_survive_png_and_segmentation_unchanged(tmp_path, box):

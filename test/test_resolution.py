@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from sfs_ros.core.carving.bounds import BoxCarve, footprint_masks, refine_bounds, seen_by
-from sfs_ros.core.carving.carve import carve
+from sfs_ros.core.carving.carve import KeptCarve, carve
 from sfs_ros.core.carving.resolution import (
     BYTES_PER_VOXEL,
     choose_voxel_size,
@@ -139,3 +139,41 @@ def test_a_box_carve_kept_view_by_view_refines_to_the_same_box():
     assert np.array_equal(
         refine_bounds(cameras, bitten, loose, resolution=64, max_misses=1, known=known),
         refine_bounds(cameras, bitten, loose, resolution=64, max_misses=1))
+    # Without the masks, from its counts alone: the same box again.
+    for misses in (0, 1, 2):
+        assert np.array_equal(known.refined(misses), refine_bounds(
+            cameras, masks, loose, resolution=64, max_misses=misses))
+
+
+def test_a_carve_kept_view_by_view_is_the_carve_even_with_repaired_masks():
+    # KeptCarve counts the misses a view at a time; for the same views in any order it
+    # gives carve's voxels bit for bit, at every tolerance it counts. Views that come
+    # back with another mask (a bite filled, a bite taken) are taken back and counted
+    # again: still carve's voxels of the masks given, up to MOST_REPLACED of them.
+    centre, radius = np.array([0.01, -0.005, 0.0]), 0.03
+    cameras = [rig_camera(t, math.radians(p), RIG) for p in (0, 40, 80)
+               for t in np.linspace(0, 2 * np.pi, 8, endpoint=False)]
+    masks = [sphere_mask(c, centre, radius) for c in cameras]
+    masks[5][:, :170] = False
+    grid = VoxelGrid.cube(BOX[0], BOX[1], 48)
+    kept = KeptCarve(grid, most_misses=2)
+    for i in np.random.default_rng(2).permutation(len(cameras)):
+        kept.add(cameras[i], masks[i])
+    for misses in (0, 1, 2):
+        assert np.array_equal(kept.carved(grid, cameras, masks, misses),
+                              carve(grid, cameras, masks, max_misses=misses))
+    repaired = [m.copy() for m in masks]
+    repaired[5] = sphere_mask(cameras[5], centre, radius)           # the bite filled
+    for n in range(1, KeptCarve.MOST_REPLACED):
+        repaired[6 + n][:, 150:] = False                             # bites taken
+    for misses in (0, 1, 2):
+        expected = carve(grid, cameras, repaired, max_misses=misses)
+        assert not np.array_equal(expected, carve(grid, cameras, masks, max_misses=misses))
+        assert np.array_equal(kept.carved(grid, cameras, repaired, misses), expected)
+    # More masks replaced than it takes back, other views, another grid, more misses
+    # than it counts: None (the caller carves).
+    repaired[20][:, :100] = False
+    assert kept.carved(grid, cameras, repaired, 0) is None
+    assert kept.carved(grid, cameras[:-1], masks[:-1], 0) is None
+    assert kept.carved(VoxelGrid.cube(BOX[0], BOX[1], 47), cameras, masks, 0) is None
+    assert kept.carved(grid, cameras, masks, 3) is None

@@ -68,7 +68,12 @@ from ..core.geometry.lens import ideal_camera, is_distorted, undistort_image, un
 from ..core.geometry.rig import RigCalibration, rig_camera
 from ..core.meshing.hull_distance import DistanceImages
 from ..core.meshing.meshers import MESHER
-from ..core.pipeline import ComputedOnArrival, ReconstructionParams, carve_scan
+from ..core.pipeline import (
+    ComputedOnArrival,
+    ExpectedCarves,
+    ReconstructionParams,
+    carve_scan,
+)
 from ..core.result_files import SheetViews
 from ..core.segmentation.segment import SegmentationParams
 from ..core.settings import RESOLUTION
@@ -256,6 +261,8 @@ class LiveReconstruction:
         self.close()
         self._carver = Carver(self.grid, max_misses=self.params.max_misses)
         self._precomputed = ComputedOnArrival(distances=DistanceImages(), box=BoxCarve(self.bounds_m))
+        self._expected = ExpectedCarves(self.bounds_m, self.params.resolution,
+                                        self.params.max_misses, self._precomputed.box)
         self._views: dict[str, _Received] = {}
         self._colour_images: dict[str, np.ndarray] = {}
         self._thumbnails: dict[str, np.ndarray] = {}   # of the images, made as they came
@@ -410,13 +417,15 @@ class LiveReconstruction:
     def _carve_view(self, camera, mask: np.ndarray) -> np.ndarray | None:
         """Carve the live hull with a non-empty mask (H, W) bool as ``camera`` took it,
         undistorted onto the ideal pinhole's pixel grid, and compute what the final
-        reconstruction will need of it (:class:`ComputedOnArrival`): its distance image
-        and its part in the coarse carve that refines the box. The undistorted mask,
+        reconstruction will need of it (:class:`ComputedOnArrival`): its distance image,
+        its part in the coarse carve that refines the box and in the carves of the grid the
+        reconstruction is expected to choose (:class:`ExpectedCarves`). The undistorted mask,
         packed, where the lens distorts (else None)."""
         ideal, undistorted = ideal_camera(camera), undistort_mask(mask, camera)
         self._carver.add_view(ideal, undistorted)
         self._precomputed.distances.add(undistorted)
         self._precomputed.box.add(ideal, undistorted)
+        self._expected.add(ideal, undistorted)
         return np.packbits(undistorted, axis=None) if is_distorted(camera) else None
 
     def reopen(self) -> str:
@@ -547,7 +556,8 @@ class LiveReconstruction:
                        if v.packed_ideal is not None}
         return carve_scan(view_set, replace(params, colour=bool(images) and colour is not False),
                           masks=masks, images=images,
-                          precomputed=replace(self._precomputed, undistorted_masks=undistorted))
+                          precomputed=replace(self._precomputed, undistorted_masks=undistorted,
+                                              carves=self._expected.carves))
 
     def hand_over(self) -> HandOver:
         """What goes with this scan's carving: its name, session folder, views received and

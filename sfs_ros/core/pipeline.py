@@ -20,7 +20,10 @@ import numpy as np
 
 from .carved_scan import CarvedScan, ScanView
 from .carving.bounds import BoxCarve
+from .carving.carve import KeptCarve, same_grid
 from .carving.directions import check_directions
+from .carving.fusion import reference_misses
+from .carving.resolution import choose_voxel_size, default_memory_budget
 from .exchange.views import View, ViewSet, as_bounds
 from .geometry.grid import VoxelGrid
 from .geometry.lens import is_distorted, lens_problem
@@ -41,13 +44,14 @@ from .stages import (
     choose_colour_views,
     choose_grid,
     fuse_views,
+    fusion_grid,
     refine_hull,
     resegment_views,
     segment_views,
 )
 
-__all__ = ["CarvedScan", "ComputedOnArrival", "ReconstructionParams", "Reconstruction", "carve_scan",
-           "reconstruct"]
+__all__ = ["CarvedScan", "ComputedOnArrival", "ExpectedCarves", "ReconstructionParams",
+           "Reconstruction", "carve_scan", "reconstruct"]
 
 @dataclass(frozen=True)
 class ReconstructionParams:
@@ -149,11 +153,88 @@ class ComputedOnArrival:
     undistorted_masks : {view name: (H, W) bool} the given masks (``masks`` of
         :func:`carve_scan`) already undistorted onto their views' ideal pinholes, for the
         views whose lens distorts (the others' masks are their own undistortion).
+    carves : carves of the grids the reconstruction was expected to choose
+        (:class:`.carving.carve.KeptCarve`): the fusion's reference hull and the hull,
+        taken from one that holds them.
     """
 
     distances: DistanceImages | None = None
     box: BoxCarve | None = None
     undistorted_masks: dict = field(default_factory=dict)
+    carves: tuple = ()
+
+
+class ExpectedCarves:
+    """The carves :func:`carve_scan` is expected to make of a scan received view by view,
+    kept as its views arrive (:class:`.carving.carve.KeptCarve`), for
+    :attr:`ComputedOnArrival.carves`: the hull and the fusion's reference hull, on the
+    grid it is expected to choose for the input box ``bounds_m`` (2, 3), metres, at
+    ``resolution`` voxels along the longest side (the box refined by ``box``, the coarse
+    carve kept of the same views, as :func:`.stages.choose_grid` refines it). When a
+    view changes that grid (it shrinks the box), the carves start again on the new one
+    with every view so far: the box settles within the first views. Starting again
+    waits until the views have grown by a quarter since the last start
+    (:data:`RESTART_GROWTH`), so that a box that never settles costs a few carves per
+    view, not one per view so far. A reconstruction that chooses another grid, or
+    carves other masks, carves anew: the same result.
+
+    Memory: a byte per voxel of the grid and of the reference grid, and each view's
+    packed mask.
+    """
+
+    #: The carves start again on a new grid only once the views have grown by this
+    #: factor since they last started.
+    RESTART_GROWTH = 1.25
+
+    def __init__(self, bounds_m, resolution: int, max_misses: int, box: BoxCarve):
+        self._bounds = as_bounds(bounds_m, what="bounds_m")
+        self._resolution, self._max_misses, self._box = int(resolution), int(max_misses), box
+        self._views: list[tuple] = []   # (camera, packed mask, mask shape)
+        self._grid: VoxelGrid | None = None
+        self._started_with = 0   # views when the carves last started
+        self.carves: tuple = ()
+
+    def _expected_grid(self) -> tuple[np.ndarray, VoxelGrid] | None:
+        """The box (2, 3), metres, and grid :func:`.stages.choose_grid` chooses for the
+        views so far (the input box refined, at the resolution); None before three views
+        or when it refuses."""
+        cameras = [camera for camera, _, _ in self._views]
+        if len(cameras) < 3:
+            return None
+        bounds = self._box.refined(reference_misses(len(cameras)))
+        try:
+            choice = choose_voxel_size(bounds, cameras, resolution=self._resolution,
+                                       max_memory_bytes=default_memory_budget())
+        except ValueError:
+            return None
+        return bounds, VoxelGrid(bounds[0], bounds[1], choice.voxel_size_m)
+
+    def _mask(self, index: int) -> np.ndarray:
+        _, packed, shape = self._views[index]
+        return np.unpackbits(packed, count=shape[0] * shape[1]).reshape(shape).astype(bool)
+
+    def add(self, camera, mask: np.ndarray) -> None:
+        """Count one more view: its ideal pinhole ``camera`` and ``mask`` (H, W) bool on it."""
+        self._views.append((camera, np.packbits(mask, axis=None), mask.shape))
+        expected = self._expected_grid()
+        if expected is None:
+            self._grid, self.carves = None, ()
+            return
+        bounds, grid = expected
+        if self._grid is not None and same_grid(grid, self._grid):
+            for store in self.carves:
+                store.add(camera, mask)
+            return
+        self._grid, self.carves = None, ()
+        if len(self._views) < self.RESTART_GROWTH * self._started_with:
+            return
+        self._grid, self._started_with = grid, len(self._views)
+        self.carves = (KeptCarve(grid, most_misses=self._max_misses),
+                       KeptCarve(fusion_grid(bounds, grid), most_misses=BoxCarve.MOST_MISSES))
+        for index, (view_camera, _, _) in enumerate(self._views):
+            view_mask = mask if index == len(self._views) - 1 else self._mask(index)
+            for store in self.carves:
+                store.add(view_camera, view_mask)
 
 
 def _check_holdout(view_set: ViewSet, holdout: tuple) -> None:
@@ -278,7 +359,7 @@ def carve_scan(view_set: ViewSet, params: ReconstructionParams = ReconstructionP
     with timed(timings, "fusion"):
         if params.check_consistency and len(used.cameras) >= 3:
             fused = fuse_views(segmented.views, used, chosen, params.consistency_max_missing,
-                               progress, exact=segmented.exact)
+                               progress, exact=segmented.exact, kept=precomputed.carves)
     used, rejected = fused.used, segmented.rejected + fused.dropped
     _check_left(segmented, used, rejected, chosen.bounds, params.max_misses)
 
@@ -290,7 +371,8 @@ def carve_scan(view_set: ViewSet, params: ReconstructionParams = ReconstructionP
             bounds_m=(grid.bounds_min, grid.bounds_max), known=precomputed.distances,
             coverage=[segmented.coverage.get(name) for name in used.names(segmented.views)])
         with timed(timings, "carving"):
-            occupancy, specks_removed = carve_hull(grid, used, params.max_misses, progress)
+            occupancy, specks_removed = carve_hull(grid, used, params.max_misses, progress,
+                                                   kept=precomputed.carves)
         hull = Hull(occupancy, distance.result(), specks_removed)
     if params.refine:
         with timed(timings, "refinement"):

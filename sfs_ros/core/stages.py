@@ -17,7 +17,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .carving.bounds import BoxCarve, estimate_bounds, refine_bounds
-from .carving.carve import PreparedMasks, carve
+from .carving.carve import KeptCarve, PreparedMasks, kept_or_carved
 from .carving.consistency import bbox_clips_object
 from .carving.fusion import fuse_silhouettes, reference_misses
 from .carving.hull import drop_specks
@@ -34,8 +34,8 @@ from .segmentation.segment import SegmentationParams, segment
 from .workers import map_in_threads
 
 __all__ = ["ColourViews", "Fused", "GridChoice", "Hull", "Resegmented", "Segmented",
-           "UsedViews", "carve_hull", "check_max_misses", "choose_colour_views", "choose_grid", "fuse_views",
-           "refine_hull", "resegment_views", "segment_views"]
+           "UsedViews", "carve_hull", "check_max_misses", "choose_colour_views", "choose_grid",
+           "fuse_views", "fusion_grid", "refine_hull", "resegment_views", "segment_views"]
 
 #: Progress callback: (stage name, fraction of the stage done in [0, 1]).
 Progress = Callable[[str, float], None]
@@ -322,20 +322,26 @@ class Fused:
     dropped: list[dict]
 
 
+def fusion_grid(bounds: np.ndarray, grid: VoxelGrid) -> VoxelGrid:
+    """The grid of the fusion's reference hull over the box ``bounds`` (2, 3), metres,
+    whose carving grid is ``grid``: the hull needs the shape, not the finest detail, so
+    voxels twice the carving grid's from 128 voxels on a side (the fill follows its
+    projection, a footprint wider only where a view is overruled)."""
+    return (VoxelGrid(bounds[0], bounds[1], 2 * grid.voxel_size)
+            if max(grid.shape) >= 128 else grid)
+
+
 def fuse_views(views: list[View], used: UsedViews, box: GridChoice, max_missing: float,
-               progress: Progress, exact: frozenset = frozenset()) -> Fused:
+               progress: Progress, exact: frozenset = frozenset(),
+               kept: tuple[KeptCarve, ...] = ()) -> Fused:
     """The used views' silhouettes fused (:func:`.carving.fusion.fuse_silhouettes`): one
     view's mask overruled where the others agree it is wrong (never one named in
-    ``exact``, an alpha channel), a view that disagrees as a whole dropped."""
+    ``exact``, an alpha channel), a view that disagrees as a whole dropped. ``kept``:
+    carves kept as the views arrived (the reference hull from one that holds it)."""
     progress("fusion", 0.0)
-    grid = box.grid
-    # The reference hull needs the shape, not the finest detail: voxels twice the
-    # carving grid's (the fill follows its projection, a footprint wider only where a
-    # view is overruled).
-    reference = (VoxelGrid(box.bounds[0], box.bounds[1], 2 * grid.voxel_size)
-                 if max(grid.shape) >= 128 else grid)
-    fusion = fuse_silhouettes(reference, used.cameras, used.prepared, max_missing=max_missing,
-                              exact=[views[i].name in exact for i in used.indices])
+    fusion = fuse_silhouettes(fusion_grid(box.bounds, box.grid), used.cameras, used.prepared,
+                              max_missing=max_missing,
+                              exact=[views[i].name in exact for i in used.indices], kept=kept)
     consistency, dropped = [], []
     for verdict in fusion.verdicts:
         name = views[used.indices[verdict.index]].name
@@ -372,11 +378,12 @@ class Hull:
     refinement: dict | None = None
 
 
-def carve_hull(grid: VoxelGrid, used: UsedViews, max_misses: int,
-               progress: Progress) -> tuple[np.ndarray, int]:
-    """The visual hull (nx, ny, nz) bool without its specks, and how many specks went."""
+def carve_hull(grid: VoxelGrid, used: UsedViews, max_misses: int, progress: Progress,
+               kept: tuple[KeptCarve, ...] = ()) -> tuple[np.ndarray, int]:
+    """The visual hull (nx, ny, nz) bool without its specks, and how many specks went;
+    from one of the carves ``kept`` as the views arrived that holds it, if any."""
     progress("carving", 0.0)
-    occupancy = carve(grid, used.cameras, used.prepared, max_misses=max_misses)
+    occupancy = kept_or_carved(kept, grid, used.cameras, used.prepared, max_misses)
     progress("carving", 1.0)
     occupancy, specks_removed = drop_specks(occupancy)
     if not occupancy.any():

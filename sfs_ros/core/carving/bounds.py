@@ -26,7 +26,7 @@ import numpy as np
 
 from ..geometry.camera import Camera
 from ..geometry.grid import VoxelGrid
-from .carve import Carver, PreparedMasks, carve
+from .carve import Carver, PreparedMasks, carve, same_grid, view_key
 from .hull import drop_specks, occupied_bounds
 
 __all__ = ["BoxCarve", "axes_meeting_point", "box_in_frame", "estimate_bounds",
@@ -212,8 +212,8 @@ class BoxCarve:
     MOST_UNFRAMED = 254
 
     def __init__(self, bounds_m, *, resolution: int = REFINE_RESOLUTION):
-        bounds = np.asarray(bounds_m, dtype=np.float64)
-        self.grid = VoxelGrid.cube(bounds[0], bounds[1], resolution)
+        self._bounds = np.asarray(bounds_m, dtype=np.float64)
+        self.grid = VoxelGrid.cube(self._bounds[0], self._bounds[1], resolution)
         self._misses = Carver(self.grid, max_misses=self.MOST_MISSES)
         self._reach = Carver(self.grid, max_misses=self.MOST_MISSES)
         self._unframed = Carver(self.grid, max_misses=self.MOST_UNFRAMED,
@@ -225,7 +225,7 @@ class BoxCarve:
         self._misses.add_view(camera, mask)
         self._reach.add_view(camera, footprint_masks([camera], [mask], self.grid)[0])
         self._unframed.add_view(camera, np.ones((camera.height, camera.width), bool))
-        self._views[_view_key(camera, mask)] += 1
+        self._views[view_key(camera, mask)] += 1
 
     def carved(self, grid: VoxelGrid, cameras: list[Camera], masks, max_misses: int,
                framed_by: int) -> tuple[np.ndarray, np.ndarray] | None:
@@ -235,31 +235,29 @@ class BoxCarve:
         store counted exactly these views (``masks`` as :func:`.carve.carve` takes them)
         on this grid; else None."""
         unframed = len(cameras) - framed_by
-        if not _same_grid(grid, self.grid) or not 0 <= max_misses <= self.MOST_MISSES \
+        if not same_grid(grid, self.grid) or not 0 <= max_misses <= self.MOST_MISSES \
                 or not 0 <= unframed <= self.MOST_UNFRAMED:
             return None
         if isinstance(masks, PreparedMasks):
             masks = masks.masks
         if len(cameras) != sum(self._views.values()) or self._views != Counter(
-                _view_key(c, m) for c, m in zip(cameras, masks, strict=True)):
+                view_key(c, m) for c, m in zip(cameras, masks, strict=True)):
             return None
         framed = self._unframed.tolerating(unframed)
         return (self._misses.tolerating(max_misses) & framed,
                 self._reach.tolerating(0) & framed)
 
-
-def _same_grid(a: VoxelGrid, b: VoxelGrid) -> bool:
-    """Whether two grids have the same voxels."""
-    return a.shape == b.shape and a.voxel_size == b.voxel_size \
-        and bool(np.array_equal(a.bounds_min, b.bounds_min))
-
-
-def _view_key(camera: Camera, mask) -> tuple:
-    """What decides a view's carve: its camera's numbers and its mask's bits."""
-    distortion = None if camera.distortion is None else np.asarray(camera.distortion).tobytes()
-    return (camera.K.tobytes(), camera.R.tobytes(), camera.t.tobytes(), camera.width,
-            camera.height, bool(camera.orthographic), distortion,
-            np.packbits(np.asarray(mask, dtype=bool), axis=None).tobytes())
+    def refined(self, max_misses: int) -> np.ndarray:
+        """(2, 3) box, metres: what :func:`refine_bounds` gives for this store's box and
+        resolution, the views counted and ``max_misses`` (at most :attr:`MOST_MISSES`),
+        without their masks (up to ``2 * MOST_UNFRAMED + 1`` views: past that, the voxels
+        framed by all but ``MOST_UNFRAMED`` of them: a box no larger)."""
+        if not 0 <= max_misses <= self.MOST_MISSES:
+            raise ValueError(f"max_misses must lie in [0, {self.MOST_MISSES}], got {max_misses}")
+        n = sum(self._views.values())
+        framed = self._unframed.tolerating(min(n // 2, self.MOST_UNFRAMED))
+        return _box_of_carves((self._misses.tolerating(max_misses) & framed,
+                               self._reach.tolerating(0) & framed), self.grid, self._bounds, 2.0)
 
 
 def refine_bounds(cameras: list[Camera], masks: list[np.ndarray], bounds_m, *,
@@ -288,6 +286,12 @@ def refine_bounds(cameras: list[Camera], masks: list[np.ndarray], bounds_m, *,
         framed = seen_by(grid, cameras, framed_by)
         carved = [carve(grid, cameras, masks, max_misses=max_misses) & framed,
                   carve(grid, cameras, footprint_masks(cameras, masks, grid)) & framed]
+    return _box_of_carves(carved, grid, bounds, margin_voxels)
+
+
+def _box_of_carves(carved, grid: VoxelGrid, bounds: np.ndarray,
+                   margin_voxels: float) -> np.ndarray:
+    """:func:`refine_bounds`'s box from its two carves of ``grid`` over ``bounds``."""
     pad = (0.5 + margin_voxels) * grid.voxel_size
     boxes = []
     for occupancy in carved:

@@ -24,6 +24,7 @@ Two exact algorithms compute that same test (see :mod:`.carve_kernels`):
 
 from __future__ import annotations
 
+from collections import Counter
 from typing import Sequence
 
 import numba
@@ -33,8 +34,8 @@ from ..geometry.camera import Camera
 from ..geometry.grid import VoxelGrid
 from . import carve_kernels as _k
 
-__all__ = ["OUTSIDE_IMAGE", "PreparedMasks", "carve", "Carver", "validate_masks",
-           "view_coefficients"]
+__all__ = ["OUTSIDE_IMAGE", "PreparedMasks", "carve", "Carver", "KeptCarve", "kept_or_carved",
+           "same_grid", "validate_masks", "view_coefficients", "view_key"]
 
 OUTSIDE_IMAGE = ("keep", "carve")
 
@@ -317,6 +318,12 @@ class Carver:
         """(nx, ny, nz) bool: the voxels that stay after the views added so far."""
         return self._misses <= self.max_misses
 
+    @property
+    def counts(self) -> np.ndarray:
+        """(nx, ny, nz) uint8 (uint16 past 254 misses): per voxel, the views added so far
+        that miss it, up to ``max_misses + 1`` (more are counted as that)."""
+        return self._misses
+
     def tolerating(self, max_misses: int) -> np.ndarray:
         """(nx, ny, nz) bool: the voxels that at most ``max_misses`` (<= the carver's) of
         the views added so far miss, as :func:`carve` with that ``max_misses`` gives them
@@ -347,3 +354,101 @@ class Carver:
                                     int(heights[0]), keep, self.max_misses + 1, _TOP_BLOCK,
                                     _LEAF_BLOCK, self._alive, self._misses)
         self._n_views += 1
+
+
+def same_grid(a: VoxelGrid, b: VoxelGrid) -> bool:
+    """Whether two grids have the same voxels."""
+    return a.shape == b.shape and a.voxel_size == b.voxel_size \
+        and bool(np.array_equal(a.bounds_min, b.bounds_min))
+
+
+def view_key(camera: Camera, mask) -> tuple:
+    """What decides a view's carve: its camera's numbers and its mask's bits."""
+    distortion = None if camera.distortion is None else np.asarray(camera.distortion).tobytes()
+    return (camera.K.tobytes(), camera.R.tobytes(), camera.t.tobytes(), camera.width,
+            camera.height, bool(camera.orthographic), distortion,
+            np.packbits(np.asarray(mask, dtype=bool), axis=None).tobytes())
+
+
+class KeptCarve:
+    """A carve of one grid kept up to date as views arrive, for a later :func:`carve`.
+
+    Counts, per voxel, the views whose silhouette misses it (:class:`Carver`), a view
+    at a time while the rig moves; :meth:`carved` then gives what :func:`carve` gives
+    for the same grid and the same views (cameras and masks, in any order), instead of
+    carving: the same voxels either way. Up to :attr:`MOST_REPLACED` views may come with
+    other masks than they were counted with (the fusion repairs a mask or two): their
+    counts are taken back and the new masks counted. For another grid, other views or
+    more replaced masks it gives None, and the caller carves.
+
+    Parameters
+    ----------
+    grid : VoxelGrid
+    most_misses : int, keyword-only
+        The most misses a later carve may tolerate.
+
+    Memory: a byte per voxel and a key per view (its camera and its packed mask).
+    """
+
+    #: Views whose mask may differ from the one counted.
+    MOST_REPLACED = 8
+
+    def __init__(self, grid: VoxelGrid, *, most_misses: int = 0):
+        self.grid = grid
+        self.most_misses = int(most_misses)
+        # Counts exact up to most_misses + MOST_REPLACED + 1: a voxel counted past that
+        # stays carved at every tolerance with any MOST_REPLACED views taken back.
+        self._misses = Carver(grid, max_misses=self.most_misses + self.MOST_REPLACED)
+        self._views: Counter = Counter()
+
+    def add(self, camera: Camera, mask) -> None:
+        """Count one more view: ``mask`` (camera.height, camera.width) bool."""
+        self._misses.add_view(camera, mask)
+        self._views[view_key(camera, mask)] += 1
+
+    def carved(self, grid: VoxelGrid, cameras: Sequence[Camera], masks,
+               max_misses: int) -> np.ndarray | None:
+        """(nx, ny, nz) bool, ``carve(grid, cameras, masks, max_misses=max_misses)``, if
+        this store counted these views (``masks`` as :func:`carve` takes them) on this
+        grid, all but at most :attr:`MOST_REPLACED` of them with these masks; else None."""
+        if not same_grid(grid, self.grid) or not 0 <= max_misses <= self.most_misses:
+            return None
+        if isinstance(masks, PreparedMasks):
+            masks = masks.masks
+        cameras = list(cameras)
+        keys = [view_key(c, m) for c, m in zip(cameras, masks, strict=True)]
+        given = Counter(keys)
+        counted_only, given_only = self._views - given, given - self._views
+        replaced = sum(given_only.values())
+        if len(cameras) != sum(self._views.values()) or replaced > self.MOST_REPLACED:
+            return None
+        if not replaced:
+            return self._misses.tolerating(max_misses)
+        camera_of = {key[:-1]: camera for camera, key in zip(cameras, keys)}
+        misses = self._misses.counts.astype(np.int16)
+        for key in counted_only.elements():
+            camera = camera_of.get(key[:-1])
+            if camera is None:
+                return None   # a view counted whose camera is not among these
+            misses -= ~carve(grid, [camera], [_unpacked(key[-1], camera)])
+        for key in given_only.elements():
+            index = keys.index(key)
+            misses += ~carve(grid, [cameras[index]], [masks[index]])
+        return misses <= max_misses
+
+
+def _unpacked(packed: bytes, camera: Camera) -> np.ndarray:
+    """(H, W) bool of a mask packed by ``np.packbits``, the camera's size."""
+    bits = np.unpackbits(np.frombuffer(packed, np.uint8), count=camera.height * camera.width)
+    return bits.reshape(camera.height, camera.width).astype(bool)
+
+
+def kept_or_carved(kept: Sequence[KeptCarve], grid: VoxelGrid, cameras: Sequence[Camera],
+                   masks, max_misses: int = 0) -> np.ndarray:
+    """``carve(grid, cameras, masks, max_misses=max_misses)``: from the first of the
+    ``kept`` carves that holds it (:meth:`KeptCarve.carved`), else carved now."""
+    for store in kept:
+        found = store.carved(grid, cameras, masks, max_misses)
+        if found is not None:
+            return found
+    return carve(grid, cameras, masks, max_misses=max_misses)

@@ -51,7 +51,7 @@ from ..geometry.grid import VoxelGrid
 from ..metrics import silhouette_iou
 from ..workers import map_in_threads
 from .bounds import seen_by
-from .carve import PreparedMasks, carve
+from .carve import KeptCarve, PreparedMasks, kept_or_carved
 from .consistency import hull_silhouettes
 
 __all__ = ["ViewVerdict", "Fusion", "reference_misses", "neighbour_angle_rad",
@@ -284,7 +284,8 @@ class _Judge:
 
 
 def fuse_silhouettes(grid: VoxelGrid, cameras: Sequence[Camera], masks, *,
-                     max_missing: float = 0.35, exact: Sequence[bool] | None = None) -> Fusion:
+                     max_missing: float = 0.35, exact: Sequence[bool] | None = None,
+                     kept: Sequence[KeptCarve] = ()) -> Fusion:
     """Decide per view and pixel where a view's mask is outvoted by the others.
 
     Parameters
@@ -301,6 +302,9 @@ def fuse_silhouettes(grid: VoxelGrid, cameras: Sequence[Camera], masks, *,
     exact : sequence of n bool, optional
         Views whose mask is exact (an alpha channel): never overruled (still
         dropped when they disagree as a whole). Default: none.
+    kept : sequence of KeptCarve, optional
+        Carves kept as the views arrived: the reference hull is taken from one that
+        holds it (:func:`.carve.kept_or_carved`), the same hull.
 
     Returns
     -------
@@ -326,7 +330,7 @@ def fuse_silhouettes(grid: VoxelGrid, cameras: Sequence[Camera], masks, *,
         raise ValueError(f"exact must give one flag per view ({n}), got {len(exact)}")
     k = reference_misses(n)
     angle = neighbour_angle_rad(cameras)
-    hull = carve(grid, cameras, prepared, max_misses=k)
+    hull = kept_or_carved(kept, grid, cameras, prepared, k)
     # A voxel inside the image of at most k views is never carved by the
     # tolerant hull, whatever the masks say: it is no evidence, leave it out.
     hull &= seen_by(grid, cameras, k + 1)
