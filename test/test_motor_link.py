@@ -3,6 +3,8 @@ on a real pseudo-terminal: the alarm lock, moves and homing, stops, a lost port,
 diagnostics report."""
 
 import math
+import threading
+import time
 
 import pytest
 
@@ -118,3 +120,31 @@ def test_a_node_not_active_is_a_warning_naming_its_state(link):
         "", "the motor node is inactive: activate it (lifecycle change_state)", "")
     link.close()
     assert link.health("unconfigured")[1].endswith("(lifecycle change_state) (port closed)")
+
+
+
+def test_two_faults_at_once_are_each_reported_with_their_own_text(tmp_path):
+    """Two commands refused at once (two callback threads): the diagnostics published for
+    each must carry that fault, not the other's. The first report's diagnostics wait until
+    the second report has begun, which is when a fault written unguarded would be
+    overwritten before it is published."""
+    first_publishing, second_begun = threading.Event(), threading.Event()
+    published: list[str] = []
+
+    def changed() -> None:
+        if not first_publishing.is_set():
+            first_publishing.set()
+            second_begun.wait(timeout=HANG_S)
+            time.sleep(0.05)                 # the second report's chance to overwrite
+        published.append(link.fault)
+
+    link = MotorLink(str(tmp_path / "no_such_port"), 115200, RECONNECT_S,
+                     log=lambda level, text: None, changed=changed)
+    first = threading.Thread(target=link.report_fault, args=("first fault",))
+    first.start()
+    assert first_publishing.wait(timeout=HANG_S)
+    second_begun.set()
+    link.report_fault("second fault")
+    first.join(timeout=HANG_S)
+    assert published == ["first fault", "second fault"]
+    assert link.faults == 2

@@ -49,6 +49,7 @@ class MotorLink:
         self._log = log
         self._changed = changed
         self._client_lock = threading.Lock()
+        self._fault_lock = threading.RLock()  # a fault reported with its own text
         self.client: GrblClient | None = None
         self.connection_error = ""
         self.fault = ""                    # the last fault, "" after a good move / homing
@@ -242,10 +243,13 @@ class MotorLink:
     # -- what the diagnostics report ---------------------------------------------------------
 
     def report_fault(self, text: str) -> None:
-        self.fault = text
-        self.faults += 1
-        self._log("error", text)
-        self._changed()
+        """Log ``text`` as an ERROR and report it in the diagnostics, each fault published
+        with its own text even when two are reported at once (from two threads)."""
+        with self._fault_lock:
+            self.fault = text
+            self.faults += 1
+            self._log("error", text)
+            self._changed()
 
     def health(self, lifecycle: str) -> tuple[str, str, str]:
         """``(problem, warning, ok)`` of the diagnostics in the node's ``lifecycle`` state: a
