@@ -150,6 +150,16 @@ def wait_views_in_bag(probe: RosProbe, folder, n: int) -> None:
         logging.getLogger("sfs_ros.cell_logic.bag").setLevel(logging.NOTSET)
 
 
+def _values_of(diagnostics: list, path) -> dict:
+    """The values of the last recorder status received that reports the bag at ``path``."""
+    for array in reversed(diagnostics):
+        for status in array.status:
+            values = {kv.key: kv.value for kv in status.values}
+            if values.get("path") == str(path):
+                return values
+    return {}
+
+
 def _stamps(view_set) -> list[tuple[int, int]]:
     return [tuple(int(x) for x in v.name.removesuffix(".png").split("_")[-2:])
             for v in view_set.views]
@@ -186,20 +196,26 @@ def test_a_stop_while_a_node_does_not_answer_for_the_parameters_closes_the_bag_a
     deadline_s = 300.0
     recorder = recorder_factory(parameter_nodes=["carving", "no_such_node"],
                                 parameter_timeout_s=deadline_s)
+    diagnostics: list = []
+    probe.node.create_subscription(DiagnosticArray, DIAGNOSTICS, diagnostics.append, 10)
     path = recorder.start()
     publish(probe, views)
 
-    def masks_written() -> int:
+    def views_written() -> int:
         try:
-            return open_bag(path).counts.get(MASKS, 0)
+            counts = open_bag(path).counts
         except ViewError:                                     # created, nothing flushed yet
             return 0
+        return min(counts.get(MASKS, 0), counts.get(JOINTS, 0))
     logging.getLogger("sfs_ros.cell_logic.bag").setLevel(logging.ERROR)   # "not closed", known
     try:
-        probe.spin_until(lambda: masks_written() >= len(views), timeout=DELIVERY_S,
-                         what="the views in the bag")
+        probe.spin_until(lambda: views_written() >= len(views), timeout=DELIVERY_S,
+                         what="the views (masks and joint states) in the bag")
     finally:
         logging.getLogger("sfs_ros.cell_logic.bag").setLevel(logging.NOTSET)
+    probe.spin_until(lambda: "carving" in _values_of(diagnostics, path).get("parameters_from", ""),
+                     timeout=DELIVERY_S, what="the carving node's parameters at the recorder",
+                     process=recorder.process)
     recorder.process.process.send_signal(signal.SIGINT)
     assert recorder.process.wait_exit(timeout=deadline_s / 2) == 0
     output = recorder.process.output()

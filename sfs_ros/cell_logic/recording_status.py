@@ -9,13 +9,14 @@ __all__ = ["RecordingStatus"]
 
 class RecordingStatus:
     """The bag being recorded (``recording``, ``path``, ``storage``, ``messages``,
-    ``bytes``, ``write_s``: seconds spent writing it), ``bags`` closed since start-up, the
-    problem and the warning (until the next bag opens)."""
+    ``bytes``, ``write_s``: seconds spent writing it, ``parameters_from``: the nodes whose
+    parameters came for it, comma-separated), ``bags`` closed since start-up, the problem
+    and the warning (until the next bag opens)."""
 
     def __init__(self, storage: str):
         self._lock = threading.Lock()
         self._values = {"recording": False, "path": "", "storage": storage, "messages": 0,
-                        "bytes": 0, "write_s": 0.0, "bags": 0}
+                        "bytes": 0, "write_s": 0.0, "parameters_from": "", "bags": 0}
         self._problem = self._warning = ""
 
     @property
@@ -27,7 +28,7 @@ class RecordingStatus:
         """A bag opened at ``path``: nothing written yet, no problem."""
         with self._lock:
             self._values.update(recording=True, path=str(path), messages=0, bytes=0,
-                                write_s=0.0)
+                                write_s=0.0, parameters_from="")
             self._problem = self._warning = ""
 
     def wrote(self, messages: int, nbytes: int, seconds: float) -> None:
@@ -35,6 +36,12 @@ class RecordingStatus:
         with self._lock:
             self._values.update(messages=messages, bytes=nbytes,
                                 write_s=self._values["write_s"] + seconds)
+
+    def parameters_came(self, node: str) -> None:
+        """The parameters of ``node`` came for the bag being recorded."""
+        with self._lock:
+            came = self._values["parameters_from"]
+            self._values["parameters_from"] = f"{came},{node}" if came else node
 
     def closed(self) -> float:
         """The bag was closed; the seconds spent writing it."""

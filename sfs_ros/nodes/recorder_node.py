@@ -219,8 +219,8 @@ class RecorderNode(Node):
         self._bag, self._bag_scan, self._started = bag, scan, time.monotonic()
         self._bag_scan_written = None
         self._fetched = Future()
-        threading.Thread(target=self._fetch, args=(self._fetched,), daemon=True).start()
         self._status.opened(bag.path)
+        threading.Thread(target=self._fetch, args=(self._fetched,), daemon=True).start()
         self.get_logger().info(f"recording to {bag.path}")
         self._publish_diagnostics()
         return True, json.dumps({"path": str(bag.path), "storage": bag.storage})
@@ -289,7 +289,8 @@ class RecorderNode(Node):
     def _fetch(self, result: Future) -> None:
         document, unavailable = fetch_parameters(self, self._parameter_clients,
                                                  self._p["parameter_timeout_s"],
-                                                 stopping=self._stopping)
+                                                 stopping=self._stopping,
+                                                 on_answer=self._status.parameters_came)
         if unavailable:
             self._report_warning("parameters not stored: " + "; ".join(
                 f"{n}: {why}" for n, why in unavailable.items()))

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import asdict
 
 import numpy as np
@@ -41,18 +42,21 @@ def session_parameters(nodes: dict) -> tuple[dict, dict]:
 
 
 def fetch_parameters(node: Node, clients: dict[str, AsyncParameterClient],
-                     timeout_s: float, *, stopping: threading.Event | None = None
-                     ) -> tuple[dict, dict]:
+                     timeout_s: float, *, stopping: threading.Event | None = None,
+                     on_answer: Callable[[str], None] | None = None) -> tuple[dict, dict]:
     """``(document, unavailable)``: the parameters of the nodes of ``clients`` (by name)
     fetched within ``timeout_s`` together, in ``node``'s namespace, and why each node
     (or the session sections) is missing. Once ``stopping`` is set (the caller stops), the
-    nodes not answered yet are given up at once."""
+    nodes not answered yet are given up at once. ``on_answer(name)`` is called as each
+    node's parameters come."""
     deadline = time.monotonic() + timeout_s
     stopping = stopping or threading.Event()
     nodes, unavailable = {}, {}
     for name, client in clients.items():
         try:
             nodes[name] = _parameters_of(node, client, deadline, timeout_s, stopping)
+            if on_answer is not None:
+                on_answer(name)
         except ServiceError as exc:
             unavailable[name] = str(exc)
         except Exception as exc:  # noqa: BLE001 -- e.g. rclpy shut down meanwhile
