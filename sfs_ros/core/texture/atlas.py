@@ -459,7 +459,7 @@ def _block_of(origin: np.ndarray, padding: int, n_cells: int, columns: int) -> t
 def _layout_corners(unit: _UnitCharts, charts: _Charts, kept: np.ndarray, density: np.ndarray,
                     low: np.ndarray, origin: np.ndarray, padding: int, m: int) -> np.ndarray:
     """(m, 3, 2) the corners in the atlas of the faces of the ``kept`` (n,) charts at their
-    ``density`` (k, 1) texels per unit, moved to their ``origin``; the faces in cells' left
+    ``density`` (k, 1) texels per unit, moved to their ``origin``; those of the faces in cells left
     unset (:func:`_corners_in_cells`, once the layout is kept)."""
     faces, group = charts.charted, charts.group
     if not kept.all():
