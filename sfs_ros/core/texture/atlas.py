@@ -220,8 +220,11 @@ def _shelves(sizes: np.ndarray, width: int) -> tuple[np.ndarray, int]:
     """Shelf packing of rectangles ``sizes`` (k, 2) (width, height), tallest first, into a
     strip ``width`` wide: (k, 2) their top-left corners and the strip's height."""
     origin = np.zeros((len(sizes), 2))
-    height = _shelve(np.ascontiguousarray(sizes, np.float64),
-                     np.argsort(-sizes[:, 1], kind="stable"), float(width), origin)
+    # The heights are whole texels: as 16-bit keys where they fit, a stable radix sort.
+    key = -sizes[:, 1]
+    key = key.astype(np.int16) if len(sizes) and sizes[:, 1].max() < 2 ** 15 else key
+    height = _shelve(np.ascontiguousarray(sizes, np.float64), np.argsort(key, kind="stable"),
+                     float(width), origin)
     return origin, int(math.ceil(height))
 
 
@@ -255,23 +258,23 @@ def _members(ids: np.ndarray, chosen: np.ndarray) -> np.ndarray:
     return table[ids]
 
 
-def _chart_bounds(corners: np.ndarray, chart: np.ndarray) -> tuple:
-    """Each face's group (k,) int64 (its chart's rank among the charts of ``chart`` (k,)
-    int >= 0) and each group's least and greatest corner coordinates, (n, 2) each, of
-    faces with ``corners`` (k, 3, 2)."""
+def _chart_bounds(corners: np.ndarray, faces: np.ndarray, chart: np.ndarray) -> tuple:
+    """Each of ``faces``' (k,) group (k,) int64 (its chart's rank among the charts of
+    ``chart`` (k,) int >= 0, theirs) and each group's least and greatest corner
+    coordinates, (n, 2) each, of the faces' ``corners`` (of all faces, (m, 3, 2))."""
     group = _dense(chart)
     n = int(group.max()) + 1 if len(group) else 0
     low, high = np.full((n, 2), np.inf), np.full((n, 2), -np.inf)
-    _reduce_bounds(np.ascontiguousarray(corners, np.float64), group, low, high)
+    _reduce_bounds(np.ascontiguousarray(corners, np.float64), faces, group, low, high)
     return group, low, high
 
 
 @njit(cache=True, nogil=True)
-def _reduce_bounds(corners, group, low, high):
+def _reduce_bounds(corners, faces, group, low, high):
     """:func:`_chart_bounds`' loop: the least and greatest corner of each group into
     ``low`` and ``high`` (n, 2), which start at +inf and -inf."""
-    for f in range(corners.shape[0]):
-        g = group[f]
+    for i in range(faces.shape[0]):
+        f, g = faces[i], group[i]
         for k in range(3):
             for d in range(2):
                 x = corners[f, k, d]
@@ -388,7 +391,7 @@ class _Charts:
            cells: np.ndarray) -> _Charts:
         """The charts ``chart`` (m,) of the faces not in ``cells`` (m,) bool."""
         charted = np.flatnonzero(~cells)
-        group, low, high = _chart_bounds(unit.corners[charted], chart[charted])
+        group, low, high = _chart_bounds(unit.corners, charted, chart[charted])
         member = np.zeros(len(low), np.int64)
         member[group] = charted
         faces_in = np.bincount(chart, minlength=int(chart.max()) + 1)[chart[member]]
@@ -409,8 +412,11 @@ def _layout(unit: _UnitCharts, labels, chart, celled, scale: float, padding: int
         kept = charts.faces_in >= fewest
         if not (kept & charts.seen).any():        # planes take their density from views
             kept &= charts.seen
-        in_cells = np.ones(len(labels), bool)
-        in_cells[charts.charted[kept[charts.group]]] = False
+        if kept.all():
+            in_cells = cells.copy()
+        else:
+            in_cells = np.ones(len(labels), bool)
+            in_cells[charts.charted[kept[charts.group]]] = False
         seen_faces = np.flatnonzero(~in_cells & (labels >= 0))
         n_cells = int(in_cells.sum())
         cell = CELL_TEXELS if CELL_TEXELS ** 2 * n_cells <= 0.5 * max_size ** 2 else 1
@@ -428,7 +434,7 @@ def _layout(unit: _UnitCharts, labels, chart, celled, scale: float, padding: int
             shape = (4 * math.ceil(height / 4), width)
             if max(shape) <= max_size:
                 return (_layout_corners(unit, charts, kept, density, low, origin, padding,
-                                        in_cells, cell, columns),
+                                        len(labels)),
                         shape, scale, in_cells, _block_of(origin, padding, n_cells, columns),
                         cell)
             if scale <= MIN_SCALE * asked:
@@ -451,21 +457,28 @@ def _block_of(origin: np.ndarray, padding: int, n_cells: int, columns: int) -> t
 
 
 def _layout_corners(unit: _UnitCharts, charts: _Charts, kept: np.ndarray, density: np.ndarray,
-                    low: np.ndarray, origin: np.ndarray, padding: int, in_cells: np.ndarray,
-                    cell: int, columns: int) -> np.ndarray:
-    """(m, 3, 2) every face's corners in the atlas: of the ``kept`` (n,) charts at their
-    ``density`` (k, 1) texels per unit, moved to their ``origin``; of the faces
-    ``in_cells`` (m,), in the cells' block packed last (:func:`cell_corners`)."""
-    rank = np.cumsum(kept) - 1
-    mine = kept[charts.group]
-    faces, group = charts.charted[mine], rank[charts.group[mine]]
-    out = np.empty((len(in_cells), 3, 2))
+                    low: np.ndarray, origin: np.ndarray, padding: int, m: int) -> np.ndarray:
+    """(m, 3, 2) the corners in the atlas of the faces of the ``kept`` (n,) charts at their
+    ``density`` (k, 1) texels per unit, moved to their ``origin``; those of the faces in cells left
+    unset (:func:`_corners_in_cells`, once the layout is kept)."""
+    faces, group = charts.charted, charts.group
+    if not kept.all():
+        mine = kept[group]
+        faces, group = faces[mine], (np.cumsum(kept) - 1)[group[mine]]
+    out = np.empty((m, 3, 2))
     _place(unit.corners, faces, group, np.ascontiguousarray(density[:, 0]), low, origin,
            float(padding), out)
-    n_cells = int(in_cells.sum())
-    if n_cells:
-        out[in_cells] = cell_corners(n_cells, cell, columns) + (origin[-1] + padding)
     return out
+
+
+def _corners_in_cells(corners: np.ndarray, cells: np.ndarray, block: tuple | None,
+                      cell: int) -> None:
+    """Set the ``corners`` (m, 3, 2) of the faces in ``cells`` (m,) bool, in their block
+    (``block`` and ``cell`` from :func:`_layout`; :func:`cell_corners`)."""
+    if block is not None:
+        row, column, _, columns = block
+        corners[cells] = cell_corners(int(cells.sum()), cell, columns) + np.array(
+            [column, row], np.float64)
 
 
 def build_atlas(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray,
@@ -497,6 +510,7 @@ def build_atlas(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray,
         face_id, bary, again, overlapping_charted = rasterize_atlas(corners[charted], shape)
         if not again:
             face_id = np.where(face_id >= 0, np.append(charted, -1)[face_id], -1)
+            _corners_in_cells(corners, cells, block, cell)
             if block is not None:
                 _fill_cells(face_id, bary, cells, block, cell)
             # A face in a cell has corners of its own.
