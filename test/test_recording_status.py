@@ -37,7 +37,11 @@ def test_the_status_follows_a_bag_from_open_to_close():
     status.report(problem="an earlier bag failed", warning="late parameters")
     status.opened("/out/bags/b")
     assert status.snapshot() == ({"recording": True, "path": "/out/bags/b", "storage": "mcap",
-                                  "messages": 0, "bytes": 0, "write_s": 0.0, "bags": 0}, "", "")
+                                  "messages": 0, "bytes": 0, "write_s": 0.0,
+                                  "parameters_from": "", "bags": 0}, "", "")
+    status.parameters_came("carving")
+    status.parameters_came("meshing")
+    assert status.snapshot()[0]["parameters_from"] == "carving,meshing"
     status.wrote(1, 100, 0.25)
     status.wrote(2, 300, 0.125)
     assert status.closed() == 0.375
@@ -47,5 +51,6 @@ def test_the_status_follows_a_bag_from_open_to_close():
     status.report(warning="parameters not stored")
     assert status.snapshot()[1:] == ("", "parameters not stored")
     status.opened("/out/bags/c")
+    assert status.snapshot()[0]["parameters_from"] == ""      # of the new bag: none yet
     status.abandoned()
     assert status.snapshot()[0]["recording"] is False and status.path == "/out/bags/c"
