@@ -13,22 +13,16 @@ import pytest
 
 from sfs_ros.core.segmentation.band_cut import band_cut, gmm_likelihood, grabcut_beta
 
+from painted import painted
+
 
 def _picture(seed: int, h: int = 150, w: int = 190) -> tuple[np.ndarray, np.ndarray]:
     """(h, w, 3) uint8 picture and (h, w) bool truth: a shaded ellipse with a bite out of
     it, blurred edge, on a graded noisy backdrop."""
-    rng = np.random.default_rng(seed)
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
     truth = ((xx - 95) / 60) ** 2 + ((yy - 75) / 45) ** 2 < 1
     truth &= np.hypot(xx - 140, yy - 50) > 18
-    image = np.empty((h, w, 3))
-    image[:] = (30.0, 35.0, 40.0)
-    image += (xx / w * 40.0)[..., None]
-    shade = 0.5 + 0.5 * xx / w
-    image[truth] = np.array([170.0, 120.0, 80.0]) * shade[truth, None]
-    image = cv2.GaussianBlur(image, (5, 5), 1.2)
-    image += rng.normal(0.0, 6.0, image.shape)
-    return np.clip(np.rint(image), 0, 255).astype(np.uint8), truth
+    return painted(truth, seed), truth
 
 
 def _band_labels(truth: np.ndarray, reach: int) -> np.ndarray:

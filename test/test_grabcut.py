@@ -16,22 +16,16 @@ import pytest
 from sfs_ros.core.segmentation.grabcut import grabcut
 from sfs_ros.core.segmentation.kmeans import OpenCVRandom, distinct_colours, kmeans_colours
 
+from painted import painted
+
 
 def _picture(seed: int, h: int = 90, w: int = 120) -> tuple[np.ndarray, np.ndarray]:
     """(h, w, 3) uint8 picture and (h, w) bool truth: a shaded ellipse with a bite out of
     it, blurred edge, on a graded noisy backdrop."""
-    rng = np.random.default_rng(seed)
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
     truth = ((xx - w / 2) / (0.3 * w)) ** 2 + ((yy - h / 2) / (0.3 * h)) ** 2 < 1
     truth &= np.hypot(xx - 0.7 * w, yy - 0.35 * h) > 0.1 * w
-    image = np.empty((h, w, 3))
-    image[:] = (30.0, 35.0, 40.0)
-    image += (xx / w * 40.0)[..., None]
-    shade = 0.5 + 0.5 * xx / w
-    image[truth] = np.array([170.0, 120.0, 80.0]) * shade[truth, None]
-    image = cv2.GaussianBlur(image, (5, 5), 1.2)
-    image += rng.normal(0.0, 6.0, image.shape)
-    return np.clip(np.rint(image), 0, 255).astype(np.uint8), truth
+    return painted(truth, seed), truth
 
 
 def _loose_labels(truth: np.ndarray, seed: int) -> np.ndarray:
