@@ -122,6 +122,7 @@ def _cell_run(config: Path, output: Path, total: int) -> dict:
             Cell(cell_nodes(config, output, mock=True), namespace=namespace, log=log) as cell, \
             CellClient(namespace, name="bench_observer") as client:
         observer = Observer(client, total)
+        diagnostics = NodeDiagnostics(client)
         client.wait_ready(timeout_s=120.0)
         start = time.monotonic()
         scan = client.start_scan()
@@ -135,10 +136,10 @@ def _cell_run(config: Path, output: Path, total: int) -> dict:
         wait_for_pictures(summary, timeout_s=120.0)
         pictures_end = time.monotonic()
         client.wait_scan_done(scan, timeout_s=30.0)
-        motion = _node_value(client, "scan", "motion_s")
-        shutter = _node_value(client, "scan", "shutter_s")
-        seg = _node_value(client, "segmentation", "segment_s")
-        carve = _node_value(client, "carving", "carve_s")
+        motion = diagnostics.value("scan", "motion_s")
+        shutter = diagnostics.value("scan", "shutter_s")
+        seg = diagnostics.value("segmentation", "segment_s")
+        carve = diagnostics.value("carving", "carve_s")
     last_view = max(observer.seen.values())
     stages = json.loads(Path(summary["report_path"]).read_text())["timings_s"]
     carve_s = sum(v for k, v in stages.items() if k in CARVING_STAGES)
@@ -169,27 +170,36 @@ def _cpu_by_node(cell) -> dict[str, float]:
     return {name: _cpu_s(process.pid) for name, process in cell.processes.items()}
 
 
-def _node_value(client, node: str, key: str) -> float:
-    """The latest value of ``key`` in the ``node``'s diagnostics (waits up to 5 s)."""
-    from diagnostic_msgs.msg import DiagnosticArray
+class NodeDiagnostics:
+    """The latest diagnostics values of each of the cell's nodes, from one subscription kept
+    for the run (destroying a subscription while the client spins races its callbacks)."""
 
-    found = threading.Event()
-    value = {}
+    def __init__(self, client):
+        from diagnostic_msgs.msg import DiagnosticArray
 
-    def on(msg):
-        for status in msg.status:
-            if status.name.endswith(f": {node}") \
-                    and status_namespace(status.name) == client.node.get_namespace():
-                value.update({kv.key: kv.value for kv in status.values})
-                found.set()
+        self._namespace = client.node.get_namespace()
+        self._values: dict[str, dict[str, str]] = {}
+        self._changed = threading.Condition()
+        client.node.create_subscription(DiagnosticArray, DIAGNOSTICS, self._on, 50)
 
-    sub = client.node.create_subscription(DiagnosticArray, DIAGNOSTICS, on, 50)
-    try:
-        if not found.wait(5.0):
-            raise RuntimeError(f"no diagnostics from the {node} node")
-        return float(value[key])
-    finally:
-        client.node.destroy_subscription(sub)
+    def _on(self, msg) -> None:
+        with self._changed:
+            for status in msg.status:
+                if status_namespace(status.name) == self._namespace:
+                    node = status.name.rsplit(": ", 1)[-1]
+                    self._values.setdefault(node, {}).update(
+                        {kv.key: kv.value for kv in status.values})
+            self._changed.notify_all()
+
+    def value(self, node: str, key: str, *, timeout_s: float = 5.0) -> float:
+        """The latest ``key`` of the ``node``'s diagnostics published after the last call's
+        value was read (waits up to ``timeout_s`` for a fresh one)."""
+        with self._changed:
+            self._values.pop(node, None)
+            if not self._changed.wait_for(lambda: key in self._values.get(node, {}),
+                                          timeout=timeout_s):
+                raise RuntimeError(f"no diagnostics from the {node} node")
+            return float(self._values[node][key])
 
 
 def _cell_in_one_process(session: str, captures: list, rig, params: dict, resolution: int,
