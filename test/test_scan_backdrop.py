@@ -73,7 +73,7 @@ def test_the_object_at_the_frame_is_left_out_of_that_views_backdrop():
     model = fit_scan_backdrop(samples)
     image, truth = views[7]
     own = fit_backdrop(samples=samples[7])
-    adapted = own.adapted_to(model, samples[7], SIGMA)
+    adapted = own.adapted_to(model, samples[7], SIGMA, OBJECT_SIGMA)
     clay = np.array([CLAY], np.uint8)
     assert own.distance(clay)[0] < SIGMA             # the block holds over a tenth of its band
     assert adapted.distance(clay)[0] > OBJECT_SIGMA
@@ -105,5 +105,5 @@ def test_a_colour_the_border_shows_a_little_of_is_not_added():
     assert model.distance(np.array([cloth], np.uint8))[0] < SIGMA
     own = fit_backdrop(samples=samples)
     assert own.distance(np.array([cloth], np.uint8))[0] > SIGMA
-    added = own.adapted_to(model, samples, SIGMA)
+    added = own.adapted_to(model, samples, SIGMA, OBJECT_SIGMA)
     assert added.distance(np.array([cloth], np.uint8))[0] > SIGMA

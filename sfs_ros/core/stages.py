@@ -167,7 +167,7 @@ def _with_scan_backdrop(views: list[View], results: list,
         return results, None
     scan = fit_scan_backdrop(learnt)
     again = [n for n, band in enumerate(bands)
-             if band is not None and scan_backdrop_changes(band, scan)]
+             if band is not None and scan_backdrop_changes(band, scan, params)]
     redone = map_in_threads(lambda n: _read_and_segment(views[n], params, None, None, scan), again)
     for n, result in zip(again, redone):
         results[n] = result

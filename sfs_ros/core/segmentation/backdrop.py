@@ -61,29 +61,31 @@ class BackdropModel:
         _min_mahalanobis(*_planes(rgb), self.means, self.inverse_covariances, out.reshape(-1))
         return out
 
-    def adapted_to(self, scan: BackdropModel, band: np.ndarray, sigma: float) -> BackdropModel:
+    def adapted_to(self, scan: BackdropModel, band: np.ndarray, near_sigma: float,
+                   far_sigma: float) -> BackdropModel:
         """This view's model (``self``, learnt from its border ``band``, (n, 3) uint8)
         made to agree with the backdrop of the whole scan (``scan``,
-        :func:`fit_scan_backdrop`), two clusters being one colour when either's mean lies
-        within ``sigma`` standard deviations of the other:
+        :func:`fit_scan_backdrop`):
 
-        * its clusters of a colour the scan's backdrop does not have are left out: the
-          object reaching this view's frame (unless the scan has none of its colours:
+        * its clusters whose colour is further than ``far_sigma`` standard deviations
+          from the scan's backdrop (a colour the scan's backdrop takes for object) are
+          left out: the object reaching this view's frame (unless that leaves none:
           another backdrop);
-        * the scan's clusters of a colour its border does not reach (fewer than
-          ``_REACH_FRACTION`` of ``band`` within ``sigma``) are added: a turntable plate
-          wholly in the frame.
+        * the scan's clusters of a colour its border does not reach are added: a
+          turntable plate wholly in the frame. A colour reaches the border when more
+          than ``_REACH_FRACTION`` of ``band`` lies within ``near_sigma`` of it, and a
+          scan's cluster is one of this model's when either's mean lies within
+          ``near_sigma`` of the other.
 
-        A colour its border shows too little of to be one of its clusters is left as
-        it is. Returns ``self`` when nothing changes."""
-        same = self._overlaps(scan, sigma)   # (own, scan) clusters of one colour
-        keep = same.any(axis=1)
+        Returns ``self`` when nothing changes."""
+        keep = scan.distance(np.clip(np.rint(self.means), 0, 255).astype(np.uint8)) <= far_sigma
         if not keep.any():
             keep[:] = True
-        add = ~same.any(axis=0)
+        add = ~self._overlaps(scan, near_sigma).any(axis=0)
         for k in np.flatnonzero(add):
             one = BackdropModel(scan.means[k:k + 1], scan.inverse_covariances[k:k + 1])
-            add[k] = np.count_nonzero(one.distance(band) <= sigma) < _REACH_FRACTION * len(band)
+            add[k] = np.count_nonzero(one.distance(band) <= near_sigma) \
+                < _REACH_FRACTION * len(band)
         if keep.all() and not add.any():
             return self
         return BackdropModel(np.concatenate([self.means[keep], scan.means[add]]),

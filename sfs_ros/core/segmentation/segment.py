@@ -745,7 +745,7 @@ def _graph_cut_mask(rgb: np.ndarray, params: SegmentationParams,
     band = band_samples(rgb, params.border_fraction)
     backdrop = fit_backdrop(samples=band, random=random)
     if scan_backdrop is not None:
-        backdrop = backdrop.adapted_to(scan_backdrop, band, _SURE_SIGMA)
+        backdrop = backdrop.adapted_to(scan_backdrop, band, _SURE_SIGMA, params.object_sigma)
     scale = min(1.0, float(np.sqrt(_WORK_PIXELS / (h * w))))
     size = (max(8, round(w * scale)), max(8, round(h * scale)))
     distance = backdrop.distance(rgb)
@@ -869,13 +869,14 @@ def backdrop_samples(image, params: SegmentationParams = SegmentationParams()) -
     return band_samples(rgb, params.border_fraction)
 
 
-def scan_backdrop_changes(samples: np.ndarray, scan_backdrop: BackdropModel) -> bool:
+def scan_backdrop_changes(samples: np.ndarray, scan_backdrop: BackdropModel,
+                          params: SegmentationParams = SegmentationParams()) -> bool:
     """Whether the scan's backdrop changes the model the graph cut learns from a view's
     border band (``samples``, its :func:`backdrop_samples`): then
     ``segment(image, params, scan_backdrop=scan_backdrop)`` may differ from
     ``segment(image, params)``; else it is the same."""
     own = fit_backdrop(samples=samples)
-    return own.adapted_to(scan_backdrop, samples, _SURE_SIGMA) is not own
+    return own.adapted_to(scan_backdrop, samples, _SURE_SIGMA, params.object_sigma) is not own
 
 
 def _touches_border(mask: np.ndarray) -> bool:
