@@ -182,7 +182,9 @@ def segment_views(view_set: ViewSet, params: SegmentationParams, given: dict,
     segmentation), results in input order; the views that cannot be used
     join the input's rejected ones with the reason. Each mask is segmented as taken and
     undistorted once onto its view's ideal pinhole (:mod:`.geometry.lens`), unless
-    ``undistorted`` ({view name: (H, W) bool}) holds that undistortion already."""
+    ``undistorted`` ({view name: (H, W) bool}) holds that undistortion already. The views
+    whose border disagrees with the backdrop of the whole scan are segmented again with
+    it (:func:`_with_scan_backdrop`)."""
     undistorted = undistorted or {}
     views = view_set.views
     rejected = [{"view": name, "reason": reason} for name, reason in view_set.rejected]

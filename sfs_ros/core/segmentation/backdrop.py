@@ -216,6 +216,8 @@ def fit_backdrop(rgb: np.ndarray | None = None, *, border_fraction: float = 0.02
     when given: the same model.
     """
     if samples is None:
+        if rgb is None:
+            raise ValueError("fit_backdrop needs an image or its border's samples")
         samples = band_samples(rgb, border_fraction)
     return _fit_clusters(samples, cover,
                          OpenCVRandom(0) if random is None else random)
