@@ -29,8 +29,14 @@ from .geometry.lens import distort_mask, ideal_camera, undistort_image, undistor
 from .meshing.colour import MAX_COLOUR_VIEWS, spread_views
 from .meshing.hull_distance import HullDistance
 from .refinement.scan import refine_views
+from .segmentation.backdrop import BackdropModel, fit_scan_backdrop
 from .segmentation.consensus import consensus_masks
-from .segmentation.segment import SegmentationParams, segment
+from .segmentation.segment import (
+    SegmentationParams,
+    backdrop_samples,
+    scan_backdrop_changes,
+    segment,
+)
 from .workers import map_in_threads
 
 __all__ = ["ColourViews", "Fused", "GridChoice", "Hull", "Resegmented", "Segmented",
@@ -55,6 +61,9 @@ class Segmented:
     coverage : {view name: (H, W) uint8 alpha channel, undistorted} of those views: the
         fraction of each pixel the object covers, which places the hull's surface within
         the pixels along the silhouette (:class:`.meshing.hull_distance.HullDistance`)
+    backdrop : the report's piece on the backdrop of the whole scan, ``{"colours_rgb":
+        [[r, g, b], ...], "views": [names segmented with it]}``, or None (fewer than
+        three views segmented by the graph cut)
     """
 
     views: list[View]
@@ -64,6 +73,7 @@ class Segmented:
     rejected: list[dict]
     exact: frozenset = frozenset()
     coverage: dict = field(default_factory=dict)
+    backdrop: dict | None = None
 
 
 @dataclass(frozen=True)
@@ -89,19 +99,24 @@ class UsedViews:
 @dataclass(frozen=True)
 class _ViewMask:
     """One view's silhouette (H, W) bool as taken (``taken``) and undistorted onto its
-    ideal pinhole (``ideal``), and the alpha channel it is exact from, undistorted
-    (``coverage``, (H, W) uint8; None: segmented or given)."""
+    ideal pinhole (``ideal``), the alpha channel it is exact from, undistorted
+    (``coverage``, (H, W) uint8; None: segmented or given), and the pixels of its
+    image's border its graph cut learnt the backdrop from (``band``, (n, 3) uint8; None:
+    not segmented by the graph cut)."""
 
     taken: np.ndarray
     ideal: np.ndarray
     coverage: np.ndarray | None
+    band: np.ndarray | None = None
 
 
 def _read_and_segment(view: View, params: SegmentationParams, given: np.ndarray | None,
-                      undistorted: np.ndarray | None) -> _ViewMask | str:
-    """The view's silhouette (``given``, else segmented from its image) and what it is
-    exact from, each undistorted (``undistorted``: the mask's undistortion already made),
-    or why the view cannot be used."""
+                      undistorted: np.ndarray | None,
+                      scan_backdrop: BackdropModel | None = None) -> _ViewMask | str:
+    """The view's silhouette (``given``, else segmented from its image, with the scan's
+    backdrop ``scan_backdrop`` when given) and what it is exact from, each undistorted
+    (``undistorted``: the mask's undistortion already made), or why the view cannot be
+    used."""
     if given is not None:
         expected = (view.camera.height, view.camera.width)
         if np.shape(given) != expected or np.asarray(given).dtype != np.bool_:
@@ -109,20 +124,55 @@ def _read_and_segment(view: View, params: SegmentationParams, given: np.ndarray 
                     f"expected {expected} bool (the camera's size)")
         if not given.any():
             return "empty silhouette: no object found"
-        mask, alpha = given, None
+        mask, alpha, band = given, None, None
     else:
         try:
             image = read_image(view.image_path, keep_alpha=not params.ignore_alpha,
                                expected_size=(view.camera.width, view.camera.height))
         except ValueError as err:
             return str(err)
-        result = segment(image, params)
+        result = segment(image, params, scan_backdrop=scan_backdrop)
+        band = backdrop_samples(image, params)
         if result.empty:
-            return "empty silhouette: no object found"
+            return _Empty(band)
         exact = image.ndim == 3 and image.shape[2] == 4 and not params.ignore_alpha
         mask, alpha = result.mask, (image[:, :, 3].copy() if exact else None)
     ideal = undistort_mask(mask, view.camera) if undistorted is None else undistorted
-    return _ViewMask(mask, ideal, None if alpha is None else undistort_image(alpha, view.camera))
+    return _ViewMask(mask, ideal, None if alpha is None else undistort_image(alpha, view.camera),
+                     band)
+
+
+@dataclass(frozen=True)
+class _Empty:
+    """A view segmented empty, and its border's pixels (``band``, as :class:`_ViewMask`'s)."""
+
+    band: np.ndarray | None
+    reason: str = "empty silhouette: no object found"
+
+
+def _with_scan_backdrop(views: list[View], results: list,
+                        params: SegmentationParams) -> tuple[list, dict | None]:
+    """``results`` (one per view: :class:`_ViewMask`, :class:`_Empty` or the reason it
+    cannot be used), each view segmented again with the backdrop of the whole scan
+    (:func:`.segmentation.backdrop.fit_scan_backdrop`, from the borders of the views the
+    graph cut segmented, when there are three or more) where that changes its own
+    border's model (:func:`.segmentation.segment.scan_backdrop_changes`): the turntable
+    plate is backdrop in a view that sees it wholly in the frame, the object's colours are
+    not in a view whose frame it reaches. Also the report's ``backdrop`` piece (the scan's
+    backdrop colours and the views segmented with it), None without one."""
+    results = list(results)
+    bands = [getattr(r, "band", None) for r in results]
+    learnt = [band for band in bands if band is not None]
+    if len(learnt) < 3:
+        return results, None
+    scan = fit_scan_backdrop(learnt)
+    again = [n for n, band in enumerate(bands)
+             if band is not None and scan_backdrop_changes(band, scan, params)]
+    redone = map_in_threads(lambda n: _read_and_segment(views[n], params, None, None, scan), again)
+    for n, result in zip(again, redone):
+        results[n] = result
+    return results, {"colours_rgb": [[round(float(c), 1) for c in m] for m in scan.means],
+                     "views": [views[n].name for n in again]}
 
 
 def segment_views(view_set: ViewSet, params: SegmentationParams, given: dict,
@@ -132,18 +182,20 @@ def segment_views(view_set: ViewSet, params: SegmentationParams, given: dict,
     segmentation), results in input order; the views that cannot be used
     join the input's rejected ones with the reason. Each mask is segmented as taken and
     undistorted once onto its view's ideal pinhole (:mod:`.geometry.lens`), unless
-    ``undistorted`` ({view name: (H, W) bool}) holds that undistortion already."""
+    ``undistorted`` ({view name: (H, W) bool}) holds that undistortion already. The views
+    whose border disagrees with the backdrop of the whole scan are segmented again with
+    it (:func:`_with_scan_backdrop`)."""
     undistorted = undistorted or {}
     views = view_set.views
     rejected = [{"view": name, "reason": reason} for name, reason in view_set.rejected]
     kept, masks, taken, coverage = [], [], {}, {}
     progress("segmentation", 0.0)
-    results = map_in_threads(
+    results, backdrop = _with_scan_backdrop(views, map_in_threads(
         lambda view: _read_and_segment(view, params, given.get(view.name),
-                                       undistorted.get(view.name)), views)
+                                       undistorted.get(view.name)), views), params)
     for n, (view, result) in enumerate(zip(views, results)):
-        if isinstance(result, str):
-            rejected.append({"view": view.name, "reason": result})
+        if isinstance(result, (str, _Empty)):
+            rejected.append({"view": view.name, "reason": getattr(result, "reason", result)})
         else:
             kept.append(replace(view, camera=ideal_camera(view.camera)))
             masks.append(result.ideal)
@@ -152,7 +204,7 @@ def segment_views(view_set: ViewSet, params: SegmentationParams, given: dict,
                 coverage[view.name] = result.coverage
         progress("segmentation", (n + 1) / max(1, len(views)))
     return Segmented(kept, masks, taken, {v.name: v.camera for v in views}, rejected,
-                     frozenset(coverage), coverage)
+                     frozenset(coverage), coverage, backdrop)
 
 
 @dataclass(frozen=True)

@@ -2,7 +2,8 @@
 
 * :mod:`.segment`: one image's mask, by a graph cut on a backdrop model (the default) or
   a threshold;
-* :mod:`.backdrop`: the backdrop's colour clusters, learnt from the image border;
+* :mod:`.backdrop`: the backdrop's colour clusters, learnt from the image border, and
+  from the borders of all of a scan's views;
 * :mod:`.grabcut` and :mod:`.kmeans`: OpenCV's GrabCut and k-means, the same results bit
   for bit, for less work;
 * :mod:`.consensus`: a view cut again with the hull of all views as its prior;
@@ -14,7 +15,8 @@ taken from its module, :func:`.segment.segment` (the module shares its name)."""
 from ..lazy_exports import lazy_exports
 
 __getattr__, __dir__, __all__ = lazy_exports(__name__, {
-    ".backdrop": ("BackdropModel", "border_band", "fit_backdrop"),
+    ".backdrop": ("BackdropModel", "band_samples", "border_band", "fit_backdrop",
+                  "fit_scan_backdrop"),
     ".consensus": ("Consensus", "consensus_masks", "resegment", "settled"),
     ".presets": ("PRESETS",),
     ".segment": ("Segmentation", "SegmentationParams", "estimate_background"),

@@ -4,7 +4,9 @@ Two methods (``SegmentationParams.method``):
 
 ``"graph-cut"`` (default, needs no preset): the backdrop is modelled from the
 image border (:mod:`.backdrop`: the colour clusters of the border band, so a
-turntable plate or a cloth reaching the frame is backdrop too); pixels far
+turntable plate or a cloth reaching the frame is backdrop too; with the backdrop of
+the whole scan, ``scan_backdrop``, the model is made to agree with it:
+:meth:`~.backdrop.BackdropModel.adapted_to`); pixels far
 from every backdrop cluster start as probable object, and so do patches of a
 backdrop colour that do not reach the frame and are mostly enclosed by object
 colours (the white top of an object seen from above against a white sweep
@@ -58,13 +60,13 @@ import cv2
 import numpy as np
 from numba import njit
 
-from .backdrop import border_band, fit_backdrop
+from .backdrop import BackdropModel, band_samples, border_band, fit_backdrop
 from .grabcut import grabcut
 from .kmeans import OpenCVRandom
 from .presets import PRESETS
 
 __all__ = ["SegmentationParams", "Segmentation", "segment", "estimate_background", "PRESETS",
-           "close_mask", "fill_small_holes"]
+           "backdrop_samples", "close_mask", "fill_small_holes", "scan_backdrop_changes"]
 
 _NAMED_BACKGROUNDS = ("auto", "white", "black")
 _BACKGROUND_MODELS = ("constant", "smooth")
@@ -734,11 +736,16 @@ def _undecided_window(labels: np.ndarray) -> tuple[slice, slice]:
             slice(max(0, cols.min() - margin), cols.max() + margin + 1))
 
 
-def _graph_cut_mask(rgb: np.ndarray, params: SegmentationParams) -> tuple[np.ndarray, np.ndarray, float]:
+def _graph_cut_mask(rgb: np.ndarray, params: SegmentationParams,
+                    scan_backdrop: BackdropModel | None = None,
+                    ) -> tuple[np.ndarray, np.ndarray, float]:
     """Graph-cut method up to the closing: (mask (H, W) uint8, backdrop colour (3,), object_sigma)."""
     h, w = rgb.shape[:2]
     random = OpenCVRandom(0)  # the backdrop's k-means draws first, then the GrabCut's
-    backdrop = fit_backdrop(rgb, border_fraction=params.border_fraction, random=random)
+    band = band_samples(rgb, params.border_fraction)
+    backdrop = fit_backdrop(samples=band, random=random)
+    if scan_backdrop is not None:
+        backdrop = backdrop.adapted_to(scan_backdrop, band, _SURE_SIGMA, params.object_sigma)
     scale = min(1.0, float(np.sqrt(_WORK_PIXELS / (h * w))))
     size = (max(8, round(w * scale)), max(8, round(h * scale)))
     distance = backdrop.distance(rgb)
@@ -803,11 +810,15 @@ def _graph_cut_mask(rgb: np.ndarray, params: SegmentationParams) -> tuple[np.nda
     return close_mask(mask, radius), background, params.object_sigma
 
 
-def segment(image, params: SegmentationParams = SegmentationParams()) -> Segmentation:
+def segment(image, params: SegmentationParams = SegmentationParams(), *,
+            scan_backdrop: BackdropModel | None = None) -> Segmentation:
     """Segment the object from the background of ``image``.
 
     image : (H, W) grey, (H, W, 3) RGB or (H, W, 4) RGBA, uint8
     params : SegmentationParams
+    scan_backdrop : BackdropModel or None, the backdrop of the whole scan
+        (:func:`~.backdrop.fit_scan_backdrop`), for the graph cut: the image's own
+        border model is made to agree with it
 
     Returns a :class:`Segmentation`; an image without an object gives
     ``empty=True`` and an all-False mask (not an exception). An RGBA image's
@@ -827,8 +838,10 @@ def segment(image, params: SegmentationParams = SegmentationParams()) -> Segment
                             n_blobs_removed=0, holes_filled=0,
                             foreground_fraction=0.0 if empty else float(mask.mean()),
                             empty=empty, touches_border=not empty and _touches_border(mask))
-    make_mask = _graph_cut_mask if params.method == "graph-cut" else _threshold_mask
-    mask, bg, threshold = make_mask(rgb, params)
+    if params.method == "graph-cut":
+        mask, bg, threshold = _graph_cut_mask(rgb, params, scan_backdrop)
+    else:
+        mask, bg, threshold = _threshold_mask(rgb, params)
     mask, n_removed, largest = _connectivity_test(mask, params.min_blob_fraction,
                                                   params.keep_largest_only)
     if largest < max(1, params.min_area_fraction * h * w):
@@ -843,6 +856,27 @@ def segment(image, params: SegmentationParams = SegmentationParams()) -> Segment
                         n_blobs_removed=n_removed, holes_filled=holes,
                         foreground_fraction=float(mask.mean()), empty=False,
                         touches_border=_touches_border(mask))
+
+
+def backdrop_samples(image, params: SegmentationParams = SegmentationParams()) -> np.ndarray | None:
+    """The pixels of ``image``'s border band its graph cut learns the backdrop from
+    (:func:`~.backdrop.band_samples`, (n, 3) uint8), for the backdrop of a whole scan
+    (:func:`~.backdrop.fit_scan_backdrop`); None when :func:`segment` would not read
+    them (the threshold method, or an image segmented by its alpha)."""
+    rgb, alpha = _split_alpha(image)
+    if params.method != "graph-cut" or (alpha is not None and not params.ignore_alpha):
+        return None
+    return band_samples(rgb, params.border_fraction)
+
+
+def scan_backdrop_changes(samples: np.ndarray, scan_backdrop: BackdropModel,
+                          params: SegmentationParams = SegmentationParams()) -> bool:
+    """Whether the scan's backdrop changes the model the graph cut learns from a view's
+    border band (``samples``, its :func:`backdrop_samples`): then
+    ``segment(image, params, scan_backdrop=scan_backdrop)`` may differ from
+    ``segment(image, params)``; else it is the same."""
+    own = fit_backdrop(samples=samples)
+    return own.adapted_to(scan_backdrop, samples, _SURE_SIGMA, params.object_sigma) is not own
 
 
 def _touches_border(mask: np.ndarray) -> bool:
