@@ -324,7 +324,7 @@ def _points(points, name: str) -> np.ndarray:
 
 def chamfer_distance(points_a, points_b) -> ChamferResult:
     """Chamfer and Hausdorff distances between point sets (n, 3) and (m, 3), metres."""
-    from scipy.spatial import cKDTree   # here: a reconstruction's evaluation needs none
+    from scipy.spatial import cKDTree  # here: a reconstruction's evaluation needs none
 
     a = _points(points_a, "points_a")
     b = _points(points_b, "points_b")
