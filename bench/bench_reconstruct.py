@@ -139,6 +139,7 @@ def synthetic_row(name: str, rig: RigCalibration, per_ring: int) -> dict:
         report = json.loads(out.with_name("mesh.report.json").read_text())
         ious = exact_silhouette_iou(session, obj, out)
     size = f"{rig.width}x{rig.height}"
+    again = (report.get("resegmentation") or {}).get("resegmented")
     return {"name": f"sfs-reconstruct {name} {len(images)} views {size} vs imread",
             "seconds": seconds, "baseline_seconds": decode, "ratio": decode / seconds,
             "notes": [f"{name} {len(images)} x {size}: {seconds / decode:.1f}x the decoding; "
@@ -146,8 +147,8 @@ def synthetic_row(name: str, rig: RigCalibration, per_ring: int) -> dict:
                       f"{np.mean(ious):.4f}, worst {np.min(ious):.4f}; grid "
                       f"{report['grid']['shape']}, voxel "
                       f"{report['grid']['voxel_size_m'] * 1e3:.3f} mm "
-                      f"({report['grid']['resolution_source']}); stages (s): "
-                      f"{_stages(report)}"]}
+                      f"({report['grid']['resolution_source']}); views cut again {again}; "
+                      f"stages (s): {_stages(report)}"]}
 
 
 def run(quick: bool = False) -> list[dict]:
