@@ -35,7 +35,7 @@ The detailed object (:data:`DETAILED_OBJECT_NAMES`):
 
 ``chair``
     A detailed object, 70 x 56 x 115 mm: a seat 4 mm thick on four legs 3.5 mm square,
-    a back with a hole (23 x 62 mm) through it, an antenna 1.2 mm square on the back, an
+    a back with a hole (63 x 23 mm) through it, an antenna 1.2 mm square on the back, an
     open cup and a standing ring (its hole shows from the front) on the seat: thin
     parts, holes and concavities in silhouette. Its parts meet along faces or at a
     point only, so its volume is their sum.
