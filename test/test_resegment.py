@@ -10,7 +10,14 @@ import numpy as np
 from test_fusion import BAD, bite, scan
 
 from sfs_ros.core.geometry.grid import VoxelGrid
-from sfs_ros.core.segmentation.consensus import consensus_masks, resegment, settled
+from sfs_ros.core.segmentation.consensus import (
+    _CHROMA_GAIN,
+    _DARK_FLOOR,
+    _features,
+    consensus_masks,
+    resegment,
+    settled,
+)
 
 H, W = 120, 160
 YY, XX = np.mgrid[0:H, 0:W]
@@ -160,3 +167,20 @@ def test_settled_on_the_box_around_both_is_the_whole_frames_answer():
     empty = np.zeros((H, W), bool)
     for prior, mask in ((empty, empty), (empty, disc(80, 60, 10)), (disc(80, 60, 10), empty)):
         assert settled(prior, mask, 1.0) == settled_on_the_whole_frame(prior, mask, 1.0)
+
+
+def test_features_of_every_colour_are_the_float32_formula():
+    # Every 24-bit colour (a 4096 x 4096 picture), against the formula in numpy's float32
+    # arithmetic: brightness, then the two opponent chromaticities over brightness + floor.
+    levels = np.arange(256, dtype=np.uint8)
+    rgb = np.stack(np.meshgrid(levels, levels, levels, indexing="ij"), axis=-1)
+    rgb = rgb.reshape(4096, 4096, 3)
+    c = rgb.astype(np.float32)
+    brightness = c.mean(axis=2)
+    scale = _CHROMA_GAIN / (brightness + _DARK_FLOOR)
+    expected = np.stack([brightness, 128.0 + (c[..., 0] - c[..., 1]) * scale,
+                         128.0 + (c[..., 2] - 0.5 * (c[..., 0] + c[..., 1])) * scale], axis=2)
+    expected = np.clip(np.rint(expected), 0, 255).astype(np.uint8)
+    np.testing.assert_array_equal(_features(rgb), expected)
+    # A crop (not contiguous) of a picture is taken as it is.
+    np.testing.assert_array_equal(_features(rgb[5:300, 7:900]), expected[5:300, 7:900])

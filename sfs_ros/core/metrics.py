@@ -7,7 +7,6 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 from numba import njit, prange
-from scipy.spatial import cKDTree
 
 from .geometry.camera import Camera
 from .geometry.grid import VoxelGrid
@@ -325,6 +324,8 @@ def _points(points, name: str) -> np.ndarray:
 
 def chamfer_distance(points_a, points_b) -> ChamferResult:
     """Chamfer and Hausdorff distances between point sets (n, 3) and (m, 3), metres."""
+    from scipy.spatial import cKDTree  # here: a reconstruction's evaluation needs none
+
     a = _points(points_a, "points_a")
     b = _points(points_b, "points_b")
     a_to_b, _ = cKDTree(b).query(a)

@@ -17,7 +17,7 @@ surface to a fraction of a voxel, with no voxel staircase to smooth away.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit, prange
@@ -105,10 +105,16 @@ class BandDistance:
         band's voxels (:func:`band_voxel_indices`) in index order.
     band_voxels : int >= 1
         Width of the band, voxels on either side of the occupancy's boundary.
+    voxels : (n, 3) int32 or None
+        The band's voxels (:func:`band_voxel_indices` of the occupancy's padded crop) as
+        :func:`hull_band_distance` found them, so that :func:`band_marching_cubes` of the
+        same occupancy need not find them again; None (e.g. after crossing a process):
+        found again, the same.
     """
 
     values: np.ndarray
     band_voxels: int = 1
+    voxels: np.ndarray | None = field(default=None, compare=False, repr=False)
 
 
 def _padded_crop(occ: np.ndarray, band: int) -> tuple[np.ndarray, np.ndarray]:
@@ -182,15 +188,16 @@ def hull_band_distance(occupancy, grid: VoxelGrid, hull: HullDistance, *,
     band = _check_band(band_voxels)
     crop, corner = _padded_crop(occ, band)
     pad = band + 1
+    voxels = band_voxel_indices(crop, band)
     # Below -pad voxels the value is clipped anyway: the floor spares the views that
     # see a group of points deep inside their silhouette.
-    distance = hull(grid.index_to_world(band_voxel_indices(crop, band) + corner),
+    distance = hull(grid.index_to_world(voxels + corner),
                     floor_m=-pad * grid.voxel_size) / grid.voxel_size
     distance = np.clip(distance, -pad, pad).astype(np.float32)
     # A sample exactly on the level makes Lewiner's ambiguity tests tie (see
     # LEVEL); counting it as just outside (by 1e-6 voxel) breaks the tie.
     distance[distance == 0.0] = np.float32(1e-6)
-    return BandDistance(values=distance, band_voxels=band)
+    return BandDistance(values=distance, band_voxels=band, voxels=voxels.astype(np.int32))
 
 
 def band_marching_cubes(occupancy, grid: VoxelGrid, band: BandDistance):
@@ -218,7 +225,9 @@ def band_marching_cubes(occupancy, grid: VoxelGrid, band: BandDistance):
     width = _check_band(band.band_voxels)
     crop, corner = _padded_crop(occ, width)
     pad = width + 1
-    voxels = band_voxel_indices(crop, width)
+    voxels = band.voxels
+    if voxels is None or len(voxels) != len(band.values):
+        voxels = band_voxel_indices(crop, width)
     values = np.asarray(band.values)
     if values.dtype != np.float32 or values.shape != (len(voxels),):
         raise ValueError(f"band distance has {values.dtype} {values.shape}, expected float32 "

@@ -34,6 +34,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from numba import njit
 
 from ..carving.bounds import seen_by
 from ..carving.carve import PreparedMasks, carve
@@ -105,13 +106,29 @@ def _features(rgb: np.ndarray) -> np.ndarray:
     of the object a darker object: in RGB both crowd near black, here they keep
     their hue apart (the floor keeps the noise of near-black pixels from
     turning into colour)."""
-    c = rgb.astype(np.float32)
-    brightness = c.mean(axis=2)
-    scale = _CHROMA_GAIN / (brightness + _DARK_FLOOR)
-    red_green = 128.0 + (c[..., 0] - c[..., 1]) * scale
-    blue_yellow = 128.0 + (c[..., 2] - 0.5 * (c[..., 0] + c[..., 1])) * scale
-    out = np.stack([brightness, red_green, blue_yellow], axis=2)
-    return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+    return _features_kernel(np.ascontiguousarray(rgb), np.empty(rgb.shape, np.uint8))
+
+
+@njit(cache=True, nogil=True)
+def _features_kernel(rgb, out):
+    """:func:`_features` of ``rgb`` (h, w, 3) uint8 into ``out``, a pixel at a time in
+    float32: brightness ``(r + g + b) / 3``, ``128 + (r - g) s`` and
+    ``128 + (b - (r + g) / 2) s`` with ``s = _CHROMA_GAIN / (brightness + _DARK_FLOOR)``,
+    each rounded to the nearest integer (ties to even) and clipped to 0..255."""
+    three, gain = np.float32(3.0), np.float32(_CHROMA_GAIN)
+    floor, middle, half = np.float32(_DARK_FLOOR), np.float32(128.0), np.float32(0.5)
+    low, high = np.float32(0.0), np.float32(255.0)
+    for i in range(rgb.shape[0]):
+        for j in range(rgb.shape[1]):
+            r, g, b = np.float32(rgb[i, j, 0]), np.float32(rgb[i, j, 1]), np.float32(rgb[i, j, 2])
+            brightness = (r + g + b) / three
+            scale = gain / (brightness + floor)
+            red_green = middle + (r - g) * scale
+            blue_yellow = middle + (b - half * (r + g)) * scale
+            out[i, j, 0] = np.uint8(min(max(np.rint(brightness), low), high))
+            out[i, j, 1] = np.uint8(min(max(np.rint(red_green), low), high))
+            out[i, j, 2] = np.uint8(min(max(np.rint(blue_yellow), low), high))
+    return out
 
 
 def resegment(rgb: np.ndarray, prior: np.ndarray, mask: np.ndarray) -> np.ndarray:

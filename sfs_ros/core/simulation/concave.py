@@ -22,7 +22,7 @@ import numpy as np
 import trimesh
 from numba import njit, prange
 
-__all__ = ["PocketBlock", "Revolved", "solid_texture"]
+__all__ = ["PocketBlock", "Revolved", "box_distance", "solid_texture"]
 
 #: Edge of the texture's lattice cells, metres (5.8 px at the demo camera's 0.43 mm/px).
 TEXTURE_CELL_M = 0.0025
@@ -178,7 +178,7 @@ class Revolved:
                                                             process=False)
 
 
-def _box_distance(points: np.ndarray, lo, hi) -> np.ndarray:
+def box_distance(points: np.ndarray, lo, hi) -> np.ndarray:
     """(n,) exact signed distance to the box ``[lo, hi]``, metres (negative inside)."""
     centre = 0.5 * (np.asarray(lo) + np.asarray(hi))
     q = np.abs(points - centre) - 0.5 * (np.asarray(hi) - np.asarray(lo))
@@ -244,8 +244,8 @@ class PocketBlock:
         for a, b in zip(lo, hi):
             unsigned = np.minimum(unsigned, np.linalg.norm(points - np.clip(points, a, b),
                                                            axis=1))
-        block = _box_distance(points, *self.bounds)
-        inside = np.maximum(block, -_box_distance(points, *self._pocket_box)) <= 0.0
+        block = box_distance(points, *self.bounds)
+        inside = np.maximum(block, -box_distance(points, *self._pocket_box)) <= 0.0
         return np.where(inside, -unsigned, unsigned)
 
     def sample_surface(self, n: int, rng: np.random.Generator) -> np.ndarray:

@@ -1,7 +1,7 @@
 """Synthetic ground-truth objects with known geometry, resting on the turntable plate.
 
 Each object is a union of analytic parts (:class:`Sphere`, :class:`Cylinder`,
-:class:`Torus`) in the object frame (Z up, origin at the plate centre, metres).
+:class:`Torus`, :class:`Box`) in the object frame (Z up, origin at the plate centre, metres).
 Every object has ``z >= 0`` and fits in a 0.12 m box centred on the Z axis.
 
 What each object offers:
@@ -31,6 +31,15 @@ Objects
     hole shows in side silhouettes (seen along Y), a concavity no convex hull
     has. Volume: body plus the part of the ring outside the body (quadrature).
 
+The detailed object (:data:`DETAILED_OBJECT_NAMES`):
+
+``chair``
+    A detailed object, 70 x 56 x 115 mm: a seat 4 mm thick on four legs 3.5 mm square,
+    a back with a hole (63 x 23 mm) through it, an antenna 1.2 mm square on the back, an
+    open cup and a standing ring (its hole shows from the front) on the seat: thin
+    parts, holes and concavities in silhouette. Its parts meet along faces or at a
+    point only, so its volume is their sum.
+
 Concave objects (:data:`CONCAVE_OBJECT_NAMES`), whose visual hull is not the object, and a
 convex control, built from the parts of :mod:`.concave` (volumes exact):
 
@@ -58,17 +67,20 @@ import numpy as np
 import trimesh
 from scipy import integrate
 
-from .concave import PocketBlock, Revolved, solid_texture
+from .concave import PocketBlock, Revolved, box_distance, solid_texture
 
-__all__ = ["Sphere", "Cylinder", "Torus", "SyntheticObject", "OBJECT_NAMES",
-           "CONCAVE_OBJECT_NAMES", "ALL_OBJECT_NAMES", "fine_color_at", "make_object"]
+__all__ = ["Sphere", "Cylinder", "Torus", "Box", "SyntheticObject", "OBJECT_NAMES",
+           "CONCAVE_OBJECT_NAMES", "DETAILED_OBJECT_NAMES", "ALL_OBJECT_NAMES", "fine_color_at",
+           "make_object"]
 
 #: The solid objects, those whose visual hull is (nearly) the object.
 OBJECT_NAMES = ("sphere", "torus", "mug")
 #: Objects with concavities no silhouette shows, and a convex textured control.
 CONCAVE_OBJECT_NAMES = ("cup", "bowl", "pocket_block", "barrel")
+#: Objects with thin parts, holes and many concavities in silhouette.
+DETAILED_OBJECT_NAMES = ("chair",)
 #: Names accepted by :func:`make_object`.
-ALL_OBJECT_NAMES = OBJECT_NAMES + CONCAVE_OBJECT_NAMES
+ALL_OBJECT_NAMES = OBJECT_NAMES + CONCAVE_OBJECT_NAMES + DETAILED_OBJECT_NAMES
 
 
 def _as_points(points) -> np.ndarray:
@@ -254,6 +266,56 @@ class Torus:
         return trimesh.Trimesh(vertices, faces, process=False)
 
 
+@dataclass(frozen=True)
+class Box:
+    """Solid axis-aligned box ``lo <= p <= hi`` (metres, each a 3-tuple)."""
+
+    lo: tuple
+    hi: tuple
+
+    def __post_init__(self) -> None:
+        if not all(a < b for a, b in zip(self.lo, self.hi)):
+            raise ValueError(f"a box needs lo < hi on every axis, got {self.lo} and {self.hi}")
+
+    @property
+    def _extent(self) -> np.ndarray:
+        return np.asarray(self.hi, dtype=np.float64) - np.asarray(self.lo, dtype=np.float64)
+
+    @property
+    def volume_m3(self) -> float:
+        return float(np.prod(self._extent))
+
+    @property
+    def area_m2(self) -> float:
+        a, b, c = self._extent
+        return float(2.0 * (a * b + b * c + c * a))
+
+    @property
+    def bounds(self) -> np.ndarray:
+        return np.array([self.lo, self.hi], dtype=np.float64)
+
+    def signed_distance(self, points: np.ndarray) -> np.ndarray:
+        """(n,) exact signed distance to the box, metres (negative inside)."""
+        return box_distance(points, self.lo, self.hi)
+
+    def sample_surface(self, n: int, rng: np.random.Generator) -> np.ndarray:
+        # A face is picked by its area, then a point uniformly on it: every coordinate
+        # uniform in the box but the face's axis, pinned to its side.
+        extent = self._extent
+        areas = np.array([extent[1] * extent[2], extent[0] * extent[2], extent[0] * extent[1]])
+        axis = rng.choice(3, size=n, p=areas / areas.sum())
+        points = np.asarray(self.lo) + rng.random((n, 3)) * extent
+        side = rng.random(n) < 0.5
+        rows = np.arange(n)
+        points[rows, axis] = np.where(side, np.asarray(self.hi)[axis], np.asarray(self.lo)[axis])
+        return points
+
+    def mesh(self) -> trimesh.Trimesh:
+        centre = 0.5 * (np.asarray(self.lo, dtype=np.float64) + np.asarray(self.hi))
+        return trimesh.creation.box(extents=self._extent,
+                                    transform=trimesh.transformations.translation_matrix(centre))
+
+
 def _mesh_error(part, mesh: trimesh.Trimesh) -> float:
     """Largest |signed distance| of a part's mesh from the part's surface, metres.
 
@@ -329,7 +391,9 @@ class SyntheticObject:
                 pts = part.sample_surface(int(count), rng)
                 inside_other = np.zeros(len(pts), dtype=bool)
                 for other in self.parts[:k] + self.parts[k + 1:]:
-                    inside_other |= other.signed_distance(pts) < 0.0
+                    # Within a nanometre: where two parts meet along a face, that face is
+                    # inside the union (its points lie on both parts, up to rounding).
+                    inside_other |= other.signed_distance(pts) < 1e-9
                 kept.append(pts[~inside_other])
                 total += int(np.count_nonzero(~inside_other))
         return np.concatenate(kept)[:n] if kept else np.empty((0, 3))
@@ -434,6 +498,32 @@ def _concave_object(name: str) -> SyntheticObject:
     return SyntheticObject(name, [part], part.volume_m3)
 
 
+def _chair() -> SyntheticObject:
+    """The ``chair`` of the module's docstring: boxes, an open cup and a ring that meet
+    along faces or at a point (millimetres below, metres returned)."""
+    def box(lo, hi):
+        return Box(tuple(1e-3 * np.asarray(lo, float)), tuple(1e-3 * np.asarray(hi, float)))
+
+    seat_z, top_z = 35.0, 39.0
+    parts = [box((-35, -28, seat_z), (35, 28, top_z))]
+    for x in (-35.0, 31.5):
+        for y in (-28.0, 24.5):
+            parts.append(box((x, y, 0), (x + 3.5, y + 3.5, seat_z)))          # legs
+        parts.append(box((x, 24.5, top_z), (x + 3.5, 28, 90)))                # back posts
+    parts += [box((-31.5, 24.5, top_z), (31.5, 28, 55)),                      # back panel
+              box((-31.5, 24.5, 78), (31.5, 28, 90)),                          # top rail
+              box((19.4, 25.6, 90), (20.6, 26.8, 115))]                        # antenna
+    cup = Revolved(tuple((1e-3 * r, 1e-3 * z) for r, z in
+                         ((0, top_z), (9, top_z), (9, top_z + 18), (7.5, top_z + 18),
+                          (7.5, top_z + 2), (0, top_z + 2))))
+    # A ring standing on the seat in the X-Z plane (its hole seen from the front),
+    # touching the seat at its lowest point.
+    ring = Torus((-0.022, -0.01, 1e-3 * (top_z + 8.5)), 0.007, 0.0015,
+                 rotation=_ring_rotation_y(), major_sections=128, minor_sections=24)
+    parts += [cup, ring]
+    return SyntheticObject("chair", parts, sum(p.volume_m3 for p in parts))
+
+
 def make_object(name: str) -> SyntheticObject:
     """The synthetic object called ``name`` (one of :data:`ALL_OBJECT_NAMES`)."""
     if name in CONCAVE_OBJECT_NAMES:
@@ -453,4 +543,6 @@ def make_object(name: str) -> SyntheticObject:
                      major_sections=256, minor_sections=48)
         volume = body.volume_m3 + _ring_outside_cylinder_m3(body, ring)
         return SyntheticObject(name, [body, ring], volume)
+    if name == "chair":
+        return _chair()
     raise ValueError(f"unknown object {name!r}; expected one of {ALL_OBJECT_NAMES}")
