@@ -8,7 +8,7 @@ texture is the image itself, resampled only when ``texels_per_pixel`` is not 1 (
 per metre on the object as many as the view's pixels per metre there). Faces no view
 sees (the underside on the plate) are grouped by the axis (+-X, +-Y, +-Z) their normal
 is nearest, and each connected patch of one group is projected onto the plane across
-its mean normal when every face turns within 60 degrees of it, at half the seen charts' median
+its mean normal when every face turns within 60 degrees of it, at half the seen faces' median
 texels per metre (its colours are interpolated, smooth); otherwise (a curved patch) its
 faces take *cells*. A cell is :data:`CELL_TEXELS` x :data:`CELL_TEXELS` texels of one
 colour, the face's at its centroid, and the face's corners lie inside it, a quarter of a
@@ -17,7 +17,8 @@ cell alone: the cells of all such faces are packed side by side as one rectangle
 no padding between them. Seen faces that would still overlap another in the atlas (a
 patch seen partly hidden) are made charts of their own (after :data:`_SPLIT_TRIES`
 tries, cells), the faces of a curved unseen patch that would overlap take cells, and
-the atlas is laid out again.
+the atlas is laid out again, from the scale the last layout reached (at an unchanged
+scale the charts left whole claim the texels they claimed: no new overlap).
 
 Charts are packed as rectangles on shelves (tallest first), ``2 * padding`` texels
 apart, into an atlas about as wide as high; when that exceeds ``max_size`` texels a
