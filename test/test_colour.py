@@ -14,7 +14,13 @@ from scipy.spatial import cKDTree
 
 from sfs_ros.core.exchange.export import export_mesh, load_mesh
 from sfs_ros.core.geometry.camera import Camera
-from sfs_ros.core.meshing.colour import spread_views, vertex_colours, vertex_normals
+from sfs_ros.core.meshing.colour import (
+    HarmonicFill,
+    fill_from_neighbours,
+    spread_views,
+    vertex_colours,
+    vertex_normals,
+)
 from sfs_ros.core.pipeline import ReconstructionParams, reconstruct
 from sfs_ros.core.render import rasterize_silhouette, render_image
 from sfs_ros.core.segmentation.segment import segment
@@ -142,6 +148,30 @@ def test_unseen_vertices_take_the_colour_of_their_neighbours():
     calls = []
     again = vertex_colours(all_v, all_f, image, [camera], on_blended=lambda: calls.append(1))
     assert calls == [1] and np.array_equal(again.colours, result.colours)
+
+
+def test_the_harmonic_fill_factored_once_reproduces_every_linear_colouring():
+    # A grid of 30 x 20 vertices cut into triangles along one diagonal: each inner vertex
+    # has six neighbours in three opposite pairs, so a colour linear in (x, y) is the mean
+    # of its neighbours' (harmonic), and with the border seen the fill must give it back.
+    nx, ny = 30, 20
+    x, y = np.meshgrid(np.arange(nx, dtype=float), np.arange(ny, dtype=float))
+    index = np.arange(nx * ny).reshape(ny, nx)
+    a, b, c, d = (index[:-1, :-1], index[:-1, 1:], index[1:, :-1], index[1:, 1:])
+    faces = np.concatenate([np.stack([a, b, d], -1).reshape(-1, 3),
+                            np.stack([a, d, c], -1).reshape(-1, 3)])
+    seen = np.zeros((ny, nx), bool)
+    seen[[0, -1], :] = seen[:, [0, -1]] = True
+    seen = seen.ravel()
+    fill = HarmonicFill.of(seen, faces)                   # before any colour is known
+    for slope in ((2.0, -1.0, 0.5), (-3.0, 4.0, 1.0)):
+        truth = np.stack([x.ravel() * s + y.ravel() * (1 - s) + 7 for s in slope], axis=1)
+        given = np.where(seen[:, None], truth, 0.0)
+        filled = fill(given)
+        # Exact up to the factorisation's rounding (colours of a few hundred units).
+        assert np.abs(filled - truth).max() < 1e-9
+        assert np.array_equal(filled, fill_from_neighbours(given, seen, faces))
+        assert np.array_equal(filled[seen], given[seen])
 
 
 def test_spread_views_takes_the_farthest_directions_first():

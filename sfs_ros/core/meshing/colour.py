@@ -51,8 +51,9 @@ from ..render import as_mesh_arrays, rasterize_depth
 from ..settings import MAX_COLOUR_VIEWS
 from ..workers import map_in_threads
 
-__all__ = ["MAX_COLOUR_VIEWS", "VertexColours", "ViewSight", "check_image", "fill_from_neighbours",
-           "spread_views", "vertex_colours", "vertex_normals", "view_sight"]
+__all__ = ["MAX_COLOUR_VIEWS", "HarmonicFill", "VertexColours", "ViewSight", "check_image",
+           "fill_from_neighbours", "spread_views", "vertex_colours", "vertex_normals",
+           "view_sight"]
 
 #: A z-buffer step between neighbouring pixels of more than this many pixel
 #: footprints is a depth discontinuity (a smooth surface only steps that much
@@ -368,47 +369,90 @@ def check_image(index: int, image, camera: Camera) -> np.ndarray:
 
 
 def fill_from_neighbours(colours: np.ndarray, seen: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Colours (n, 3) float64 of the unseen vertices by harmonic interpolation along edges.
+    """Colours (n, 3) float64 of the unseen vertices by harmonic interpolation along edges
+    (:class:`HarmonicFill`; ``seen`` (n,) bool, ``faces`` (m, 3))."""
+    return HarmonicFill.of(seen, faces)(colours)
+
+
+@dataclass(frozen=True)
+class HarmonicFill:
+    """The harmonic interpolation of the unseen vertices' colours along edges, factored
+    for one mesh and its seen vertices before any colour is known (:meth:`of`), then
+    applied to colours (:meth:`__call__`).
 
     Solves ``deg(i) c_i = sum of c_j over the neighbours j`` for every unseen
     vertex ``i``, the seen ones fixed. A connected component with no seen vertex
     takes the mean colour of all seen vertices. Only the unseen vertices' rows
     of the adjacency are built: the unknowns are a small part of a mesh.
+
+    Attributes
+    ----------
+    seen : (n,) bool
+        The vertices whose colours are kept.
+    unknown : (u,) int64
+        The unseen vertices.
+    orphan : (u,) bool
+        Those in a component with no seen vertex.
+    boundary_row, boundary_vertex : (b,) int64
+        Each edge from an unseen vertex (its row among ``unknown``) to a seen vertex.
+    factor : SuperLU or None
+        The factored Laplacian of the unseen vertices not orphaned (None: none).
     """
-    n = len(colours)
-    # The faces around unseen vertices (corner by corner: numpy reduces an (m, 3) array
-    # along its second axis several times slower).
-    faces = faces[~(seen[faces[:, 0]] & seen[faces[:, 1]] & seen[faces[:, 2]])]
-    ends = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
-    ends = np.concatenate([ends, ends[:, ::-1]])
-    ends = ends[~seen[ends[:, 0]]]
-    pairs = np.sort(ends[:, 0] * n + ends[:, 1])        # each edge once per unseen end
-    pairs = pairs[np.concatenate([[True], pairs[1:] != pairs[:-1]])]  # (np.unique sorts: slower)
-    ends_i, ends_j = pairs // n, pairs % n
-    unknown = np.flatnonzero(~seen)
-    index = np.full(n, -1, np.int64)
-    index[unknown] = np.arange(len(unknown))
-    row, inner = index[ends_i], ~seen[ends_j]
-    adjacency = sparse.csr_matrix((np.ones(int(inner.sum())), (row[inner], index[ends_j[inner]])),
-                                  shape=(len(unknown), len(unknown)))
-    degree = np.bincount(row, minlength=len(unknown)).astype(np.float64)
-    known_sum = np.stack([np.bincount(row[~inner], weights=colours[ends_j[~inner], c],
-                                      minlength=len(unknown)) for c in range(3)], axis=1)
-    # A component of the unseen vertices that touches no seen one lies in a component
-    # of the mesh with no seen vertex.
-    n_components, label = csgraph.connected_components(adjacency, directed=False)
-    orphan = (np.bincount(label[row[~inner]], minlength=n_components) == 0)[label]
-    out = colours.copy()
-    out[unknown[orphan]] = colours[seen].mean(axis=0)
-    solve = np.flatnonzero(~orphan)
-    if solve.size:
-        laplacian = sparse.diags(degree[solve]) - adjacency[solve][:, solve]
-        # Symmetric positive definite: a symmetric ordering and no pivoting (SuperLU's
-        # symmetric mode) factor it in about two thirds of the time of the default.
-        factor = splu(laplacian.tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                      options={"SymmetricMode": True})
-        out[unknown[solve]] = factor.solve(known_sum[solve])
-    return out
+
+    seen: np.ndarray
+    unknown: np.ndarray
+    orphan: np.ndarray
+    boundary_row: np.ndarray
+    boundary_vertex: np.ndarray
+    factor: object
+
+    @classmethod
+    def of(cls, seen: np.ndarray, faces: np.ndarray) -> HarmonicFill:
+        """The fill of the vertices not ``seen`` (n,) bool of a mesh of ``faces`` (m, 3)."""
+        n = len(seen)
+        # The faces around unseen vertices (corner by corner: numpy reduces an (m, 3) array
+        # along its second axis several times slower).
+        faces = faces[~(seen[faces[:, 0]] & seen[faces[:, 1]] & seen[faces[:, 2]])]
+        ends = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+        ends = np.concatenate([ends, ends[:, ::-1]])
+        ends = ends[~seen[ends[:, 0]]]
+        pairs = np.sort(ends[:, 0] * n + ends[:, 1])        # each edge once per unseen end
+        pairs = pairs[np.concatenate([[True], pairs[1:] != pairs[:-1]])]  # (np.unique sorts)
+        ends_i, ends_j = pairs // n, pairs % n
+        unknown = np.flatnonzero(~seen)
+        index = np.full(n, -1, np.int64)
+        index[unknown] = np.arange(len(unknown))
+        row, inner = index[ends_i], ~seen[ends_j]
+        adjacency = sparse.csr_matrix((np.ones(int(inner.sum())),
+                                       (row[inner], index[ends_j[inner]])),
+                                      shape=(len(unknown), len(unknown)))
+        degree = np.bincount(row, minlength=len(unknown)).astype(np.float64)
+        # A component of the unseen vertices that touches no seen one lies in a component
+        # of the mesh with no seen vertex.
+        n_components, label = csgraph.connected_components(adjacency, directed=False)
+        orphan = (np.bincount(label[row[~inner]], minlength=n_components) == 0)[label]
+        solve = np.flatnonzero(~orphan)
+        factor = None
+        if solve.size:
+            laplacian = sparse.diags(degree[solve]) - adjacency[solve][:, solve]
+            # Symmetric positive definite: a symmetric ordering and no pivoting (SuperLU's
+            # symmetric mode) factor it in about two thirds of the time of the default.
+            factor = splu(laplacian.tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                          options={"SymmetricMode": True})
+        return cls(seen=seen, unknown=unknown, orphan=orphan, boundary_row=row[~inner],
+                   boundary_vertex=ends_j[~inner], factor=factor)
+
+    def __call__(self, colours: np.ndarray) -> np.ndarray:
+        """(n, 3) float64 ``colours`` (n, 3) with the unseen vertices' interpolated."""
+        out = np.array(colours, np.float64)
+        out[self.unknown[self.orphan]] = out[self.seen].mean(axis=0)
+        if self.factor is not None:
+            known_sum = np.stack([np.bincount(self.boundary_row,
+                                              weights=out[self.boundary_vertex, c],
+                                              minlength=len(self.unknown)) for c in range(3)],
+                                 axis=1)
+            out[self.unknown[~self.orphan]] = self.factor.solve(known_sum[~self.orphan])
+        return out
 
 
 def _check_colour_inputs(images: Sequence, cameras: list[Camera], masks: Sequence | None, *,

@@ -8,7 +8,7 @@ texture is the image itself, resampled only when ``texels_per_pixel`` is not 1 (
 per metre on the object as many as the view's pixels per metre there). Faces no view
 sees (the underside on the plate) are grouped by the axis (+-X, +-Y, +-Z) their normal
 is nearest, and each connected patch of one group is projected onto the plane across
-its mean normal when every face turns within 60 degrees of it, at half the seen charts' median
+its mean normal when every face turns within 60 degrees of it, at half the seen faces' median
 texels per metre (its colours are interpolated, smooth); otherwise (a curved patch) its
 faces take *cells*. A cell is :data:`CELL_TEXELS` x :data:`CELL_TEXELS` texels of one
 colour, the face's at its centroid, and the face's corners lie inside it, a quarter of a
@@ -17,7 +17,8 @@ cell alone: the cells of all such faces are packed side by side as one rectangle
 no padding between them. Seen faces that would still overlap another in the atlas (a
 patch seen partly hidden) are made charts of their own (after :data:`_SPLIT_TRIES`
 tries, cells), the faces of a curved unseen patch that would overlap take cells, and
-the atlas is laid out again.
+the atlas is laid out again, from the scale the last layout reached (at an unchanged
+scale the charts left whole claim the texels they claimed: no new overlap).
 
 Charts are packed as rectangles on shelves (tallest first), ``2 * padding`` texels
 apart, into an atlas about as wide as high; when that exceeds ``max_size`` texels a
@@ -154,11 +155,15 @@ class _UnitCharts:
         The unseen faces whose patch is not flat: they take cells.
     area : (m,) float64
         Each face's area, square metres.
+    plane_density : float
+        Texels per metre of the unseen faces' planes at one texel per pixel: half the
+        median over the seen faces (:func:`_plane_density`); a layout's scale times it.
     """
 
     corners: np.ndarray
     curved: np.ndarray
     area: np.ndarray
+    plane_density: float
 
     @classmethod
     def of(cls, tri: np.ndarray, normal: np.ndarray, labels: np.ndarray, patch: np.ndarray,
@@ -178,28 +183,32 @@ class _UnitCharts:
             plane, flat = _plane_axes(tri[unseen], normal[unseen], patch[unseen])
             corners[unseen] = plane
             curved[unseen] = ~flat
-        return cls(corners=corners, curved=curved, area=area)
+        return cls(corners=corners, curved=curved, area=area,
+                   plane_density=_plane_density(corners, area, np.flatnonzero(labels >= 0)))
 
 
-def _plane_density(unit: _UnitCharts, seen: np.ndarray, scale: float) -> float:
-    """Texels per metre of the unseen faces' planes: half the median over the ``seen``
-    (k,) faces' charts at ``scale`` texels per pixel."""
+def _plane_density(corners: np.ndarray, area: np.ndarray, seen: np.ndarray) -> float:
+    """Texels per metre of the unseen faces' planes at one texel per pixel: half the
+    median over the ``seen`` (k,) faces (``corners`` (m, 3, 2) in their views' pixels,
+    ``area`` (m,) square metres) of their texels per metre; 0 without seen faces."""
+    if not len(seen):
+        return 0.0
     texels_per_m = np.empty(len(seen))
-    _texels_per_metre(unit.corners, unit.area, seen, scale, texels_per_m)
+    _texels_per_metre(corners, area, seen, texels_per_m)
     return 0.5 * float(np.median(texels_per_m))
 
 
 @njit(cache=True, nogil=True)
-def _texels_per_metre(corners, area, seen, scale, out):
+def _texels_per_metre(corners, area, seen, out):
     """:func:`_plane_density`'s loop: the square root of each ``seen`` (k,) face's area in
-    texels (its ``corners`` (m, 3, 2) times ``scale``) over its ``area`` (m,) into ``out``."""
+    pixels (its ``corners`` (m, 3, 2)) over its ``area`` (m,) into ``out``."""
     for i in range(seen.shape[0]):
         f = seen[i]
-        x0, y0 = scale * corners[f, 0, 0], scale * corners[f, 0, 1]
-        d1x, d1y = scale * corners[f, 1, 0] - x0, scale * corners[f, 1, 1] - y0
-        d2x, d2y = scale * corners[f, 2, 0] - x0, scale * corners[f, 2, 1] - y0
-        texel_area = 0.5 * abs(d1x * d2y - d1y * d2x)
-        out[i] = np.sqrt(texel_area / max(area[f], 1e-300))
+        x0, y0 = corners[f, 0, 0], corners[f, 0, 1]
+        d1x, d1y = corners[f, 1, 0] - x0, corners[f, 1, 1] - y0
+        d2x, d2y = corners[f, 2, 0] - x0, corners[f, 2, 1] - y0
+        pixel_area = 0.5 * abs(d1x * d2y - d1y * d2x)
+        out[i] = np.sqrt(pixel_area / max(area[f], 1e-300))
 
 
 def cell_corners(count: int, side: int, columns: int) -> np.ndarray:
@@ -399,15 +408,25 @@ class _Charts:
                    seen=labels[member] >= 0)
 
 
-def _layout(unit: _UnitCharts, labels, chart, celled, scale: float, padding: int,
+@dataclass(frozen=True)
+class _Fit:
+    """Where a layout's search for the atlas's scale stands: ``scale`` texels per pixel
+    (of the ``asked`` one), and the charts of fewer than ``fewest`` faces in cells."""
+
+    scale: float
+    fewest: int
+    asked: float
+
+
+def _layout(unit: _UnitCharts, labels, chart, celled, fit: _Fit, padding: int,
             max_size: int) -> tuple:
-    """Corners (m, 3, 2), shape, scale, cell faces (m,) bool, cells' block and side of
-    the packed charts: scaled down to fit, down to :data:`MIN_SCALE`, then the charts of
-    fewest faces given cells until they fit."""
-    asked = scale
+    """Corners (m, 3, 2), shape, the fit reached, cell faces (m,) bool, cells' block and
+    side of the packed charts, from ``fit`` on: scaled down to fit, down to
+    :data:`MIN_SCALE` of the asked density, then the charts of fewest faces given cells
+    until they fit."""
     cells = celled | unit.curved
     charts = _Charts.of(unit, labels, chart, cells)
-    fewest = 1
+    scale, fewest = fit.scale, fit.fewest
     while True:
         kept = charts.faces_in >= fewest
         if not (kept & charts.seen).any():        # planes take their density from views
@@ -417,14 +436,11 @@ def _layout(unit: _UnitCharts, labels, chart, celled, scale: float, padding: int
         else:
             in_cells = np.ones(len(labels), bool)
             in_cells[charts.charted[kept[charts.group]]] = False
-        seen_faces = np.flatnonzero(~in_cells & (labels >= 0))
         n_cells = int(in_cells.sum())
         cell = CELL_TEXELS if CELL_TEXELS ** 2 * n_cells <= 0.5 * max_size ** 2 else 1
         columns, block_size = _cell_block(n_cells, cell, padding)
-        planes = (kept & ~charts.seen).any()
         for _ in range(_FIT_TRIES):
-            plane = _plane_density(unit, seen_faces, scale) if planes else 0.0
-            density = np.where(charts.seen, scale, plane)[kept, None]
+            density = np.where(charts.seen, scale, scale * unit.plane_density)[kept, None]
             low = np.floor(density * charts.low[kept])    # texel centres on whole coordinates
             sizes = np.ceil(density * charts.high[kept] - low) + 1 + 2 * padding
             if block_size is not None:
@@ -435,11 +451,11 @@ def _layout(unit: _UnitCharts, labels, chart, celled, scale: float, padding: int
             if max(shape) <= max_size:
                 return (_layout_corners(unit, charts, kept, density, low, origin, padding,
                                         len(labels)),
-                        shape, scale, in_cells, _block_of(origin, padding, n_cells, columns),
-                        cell)
-            if scale <= MIN_SCALE * asked:
+                        shape, _Fit(scale, fewest, fit.asked), in_cells,
+                        _block_of(origin, padding, n_cells, columns), cell)
+            if scale <= MIN_SCALE * fit.asked:
                 break
-            scale = max(MIN_SCALE * asked, scale * 0.97 * max_size / max(shape))
+            scale = max(MIN_SCALE * fit.asked, scale * 0.97 * max_size / max(shape))
         if in_cells.all():
             raise ValueError(f"the mesh's {len(labels)} faces do not fit a {max_size} texel "
                              "atlas even at one texel each: allow a larger max_size or "
@@ -502,10 +518,14 @@ def build_atlas(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray,
     del tri, normal
     alone = np.zeros(len(faces), bool)
     celled = np.zeros(len(faces), bool)
+    # Each split starts from the scale the last one reached: at an unchanged scale a
+    # chart's texel centres fall where they fell (its corner moves by whole texels), so
+    # the faces left in a split chart claim no texel twice and the splits end.
+    fit = _Fit(float(texels_per_pixel), 1, float(texels_per_pixel))
     for split in itertools.count():
         chart = _dense(np.where(alone | celled, patch.max() + 1 + np.arange(len(faces)), patch))
-        corners, shape, scale, cells, block, cell = _layout(
-            unit, labels, chart, celled, float(texels_per_pixel), int(padding), int(max_size))
+        corners, shape, fit, cells, block, cell = _layout(
+            unit, labels, chart, celled, fit, int(padding), int(max_size))
         charted = np.flatnonzero(~cells)
         face_id, bary, again, overlapping_charted = rasterize_atlas(corners[charted], shape)
         if not again:
@@ -517,7 +537,7 @@ def build_atlas(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray,
             chart = np.where(cells, chart.max() + 1 + np.arange(len(faces)), chart)
             return Atlas(shape=shape, corners=corners,
                          chart=_dense(chart),
-                         face_index=face_id, barycentric=bary, texels_per_pixel=scale)
+                         face_index=face_id, barycentric=bary, texels_per_pixel=fit.scale)
         overlapping = np.zeros(len(faces), bool)
         overlapping[charted] = overlapping_charted
         # A patch no view sees overlaps where it curves: all its faces take cells at once

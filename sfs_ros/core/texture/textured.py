@@ -33,7 +33,7 @@ import numpy as np
 
 from ..carving.carve import validate_masks
 from ..geometry.camera import Camera
-from ..meshing.colour import check_image, fill_from_neighbours
+from ..meshing.colour import HarmonicFill, check_image
 from ..render import as_mesh_arrays
 from ..workers import map_in_threads
 from .agreement import BLUR_LEVELS_PX, blurred_views, face_blur
@@ -100,8 +100,8 @@ class TexturedMesh:
         faces no view sees.
     stats : dict
         JSON-ready figures: faces, views, charts, seam edges, atlas size and use,
-        gains, seconds per step (the atlas made beside the levelling and
-        the agreement test).
+        gains, seconds per step (the atlas and the fill's factors made beside the
+        levelling and the agreement test).
     """
 
     vertices: np.ndarray
@@ -203,7 +203,8 @@ def _views_colours(vertices, faces, labels, neighbours, images, cameras, seen, l
                    blend, kernel: str, blur_levels_px: tuple) -> tuple:
     """What :func:`textured_from_labels` reads the views with: ``(floats, seams, gains,
     offsets, vertex colours, blur)`` (the images as float32 at each blur of
-    ``blur_levels_px``, the seam edges, :func:`_levelled`'s, and each face's blur of
+    ``blur_levels_px``, the seam edges, :func:`_levelled`'s (the vertex colours not yet
+    filled), and each face's blur of
     :func:`.agreement.face_blur`, None without a ``blend``), and the seconds of the
     levelling and the agreement test."""
     seconds, start = {}, time.perf_counter()
@@ -232,25 +233,41 @@ def _split_by_chart(faces: np.ndarray, atlas: Atlas, n_vertices: int) -> tuple:
     return keys % n_vertices, inverse.reshape(-1, 3).astype(np.int64), uv
 
 
+def _compared(labels: np.ndarray, seen: np.ndarray | None, level: bool) -> np.ndarray:
+    """(m,) the labels (m,) of the faces whose corners set the vertex colours (and, when
+    ``level``, the seams' colours: those fully seen, ``seen`` (m, V) bool, by their view),
+    -1 for the others: glimpsed faces neither move the colours where views meet nor are
+    moved."""
+    if not level:
+        return labels
+    return np.where(seen[np.arange(len(labels)), np.maximum(labels, 0)], labels, -1)
+
+
+def _vertex_fill(faces: np.ndarray, compared: np.ndarray, n_vertices: int) -> HarmonicFill | None:
+    """The harmonic fill of the vertices of no face with a view in ``compared`` (m,)
+    (:func:`_compared`), None when there are none; it needs no colour, so it is factored
+    beside the levelling."""
+    seen = np.zeros(n_vertices, bool)
+    seen[faces[compared >= 0]] = True
+    return None if seen.all() else HarmonicFill.of(seen, faces)
+
+
 def _levelled(images, cameras, vertices, faces, labels, seams, seen, level: bool,
               offsets: bool = True) -> tuple:
-    """The gains (V, 3), seam offsets (m, 3, 3) and vertex colours (n, 3) (seen or
-    interpolated) of :func:`texture_mesh`; ``seen`` (m, V) bool the faces each view sees;
-    without ``offsets`` (a blended texture) the seam offsets are zero."""
+    """The gains (V, 3), seam offsets (m, 3, 3) and vertex colours (n, 3) (of the
+    vertices of faces with a view in :func:`_compared`; zero at the others, which
+    :func:`_vertex_fill` fills) of :func:`texture_mesh`; ``seen`` (m, V) bool the faces
+    each view sees fully; without ``offsets`` (a blended texture) the seam offsets are
+    zero."""
     # Exposure is what the views disagree on at a scale of pixels; finer detail that a
     # fraction of a pixel of misregistration changes is blurred away before comparing.
     smooth = [cv2.GaussianBlur(image, (0, 0), LEVELLING_BLUR_PX) for image in images]
     gains = (view_gains(images, cameras, vertices, faces, seen, labels, seams)
              if level and len(seams) else np.ones((len(cameras), 3)))
-    # Glimpsed faces neither move the colours where views meet nor are moved.
-    compared = np.where(seen[np.arange(len(faces)), np.maximum(labels, 0)], labels, -1) \
-        if level else labels
+    compared = _compared(labels, seen, level)
     corner, vertex, views = corner_colours(smooth, cameras, gains, vertices, faces, compared)
     offsets = (seam_offsets(views, vertex, corner, faces, compared, len(cameras))
                if level and offsets else np.zeros_like(corner))
-    seen = views > 0
-    if not seen.all():
-        vertex = fill_from_neighbours(vertex, seen, faces)
     return gains, offsets, vertex
 
 
@@ -373,17 +390,22 @@ def textured_from_labels(vertices: np.ndarray, faces: np.ndarray, labels: np.nda
         atlas = build_atlas(vertices, faces, labels, neighbours, cameras,
                             texels_per_pixel=texels_per_pixel, max_size=max_size,
                             padding=padding)
-        return atlas, {"atlas": time.perf_counter() - start}
+        atlas_s = time.perf_counter() - start
+        fill = _vertex_fill(faces, _compared(labels, seen, level), len(vertices))
+        return (atlas, fill), {"atlas": atlas_s, "fill": time.perf_counter() - start - atlas_s}
 
     def colour_step():
         return _views_colours(vertices, faces, labels, neighbours, images, cameras, seen,
                               level, blend, kernel, blur_levels_px)
 
-    # The atlas and the views' colours meet only in the texels: made side by side.
-    (atlas, seconds), ((floats, seams, gains, offsets, vertex, blur), colour_seconds) = \
+    # The atlas, the fill's factors and the views' colours meet only in the texels: made
+    # side by side.
+    ((atlas, fill), seconds), ((floats, seams, gains, offsets, vertex, blur), colour_seconds) = \
         map_in_threads(lambda step: step(), (atlas_step, colour_step))
     seconds.update(colour_seconds)
     start = time.perf_counter()
+    if fill is not None:
+        vertex = fill(vertex)
     image = _texels(atlas, vertices, faces, labels, floats, cameras, gains, offsets, vertex,
                     kernel, blend, blur)
     claimed = atlas.face_index >= 0
