@@ -188,15 +188,16 @@ class ExpectedCarves:
     :attr:`ComputedOnArrival.band`.
 
     Memory: a byte per voxel of the grid and of the reference grid, and each view's
-    packed mask (twice with ``known``); with ``known``, the band's voxels' indices and
-    values (16 bytes each).
+    packed mask (twice with ``known``); with ``known``, the band's voxels
+    (:class:`.meshing.kept_band.KeptBand`: 48 bytes each without misses).
     """
 
     #: The carves start again on a new grid only once the views have grown by this
     #: factor since they last started.
     RESTART_GROWTH = 1.25
-    #: :attr:`band` follows the hull every this many views (and when the carves start):
-    #: the voxels the band reaches in between are evaluated after the last view.
+    #: :attr:`band` follows the hull every this many views of one grid (the first time
+    #: with every view so far): the voxels the band reaches in between are evaluated
+    #: after the last view.
     BAND_FOLLOWS_EVERY = 8
 
     def __init__(self, bounds_m, resolution: int, max_misses: int, box: BoxCarve,
@@ -240,7 +241,7 @@ class ExpectedCarves:
         if self._grid is not None and same_grid(grid, self._grid):
             for store in self.carves:
                 store.add(camera, mask)
-            self._follow_hull([(camera, mask)])
+            self._follow_hull(camera, mask)
             return
         self._grid, self.carves, self.band = None, (), None
         if len(self._views) < self.RESTART_GROWTH * self._started_with:
@@ -248,26 +249,28 @@ class ExpectedCarves:
         self._grid, self._started_with = grid, len(self._views)
         self.carves = (KeptCarve(grid, most_misses=self._max_misses),
                        KeptCarve(fusion_grid(bounds, grid), most_misses=BoxCarve.MOST_MISSES))
-        if self._known is not None:
-            self.band = KeptBand(grid, max_misses=self._max_misses, known=self._known)
-        views = []
         for index, (view_camera, _, _) in enumerate(self._views):
             view_mask = mask if index == len(self._views) - 1 else self._mask(index)
             for store in self.carves:
                 store.add(view_camera, view_mask)
-            views.append((view_camera, view_mask))
-        self._follow_hull(views)
 
-    def _follow_hull(self, views: list[tuple]) -> None:
-        """Add ``views`` ((camera, mask) pairs) to :attr:`band` (none without ``known``),
-        which then follows the hull carved so far when it starts and every
-        :data:`BAND_FOLLOWS_EVERY` views."""
-        if self.band is None:
+    def _follow_hull(self, camera, mask: np.ndarray) -> None:
+        """Add one more view (``camera``, ``mask``) to :attr:`band` (none without
+        ``known``), which follows the hull carved so far every :data:`BAND_FOLLOWS_EVERY`
+        views. It starts once the grid has held that many views past the carves' start (a
+        box still settling would start it again and again), with every view so far."""
+        if self._known is None:
             return
-        for camera, mask in views:
+        if self.band is not None:
             self.band.add(camera, mask)
-        if (len(self._views) - self._started_with) % self.BAND_FOLLOWS_EVERY == 0:
-            self.band.follow(self.carves[0].occupancy(self._max_misses))
+        if (len(self._views) - self._started_with) % self.BAND_FOLLOWS_EVERY:
+            return
+        if self.band is None:
+            self.band = KeptBand(self._grid, max_misses=self._max_misses, known=self._known)
+            for index, (view_camera, _, _) in enumerate(self._views):
+                self.band.add(view_camera,
+                              mask if index == len(self._views) - 1 else self._mask(index))
+        self.band.follow(self.carves[0].occupancy(self._max_misses))
 
 
 def _check_holdout(view_set: ViewSet, holdout: tuple) -> None:

@@ -42,8 +42,8 @@ class KeptBand:
     band_voxels : int, keyword-only
         The band of :func:`.marching.hull_band_distance`.
 
-    Memory: per voxel of the band of the hull followed, its index, centre and ``rank``
-    values (8 bytes each, twice the index); per view, its packed mask.
+    Memory: per voxel of the band of the hull followed, its index and place (16 bytes),
+    centre (24 bytes) and ``rank`` values (8 bytes each); per view, its packed mask.
     """
 
     def __init__(self, grid: VoxelGrid, *, max_misses: int, known: DistanceImages,
