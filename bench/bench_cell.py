@@ -29,7 +29,8 @@ Baselines, measured in the same run: the same views rendered, segmented,
 carved and meshed in one process by the core pipeline, no ROS (the
 ``sfs-simulate`` path); and for the split, the cell's own work after the last view in
 one process: :meth:`LiveReconstruction.reconstruct` on the masks the cell stored, the
-renders as colour images, after a rehearsal. Ratio = baseline / cell.
+renders as colour images, after a rehearsal. Ratio = baseline / cell. The notes give the
+SHA-256 of both mesh files, to compare code on the same views.
 
 Run: ``python -m bench.bench_cell`` (``--quick``: 24 views at 128^3).
 """

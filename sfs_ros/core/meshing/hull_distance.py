@@ -639,11 +639,6 @@ class HullDistance:
             out[order] = grouped
         return out
 
-    @property
-    def rank(self) -> int:
-        """The largest view value that decides a point's: ``max_misses + 1``."""
-        return self._rank
-
     def add_largest(self, points: np.ndarray, top: np.ndarray, *, floor_m: float,
                     starts: np.ndarray | None = None) -> None:
         """Insert the views' values at ``points`` (n, 3) float64 metres into the rows of
@@ -666,7 +661,7 @@ class HullDistance:
 
     def floored(self, points: np.ndarray, top: np.ndarray, *, floor_m: float) -> np.ndarray:
         """(n,) float64: what :meth:`__call__` with ``floor_m`` gives at ``points`` (n, 3)
-        metres, from ``top`` (n, :attr:`rank`): every view's largest values there
+        metres, from ``top`` (n, ``max_misses + 1``): every view's largest values there
         (:meth:`add_largest`, this hull's views), and this hull's box."""
         out = np.empty(len(points))
         _floored_values_kernel(self._kernel_data, np.ascontiguousarray(points, np.float64),
