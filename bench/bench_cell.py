@@ -29,13 +29,15 @@ Baselines, measured in the same run: the same views rendered, segmented,
 carved and meshed in one process by the core pipeline, no ROS (the
 ``sfs-simulate`` path); and for the split, the cell's own work after the last view in
 one process: :meth:`LiveReconstruction.reconstruct` on the masks the cell stored, the
-renders as colour images, after a rehearsal. Ratio = baseline / cell.
+renders as colour images, after a rehearsal. Ratio = baseline / cell. The notes give the
+SHA-256 of both mesh files, to compare code on the same views.
 
 Run: ``python -m bench.bench_cell`` (``--quick``: 24 views at 128^3).
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import tempfile
@@ -155,8 +157,14 @@ def _cell_run(config: Path, output: Path, total: int) -> dict:
             "segmentation_s": seg, "carving_s": carve,
             "transport_s": observer.in_flight_s() - seg - carve,
             "meshing_s": summary["seconds"], "views_used": summary["views_used"],
+            "mesh_sha256": _sha256(summary["path"]),
             "cpu_carving_s": cpu["carving"], "cpu_meshing_s": cpu["meshing"],
             "cpu_cell_s": sum(cpu.values()), "cpu_by_node": cpu}
+
+
+def _sha256(path: str) -> str:
+    """The SHA-256 of the file at ``path``, hex (a mesh's bytes, to compare runs and code)."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 def _cpu_s(pid: int) -> float:
@@ -225,7 +233,8 @@ def _cell_in_one_process(session: str, captures: list, rig, params: dict, resolu
     stages = json.loads(Path(summary["report_path"]).read_text())["timings_s"]
     carve_s = sum(v for k, v in stages.items() if k in CARVING_STAGES)
     return {"total_s": total, "carve_s": carve_s, "mesh_s": summary["seconds"] - carve_s,
-            "colour_s": stages.get("colour", 0.0), "cpu_s": cpu}
+            "colour_s": stages.get("colour", 0.0), "cpu_s": cpu,
+            "mesh_sha256": _sha256(summary["path"])}
 
 
 def _baseline(params: dict, plan: ScanPlan, resolution: int, folder: Path) -> dict:
@@ -274,6 +283,8 @@ def run(quick: bool = False) -> list[dict]:
              "baseline is that call's CPU time (process_time)",
              "CPU from the last receipt to the mesh by process: " + ", ".join(
                  f"{name} {s:.2f} s" for name, s in cell["cpu_by_node"].items()),
+             f"mesh SHA-256: cell {cell['mesh_sha256']}, in one process "
+             f"{one['mesh_sha256']}",
              f"load average at the end: {os.getloadavg()[0]:.2f}"]
     return [
         row("end to end (start to mesh)", cell["total_s"], base["total_s"]),

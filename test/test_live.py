@@ -29,6 +29,8 @@ from sfs_ros.core.geometry.grid import VoxelGrid
 from sfs_ros.core.geometry.lens import undistort_mask
 from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
 from sfs_ros.core.meshing.colour import MAX_COLOUR_VIEWS
+from sfs_ros.core.meshing.hull_distance import HullDistance
+from sfs_ros.core.meshing.kept_band import KeptBand
 from sfs_ros.core.metrics import occupancy_from_contains, volume_iou
 from sfs_ros.core.pipeline import carve_scan
 from sfs_ros.core.render import rasterize_silhouette, render_image
@@ -223,6 +225,29 @@ def test_the_hull_is_counted_as_the_views_arrive(scan, monkeypatch):
         load_views(live.session_dir), live.params, masks=dict(
             (v.name, mask) for v, (_, mask, _, _) in zip(load_views(live.session_dir).views,
                                                         live.views()))).occupancy)
+
+
+def test_the_band_distance_is_kept_as_the_views_arrive(scan, monkeypatch):
+    # The silhouettes' distances at the voxels near the hull's surface (the marching
+    # cubes' input) are kept view by view as the views arrive: the reconstruction reads
+    # them (and evaluates the few voxels the band reached since it last followed the
+    # hull), evaluating no band anew; the same values as evaluated after the last view
+    # (from the same distance images: the offline path's mesh is the same, test above).
+    live, _, _ = scan
+    evaluated = []
+    real = HullDistance.__call__
+
+    def counted(self, points, **options):
+        evaluated.append(len(points))
+        return real(self, points, **options)
+
+    monkeypatch.setattr(HullDistance, "__call__", counted)
+    kept = live.carve()
+    assert kept.mesher == "marching-cubes" and evaluated == []
+    monkeypatch.setattr(KeptBand, "holds", lambda *_: False)
+    anew = live.carve()
+    assert evaluated == [len(anew.mesher_input.values)]
+    np.testing.assert_array_equal(kept.mesher_input.values, anew.mesher_input.values)
 
 
 def test_masks_survive_png_and_segmentation_unchanged(tmp_path, box):

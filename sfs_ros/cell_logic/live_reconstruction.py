@@ -262,7 +262,9 @@ class LiveReconstruction:
         self._carver = Carver(self.grid, max_misses=self.params.max_misses)
         self._precomputed = ComputedOnArrival(distances=DistanceImages(), box=BoxCarve(self.bounds_m))
         self._expected = ExpectedCarves(self.bounds_m, self.params.resolution,
-                                        self.params.max_misses, self._precomputed.box)
+                                        self.params.max_misses, self._precomputed.box,
+                                        known=self._precomputed.distances
+                                        if self.params.mesher == "marching-cubes" else None)
         self._views: dict[str, _Received] = {}
         self._colour_images: dict[str, np.ndarray] = {}
         self._thumbnails: dict[str, np.ndarray] = {}   # of the images, made as they came
@@ -329,9 +331,10 @@ class LiveReconstruction:
                 for key, v in self._views.items()]
 
     def _unpacked(self, packed: np.ndarray) -> np.ndarray:
-        """(H, W) bool of a mask packed by ``np.packbits``, the rig's size."""
+        """(H, W) bool of a mask packed by ``np.packbits``, the rig's size (its own array:
+        the unpacked 0/1 bytes seen as bool, not copied)."""
         shape = (self.calibration.height, self.calibration.width)
-        return np.unpackbits(packed, count=shape[0] * shape[1]).reshape(shape).astype(bool)
+        return np.unpackbits(packed, count=shape[0] * shape[1]).reshape(shape).view(bool)
 
     # ------------------------------------------------------------ views
 
@@ -557,7 +560,8 @@ class LiveReconstruction:
         return carve_scan(view_set, replace(params, colour=bool(images) and colour is not False),
                           masks=masks, images=images,
                           precomputed=replace(self._precomputed, undistorted_masks=undistorted,
-                                              carves=self._expected.carves))
+                                              carves=self._expected.carves,
+                                              band=self._expected.band))
 
     def hand_over(self) -> HandOver:
         """What goes with this scan's carving: its name, session folder, views received and

@@ -20,7 +20,7 @@ import numpy as np
 
 from .carved_scan import CarvedScan, ScanView
 from .carving.bounds import BoxCarve
-from .carving.carve import KeptCarve, same_grid
+from .carving.carve import KeptCarve, same_grid, view_keys
 from .carving.directions import check_directions
 from .carving.fusion import reference_misses
 from .carving.resolution import choose_voxel_size, default_memory_budget
@@ -29,6 +29,7 @@ from .geometry.grid import VoxelGrid
 from .geometry.lens import is_distorted, lens_problem
 from .mesh_scan import Reconstruction, mesh_scan, timed
 from .meshing.hull_distance import DistanceImages, HullDistance
+from .meshing.kept_band import KeptBand
 from .meshing.meshers import MESHER, Mesher, mesher
 from .scan_report import carving_report
 from .segmentation.segment import SegmentationParams
@@ -156,12 +157,16 @@ class ComputedOnArrival:
     carves : carves of the grids the reconstruction was expected to choose
         (:class:`.carving.carve.KeptCarve`): the fusion's reference hull and the hull,
         taken from one that holds them.
+    band : the views' values at the voxels near the hull's surface, on the grid the
+        reconstruction was expected to choose (:class:`.meshing.kept_band.KeptBand`), for
+        the marching cubes' signed distance.
     """
 
     distances: DistanceImages | None = None
     box: BoxCarve | None = None
     undistorted_masks: dict = field(default_factory=dict)
     carves: tuple = ()
+    band: KeptBand | None = None
 
 
 class ExpectedCarves:
@@ -176,23 +181,35 @@ class ExpectedCarves:
     waits until the views have grown by a quarter since the last start
     (:data:`RESTART_GROWTH`), so that a box that never settles costs a few carves per
     view, not one per view so far. A reconstruction that chooses another grid, or
-    carves other masks, carves anew: the same result.
+    carves other masks, carves anew: the same result. Given the views' distance images
+    (``known``, each view's added before the view), it also keeps the views' values at the
+    voxels near the hull's surface (:attr:`band`, a
+    :class:`.meshing.kept_band.KeptBand` following the hull carved so far), for
+    :attr:`ComputedOnArrival.band`.
 
     Memory: a byte per voxel of the grid and of the reference grid, and each view's
-    packed mask.
+    packed mask (twice with ``known``); with ``known``, the band's voxels
+    (:class:`.meshing.kept_band.KeptBand`: 48 bytes each without misses).
     """
 
     #: The carves start again on a new grid only once the views have grown by this
     #: factor since they last started.
     RESTART_GROWTH = 1.25
+    #: :attr:`band` follows the hull every this many views of one grid (the first time
+    #: with every view so far): the voxels the band reaches in between are evaluated
+    #: after the last view.
+    BAND_FOLLOWS_EVERY = 8
 
-    def __init__(self, bounds_m, resolution: int, max_misses: int, box: BoxCarve):
+    def __init__(self, bounds_m, resolution: int, max_misses: int, box: BoxCarve,
+                 known: DistanceImages | None = None):
         self._bounds = as_bounds(bounds_m, what="bounds_m")
         self._resolution, self._max_misses, self._box = int(resolution), int(max_misses), box
+        self._known = known
         self._views: list[tuple] = []   # (camera, packed mask, mask shape)
         self._grid: VoxelGrid | None = None
         self._started_with = 0   # views when the carves last started
         self.carves: tuple = ()
+        self.band: KeptBand | None = None
 
     def _expected_grid(self) -> tuple[np.ndarray, VoxelGrid] | None:
         """The box (2, 3), metres, and grid :func:`.stages.choose_grid` chooses for the
@@ -211,21 +228,22 @@ class ExpectedCarves:
 
     def _mask(self, index: int) -> np.ndarray:
         _, packed, shape = self._views[index]
-        return np.unpackbits(packed, count=shape[0] * shape[1]).reshape(shape).astype(bool)
+        return np.unpackbits(packed, count=shape[0] * shape[1]).reshape(shape).view(bool)
 
     def add(self, camera, mask: np.ndarray) -> None:
         """Count one more view: its ideal pinhole ``camera`` and ``mask`` (H, W) bool on it."""
         self._views.append((camera, np.packbits(mask, axis=None), mask.shape))
         expected = self._expected_grid()
         if expected is None:
-            self._grid, self.carves = None, ()
+            self._grid, self.carves, self.band = None, (), None
             return
         bounds, grid = expected
         if self._grid is not None and same_grid(grid, self._grid):
             for store in self.carves:
                 store.add(camera, mask)
+            self._follow_hull(camera, mask)
             return
-        self._grid, self.carves = None, ()
+        self._grid, self.carves, self.band = None, (), None
         if len(self._views) < self.RESTART_GROWTH * self._started_with:
             return
         self._grid, self._started_with = grid, len(self._views)
@@ -235,6 +253,24 @@ class ExpectedCarves:
             view_mask = mask if index == len(self._views) - 1 else self._mask(index)
             for store in self.carves:
                 store.add(view_camera, view_mask)
+
+    def _follow_hull(self, camera, mask: np.ndarray) -> None:
+        """Add one more view (``camera``, ``mask``) to :attr:`band` (none without
+        ``known``), which follows the hull carved so far every :data:`BAND_FOLLOWS_EVERY`
+        views. It starts once the grid has held that many views past the carves' start (a
+        box still settling would start it again and again), with every view so far."""
+        if self._known is None:
+            return
+        if self.band is not None:
+            self.band.add(camera, mask)
+        if (len(self._views) - self._started_with) % self.BAND_FOLLOWS_EVERY:
+            return
+        if self.band is None:
+            self.band = KeptBand(self._grid, max_misses=self._max_misses, known=self._known)
+            for index, (view_camera, _, _) in enumerate(self._views):
+                self.band.add(view_camera,
+                              mask if index == len(self._views) - 1 else self._mask(index))
+        self.band.follow(self.carves[0].occupancy(self._max_misses))
 
 
 def _check_holdout(view_set: ViewSet, holdout: tuple) -> None:
@@ -285,6 +321,16 @@ def _check_left(segmented: Segmented, used: UsedViews, rejected: list[dict],
                          f"(first: {rejected[0]['view']}: {rejected[0]['reason']})")
     check_directions(used.cameras, used.names(segmented.views), bounds.mean(axis=0))
     check_max_misses(max_misses, len(used.cameras), " left")
+
+
+def _kept_band(band, grid: VoxelGrid, used: UsedViews, coverage: list, max_misses: int):
+    """``band`` (:attr:`ComputedOnArrival.band`) if it holds the values of the views that
+    carve, on ``grid``, for ``max_misses``, and no view's mask comes with its coverage;
+    else None."""
+    if band is None or any(alpha is not None for alpha in coverage):
+        return None
+    return band if band.holds(grid, view_keys(used.cameras, used.prepared), max_misses) \
+        else None
 
 
 def _mesher_and_options(params: ReconstructionParams, grid: VoxelGrid) -> tuple[Mesher, dict]:
@@ -365,11 +411,13 @@ def carve_scan(view_set: ViewSet, params: ReconstructionParams = ReconstructionP
 
     # The views' distance images (per view, in threads) are made while the hull is
     # carved: they need the masks alone.
+    coverage = [segmented.coverage.get(name) for name in used.names(segmented.views)]
     with ThreadPoolExecutor(max_workers=1) as beside:
         distance = beside.submit(
             HullDistance, used.cameras, used.masks, max_misses=params.max_misses,
             bounds_m=(grid.bounds_min, grid.bounds_max), known=precomputed.distances,
-            coverage=[segmented.coverage.get(name) for name in used.names(segmented.views)])
+            coverage=coverage,
+            kept=_kept_band(precomputed.band, grid, used, coverage, params.max_misses))
         with timed(timings, "carving"):
             occupancy, specks_removed = carve_hull(grid, used, params.max_misses, progress,
                                                    kept=precomputed.carves)

@@ -46,6 +46,8 @@ def _bits(mask: np.ndarray) -> array.array:
 
 
 def _unbits(data, shape: tuple[int, ...], what: str) -> np.ndarray:
+    """``shape`` bool of the bits ``data`` packed (:func:`_bits`), a new array (the unpacked
+    0/1 bytes seen as bool); ValueError naming ``what`` if their count is not the shape's."""
     count = int(np.prod(shape))
     packed = np.frombuffer(data, dtype=np.uint8)
     if packed.size != (count + 7) // 8:
@@ -177,7 +179,7 @@ def _view(view: CarvedView, width: int, height: int) -> tuple[ScanView, np.ndarr
                     orthographic=bool(view.orthographic))
     mask = _unbits(view.mask_bits, (height, width), f"view {view.name!r}'s mask_bits")
     angles = None if math.isnan(view.theta_rad) else (view.theta_rad, view.phi_rad)
-    return ScanView(view.name, camera, view.role, angles), mask.copy()
+    return ScanView(view.name, camera, view.role, angles), mask
 
 
 def _colour(view: CarvedView, width: int, height: int,
@@ -189,12 +191,12 @@ def _colour(view: CarvedView, width: int, height: int,
         if image is None or image.shape != (height, width, 3):
             raise ValueError(f"view {view.name!r}'s image was left out as held, but no "
                              f"{width} x {height} image of it is held")
-        return mask.copy(), image
+        return mask, image
     image = np.frombuffer(view.image_rgb, np.uint8)
     if image.size != height * width * 3:
         raise ValueError(f"view {view.name!r}'s image_rgb has {image.size} bytes, expected "
                          f"{height * width * 3} ({width} x {height} rgb8)")
-    return mask.copy(), image.reshape(height, width, 3).copy()
+    return mask, image.reshape(height, width, 3).copy()
 
 
 def carved_scan_from_msg(msg: CarvedScanMsg, held: dict | None = None,

@@ -26,7 +26,7 @@ import numpy as np
 
 from ..geometry.camera import Camera
 from ..geometry.grid import VoxelGrid
-from .carve import Carver, PreparedMasks, carve, same_grid, view_key
+from .carve import Carver, PreparedMasks, carve, same_grid, view_key, view_keys
 from .hull import drop_specks, occupied_bounds
 
 __all__ = ["BoxCarve", "axes_meeting_point", "box_in_frame", "estimate_bounds",
@@ -238,10 +238,8 @@ class BoxCarve:
         if not same_grid(grid, self.grid) or not 0 <= max_misses <= self.MOST_MISSES \
                 or not 0 <= unframed <= self.MOST_UNFRAMED:
             return None
-        if isinstance(masks, PreparedMasks):
-            masks = masks.masks
-        if len(cameras) != sum(self._views.values()) or self._views != Counter(
-                view_key(c, m) for c, m in zip(cameras, masks, strict=True)):
+        if len(cameras) != sum(self._views.values()) \
+                or self._views != Counter(view_keys(cameras, masks)):
             return None
         framed = self._unframed.tolerating(unframed)
         return (self._misses.tolerating(max_misses) & framed,

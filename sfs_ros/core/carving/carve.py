@@ -35,7 +35,7 @@ from ..geometry.grid import VoxelGrid
 from . import carve_kernels as _k
 
 __all__ = ["OUTSIDE_IMAGE", "PreparedMasks", "carve", "Carver", "KeptCarve", "kept_or_carved",
-           "same_grid", "validate_masks", "view_coefficients", "view_key"]
+           "same_grid", "validate_masks", "view_coefficients", "view_key", "view_keys"]
 
 OUTSIDE_IMAGE = ("keep", "carve")
 
@@ -209,6 +209,14 @@ class PreparedMasks:
         self.masks = validate_masks(self.cameras, masks)
         self._blocks = None
         self._runs = {}
+        self._keys = None
+
+    def view_keys(self) -> list[tuple]:
+        """:func:`view_key` of each view, made once (a kept carve asks for them, one per
+        grid it holds)."""
+        if self._keys is None:
+            self._keys = [view_key(c, m) for c, m in zip(self.cameras, self.masks)]
+        return self._keys
 
     def block_tables(self):
         """The block path's flat masks and summed-area tables (see ``_flat_views``)."""
@@ -370,6 +378,18 @@ def view_key(camera: Camera, mask) -> tuple:
             np.packbits(np.asarray(mask, dtype=bool), axis=None).tobytes())
 
 
+def view_keys(cameras: Sequence[Camera], masks) -> list[tuple]:
+    """:func:`view_key` of each camera and mask (``masks`` as :func:`carve` takes them):
+    those :class:`PreparedMasks` made once, when they are of these very cameras."""
+    cameras = list(cameras)
+    if isinstance(masks, PreparedMasks):
+        if len(cameras) == len(masks.cameras) \
+                and all(a is b for a, b in zip(cameras, masks.cameras)):
+            return masks.view_keys()
+        masks = masks.masks
+    return [view_key(c, m) for c, m in zip(cameras, masks, strict=True)]
+
+
 class KeptCarve:
     """A carve of one grid kept up to date as views arrive, for a later :func:`carve`.
 
@@ -406,6 +426,11 @@ class KeptCarve:
         self._misses.add_view(camera, mask)
         self._views[view_key(camera, mask)] += 1
 
+    def occupancy(self, max_misses: int) -> np.ndarray:
+        """(nx, ny, nz) bool: the voxels of :attr:`grid` at most ``max_misses`` (at most
+        :attr:`most_misses`) of the views counted miss."""
+        return self._misses.tolerating(max_misses)
+
     def carved(self, grid: VoxelGrid, cameras: Sequence[Camera], masks,
                max_misses: int) -> np.ndarray | None:
         """(nx, ny, nz) bool, ``carve(grid, cameras, masks, max_misses=max_misses)``, if
@@ -413,10 +438,10 @@ class KeptCarve:
         grid, all but at most :attr:`MOST_REPLACED` of them with these masks; else None."""
         if not same_grid(grid, self.grid) or not 0 <= max_misses <= self.most_misses:
             return None
+        cameras = list(cameras)
+        keys = view_keys(cameras, masks)
         if isinstance(masks, PreparedMasks):
             masks = masks.masks
-        cameras = list(cameras)
-        keys = [view_key(c, m) for c, m in zip(cameras, masks, strict=True)]
         given = Counter(keys)
         counted_only, given_only = self._views - given, given - self._views
         replaced = sum(given_only.values())
@@ -440,7 +465,7 @@ class KeptCarve:
 def _unpacked(packed: bytes, camera: Camera) -> np.ndarray:
     """(H, W) bool of a mask packed by ``np.packbits``, the camera's size."""
     bits = np.unpackbits(np.frombuffer(packed, np.uint8), count=camera.height * camera.width)
-    return bits.reshape(camera.height, camera.width).astype(bool)
+    return bits.reshape(camera.height, camera.width).view(bool)
 
 
 def kept_or_carved(kept: Sequence[KeptCarve], grid: VoxelGrid, cameras: Sequence[Camera],

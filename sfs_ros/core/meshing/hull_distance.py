@@ -51,7 +51,7 @@ from ..carving.carve import validate_masks
 from ..geometry.camera import Camera
 from ..workers import map_in_threads
 
-__all__ = ["DistanceImages", "HullDistance"]
+__all__ = ["DistanceImages", "HullDistance", "point_groups"]
 
 #: Pixels kept around each silhouette's bounding box in the stored distance
 #: image; beyond them a lower bound of the outside distance is used (see
@@ -391,6 +391,32 @@ def _below_floor(hull, v, lo, hi, floor):
     return bound < 0.0 and metres_per_px[v] * nearest * bound < floor
 
 
+@njit(cache=True, inline="always")
+def _group_largest(hull, points, first, stop, floor, top):
+    """Insert the views' values at ``points[first:stop]`` into rows ``first:stop`` of
+    ``top`` (:func:`_keep_largest`), but those of a view below ``floor`` over the
+    points' box (:func:`_below_floor`), which change nothing in rows that start at
+    ``floor`` or above."""
+    lo = np.empty(3)
+    hi = np.empty(3)
+    for axis in range(3):
+        lo[axis] = points[first:stop, axis].min()
+        hi[axis] = points[first:stop, axis].max()
+    for v in range(hull[0].shape[0]):
+        if _below_floor(hull, v, lo, hi, floor):
+            continue
+        for p in range(first, stop):
+            _keep_largest(top, p, _view_value(hull, v, points[p, 0], points[p, 1],
+                                              points[p, 2]))
+
+
+@njit(cache=True, inline="always")
+def _floored_value(hull, x, y, z, top, p, floor):
+    """The signed distance of ``(x, y, z)`` or ``floor``, whichever is larger, from row
+    ``p`` of ``top``: the ``rank`` largest view values, started at ``floor``."""
+    return max(top[p, top.shape[1] - 1], _box_value(hull, x, y, z), floor)
+
+
 @njit(parallel=True, cache=True)
 def _floored_kernel(hull, points, starts, floor, top, out):
     """``out[p]``: the signed distance of ``points[p]`` or ``floor``, whichever is larger.
@@ -404,21 +430,33 @@ def _floored_kernel(hull, points, starts, floor, top, out):
     """
     for g in prange(starts.shape[0] - 1):
         first, stop = starts[g], starts[g + 1]
-        lo = np.empty(3)
-        hi = np.empty(3)
-        for axis in range(3):
-            lo[axis] = points[first:stop, axis].min()
-            hi[axis] = points[first:stop, axis].max()
         top[first:stop] = floor
-        for v in range(hull[0].shape[0]):
-            if _below_floor(hull, v, lo, hi, floor):
-                continue
-            for p in range(first, stop):
-                _keep_largest(top, p, _view_value(hull, v, points[p, 0], points[p, 1],
-                                                  points[p, 2]))
+        _group_largest(hull, points, first, stop, floor, top)
         for p in range(first, stop):
-            out[p] = max(top[p, top.shape[1] - 1],
-                         _box_value(hull, points[p, 0], points[p, 1], points[p, 2]), floor)
+            out[p] = _floored_value(hull, points[p, 0], points[p, 1], points[p, 2], top, p,
+                                    floor)
+
+
+@njit(parallel=True, cache=True)
+def _largest_kernel(hull, points, starts, floor, top):
+    """:func:`_floored_kernel`'s ``top``, the views' values added to the rows as they are
+    (started at ``floor`` or above, by the caller), group by group."""
+    for g in prange(starts.shape[0] - 1):
+        _group_largest(hull, points, starts[g], starts[g + 1], floor, top)
+
+
+@njit(parallel=True, cache=True)
+def _floored_values_kernel(hull, points, top, floor, out):
+    """``out[p]``: :func:`_floored_value` of ``points[p]`` from row ``p`` of ``top``."""
+    for p in prange(points.shape[0]):
+        out[p] = _floored_value(hull, points[p, 0], points[p, 1], points[p, 2], top, p, floor)
+
+
+def point_groups(points: np.ndarray, floor_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """The groups in which :meth:`HullDistance.__call__` with ``floor_m`` evaluates the
+    points (n, 3) metres: ``(order (n,) int64, starts (groups + 1,) int64)``
+    (:func:`_groups`)."""
+    return _groups(points, _GROUP_FLOORS * -floor_m)
 
 
 def _groups(points: np.ndarray, edge_m: float) -> tuple[np.ndarray, np.ndarray]:
@@ -515,13 +553,18 @@ class HullDistance:
         channel whose threshold gave the mask), which places its silhouette's edge
         within the pixels (module docstring); None for a view without. None: no view
         has one.
+    kept : :class:`.kept_band.KeptBand` or None, keyword-only
+        The views' values kept at the voxels near the hull's surface as the views
+        arrived, of these very views, masks and ``max_misses``, without coverage:
+        :func:`.marching.hull_band_distance` reads them (:attr:`kept`).
 
     Memory: one float32 distance image per view, cropped to the silhouette's
     bounding box plus ``CROP_MARGIN_PX``.
     """
 
     def __init__(self, cameras: Sequence[Camera], masks, *, max_misses: int = 0,
-                 bounds_m=None, known: DistanceImages | None = None, coverage=None):
+                 bounds_m=None, known: DistanceImages | None = None, coverage=None,
+                 kept=None):
         cameras = list(cameras)
         if not cameras:
             raise ValueError("need at least one camera and mask to define a hull")
@@ -551,6 +594,7 @@ class HullDistance:
             crops.append((offset, distance.shape[1], distance.shape[0], u0, v0))
             offset += distance.size
         self._rank = int(max_misses) + 1
+        self.kept = kept
         # What the kernels read (see ``_distance_at``). Distance images assume
         # square pixels: the mean focal length converts them to metres.
         self._kernel_data = (
@@ -593,6 +637,35 @@ class HullDistance:
             grouped = np.empty(len(pts))
             _floored_kernel(self._kernel_data, pts[order], starts, float(floor_m), top, grouped)
             out[order] = grouped
+        return out
+
+    def add_largest(self, points: np.ndarray, top: np.ndarray, *, floor_m: float,
+                    starts: np.ndarray | None = None) -> None:
+        """Insert the views' values at ``points`` (n, 3) float64 metres into the rows of
+        ``top`` (n, k) float64, each row its ``k`` largest values so far, descending, and
+        at least ``floor_m`` (metres, < 0): a value below it is left out (its view may be
+        not evaluated there). Values of other views added before or after, the rows are
+        what :meth:`__call__` would keep for all of them, in any order. ``starts``: the
+        points are in groups already (:func:`point_groups`, its ``starts``; ``points`` and
+        ``top`` in its order), else they are grouped here."""
+        pts = np.ascontiguousarray(points, dtype=np.float64)
+        if not len(pts):
+            return
+        if starts is not None:
+            _largest_kernel(self._kernel_data, pts, starts, float(floor_m), top)
+            return
+        order, starts = point_groups(pts, floor_m)
+        grouped = np.ascontiguousarray(top[order])
+        _largest_kernel(self._kernel_data, pts[order], starts, float(floor_m), grouped)
+        top[order] = grouped
+
+    def floored(self, points: np.ndarray, top: np.ndarray, *, floor_m: float) -> np.ndarray:
+        """(n,) float64: what :meth:`__call__` with ``floor_m`` gives at ``points`` (n, 3)
+        metres, from ``top`` (n, ``max_misses + 1``): every view's largest values there
+        (:meth:`add_largest`, this hull's views), and this hull's box."""
+        out = np.empty(len(points))
+        _floored_values_kernel(self._kernel_data, np.ascontiguousarray(points, np.float64),
+                               np.ascontiguousarray(top), float(floor_m), out)
         return out
 
     def project(self, points, directions, *, reach_m: float) -> tuple[np.ndarray, np.ndarray]:

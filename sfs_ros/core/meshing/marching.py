@@ -24,12 +24,13 @@ from numba import njit, prange
 from scipy import ndimage
 from skimage import measure
 
+from ..carving.carve import same_grid
 from ..carving.hull import column_runs, occupied_bounds
 from ..geometry.grid import VoxelGrid
 from .hull_distance import HullDistance
 
-__all__ = ["BandDistance", "band_marching_cubes", "hull_band_distance", "hull_marching_cubes_mesh",
-           "marching_cubes_mesh"]
+__all__ = ["BandDistance", "band_marching_cubes", "band_voxel_indices", "hull_band_distance",
+           "hull_band_floor_m", "hull_marching_cubes_mesh", "marching_cubes_mesh", "padded_crop"]
 
 #: Iso-level between empty (0) and occupied (1) voxels: just below 0.5. At
 #: exactly 0.5, Lewiner's ambiguity tests tie on 0/1 data (a cube face whose
@@ -117,7 +118,7 @@ class BandDistance:
     voxels: np.ndarray | None = field(default=None, compare=False, repr=False)
 
 
-def _padded_crop(occ: np.ndarray, band: int) -> tuple[np.ndarray, np.ndarray]:
+def padded_crop(occ: np.ndarray, band: int) -> tuple[np.ndarray, np.ndarray]:
     """The occupancy's occupied box padded by ``band + 1`` empty voxels, and the grid index
     of its ``[0, 0, 0]``; ValueError if nothing is occupied."""
     lo, hi = _occupied_bounds(occ)
@@ -149,6 +150,13 @@ def band_voxel_indices(crop: np.ndarray, band: int) -> np.ndarray:
     return out
 
 
+def hull_band_floor_m(grid: VoxelGrid, band_voxels: int) -> float:
+    """The floor (metres, < 0) of :func:`hull_band_distance`'s distances: below
+    ``-(band_voxels + 1)`` voxels a value is clipped anyway, and the floor spares the views
+    that see a group of points deep inside their silhouette."""
+    return -(band_voxels + 1) * grid.voxel_size
+
+
 def _check_band(band_voxels) -> int:
     if isinstance(band_voxels, bool) or not isinstance(band_voxels, (int, np.integer)) \
             or band_voxels < 1:
@@ -168,7 +176,9 @@ def hull_band_distance(occupancy, grid: VoxelGrid, hull: HullDistance, *,
         the surface is to a voxel (the distance is only computed near it).
     grid : VoxelGrid
     hull : HullDistance
-        Signed distance to the hull of the same views (and carving box).
+        Signed distance to the hull of the same views (and carving box). Its ``kept``
+        values (:class:`.kept_band.KeptBand`, of the same grid and band) are read where
+        they are kept: the same distances.
     band_voxels : int, keyword-only
         Voxels within this many steps (26-neighbour) of the occupancy's
         boundary, on either side, get the distance computed. With 1, every
@@ -186,13 +196,15 @@ def hull_band_distance(occupancy, grid: VoxelGrid, hull: HullDistance, *,
     """
     occ = _check_occupancy(occupancy, grid)
     band = _check_band(band_voxels)
-    crop, corner = _padded_crop(occ, band)
+    crop, corner = padded_crop(occ, band)
     pad = band + 1
     voxels = band_voxel_indices(crop, band)
-    # Below -pad voxels the value is clipped anyway: the floor spares the views that
-    # see a group of points deep inside their silhouette.
-    distance = hull(grid.index_to_world(voxels + corner),
-                    floor_m=-pad * grid.voxel_size) / grid.voxel_size
+    kept = hull.kept
+    if kept is not None and kept.band_voxels == band and same_grid(kept.grid, grid):
+        distance = kept.distance(hull, voxels + corner) / grid.voxel_size
+    else:
+        distance = hull(grid.index_to_world(voxels + corner),
+                        floor_m=hull_band_floor_m(grid, band)) / grid.voxel_size
     distance = np.clip(distance, -pad, pad).astype(np.float32)
     # A sample exactly on the level makes Lewiner's ambiguity tests tie (see
     # LEVEL); counting it as just outside (by 1e-6 voxel) breaks the tie.
@@ -223,7 +235,7 @@ def band_marching_cubes(occupancy, grid: VoxelGrid, band: BandDistance):
     """
     occ = _check_occupancy(occupancy, grid)
     width = _check_band(band.band_voxels)
-    crop, corner = _padded_crop(occ, width)
+    crop, corner = padded_crop(occ, width)
     pad = width + 1
     voxels = band.voxels
     if voxels is None or len(voxels) != len(band.values):

@@ -99,6 +99,9 @@ class RefinedDistance:
     fused photo distance ``sdf`` (nx, ny, nz) float32 on ``grid`` (nearest voxel centre;
     -inf where undecided), so the hull stays the outer bound."""
 
+    #: No values kept as the views arrived (:attr:`HullDistance.kept`) are this distance's.
+    kept = None
+
     def __init__(self, hull, sdf: np.ndarray, grid: VoxelGrid):
         self.hull, self.sdf, self.grid = hull, sdf, grid
 

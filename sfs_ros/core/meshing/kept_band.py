@@ -1,0 +1,141 @@
+"""The hull's signed distance near its surface, kept as the views arrive.
+
+:func:`.marching.hull_band_distance` evaluates the views' silhouette distances
+(:class:`.hull_distance.HullDistance`) at the voxels within a band of the carved
+surface: after the last view of a scan, the most of a reconstruction's carving time.
+A point's value is the ``rank``-th largest of its views' values (above a floor), which
+does not depend on the order the views come in: :class:`KeptBand` keeps those largest
+values at the band's voxels of the hull carved so far, adding each view as it arrives
+(while the rig moves) and evaluating every view so far at the voxels the band reaches
+only then. After the last view, the band of the final hull is mostly kept already: its
+voxels kept are read, the others evaluated. The values are the same either way, bit for
+bit: every view's value at a voxel is the same number whichever
+:class:`~.hull_distance.HullDistance` holds the view.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+
+import numpy as np
+
+from ..carving.carve import same_grid, view_key
+from ..geometry.grid import VoxelGrid
+from .hull_distance import DistanceImages, HullDistance, point_groups
+from .marching import band_voxel_indices, hull_band_floor_m, padded_crop
+
+__all__ = ["KeptBand"]
+
+
+class KeptBand:
+    """The ``rank`` largest view values (:meth:`.hull_distance.HullDistance.add_largest`)
+    at the voxels near a hull's surface on ``grid``, kept as views arrive, for
+    :func:`.marching.hull_band_distance` of the same views.
+
+    Parameters
+    ----------
+    grid : VoxelGrid
+    max_misses : int, keyword-only
+        The misses the hull tolerates (``rank = max_misses + 1``).
+    known : DistanceImages, keyword-only
+        The views' distance images (each view's added before it is given here).
+    band_voxels : int, keyword-only
+        The band of :func:`.marching.hull_band_distance`.
+
+    Memory: per voxel of the band of the hull followed, its index and place (16 bytes),
+    centre (24 bytes) and ``rank`` values (8 bytes each); per view, its packed mask.
+    """
+
+    def __init__(self, grid: VoxelGrid, *, max_misses: int, known: DistanceImages,
+                 band_voxels: int = 1):
+        self.grid, self.rank, self.band_voxels = grid, int(max_misses) + 1, int(band_voxels)
+        self.floor_m = hull_band_floor_m(grid, self.band_voxels)
+        self._known = known
+        self._views: Counter = Counter()
+        self._cameras: list = []
+        self._packed: list[tuple[np.ndarray, tuple]] = []   # (packed mask, its shape)
+        # The voxels kept, in the groups the views are evaluated in (point_groups): their
+        # centres, values and group starts; and their linear indices, ascending, with
+        # where each lies in the groups.
+        self._points = np.empty((0, 3))
+        self._top = np.empty((0, self.rank))
+        self._starts = np.zeros(1, np.int64)
+        self._sorted = np.empty(0, np.int64)
+        self._place = np.empty(0, np.int64)
+
+    def add(self, camera, mask: np.ndarray) -> None:
+        """One more view: ``camera`` and ``mask`` (H, W) bool on it, its values added at
+        the voxels kept."""
+        if len(self._points):
+            HullDistance([camera], [mask], known=self._known).add_largest(
+                self._points, self._top, floor_m=self.floor_m, starts=self._starts)
+        self._cameras.append(camera)
+        self._packed.append((np.packbits(mask, axis=None), mask.shape))
+        self._views[view_key(camera, mask)] += 1
+
+    def follow(self, occupancy: np.ndarray) -> None:
+        """Keep the values at the band of ``occupancy`` (the grid's shape, bool; the hull
+        carved so far) from now on: every view's values evaluated where they were not
+        kept (the hull decides where the values are kept, not what they are)."""
+        voxels = self._band(occupancy)
+        linear = self._linear(voxels)
+        points = self.grid.index_to_world(voxels)
+        top, missing = self._kept_at(linear)
+        if missing.any():
+            masks = [np.unpackbits(packed, count=shape[0] * shape[1]).reshape(shape).view(bool)
+                     for packed, shape in self._packed]
+            fresh = np.full((int(missing.sum()), self.rank), self.floor_m)
+            HullDistance(self._cameras, masks, known=self._known).add_largest(
+                points[missing], fresh, floor_m=self.floor_m)
+            top[missing] = fresh
+        order, self._starts = point_groups(points, self.floor_m)
+        self._points, self._top = points[order], top[order]
+        self._sorted = linear          # (ascending: the band's voxels come in C order)
+        self._place = np.empty_like(order)
+        self._place[order] = np.arange(len(order))
+
+    def holds(self, grid: VoxelGrid, keys: list, max_misses: int) -> bool:
+        """Whether these values are of the views of ``keys``
+        (:func:`~sfs_ros.core.carving.carve.view_key`, in any order) on ``grid``, for
+        ``max_misses``."""
+        return same_grid(grid, self.grid) and self.rank == int(max_misses) + 1 \
+            and Counter(keys) == self._views
+
+    def distance(self, hull: HullDistance, voxels: np.ndarray) -> np.ndarray:
+        """(n,) float64 metres: ``hull(points, floor_m=...)`` at the centres of ``voxels``
+        (n, 3) int64 indices, ``hull`` of the views this store holds (:meth:`holds`): the
+        values kept where they are, the others evaluated."""
+        points = self.grid.index_to_world(voxels)
+        top, missing = self._kept_at(self._linear(voxels))
+        if missing.any():
+            fresh = np.full((int(missing.sum()), self.rank), self.floor_m)
+            hull.add_largest(points[missing], fresh, floor_m=self.floor_m)
+            top[missing] = fresh
+        return hull.floored(points, top, floor_m=self.floor_m)
+
+    def _band(self, occupancy: np.ndarray) -> np.ndarray:
+        """(n, 3) int64 grid indices, in C order, of the band of ``occupancy`` (empty for
+        none)."""
+        if not occupancy.any():
+            return np.empty((0, 3), np.int64)
+        crop, corner = padded_crop(occupancy, self.band_voxels)
+        return band_voxel_indices(crop, self.band_voxels) + corner
+
+    def _linear(self, voxels: np.ndarray) -> np.ndarray:
+        """(n,) int64 indices of ``voxels`` (n, 3) in the grid grown by the band's padding
+        on every side (a band voxel may lie beyond the grid), in the same order."""
+        pad = self.band_voxels + 1
+        size = np.array(self.grid.shape, np.int64) + 2 * pad
+        shifted = voxels + pad
+        return (shifted[:, 0] * size[1] + shifted[:, 1]) * size[2] + shifted[:, 2]
+
+    def _kept_at(self, linear: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(top (n, rank) float64, missing (n,) bool)``: the values kept at the voxels
+        ``linear`` (:meth:`_linear`), and where none are (their rows undefined)."""
+        top = np.empty((len(linear), self.rank))
+        if not len(self._sorted):
+            return top, np.ones(len(linear), bool)
+        slot = np.minimum(np.searchsorted(self._sorted, linear), len(self._sorted) - 1)
+        found = self._sorted[slot] == linear
+        top[found] = self._top[self._place[slot[found]]]
+        return top, ~found
