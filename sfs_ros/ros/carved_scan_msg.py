@@ -23,7 +23,7 @@ from sfs_ros.core.carved_scan import ROLES, CarvedScan, ScanView
 from sfs_ros.core.carving.hull import occupied_bounds
 from sfs_ros.core.geometry.camera import Camera
 from sfs_ros.core.geometry.grid import VoxelGrid
-from sfs_ros.core.meshing.marching import BandDistance
+from sfs_ros.core.meshing.marching import BandDistance, pack_band, unpack_band
 from sfs_ros.core.meshing.meshers import MESHERS, HullCloud
 from sfs_ros_interfaces.msg import CarvedScan as CarvedScanMsg
 from sfs_ros_interfaces.msg import CarvedView, ViewImage
@@ -95,7 +95,8 @@ def _view_msg(view: ScanView, mask: np.ndarray, colour: tuple | None,
 def _mesher_fields(msg: CarvedScanMsg, mesher_input) -> None:
     if isinstance(mesher_input, BandDistance):
         msg.band_voxels = int(mesher_input.band_voxels)
-        msg.band_distance = _bytes(np.asarray(mesher_input.values, np.float32), "f")
+        # (the values, then the crossings: the occupancy says how many values there are)
+        msg.band_distance = _bytes(pack_band(mesher_input), "f")
     elif isinstance(mesher_input, HullCloud):
         msg.cloud_points = _bytes(np.asarray(mesher_input.points, np.float64), "d")
         msg.cloud_normals = _bytes(np.asarray(mesher_input.normals, np.float64), "d")
@@ -153,12 +154,12 @@ def _grid_and_occupancy(msg: CarvedScanMsg) -> tuple[VoxelGrid, np.ndarray]:
     return grid, occupancy
 
 
-def _mesher_input(msg: CarvedScanMsg):
+def _mesher_input(msg: CarvedScanMsg, grid: VoxelGrid, occupancy: np.ndarray):
     if msg.mesher not in MESHERS:
         raise ValueError(f"mesher {msg.mesher!r} is not one of {tuple(MESHERS)}")
     if msg.mesher == "marching-cubes":
-        return BandDistance(values=np.frombuffer(msg.band_distance, np.float32).copy(),
-                            band_voxels=int(msg.band_voxels))
+        return unpack_band(np.frombuffer(msg.band_distance, np.float32), int(msg.band_voxels),
+                           occupancy, grid)
     points = np.frombuffer(msg.cloud_points, np.float64)
     normals = np.frombuffer(msg.cloud_normals, np.float64)
     if points.size % 3 or normals.size != points.size:
@@ -213,7 +214,8 @@ def carved_scan_from_msg(msg: CarvedScanMsg, held: dict | None = None,
                          f"{len(msg.views)} given")
     colours = [_colour(msg.views[i], width, height, held or {}) for i in colour_views]
     carved = CarvedScan(grid=grid, occupancy=occupancy, mesher=msg.mesher,
-                        mesher_input=_mesher_input(msg), views=list(views), masks=list(masks),
+                        mesher_input=_mesher_input(msg, grid, occupancy), views=list(views),
+                        masks=list(masks),
                         colour_views=colour_views, colour_masks=[m for m, _ in colours],
                         colour_images=[image for _, image in colours],
                         report=json.loads(msg.report_json or "{}"))

@@ -473,6 +473,42 @@ def _project_kernel(hull, points, unit, steps, bisections, top, moved, found):
         moved[p, 2] = z + t * uz
 
 
+@njit(parallel=True, cache=True)
+def _segment_zero_kernel(hull, starts, ends, f_start, f_end, iterations, tolerance, top,
+                         out):
+    """``out[p]``: the fraction along ``starts[p] -> ends[p]`` where the distance is zero,
+    the two ends' values ``f_start[p]``, ``f_end[p]`` (metres) of opposite signs:
+    ``iterations`` steps of regula falsi, Illinois variant (an end kept twice in a row
+    has its value halved), from the chord between the ends; done early where the
+    distance is within ``tolerance`` (metres) of zero."""
+    for p in prange(starts.shape[0]):
+        lo, hi = 0.0, 1.0
+        f_lo, f_hi = f_start[p], f_end[p]
+        kept = 0      # which end the last step kept: -1 the start side, 1 the end side
+        t = f_lo / (f_lo - f_hi)
+        for _ in range(iterations):
+            f = _distance_at(hull, starts[p, 0] + t * (ends[p, 0] - starts[p, 0]),
+                             starts[p, 1] + t * (ends[p, 1] - starts[p, 1]),
+                             starts[p, 2] + t * (ends[p, 2] - starts[p, 2]), top, p)
+            if abs(f) <= tolerance:
+                break
+            if (f > 0.0) == (f_lo > 0.0):
+                lo, f_lo = t, f
+                if kept == 1:
+                    f_hi *= 0.5
+                kept = 1
+            else:
+                hi, f_hi = t, f
+                if kept == -1:
+                    f_lo *= 0.5
+                kept = -1
+            if math.isfinite(f_lo) and math.isfinite(f_hi):
+                t = lo + (hi - lo) * f_lo / (f_lo - f_hi)
+            else:         # (no view sees a point there and no box bounds it)
+                t = 0.5 * (lo + hi)
+        out[p] = t
+
+
 def _check_coverage(masks: list, coverage) -> list:
     """One (H, W) array or None per mask; ValueError naming the view whose coverage does
     not fit its mask."""
@@ -635,3 +671,47 @@ class HullDistance:
                         np.linspace(-reach_m, reach_m, 2 * _SEARCH_STEPS + 1), _BISECTIONS,
                         np.empty((len(unit), self._rank)), moved, found)
         return moved, found
+
+    def segment_zeros(self, starts, ends, start_values, end_values, *, iterations: int,
+                      tolerance_m: float = 0.0) -> np.ndarray:
+        """Where the hull surface crosses segments whose ends lie on either side of it.
+
+        Parameters
+        ----------
+        starts, ends : (n, 3) float64
+            The segments' ends, metres.
+        start_values, end_values : (n,) float
+            The distance at the ends, metres (or a bound of it, as the meshers' clipped
+            samples), of opposite signs, none zero.
+        iterations : int >= 0, keyword-only
+            Evaluations of the distance per segment (regula falsi, Illinois variant);
+            0 gives the chord's zero, the linear interpolation of the ends' values.
+        tolerance_m : float >= 0, keyword-only
+            A segment is done where the distance is this near zero, metres.
+
+        Returns
+        -------
+        (n,) float64 in (0, 1): the fraction from start to end of the zero found
+        (the distance is a largest of views' values, with kinks where two views meet:
+        the chord misplaces it there, the steps do not).
+        """
+        a = np.ascontiguousarray(starts, dtype=np.float64)
+        b = np.ascontiguousarray(ends, dtype=np.float64)
+        fa = np.ascontiguousarray(start_values, dtype=np.float64)
+        fb = np.ascontiguousarray(end_values, dtype=np.float64)
+        if a.ndim != 2 or a.shape[1] != 3 or b.shape != a.shape or fa.shape != (len(a),) \
+                or fb.shape != fa.shape:
+            raise ValueError(f"starts and ends must be (n, 3) and their values (n,), got "
+                             f"{a.shape}, {b.shape}, {fa.shape} and {fb.shape}")
+        if np.any((fa > 0) == (fb > 0)) or np.any(fa == 0) or np.any(fb == 0):
+            raise ValueError("each segment's end values must be non-zero and of opposite signs")
+        if isinstance(iterations, bool) or not isinstance(iterations, (int, np.integer)) \
+                or iterations < 0:
+            raise ValueError(f"iterations must be an integer >= 0, got {iterations!r}")
+        if not (math.isfinite(tolerance_m) and tolerance_m >= 0):
+            raise ValueError(f"tolerance_m must be a finite distance >= 0 metres, got "
+                             f"{tolerance_m}")
+        out = np.empty(len(a))
+        _segment_zero_kernel(self._kernel_data, a, b, fa, fb, int(iterations),
+                             float(tolerance_m), np.empty((len(a), self._rank)), out)
+        return out
