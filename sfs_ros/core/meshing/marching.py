@@ -10,8 +10,10 @@ outside (positive signed volume).
 
 :func:`hull_marching_cubes_mesh` contours the signed distance to the visual
 hull instead (:class:`.hull_distance.HullDistance`, sampled on the voxel
-centres near the carved surface) at level 0: its vertices lie on the hull
-surface to a fraction of a voxel, with no voxel staircase to smooth away.
+centres near the carved surface) at level 0, with no voxel staircase to smooth
+away; each vertex is placed where the distance itself is zero along its grid edge
+(``BandDistance.crossings``), not at the chord between the edge's two samples, which
+cuts inside the hull where two views' cones meet within the edge (its sharp edges).
 """
 
 from __future__ import annotations
@@ -44,8 +46,9 @@ GAUSS_TRUNCATE = 4.0
 #: the distance is the largest of the views' values, piecewise linear along an edge with
 #: kinks where two views' cones meet (the hull's sharp edges); the chord between the
 #: edge's ends puts the vertex inside there, and a few steps of regula falsi on the
-#: distance itself find the kink's side. Two steps were as good as twenty (doc/accuracy.md).
-CROSSING_ITERATIONS = 2
+#: distance itself find the kink's side (most edges, decided by one view, are done after
+#: the first: :data:`CROSSING_TOLERANCE`).
+CROSSING_ITERATIONS = 4
 #: A crossing is placed when the distance there is this near zero, voxels (far below
 #: what a view's pixel tells: the crossings a single view decides, most of them, are
 #: found by the first step).
@@ -122,8 +125,8 @@ class BandDistance:
     crossings : (m,) float32 or None
         Where the hull surface crosses each grid edge the values change sign along
         (:func:`crossing_edges`, in their order), as the fraction of the edge from its
-        band voxel: the vertex of marching cubes on that edge. None: the linear
-        interpolation of the values.
+        lower end (the smaller index): the vertex of marching cubes on that edge. None:
+        the linear interpolation of the values.
     """
 
     values: np.ndarray
@@ -215,6 +218,9 @@ def hull_band_distance(occupancy, grid: VoxelGrid, hull: HullDistance, *,
         seen from 60 views, bands of 1, 2 and 3 voxels gave the same errors to
         0.1 micrometre).
 
+    Returns the band's values and, on each grid edge they change sign along, where
+    the distance itself is zero (:data:`CROSSING_ITERATIONS`).
+
     Raises
     ------
     ValueError
@@ -239,7 +245,8 @@ def hull_band_distance(occupancy, grid: VoxelGrid, hull: HullDistance, *,
     fractions = hull.segment_zeros(
         grid.index_to_world(starts + corner), grid.index_to_world(ends + corner),
         -grid.voxel_size * volume[tuple(starts.T)], -grid.voxel_size * volume[tuple(ends.T)],
-        iterations=CROSSING_ITERATIONS, tolerance_m=CROSSING_TOLERANCE * grid.voxel_size)
+        iterations=CROSSING_ITERATIONS, tolerance_m=CROSSING_TOLERANCE * grid.voxel_size,
+        floor_m=-pad * grid.voxel_size)
     return BandDistance(values=distance, band_voxels=band,
                         crossings=fractions.astype(np.float32))
 
@@ -278,8 +285,8 @@ def band_marching_cubes(occupancy, grid: VoxelGrid, band: BandDistance):
     Returns
     -------
     vertices : (n, 3) float64
-        Metres, object frame, on the zero level of the distance (linearly
-        interpolated between voxel centres).
+        Metres, object frame, on the zero level of the distance: on the band's
+        crossings, where it has them; else linearly interpolated between voxel centres.
     faces : (m, 3) int64
         Vertex indices, counter-clockwise seen from outside.
 

@@ -116,7 +116,7 @@ class RefinedDistance:
         return np.maximum(self.hull(points, floor_m=floor_m), self._photo(points))
 
     def segment_zeros(self, starts, ends, start_values, end_values, *, iterations: int,
-                      tolerance_m: float = 0.0) -> np.ndarray:
+                      tolerance_m: float = 0.0, floor_m: float | None = None) -> np.ndarray:
         """(n,) fractions along segments ``starts`` -> ``ends`` (n, 3) where the distance is
         zero, as :meth:`HullDistance.segment_zeros`: the hull's where it decides both ends,
         else the chord between the ends' values (the photo distance is known at voxel
@@ -133,7 +133,7 @@ class RefinedDistance:
                        & (photo_end[asked] <= self.hull(ends[asked])))
         out[hull] = self.hull.segment_zeros(starts[hull], ends[hull], start_values[hull],
                                             end_values[hull], iterations=iterations,
-                                            tolerance_m=tolerance_m)
+                                            tolerance_m=tolerance_m, floor_m=floor_m)
         return out
 
     def project(self, points, directions, *, reach_m: float) -> tuple[np.ndarray, np.ndarray]:
