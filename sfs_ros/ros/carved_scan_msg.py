@@ -98,6 +98,8 @@ def _mesher_fields(msg: CarvedScanMsg, mesher_input) -> None:
     if isinstance(mesher_input, BandDistance):
         msg.band_voxels = int(mesher_input.band_voxels)
         msg.band_distance = _bytes(np.asarray(mesher_input.values, np.float32), "f")
+        if mesher_input.crossings is not None:
+            msg.band_crossings = _bytes(np.asarray(mesher_input.crossings, np.float32), "f")
     elif isinstance(mesher_input, HullCloud):
         msg.cloud_points = _bytes(np.asarray(mesher_input.points, np.float64), "d")
         msg.cloud_normals = _bytes(np.asarray(mesher_input.normals, np.float64), "d")
@@ -159,8 +161,10 @@ def _mesher_input(msg: CarvedScanMsg):
     if msg.mesher not in MESHERS:
         raise ValueError(f"mesher {msg.mesher!r} is not one of {tuple(MESHERS)}")
     if msg.mesher == "marching-cubes":
+        crossings = np.frombuffer(msg.band_crossings, np.float32).copy()
         return BandDistance(values=np.frombuffer(msg.band_distance, np.float32).copy(),
-                            band_voxels=int(msg.band_voxels))
+                            band_voxels=int(msg.band_voxels),
+                            crossings=crossings if len(crossings) else None)
     points = np.frombuffer(msg.cloud_points, np.float64)
     normals = np.frombuffer(msg.cloud_normals, np.float64)
     if points.size % 3 or normals.size != points.size:

@@ -511,6 +511,71 @@ def _project_kernel(hull, points, unit, steps, bisections, top, moved, found):
         moved[p, 2] = z + t * uz
 
 
+@njit(cache=True, inline="always")
+def _floored_value(hull, x, y, z, views, n_views, floor, top, p):
+    """The distance of ``(x, y, z)`` from the views ``views[:n_views]`` alone, or ``floor``
+    if larger (as :func:`_floored_kernel` gives it, the others below ``floor`` there)."""
+    top[p] = floor
+    for n in range(n_views):
+        _keep_largest(top, p, _view_value(hull, views[n], x, y, z))
+    return max(top[p, top.shape[1] - 1], _box_value(hull, x, y, z), floor)
+
+
+@njit(parallel=True, cache=True)
+def _segment_zero_kernel(hull, starts, ends, f_start, f_end, groups, floor, iterations,
+                         tolerance, top, out):
+    """``out[p]``: the fraction along ``starts[p] -> ends[p]`` where the distance is zero,
+    the two ends' values ``f_start[p]``, ``f_end[p]`` (metres) of opposite signs:
+    ``iterations`` steps of regula falsi, Illinois variant (an end kept twice in a row
+    has its value halved), from the chord between the ends; done early where the
+    distance is within ``tolerance`` (metres) of zero.
+
+    The segments come group by group (``groups[g]:groups[g + 1]``); a view below
+    ``floor`` (metres, < 0; -inf: none) over a group's box is not evaluated there
+    (:func:`_below_floor`), and the distance is taken no lower than ``floor``."""
+    n_all = hull[0].shape[0]
+    for g in prange(groups.shape[0] - 1):
+        first, stop = groups[g], groups[g + 1]
+        lo = np.empty(3)
+        hi = np.empty(3)
+        for axis in range(3):
+            lo[axis] = min(starts[first:stop, axis].min(), ends[first:stop, axis].min())
+            hi[axis] = max(starts[first:stop, axis].max(), ends[first:stop, axis].max())
+        views = np.empty(n_all, np.int64)
+        n_views = 0
+        for v in range(n_all):
+            if floor == -np.inf or not _below_floor(hull, v, lo, hi, floor):
+                views[n_views] = v
+                n_views += 1
+        for p in range(first, stop):
+            lo_t, hi_t = 0.0, 1.0
+            f_lo, f_hi = f_start[p], f_end[p]
+            kept = 0      # which end the last step kept: -1 the start side, 1 the end side
+            t = f_lo / (f_lo - f_hi)
+            for _ in range(iterations):
+                f = _floored_value(hull, starts[p, 0] + t * (ends[p, 0] - starts[p, 0]),
+                                   starts[p, 1] + t * (ends[p, 1] - starts[p, 1]),
+                                   starts[p, 2] + t * (ends[p, 2] - starts[p, 2]),
+                                   views, n_views, floor, top, p)
+                if abs(f) <= tolerance:
+                    break
+                if (f > 0.0) == (f_lo > 0.0):
+                    lo_t, f_lo = t, f
+                    if kept == 1:
+                        f_hi *= 0.5
+                    kept = 1
+                else:
+                    hi_t, f_hi = t, f
+                    if kept == -1:
+                        f_lo *= 0.5
+                    kept = -1
+                if math.isfinite(f_lo) and math.isfinite(f_hi):
+                    t = lo_t + (hi_t - lo_t) * f_lo / (f_lo - f_hi)
+                else:         # (no view sees a point there and no box bounds it)
+                    t = 0.5 * (lo_t + hi_t)
+            out[p] = t
+
+
 def _check_coverage(masks: list, coverage) -> list:
     """One (H, W) array or None per mask; ValueError naming the view whose coverage does
     not fit its mask."""
@@ -708,3 +773,64 @@ class HullDistance:
                         np.linspace(-reach_m, reach_m, 2 * _SEARCH_STEPS + 1), _BISECTIONS,
                         np.empty((len(unit), self._rank)), moved, found)
         return moved, found
+
+    def segment_zeros(self, starts, ends, start_values, end_values, *, iterations: int,
+                      tolerance_m: float = 0.0, floor_m: float | None = None) -> np.ndarray:
+        """Where the hull surface crosses segments whose ends lie on either side of it.
+
+        Parameters
+        ----------
+        starts, ends : (n, 3) float64
+            The segments' ends, metres.
+        start_values, end_values : (n,) float
+            The distance at the ends, metres (or a bound of it, as the meshers' clipped
+            samples), of opposite signs, none zero.
+        iterations : int >= 0, keyword-only
+            Evaluations of the distance per segment (regula falsi, Illinois variant);
+            0 gives the chord's zero, the linear interpolation of the ends' values.
+        tolerance_m : float >= 0, keyword-only
+            A segment is done where the distance is this near zero, metres.
+        floor_m : float < 0 or None, keyword-only
+            As for :meth:`__call__`: the distance taken no lower than this, metres, and a
+            view not evaluated where it can only give values below it (segments near
+            the surface go in groups, as points do there).
+
+        Returns
+        -------
+        (n,) float64 in (0, 1): the fraction from start to end of the zero found
+        (the distance is a largest of views' values, with kinks where two views meet:
+        the chord misplaces it there, the steps do not).
+        """
+        a = np.ascontiguousarray(starts, dtype=np.float64)
+        b = np.ascontiguousarray(ends, dtype=np.float64)
+        fa = np.ascontiguousarray(start_values, dtype=np.float64)
+        fb = np.ascontiguousarray(end_values, dtype=np.float64)
+        if a.ndim != 2 or a.shape[1] != 3 or b.shape != a.shape or fa.shape != (len(a),) \
+                or fb.shape != fa.shape:
+            raise ValueError(f"starts and ends must be (n, 3) and their values (n,), got "
+                             f"{a.shape}, {b.shape}, {fa.shape} and {fb.shape}")
+        if np.any((fa > 0) == (fb > 0)) or np.any(fa == 0) or np.any(fb == 0):
+            raise ValueError("each segment's end values must be non-zero and of opposite signs")
+        if isinstance(iterations, bool) or not isinstance(iterations, (int, np.integer)) \
+                or iterations < 0:
+            raise ValueError(f"iterations must be an integer >= 0, got {iterations!r}")
+        if not (math.isfinite(tolerance_m) and tolerance_m >= 0):
+            raise ValueError(f"tolerance_m must be a finite distance >= 0 metres, got "
+                             f"{tolerance_m}")
+        floor = -np.inf if floor_m is None else float(floor_m)
+        if not (floor == -np.inf or (math.isfinite(floor) and floor < 0)):
+            raise ValueError(f"floor_m must be a finite distance < 0 metres, got {floor_m}")
+        out = np.empty(len(a))
+        if not len(a):
+            return out
+        if floor == -np.inf:    # (in blocks, for the threads)
+            order = np.arange(len(a))
+            groups = np.append(np.arange(0, len(a), _BLOCK_POINTS), len(a)).astype(np.int64)
+        else:
+            order, groups = _groups(0.5 * (a + b), _GROUP_FLOORS * -floor)
+        grouped = np.empty(len(a))
+        _segment_zero_kernel(self._kernel_data, a[order], b[order], fa[order], fb[order],
+                             groups, floor, int(iterations), float(tolerance_m),
+                             np.empty((len(a), self._rank)), grouped)
+        out[order] = grouped
+        return out

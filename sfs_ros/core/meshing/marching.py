@@ -10,8 +10,10 @@ outside (positive signed volume).
 
 :func:`hull_marching_cubes_mesh` contours the signed distance to the visual
 hull instead (:class:`.hull_distance.HullDistance`, sampled on the voxel
-centres near the carved surface) at level 0: its vertices lie on the hull
-surface to a fraction of a voxel, with no voxel staircase to smooth away.
+centres near the carved surface) at level 0, with no voxel staircase to smooth
+away; each vertex is placed where the distance itself is zero along its grid edge
+(``BandDistance.crossings``), not at the chord between the edge's two samples, which
+cuts inside the hull where two views' cones meet within the edge (its sharp edges).
 """
 
 from __future__ import annotations
@@ -29,8 +31,9 @@ from ..carving.hull import column_runs, occupied_bounds
 from ..geometry.grid import VoxelGrid
 from .hull_distance import HullDistance
 
-__all__ = ["BandDistance", "band_marching_cubes", "band_voxel_indices", "hull_band_distance",
-           "hull_band_floor_m", "hull_marching_cubes_mesh", "marching_cubes_mesh", "padded_crop"]
+__all__ = ["BandDistance", "band_marching_cubes", "band_voxel_indices", "crossing_edges",
+           "hull_band_distance", "hull_band_floor_m", "hull_marching_cubes_mesh",
+           "marching_cubes_mesh", "padded_crop"]
 
 #: Iso-level between empty (0) and occupied (1) voxels: just below 0.5. At
 #: exactly 0.5, Lewiner's ambiguity tests tie on 0/1 data (a cube face whose
@@ -41,6 +44,21 @@ __all__ = ["BandDistance", "band_marching_cubes", "band_voxel_indices", "hull_ba
 LEVEL = 0.5 - 2.0 ** -10
 #: Gaussian kernel radius, in standard deviations (scipy's default).
 GAUSS_TRUNCATE = 4.0
+#: Evaluations of the hull's distance per crossing edge (:func:`hull_band_distance`):
+#: the distance is the largest of the views' values, piecewise linear along an edge with
+#: kinks where two views' cones meet (the hull's sharp edges); the chord between the
+#: edge's ends puts the vertex inside there, and a few steps of regula falsi on the
+#: distance itself find the kink's side (most edges, decided by one view, are done after
+#: the first: :data:`CROSSING_TOLERANCE`).
+CROSSING_ITERATIONS = 4
+#: A crossing is placed when the distance there is this near zero, voxels (far below
+#: what a view's pixel tells: the crossings a single view decides, most of them, are
+#: found by the first step).
+CROSSING_TOLERANCE = 1e-3
+#: A crossing moves its vertex no nearer an end of its edge than this, voxels: the
+#: mesh's faces keep an area (linear interpolation may come nearer, but scikit-image
+#: drops the faces it makes degenerate before the vertices move).
+_CROSSING_MARGIN = 1e-3
 
 
 def marching_cubes_mesh(occupancy, grid: VoxelGrid, *, smooth_sigma_vox: float = 0.5):
@@ -106,6 +124,11 @@ class BandDistance:
         band's voxels (:func:`band_voxel_indices`) in index order.
     band_voxels : int >= 1
         Width of the band, voxels on either side of the occupancy's boundary.
+    crossings : (m,) float32 or None
+        Where the hull surface crosses each grid edge the values change sign along
+        (:func:`crossing_edges`, in their order), as the fraction of the edge from its
+        lower end (the smaller index): the vertex of marching cubes on that edge. None:
+        the linear interpolation of the values.
     voxels : (n, 3) int32 or None
         The band's voxels (:func:`band_voxel_indices` of the occupancy's padded crop) as
         :func:`hull_band_distance` found them, so that :func:`band_marching_cubes` of the
@@ -115,6 +138,7 @@ class BandDistance:
 
     values: np.ndarray
     band_voxels: int = 1
+    crossings: np.ndarray | None = None
     voxels: np.ndarray | None = field(default=None, compare=False, repr=False)
 
 
@@ -188,6 +212,9 @@ def hull_band_distance(occupancy, grid: VoxelGrid, hull: HullDistance, *,
         seen from 60 views, bands of 1, 2 and 3 voxels gave the same errors to
         0.1 micrometre).
 
+    Returns the band's values and, on each grid edge they change sign along, where
+    the distance itself is zero (:data:`CROSSING_ITERATIONS`).
+
     Raises
     ------
     ValueError
@@ -209,7 +236,39 @@ def hull_band_distance(occupancy, grid: VoxelGrid, hull: HullDistance, *,
     # A sample exactly on the level makes Lewiner's ambiguity tests tie (see
     # LEVEL); counting it as just outside (by 1e-6 voxel) breaks the tie.
     distance[distance == 0.0] = np.float32(1e-6)
-    return BandDistance(values=distance, band_voxels=band, voxels=voxels.astype(np.int32))
+    volume, _ = _band_volume_of(crop, voxels, distance, pad)
+    starts, ends = _crossing_ends(volume, voxels)
+    fractions = hull.segment_zeros(
+        grid.index_to_world(starts + corner), grid.index_to_world(ends + corner),
+        -grid.voxel_size * volume[tuple(starts.T)], -grid.voxel_size * volume[tuple(ends.T)],
+        iterations=CROSSING_ITERATIONS, tolerance_m=CROSSING_TOLERANCE * grid.voxel_size,
+        floor_m=hull_band_floor_m(grid, band))
+    return BandDistance(values=distance, band_voxels=band,
+                        crossings=fractions.astype(np.float32), voxels=voxels.astype(np.int32))
+
+
+def _band_volume_of(crop: np.ndarray, voxels: np.ndarray, values: np.ndarray,
+                    pad: int) -> tuple[np.ndarray, np.ndarray]:
+    """The volume marching cubes contours (the crop's shape, float32: the negated distance
+    in voxels at the band's ``voxels``, ``+-pad`` by the occupancy off it) and its mask of
+    the cubes to visit (:func:`_band_volume`)."""
+    volume = np.empty(crop.shape, np.float32)
+    cubes = np.zeros(crop.shape, bool)
+    _band_volume(crop, voxels, values, np.float32(pad), volume, cubes)
+    return volume, cubes
+
+
+def _crossing_ends(volume: np.ndarray, voxels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The grid edges the level crosses at a band voxel, in :func:`crossing_edges`' order:
+    their lower and upper ends, (m, 3) int64 indices each."""
+    ordinal, m = crossing_edges(volume, voxels)
+    at, slot = np.nonzero(ordinal >= 0)
+    order = np.argsort(ordinal[at, slot])
+    at, slot = at[order], slot[order]
+    step = np.zeros((m, 3), np.int64)
+    step[np.arange(m), slot % 3] = 1
+    lower = voxels[at] - step * (slot >= 3)[:, None]
+    return lower, lower + step
 
 
 def band_marching_cubes(occupancy, grid: VoxelGrid, band: BandDistance):
@@ -222,8 +281,8 @@ def band_marching_cubes(occupancy, grid: VoxelGrid, band: BandDistance):
     Returns
     -------
     vertices : (n, 3) float64
-        Metres, object frame, on the zero level of the distance (linearly
-        interpolated between voxel centres).
+        Metres, object frame, on the zero level of the distance: on the band's
+        crossings, where it has them; else linearly interpolated between voxel centres.
     faces : (m, 3) int64
         Vertex indices, counter-clockwise seen from outside.
 
@@ -246,13 +305,72 @@ def band_marching_cubes(occupancy, grid: VoxelGrid, band: BandDistance):
                          f"({len(voxels)},): one value per voxel of the band")
     # The signed distance in voxels (positive outside) negated: as for the occupancy,
     # larger means more inside; off the band the occupancy's sign.
-    volume = np.empty(crop.shape, np.float32)
-    cubes = np.zeros(crop.shape, bool)
-    _band_volume(crop, voxels, values, np.float32(pad), volume, cubes)
+    volume, cubes = _band_volume_of(crop, voxels, values, pad)
+    place = None
+    if band.crossings is not None:
+        ordinal, m = crossing_edges(volume, voxels)
+        crossings = np.asarray(band.crossings)
+        if crossings.dtype != np.float32 or crossings.shape != (m,):
+            raise ValueError(f"band crossings are {crossings.dtype} {crossings.shape}, expected "
+                             f"float32 ({m},): one per grid edge the level crosses")
+        keys = np.ravel_multi_index(tuple(voxels.T), crop.shape)
+
+        def place(verts: np.ndarray) -> np.ndarray:
+            return _on_crossings(verts, crop.shape, keys, ordinal, crossings)
     # The level crosses only cubes with a corner in the band (off it the values keep the
     # occupancy's sign, and a cube whose corners differ there has them on its boundary):
     # only those are visited, the same mesh for half the work.
-    return _contour(volume, 0.0, corner, grid, cubes=cubes)
+    return _contour(volume, 0.0, corner, grid, cubes=cubes, place=place)
+
+
+def crossing_edges(volume: np.ndarray, voxels: np.ndarray) -> tuple[np.ndarray, int]:
+    """The grid edges at a band voxel whose ends lie on either side of the level 0 of
+    ``volume`` (3-D float32, the negated distance): where marching cubes puts a vertex.
+    An edge is at the band voxel ``voxels[i]`` (n, 3) as its lower end, or as its upper
+    end when its lower end is off the band (where the distance was not computed, and
+    keeps the occupancy's sign: a band voxel beside it may be on the other side of the
+    hull's surface, which lies up to a voxel from the carved one).
+
+    Returns ``ordinal`` (n, 6) int64: for band voxel ``i``, the edge's place in the order
+    (band voxel by band voxel) from it ahead along x, y, z (columns 0-2) and behind it
+    (columns 3-5), -1 where the level does not cross or the edge is another voxel's;
+    and ``m``, how many edges the level crosses.
+    """
+    in_band = np.zeros(volume.shape, bool)
+    in_band[tuple(voxels.T)] = True
+    ordinal = np.empty((len(voxels), 6), np.int64)
+    return ordinal, int(_number_crossings(volume, in_band, voxels, ordinal))
+
+
+def _on_crossings(verts: np.ndarray, shape: tuple, keys: np.ndarray, ordinal: np.ndarray,
+                  crossings: np.ndarray) -> np.ndarray:
+    """``verts`` (n, 3) float volume indices from marching cubes, each moved along its grid
+    edge to the edge's crossing (:func:`crossing_edges`; else as it is).
+
+    A vertex lies on the edge along the axis where it is off the grid's integers (the two
+    others are integers, up to scikit-image's float32)."""
+    out = verts.astype(np.float64)
+    nearest = np.round(out)
+    off = np.abs(out - nearest)
+    axis = np.argmax(off, axis=1)
+    rows = np.arange(len(out))
+    on_edge = (off[rows, axis] > 1e-4) & (np.sort(off, axis=1)[:, 1] < 1e-4)
+    lower = nearest.astype(np.int64)
+    lower[rows, axis] = np.floor(out[rows, axis]).astype(np.int64)
+    on_edge &= np.all(lower >= 0, axis=1) & np.all(lower < np.array(shape) - 1, axis=1)
+    which = np.full(len(out), -1, np.int64)
+    for end, column in ((0, axis), (1, axis + 3)):     # the edge's lower end, then its upper
+        voxel = np.where(on_edge[:, None], lower, 0)
+        voxel[rows, axis] += end
+        key = np.ravel_multi_index(tuple(voxel.T), shape)
+        at = np.minimum(np.searchsorted(keys, key), len(keys) - 1)
+        found = on_edge & (which < 0) & (keys[at] == key)
+        which[found] = ordinal[at[found], column[found]]
+    moved = which >= 0
+    fraction = np.clip(crossings[which[moved]].astype(np.float64), _CROSSING_MARGIN,
+                       1.0 - _CROSSING_MARGIN)
+    out[rows[moved], axis[moved]] = lower[rows[moved], axis[moved]] + fraction
+    return out
 
 
 def hull_marching_cubes_mesh(occupancy, grid: VoxelGrid, hull: HullDistance, *,
@@ -283,15 +401,17 @@ def _occupied_bounds(occ: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _contour(volume: np.ndarray, level: float, corner: np.ndarray, grid: VoxelGrid, *,
-             cubes: np.ndarray | None = None):
+             cubes: np.ndarray | None = None, place=None):
     """Mesh of ``volume`` (larger = inside) at ``level``; its ``[0, 0, 0]`` is voxel ``corner``.
     ``cubes`` (the volume's shape, bool): scikit-image's marching-cubes mask, the cube
     of corners ``p .. p + 1`` visited when it holds at ``p + 1`` (None: every cube is
-    visited)."""
+    visited). ``place``: (n, 3) volume indices -> (n, 3) float64, where the vertices go
+    instead of the linear interpolation (None: there)."""
     # Vertices come back as float32 voxel indices of the volume; scale in float64.
     verts, faces, _, _ = measure.marching_cubes(volume, level, allow_degenerate=False,
                                                 mask=cubes)
-    vertices = grid.origin + (verts.astype(np.float64) + corner) * grid.voxel_size
+    verts = verts.astype(np.float64) if place is None else place(verts)
+    vertices = grid.origin + (verts + corner) * grid.voxel_size
     faces = faces.astype(np.int64)
     if _signed_volume(vertices, faces) < 0:
         faces = faces[:, ::-1].copy()
@@ -423,3 +543,27 @@ def _band_volume(crop, voxels, values, pad, volume, cubes):
             for dj in range(min(2, ny - j)):
                 for dk in range(min(2, nz - k)):
                     cubes[i + di, j + dj, k + dk] = True
+
+
+@njit(cache=True, nogil=True)
+def _number_crossings(volume, in_band, voxels, ordinal):
+    """Fill ``ordinal`` (:func:`crossing_edges`); returns how many edges cross."""
+    m = 0
+    for n in range(voxels.shape[0]):
+        i, j, k = voxels[n, 0], voxels[n, 1], voxels[n, 2]
+        inside = volume[i, j, k] > 0.0
+        for a in range(3):
+            ii, jj, kk = i + (a == 0), j + (a == 1), k + (a == 2)
+            ordinal[n, a] = -1
+            if ii < volume.shape[0] and jj < volume.shape[1] and kk < volume.shape[2] \
+                    and (volume[ii, jj, kk] > 0.0) != inside:
+                ordinal[n, a] = m
+                m += 1
+        for a in range(3):
+            ii, jj, kk = i - (a == 0), j - (a == 1), k - (a == 2)
+            ordinal[n, 3 + a] = -1
+            if ii >= 0 and jj >= 0 and kk >= 0 and not in_band[ii, jj, kk] \
+                    and (volume[ii, jj, kk] > 0.0) != inside:
+                ordinal[n, 3 + a] = m
+                m += 1
+    return m

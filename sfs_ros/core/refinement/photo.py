@@ -118,6 +118,27 @@ class RefinedDistance:
         points = np.ascontiguousarray(points, dtype=np.float64)
         return np.maximum(self.hull(points, floor_m=floor_m), self._photo(points))
 
+    def segment_zeros(self, starts, ends, start_values, end_values, *, iterations: int,
+                      tolerance_m: float = 0.0, floor_m: float | None = None) -> np.ndarray:
+        """(n,) fractions along segments ``starts`` -> ``ends`` (n, 3) where the distance is
+        zero, as :meth:`HullDistance.segment_zeros`: the hull's where it decides both ends,
+        else the chord between the ends' values (the photo distance is known at voxel
+        centres only, and the chord interpolates them)."""
+        starts = np.ascontiguousarray(starts, dtype=np.float64)
+        ends = np.ascontiguousarray(ends, dtype=np.float64)
+        start_values = np.asarray(start_values, dtype=np.float64)
+        end_values = np.asarray(end_values, dtype=np.float64)
+        out = start_values / (start_values - end_values)
+        photo_start, photo_end = self._photo(starts), self._photo(ends)
+        hull = (photo_start == -np.inf) & (photo_end == -np.inf)   # (most: undecided)
+        asked = ~hull
+        hull[asked] = ((photo_start[asked] <= self.hull(starts[asked]))
+                       & (photo_end[asked] <= self.hull(ends[asked])))
+        out[hull] = self.hull.segment_zeros(starts[hull], ends[hull], start_values[hull],
+                                            end_values[hull], iterations=iterations,
+                                            tolerance_m=tolerance_m, floor_m=floor_m)
+        return out
+
     def project(self, points, directions, *, reach_m: float) -> tuple[np.ndarray, np.ndarray]:
         """Points (n, 3) moved along ``directions`` (n, 3) to the nearest inside -> outside
         crossing within ``reach_m`` metres (8 steps, then 20 bisections); and (n,) bool,
