@@ -512,13 +512,13 @@ def _project_kernel(hull, points, unit, steps, bisections, top, moved, found):
 
 
 @njit(cache=True, inline="always")
-def _floored_value(hull, x, y, z, views, n_views, floor, top, p):
+def _value_from_views(hull, x, y, z, views, n_views, floor, top, p):
     """The distance of ``(x, y, z)`` from the views ``views[:n_views]`` alone, or ``floor``
     if larger (as :func:`_floored_kernel` gives it, the others below ``floor`` there)."""
     top[p] = floor
     for n in range(n_views):
         _keep_largest(top, p, _view_value(hull, views[n], x, y, z))
-    return max(top[p, top.shape[1] - 1], _box_value(hull, x, y, z), floor)
+    return _floored_value(hull, x, y, z, top, p, floor)
 
 
 @njit(parallel=True, cache=True)
@@ -553,10 +553,10 @@ def _segment_zero_kernel(hull, starts, ends, f_start, f_end, groups, floor, iter
             kept = 0      # which end the last step kept: -1 the start side, 1 the end side
             t = f_lo / (f_lo - f_hi)
             for _ in range(iterations):
-                f = _floored_value(hull, starts[p, 0] + t * (ends[p, 0] - starts[p, 0]),
-                                   starts[p, 1] + t * (ends[p, 1] - starts[p, 1]),
-                                   starts[p, 2] + t * (ends[p, 2] - starts[p, 2]),
-                                   views, n_views, floor, top, p)
+                f = _value_from_views(hull, starts[p, 0] + t * (ends[p, 0] - starts[p, 0]),
+                                      starts[p, 1] + t * (ends[p, 1] - starts[p, 1]),
+                                      starts[p, 2] + t * (ends[p, 2] - starts[p, 2]),
+                                      views, n_views, floor, top, p)
                 if abs(f) <= tolerance:
                     break
                 if (f > 0.0) == (f_lo > 0.0):
