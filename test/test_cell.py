@@ -34,7 +34,7 @@ from sfs_ros.ros.names import DIAGNOSTICS
 
 from mock_cell import PLAN, RESOLUTION, SCAN_TIMEOUT_S, SMALL_CAMERA, running_cell
 from ros_harness import MESSAGE_TIMEOUT_S, RosProbe, keep_ours, wait
-from tolerances import MUG_IOU_SPARSE_MIN, READBACK_TOL_RAD
+from tolerances import CAPTURE_TOL_RAD, MUG_IOU_SPARSE_MIN
 
 pytestmark = pytest.mark.cell
 
@@ -126,12 +126,12 @@ def _matched_views(joints) -> list[int]:
     """The plan view each capture's encoder angles belong to (asserting they are close)."""
     views = []
     for msg in joints:
-        # Tagged with an encoder reading of the settled axes: the G-code target plus the
-        # encoder's offset and noise.
+        # Tagged with an encoder reading of the settled axes: within the settle tolerance
+        # of the G-code target, plus the encoder's offset and noise.
         angles = np.array(msg.position)
         error = np.abs(PLAN.views - angles)
         best = int(np.argmin(error.max(axis=1)))
-        assert np.all(error[best] <= READBACK_TOL_RAD), \
+        assert np.all(error[best] <= CAPTURE_TOL_RAD), \
             f"capture angles {angles} are {error[best]} rad from the nearest planned view"
         views.append(best)
     return views

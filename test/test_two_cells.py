@@ -50,7 +50,7 @@ from ros_harness import NAMESPACE, SOURCE_ROOT
 from test_frames import chain
 from test_urdf import rpy_matrix
 from tf_watch import TfWatch, camera_pose, transform_matrix
-from tolerances import READBACK_TOL_RAD
+from tolerances import CAPTURE_TOL_RAD
 from waiting import wait
 
 pytestmark = pytest.mark.cell
@@ -238,8 +238,8 @@ def test_each_cell_scans_and_keeps_only_its_own_views(cells, scanned):
         views = read_session(session).views
         assert len(views) == n
         for theta, phi in zip(spec["theta_rad"], spec["phi_rad"]):
-            assert any(angle_gap(v.theta_rad, theta) <= READBACK_TOL_RAD[0]
-                       and abs(v.phi_rad - phi) <= READBACK_TOL_RAD[1] for v in views), \
+            assert any(angle_gap(v.theta_rad, theta) <= CAPTURE_TOL_RAD[0]
+                       and abs(v.phi_rad - phi) <= CAPTURE_TOL_RAD[1] for v in views), \
                 (key, theta, phi, [(v.theta_rad, v.phi_rad) for v in views])
         other = CELLS["b" if key == "a" else "a"]["scan_name"]
         assert not (cell.output_dir / other).exists()

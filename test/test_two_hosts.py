@@ -38,7 +38,7 @@ from sfs_ros.core.exchange.session import read_session
 
 from mock_cell import OVERRIDES, write_config
 from ros_harness import DOMAIN_ID, NAMESPACE, SOURCE_ROOT
-from tolerances import READBACK_TOL_RAD
+from tolerances import CAPTURE_TOL_RAD
 from waiting import wait
 
 #: The meshing node's host runs these; the other host the rest of the cell (the carving
@@ -286,11 +286,11 @@ def two_hosts(tmp_path_factory):
 
 
 def _plan_view(theta: float, phi: float) -> int:
-    """The plan view at these encoder angles (asserting it is within the read-back's
-    tolerance)."""
+    """The plan view at these encoder angles (asserting they are within a capture's
+    tolerance of it)."""
     error = np.abs(PLAN.views - np.array([theta, phi]))
     best = int(np.argmin(error.max(axis=1)))
-    assert np.all(error[best] <= READBACK_TOL_RAD), f"({theta}, {phi}) is no planned view"
+    assert np.all(error[best] <= CAPTURE_TOL_RAD), f"({theta}, {phi}) is no planned view"
     return best
 
 

@@ -29,6 +29,15 @@ PRINT_ROUNDING_DEG = 0.0005
 #: printing + offset + noise, plus float round-off of the degree/radian conversions.
 READBACK_TOL_RAD = np.radians(PRINT_ROUNDING_DEG + np.abs(ENCODER_OFFSET_DEG)
                               + ENCODER_NOISE_DEG) + 1e-12
+#: The scan's settle tolerance (config/scan.yaml ``settle_tolerance_deg``): it shoots once
+#: the last readings are all this near the target and still to within it.
+SETTLE_TOLERANCE_DEG = 0.1
+#: A capture's encoder tag against its planned view, per axis, radians: the axes are
+#: judged settled within the settle tolerance, possibly while the simulated carriage still
+#: closes the last hundredths of a degree of its deceleration ramp (the tag is the reading
+#: at the shutter, wherever the axis is), plus the read-back's own error. Planned views
+#: lie degrees apart, so a capture still matches one view only.
+CAPTURE_TOL_RAD = np.radians(SETTLE_TOLERANCE_DEG) + READBACK_TOL_RAD
 
 # --- Reconstructions of the mug against the true object -----------------------------
 
