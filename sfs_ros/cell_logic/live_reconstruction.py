@@ -50,7 +50,7 @@ import numpy as np
 
 from ..core.carved_scan import CarvedScan
 from ..core.carving.bounds import BoxCarve
-from ..core.carving.carve import Carver
+from ..core.carving.carve import Carver, unpack_bits
 from ..core.carving.hull import surface_voxels
 from ..core.carving.resolution import BYTES_PER_VOXEL
 from ..core.exchange.limits import MAX_WAITING_BYTES
@@ -333,8 +333,7 @@ class LiveReconstruction:
     def _unpacked(self, packed: np.ndarray) -> np.ndarray:
         """(H, W) bool of a mask packed by ``np.packbits``, the rig's size (its own array:
         the unpacked 0/1 bytes seen as bool, not copied)."""
-        shape = (self.calibration.height, self.calibration.width)
-        return np.unpackbits(packed, count=shape[0] * shape[1]).reshape(shape).view(bool)
+        return unpack_bits(packed, (self.calibration.height, self.calibration.width))
 
     # ------------------------------------------------------------ views
 

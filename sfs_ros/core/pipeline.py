@@ -20,7 +20,7 @@ import numpy as np
 
 from .carved_scan import CarvedScan, ScanView
 from .carving.bounds import BoxCarve
-from .carving.carve import KeptCarve, same_grid, view_keys
+from .carving.carve import KeptCarve, same_grid, unpack_bits, view_keys
 from .carving.directions import check_directions
 from .carving.fusion import reference_misses
 from .carving.resolution import choose_voxel_size, default_memory_budget
@@ -228,7 +228,7 @@ class ExpectedCarves:
 
     def _mask(self, index: int) -> np.ndarray:
         _, packed, shape = self._views[index]
-        return np.unpackbits(packed, count=shape[0] * shape[1]).reshape(shape).view(bool)
+        return unpack_bits(packed, shape)
 
     def add(self, camera, mask: np.ndarray) -> None:
         """Count one more view: its ideal pinhole ``camera`` and ``mask`` (H, W) bool on it."""

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .carving.carve import unpack_bits
 from .metrics import silhouette_iou
 
 if TYPE_CHECKING:
@@ -72,7 +73,7 @@ def per_view_ious(carved: CarvedScan, evaluated: list[int], evaluated_ious: list
     for i, packed in zip(carved.colour_views, coverage or []):
         mask = carved.masks[i]
         ious[i] = float(silhouette_iou(
-            np.unpackbits(packed, count=mask.size).reshape(mask.shape).view(bool), mask))
+            unpack_bits(packed, mask.shape), mask))
     return [{"view": view.name, "role": view.role, "silhouette_iou": iou}
             for view, iou in zip(carved.views, ious)]
 

@@ -20,6 +20,7 @@ import numpy as np
 
 from sfs_ros.cell_logic.mesh_files import THUMBNAIL_PX, HandOver
 from sfs_ros.core.carved_scan import ROLES, CarvedScan, ScanView
+from sfs_ros.core.carving.carve import unpack_bits
 from sfs_ros.core.carving.hull import occupied_bounds
 from sfs_ros.core.geometry.camera import Camera
 from sfs_ros.core.geometry.grid import VoxelGrid
@@ -53,7 +54,7 @@ def _unbits(data, shape: tuple[int, ...], what: str) -> np.ndarray:
     if packed.size != (count + 7) // 8:
         raise ValueError(f"{what} has {packed.size} bytes, expected {(count + 7) // 8} "
                          f"(a bit for each of {shape} cells)")
-    return np.unpackbits(packed, count=count).reshape(shape).view(bool)
+    return unpack_bits(packed, shape)
 
 
 def _jpeg(rgb: np.ndarray) -> array.array:

@@ -35,7 +35,8 @@ from ..geometry.grid import VoxelGrid
 from . import carve_kernels as _k
 
 __all__ = ["OUTSIDE_IMAGE", "PreparedMasks", "carve", "Carver", "KeptCarve", "kept_or_carved",
-           "same_grid", "validate_masks", "view_coefficients", "view_key", "view_keys"]
+           "same_grid", "unpack_bits", "validate_masks", "view_coefficients", "view_key",
+           "view_keys"]
 
 OUTSIDE_IMAGE = ("keep", "carve")
 
@@ -455,17 +456,19 @@ class KeptCarve:
             camera = camera_of.get(key[:-1])
             if camera is None:
                 return None   # a view counted whose camera is not among these
-            misses -= ~carve(grid, [camera], [_unpacked(key[-1], camera)])
+            misses -= ~carve(grid, [camera], [unpack_bits(key[-1], (camera.height, camera.width))])
         for key in given_only.elements():
             index = keys.index(key)
             misses += ~carve(grid, [cameras[index]], [masks[index]])
         return misses <= max_misses
 
 
-def _unpacked(packed: bytes, camera: Camera) -> np.ndarray:
-    """(H, W) bool of a mask packed by ``np.packbits``, the camera's size."""
-    bits = np.unpackbits(np.frombuffer(packed, np.uint8), count=camera.height * camera.width)
-    return bits.reshape(camera.height, camera.width).view(bool)
+def unpack_bits(packed, shape: tuple[int, ...]) -> np.ndarray:
+    """``shape`` bool of the first ``prod(shape)`` bits ``np.packbits`` packed (``packed``:
+    bytes or a uint8 array), its own array (the unpacked 0/1 bytes seen as bool, not
+    copied)."""
+    bits = np.unpackbits(np.frombuffer(packed, np.uint8), count=int(np.prod(shape)))
+    return bits.reshape(shape).view(bool)
 
 
 def kept_or_carved(kept: Sequence[KeptCarve], grid: VoxelGrid, cameras: Sequence[Camera],

@@ -19,7 +19,7 @@ from collections import Counter
 
 import numpy as np
 
-from ..carving.carve import same_grid, view_key
+from ..carving.carve import same_grid, unpack_bits, view_key
 from ..geometry.grid import VoxelGrid
 from .hull_distance import DistanceImages, HullDistance, point_groups
 from .marching import band_voxel_indices, hull_band_floor_m, padded_crop
@@ -82,8 +82,7 @@ class KeptBand:
         points = self.grid.index_to_world(voxels)
         top, missing = self._kept_at(linear)
         if missing.any():
-            masks = [np.unpackbits(packed, count=shape[0] * shape[1]).reshape(shape).view(bool)
-                     for packed, shape in self._packed]
+            masks = [unpack_bits(packed, shape) for packed, shape in self._packed]
             fresh = np.full((int(missing.sum()), self.rank), self.floor_m)
             HullDistance(self._cameras, masks, known=self._known).add_largest(
                 points[missing], fresh, floor_m=self.floor_m)
