@@ -21,7 +21,12 @@ from ..core.geometry.rig import RigCalibration
 from ..core.pictures.preview import preview_image, write_png
 from ..core.pipeline import ReconstructionParams, reconstruct
 from ..core.settings import RESOLUTION
-from ..core.simulation.objects import OBJECT_NAMES, make_object
+from ..core.simulation.objects import (
+    ALL_OBJECT_NAMES,
+    CONCAVE_OBJECT_NAMES,
+    DETAILED_OBJECT_NAMES,
+    make_object,
+)
 from ..core.simulation.plan import ring_plan
 from ..core.simulation.synthetic import carving_box, score_against_truth, simulate_scan
 from ..process import configure_process
@@ -47,7 +52,17 @@ def build_parser() -> argparse.ArgumentParser:
     p = accept_negative_numbers(
         argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0]))
     p.add_argument("-o", "--out", type=Path, default=Path("out/simulate"), help="output folder")
-    p.add_argument("--object", choices=OBJECT_NAMES, default="mug")
+    p.add_argument("--object", choices=ALL_OBJECT_NAMES, default="mug",
+                   help=f"the object on the turntable; {', '.join(CONCAVE_OBJECT_NAMES)}: "
+                        f"concavities no silhouette shows (see --textured and --refine); "
+                        f"{', '.join(DETAILED_OBJECT_NAMES)}: thin parts and holes")
+    p.add_argument("--textured", action="store_true",
+                   help="paint the object with its fine solid colour texture, lit by a lamp "
+                        "fixed in the lab (else a smooth pattern, lit from each camera)")
+    p.add_argument("--refine", action="store_true",
+                   help="refine the hull below itself from the views' colours, as "
+                        "sfs-reconstruct does by default (slower; finds concavities in "
+                        "textured renders)")
     p.add_argument("--rings", type=float, nargs="+", default=[5.0, 35.0, 65.0], metavar="PHI_DEG",
                    help="carriage elevations of the view rings, degrees")
     p.add_argument("--per-ring", type=int, default=24, help="turntable stops per ring")
@@ -66,7 +81,7 @@ def run(args) -> dict:
     plan = ring_plan(args.rings, args.per_ring, top_view=True)
     progress = StageProgress(quiet=args.quiet)
     progress("capture", 0.0)
-    captures = simulate_scan(obj, DEMO_RIG, plan, seed=args.seed)
+    captures = simulate_scan(obj, DEMO_RIG, plan, seed=args.seed, textured=args.textured)
     progress("capture", 1.0)
     session = args.out / "session"
     write_session(session, [(c.name, c.image) for c in captures],
@@ -76,7 +91,8 @@ def run(args) -> dict:
     try:
         result = reconstruct(views,
                              ReconstructionParams(resolution=args.resolution, mesher=args.mesher,
-                                                  mesher_options=mesher_options(args)),
+                                                  mesher_options=mesher_options(args),
+                                                  refine=args.refine),
                              progress=progress)
     finally:
         progress.close()
