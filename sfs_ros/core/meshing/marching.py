@@ -30,6 +30,7 @@ from ..carving.carve import same_grid
 from ..carving.hull import column_runs, occupied_bounds
 from ..geometry.grid import VoxelGrid
 from .hull_distance import HullDistance
+from .lewiner import march_band
 
 __all__ = ["BandDistance", "band_marching_cubes", "band_voxel_indices", "crossing_edges",
            "hull_band_distance", "hull_band_floor_m", "hull_marching_cubes_mesh",
@@ -236,7 +237,7 @@ def hull_band_distance(occupancy, grid: VoxelGrid, hull: HullDistance, *,
     # A sample exactly on the level makes Lewiner's ambiguity tests tie (see
     # LEVEL); counting it as just outside (by 1e-6 voxel) breaks the tie.
     distance[distance == 0.0] = np.float32(1e-6)
-    volume, _ = _band_volume_of(crop, voxels, distance, pad)
+    volume = _band_volume_of(crop, voxels, distance, pad)
     starts, ends = _crossing_ends(volume, voxels)
     fractions = hull.segment_zeros(
         grid.index_to_world(starts + corner), grid.index_to_world(ends + corner),
@@ -248,14 +249,12 @@ def hull_band_distance(occupancy, grid: VoxelGrid, hull: HullDistance, *,
 
 
 def _band_volume_of(crop: np.ndarray, voxels: np.ndarray, values: np.ndarray,
-                    pad: int) -> tuple[np.ndarray, np.ndarray]:
-    """The volume marching cubes contours (the crop's shape, float32: the negated distance
-    in voxels at the band's ``voxels``, ``+-pad`` by the occupancy off it) and its mask of
-    the cubes to visit (:func:`_band_volume`)."""
+                    pad: int) -> np.ndarray:
+    """The volume the level is found in (the crop's shape, float32: the negated distance
+    in voxels at the band's ``voxels``, ``+-pad`` by the occupancy off it)."""
     volume = np.empty(crop.shape, np.float32)
-    cubes = np.zeros(crop.shape, bool)
-    _band_volume(crop, voxels, values, np.float32(pad), volume, cubes)
-    return volume, cubes
+    _band_volume(crop, voxels, values, np.float32(pad), volume)
+    return volume
 
 
 def _crossing_ends(volume: np.ndarray, voxels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -303,24 +302,21 @@ def band_marching_cubes(occupancy, grid: VoxelGrid, band: BandDistance):
     if values.dtype != np.float32 or values.shape != (len(voxels),):
         raise ValueError(f"band distance has {values.dtype} {values.shape}, expected float32 "
                          f"({len(voxels)},): one value per voxel of the band")
-    # The signed distance in voxels (positive outside) negated: as for the occupancy,
-    # larger means more inside; off the band the occupancy's sign.
-    volume, cubes = _band_volume_of(crop, voxels, values, pad)
-    place = None
+    ordinal = crossings = None
     if band.crossings is not None:
-        ordinal, m = crossing_edges(volume, voxels)
+        # The signed distance in voxels (positive outside) negated: as for the occupancy,
+        # larger means more inside; off the band the occupancy's sign.
+        ordinal, m = crossing_edges(_band_volume_of(crop, voxels, values, pad), voxels)
         crossings = np.asarray(band.crossings)
         if crossings.dtype != np.float32 or crossings.shape != (m,):
             raise ValueError(f"band crossings are {crossings.dtype} {crossings.shape}, expected "
                              f"float32 ({m},): one per grid edge the level crosses")
-        keys = np.ravel_multi_index(tuple(voxels.T), crop.shape)
-
-        def place(verts: np.ndarray) -> np.ndarray:
-            return _on_crossings(verts, crop.shape, keys, ordinal, crossings)
     # The level crosses only cubes with a corner in the band (off it the values keep the
     # occupancy's sign, and a cube whose corners differ there has them on its boundary):
-    # only those are visited, the same mesh for half the work.
-    return _contour(volume, 0.0, corner, grid, cubes=cubes, place=place)
+    # only those are visited.
+    verts, faces = march_band(crop, pad, voxels, -values, ordinal, crossings,
+                              margin=_CROSSING_MARGIN)
+    return _oriented(verts, faces, corner, grid)
 
 
 def crossing_edges(volume: np.ndarray, voxels: np.ndarray) -> tuple[np.ndarray, int]:
@@ -340,37 +336,6 @@ def crossing_edges(volume: np.ndarray, voxels: np.ndarray) -> tuple[np.ndarray, 
     in_band[tuple(voxels.T)] = True
     ordinal = np.empty((len(voxels), 6), np.int64)
     return ordinal, int(_number_crossings(volume, in_band, voxels, ordinal))
-
-
-def _on_crossings(verts: np.ndarray, shape: tuple, keys: np.ndarray, ordinal: np.ndarray,
-                  crossings: np.ndarray) -> np.ndarray:
-    """``verts`` (n, 3) float volume indices from marching cubes, each moved along its grid
-    edge to the edge's crossing (:func:`crossing_edges`; else as it is).
-
-    A vertex lies on the edge along the axis where it is off the grid's integers (the two
-    others are integers, up to scikit-image's float32)."""
-    out = verts.astype(np.float64)
-    nearest = np.round(out)
-    off = np.abs(out - nearest)
-    axis = np.argmax(off, axis=1)
-    rows = np.arange(len(out))
-    on_edge = (off[rows, axis] > 1e-4) & (np.sort(off, axis=1)[:, 1] < 1e-4)
-    lower = nearest.astype(np.int64)
-    lower[rows, axis] = np.floor(out[rows, axis]).astype(np.int64)
-    on_edge &= np.all(lower >= 0, axis=1) & np.all(lower < np.array(shape) - 1, axis=1)
-    which = np.full(len(out), -1, np.int64)
-    for end, column in ((0, axis), (1, axis + 3)):     # the edge's lower end, then its upper
-        voxel = np.where(on_edge[:, None], lower, 0)
-        voxel[rows, axis] += end
-        key = np.ravel_multi_index(tuple(voxel.T), shape)
-        at = np.minimum(np.searchsorted(keys, key), len(keys) - 1)
-        found = on_edge & (which < 0) & (keys[at] == key)
-        which[found] = ordinal[at[found], column[found]]
-    moved = which >= 0
-    fraction = np.clip(crossings[which[moved]].astype(np.float64), _CROSSING_MARGIN,
-                       1.0 - _CROSSING_MARGIN)
-    out[rows[moved], axis[moved]] = lower[rows[moved], axis[moved]] + fraction
-    return out
 
 
 def hull_marching_cubes_mesh(occupancy, grid: VoxelGrid, hull: HullDistance, *,
@@ -400,17 +365,18 @@ def _occupied_bounds(occ: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return box
 
 
-def _contour(volume: np.ndarray, level: float, corner: np.ndarray, grid: VoxelGrid, *,
-             cubes: np.ndarray | None = None, place=None):
-    """Mesh of ``volume`` (larger = inside) at ``level``; its ``[0, 0, 0]`` is voxel ``corner``.
-    ``cubes`` (the volume's shape, bool): scikit-image's marching-cubes mask, the cube
-    of corners ``p .. p + 1`` visited when it holds at ``p + 1`` (None: every cube is
-    visited). ``place``: (n, 3) volume indices -> (n, 3) float64, where the vertices go
-    instead of the linear interpolation (None: there)."""
+def _contour(volume: np.ndarray, level: float, corner: np.ndarray, grid: VoxelGrid):
+    """Mesh of ``volume`` (larger = inside) at ``level`` by scikit-image's marching cubes;
+    its ``[0, 0, 0]`` is voxel ``corner``."""
     # Vertices come back as float32 voxel indices of the volume; scale in float64.
-    verts, faces, _, _ = measure.marching_cubes(volume, level, allow_degenerate=False,
-                                                mask=cubes)
-    verts = verts.astype(np.float64) if place is None else place(verts)
+    verts, faces, _, _ = measure.marching_cubes(volume, level, allow_degenerate=False)
+    return _oriented(verts.astype(np.float64), faces, corner, grid)
+
+
+def _oriented(verts: np.ndarray, faces: np.ndarray, corner: np.ndarray, grid: VoxelGrid):
+    """``(vertices (n, 3) float64 metres, faces (m, 3) int64)`` of a mesh of voxel indices
+    ``verts`` (n, 3) float64 of a volume whose ``[0, 0, 0]`` is voxel ``corner``, its faces
+    turned counter-clockwise seen from outside."""
     vertices = grid.origin + (verts + corner) * grid.voxel_size
     faces = faces.astype(np.int64)
     if _signed_volume(vertices, faces) < 0:
@@ -526,23 +492,16 @@ def _narrowed_meet(run_lo, run_hi, r0, r1, band, so_far, n, first, out):
 
 
 @njit(parallel=True, cache=True, nogil=True)
-def _band_volume(crop, voxels, values, pad, volume, cubes):
+def _band_volume(crop, voxels, values, pad, volume):
     """Fill ``volume`` (crop's shape, float32): ``pad`` in the occupied voxels of ``crop``,
-    ``-pad`` elsewhere, ``-values[n]`` at band voxel ``voxels[n]``; and set ``cubes``
-    (bool, all False) at each band voxel and its neighbours ahead along the axes (the
-    marching-cubes mask of the cubes with a corner in the band: :func:`_contour`)."""
+    ``-pad`` elsewhere, ``-values[n]`` at band voxel ``voxels[n]``."""
     nx, ny, nz = crop.shape
     for i in prange(nx):
         for j in range(ny):
             for k in range(nz):
                 volume[i, j, k] = pad if crop[i, j, k] else -pad
-    for n in prange(voxels.shape[0]):   # (neighbours may set the same mask byte: to True)
-        i, j, k = voxels[n, 0], voxels[n, 1], voxels[n, 2]
-        volume[i, j, k] = -values[n]
-        for di in range(min(2, nx - i)):
-            for dj in range(min(2, ny - j)):
-                for dk in range(min(2, nz - k)):
-                    cubes[i + di, j + dj, k + dk] = True
+    for n in prange(voxels.shape[0]):
+        volume[voxels[n, 0], voxels[n, 1], voxels[n, 2]] = -values[n]
 
 
 @njit(cache=True, nogil=True)
