@@ -156,7 +156,7 @@ def run_band(quick: bool = False) -> list[dict]:
     values = np.clip(distance[tuple(voxels.T)], -pad, pad)
     del distance
     volume = _band_volume_of(inside, voxels, values, pad)
-    ordinal, m = crossing_edges(volume, voxels)
+    ordinal, m = crossing_edges(inside, voxels, values)
     crossings = np.random.default_rng(0).uniform(0.0, 1.0, m).astype(np.float32)
     cubes = np.zeros(shape, bool)
     for d in np.ndindex(2, 2, 2):

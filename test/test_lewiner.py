@@ -69,14 +69,14 @@ def reference(crop, voxels, distance, crossings):
                                                 mask=band_mask(crop.shape, voxels))
     if crossings is None:
         return verts.astype(np.float64), faces.astype(np.int64)
-    ordinal, _ = crossing_edges(volume, voxels)
+    ordinal, _ = crossing_edges(crop, voxels, distance)
     return placed_on_crossings(verts, crop.shape, voxels, ordinal, crossings), faces
 
 
 def ours(crop, voxels, distance, crossings):
     ordinal = None
     if crossings is not None:
-        ordinal, _ = crossing_edges(_band_volume_of(crop, voxels, distance, PAD), voxels)
+        ordinal, _ = crossing_edges(crop, voxels, distance)
     return march_band(crop, PAD, voxels, -distance, ordinal, crossings,
                       margin=_CROSSING_MARGIN)
 
@@ -95,7 +95,7 @@ def assert_same_mesh(crop, voxels, distance, crossings=None):
 
 
 def crossings_for(crop, voxels, distance, rng):
-    _, m = crossing_edges(_band_volume_of(crop, voxels, distance, PAD), voxels)
+    _, m = crossing_edges(crop, voxels, distance)
     return rng.random(m).astype(np.float32)
 
 
@@ -169,3 +169,39 @@ def test_an_object_filling_the_crop_to_its_edge():
     voxels = band_voxel_indices(crop, 1)
     values = rng.uniform(-1.5, 1.5, len(voxels)).astype(np.float32)
     assert_same_mesh(crop, voxels, values, crossings_for(crop, voxels, values, rng))
+
+
+def numbered_crossings(crop, voxels, distance):
+    """:func:`crossing_edges` written out on the dense volume: each band voxel's edges
+    ahead along i, j, k, then behind (those whose lower end is off the band), numbered in
+    turn where the ends' signs differ."""
+    inside = _band_volume_of(crop, voxels, distance, PAD) > 0
+    in_band = np.zeros(crop.shape, bool)
+    in_band[tuple(voxels.T)] = True
+    ordinal = np.full((len(voxels), 6), -1, np.int64)
+    m = 0
+    for n, p in enumerate(voxels):
+        for s in range(6):
+            q = p.copy()
+            q[s % 3] += 1 if s < 3 else -1
+            if np.any(q < 0) or np.any(q >= crop.shape) or (s >= 3 and in_band[tuple(q)]):
+                continue
+            if inside[tuple(q)] != inside[tuple(p)]:
+                ordinal[n, s] = m
+                m += 1
+    return ordinal, m
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_crossing_edges_are_numbered_as_on_the_dense_volume(seed):
+    rng = np.random.default_rng(seed)
+    for _ in range(10):
+        shape = tuple(int(n) for n in rng.integers(2, 10, 3))
+        crop = rng.random(shape) < 0.5
+        voxels = np.argwhere(rng.random(shape) < rng.uniform(0.2, 1.0))
+        distance = np.where(rng.random(len(voxels)) < 0.1, 0.0,
+                            rng.uniform(-PAD, PAD, len(voxels))).astype(np.float32)
+        ordinal, m = crossing_edges(crop, voxels, distance)
+        expected, expected_m = numbered_crossings(crop, voxels, distance)
+        assert m == expected_m
+        np.testing.assert_array_equal(ordinal, expected)

@@ -30,7 +30,7 @@ from ..carving.carve import same_grid
 from ..carving.hull import column_runs, occupied_bounds
 from ..geometry.grid import VoxelGrid
 from .hull_distance import HullDistance
-from .lewiner import march_band
+from .lewiner import band_rows, march_band
 
 __all__ = ["BandDistance", "band_marching_cubes", "band_voxel_indices", "crossing_edges",
            "hull_band_distance", "hull_band_floor_m", "hull_marching_cubes_mesh",
@@ -238,7 +238,7 @@ def hull_band_distance(occupancy, grid: VoxelGrid, hull: HullDistance, *,
     # LEVEL); counting it as just outside (by 1e-6 voxel) breaks the tie.
     distance[distance == 0.0] = np.float32(1e-6)
     volume = _band_volume_of(crop, voxels, distance, pad)
-    starts, ends = _crossing_ends(volume, voxels)
+    starts, ends = _crossing_ends(crop, voxels, distance)
     fractions = hull.segment_zeros(
         grid.index_to_world(starts + corner), grid.index_to_world(ends + corner),
         -grid.voxel_size * volume[tuple(starts.T)], -grid.voxel_size * volume[tuple(ends.T)],
@@ -257,10 +257,11 @@ def _band_volume_of(crop: np.ndarray, voxels: np.ndarray, values: np.ndarray,
     return volume
 
 
-def _crossing_ends(volume: np.ndarray, voxels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _crossing_ends(crop: np.ndarray, voxels: np.ndarray,
+                   distance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The grid edges the level crosses at a band voxel, in :func:`crossing_edges`' order:
     their lower and upper ends, (m, 3) int64 indices each."""
-    ordinal, m = crossing_edges(volume, voxels)
+    ordinal, m = crossing_edges(crop, voxels, distance)
     at, slot = np.nonzero(ordinal >= 0)
     order = np.argsort(ordinal[at, slot])
     at, slot = at[order], slot[order]
@@ -304,38 +305,45 @@ def band_marching_cubes(occupancy, grid: VoxelGrid, band: BandDistance):
                          f"({len(voxels)},): one value per voxel of the band")
     ordinal = crossings = None
     if band.crossings is not None:
-        # The signed distance in voxels (positive outside) negated: as for the occupancy,
-        # larger means more inside; off the band the occupancy's sign.
-        ordinal, m = crossing_edges(_band_volume_of(crop, voxels, values, pad), voxels)
+        ordinal, m = crossing_edges(crop, voxels, values)
         crossings = np.asarray(band.crossings)
         if crossings.dtype != np.float32 or crossings.shape != (m,):
             raise ValueError(f"band crossings are {crossings.dtype} {crossings.shape}, expected "
                              f"float32 ({m},): one per grid edge the level crosses")
     # The level crosses only cubes with a corner in the band (off it the values keep the
     # occupancy's sign, and a cube whose corners differ there has them on its boundary):
-    # only those are visited.
+    # only those are visited. The volume is the signed distance in voxels (positive
+    # outside) negated: as for the occupancy, larger means more inside.
     verts, faces = march_band(crop, pad, voxels, -values, ordinal, crossings,
                               margin=_CROSSING_MARGIN)
     return _oriented(verts, faces, corner, grid)
 
 
-def crossing_edges(volume: np.ndarray, voxels: np.ndarray) -> tuple[np.ndarray, int]:
-    """The grid edges at a band voxel whose ends lie on either side of the level 0 of
-    ``volume`` (3-D float32, the negated distance): where marching cubes puts a vertex.
-    An edge is at the band voxel ``voxels[i]`` (n, 3) as its lower end, or as its upper
-    end when its lower end is off the band (where the distance was not computed, and
-    keeps the occupancy's sign: a band voxel beside it may be on the other side of the
-    hull's surface, which lies up to a voxel from the carved one).
+def crossing_edges(crop: np.ndarray, voxels: np.ndarray,
+                   values: np.ndarray) -> tuple[np.ndarray, int]:
+    """The grid edges at a band voxel whose ends lie on either side of the hull's surface:
+    where marching cubes puts a vertex. The volume is the distance ``values`` (n,) float32
+    (voxels, positive outside) at the band's ``voxels`` (n, 3) of the 3-D bool ``crop``
+    (C order) and, off the band, the occupancy's sign (:func:`_band_volume_of`, negated): an
+    end is inside where the distance is below 0, or off the band where occupied. An edge is at the band voxel
+    ``voxels[i]`` as its lower end, or as its upper end when its lower end is off the band
+    (where the distance was not computed, and keeps the occupancy's sign: a band voxel
+    beside it may be on the other side of the hull's surface, which lies up to a voxel from
+    the carved one).
 
     Returns ``ordinal`` (n, 6) int64: for band voxel ``i``, the edge's place in the order
     (band voxel by band voxel) from it ahead along x, y, z (columns 0-2) and behind it
     (columns 3-5), -1 where the level does not cross or the edge is another voxel's;
-    and ``m``, how many edges the level crosses.
+    and ``m``, how many edges the level crosses. Found from the band's rows
+    (:func:`.lewiner.band_rows`): no pass over the crop.
     """
-    in_band = np.zeros(volume.shape, bool)
-    in_band[tuple(voxels.T)] = True
+    crop = np.ascontiguousarray(crop, dtype=bool)
+    rows = band_rows(voxels, crop.shape[0], crop.shape[1])
     ordinal = np.empty((len(voxels), 6), np.int64)
-    return ordinal, int(_number_crossings(volume, in_band, voxels, ordinal))
+    m = _number_crossings(crop, rows,
+                          np.ascontiguousarray(voxels[:, 2], dtype=np.int64),
+                          np.ascontiguousarray(values, dtype=np.float32), ordinal)
+    return ordinal, int(m)
 
 
 def hull_marching_cubes_mesh(occupancy, grid: VoxelGrid, hull: HullDistance, *,
@@ -505,24 +513,45 @@ def _band_volume(crop, voxels, values, pad, volume):
 
 
 @njit(cache=True, nogil=True)
-def _number_crossings(volume, in_band, voxels, ordinal):
-    """Fill ``ordinal`` (:func:`crossing_edges`); returns how many edges cross."""
+def _number_crossings(crop, rows, band_k, values, ordinal):
+    """Fill ``ordinal`` (:func:`crossing_edges`) from the band's ``rows`` and their voxels'
+    k; returns how many edges cross."""
+    n0, n1, n2 = crop.shape
+    ptr = np.empty(4, np.int64)      # rows (i + 1, j), (i, j + 1), (i - 1, j), (i, j - 1)
+    end = np.empty(4, np.int64)
     m = 0
-    for n in range(voxels.shape[0]):
-        i, j, k = voxels[n, 0], voxels[n, 1], voxels[n, 2]
-        inside = volume[i, j, k] > 0.0
-        for a in range(3):
-            ii, jj, kk = i + (a == 0), j + (a == 1), k + (a == 2)
-            ordinal[n, a] = -1
-            if ii < volume.shape[0] and jj < volume.shape[1] and kk < volume.shape[2] \
-                    and (volume[ii, jj, kk] > 0.0) != inside:
-                ordinal[n, a] = m
-                m += 1
-        for a in range(3):
-            ii, jj, kk = i - (a == 0), j - (a == 1), k - (a == 2)
-            ordinal[n, 3 + a] = -1
-            if ii >= 0 and jj >= 0 and kk >= 0 and not in_band[ii, jj, kk] \
-                    and (volume[ii, jj, kk] > 0.0) != inside:
-                ordinal[n, 3 + a] = m
-                m += 1
+    for i in range(n0):
+        for j in range(n1):
+            first, last = rows[i * n1 + j], rows[i * n1 + j + 1]
+            for s in range(4):
+                ii, jj = i + (s == 0) - (s == 2), j + (s == 1) - (s == 3)
+                ptr[s] = end[s] = 0
+                if 0 <= ii < n0 and 0 <= jj < n1:
+                    ptr[s], end[s] = rows[ii * n1 + jj], rows[ii * n1 + jj + 1]
+            for n in range(first, last):
+                k = band_k[n]
+                inside = values[n] < 0.0
+                for s in range(6):      # ahead along i, j, k, then behind
+                    ordinal[n, s] = -1
+                    step = 1 if s < 3 else -1
+                    ii = i + step * (s % 3 == 0)
+                    jj = j + step * (s % 3 == 1)
+                    kk = k + step * (s % 3 == 2)
+                    if not (0 <= ii < n0 and 0 <= jj < n1 and 0 <= kk < n2):
+                        continue
+                    if s % 3 == 2:      # along the row itself: its neighbour voxel
+                        at = n + step
+                        banded = first <= at < last and band_k[at] == kk
+                    else:
+                        r = (0, 1, 0, 2, 3, 0)[s]
+                        while ptr[r] < end[r] and band_k[ptr[r]] < kk:
+                            ptr[r] += 1
+                        at = ptr[r]
+                        banded = at < end[r] and band_k[at] == kk
+                    if s >= 3 and banded:
+                        continue        # the edge is the band voxel behind's
+                    other = (values[at] < 0.0) if banded else crop[ii, jj, kk]
+                    if other != inside:
+                        ordinal[n, s] = m
+                        m += 1
     return m
