@@ -134,13 +134,16 @@ DINO_SHAPE = (390, 506, 401)
 
 
 def torus_distance(shape) -> tuple[np.ndarray, np.ndarray]:
-    """A torus across a grid of ``shape`` voxels (axis 0 its axis), signed distance in
-    voxels (positive outside) at every voxel, float32, and its occupancy."""
+    """A torus across a grid of ``shape`` voxels, its axis along the first, its tube
+    stretched to 0.9 of the grid's height: the signed distance in voxels (positive
+    outside; across the tube, which is what the band's thickness follows) at every voxel,
+    float32, and its occupancy."""
     i, j, k = (np.arange(n, dtype=np.float32) - (n - 1) / 2 for n in shape)
     major = 0.3 * min(shape[1], shape[2])
-    minor = 0.4 * min(major, shape[0] / 2)
+    minor = 0.6 * major
+    stretch = minor / (0.45 * shape[0])
     ring = np.hypot(j[:, None], k[None, :]) - major
-    distance = np.hypot(i[:, None, None], ring[None]) - minor
+    distance = np.hypot(stretch * i[:, None, None], ring[None]) - minor
     return distance.astype(np.float32), distance <= 0
 
 

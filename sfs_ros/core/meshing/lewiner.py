@@ -129,6 +129,7 @@ def march_band(crop: np.ndarray, pad: float, voxels: np.ndarray, values: np.ndar
 
 @njit(cache=True, nogil=True)
 def _row_starts(vi, vj, n0, n1):
+    """:func:`band_rows` of the voxels' i ``vi`` and j ``vj`` (n,), sorted by row."""
     starts = np.zeros(n0 * n1 + 1, np.int64)
     for n in range(vi.shape[0]):
         starts[vi[n] * n1 + vj[n] + 1] += 1
@@ -295,7 +296,8 @@ def _crossing_of(p, i, j, k, shape, bi, ordinal):
     """The crossing (its row of the crossings, else -1) of the grid edge vertex ``p``
     (3,) float32 lies on, if it lies on one (:data:`_ON_GRID`) of the cube ``[i, j, k]``
     whose corners' band rows are ``bi`` (-1: off the band); and the edge's axis and
-    lower end along it."""
+    lower end along it. (A centre vertex near an edge: the edges' own vertices take the
+    shorter way of :func:`_new_vertex`, the same test.)"""
     c0, c1, c2 = np.float64(p[0]), np.float64(p[1]), np.float64(p[2])
     r0, r1, r2 = np.rint(c0), np.rint(c1), np.rint(c2)
     o0, o1, o2 = abs(c0 - r0), abs(c1 - r1), abs(c2 - r2)
@@ -401,8 +403,23 @@ def _new_vertex(edge, i, j, k, v, bi, shape, ordinal, point, place):
     else:
         _on_edge(v, edge, i, j, k, point)
     place[0], place[1], place[2] = -1, 0, 0
-    if ordinal.shape[0] > 0:
+    if ordinal.shape[0] == 0:
+        return
+    if edge == 12:
         place[0], place[1], place[2] = _crossing_of(point, i, j, k, shape, bi, ordinal)
+        return
+    # On its own edge, unless the interpolation put it within _ON_GRID of an end.
+    lo, up, axis = _EDGE[edge, 0], _EDGE[edge, 1], _EDGE[edge, 2]
+    at = np.float64(point[axis])
+    if not abs(at - np.rint(at)) > _ON_GRID:
+        return
+    if (i + _CORNER[lo, 0] >= shape[0] - 1 or j + _CORNER[lo, 1] >= shape[1] - 1
+            or k + _CORNER[lo, 2] >= shape[2] - 1):
+        return
+    which = ordinal[bi[lo], axis] if bi[lo] >= 0 else -1
+    if which < 0 and bi[up] >= 0:
+        which = ordinal[bi[up], axis + 3]
+    place[0], place[1], place[2] = which, axis, (i, j, k)[axis] + _CORNER[lo, axis]
 
 
 @njit(cache=True, nogil=True)

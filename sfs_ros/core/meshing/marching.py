@@ -14,6 +14,8 @@ centres near the carved surface) at level 0, with no voxel staircase to smooth
 away; each vertex is placed where the distance itself is zero along its grid edge
 (``BandDistance.crossings``), not at the chord between the edge's two samples, which
 cuts inside the hull where two views' cones meet within the edge (its sharp edges).
+Its marching cubes is :func:`.lewiner.march_band`, which visits only the cubes with a
+corner in the band: scikit-image's mesh (Lewiner's tables), vertex for vertex.
 """
 
 from __future__ import annotations
@@ -57,7 +59,7 @@ CROSSING_ITERATIONS = 4
 #: found by the first step).
 CROSSING_TOLERANCE = 1e-3
 #: A crossing moves its vertex no nearer an end of its edge than this, voxels: the
-#: mesh's faces keep an area (linear interpolation may come nearer, but scikit-image
+#: mesh's faces keep an area (linear interpolation may come nearer, but marching cubes
 #: drops the faces it makes degenerate before the vertices move).
 _CROSSING_MARGIN = 1e-3
 
