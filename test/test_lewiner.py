@@ -73,16 +73,16 @@ def reference(crop, voxels, distance, crossings):
     return placed_on_crossings(verts, crop.shape, voxels, ordinal, crossings), faces
 
 
-def ours(crop, voxels, distance, crossings):
+def ours(crop, voxels, distance, crossings, slabs):
     ordinal = None
     if crossings is not None:
         ordinal, _ = crossing_edges(crop, voxels, distance)
     return march_band(crop, PAD, voxels, -distance, ordinal, crossings,
-                      margin=_CROSSING_MARGIN)
+                      margin=_CROSSING_MARGIN, slabs=slabs)
 
 
-def assert_same_mesh(crop, voxels, distance, crossings=None):
-    got = ours(crop, voxels, distance, crossings)
+def assert_same_mesh(crop, voxels, distance, crossings=None, slabs=1):
+    got = ours(crop, voxels, distance, crossings, slabs)
     try:
         expected = reference(crop, voxels, distance, crossings)
     except RuntimeError:    # scikit-image's "no surface found" (none in the band's cubes)
@@ -119,7 +119,8 @@ def test_random_volumes_and_bands_give_scikit_images_mesh(seed):
         if volume.min() >= 0 or volume.max() <= 0:
             continue    # no surface
         crossings = crossings_for(crop, voxels, distance, rng) if trial % 2 else None
-        faces += len(assert_same_mesh(crop, voxels, distance, crossings)[1])
+        slabs = 1 + trial % 4       # marched in slabs side by side: the same mesh
+        faces += len(assert_same_mesh(crop, voxels, distance, crossings, slabs)[1])
     assert faces > 10_000
 
 
@@ -153,8 +154,9 @@ def test_a_ball_in_its_band_is_scikit_images_mesh_and_closed(band):
     values = np.clip(distance[tuple(voxels.T)], -PAD, PAD)
     values[values == 0] = np.float32(1e-6)
     rng = np.random.default_rng(band)
-    for crossings in (None, crossings_for(inside, voxels, values, rng)):
-        vertices, faces = assert_same_mesh(inside, voxels, values, crossings)
+    for crossings, slabs in ((None, 1), (crossings_for(inside, voxels, values, rng), 1),
+                             (crossings_for(inside, voxels, values, rng), 7)):
+        vertices, faces = assert_same_mesh(inside, voxels, values, crossings, slabs)
         report = check_mesh(vertices, faces)
         assert report.watertight and report.vertex_manifold, report
         assert report.consistently_oriented and report.n_components == 1, report

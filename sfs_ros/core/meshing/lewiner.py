@@ -18,7 +18,9 @@ Corners of a cube ``[i, j, k]`` in Lewiner's numbering, ``(di, dj, dk)``: 0 ``(0
 from __future__ import annotations
 
 import base64
+from concurrent.futures import ThreadPoolExecutor
 
+import numba
 import numpy as np
 from numba import njit
 from skimage.measure import _marching_cubes_lewiner_luts as _luts
@@ -102,7 +104,7 @@ def band_rows(voxels: np.ndarray, n0: int, n1: int) -> np.ndarray:
 
 def march_band(crop: np.ndarray, pad: float, voxels: np.ndarray, values: np.ndarray,
                ordinal: np.ndarray | None = None, crossings: np.ndarray | None = None,
-               *, margin: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+               *, margin: float = 0.0, slabs: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Lewiner's marching cubes, at level 0, of the volume that is ``values`` (n,) float32 at
     the band's ``voxels`` (n, 3) (C order) and ``pad`` where ``crop`` (3-D bool) is
     occupied, ``-pad`` elsewhere; only the cubes with a corner in the band are visited.
@@ -111,6 +113,10 @@ def march_band(crop: np.ndarray, pad: float, voxels: np.ndarray, values: np.ndar
     on a grid edge with a crossing is placed on it, at its fraction of the edge from the
     lower end clipped to ``[margin, 1 - margin]``; None: every vertex where the linear
     interpolation puts it.
+
+    ``slabs``: how many slabs of planes (along the first axis) are marched side by side
+    (None: as many as numba has threads, each with at least :data:`SLAB_VOXELS` of the
+    band's voxels); the mesh is the same.
 
     Returns ``(vertices (v, 3) float64, faces (f, 3) int64)``: voxel indices of ``crop``,
     faces as scikit-image's (counter-clockwise seen from where the volume is smaller).
@@ -121,10 +127,63 @@ def march_band(crop: np.ndarray, pad: float, voxels: np.ndarray, values: np.ndar
     if ordinal is None or crossings is None:
         ordinal = np.full((0, 6), -1, np.int64)
         crossings = np.zeros(0, np.float32)
-    return _march(crop, np.float32(pad), rows,
-                  np.ascontiguousarray(voxels[:, 2], dtype=np.int64),
-                  np.ascontiguousarray(values, dtype=np.float32), ordinal, crossings,
-                  float(margin))
+    band_k = np.ascontiguousarray(voxels[:, 2], dtype=np.int64)
+    values = np.ascontiguousarray(values, dtype=np.float32)
+    if slabs is None:
+        slabs = min(numba.get_num_threads(), len(voxels) // SLAB_VOXELS)
+    bounds = _slab_bounds(voxels[:, 0], n0, slabs)
+
+    def slab(s: int) -> tuple:
+        return _march_slab(crop, np.float32(pad), rows, band_k, values, ordinal,
+                           bounds[s], bounds[s + 1])
+
+    if len(bounds) == 2:
+        parts = [slab(0)]
+    else:   # the kernels release Python's lock: the slabs run side by side
+        with ThreadPoolExecutor(len(bounds) - 1) as pool:
+            parts = list(pool.map(slab, range(len(bounds) - 1)))
+    return _finish(*_stitched(parts, bounds), crossings, float(margin))
+
+
+#: Band voxels a slab of planes takes at least before the cubes are cut into slabs
+#: marched side by side.
+SLAB_VOXELS = 200_000
+
+
+def _slab_bounds(planes: np.ndarray, n0: int, slabs: int) -> list[int]:
+    """The first cube plane of each of at most ``slabs`` slabs and the end (``n0 - 1``),
+    each slab holding about as many of the band's voxels (whose i are ``planes``, sorted)."""
+    n = len(planes)
+    slabs = max(1, min(slabs, n))
+    cuts = {int(planes[n * s // slabs]) for s in range(1, slabs)}
+    return [0] + sorted(c for c in cuts if 0 < c < n0 - 1) + [n0 - 1]
+
+
+def _stitched(parts: list[tuple], bounds: list[int]) -> tuple:
+    """The slabs' meshes as one, in the order one slab after another would have made it:
+    a vertex a slab made on its first plane's edges (its seam key) is the previous slab's
+    where that one had made it already (on the top of its last cubes). Returns the
+    vertices (v, 3) float32, their crossings (v, 3) and the faces (f, 3)."""
+    points, place, faces = [], [], []
+    count = 0
+    previous = None
+    for s, (pts, plc, fcs, slots, start) in enumerate(parts):
+        number = np.empty(len(pts), np.int64)
+        kept = np.ones(len(pts), bool)
+        if previous is not None:
+            slots_before, start_before, number_before = previous
+            seam = np.flatnonzero(plc[:, 3] >= 0)
+            made = slots_before[bounds[s] & 1, plc[seam, 3]]
+            again = made >= start_before
+            kept[seam[again]] = False
+            number[seam[again]] = number_before[made[again]]
+        number[kept] = count + np.arange(np.count_nonzero(kept))
+        count += np.count_nonzero(kept)
+        points.append(pts[kept])
+        place.append(plc[kept, :3])
+        faces.append(number[fcs])
+        previous = slots, start, number
+    return np.concatenate(points), np.concatenate(place), np.concatenate(faces)
 
 
 @njit(cache=True, nogil=True)
@@ -329,11 +388,14 @@ def _crossing_of(p, i, j, k, shape, bi, ordinal):
 
 
 @njit(cache=True, nogil=True)
-def _march(crop, pad, rows, band_k, values, ordinal, crossings, margin):
-    """:func:`march_band` on the band's rows (:func:`band_rows`) and their voxels' k."""
+def _march_slab(crop, pad, rows, band_k, values, ordinal, first, last):
+    """:func:`march_band`'s cubes of planes ``first .. last - 1`` from the band's rows
+    (:func:`band_rows`) and their voxels' k: the vertices (float32), their crossings and
+    seam keys (:func:`_stitched`), the faces, the vertices by slot and the vertices made
+    before the last plane."""
     n0, n1, n2 = crop.shape
     points = np.empty((1024, 3), np.float32)
-    place = np.empty((1024, 3), np.int64)        # crossing row (or -1), axis, lower end
+    place = np.empty((1024, 4), np.int64)   # crossing row (or -1), axis, lower end, seam key
     faces = np.empty((1024, 3), np.int64)
     count = 0
     n_faces = 0
@@ -347,7 +409,7 @@ def _march(crop, pad, rows, band_k, values, ordinal, crossings, margin):
     ptr = np.empty(4, np.int64)
     end = np.empty(4, np.int64)
     shape = np.array([n0, n1, n2], np.int64)
-    for i in range(n0 - 1):
+    for i in range(first, last):
         start[0], start[1] = start[1], count
         for j in range(n1 - 1):
             if not _corner_rows(rows, i, j, n1, ptr, end):
@@ -375,11 +437,12 @@ def _march(crop, pad, rows, band_k, values, ordinal, crossings, margin):
                             made = count
                             _new_vertex(edge, i, j, k, v, bi, shape, ordinal, points[made],
                                         place[made])
+                            place[made, 3] = key if i == first and di == 0 else -1
                             slots[layer, key] = made
                             count += 1
                         faces[n_faces, 2 - e] = made    # scikit-image reverses each face
                     n_faces += 1
-    return _finish(points[:count], place[:count], faces[:n_faces], crossings, margin)
+    return points[:count], place[:count], faces[:n_faces], slots, start[1]
 
 
 @njit(cache=True, nogil=True)
