@@ -66,6 +66,10 @@ def _packed_tables() -> tuple[np.ndarray, np.ndarray]:
 
 LUT, LUT_AT = _packed_tables()
 
+#: The cases with no ambiguity to test: case -> (table, triangles); -1: a case with tests.
+_PLAIN = np.full((15, 2), -1, np.int64)
+_PLAIN[[1, 2, 5, 8, 9, 11, 14]] = [[T1, 1], [T2, 2], [T5, 3], [T8, 2], [T9, 4], [T11, 4],
+                                   [T14, 4]]
 #: Lewiner corner -> its offset (di, dj, dk) in the cube.
 _CORNER = np.array([[0, 0, 0], [0, 0, 1], [0, 1, 1], [0, 1, 0],
                     [1, 0, 0], [1, 0, 1], [1, 1, 1], [1, 1, 0]], np.int64)
@@ -252,10 +256,8 @@ def _internal_test(v, case, edge, s):
 def _tiling(v, case, config):
     """Lewiner's choice of triangles for a cube: ``(table, sub-configuration, triangles)``
     (table -1: none)."""
-    if case == 1:
-        return T1, 0, 1
-    if case == 2:
-        return T2, 0, 2
+    if _PLAIN[case, 0] >= 0:
+        return _PLAIN[case, 0], 0, _PLAIN[case, 1]
     if case == 3:
         if _face_test(v, _lut(TEST3, config, 0, 0)):
             return T3_2, 0, 4
@@ -264,8 +266,6 @@ def _tiling(v, case, config):
         if _internal_test(v, case, -1, _lut(TEST4, config, 0, 0)):
             return T4_1, 0, 2
         return T4_2, 0, 6
-    if case == 5:
-        return T5, 0, 3
     if case == 6:
         if _face_test(v, _lut(TEST6, config, 0, 0)):
             return T6_2, 0, 5
@@ -288,10 +288,6 @@ def _tiling(v, case, config):
                           _lut(TEST7, config, 0, 3)):
             return T7_4_2, 0, 9
         return T7_4_1, 0, 5
-    if case == 8:
-        return T8, 0, 2
-    if case == 9:
-        return T9, 0, 4
     if case == 10 or case == 12:
         test = TEST10 if case == 10 else TEST12
         first = _face_test(v, _lut(test, config, 0, 0))
@@ -306,8 +302,6 @@ def _tiling(v, case, config):
         if _internal_test(v, case, edge, _lut(test, config, 0, 2)):
             return (T10_1_1 if case == 10 else T12_1_1), 0, 4
         return (T10_1_2 if case == 10 else T12_1_2), 0, 8
-    if case == 11:
-        return T11, 0, 4
     if case == 13:
         sub = 0
         for n in range(6):
@@ -335,8 +329,6 @@ def _tiling(v, case, config):
         if sub == 45:
             return T13_1_, 0, 4
         return -1, 0, 0
-    if case == 14:
-        return T14, 0, 4
     return -1, 0, 0
 
 

@@ -326,12 +326,12 @@ def crossing_edges(crop: np.ndarray, voxels: np.ndarray,
     """The grid edges at a band voxel whose ends lie on either side of the hull's surface:
     where marching cubes puts a vertex. The volume is the distance ``values`` (n,) float32
     (voxels, positive outside) at the band's ``voxels`` (n, 3) of the 3-D bool ``crop``
-    (C order) and, off the band, the occupancy's sign (:func:`_band_volume_of`, negated): an
-    end is inside where the distance is below 0, or off the band where occupied. An edge is at the band voxel
-    ``voxels[i]`` as its lower end, or as its upper end when its lower end is off the band
-    (where the distance was not computed, and keeps the occupancy's sign: a band voxel
-    beside it may be on the other side of the hull's surface, which lies up to a voxel from
-    the carved one).
+    (C order) and, off the band, the occupancy's sign (:func:`_band_volume_of`, negated):
+    an end is inside where the distance is below 0, or off the band where occupied. An
+    edge is at the band voxel ``voxels[i]`` as its lower end, or as its upper end when its
+    lower end is off the band (where the distance was not computed, and keeps the
+    occupancy's sign: a band voxel beside it may be on the other side of the hull's
+    surface, which lies up to a voxel from the carved one).
 
     Returns ``ordinal`` (n, 6) int64: for band voxel ``i``, the edge's place in the order
     (band voxel by band voxel) from it ahead along x, y, z (columns 0-2) and behind it
