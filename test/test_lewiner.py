@@ -94,6 +94,17 @@ def assert_same_mesh(crop, voxels, distance, crossings=None, slabs=1):
     return got
 
 
+def cube_patterns(volume, cubes):
+    """The sign patterns (Lewiner's case index: bit c set where corner c is above 0) of
+    the cubes scikit-image visits under the mask ``cubes``."""
+    n0, n1, n2 = volume.shape
+    index = np.zeros((n0 - 1, n1 - 1, n2 - 1), np.int64)
+    for c, (di, dj, dk) in enumerate([(0, 0, 0), (0, 0, 1), (0, 1, 1), (0, 1, 0),
+                                      (1, 0, 0), (1, 0, 1), (1, 1, 1), (1, 1, 0)]):
+        index |= (volume[di:n0 - 1 + di, dj:n1 - 1 + dj, dk:n2 - 1 + dk] > 0).astype(int) << c
+    return set(index[cubes[1:, 1:, 1:]].tolist())
+
+
 def crossings_for(crop, voxels, distance, rng):
     _, m = crossing_edges(crop, voxels, distance)
     return rng.random(m).astype(np.float32)
@@ -101,11 +112,13 @@ def crossings_for(crop, voxels, distance, rng):
 
 @pytest.mark.parametrize("seed", range(6))
 def test_random_volumes_and_bands_give_scikit_images_mesh(seed):
-    # Random signs and values make every Lewiner case and ambiguity test occur; random
-    # bands make the mask cut cubes anywhere; values of exactly +-1, 0 or 1e-6 (ties in
-    # the ambiguity tests; vertices on a corner: degenerate faces merged and dropped).
+    # Random signs and values make every sign pattern of a cube occur (and so every case
+    # of Lewiner's and its ambiguity tests); random bands make the mask cut cubes
+    # anywhere; values of exactly +-1, 0 or 1e-6 (ties in the ambiguity tests; vertices
+    # on a corner: degenerate faces merged and dropped).
     rng = np.random.default_rng(seed)
     faces = 0
+    patterns = set()
     for trial in range(40):
         shape = tuple(int(n) for n in rng.integers(2, 13, 3))
         crop = rng.random(shape) < rng.uniform(0.2, 0.8)
@@ -118,10 +131,12 @@ def test_random_volumes_and_bands_give_scikit_images_mesh(seed):
         volume = _band_volume_of(crop, voxels, distance, PAD)
         if volume.min() >= 0 or volume.max() <= 0:
             continue    # no surface
+        patterns |= cube_patterns(volume, band_mask(shape, voxels))
         crossings = crossings_for(crop, voxels, distance, rng) if trial % 2 else None
         slabs = 1 + trial % 4       # marched in slabs side by side: the same mesh
         faces += len(assert_same_mesh(crop, voxels, distance, crossings, slabs)[1])
     assert faces > 10_000
+    assert len(patterns) == 256
 
 
 def test_degenerate_faces_are_dropped_as_scikit_image_drops_them():
