@@ -8,7 +8,13 @@ Sub-voxel surface rows: the pipeline's meshing of a carved hull at 192^3 (the
 torus object seen by 73 exact silhouettes, 640 x 480 pinhole views), on the
 signed distance to the hull (distance images, band, contour), against the 0/1
 occupancy mesher on the same hull; and moving the cloud of points onto the
-hull, against making the cloud. Run: ``python -m bench.bench_marching``.
+hull, against making the cloud.
+
+Band row: the hull mesher's marching cubes (``lewiner.march_band``: only the cubes with a
+corner in the band, vertices placed on the edges' crossings) on a band as wide as the
+Middlebury dino's grid (390x506x401, a torus across it), against scikit-image's marching
+cubes alone on the same volume with the mask of those cubes (built beforehand, not
+timed; the same mesh before the vertices are placed). Run: ``python -m bench.bench_marching``.
 """
 
 from __future__ import annotations
@@ -21,7 +27,16 @@ from sfs_ros.core.geometry.grid import VoxelGrid
 from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
 from sfs_ros.core.meshing.cloud import cloud_of_points
 from sfs_ros.core.meshing.hull_distance import HullDistance
-from sfs_ros.core.meshing.marching import LEVEL, hull_marching_cubes_mesh, marching_cubes_mesh
+from sfs_ros.core.meshing.lewiner import march_band
+from sfs_ros.core.meshing.marching import (
+    _CROSSING_MARGIN,
+    LEVEL,
+    _band_volume_of,
+    band_voxel_indices,
+    crossing_edges,
+    hull_marching_cubes_mesh,
+    marching_cubes_mesh,
+)
 from sfs_ros.core.meshing.mesh_checks import check_mesh
 from sfs_ros.core.render import rasterize_silhouette
 from sfs_ros.core.simulation.objects import make_object
@@ -114,5 +129,57 @@ def run_hull_surface(quick: bool = False) -> list[dict]:
     return rows
 
 
+#: The Middlebury dino's grid (``sfs-reconstruct``'s footprint grid for dinoSparseRing).
+DINO_SHAPE = (390, 506, 401)
+
+
+def torus_distance(shape) -> tuple[np.ndarray, np.ndarray]:
+    """A torus across a grid of ``shape`` voxels, its axis along the first, its tube
+    stretched to 0.9 of the grid's height: the signed distance in voxels (positive
+    outside; across the tube, which is what the band's thickness follows) at every voxel,
+    float32, and its occupancy."""
+    i, j, k = (np.arange(n, dtype=np.float32) - (n - 1) / 2 for n in shape)
+    major = 0.3 * min(shape[1], shape[2])
+    minor = 0.6 * major
+    stretch = minor / (0.45 * shape[0])
+    ring = np.hypot(j[:, None], k[None, :]) - major
+    distance = np.hypot(stretch * i[:, None, None], ring[None]) - minor
+    return distance.astype(np.float32), distance <= 0
+
+
+def run_band(quick: bool = False) -> list[dict]:
+    """Time the band's marching cubes on a torus across the dino's grid (a quarter of it
+    each way, quick) against scikit-image's with the band's mask.
+
+    Returns one row ``{name, seconds, baseline_seconds, ratio, notes}`` like :func:`run`."""
+    shape = tuple(n // 4 for n in DINO_SHAPE) if quick else DINO_SHAPE
+    distance, inside = torus_distance(shape)
+    pad = 2
+    voxels = band_voxel_indices(inside, 1)
+    values = np.clip(distance[tuple(voxels.T)], -pad, pad)
+    del distance
+    volume = _band_volume_of(inside, voxels, values, pad)
+    ordinal, m = crossing_edges(inside, voxels, values)
+    crossings = np.random.default_rng(0).uniform(0.0, 1.0, m).astype(np.float32)
+    cubes = np.zeros(shape, bool)
+    for d in np.ndindex(2, 2, 2):
+        ahead = voxels + d
+        cubes[tuple(ahead[np.all(ahead < shape, axis=1)].T)] = True
+
+    def ours():
+        return march_band(inside, pad, voxels, -values, ordinal, crossings,
+                          margin=_CROSSING_MARGIN)
+
+    faces = len(ours()[1])      # numba compilation (cached on disk) is not timed
+    baseline = best_of(lambda: measure.marching_cubes(volume, 0.0, allow_degenerate=False,
+                                                      mask=cubes), 3)
+    seconds = best_of(ours, 3)
+    size = "x".join(map(str, shape))
+    return [{"name": f"band marching cubes {size} torus ({faces} faces)",
+             "seconds": seconds, "baseline_seconds": baseline, "ratio": baseline / seconds,
+             "notes": [f"band marching cubes: {len(voxels)} band voxels of {inside.size}; "
+                       "baseline scikit-image's marching cubes with the band's mask"]}]
+
+
 if __name__ == "__main__":
-    main(__doc__, run, run_hull_surface, quick_help="smaller grids")
+    main(__doc__, run, run_hull_surface, run_band, quick_help="smaller grids")

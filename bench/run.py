@@ -21,7 +21,8 @@ from sfs_ros.process import configure_process
 from .timing import print_table
 
 SUITES = [("bench_carve", "run"), ("bench_marching", "run"),
-          ("bench_marching", "run_hull_surface"), ("bench_mesh", "run_advancing_front"),
+          ("bench_marching", "run_hull_surface"), ("bench_marching", "run_band"),
+          ("bench_mesh", "run_advancing_front"),
           ("bench_lens", "run"), ("bench_segment", "run"), ("bench_colour", "run"),
           ("bench_cell", "run"), ("bench_reconstruct", "run"), ("bench_startup", "run"),
           ("bench_refine", "run")]

@@ -14,6 +14,8 @@ centres near the carved surface) at level 0, with no voxel staircase to smooth
 away; each vertex is placed where the distance itself is zero along its grid edge
 (``BandDistance.crossings``), not at the chord between the edge's two samples, which
 cuts inside the hull where two views' cones meet within the edge (its sharp edges).
+Its marching cubes is :func:`.lewiner.march_band`, which visits only the cubes with a
+corner in the band: scikit-image's mesh (Lewiner's tables), vertex for vertex.
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ from ..carving.carve import same_grid
 from ..carving.hull import column_runs, occupied_bounds
 from ..geometry.grid import VoxelGrid
 from .hull_distance import HullDistance
+from .lewiner import band_rows, march_band
 
 __all__ = ["BandDistance", "band_marching_cubes", "band_voxel_indices", "crossing_edges",
            "hull_band_distance", "hull_band_floor_m", "hull_marching_cubes_mesh",
@@ -56,7 +59,7 @@ CROSSING_ITERATIONS = 4
 #: found by the first step).
 CROSSING_TOLERANCE = 1e-3
 #: A crossing moves its vertex no nearer an end of its edge than this, voxels: the
-#: mesh's faces keep an area (linear interpolation may come nearer, but scikit-image
+#: mesh's faces keep an area (linear interpolation may come nearer, but marching cubes
 #: drops the faces it makes degenerate before the vertices move).
 _CROSSING_MARGIN = 1e-3
 
@@ -236,8 +239,8 @@ def hull_band_distance(occupancy, grid: VoxelGrid, hull: HullDistance, *,
     # A sample exactly on the level makes Lewiner's ambiguity tests tie (see
     # LEVEL); counting it as just outside (by 1e-6 voxel) breaks the tie.
     distance[distance == 0.0] = np.float32(1e-6)
-    volume, _ = _band_volume_of(crop, voxels, distance, pad)
-    starts, ends = _crossing_ends(volume, voxels)
+    volume = _band_volume_of(crop, voxels, distance, pad)
+    starts, ends = _crossing_ends(crop, voxels, distance)
     fractions = hull.segment_zeros(
         grid.index_to_world(starts + corner), grid.index_to_world(ends + corner),
         -grid.voxel_size * volume[tuple(starts.T)], -grid.voxel_size * volume[tuple(ends.T)],
@@ -248,20 +251,19 @@ def hull_band_distance(occupancy, grid: VoxelGrid, hull: HullDistance, *,
 
 
 def _band_volume_of(crop: np.ndarray, voxels: np.ndarray, values: np.ndarray,
-                    pad: int) -> tuple[np.ndarray, np.ndarray]:
-    """The volume marching cubes contours (the crop's shape, float32: the negated distance
-    in voxels at the band's ``voxels``, ``+-pad`` by the occupancy off it) and its mask of
-    the cubes to visit (:func:`_band_volume`)."""
+                    pad: int) -> np.ndarray:
+    """The volume the level is found in (the crop's shape, float32: the negated distance
+    in voxels at the band's ``voxels``, ``+-pad`` by the occupancy off it)."""
     volume = np.empty(crop.shape, np.float32)
-    cubes = np.zeros(crop.shape, bool)
-    _band_volume(crop, voxels, values, np.float32(pad), volume, cubes)
-    return volume, cubes
+    _band_volume(crop, voxels, values, np.float32(pad), volume)
+    return volume
 
 
-def _crossing_ends(volume: np.ndarray, voxels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _crossing_ends(crop: np.ndarray, voxels: np.ndarray,
+                   distance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The grid edges the level crosses at a band voxel, in :func:`crossing_edges`' order:
     their lower and upper ends, (m, 3) int64 indices each."""
-    ordinal, m = crossing_edges(volume, voxels)
+    ordinal, m = crossing_edges(crop, voxels, distance)
     at, slot = np.nonzero(ordinal >= 0)
     order = np.argsort(ordinal[at, slot])
     at, slot = at[order], slot[order]
@@ -303,74 +305,47 @@ def band_marching_cubes(occupancy, grid: VoxelGrid, band: BandDistance):
     if values.dtype != np.float32 or values.shape != (len(voxels),):
         raise ValueError(f"band distance has {values.dtype} {values.shape}, expected float32 "
                          f"({len(voxels)},): one value per voxel of the band")
-    # The signed distance in voxels (positive outside) negated: as for the occupancy,
-    # larger means more inside; off the band the occupancy's sign.
-    volume, cubes = _band_volume_of(crop, voxels, values, pad)
-    place = None
+    ordinal = crossings = None
     if band.crossings is not None:
-        ordinal, m = crossing_edges(volume, voxels)
+        ordinal, m = crossing_edges(crop, voxels, values)
         crossings = np.asarray(band.crossings)
         if crossings.dtype != np.float32 or crossings.shape != (m,):
             raise ValueError(f"band crossings are {crossings.dtype} {crossings.shape}, expected "
                              f"float32 ({m},): one per grid edge the level crosses")
-        keys = np.ravel_multi_index(tuple(voxels.T), crop.shape)
-
-        def place(verts: np.ndarray) -> np.ndarray:
-            return _on_crossings(verts, crop.shape, keys, ordinal, crossings)
     # The level crosses only cubes with a corner in the band (off it the values keep the
     # occupancy's sign, and a cube whose corners differ there has them on its boundary):
-    # only those are visited, the same mesh for half the work.
-    return _contour(volume, 0.0, corner, grid, cubes=cubes, place=place)
+    # only those are visited. The volume is the signed distance in voxels (positive
+    # outside) negated: as for the occupancy, larger means more inside.
+    verts, faces = march_band(crop, pad, voxels, -values, ordinal, crossings,
+                              margin=_CROSSING_MARGIN)
+    return _oriented(verts, faces, corner, grid)
 
 
-def crossing_edges(volume: np.ndarray, voxels: np.ndarray) -> tuple[np.ndarray, int]:
-    """The grid edges at a band voxel whose ends lie on either side of the level 0 of
-    ``volume`` (3-D float32, the negated distance): where marching cubes puts a vertex.
-    An edge is at the band voxel ``voxels[i]`` (n, 3) as its lower end, or as its upper
-    end when its lower end is off the band (where the distance was not computed, and
-    keeps the occupancy's sign: a band voxel beside it may be on the other side of the
-    hull's surface, which lies up to a voxel from the carved one).
+def crossing_edges(crop: np.ndarray, voxels: np.ndarray,
+                   values: np.ndarray) -> tuple[np.ndarray, int]:
+    """The grid edges at a band voxel whose ends lie on either side of the hull's surface:
+    where marching cubes puts a vertex. The volume is the distance ``values`` (n,) float32
+    (voxels, positive outside) at the band's ``voxels`` (n, 3) of the 3-D bool ``crop``
+    (C order) and, off the band, the occupancy's sign (:func:`_band_volume_of`, negated):
+    an end is inside where the distance is below 0, or off the band where occupied. An
+    edge is at the band voxel ``voxels[i]`` as its lower end, or as its upper end when its
+    lower end is off the band (where the distance was not computed, and keeps the
+    occupancy's sign: a band voxel beside it may be on the other side of the hull's
+    surface, which lies up to a voxel from the carved one).
 
     Returns ``ordinal`` (n, 6) int64: for band voxel ``i``, the edge's place in the order
     (band voxel by band voxel) from it ahead along x, y, z (columns 0-2) and behind it
     (columns 3-5), -1 where the level does not cross or the edge is another voxel's;
-    and ``m``, how many edges the level crosses.
+    and ``m``, how many edges the level crosses. Found from the band's rows
+    (:func:`.lewiner.band_rows`): no pass over the crop.
     """
-    in_band = np.zeros(volume.shape, bool)
-    in_band[tuple(voxels.T)] = True
+    crop = np.ascontiguousarray(crop, dtype=bool)
+    rows = band_rows(voxels, crop.shape[0], crop.shape[1])
     ordinal = np.empty((len(voxels), 6), np.int64)
-    return ordinal, int(_number_crossings(volume, in_band, voxels, ordinal))
-
-
-def _on_crossings(verts: np.ndarray, shape: tuple, keys: np.ndarray, ordinal: np.ndarray,
-                  crossings: np.ndarray) -> np.ndarray:
-    """``verts`` (n, 3) float volume indices from marching cubes, each moved along its grid
-    edge to the edge's crossing (:func:`crossing_edges`; else as it is).
-
-    A vertex lies on the edge along the axis where it is off the grid's integers (the two
-    others are integers, up to scikit-image's float32)."""
-    out = verts.astype(np.float64)
-    nearest = np.round(out)
-    off = np.abs(out - nearest)
-    axis = np.argmax(off, axis=1)
-    rows = np.arange(len(out))
-    on_edge = (off[rows, axis] > 1e-4) & (np.sort(off, axis=1)[:, 1] < 1e-4)
-    lower = nearest.astype(np.int64)
-    lower[rows, axis] = np.floor(out[rows, axis]).astype(np.int64)
-    on_edge &= np.all(lower >= 0, axis=1) & np.all(lower < np.array(shape) - 1, axis=1)
-    which = np.full(len(out), -1, np.int64)
-    for end, column in ((0, axis), (1, axis + 3)):     # the edge's lower end, then its upper
-        voxel = np.where(on_edge[:, None], lower, 0)
-        voxel[rows, axis] += end
-        key = np.ravel_multi_index(tuple(voxel.T), shape)
-        at = np.minimum(np.searchsorted(keys, key), len(keys) - 1)
-        found = on_edge & (which < 0) & (keys[at] == key)
-        which[found] = ordinal[at[found], column[found]]
-    moved = which >= 0
-    fraction = np.clip(crossings[which[moved]].astype(np.float64), _CROSSING_MARGIN,
-                       1.0 - _CROSSING_MARGIN)
-    out[rows[moved], axis[moved]] = lower[rows[moved], axis[moved]] + fraction
-    return out
+    m = _number_crossings(crop, rows,
+                          np.ascontiguousarray(voxels[:, 2], dtype=np.int64),
+                          np.ascontiguousarray(values, dtype=np.float32), ordinal)
+    return ordinal, int(m)
 
 
 def hull_marching_cubes_mesh(occupancy, grid: VoxelGrid, hull: HullDistance, *,
@@ -400,17 +375,18 @@ def _occupied_bounds(occ: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return box
 
 
-def _contour(volume: np.ndarray, level: float, corner: np.ndarray, grid: VoxelGrid, *,
-             cubes: np.ndarray | None = None, place=None):
-    """Mesh of ``volume`` (larger = inside) at ``level``; its ``[0, 0, 0]`` is voxel ``corner``.
-    ``cubes`` (the volume's shape, bool): scikit-image's marching-cubes mask, the cube
-    of corners ``p .. p + 1`` visited when it holds at ``p + 1`` (None: every cube is
-    visited). ``place``: (n, 3) volume indices -> (n, 3) float64, where the vertices go
-    instead of the linear interpolation (None: there)."""
+def _contour(volume: np.ndarray, level: float, corner: np.ndarray, grid: VoxelGrid):
+    """Mesh of ``volume`` (larger = inside) at ``level`` by scikit-image's marching cubes;
+    its ``[0, 0, 0]`` is voxel ``corner``."""
     # Vertices come back as float32 voxel indices of the volume; scale in float64.
-    verts, faces, _, _ = measure.marching_cubes(volume, level, allow_degenerate=False,
-                                                mask=cubes)
-    verts = verts.astype(np.float64) if place is None else place(verts)
+    verts, faces, _, _ = measure.marching_cubes(volume, level, allow_degenerate=False)
+    return _oriented(verts.astype(np.float64), faces, corner, grid)
+
+
+def _oriented(verts: np.ndarray, faces: np.ndarray, corner: np.ndarray, grid: VoxelGrid):
+    """``(vertices (n, 3) float64 metres, faces (m, 3) int64)`` of a mesh of voxel indices
+    ``verts`` (n, 3) float64 of a volume whose ``[0, 0, 0]`` is voxel ``corner``, its faces
+    turned counter-clockwise seen from outside."""
     vertices = grid.origin + (verts + corner) * grid.voxel_size
     faces = faces.astype(np.int64)
     if _signed_volume(vertices, faces) < 0:
@@ -526,44 +502,58 @@ def _narrowed_meet(run_lo, run_hi, r0, r1, band, so_far, n, first, out):
 
 
 @njit(parallel=True, cache=True, nogil=True)
-def _band_volume(crop, voxels, values, pad, volume, cubes):
+def _band_volume(crop, voxels, values, pad, volume):
     """Fill ``volume`` (crop's shape, float32): ``pad`` in the occupied voxels of ``crop``,
-    ``-pad`` elsewhere, ``-values[n]`` at band voxel ``voxels[n]``; and set ``cubes``
-    (bool, all False) at each band voxel and its neighbours ahead along the axes (the
-    marching-cubes mask of the cubes with a corner in the band: :func:`_contour`)."""
+    ``-pad`` elsewhere, ``-values[n]`` at band voxel ``voxels[n]``."""
     nx, ny, nz = crop.shape
     for i in prange(nx):
         for j in range(ny):
             for k in range(nz):
                 volume[i, j, k] = pad if crop[i, j, k] else -pad
-    for n in prange(voxels.shape[0]):   # (neighbours may set the same mask byte: to True)
-        i, j, k = voxels[n, 0], voxels[n, 1], voxels[n, 2]
-        volume[i, j, k] = -values[n]
-        for di in range(min(2, nx - i)):
-            for dj in range(min(2, ny - j)):
-                for dk in range(min(2, nz - k)):
-                    cubes[i + di, j + dj, k + dk] = True
+    for n in prange(voxels.shape[0]):
+        volume[voxels[n, 0], voxels[n, 1], voxels[n, 2]] = -values[n]
 
 
 @njit(cache=True, nogil=True)
-def _number_crossings(volume, in_band, voxels, ordinal):
-    """Fill ``ordinal`` (:func:`crossing_edges`); returns how many edges cross."""
+def _number_crossings(crop, rows, band_k, values, ordinal):
+    """Fill ``ordinal`` (:func:`crossing_edges`) from the band's ``rows`` and their voxels'
+    k; returns how many edges cross."""
+    n0, n1, n2 = crop.shape
+    ptr = np.empty(4, np.int64)      # rows (i + 1, j), (i, j + 1), (i - 1, j), (i, j - 1)
+    end = np.empty(4, np.int64)
     m = 0
-    for n in range(voxels.shape[0]):
-        i, j, k = voxels[n, 0], voxels[n, 1], voxels[n, 2]
-        inside = volume[i, j, k] > 0.0
-        for a in range(3):
-            ii, jj, kk = i + (a == 0), j + (a == 1), k + (a == 2)
-            ordinal[n, a] = -1
-            if ii < volume.shape[0] and jj < volume.shape[1] and kk < volume.shape[2] \
-                    and (volume[ii, jj, kk] > 0.0) != inside:
-                ordinal[n, a] = m
-                m += 1
-        for a in range(3):
-            ii, jj, kk = i - (a == 0), j - (a == 1), k - (a == 2)
-            ordinal[n, 3 + a] = -1
-            if ii >= 0 and jj >= 0 and kk >= 0 and not in_band[ii, jj, kk] \
-                    and (volume[ii, jj, kk] > 0.0) != inside:
-                ordinal[n, 3 + a] = m
-                m += 1
+    for i in range(n0):
+        for j in range(n1):
+            first, last = rows[i * n1 + j], rows[i * n1 + j + 1]
+            for s in range(4):
+                ii, jj = i + (s == 0) - (s == 2), j + (s == 1) - (s == 3)
+                ptr[s] = end[s] = 0
+                if 0 <= ii < n0 and 0 <= jj < n1:
+                    ptr[s], end[s] = rows[ii * n1 + jj], rows[ii * n1 + jj + 1]
+            for n in range(first, last):
+                k = band_k[n]
+                inside = values[n] < 0.0
+                for s in range(6):      # ahead along i, j, k, then behind
+                    ordinal[n, s] = -1
+                    step = 1 if s < 3 else -1
+                    ii = i + step * (s % 3 == 0)
+                    jj = j + step * (s % 3 == 1)
+                    kk = k + step * (s % 3 == 2)
+                    if not (0 <= ii < n0 and 0 <= jj < n1 and 0 <= kk < n2):
+                        continue
+                    if s % 3 == 2:      # along the row itself: its neighbour voxel
+                        at = n + step
+                        banded = first <= at < last and band_k[at] == kk
+                    else:
+                        r = (0, 1, 0, 2, 3, 0)[s]
+                        while ptr[r] < end[r] and band_k[ptr[r]] < kk:
+                            ptr[r] += 1
+                        at = ptr[r]
+                        banded = at < end[r] and band_k[at] == kk
+                    if s >= 3 and banded:
+                        continue        # the edge is the band voxel behind's
+                    other = (values[at] < 0.0) if banded else crop[ii, jj, kk]
+                    if other != inside:
+                        ordinal[n, s] = m
+                        m += 1
     return m
