@@ -350,27 +350,53 @@ def _on_crossings(verts: np.ndarray, shape: tuple, keys: np.ndarray, ordinal: np
     A vertex lies on the edge along the axis where it is off the grid's integers (the two
     others are integers, up to scikit-image's float32)."""
     out = verts.astype(np.float64)
-    nearest = np.round(out)
-    off = np.abs(out - nearest)
-    axis = np.argmax(off, axis=1)
-    rows = np.arange(len(out))
-    on_edge = (off[rows, axis] > 1e-4) & (np.sort(off, axis=1)[:, 1] < 1e-4)
-    lower = nearest.astype(np.int64)
-    lower[rows, axis] = np.floor(out[rows, axis]).astype(np.int64)
-    on_edge &= np.all(lower >= 0, axis=1) & np.all(lower < np.array(shape) - 1, axis=1)
-    which = np.full(len(out), -1, np.int64)
-    for end, column in ((0, axis), (1, axis + 3)):     # the edge's lower end, then its upper
-        voxel = np.where(on_edge[:, None], lower, 0)
-        voxel[rows, axis] += end
-        key = np.ravel_multi_index(tuple(voxel.T), shape)
-        at = np.minimum(np.searchsorted(keys, key), len(keys) - 1)
-        found = on_edge & (which < 0) & (keys[at] == key)
-        which[found] = ordinal[at[found], column[found]]
-    moved = which >= 0
-    fraction = np.clip(crossings[which[moved]].astype(np.float64), _CROSSING_MARGIN,
-                       1.0 - _CROSSING_MARGIN)
-    out[rows[moved], axis[moved]] = lower[rows[moved], axis[moved]] + fraction
+    if len(keys):
+        _move_to_crossings(out, np.asarray(shape, np.int64), keys, ordinal, crossings,
+                           _CROSSING_MARGIN)
     return out
+
+
+@njit(cache=True, nogil=True)
+def _move_to_crossings(out, shape, keys, ordinal, crossings, margin):
+    """:func:`_on_crossings` in place on ``out`` (n, 3) float64, vertex by vertex: its edge
+    is along the axis farthest from an integer (off by more than 1e-4, the others by less),
+    from its lower end, a voxel of the volume's ``shape`` (3,) below its last index;
+    ``keys`` (b,) the band voxels' flat indices, ascending, ``ordinal`` (b, 6) their
+    edges' (:func:`crossing_edges`); the edge's crossing from its lower end, else its
+    upper, kept ``margin`` off the ends."""
+    nearest = np.empty(3)
+    off = np.empty(3)
+    lower = np.empty(3, np.int64)
+    for i in range(out.shape[0]):
+        for k in range(3):
+            nearest[k] = np.rint(out[i, k])
+            off[k] = abs(out[i, k] - nearest[k])
+        axis = 0
+        for k in (1, 2):
+            if off[k] > off[axis]:
+                axis = k
+        middle = max(min(off[0], off[1]), min(max(off[0], off[1]), off[2]))
+        if not (off[axis] > 1e-4 and middle < 1e-4):
+            continue
+        inside = True
+        for k in range(3):
+            lower[k] = int(math.floor(out[i, k])) if k == axis else int(nearest[k])
+            inside = inside and 0 <= lower[k] < shape[k] - 1
+        if not inside:
+            continue
+        which = -1
+        for end in (0, 1):     # the edge's lower end, then its upper
+            key = ((lower[0] + (end if axis == 0 else 0)) * shape[1]
+                   + lower[1] + (end if axis == 1 else 0)) * shape[2] \
+                + lower[2] + (end if axis == 2 else 0)
+            at = min(np.searchsorted(keys, key), len(keys) - 1)
+            if keys[at] == key:
+                which = ordinal[at, axis + 3 * end]
+                if which >= 0:
+                    break
+        if which >= 0:
+            out[i, axis] = lower[axis] + min(max(np.float64(crossings[which]), margin),
+                                             1.0 - margin)
 
 
 def hull_marching_cubes_mesh(occupancy, grid: VoxelGrid, hull: HullDistance, *,
