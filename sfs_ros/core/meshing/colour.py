@@ -629,7 +629,9 @@ class _Weighing:
                            self.edge_ramp_px, self.depth_tolerance_px, per_metre, constant,
                            idx, weights, weighted, hidden)
         covered = np.packbits(np.isfinite(zbuf), axis=None) if self.coverage else None
-        return idx[:k], weights[:k], weighted[:k], hidden[:h], covered
+        # (copied out: the vertex-sized buffers are not kept while the result waits)
+        return idx[:k].copy(), weights[:k].copy(), weighted[:k].copy(), hidden[:h].copy(), \
+            covered
 
 
 def vertex_colours(vertices, faces, images: Sequence, cameras: Sequence[Camera], *,
