@@ -63,9 +63,10 @@ def timed(seconds: dict[str, float], stage: str):
 
 
 class _Finish:
-    """Colour, checks and evaluation of one mesh, overlapped: the colour (one core) runs
-    beside the checks and then the evaluation (both cores), which waits for the colour's
-    views to be blended; with no colour, the checks run beside the evaluation. With
+    """Colour, checks and evaluation of one mesh, overlapped: the colour blends its views
+    (both cores), then fills the vertices no view sees (one core) beside the checks and
+    then the evaluation (both cores), which wait for the views to be blended; with no
+    colour, the checks run beside the evaluation. With
     ``defer``, the evaluation draws only the held-out views (:attr:`deferred`: the others
     it does not draw)."""
 
@@ -117,15 +118,16 @@ class _Finish:
         A mesh closed by construction has its checks run beside the colour and the
         evaluation, which count on a closed mesh for half their drawing (should the
         checks find it otherwise, both are done again, the same as one after the
-        other): on the evaluation's thread before it while the colour runs, or with no
-        colour on this thread while the evaluation runs. Another mesher's mesh is
-        checked first."""
+        other): on the evaluation's thread before it while the colour fills its unseen
+        vertices, or with no colour on this thread while the evaluation runs. Another
+        mesher's mesh is checked first."""
         given = None if closed_by_construction else self.checks()
         expect_closed = True if given is None else bool(given["watertight"]
                                                         and given["outward"])
         checks_here = given is None and not self.carved.colour_views
 
         def checks_then_evaluate(closed: bool):
+            self.colour_views_blended.wait()
             checked = None if given is not None or checks_here else self.checks()
             return checked, self.evaluate(closed)
 

@@ -268,9 +268,20 @@ def rasterize_depth(vertices, faces, camera: Camera, *, closed: bool = False) ->
                       np.empty((0, 0, 3)), bool(closed))
 
 
-def _rasterize(vertices, faces, camera: Camera, face_id, bary, front_only: bool) -> np.ndarray:
-    """The z-buffer of :func:`_rasterize_kernel` (filling ``face_id`` and ``bary``)."""
-    vertices, faces = as_mesh_arrays(vertices, faces)
+def depth_of_checked(vertices: np.ndarray, faces: np.ndarray, camera: Camera, *,
+                     closed: bool = False) -> np.ndarray:
+    """:func:`rasterize_depth` of a mesh as :func:`as_mesh_arrays` returned it: its checks
+    and conversions not made again (for a mesh drawn into many views)."""
+    return _rasterize(vertices, faces, camera, np.empty((0, 0), np.int64),
+                      np.empty((0, 0, 3)), bool(closed), checked=True)
+
+
+def _rasterize(vertices, faces, camera: Camera, face_id, bary, front_only: bool, *,
+               checked: bool = False) -> np.ndarray:
+    """The z-buffer of :func:`_rasterize_kernel` (filling ``face_id`` and ``bary``);
+    ``checked``: the mesh is as :func:`as_mesh_arrays` returns it."""
+    if not checked:
+        vertices, faces = as_mesh_arrays(vertices, faces)
     zbuf = np.full((camera.height, camera.width), np.inf)
     if len(faces):
         _rasterize_kernel(*_projected(vertices, camera), faces, face_id, bary, zbuf, front_only)

@@ -47,7 +47,7 @@ from scipy.sparse.linalg import splu
 
 from ..carving.carve import validate_masks
 from ..geometry.camera import Camera
-from ..render import as_mesh_arrays, rasterize_depth
+from ..render import as_mesh_arrays, depth_of_checked
 from ..settings import MAX_COLOUR_VIEWS
 from ..workers import map_in_threads
 
@@ -153,12 +153,6 @@ def _footprint_terms(camera: Camera) -> tuple[float, float]:
     return (1.0 / f, 0.0) if camera.orthographic else (0.0, 1.0 / f)
 
 
-def _footprint_m(camera: Camera, depth: np.ndarray) -> np.ndarray:
-    """Size of one pixel on a fronto-parallel surface at ``depth`` (metres), metres."""
-    constant, per_metre = _footprint_terms(camera)
-    return constant + depth * per_metre
-
-
 @njit(cache=True, nogil=True, inline="always")
 def _bilinear_at(image, u, v, channel):
     """``image[..., channel]`` (H, W, C) sampled bilinearly at ``(u, v)`` in
@@ -172,53 +166,85 @@ def _bilinear_at(image, u, v, channel):
     return (1.0 - fv) * top + fv * bottom
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _sight_weight(u, v, z, cos, edge_px, zbuf, min_cos, angle_power, edge_ramp_px,
+                  depth_tolerance_px, footprint_per_m, footprint_constant):
+    """How well one view sees a point: ``(weight, hidden)``, its weight in a blend (module
+    docstring; 0: not seen) and whether the mesh hides it.
+
+    u, v, z, cos : float, the projection (pixels, within the image), depth (metres) and
+    view cosine; edge_px (H, W, 1) float32 distance to an edge pixel, or (0, 0, 1) for
+    none; zbuf (H, W, 1) float64 z-buffer, or (0, 0, 1). A pixel's footprint at depth z
+    is ``footprint_constant + z * footprint_per_m``, metres (:func:`_footprint_terms`).
+    """
+    ramp = 1.0
+    if edge_px.shape[0]:
+        ramp = min(1.0, max(0.0, (_bilinear_at(edge_px, u, v, 0) - EDGE_MARGIN_PX)
+                            / edge_ramp_px))
+        if ramp == 0.0:   # (the weight below, times 0: no power computed)
+            return 0.0, False
+    w = ramp * (((cos - min_cos) / (1.0 - min_cos)) ** angle_power if cos > min_cos else 0.0)
+    if w > 0.0 and zbuf.shape[0]:
+        # w > 0 only off the edges: the 2 x 2 pixels read see one surface, all finite.
+        tan = np.sqrt(1.0 - cos ** 2) / cos
+        tol = (footprint_constant + z * footprint_per_m) * (depth_tolerance_px + tan)
+        if z > _bilinear_at(zbuf, u, v, 0) + tol:
+            return 0.0, True
+    return w, False
+
+
 @njit(cache=True, nogil=True)
 def _sight_weights(u, v, z, cos, edge_px, zbuf, min_cos, angle_power, edge_ramp_px,
                    depth_tolerance_px, footprint_per_m, footprint_constant, weights, hidden):
-    """How well one view sees k points: their weights in a blend (module docstring).
-
-    u, v, z, cos : (k,) float64, the projection (pixels, within the image), depth
-    (metres) and view cosine; edge_px (H, W, 1) float32 distance to an edge pixel,
-    or (0, 0, 1) for none; zbuf (H, W, 1) float64 z-buffer, or (0, 0, 1).
-    A pixel's footprint at depth z is ``footprint_constant + z * footprint_per_m``, metres
-    (:func:`_footprint_terms`).
-    Fills ``weights`` (k,) (0: not seen) and ``hidden`` (k,) bool (the mesh hides the point).
-    """
+    """:func:`_sight_weight` of k points, ``u, v, z, cos`` (k,) float64: fills ``weights``
+    (k,) and ``hidden`` (k,) bool."""
     for i in range(u.size):
-        w = ((cos[i] - min_cos) / (1.0 - min_cos)) ** angle_power if cos[i] > min_cos else 0.0
-        if edge_px.shape[0]:
-            w *= min(1.0, max(0.0, (_bilinear_at(edge_px, u[i], v[i], 0) - EDGE_MARGIN_PX)
-                                / edge_ramp_px))
-        hidden[i] = False
-        if w > 0.0 and zbuf.shape[0]:
-            # w > 0 only off the edges: the 2 x 2 pixels read see one surface, all finite.
-            tan = np.sqrt(1.0 - cos[i] ** 2) / cos[i]
-            tol = (footprint_constant + z[i] * footprint_per_m) * (depth_tolerance_px + tan)
-            if z[i] > _bilinear_at(zbuf, u[i], v[i], 0) + tol:
-                hidden[i] = True
-                w = 0.0
-        weights[i] = w
+        weights[i], hidden[i] = _sight_weight(u[i], v[i], z[i], cos[i], edge_px, zbuf, min_cos,
+                                              angle_power, edge_ramp_px, depth_tolerance_px,
+                                              footprint_per_m, footprint_constant)
 
 
 @njit(cache=True, nogil=True)
-def _weigh_view(u, v, z, cos, image, edge_px, zbuf, min_cos, angle_power, edge_ramp_px,
-                depth_tolerance_px, footprint_per_m, footprint_constant, weights, colours,
-                hidden):
-    """One view's part in the blend, for the k vertices it may see: :func:`_sight_weights`,
-    and ``colours`` (k, 3) the weighted colour of ``image`` (H, W, 3) uint8 there."""
-    _sight_weights(u, v, z, cos, edge_px, zbuf, min_cos, angle_power, edge_ramp_px,
-                   depth_tolerance_px, footprint_per_m, footprint_constant, weights, hidden)
-    for i in range(u.size):
-        w = weights[i]
-        for c in range(3):
-            colours[i, c] = w * _bilinear_at(image, u[i], v[i], c) if w > 0.0 else 0.0
+def _weigh_view(R, t, K, orthographic, vertices, normals, image, edge_px, zbuf, min_cos,
+                angle_power, edge_ramp_px, depth_tolerance_px, footprint_per_m,
+                footprint_constant, idx, weights, colours, hidden):
+    """One view's part in the blend, in one pass over the n vertices: each vertex that
+    faces the camera (``cos > min_cos``) and projects into ``image`` (H, W, 3) uint8
+    (:func:`_view_of`, :func:`_in_image`) is weighed (:func:`_sight_weight`). Fills, in
+    vertex order, ``idx[:k]`` (n,) int64 the k vertices it blends into (weight > 0), their
+    ``weights[:k]`` (n,) and ``colours[:k]`` (n, 3), the weighted colour of the image
+    there, and ``hidden[:h]`` (n,) int64 the h vertices the mesh hides; returns
+    ``(k, h)``."""
+    height, width = image.shape[0], image.shape[1]
+    k = 0
+    h = 0
+    for i in range(vertices.shape[0]):
+        x, y, z, cos = _in_camera(R, t, orthographic, vertices, normals, i)
+        if not cos > min_cos:
+            continue
+        u, v = _pixel(K, orthographic, x, y, z)
+        if not (u >= 0 and u <= width - 1 and v >= 0 and v <= height - 1):
+            continue
+        w, is_hidden = _sight_weight(u, v, z, cos, edge_px, zbuf, min_cos, angle_power,
+                                     edge_ramp_px, depth_tolerance_px, footprint_per_m,
+                                     footprint_constant)
+        if is_hidden:
+            hidden[h] = i
+            h += 1
+        if w > 0.0:
+            idx[k] = i
+            weights[k] = w
+            for c in range(3):
+                colours[k, c] = w * _bilinear_at(image, u, v, c)
+            k += 1
+    return k, h
 
 
 @njit(cache=True, nogil=True)
 def _add_view(idx, weights, weighted, hidden, total, weight_sum, n_views, n_hidden):
     """Add one view's part (from :func:`_weigh_view`, the vertices ``idx`` it blends into,
-    each once, and those it would but the mesh hides) to the running sums: the same
-    additions as ``total[idx] += weighted`` and so on, in one pass."""
+    each once, and ``hidden`` those it would but the mesh hides) to the running sums: the
+    same additions as ``total[idx] += weighted`` and so on, in one pass."""
     for k in range(idx.size):
         i = idx[k]
         for c in range(3):
@@ -239,31 +265,62 @@ def _edge_distance_px(zbuf: np.ndarray | None, mask: np.ndarray | None,
     """
     if zbuf is None and mask is None:
         return None
-    edge = np.zeros((camera.height, camera.width), dtype=bool) if mask is None else ~mask
-    out = np.zeros(edge.shape, np.float32)
-    if zbuf is not None:
-        # Every pixel off the mesh is an edge pixel: outside the mesh's box grown by one
-        # pixel the distance is 0, and inside it the nearest edge pixel is in that box.
-        finite = np.isfinite(zbuf)
-        rows = np.flatnonzero(finite.any(axis=1))
-        cols = np.flatnonzero(finite.any(axis=0))
-        if rows.size == 0:
-            return out
-        box = np.s_[max(0, rows[0] - 1):rows[-1] + 2, max(0, cols[0] - 1):cols[-1] + 2]
-        zbuf, edge, crop = zbuf[box], edge[box], out[box]
-        edge |= ~finite[box]
-        with np.errstate(invalid="ignore"):  # inf - inf between background pixels
-            for a, b in ((np.s_[:-1], np.s_[1:]), (np.s_[:, :-1], np.s_[:, 1:])):  # 4-neighbours
-                near = np.minimum(zbuf[a], zbuf[b])
-                limit = DEPTH_STEP_FOOTPRINTS * _footprint_m(camera, near)
-                jump = np.abs(zbuf[a] - zbuf[b]) > limit
-                edge[a] |= jump
-                edge[b] |= jump
-    else:
-        crop = out
-    crop[...] = cv2.distanceTransform((~edge).astype(np.uint8), cv2.DIST_L2,
-                                      cv2.DIST_MASK_PRECISE)
+    out = np.zeros((camera.height, camera.width), np.float32)
+    if zbuf is None:
+        out[...] = cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2,
+                                         cv2.DIST_MASK_PRECISE)
+        return out
+    # Every pixel off the mesh is an edge pixel: outside the mesh's box grown by one
+    # pixel the distance is 0, and inside it the nearest edge pixel is in that box.
+    first_row, last_row, first_col, last_col = _finite_box(zbuf)
+    if last_row < 0:
+        return out
+    r0, c0 = max(0, first_row - 1), max(0, first_col - 1)
+    off_edges = np.empty((min(camera.height, last_row + 2) - r0,
+                          min(camera.width, last_col + 2) - c0), np.uint8)
+    constant, per_metre = _footprint_terms(camera)
+    _off_edges(zbuf, np.zeros((0, 0), bool) if mask is None else mask, r0, c0, constant,
+               per_metre, off_edges)
+    out[r0:r0 + off_edges.shape[0], c0:c0 + off_edges.shape[1]] = cv2.distanceTransform(
+        off_edges, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
     return out
+
+
+@njit(cache=True, nogil=True)
+def _finite_box(zbuf):
+    """``(first row, last row, first column, last column)`` of the finite pixels of
+    ``zbuf`` (H, W); last row -1 when there is none."""
+    first_row, last_row, first_col, last_col = zbuf.shape[0], -1, zbuf.shape[1], -1
+    for r in range(zbuf.shape[0]):
+        for c in range(zbuf.shape[1]):
+            if math.isfinite(zbuf[r, c]):
+                first_row, last_row = min(first_row, r), r
+                first_col, last_col = min(first_col, c), max(last_col, c)
+    return first_row, last_row, first_col, last_col
+
+
+@njit(cache=True, nogil=True)
+def _off_edges(zbuf, mask, r0, c0, footprint_constant, footprint_per_m, out):
+    """``out`` (h, w) uint8: 1 at the pixels of the z-buffer ``zbuf`` (H, W) from row
+    ``r0`` and column ``c0`` on that are no edge pixel (:func:`_edge_distance_px`), else 0;
+    ``mask`` (H, W) bool or (0, 0) for none. A pixel's footprint at depth z is
+    ``footprint_constant + z * footprint_per_m``, metres."""
+    h, w = out.shape
+    for r in range(h):
+        for c in range(w):
+            inside = mask.shape[0] == 0 or mask[r0 + r, c0 + c]
+            out[r, c] = 1 if inside and math.isfinite(zbuf[r0 + r, c0 + c]) else 0
+    for r in range(h):
+        for c in range(w):
+            a = zbuf[r0 + r, c0 + c]
+            for dr, dc in ((1, 0), (0, 1)):   # 4-neighbours (inf - inf: no step)
+                if r + dr < h and c + dc < w:
+                    b = zbuf[r0 + r + dr, c0 + c + dc]
+                    limit = DEPTH_STEP_FOOTPRINTS * (footprint_constant
+                                                     + min(a, b) * footprint_per_m)
+                    if abs(a - b) > limit:
+                        out[r, c] = 0
+                        out[r + dr, c + dc] = 0
 
 
 def _planes(image: np.ndarray | None, dtype) -> np.ndarray:
@@ -274,26 +331,40 @@ def _planes(image: np.ndarray | None, dtype) -> np.ndarray:
     return np.ascontiguousarray(image, dtype)[:, :, None]
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _in_camera(R, t, orthographic, vertices, normals, i):
+    """Vertex ``i`` in the camera ``R, t``'s frame: ``(x, y, z, cos)``, metres, and the
+    cosine of the angle between its normal and the direction to the camera."""
+    x = R[0, 0] * vertices[i, 0] + R[0, 1] * vertices[i, 1] + R[0, 2] * vertices[i, 2] + t[0]
+    y = R[1, 0] * vertices[i, 0] + R[1, 1] * vertices[i, 1] + R[1, 2] * vertices[i, 2] + t[1]
+    z = R[2, 0] * vertices[i, 0] + R[2, 1] * vertices[i, 1] + R[2, 2] * vertices[i, 2] + t[2]
+    nx = R[0, 0] * normals[i, 0] + R[0, 1] * normals[i, 1] + R[0, 2] * normals[i, 2]
+    ny = R[1, 0] * normals[i, 0] + R[1, 1] * normals[i, 1] + R[1, 2] * normals[i, 2]
+    nz = R[2, 0] * normals[i, 0] + R[2, 1] * normals[i, 1] + R[2, 2] * normals[i, 2]
+    if orthographic:
+        return x, y, z, -nz
+    return x, y, z, -(nx * x + ny * y + nz * z) / max(math.sqrt(x * x + y * y + z * z), 1e-300)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _pixel(K, orthographic, x, y, z):
+    """``(u, v)``, pixels, of the point ``(x, y, z)`` in the camera's frame (NaN behind a
+    pinhole camera)."""
+    if orthographic:
+        qx, qy, qw = x, y, 1.0
+    else:
+        qx, qy, qw = x, y, z if z > 0.0 else np.nan
+    return ((K[0, 0] * qx + K[0, 1] * qy + K[0, 2] * qw) / qw,
+            (K[1, 0] * qx + K[1, 1] * qy + K[1, 2] * qw) / qw)
+
+
 @njit(cache=True, nogil=True)
 def _view_kernel(R, t, K, orthographic, vertices, normals, u, v, depth, cos):
     """Fills ``u, v`` (pixels; NaN behind a pinhole camera), ``depth`` (metres) and
     ``cos`` for each vertex (see :func:`_view_of`)."""
     for i in range(vertices.shape[0]):
-        x = R[0, 0] * vertices[i, 0] + R[0, 1] * vertices[i, 1] + R[0, 2] * vertices[i, 2] + t[0]
-        y = R[1, 0] * vertices[i, 0] + R[1, 1] * vertices[i, 1] + R[1, 2] * vertices[i, 2] + t[1]
-        z = R[2, 0] * vertices[i, 0] + R[2, 1] * vertices[i, 1] + R[2, 2] * vertices[i, 2] + t[2]
-        nx = R[0, 0] * normals[i, 0] + R[0, 1] * normals[i, 1] + R[0, 2] * normals[i, 2]
-        ny = R[1, 0] * normals[i, 0] + R[1, 1] * normals[i, 1] + R[1, 2] * normals[i, 2]
-        nz = R[2, 0] * normals[i, 0] + R[2, 1] * normals[i, 1] + R[2, 2] * normals[i, 2]
-        depth[i] = z
-        if orthographic:
-            cos[i] = -nz
-            qx, qy, qw = x, y, 1.0
-        else:
-            cos[i] = -(nx * x + ny * y + nz * z) / max(math.sqrt(x * x + y * y + z * z), 1e-300)
-            qx, qy, qw = x, y, z if z > 0.0 else np.nan
-        u[i] = (K[0, 0] * qx + K[0, 1] * qy + K[0, 2] * qw) / qw
-        v[i] = (K[1, 0] * qx + K[1, 1] * qy + K[1, 2] * qw) / qw
+        x, y, depth[i], cos[i] = _in_camera(R, t, orthographic, vertices, normals, i)
+        u[i], v[i] = _pixel(K, orthographic, x, y, depth[i])
 
 
 def _view_of(camera: Camera, vertices: np.ndarray, normals: np.ndarray) -> tuple:
@@ -374,6 +445,53 @@ def fill_from_neighbours(colours: np.ndarray, seen: np.ndarray, faces: np.ndarra
     return HarmonicFill.of(seen, faces)(colours)
 
 
+@njit(cache=True, nogil=True)
+def _unseen_neighbours(seen, faces, index, n_unknown):
+    """The neighbours along the edges of ``faces`` (m, 3) of each vertex not ``seen`` (n,)
+    bool, ``index`` (n,) int64 its row among the u unseen ones (-1 for the others):
+    ``(start (u + 1,), neighbours)`` int64, row ``r``'s neighbours
+    ``neighbours[start[r]:start[r + 1]]``, ascending, each once."""
+    start = np.zeros(n_unknown + 1, np.int64)
+    for t in range(faces.shape[0]):
+        for k in range(3):
+            a, b = faces[t, k], faces[t, (k + 1) % 3]
+            if not seen[a]:
+                start[index[a] + 1] += 1
+            if not seen[b]:
+                start[index[b] + 1] += 1
+    for r in range(n_unknown):
+        start[r + 1] += start[r]
+    listed = np.empty(start[n_unknown], np.int64)
+    filled = start[:-1].copy()
+    for t in range(faces.shape[0]):
+        for k in range(3):
+            a, b = faces[t, k], faces[t, (k + 1) % 3]
+            if not seen[a]:
+                listed[filled[index[a]]] = b
+                filled[index[a]] += 1
+            if not seen[b]:
+                listed[filled[index[b]]] = a
+                filled[index[b]] += 1
+    # Each row sorted (a few entries: insertion sort) and its repeats dropped, in place.
+    kept = 0
+    for r in range(n_unknown):
+        first = kept
+        for e in range(start[r], start[r + 1]):
+            value = listed[e]
+            at = kept
+            while at > first and listed[at - 1] > value:
+                at -= 1
+            if at > first and listed[at - 1] == value:
+                continue
+            for move in range(kept, at, -1):
+                listed[move] = listed[move - 1]
+            listed[at] = value
+            kept += 1
+        start[r] = first
+    start[n_unknown] = kept
+    return start, listed[:kept].copy()
+
+
 @dataclass(frozen=True)
 class HarmonicFill:
     """The harmonic interpolation of the unseen vertices' colours along edges, factored
@@ -410,18 +528,13 @@ class HarmonicFill:
     def of(cls, seen: np.ndarray, faces: np.ndarray) -> HarmonicFill:
         """The fill of the vertices not ``seen`` (n,) bool of a mesh of ``faces`` (m, 3)."""
         n = len(seen)
-        # The faces around unseen vertices (corner by corner: numpy reduces an (m, 3) array
-        # along its second axis several times slower).
-        faces = faces[~(seen[faces[:, 0]] & seen[faces[:, 1]] & seen[faces[:, 2]])]
-        ends = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
-        ends = np.concatenate([ends, ends[:, ::-1]])
-        ends = ends[~seen[ends[:, 0]]]
-        pairs = np.sort(ends[:, 0] * n + ends[:, 1])        # each edge once per unseen end
-        pairs = pairs[np.concatenate([[True], pairs[1:] != pairs[:-1]])]  # (np.unique sorts)
-        ends_i, ends_j = pairs // n, pairs % n
         unknown = np.flatnonzero(~seen)
         index = np.full(n, -1, np.int64)
         index[unknown] = np.arange(len(unknown))
+        # Each edge once per unseen end, by unseen end then other end.
+        start, ends_j = _unseen_neighbours(seen, np.ascontiguousarray(faces, np.int64), index,
+                                           len(unknown))
+        ends_i = np.repeat(unknown, np.diff(start))
         row, inner = index[ends_i], ~seen[ends_j]
         adjacency = sparse.csr_matrix((np.ones(int(inner.sum())),
                                        (row[inner], index[ends_j[inner]])),
@@ -484,7 +597,8 @@ def _check_colour_inputs(images: Sequence, cameras: list[Camera], masks: Sequenc
 
 @dataclass(frozen=True)
 class _Weighing:
-    """One mesh and :func:`vertex_colours`' options, to weigh each view's colours with."""
+    """One mesh (as :func:`~sfs_ros.core.render.as_mesh_arrays` returns it) and
+    :func:`vertex_colours`' options, to weigh each view's colours with."""
 
     vertices: np.ndarray
     faces: np.ndarray
@@ -502,22 +616,22 @@ class _Weighing:
         weights and colours, and the vertices it would see but the mesh hides (and its
         coverage by the mesh, packed bits, when asked for)."""
         image, camera, mask = view
-        vertices, faces, min_cos = self.vertices, self.faces, self.min_cos
-        u, v, z, cos = _view_of(camera, vertices, self.normals)
-        idx = np.flatnonzero(_in_image(u, v, camera) & (cos > min_cos))
-        u, v, z, cos = u[idx], v[idx], z[idx], cos[idx]
-        zbuf = (rasterize_depth(vertices, faces, camera, closed=self.closed)
+        vertices, n = self.vertices, len(self.vertices)
+        zbuf = (depth_of_checked(vertices, self.faces, camera, closed=self.closed)
                 if self.occlusion else None)
         edge_px = _edge_distance_px(zbuf, mask, camera)
         constant, per_metre = _footprint_terms(camera)
-        weights, weighted = np.empty(len(idx)), np.empty((len(idx), 3))
-        hidden = np.empty(len(idx), bool)
-        _weigh_view(u, v, z, cos, image, _planes(edge_px, np.float32), _planes(zbuf, np.float64),
-                    min_cos, self.angle_power, self.edge_ramp_px, self.depth_tolerance_px,
-                    per_metre, constant, weights, weighted, hidden)
-        keep = weights > 0
+        idx, weights, weighted = np.empty(n, np.int64), np.empty(n), np.empty((n, 3))
+        hidden = np.empty(n, np.int64)
+        k, h = _weigh_view(camera.R, camera.t, camera.K, bool(camera.orthographic), vertices,
+                           self.normals, image, _planes(edge_px, np.float32),
+                           _planes(zbuf, np.float64), self.min_cos, self.angle_power,
+                           self.edge_ramp_px, self.depth_tolerance_px, per_metre, constant,
+                           idx, weights, weighted, hidden)
         covered = np.packbits(np.isfinite(zbuf), axis=None) if self.coverage else None
-        return idx[keep], weights[keep], weighted[keep], idx[hidden], covered
+        # (copied out: the vertex-sized buffers are not kept while the result waits)
+        return idx[:k].copy(), weights[:k].copy(), weighted[:k].copy(), hidden[:h].copy(), \
+            covered
 
 
 def vertex_colours(vertices, faces, images: Sequence, cameras: Sequence[Camera], *,
