@@ -75,7 +75,8 @@ def textured_model(carved, result, output_dir, report_path) -> Product:
 
 
 def refined_model(carved, images: dict, output_dir, report_path, mesh_path,
-                  on_mesh: Callable | None = None) -> Product:
+                  on_mesh: Callable | None = None, on_the_way: Callable | None = None
+                  ) -> Product:
     """The mesh of ``carved`` refined below its hull from the views' colours
     (:func:`sfs_ros.core.refinement.refine_carved_scan`, then meshed, coloured when
     ``carved`` colours its mesh) as a product: ``<stem>.refined<suffix>`` beside the mesh
@@ -84,20 +85,27 @@ def refined_model(carved, images: dict, output_dir, report_path, mesh_path,
 
     images : {view name: (H, W, 3) uint8 RGB on the view's ideal camera}, of every view
         the hull was carved with (the carving node's ``view_image`` of each view, or the
-        images the carved scan carries); ValueError at once, naming how many are missing.
+        images the carved scan carries).
+    on_the_way : ``(view names) -> {view name: image}``, waiting for images still on their
+        way (:meth:`~sfs_ros.cell_logic.held_images.HeldImages.wait_for`), called when
+        the product is made. Without it, ValueError at once when an image is missing,
+        naming how many; with it, the product's ``make`` raises that ValueError when they
+        did not come.
     """
     used = [view.name for view in carved.views if view.role == "used"]
     missing = [name for name in used if name not in images]
-    if missing:
-        raise ValueError(f"no refined mesh: the images of {len(missing)} of the {len(used)} "
-                         f"views used are not held here (first {missing[0]}): a meshing node "
-                         "started during the scan, or images given up to held_images_mb")
+    if missing and on_the_way is None:
+        raise ValueError(_missing_images(missing, used))
     suffix = Path(mesh_path).suffix.lower()
     path = product_path(output_dir, report_path, REFINED_STEM + suffix)
     root = Path(output_dir).resolve()
 
     def make() -> dict:
-        refined = mesh_scan(refine_carved_scan(carved, images))
+        came = on_the_way(missing) if missing else {}
+        if len(came) < len(missing):
+            raise ValueError(_missing_images([name for name in missing if name not in came],
+                                             used))
+        refined = mesh_scan(refine_carved_scan(carved, {**images, **came}))
         write_atomic_all([(path, mesh_bytes(refined.vertices, refined.faces, path,
                                             vertex_colors=refined.vertex_colors))], within=root)
         if on_mesh is not None:
@@ -111,8 +119,16 @@ def refined_model(carved, images: dict, output_dir, report_path, mesh_path,
     return Product(key="refined_mesh_path", path=path, make=make)
 
 
+def _missing_images(missing: list, used: list) -> str:
+    """Why no refined mesh: the images of ``missing`` of the views ``used`` are not here."""
+    return (f"no refined mesh: the images of {len(missing)} of the {len(used)} views used are "
+            f"not held here (first {missing[0]}): a meshing node started during the scan, or "
+            "images given up to held_images_mb")
+
+
 def products_after(carved, meshed, made, output_dir, held: dict, *, texture: bool,
-                   refine: bool, on_mesh: Callable | None = None
+                   refine: bool, on_mesh: Callable | None = None,
+                   on_the_way: Callable | None = None
                    ) -> tuple[list[Product], list[tuple[str, str]]]:
     """The products to make after the answer to the mesh ``made``
     (:class:`sfs_ros.cell_logic.mesh_files.MeshFiles`) of the carved scan ``carved``:
@@ -120,7 +136,7 @@ def products_after(carved, meshed, made, output_dir, held: dict, *, texture: boo
     ``(level, text)`` (``"error"`` for the texture, ``"warning"`` for the refined mesh:
     the hull's mesh is out). ``meshed``: the carved scan as the mesh was made of it
     (without its images when not coloured); ``held``: the images of this scan's views held
-    by the caller; ``on_mesh`` as :func:`refined_model`'s."""
+    by the caller; ``on_mesh`` and ``on_the_way`` as :func:`refined_model`'s."""
     summary, products, notes = made.summary, [], []
     if texture:
         try:
@@ -134,7 +150,7 @@ def products_after(carved, meshed, made, output_dir, held: dict, *, texture: boo
         try:
             products.append(refined_model(meshed, {**held, **carried}, output_dir,
                                           summary["report_path"], summary["path"],
-                                          on_mesh=on_mesh))
+                                          on_mesh=on_mesh, on_the_way=on_the_way))
         except ValueError as exc:
             notes.append(("warning", f"{exc}; the hull's mesh {summary['path']} is written"))
     return products, notes

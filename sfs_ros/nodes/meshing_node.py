@@ -51,6 +51,10 @@ NODE_NAME = "meshing"
 #: Period (s) of the timer that releases the jobs after a ``reconstruct`` answer (it runs
 #: once per answer, as soon as the answer is sent).
 ANSWER_CHECK_S = 0.001
+#: How long (s) the refined mesh, made after the answer, waits for view images still on
+#: their way (the carving node sends each as it stores the view: a request right after
+#: the scan may come before the last ones; seconds on a loaded machine).
+IMAGES_ON_THE_WAY_S = 10.0
 
 
 class MeshingNode(Node):
@@ -218,7 +222,9 @@ class MeshingNode(Node):
         summary = made.summary
         n_held = sum(msg.views[i].image_held for i in msg.colour_views)
         images = held if held_session == msg.session_dir else {}
-        products = self._products(carved, meshed, made, options, images)
+        on_the_way = partial(self._held.wait_for, msg.session_dir,
+                             timeout_s=IMAGES_ON_THE_WAY_S) if self._held.max_bytes else None
+        products = self._products(carved, meshed, made, options, images, on_the_way)
         for key in ("textured_path", "refined_mesh_path"):
             summary[key] = next((str(p.path) for p in products if p.key == key), "")
         self._status.meshed(summary["path"], summary["session"], n_held,
@@ -242,13 +248,15 @@ class MeshingNode(Node):
                                 name=product.key)
         return True, json.dumps(summary), summary
 
-    def _products(self, carved, meshed, made, options: MeshOptions, held: dict) -> list:
+    def _products(self, carved, meshed, made, options: MeshOptions, held: dict,
+                  on_the_way) -> list:
         """The products to make after the answer (:func:`products_after`); one that cannot
         be made is reported and left out."""
         products, notes = products_after(
             carved, meshed, made, self._output_dir, held,
             texture=options.textured(self._values["texture"]),
-            refine=options.refined(self._values["refine"]), on_mesh=self._publish_refined)
+            refine=options.refined(self._values["refine"]), on_mesh=self._publish_refined,
+            on_the_way=on_the_way)
         for level, text in notes:
             if level == "error":
                 self._report_problem(text)
