@@ -52,8 +52,8 @@ from ..settings import MAX_COLOUR_VIEWS
 from ..workers import map_in_threads
 
 __all__ = ["MAX_COLOUR_VIEWS", "HarmonicFill", "VertexColours", "ViewSight", "check_image",
-           "fill_from_neighbours", "spread_views", "vertex_colours", "vertex_normals",
-           "view_sight"]
+           "fill_from_neighbours", "sight_maps", "sight_weight", "spread_views", "vertex_colours",
+           "vertex_normals", "view_point", "view_sight"]
 
 #: A z-buffer step between neighbouring pixels of more than this many pixel
 #: footprints is a depth discontinuity (a smooth surface only steps that much
@@ -185,19 +185,37 @@ def _sight_weights(u, v, z, cos, edge_px, zbuf, min_cos, angle_power, edge_ramp_
     Fills ``weights`` (k,) (0: not seen) and ``hidden`` (k,) bool (the mesh hides the point).
     """
     for i in range(u.size):
-        w = ((cos[i] - min_cos) / (1.0 - min_cos)) ** angle_power if cos[i] > min_cos else 0.0
-        if edge_px.shape[0]:
-            w *= min(1.0, max(0.0, (_bilinear_at(edge_px, u[i], v[i], 0) - EDGE_MARGIN_PX)
-                                / edge_ramp_px))
-        hidden[i] = False
-        if w > 0.0 and zbuf.shape[0]:
-            # w > 0 only off the edges: the 2 x 2 pixels read see one surface, all finite.
-            tan = np.sqrt(1.0 - cos[i] ** 2) / cos[i]
-            tol = (footprint_constant + z[i] * footprint_per_m) * (depth_tolerance_px + tan)
-            if z[i] > _bilinear_at(zbuf, u[i], v[i], 0) + tol:
-                hidden[i] = True
-                w = 0.0
-        weights[i] = w
+        weights[i], hidden[i] = sight_weight(u[i], v[i], z[i], cos[i], edge_px, zbuf, 0,
+                                             min_cos, angle_power, edge_ramp_px,
+                                             depth_tolerance_px, footprint_per_m,
+                                             footprint_constant)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def sight_weight(u, v, z, cos, edge_px, zbuf, channel, min_cos, angle_power, edge_ramp_px,
+                 depth_tolerance_px, footprint_per_m, footprint_constant):
+    """:func:`_sight_weights` of one point, reading plane ``channel`` of ``edge_px`` and
+    ``zbuf`` (H, W, C): ``(weight, hidden)``. The cheap tests first: the angle's weight
+    (a power) is only made for a point off the edges, and only matters where the mesh does
+    not hide it."""
+    if not cos > min_cos:
+        return 0.0, False
+    ramp = 1.0
+    if edge_px.shape[0]:
+        ramp = min(1.0, max(0.0, (_bilinear_at(edge_px, u, v, channel) - EDGE_MARGIN_PX)
+                            / edge_ramp_px))
+        if ramp == 0.0:
+            return 0.0, False
+    behind = False
+    if zbuf.shape[0]:
+        # Off the edges: the 2 x 2 pixels read see one surface, all finite.
+        tan = np.sqrt(1.0 - cos ** 2) / cos
+        tol = (footprint_constant + z * footprint_per_m) * (depth_tolerance_px + tan)
+        behind = z > _bilinear_at(zbuf, u, v, channel) + tol
+    w = ((cos - min_cos) / (1.0 - min_cos)) ** angle_power * ramp
+    if behind:
+        return 0.0, w > 0.0
+    return w, False
 
 
 @njit(cache=True, nogil=True)
@@ -279,21 +297,29 @@ def _view_kernel(R, t, K, orthographic, vertices, normals, u, v, depth, cos):
     """Fills ``u, v`` (pixels; NaN behind a pinhole camera), ``depth`` (metres) and
     ``cos`` for each vertex (see :func:`_view_of`)."""
     for i in range(vertices.shape[0]):
-        x = R[0, 0] * vertices[i, 0] + R[0, 1] * vertices[i, 1] + R[0, 2] * vertices[i, 2] + t[0]
-        y = R[1, 0] * vertices[i, 0] + R[1, 1] * vertices[i, 1] + R[1, 2] * vertices[i, 2] + t[1]
-        z = R[2, 0] * vertices[i, 0] + R[2, 1] * vertices[i, 1] + R[2, 2] * vertices[i, 2] + t[2]
-        nx = R[0, 0] * normals[i, 0] + R[0, 1] * normals[i, 1] + R[0, 2] * normals[i, 2]
-        ny = R[1, 0] * normals[i, 0] + R[1, 1] * normals[i, 1] + R[1, 2] * normals[i, 2]
-        nz = R[2, 0] * normals[i, 0] + R[2, 1] * normals[i, 1] + R[2, 2] * normals[i, 2]
-        depth[i] = z
-        if orthographic:
-            cos[i] = -nz
-            qx, qy, qw = x, y, 1.0
-        else:
-            cos[i] = -(nx * x + ny * y + nz * z) / max(math.sqrt(x * x + y * y + z * z), 1e-300)
-            qx, qy, qw = x, y, z if z > 0.0 else np.nan
-        u[i] = (K[0, 0] * qx + K[0, 1] * qy + K[0, 2] * qw) / qw
-        v[i] = (K[1, 0] * qx + K[1, 1] * qy + K[1, 2] * qw) / qw
+        u[i], v[i], depth[i], cos[i] = view_point(
+            R, t, K, orthographic, vertices[i, 0], vertices[i, 1], vertices[i, 2],
+            normals[i, 0], normals[i, 1], normals[i, 2])
+
+
+@njit(cache=True, nogil=True, inline="always")
+def view_point(R, t, K, orthographic, px, py, pz, nx, ny, nz):
+    """:func:`_view_kernel` of one point ``(px, py, pz)`` metres with its unit normal
+    ``(nx, ny, nz)``: ``(u, v, depth, cos)``."""
+    x = R[0, 0] * px + R[0, 1] * py + R[0, 2] * pz + t[0]
+    y = R[1, 0] * px + R[1, 1] * py + R[1, 2] * pz + t[1]
+    z = R[2, 0] * px + R[2, 1] * py + R[2, 2] * pz + t[2]
+    cx = R[0, 0] * nx + R[0, 1] * ny + R[0, 2] * nz
+    cy = R[1, 0] * nx + R[1, 1] * ny + R[1, 2] * nz
+    cz = R[2, 0] * nx + R[2, 1] * ny + R[2, 2] * nz
+    if orthographic:
+        cos = -cz
+        qx, qy, qw = x, y, 1.0
+    else:
+        cos = -(cx * x + cy * y + cz * z) / max(math.sqrt(x * x + y * y + z * z), 1e-300)
+        qx, qy, qw = x, y, z if z > 0.0 else np.nan
+    return ((K[0, 0] * qx + K[0, 1] * qy + K[0, 2] * qw) / qw,
+            (K[1, 0] * qx + K[1, 1] * qy + K[1, 2] * qw) / qw, z, cos)
 
 
 def _view_of(camera: Camera, vertices: np.ndarray, normals: np.ndarray) -> tuple:
@@ -341,16 +367,23 @@ def view_sight(camera: Camera, points: np.ndarray, normals: np.ndarray, zbuf: np
     inside = _in_image(u, v, camera)
     u, v = np.where(inside, u, np.nan), np.where(inside, v, np.nan)
     idx = np.flatnonzero(inside & (cos > min_cos))
-    constant, per_metre = _footprint_terms(camera)
+    edge_px, depth, per_metre, constant = sight_maps(camera, zbuf, mask, depth_zbuf)
     weights, hidden = np.zeros(len(points)), np.zeros(len(points), bool)
     w, h = np.empty(len(idx)), np.empty(len(idx), bool)
-    _sight_weights(u[idx], v[idx], z[idx], cos[idx],
-                   _planes(_edge_distance_px(zbuf, mask, camera), np.float32),
-                   _planes(zbuf if depth_zbuf is None else depth_zbuf, np.float64), min_cos,
-                   angle_power, edge_ramp_px,
-                   depth_tolerance_px, per_metre, constant, w, h)
+    _sight_weights(u[idx], v[idx], z[idx], cos[idx], edge_px, depth, min_cos, angle_power,
+                   edge_ramp_px, depth_tolerance_px, per_metre, constant, w, h)
     weights[idx], hidden[idx] = w, h
     return ViewSight(u=u, v=v, weight=weights, hidden=hidden)
+
+
+def sight_maps(camera: Camera, zbuf: np.ndarray | None, mask: np.ndarray | None,
+               depth_zbuf: np.ndarray | None = None) -> tuple:
+    """What :func:`sight_weight` reads of one view (arguments as :func:`view_sight`'s):
+    ``(edge_px (H, W, 1) float32, depth (H, W, 1) float64, footprint_per_m,
+    footprint_constant)``, the maps (0, 0, 1) where there is none."""
+    constant, per_metre = _footprint_terms(camera)
+    return (_planes(_edge_distance_px(zbuf, mask, camera), np.float32),
+            _planes(zbuf if depth_zbuf is None else depth_zbuf, np.float64), per_metre, constant)
 
 
 def check_image(index: int, image, camera: Camera) -> np.ndarray:

@@ -18,7 +18,7 @@ the weight falling with the angle from the normal (frontal), the projected area 
 as the camera comes nearer (``1 / depth^2``) and faces it, and ``sharpness`` the view's
 variance of the Laplacian inside its silhouette relative to the sharpest view's (a
 shot blurred by motion or focus loses to its neighbours). A face no view sees so takes
-the best of the views that *glimpse* it (:data:`GLIMPSE`: its centroid seen unhidden,
+the best of the views that *glimpse* it (:data:`GLIMPSE_RAMP_PX`: its centroid seen unhidden,
 a pixel and a half from an outline or a depth step, where its corners may lie nearer),
 their weights scaled by :data:`GLIMPSE_WEIGHT` so that they never compete with a full
 view: a rim a few pixels wide then keeps its detail rather than colours interpolated
@@ -34,19 +34,21 @@ changes. Faces no view sees get the label -1.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import cv2
 import numpy as np
-from numba import njit
+from numba import njit, prange
 from scipy import ndimage
 
 from ..geometry.camera import Camera
-from ..meshing.colour import view_sight
+from ..meshing.colour import sight_maps, sight_weight, view_point
 from ..render import rasterize_depth
+from ..workers import map_in_threads
 
-__all__ = ["CORNER_PULL", "GLIMPSE", "GLIMPSE_WEIGHT", "SMOOTHNESS", "face_neighbours", "face_quality",
-           "farthest_around",
-           "label_faces", "towards_camera",
-           "sharpness"]
+__all__ = ["CORNER_PULL", "GLIMPSE_RAMP_PX", "GLIMPSE_WEIGHT", "SMOOTHNESS", "face_neighbours",
+           "face_qualities", "face_samples", "farthest_around", "label_faces", "sharpness",
+           "towards_camera"]
 
 #: The corners of a face are tested for visibility this fraction of the way towards its
 #: centroid: a corner itself lies on the edge of the faces around it, some of which the
@@ -55,14 +57,18 @@ CORNER_PULL = 0.2
 #: Cost of a seam (two neighbouring faces from different views) against the data cost in
 #: [0, 1] of a face (:func:`label_faces`); chosen by measurement (doc/benchmarks.md).
 SMOOTHNESS = 0.3
-#: The looser test of a *glimpse* (:func:`face_quality`): the face's centroid alone, half
-#: a pixel of ramp off the outline and the depth steps instead of three.
-GLIMPSE = {"edge_ramp_px": 0.5}
+#: The looser test of a *glimpse* (:func:`face_qualities`): the face's centroid alone, half
+#: a pixel of ramp off the outline and the depth steps instead of the full test's three.
+GLIMPSE_RAMP_PX = 0.5
+#: The sight test's options, as the vertex colours use them (the defaults of
+#: :func:`~sfs_ros.core.meshing.colour.view_sight`): least cosine, angle power, pixels of
+#: ramp off the edges and of depth tolerance.
+_SIGHT_OPTIONS = (0.2, 2.0, 3.0, 1.0)
+#: A face's area over the area of its corners pulled :data:`CORNER_PULL` towards its
+#: centroid.
+_AREA_OF_PULLED = (1 - CORNER_PULL) ** 2
 #: A glimpse's weight against a full view's: it colours only faces no view sees fully.
 GLIMPSE_WEIGHT = 1e-6
-#: Faces whose centroid sees the camera at a cosine at most this are not tested (the
-#: sight test's least cosine is 0.2).
-_FACING_COS = 0.1
 #: Most sweeps of iterated conditional modes (it stops earlier when no face changes).
 MAX_SWEEPS = 20
 
@@ -102,76 +108,106 @@ def towards_camera(camera: Camera, points: np.ndarray) -> np.ndarray:
     return to_camera / np.maximum(length, 1e-300)[:, None]
 
 
-def face_quality(vertices: np.ndarray, faces: np.ndarray, camera: Camera,
-                 mask: np.ndarray | None, *, closed: bool = False, samples: tuple | None = None
-                 ) -> tuple[np.ndarray, np.ndarray]:
-    """(m,) float64 quality of ``camera``'s view for each face (module docstring, without
-    the sharpness factor; 0 where the view does not see the face) and (m,) bool where it
+def face_qualities(vertices: np.ndarray, faces: np.ndarray, cameras: Sequence[Camera],
+                   masks: Sequence, *, closed: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """(m, V) float64 quality of each view for each face (module docstring, without the
+    sharpness factor; 0 where the view does not see the face) and (m, V) bool where it
     sees it fully (not a glimpse).
 
-    ``vertices`` (n, 3) metres and ``faces`` (m, 3) outward; ``mask`` (H, W) bool the
-    view's silhouette or None; ``closed``: the mesh is closed and outward (the z-buffer
-    draws the faces turned towards the camera only).
-    ``samples``: the mesh's :func:`face_samples`, when the caller has them (one mesh,
-    many views).
+    ``vertices`` (n, 3) metres and ``faces`` (m, 3) outward; ``cameras`` the V views,
+    ``masks`` their silhouettes, (H, W) bool or None each; ``closed``: the mesh is closed
+    and outward (the z-buffers draw the faces turned towards the camera only). The views'
+    z-buffers and edge maps are made side by side, then every face is tested in every
+    view in one pass over the faces, on every core.
     """
-    points, normals = face_samples(vertices, faces) if samples is None else samples
-    zbuf = rasterize_depth(vertices, faces, camera, closed=closed)
-    behind_all = farthest_around(zbuf)
-    # Only faces turned towards the camera can pass (the sight test's angle, less a
-    # margin for the samples' directions): the others are not tested.
-    facing = np.flatnonzero(_facing_cos(camera, points[:, 0], normals) > _FACING_COS)
+    points, normals = face_samples(vertices, faces)
 
-    def sight(chosen: np.ndarray, corners: bool = False, **options):
-        """The sight test of the centroids (or the three pulled corners) of ``chosen``."""
-        at = slice(1, 4) if corners else slice(0, 1)
-        return view_sight(camera, points[chosen, at].reshape(-1, 3),
-                          np.repeat(normals[chosen], at.stop - at.start, axis=0), zbuf, mask,
-                          depth_zbuf=behind_all, **options)
+    def maps(view):
+        camera, mask = view
+        zbuf = rasterize_depth(vertices, faces, camera, closed=closed)
+        return sight_maps(camera, zbuf, mask, farthest_around(zbuf))
 
-    # The glimpse of every facing face first: its narrower ramp off the edges weighs a
-    # point above zero exactly where the full test does (the ramps start at one margin),
-    # so the faces it finds are those whose centroid passes the full test, and the
-    # others (most, on a refined mesh) need no other point tested.
-    weight = np.zeros(len(faces))
-    weight[facing] = GLIMPSE_WEIGHT * sight(facing, **GLIMPSE).weight
-    candidates = facing[weight[facing] > 0]
-    at_corners = sight(candidates, corners=True)
-    least = np.minimum(sight(candidates).weight, at_corners.weight.reshape(-1, 3).min(axis=1))
-    full = np.zeros(len(faces), bool)
-    full[candidates] = least > 0
-    weight[full] = least[least > 0]
-    area_px = np.zeros(len(faces))
-    area_px[candidates] = _projected_area(at_corners)
-    return np.where(weight > 0, weight * np.nan_to_num(area_px), 0.0), full
+    found = list(map_in_threads(maps, zip(cameras, masks)))
+    # The maps as planes of one array (padded with zeros, never read, where sizes differ).
+    height = max(edge.shape[0] for edge, *_ in found)
+    width = max(edge.shape[1] for edge, *_ in found)
+    edges = np.zeros((height, width, len(cameras)), np.float32)
+    depths = np.zeros((height, width, len(cameras)))
+    for j, (edge, depth, _, _) in enumerate(found):
+        edges[:edge.shape[0], :edge.shape[1], j] = edge[..., 0]
+        depths[:depth.shape[0], :depth.shape[1], j] = depth[..., 0]
+    quality = np.zeros((len(faces), len(cameras)))
+    full = np.zeros((len(faces), len(cameras)), bool)
+    _face_sight(points, normals, np.array([c.R for c in cameras]),
+                np.array([c.t for c in cameras]), np.array([c.K for c in cameras]),
+                np.array([bool(c.orthographic) for c in cameras]),
+                np.array([c.width - 1.0 for c in cameras]),
+                np.array([c.height - 1.0 for c in cameras]), edges, depths,
+                np.array([per_metre for _, _, per_metre, _ in found]),
+                np.array([constant for *_, constant in found]), np.array(_SIGHT_OPTIONS),
+                quality, full)
+    return quality, full
 
 
-def _facing_cos(camera: Camera, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
-    """(m,) cosine between each unit normal (m, 3) and the direction from its point
-    (m, 3) metres towards ``camera``."""
-    if camera.orthographic:
-        return normals @ -camera.R[2]
-    out = np.empty(len(points))
-    _cos_towards(points, normals, camera.center, out)
-    return out
+@njit(cache=True, parallel=True)
+def _face_sight(points, normals, R, t, K, orthographic, last_u, last_v, edge_px, behind_all,
+                per_metre, constant, options, quality, full):
+    """:func:`face_qualities`' sight tests into ``quality`` (m, V) and ``full`` (m, V):
+    ``points`` (m, 4, 3) and ``normals`` (m, 3) the :func:`face_samples`; of each view
+    ``j``, ``R[j]``, ``t[j]``, ``K[j]``, ``orthographic[j]``, its last pixel centres
+    ``last_u[j]``, ``last_v[j]`` and its
+    :func:`~sfs_ros.core.meshing.colour.sight_maps`, plane ``j`` of ``edge_px`` and
+    ``behind_all`` (H, W, V) (the depths those :func:`farthest_around` the z-buffer),
+    ``per_metre[j]`` and ``constant[j]``; ``options`` (4,) the sight test's
+    :data:`_SIGHT_OPTIONS`.
+
+    The glimpse of the centroid first: its narrower ramp off the edges weighs a point
+    above zero exactly where the full test does (the ramps start at one margin), so the
+    faces it finds are those whose centroid passes the full test, and the others (most,
+    on a refined mesh, half of them turned away) need no other point tested."""
+    for f in prange(points.shape[0]):
+        nx, ny, nz = normals[f, 0], normals[f, 1], normals[f, 2]
+        for j in range(R.shape[0]):
+            view = (R[j], t[j], K[j], orthographic[j], last_u[j], last_v[j], edge_px,
+                    behind_all, j, per_metre[j], constant[j], options)
+            weight = GLIMPSE_WEIGHT * _point_weight(
+                points[f, 0, 0], points[f, 0, 1], points[f, 0, 2], nx, ny, nz, view,
+                GLIMPSE_RAMP_PX)[0]
+            if not weight > 0.0:
+                continue
+            least = _point_weight(points[f, 0, 0], points[f, 0, 1], points[f, 0, 2], nx, ny,
+                                  nz, view, options[2])[0]
+            w0, u0, v0 = _point_weight(points[f, 1, 0], points[f, 1, 1], points[f, 1, 2], nx,
+                                       ny, nz, view, options[2])
+            w1, u1, v1 = _point_weight(points[f, 2, 0], points[f, 2, 1], points[f, 2, 2], nx,
+                                       ny, nz, view, options[2])
+            w2, u2, v2 = _point_weight(points[f, 3, 0], points[f, 3, 1], points[f, 3, 2], nx,
+                                       ny, nz, view, options[2])
+            least = min(least, w0, w1, w2)
+            if least > 0.0:
+                weight = least
+                full[f, j] = True
+            # The corners' projected area, scaled back to the whole face (NaN, so 0, where
+            # a corner falls outside the image).
+            area = 0.5 * abs((u1 - u0) * (v2 - v0) - (u2 - u0) * (v1 - v0)) / _AREA_OF_PULLED
+            quality[f, j] = weight * area if np.isfinite(area) else 0.0
 
 
-@njit(cache=True, nogil=True)
-def _cos_towards(points, normals, centre, out):
-    """:func:`_facing_cos` of a pinhole camera at ``centre`` (3,) metres, into ``out``."""
-    for i in range(points.shape[0]):
-        dx, dy, dz = centre[0] - points[i, 0], centre[1] - points[i, 1], centre[2] - points[i, 2]
-        length = max(np.sqrt(dx * dx + dy * dy + dz * dz), 1e-300)
-        out[i] = (normals[i, 0] * dx + normals[i, 1] * dy + normals[i, 2] * dz) / length
-
-
-def _projected_area(corners) -> np.ndarray:
-    """(k,) area in pixels^2 of the faces whose three pulled corners' sight test
-    (``corners.u``, ``corners.v`` (3k,)) is given, scaled back to the whole face (NaN
-    where a corner falls outside the image)."""
-    u, v = corners.u.reshape(-1, 3), corners.v.reshape(-1, 3)
-    return 0.5 * np.abs((u[:, 1] - u[:, 0]) * (v[:, 2] - v[:, 0])
-                        - (u[:, 2] - u[:, 0]) * (v[:, 1] - v[:, 0])) / (1 - CORNER_PULL) ** 2
+@njit(cache=True, nogil=True, inline="always")
+def _point_weight(px, py, pz, nx, ny, nz, view, edge_ramp_px):
+    """The sight test of one point ``(px, py, pz)`` metres with the face's unit normal
+    ``(nx, ny, nz)`` in ``view`` (a tuple of :func:`_face_sight`'s arguments for one view,
+    the plane's index among them): ``(weight, u, v)``, ``u, v`` pixels (NaN outside the
+    image)."""
+    (R, t, K, orthographic, last_u, last_v, edge_px, behind_all, plane, per_metre, constant,
+     options) = view
+    u, v, z, cos = view_point(R, t, K, orthographic, px, py, pz, nx, ny, nz)
+    if not (u >= 0.0 and u <= last_u and v >= 0.0 and v <= last_v):
+        return 0.0, np.nan, np.nan
+    if not cos > options[0]:
+        return 0.0, u, v
+    return sight_weight(u, v, z, cos, edge_px, behind_all, plane, options[0], options[1],
+                        edge_ramp_px, options[3], per_metre, constant)[0], u, v
 
 
 def farthest_around(zbuf: np.ndarray) -> np.ndarray:
@@ -204,17 +240,17 @@ def face_neighbours(faces: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True)
-def _icm(cost, neighbours, labels, smoothness, max_sweeps):
-    """Iterated conditional modes on ``labels`` (m,) in place; returns the sweeps made."""
-    m, n_views = cost.shape
+def _icm(cost, seen, neighbours, labels, smoothness, max_sweeps):
+    """Iterated conditional modes on ``labels`` (m,) in place, over the faces ``seen`` (s,)
+    (increasing) whose costs are the rows of ``cost`` (s, V); returns the sweeps made."""
+    n_views = cost.shape[1]
     for sweep in range(max_sweeps):
         changed = 0
-        for f in range(m):
-            if labels[f] < 0:
-                continue
+        for i in range(seen.size):
+            f = seen[i]
             best, best_cost = labels[f], np.inf
             for label in range(n_views):
-                c = cost[f, label]
+                c = cost[i, label]
                 if not np.isfinite(c):
                     continue
                 for k in range(3):
@@ -241,9 +277,9 @@ def label_faces(quality: np.ndarray, neighbours: np.ndarray, *,
         raise ValueError(f"smoothness must be a finite number >= 0, got {smoothness}")
     best = quality.max(axis=1)
     labels = np.where(best > 0, quality.argmax(axis=1), -1).astype(np.int64)
-    # Only the seen faces' costs are read (often a minority of a refined mesh's faces).
+    # Only the seen faces' costs are made (often a minority of a refined mesh's faces).
     seen = np.flatnonzero(best > 0)
-    cost = np.full(quality.shape, np.inf)
-    cost[seen] = np.where(quality[seen] > 0, 1.0 - quality[seen] / best[seen, None], np.inf)
-    sweeps = _icm(cost, neighbours, labels, float(smoothness), MAX_SWEEPS) if smoothness else 0
+    cost = np.where(quality[seen] > 0, 1.0 - quality[seen] / best[seen, None], np.inf)
+    sweeps = (_icm(cost, seen, neighbours, labels, float(smoothness), MAX_SWEEPS)
+              if smoothness else 0)
     return labels, sweeps

@@ -50,8 +50,7 @@ from .levelling import (
 from .selection import (
     SMOOTHNESS,
     face_neighbours,
-    face_quality,
-    face_samples,
+    face_qualities,
     label_faces,
     sharpness,
 )
@@ -274,18 +273,10 @@ def _levelled(images, cameras, vertices, faces, labels, seams, seen, level: bool
 def _qualities(vertices, faces, images, cameras, masks, closed: bool) -> tuple:
     """(m, V) quality of each view for each face (:mod:`.selection`), sharpness included,
     and (m, V) bool where the view sees the face fully (not a glimpse)."""
-    samples = face_samples(vertices, faces)
-
-    def one(view):
-        image, camera, mask = view
-        return (*face_quality(vertices, faces, camera, mask, closed=closed, samples=samples),
-                sharpness(image, mask))
-
-    found = list(map_in_threads(one, zip(images, cameras, masks)))
-    sharp = np.array([s for _, _, s in found])
-    relative = sharp / sharp.max() if sharp.max() > 0 else np.ones_like(sharp)
-    return (np.stack([q * r for (q, _, _), r in zip(found, relative)], axis=1),
-            np.stack([full for _, full, _ in found], axis=1))
+    quality, full = face_qualities(vertices, faces, cameras, masks, closed=closed)
+    sharp = np.array(list(map_in_threads(lambda view: sharpness(*view), zip(images, masks))))
+    quality *= sharp / sharp.max() if sharp.max() > 0 else np.ones_like(sharp)
+    return quality, full
 
 
 def texture_mesh(vertices, faces, images: Sequence, cameras: Sequence[Camera], *,
@@ -371,7 +362,7 @@ def textured_from_labels(vertices: np.ndarray, faces: np.ndarray, labels: np.nda
     chosen: ``labels`` (m,) int64 (-1: none), ``neighbours`` (m, 3)
     (:func:`.selection.face_neighbours`); ``vertices`` (n, 3) float64, ``faces`` (m, 3)
     int64 checked, ``images`` (H, W, 3) uint8 each its camera's size; ``seen`` (m, V)
-    bool the faces each view sees fully (:func:`.selection.face_quality`; needed to
+    bool the faces each view sees fully (:func:`.selection.face_qualities`; needed to
     ``level``: the views are compared on those faces only); ``blend`` (m, V) the weight of
     each view in each face's texels (0: none; None: the face's one view, with the seam
     offsets); the other arguments as there."""
