@@ -38,7 +38,7 @@ from collections.abc import Sequence
 
 import cv2
 import numpy as np
-from numba import njit, prange
+from numba import njit
 from scipy import ndimage
 
 from ..geometry.camera import Camera
@@ -69,6 +69,9 @@ _SIGHT_OPTIONS = (0.2, 2.0, 3.0, 1.0)
 _AREA_OF_PULLED = (1 - CORNER_PULL) ** 2
 #: A glimpse's weight against a full view's: it colours only faces no view sees fully.
 GLIMPSE_WEIGHT = 1e-6
+#: Faces a thread tests at a time (:func:`face_qualities`), and faces every view tests in
+#: turn (their samples in the cache).
+_FACES_A_TASK, _FACES_A_PASS = 1 << 16, 1 << 11
 #: Most sweeps of iterated conditional modes (it stops earlier when no face changes).
 MAX_SWEEPS = 20
 
@@ -118,7 +121,7 @@ def face_qualities(vertices: np.ndarray, faces: np.ndarray, cameras: Sequence[Ca
     ``masks`` their silhouettes, (H, W) bool or None each; ``closed``: the mesh is closed
     and outward (the z-buffers draw the faces turned towards the camera only). The views'
     z-buffers and edge maps are made side by side, then every face is tested in every
-    view in one pass over the faces, on every core.
+    view in one pass over the faces, blocks of them side by side.
     """
     points, normals = face_samples(vertices, faces)
 
@@ -131,83 +134,102 @@ def face_qualities(vertices: np.ndarray, faces: np.ndarray, cameras: Sequence[Ca
     # The maps as planes of one array (padded with zeros, never read, where sizes differ).
     height = max(edge.shape[0] for edge, *_ in found)
     width = max(edge.shape[1] for edge, *_ in found)
-    edges = np.zeros((height, width, len(cameras)), np.float32)
-    depths = np.zeros((height, width, len(cameras)))
+    edges = np.zeros((len(cameras), height, width, 1), np.float32)
+    depths = np.zeros((len(cameras), height, width, 1))
     for j, (edge, depth, _, _) in enumerate(found):
-        edges[:edge.shape[0], :edge.shape[1], j] = edge[..., 0]
-        depths[:depth.shape[0], :depth.shape[1], j] = depth[..., 0]
+        edges[j, :edge.shape[0], :edge.shape[1]] = edge
+        depths[j, :depth.shape[0], :depth.shape[1]] = depth
     quality = np.zeros((len(faces), len(cameras)))
     full = np.zeros((len(faces), len(cameras)), bool)
-    _face_sight(points, normals, np.array([c.R for c in cameras]),
-                np.array([c.t for c in cameras]), np.array([c.K for c in cameras]),
-                np.array([bool(c.orthographic) for c in cameras]),
-                np.array([c.width - 1.0 for c in cameras]),
-                np.array([c.height - 1.0 for c in cameras]), edges, depths,
-                np.array([per_metre for _, _, per_metre, _ in found]),
-                np.array([constant for *_, constant in found]), np.array(_SIGHT_OPTIONS),
-                quality, full)
+    views = (np.array([c.R for c in cameras]), np.array([c.t for c in cameras]),
+             np.array([c.K for c in cameras]), np.array([bool(c.orthographic) for c in cameras]),
+             np.array([c.width - 1.0 for c in cameras]),
+             np.array([c.height - 1.0 for c in cameras]), edges, depths,
+             np.array([per_metre for _, _, per_metre, _ in found]),
+             np.array([constant for *_, constant in found]), np.array(_SIGHT_OPTIONS))
+    # Blocks of faces taken by the cores as each comes free (a core busy with other work
+    # takes fewer).
+    for _ in map_in_threads(lambda start: _face_sight(start, start + _FACES_A_TASK, points,
+                                                      normals, *views, quality, full),
+                            range(0, len(faces), _FACES_A_TASK)):
+        pass
     return quality, full
 
 
-@njit(cache=True, parallel=True)
-def _face_sight(points, normals, R, t, K, orthographic, last_u, last_v, edge_px, behind_all,
-                per_metre, constant, options, quality, full):
-    """:func:`face_qualities`' sight tests into ``quality`` (m, V) and ``full`` (m, V):
+@njit(cache=True, nogil=True)
+def _face_sight(start, stop, points, normals, R, t, K, orthographic, last_u, last_v, edge_px,
+                behind_all, per_metre, constant, options, quality, full):
+    """:func:`face_qualities`' sight tests of faces ``start`` to ``stop`` (exclusive) into
+    ``quality`` (m, V) and ``full`` (m, V):
     ``points`` (m, 4, 3) and ``normals`` (m, 3) the :func:`face_samples`; of each view
     ``j``, ``R[j]``, ``t[j]``, ``K[j]``, ``orthographic[j]``, its last pixel centres
-    ``last_u[j]``, ``last_v[j]`` and its
-    :func:`~sfs_ros.core.meshing.colour.sight_maps`, plane ``j`` of ``edge_px`` and
-    ``behind_all`` (H, W, V) (the depths those :func:`farthest_around` the z-buffer),
-    ``per_metre[j]`` and ``constant[j]``; ``options`` (4,) the sight test's
-    :data:`_SIGHT_OPTIONS`.
+    ``last_u[j]``, ``last_v[j]``, its
+    :func:`~sfs_ros.core.meshing.colour.sight_maps` ``edge_px[j]`` and ``behind_all[j]``
+    (H, W, 1) (the depths those :func:`farthest_around` the z-buffer), ``per_metre[j]`` and
+    ``constant[j]``; ``options`` (4,) the sight test's :data:`_SIGHT_OPTIONS`. Views by
+    faces a few thousand at a time: the faces' samples stay in the cache while every view
+    tests them.
 
     The glimpse of the centroid first: its narrower ramp off the edges weighs a point
     above zero exactly where the full test does (the ramps start at one margin), so the
     faces it finds are those whose centroid passes the full test, and the others (most,
     on a refined mesh, half of them turned away) need no other point tested."""
-    for f in prange(points.shape[0]):
-        nx, ny, nz = normals[f, 0], normals[f, 1], normals[f, 2]
+    min_cos, power, ramp, tolerance = options[0], options[1], options[2], options[3]
+    stop = min(stop, points.shape[0])
+    for first in range(start, stop, _FACES_A_PASS):
         for j in range(R.shape[0]):
-            view = (R[j], t[j], K[j], orthographic[j], last_u[j], last_v[j], edge_px,
-                    behind_all, j, per_metre[j], constant[j], options)
-            weight = GLIMPSE_WEIGHT * _point_weight(
-                points[f, 0, 0], points[f, 0, 1], points[f, 0, 2], nx, ny, nz, view,
-                GLIMPSE_RAMP_PX)[0]
-            if not weight > 0.0:
-                continue
-            least = _point_weight(points[f, 0, 0], points[f, 0, 1], points[f, 0, 2], nx, ny,
-                                  nz, view, options[2])[0]
-            w0, u0, v0 = _point_weight(points[f, 1, 0], points[f, 1, 1], points[f, 1, 2], nx,
-                                       ny, nz, view, options[2])
-            w1, u1, v1 = _point_weight(points[f, 2, 0], points[f, 2, 1], points[f, 2, 2], nx,
-                                       ny, nz, view, options[2])
-            w2, u2, v2 = _point_weight(points[f, 3, 0], points[f, 3, 1], points[f, 3, 2], nx,
-                                       ny, nz, view, options[2])
-            least = min(least, w0, w1, w2)
-            if least > 0.0:
-                weight = least
-                full[f, j] = True
-            # The corners' projected area, scaled back to the whole face (NaN, so 0, where
-            # a corner falls outside the image).
-            area = 0.5 * abs((u1 - u0) * (v2 - v0) - (u2 - u0) * (v1 - v0)) / _AREA_OF_PULLED
-            quality[f, j] = weight * area if np.isfinite(area) else 0.0
+            Rj, tj, Kj, edge, depth = R[j], t[j], K[j], edge_px[j], behind_all[j]
+            for f in range(first, min(first + _FACES_A_PASS, stop)):
+                # (scalars, not the tuple of :func:`_point_weight`: most faces end here)
+                u, v, z, cos = view_point(Rj, tj, Kj, orthographic[j], points[f, 0, 0],
+                                          points[f, 0, 1], points[f, 0, 2], normals[f, 0],
+                                          normals[f, 1], normals[f, 2])
+                if (u >= 0.0 and u <= last_u[j] and v >= 0.0 and v <= last_v[j]
+                        and cos > min_cos
+                        and sight_weight(u, v, z, cos, edge, depth, 0, min_cos, power,
+                                         GLIMPSE_RAMP_PX, tolerance, per_metre[j],
+                                         constant[j])[0] > 0.0):
+                    view = (Rj, tj, Kj, orthographic[j], last_u[j], last_v[j], edge, depth,
+                            per_metre[j], constant[j], min_cos, power, tolerance)
+                    quality[f, j], full[f, j] = _fully(points, normals, f, view, ramp)
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _point_weight(px, py, pz, nx, ny, nz, view, edge_ramp_px):
-    """The sight test of one point ``(px, py, pz)`` metres with the face's unit normal
-    ``(nx, ny, nz)`` in ``view`` (a tuple of :func:`_face_sight`'s arguments for one view,
-    the plane's index among them): ``(weight, u, v)``, ``u, v`` pixels (NaN outside the
-    image)."""
-    (R, t, K, orthographic, last_u, last_v, edge_px, behind_all, plane, per_metre, constant,
-     options) = view
-    u, v, z, cos = view_point(R, t, K, orthographic, px, py, pz, nx, ny, nz)
+def _fully(points, normals, f, view, ramp):
+    """The full test of glimpsed face ``f`` (``points`` and ``normals`` as
+    :func:`_face_sight`'s) in ``view`` (:func:`_point_weight`'s): ``(quality, full)``."""
+    least = _point_weight(points, normals, f, 0, view, ramp)[0]
+    w0, u0, v0 = _point_weight(points, normals, f, 1, view, ramp)
+    w1, u1, v1 = _point_weight(points, normals, f, 2, view, ramp)
+    w2, u2, v2 = _point_weight(points, normals, f, 3, view, ramp)
+    least = min(least, w0, w1, w2)
+    full = least > 0.0
+    weight = least if full else \
+        GLIMPSE_WEIGHT * _point_weight(points, normals, f, 0, view, GLIMPSE_RAMP_PX)[0]
+    # The corners' projected area, scaled back to the whole face (NaN, so 0, where a
+    # corner falls outside the image).
+    area = 0.5 * abs((u1 - u0) * (v2 - v0) - (u2 - u0) * (v1 - v0)) / _AREA_OF_PULLED
+    return (weight * area if np.isfinite(area) else 0.0), full
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _point_weight(points, normals, f, k, view, ramp):
+    """The sight test of sample ``k`` of face ``f`` (``points`` and ``normals`` as
+    :func:`_face_sight`'s) in
+    ``view`` (``R, t, K, orthographic, last_u, last_v, edge_px, behind_all, per_metre,
+    constant`` as :func:`_face_sight`'s of one view, then the least cosine, the angle's
+    power and the depth tolerance) with ``ramp`` pixels off the edges: ``(weight, u, v)``,
+    ``u, v`` pixels (NaN outside the image)."""
+    (R, t, K, orthographic, last_u, last_v, edge_px, behind_all, per_metre, constant, min_cos,
+     power, tolerance) = view
+    u, v, z, cos = view_point(R, t, K, orthographic, points[f, k, 0], points[f, k, 1],
+                              points[f, k, 2], normals[f, 0], normals[f, 1], normals[f, 2])
     if not (u >= 0.0 and u <= last_u and v >= 0.0 and v <= last_v):
         return 0.0, np.nan, np.nan
-    if not cos > options[0]:
+    if not cos > min_cos:
         return 0.0, u, v
-    return sight_weight(u, v, z, cos, edge_px, behind_all, plane, options[0], options[1],
-                        edge_ramp_px, options[3], per_metre, constant)[0], u, v
+    return sight_weight(u, v, z, cos, edge_px, behind_all, 0, min_cos, power, ramp, tolerance,
+                        per_metre, constant)[0], u, v
 
 
 def farthest_around(zbuf: np.ndarray) -> np.ndarray:
