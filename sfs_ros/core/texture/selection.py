@@ -80,13 +80,31 @@ def face_samples(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, n
     """The points a view must see to see a face: (m, 4, 3) metres (centroid, then the
     corners pulled :data:`CORNER_PULL` towards it), and the unit face normals (m, 3)
     (zero for a degenerate face)."""
-    corners = vertices[faces]                                       # (m, 3, 3)
-    centroid = corners.mean(axis=1, keepdims=True)
-    pulled = corners + CORNER_PULL * (centroid - corners)
-    normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-    length = np.linalg.norm(normal, axis=1, keepdims=True)
-    normal = np.divide(normal, length, out=np.zeros_like(normal), where=length > 0)
-    return np.concatenate([centroid, pulled], axis=1), normal
+    points, normals = np.empty((len(faces), 4, 3)), np.empty((len(faces), 3))
+    _face_samples(vertices, faces, CORNER_PULL, points, normals)
+    return points, normals
+
+
+@njit(cache=True, nogil=True)
+def _face_samples(vertices, faces, pull, points, normals):
+    """:func:`face_samples` into ``points`` (m, 4, 3) and ``normals`` (m, 3)."""
+    for f in range(faces.shape[0]):
+        a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
+        for d in range(3):
+            points[f, 0, d] = (vertices[a, d] + vertices[b, d] + vertices[c, d]) / 3.0
+            for k in range(3):
+                corner = vertices[faces[f, k], d]
+                points[f, k + 1, d] = corner + pull * (points[f, 0, d] - corner)
+        e1x, e1y, e1z = (vertices[b, 0] - vertices[a, 0], vertices[b, 1] - vertices[a, 1],
+                         vertices[b, 2] - vertices[a, 2])
+        e2x, e2y, e2z = (vertices[c, 0] - vertices[a, 0], vertices[c, 1] - vertices[a, 1],
+                         vertices[c, 2] - vertices[a, 2])
+        nx, ny, nz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+        length = np.sqrt(nx * nx + ny * ny + nz * nz)
+        if length > 0.0:
+            normals[f, 0], normals[f, 1], normals[f, 2] = nx / length, ny / length, nz / length
+        else:
+            normals[f, 0] = normals[f, 1] = normals[f, 2] = 0.0
 
 
 def sharpness(image: np.ndarray, mask: np.ndarray | None) -> float:
@@ -247,18 +265,45 @@ def farthest_around(zbuf: np.ndarray) -> np.ndarray:
 def face_neighbours(faces: np.ndarray) -> np.ndarray:
     """(m, 3) int64: the face across each edge of each face (edge k joins corners k and
     k + 1), -1 where the edge has no face or more than one across it."""
-    m = len(faces)
-    ends = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
-    key = np.sort(ends, axis=1)
-    key = key[:, 0] * (int(faces.max()) + 1) + key[:, 1]
-    order = np.argsort(key, kind="stable")
-    sorted_key = key[order]
-    starts = np.flatnonzero(np.concatenate([[True], sorted_key[1:] != sorted_key[:-1]]))
-    pair = starts[np.diff(np.append(starts, len(key))) == 2]   # edges of exactly two faces
-    a, b = order[pair], order[pair + 1]
-    neighbours = np.full(3 * m, -1, np.int64)
-    neighbours[a], neighbours[b] = b // 3, a // 3
-    return neighbours.reshape(m, 3)
+    faces = np.ascontiguousarray(faces, np.int64)
+    neighbours = np.full((len(faces), 3), -1, np.int64)
+    if len(faces):
+        _face_neighbours(faces, int(faces.max()) + 1, neighbours)
+    return neighbours
+
+
+@njit(cache=True, nogil=True)
+def _face_neighbours(faces, n_vertices, neighbours):
+    """:func:`face_neighbours` into ``neighbours`` (m, 3) (all -1): the edges of the faces
+    grouped by their lower vertex (a counting sort), the two of an edge found in its
+    group."""
+    m = faces.shape[0]
+    start = np.zeros(n_vertices + 1, np.int64)
+    for f in range(m):
+        for k in range(3):
+            start[min(faces[f, k], faces[f, (k + 1) % 3]) + 1] += 1
+    for i in range(n_vertices):
+        start[i + 1] += start[i]
+    filled = start[:-1].copy()
+    edge = np.empty(3 * m, np.int64)               # face * 3 + k, by lower vertex
+    for f in range(m):
+        for k in range(3):
+            low = min(faces[f, k], faces[f, (k + 1) % 3])
+            edge[filled[low]] = 3 * f + k
+            filled[low] += 1
+    for low in range(n_vertices):
+        for i in range(start[low], start[low + 1]):
+            f, k = edge[i] // 3, edge[i] % 3
+            high = max(faces[f, k], faces[f, (k + 1) % 3])
+            other, count = -1, 0
+            for j in range(start[low], start[low + 1]):
+                g, h = edge[j] // 3, edge[j] % 3
+                if max(faces[g, h], faces[g, (h + 1) % 3]) == high:
+                    count += 1
+                    if j != i:
+                        other = g
+            if count == 2:                         # edges of exactly two faces
+                neighbours[f, k] = other
 
 
 @njit(cache=True, nogil=True)
@@ -297,11 +342,42 @@ def label_faces(quality: np.ndarray, neighbours: np.ndarray, *,
     each face."""
     if not (np.isfinite(smoothness) and smoothness >= 0):
         raise ValueError(f"smoothness must be a finite number >= 0, got {smoothness}")
-    best = quality.max(axis=1)
-    labels = np.where(best > 0, quality.argmax(axis=1), -1).astype(np.int64)
+    quality = np.ascontiguousarray(quality, np.float64)
+    labels = np.empty(len(quality), np.int64)
+    seen = _best_views(quality, labels)
     # Only the seen faces' costs are made (often a minority of a refined mesh's faces).
-    seen = np.flatnonzero(best > 0)
-    cost = np.where(quality[seen] > 0, 1.0 - quality[seen] / best[seen, None], np.inf)
+    cost = np.empty((len(seen), quality.shape[1]))
+    _costs(quality, seen, labels, cost)
     sweeps = (_icm(cost, seen, neighbours, labels, float(smoothness), MAX_SWEEPS)
               if smoothness else 0)
     return labels, sweeps
+
+
+@njit(cache=True, nogil=True)
+def _best_views(quality, labels):
+    """Each face's best view (the first of the highest quality in ``quality`` (m, V)) into
+    ``labels`` (m,), -1 where no view sees the face; returns the faces seen (s,)."""
+    seen = np.empty(quality.shape[0], np.int64)
+    n = 0
+    for f in range(quality.shape[0]):
+        best, label = quality[f, 0], 0
+        for j in range(1, quality.shape[1]):
+            if quality[f, j] > best:
+                best, label = quality[f, j], j
+        labels[f] = label if best > 0.0 else -1
+        if best > 0.0:
+            seen[n] = f
+            n += 1
+    return seen[:n]
+
+
+@njit(cache=True, nogil=True)
+def _costs(quality, seen, labels, cost):
+    """The data costs (module docstring) of the faces ``seen`` (s,) into ``cost`` (s, V)
+    (infinite where the view does not see the face), from ``quality`` (m, V) and the best
+    views ``labels`` (m,)."""
+    for i in range(seen.size):
+        f = seen[i]
+        best = quality[f, labels[f]]
+        for j in range(quality.shape[1]):
+            cost[i, j] = 1.0 - quality[f, j] / best if quality[f, j] > 0.0 else np.inf
