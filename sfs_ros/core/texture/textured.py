@@ -30,6 +30,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from numba import njit
 
 from ..carving.carve import validate_masks
 from ..geometry.camera import Camera
@@ -279,6 +280,27 @@ def _qualities(vertices, faces, images, cameras, masks, closed: bool) -> tuple:
     return quality, full
 
 
+@njit(cache=True, nogil=True)
+def _blend_weights(quality, full, labels, least, power, blend):
+    """The weight of each view in each face's texels into ``blend`` (m, V) (zeros): of a
+    face with a view (``labels`` (m,) >= 0), its quality (``quality`` (m, V)) relative to
+    its best view's, to the ``power``, where that is at least ``least`` and the view sees
+    the face fully (``full`` (m, V)) or, for a face no view sees fully, glimpses it."""
+    for f in range(quality.shape[0]):
+        if labels[f] < 0:
+            continue
+        best, any_full = quality[f, 0], False
+        for j in range(quality.shape[1]):
+            best = max(best, quality[f, j])
+            any_full |= full[f, j]
+        best = max(best, 1e-300)
+        for j in range(quality.shape[1]):
+            relative = quality[f, j] / best
+            supported = full[f, j] if any_full else quality[f, j] > 0.0
+            if supported and relative >= least:
+                blend[f, j] = relative ** power
+
+
 def texture_mesh(vertices, faces, images: Sequence, cameras: Sequence[Camera], *,
                  masks: Sequence | None = None, closed: bool = False, level: bool = True,
                  smoothness: float = SMOOTHNESS, texels_per_pixel: float = TEXELS_PER_PIXEL,
@@ -336,11 +358,7 @@ def texture_mesh(vertices, faces, images: Sequence, cameras: Sequence[Camera], *
     blend = None
     if blend_power is not None:
         blend = np.zeros(quality.shape)
-        seen = np.flatnonzero(labels >= 0)
-        relative = quality[seen] / np.maximum(quality[seen].max(axis=1, keepdims=True), 1e-300)
-        # A face no view sees fully blends the views that glimpse it.
-        support = np.where(full[seen].any(axis=1, keepdims=True), full[seen], quality[seen] > 0)
-        blend[seen] = np.where(support & (relative >= BLEND_MIN), relative ** blend_power, 0.0)
+        _blend_weights(quality, full, labels, BLEND_MIN, float(blend_power), blend)
     textured = textured_from_labels(vertices, faces, labels, neighbours, images, cameras,
                                     seen=full, level=level, blend=blend, texels_per_pixel=texels_per_pixel,
                                     max_size=max_size, padding=padding, kernel=kernel,
