@@ -8,7 +8,7 @@ from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 
-__all__ = ["map_in_threads", "side_by_side", "worker_count"]
+__all__ = ["worker_count", "map_in_threads"]
 
 
 def worker_count() -> int:
@@ -41,16 +41,3 @@ def map_in_threads(fn: Callable, items: Iterable) -> Iterator:
             yield pending.popleft().result()
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
-
-
-def side_by_side(*steps: Callable) -> list:
-    """Each of ``steps`` (callables of no argument) in its own thread, all at once (work
-    that releases Python's lock: the cores share it as each step comes and goes); their
-    results in order. An exception of a step is raised once every step is done."""
-    if len(steps) <= 1:
-        return [step() for step in steps]
-    with ThreadPoolExecutor(max_workers=len(steps)) as pool:
-        futures = [pool.submit(step) for step in steps]
-        for future in futures:
-            future.exception()           # wait for all before raising any
-        return [future.result() for future in futures]

@@ -36,7 +36,7 @@ from ..carving.carve import validate_masks
 from ..geometry.camera import Camera
 from ..meshing.colour import HarmonicFill, check_image
 from ..render import as_mesh_arrays
-from ..workers import map_in_threads, side_by_side
+from ..workers import map_in_threads
 from .agreement import BLUR_LEVELS_PX, blurred_views, face_blur
 from .atlas import Atlas, build_atlas
 from .levelling import (
@@ -100,8 +100,8 @@ class TexturedMesh:
         faces no view sees.
     stats : dict
         JSON-ready figures: faces, views, charts, seam edges, atlas size and use,
-        gains, seconds per step (the atlas, the fill's factors and the levelling with the
-        agreement test made side by side).
+        gains, seconds per step (the atlas and the fill's factors made beside the
+        levelling and the agreement test).
     """
 
     vertices: np.ndarray
@@ -399,12 +399,9 @@ def textured_from_labels(vertices: np.ndarray, faces: np.ndarray, labels: np.nda
         atlas = build_atlas(vertices, faces, labels, neighbours, cameras,
                             texels_per_pixel=texels_per_pixel, max_size=max_size,
                             padding=padding)
-        return atlas, {"atlas": time.perf_counter() - start}
-
-    def fill_step():
-        start = time.perf_counter()
+        atlas_s = time.perf_counter() - start
         fill = _vertex_fill(faces, _compared(labels, seen, level), len(vertices))
-        return fill, {"fill": time.perf_counter() - start}
+        return (atlas, fill), {"atlas": atlas_s, "fill": time.perf_counter() - start - atlas_s}
 
     def colour_step():
         return _views_colours(vertices, faces, labels, neighbours, images, cameras, seen,
@@ -412,12 +409,9 @@ def textured_from_labels(vertices: np.ndarray, faces: np.ndarray, labels: np.nda
 
     # The atlas, the fill's factors and the views' colours meet only in the texels: made
     # side by side.
-    seconds = {}
-    (atlas, atlas_seconds), (fill, fill_seconds), \
-        ((floats, seams, gains, offsets, vertex, blur), colour_seconds) = \
-        side_by_side(atlas_step, fill_step, colour_step)
-    for step_seconds in (atlas_seconds, fill_seconds, colour_seconds):
-        seconds.update(step_seconds)
+    ((atlas, fill), seconds), ((floats, seams, gains, offsets, vertex, blur), colour_seconds) = \
+        map_in_threads(lambda step: step(), (atlas_step, colour_step))
+    seconds.update(colour_seconds)
     start = time.perf_counter()
     if fill is not None:
         vertex = fill(vertex)
