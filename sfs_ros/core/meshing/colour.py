@@ -185,24 +185,22 @@ def _sight_weights(u, v, z, cos, edge_px, zbuf, min_cos, angle_power, edge_ramp_
     Fills ``weights`` (k,) (0: not seen) and ``hidden`` (k,) bool (the mesh hides the point).
     """
     for i in range(u.size):
-        weights[i], hidden[i] = sight_weight(u[i], v[i], z[i], cos[i], edge_px, zbuf, 0,
-                                             min_cos, angle_power, edge_ramp_px,
-                                             depth_tolerance_px, footprint_per_m,
-                                             footprint_constant)
+        weights[i], hidden[i] = sight_weight(u[i], v[i], z[i], cos[i], edge_px, zbuf, min_cos,
+                                             angle_power, edge_ramp_px, depth_tolerance_px,
+                                             footprint_per_m, footprint_constant)
 
 
 @njit(cache=True, nogil=True, inline="always")
-def sight_weight(u, v, z, cos, edge_px, zbuf, channel, min_cos, angle_power, edge_ramp_px,
+def sight_weight(u, v, z, cos, edge_px, zbuf, min_cos, angle_power, edge_ramp_px,
                  depth_tolerance_px, footprint_per_m, footprint_constant):
-    """:func:`_sight_weights` of one point, reading plane ``channel`` of ``edge_px`` and
-    ``zbuf`` (H, W, C): ``(weight, hidden)``. The cheap tests first: the angle's weight
+    """:func:`_sight_weights` of one point: ``(weight, hidden)``. The cheap tests first: the angle's weight
     (a power) is only made for a point off the edges, and only matters where the mesh does
     not hide it."""
     if not cos > min_cos:
         return 0.0, False
     ramp = 1.0
     if edge_px.shape[0]:
-        ramp = min(1.0, max(0.0, (_bilinear_at(edge_px, u, v, channel) - EDGE_MARGIN_PX)
+        ramp = min(1.0, max(0.0, (_bilinear_at(edge_px, u, v, 0) - EDGE_MARGIN_PX)
                             / edge_ramp_px))
         if ramp == 0.0:
             return 0.0, False
@@ -211,7 +209,7 @@ def sight_weight(u, v, z, cos, edge_px, zbuf, channel, min_cos, angle_power, edg
         # Off the edges: the 2 x 2 pixels read see one surface, all finite.
         tan = np.sqrt(1.0 - cos ** 2) / cos
         tol = (footprint_constant + z * footprint_per_m) * (depth_tolerance_px + tan)
-        behind = z > _bilinear_at(zbuf, u, v, channel) + tol
+        behind = z > _bilinear_at(zbuf, u, v, 0) + tol
     w = ((cos - min_cos) / (1.0 - min_cos)) ** angle_power * ramp
     if behind:
         return 0.0, w > 0.0

@@ -204,7 +204,7 @@ def _face_sight(start, stop, points, normals, R, t, K, orthographic, last_u, las
                                           normals[f, 1], normals[f, 2])
                 if (u >= 0.0 and u <= last_u[j] and v >= 0.0 and v <= last_v[j]
                         and cos > min_cos
-                        and sight_weight(u, v, z, cos, edge, depth, 0, min_cos, power,
+                        and sight_weight(u, v, z, cos, edge, depth, min_cos, power,
                                          GLIMPSE_RAMP_PX, tolerance, per_metre[j],
                                          constant[j])[0] > 0.0):
                     view = (Rj, tj, Kj, orthographic[j], last_u[j], last_v[j], edge, depth,
@@ -246,7 +246,7 @@ def _point_weight(points, normals, f, k, view, ramp):
         return 0.0, np.nan, np.nan
     if not cos > min_cos:
         return 0.0, u, v
-    return sight_weight(u, v, z, cos, edge_px, behind_all, 0, min_cos, power, ramp, tolerance,
+    return sight_weight(u, v, z, cos, edge_px, behind_all, min_cos, power, ramp, tolerance,
                         per_metre, constant)[0], u, v
 
 
