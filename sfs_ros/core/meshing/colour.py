@@ -52,8 +52,8 @@ from ..settings import MAX_COLOUR_VIEWS
 from ..workers import map_in_threads
 
 __all__ = ["MAX_COLOUR_VIEWS", "HarmonicFill", "VertexColours", "ViewSight", "check_image",
-           "fill_from_neighbours", "spread_views", "vertex_colours", "vertex_normals",
-           "view_sight"]
+           "fill_from_neighbours", "sight_maps", "sight_weight", "spread_views", "vertex_colours",
+           "vertex_normals", "view_point", "view_sight"]
 
 #: A z-buffer step between neighbouring pixels of more than this many pixel
 #: footprints is a depth discontinuity (a smooth surface only steps that much
@@ -167,7 +167,7 @@ def _bilinear_at(image, u, v, channel):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _sight_weight(u, v, z, cos, edge_px, zbuf, min_cos, angle_power, edge_ramp_px,
+def sight_weight(u, v, z, cos, edge_px, zbuf, min_cos, angle_power, edge_ramp_px,
                   depth_tolerance_px, footprint_per_m, footprint_constant):
     """How well one view sees a point: ``(weight, hidden)``, its weight in a blend (module
     docstring; 0: not seen) and whether the mesh hides it.
@@ -196,10 +196,10 @@ def _sight_weight(u, v, z, cos, edge_px, zbuf, min_cos, angle_power, edge_ramp_p
 @njit(cache=True, nogil=True)
 def _sight_weights(u, v, z, cos, edge_px, zbuf, min_cos, angle_power, edge_ramp_px,
                    depth_tolerance_px, footprint_per_m, footprint_constant, weights, hidden):
-    """:func:`_sight_weight` of k points, ``u, v, z, cos`` (k,) float64: fills ``weights``
+    """:func:`sight_weight` of k points, ``u, v, z, cos`` (k,) float64: fills ``weights``
     (k,) and ``hidden`` (k,) bool."""
     for i in range(u.size):
-        weights[i], hidden[i] = _sight_weight(u[i], v[i], z[i], cos[i], edge_px, zbuf, min_cos,
+        weights[i], hidden[i] = sight_weight(u[i], v[i], z[i], cos[i], edge_px, zbuf, min_cos,
                                               angle_power, edge_ramp_px, depth_tolerance_px,
                                               footprint_per_m, footprint_constant)
 
@@ -210,7 +210,7 @@ def _weigh_view(R, t, K, orthographic, vertices, normals, image, edge_px, zbuf, 
                 footprint_constant, idx, weights, colours, hidden):
     """One view's part in the blend, in one pass over the n vertices: each vertex that
     faces the camera (``cos > min_cos``) and projects into ``image`` (H, W, 3) uint8
-    (:func:`_view_of`, :func:`_in_image`) is weighed (:func:`_sight_weight`). Fills, in
+    (:func:`_view_of`, :func:`_in_image`) is weighed (:func:`sight_weight`). Fills, in
     vertex order, ``idx[:k]`` (n,) int64 the k vertices it blends into (weight > 0), their
     ``weights[:k]`` (n,) and ``colours[:k]`` (n, 3), the weighted colour of the image
     there, and ``hidden[:h]`` (n,) int64 the h vertices the mesh hides; returns
@@ -219,13 +219,14 @@ def _weigh_view(R, t, K, orthographic, vertices, normals, image, edge_px, zbuf, 
     k = 0
     h = 0
     for i in range(vertices.shape[0]):
-        x, y, z, cos = _in_camera(R, t, orthographic, vertices, normals, i)
+        x, y, z, cos = _in_camera(R, t, orthographic, vertices[i, 0], vertices[i, 1],
+                                   vertices[i, 2], normals[i, 0], normals[i, 1], normals[i, 2])
         if not cos > min_cos:
             continue
         u, v = _pixel(K, orthographic, x, y, z)
         if not (u >= 0 and u <= width - 1 and v >= 0 and v <= height - 1):
             continue
-        w, is_hidden = _sight_weight(u, v, z, cos, edge_px, zbuf, min_cos, angle_power,
+        w, is_hidden = sight_weight(u, v, z, cos, edge_px, zbuf, min_cos, angle_power,
                                      edge_ramp_px, depth_tolerance_px, footprint_per_m,
                                      footprint_constant)
         if is_hidden:
@@ -332,18 +333,28 @@ def _planes(image: np.ndarray | None, dtype) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _in_camera(R, t, orthographic, vertices, normals, i):
-    """Vertex ``i`` in the camera ``R, t``'s frame: ``(x, y, z, cos)``, metres, and the
-    cosine of the angle between its normal and the direction to the camera."""
-    x = R[0, 0] * vertices[i, 0] + R[0, 1] * vertices[i, 1] + R[0, 2] * vertices[i, 2] + t[0]
-    y = R[1, 0] * vertices[i, 0] + R[1, 1] * vertices[i, 1] + R[1, 2] * vertices[i, 2] + t[1]
-    z = R[2, 0] * vertices[i, 0] + R[2, 1] * vertices[i, 1] + R[2, 2] * vertices[i, 2] + t[2]
-    nx = R[0, 0] * normals[i, 0] + R[0, 1] * normals[i, 1] + R[0, 2] * normals[i, 2]
-    ny = R[1, 0] * normals[i, 0] + R[1, 1] * normals[i, 1] + R[1, 2] * normals[i, 2]
-    nz = R[2, 0] * normals[i, 0] + R[2, 1] * normals[i, 1] + R[2, 2] * normals[i, 2]
+def _in_camera(R, t, orthographic, px, py, pz, nx, ny, nz):
+    """The point ``(px, py, pz)`` (metres) in the camera ``R, t``'s frame: ``(x, y, z,
+    cos)``, metres, and the cosine of the angle between its unit normal ``(nx, ny, nz)``
+    and the direction to the camera."""
+    x = R[0, 0] * px + R[0, 1] * py + R[0, 2] * pz + t[0]
+    y = R[1, 0] * px + R[1, 1] * py + R[1, 2] * pz + t[1]
+    z = R[2, 0] * px + R[2, 1] * py + R[2, 2] * pz + t[2]
+    cx = R[0, 0] * nx + R[0, 1] * ny + R[0, 2] * nz
+    cy = R[1, 0] * nx + R[1, 1] * ny + R[1, 2] * nz
+    cz = R[2, 0] * nx + R[2, 1] * ny + R[2, 2] * nz
     if orthographic:
-        return x, y, z, -nz
-    return x, y, z, -(nx * x + ny * y + nz * z) / max(math.sqrt(x * x + y * y + z * z), 1e-300)
+        return x, y, z, -cz
+    return x, y, z, -(cx * x + cy * y + cz * z) / max(math.sqrt(x * x + y * y + z * z), 1e-300)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def view_point(R, t, K, orthographic, px, py, pz, nx, ny, nz):
+    """How the camera ``R, t, K`` sees the point ``(px, py, pz)`` (metres) with the unit
+    normal ``(nx, ny, nz)``: ``(u, v, depth, cos)`` (:func:`_view_of`'s, of one point)."""
+    x, y, z, cos = _in_camera(R, t, orthographic, px, py, pz, nx, ny, nz)
+    u, v = _pixel(K, orthographic, x, y, z)
+    return u, v, z, cos
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -363,7 +374,9 @@ def _view_kernel(R, t, K, orthographic, vertices, normals, u, v, depth, cos):
     """Fills ``u, v`` (pixels; NaN behind a pinhole camera), ``depth`` (metres) and
     ``cos`` for each vertex (see :func:`_view_of`)."""
     for i in range(vertices.shape[0]):
-        x, y, depth[i], cos[i] = _in_camera(R, t, orthographic, vertices, normals, i)
+        x, y, depth[i], cos[i] = _in_camera(R, t, orthographic, vertices[i, 0],
+                                            vertices[i, 1], vertices[i, 2], normals[i, 0],
+                                            normals[i, 1], normals[i, 2])
         u[i], v[i] = _pixel(K, orthographic, x, y, depth[i])
 
 
@@ -412,16 +425,23 @@ def view_sight(camera: Camera, points: np.ndarray, normals: np.ndarray, zbuf: np
     inside = _in_image(u, v, camera)
     u, v = np.where(inside, u, np.nan), np.where(inside, v, np.nan)
     idx = np.flatnonzero(inside & (cos > min_cos))
-    constant, per_metre = _footprint_terms(camera)
+    edge_px, depth, per_metre, constant = sight_maps(camera, zbuf, mask, depth_zbuf)
     weights, hidden = np.zeros(len(points)), np.zeros(len(points), bool)
     w, h = np.empty(len(idx)), np.empty(len(idx), bool)
-    _sight_weights(u[idx], v[idx], z[idx], cos[idx],
-                   _planes(_edge_distance_px(zbuf, mask, camera), np.float32),
-                   _planes(zbuf if depth_zbuf is None else depth_zbuf, np.float64), min_cos,
-                   angle_power, edge_ramp_px,
-                   depth_tolerance_px, per_metre, constant, w, h)
+    _sight_weights(u[idx], v[idx], z[idx], cos[idx], edge_px, depth, min_cos, angle_power,
+                   edge_ramp_px, depth_tolerance_px, per_metre, constant, w, h)
     weights[idx], hidden[idx] = w, h
     return ViewSight(u=u, v=v, weight=weights, hidden=hidden)
+
+
+def sight_maps(camera: Camera, zbuf: np.ndarray | None, mask: np.ndarray | None,
+               depth_zbuf: np.ndarray | None = None) -> tuple:
+    """What :func:`sight_weight` reads of one view (arguments as :func:`view_sight`'s):
+    ``(edge_px (H, W, 1) float32, depth (H, W, 1) float64, footprint_per_m,
+    footprint_constant)``, the maps (0, 0, 1) where there is none."""
+    constant, per_metre = _footprint_terms(camera)
+    return (_planes(_edge_distance_px(zbuf, mask, camera), np.float32),
+            _planes(zbuf if depth_zbuf is None else depth_zbuf, np.float64), per_metre, constant)
 
 
 def check_image(index: int, image, camera: Camera) -> np.ndarray:

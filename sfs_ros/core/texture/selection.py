@@ -18,7 +18,7 @@ the weight falling with the angle from the normal (frontal), the projected area 
 as the camera comes nearer (``1 / depth^2``) and faces it, and ``sharpness`` the view's
 variance of the Laplacian inside its silhouette relative to the sharpest view's (a
 shot blurred by motion or focus loses to its neighbours). A face no view sees so takes
-the best of the views that *glimpse* it (:data:`GLIMPSE`: its centroid seen unhidden,
+the best of the views that *glimpse* it (:data:`GLIMPSE_RAMP_PX`: its centroid seen unhidden,
 a pixel and a half from an outline or a depth step, where its corners may lie nearer),
 their weights scaled by :data:`GLIMPSE_WEIGHT` so that they never compete with a full
 view: a rim a few pixels wide then keeps its detail rather than colours interpolated
@@ -34,19 +34,21 @@ changes. Faces no view sees get the label -1.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import cv2
 import numpy as np
 from numba import njit
 from scipy import ndimage
 
 from ..geometry.camera import Camera
-from ..meshing.colour import view_sight
+from ..meshing.colour import sight_maps, sight_weight, view_point
 from ..render import rasterize_depth
+from ..workers import map_in_threads
 
-__all__ = ["CORNER_PULL", "GLIMPSE", "GLIMPSE_WEIGHT", "SMOOTHNESS", "face_neighbours", "face_quality",
-           "farthest_around",
-           "label_faces", "towards_camera",
-           "sharpness"]
+__all__ = ["CORNER_PULL", "GLIMPSE_RAMP_PX", "GLIMPSE_WEIGHT", "SMOOTHNESS", "face_neighbours",
+           "face_qualities", "face_samples", "farthest_around", "label_faces", "sharpness",
+           "towards_camera"]
 
 #: The corners of a face are tested for visibility this fraction of the way towards its
 #: centroid: a corner itself lies on the edge of the faces around it, some of which the
@@ -55,14 +57,21 @@ CORNER_PULL = 0.2
 #: Cost of a seam (two neighbouring faces from different views) against the data cost in
 #: [0, 1] of a face (:func:`label_faces`); chosen by measurement (doc/benchmarks.md).
 SMOOTHNESS = 0.3
-#: The looser test of a *glimpse* (:func:`face_quality`): the face's centroid alone, half
-#: a pixel of ramp off the outline and the depth steps instead of three.
-GLIMPSE = {"edge_ramp_px": 0.5}
+#: The looser test of a *glimpse* (:func:`face_qualities`): the face's centroid alone, half
+#: a pixel of ramp off the outline and the depth steps instead of the full test's three.
+GLIMPSE_RAMP_PX = 0.5
+#: The sight test's options, as the vertex colours use them (the defaults of
+#: :func:`~sfs_ros.core.meshing.colour.view_sight`): least cosine, angle power, pixels of
+#: ramp off the edges and of depth tolerance.
+_SIGHT_OPTIONS = (0.2, 2.0, 3.0, 1.0)
+#: A face's area over the area of its corners pulled :data:`CORNER_PULL` towards its
+#: centroid.
+_AREA_OF_PULLED = (1 - CORNER_PULL) ** 2
 #: A glimpse's weight against a full view's: it colours only faces no view sees fully.
 GLIMPSE_WEIGHT = 1e-6
-#: Faces whose centroid sees the camera at a cosine at most this are not tested (the
-#: sight test's least cosine is 0.2).
-_FACING_COS = 0.1
+#: Faces a thread tests at a time (:func:`face_qualities`), and faces every view tests in
+#: turn (their samples in the cache).
+_FACES_A_TASK, _FACES_A_PASS = 1 << 16, 1 << 11
 #: Most sweeps of iterated conditional modes (it stops earlier when no face changes).
 MAX_SWEEPS = 20
 
@@ -71,13 +80,31 @@ def face_samples(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, n
     """The points a view must see to see a face: (m, 4, 3) metres (centroid, then the
     corners pulled :data:`CORNER_PULL` towards it), and the unit face normals (m, 3)
     (zero for a degenerate face)."""
-    corners = vertices[faces]                                       # (m, 3, 3)
-    centroid = corners.mean(axis=1, keepdims=True)
-    pulled = corners + CORNER_PULL * (centroid - corners)
-    normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-    length = np.linalg.norm(normal, axis=1, keepdims=True)
-    normal = np.divide(normal, length, out=np.zeros_like(normal), where=length > 0)
-    return np.concatenate([centroid, pulled], axis=1), normal
+    points, normals = np.empty((len(faces), 4, 3)), np.empty((len(faces), 3))
+    _face_samples(vertices, faces, CORNER_PULL, points, normals)
+    return points, normals
+
+
+@njit(cache=True, nogil=True)
+def _face_samples(vertices, faces, pull, points, normals):
+    """:func:`face_samples` into ``points`` (m, 4, 3) and ``normals`` (m, 3)."""
+    for f in range(faces.shape[0]):
+        a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
+        for d in range(3):
+            points[f, 0, d] = (vertices[a, d] + vertices[b, d] + vertices[c, d]) / 3.0
+            for k in range(3):
+                corner = vertices[faces[f, k], d]
+                points[f, k + 1, d] = corner + pull * (points[f, 0, d] - corner)
+        e1x, e1y, e1z = (vertices[b, 0] - vertices[a, 0], vertices[b, 1] - vertices[a, 1],
+                         vertices[b, 2] - vertices[a, 2])
+        e2x, e2y, e2z = (vertices[c, 0] - vertices[a, 0], vertices[c, 1] - vertices[a, 1],
+                         vertices[c, 2] - vertices[a, 2])
+        nx, ny, nz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+        length = np.sqrt(nx * nx + ny * ny + nz * nz)
+        if length > 0.0:
+            normals[f, 0], normals[f, 1], normals[f, 2] = nx / length, ny / length, nz / length
+        else:
+            normals[f, 0] = normals[f, 1] = normals[f, 2] = 0.0
 
 
 def sharpness(image: np.ndarray, mask: np.ndarray | None) -> float:
@@ -102,76 +129,125 @@ def towards_camera(camera: Camera, points: np.ndarray) -> np.ndarray:
     return to_camera / np.maximum(length, 1e-300)[:, None]
 
 
-def face_quality(vertices: np.ndarray, faces: np.ndarray, camera: Camera,
-                 mask: np.ndarray | None, *, closed: bool = False, samples: tuple | None = None
-                 ) -> tuple[np.ndarray, np.ndarray]:
-    """(m,) float64 quality of ``camera``'s view for each face (module docstring, without
-    the sharpness factor; 0 where the view does not see the face) and (m,) bool where it
+def face_qualities(vertices: np.ndarray, faces: np.ndarray, cameras: Sequence[Camera],
+                   masks: Sequence, *, closed: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """(m, V) float64 quality of each view for each face (module docstring, without the
+    sharpness factor; 0 where the view does not see the face) and (m, V) bool where it
     sees it fully (not a glimpse).
 
-    ``vertices`` (n, 3) metres and ``faces`` (m, 3) outward; ``mask`` (H, W) bool the
-    view's silhouette or None; ``closed``: the mesh is closed and outward (the z-buffer
-    draws the faces turned towards the camera only).
-    ``samples``: the mesh's :func:`face_samples`, when the caller has them (one mesh,
-    many views).
+    ``vertices`` (n, 3) metres and ``faces`` (m, 3) outward; ``cameras`` the V views,
+    ``masks`` their silhouettes, (H, W) bool or None each; ``closed``: the mesh is closed
+    and outward (the z-buffers draw the faces turned towards the camera only). The views'
+    z-buffers and edge maps are made side by side, then every face is tested in every
+    view in one pass over the faces, blocks of them side by side.
     """
-    points, normals = face_samples(vertices, faces) if samples is None else samples
-    zbuf = rasterize_depth(vertices, faces, camera, closed=closed)
-    behind_all = farthest_around(zbuf)
-    # Only faces turned towards the camera can pass (the sight test's angle, less a
-    # margin for the samples' directions): the others are not tested.
-    facing = np.flatnonzero(_facing_cos(camera, points[:, 0], normals) > _FACING_COS)
+    points, normals = face_samples(vertices, faces)
 
-    def sight(chosen: np.ndarray, corners: bool = False, **options):
-        """The sight test of the centroids (or the three pulled corners) of ``chosen``."""
-        at = slice(1, 4) if corners else slice(0, 1)
-        return view_sight(camera, points[chosen, at].reshape(-1, 3),
-                          np.repeat(normals[chosen], at.stop - at.start, axis=0), zbuf, mask,
-                          depth_zbuf=behind_all, **options)
+    def maps(view):
+        camera, mask = view
+        zbuf = rasterize_depth(vertices, faces, camera, closed=closed)
+        return sight_maps(camera, zbuf, mask, farthest_around(zbuf))
 
-    # The glimpse of every facing face first: its narrower ramp off the edges weighs a
-    # point above zero exactly where the full test does (the ramps start at one margin),
-    # so the faces it finds are those whose centroid passes the full test, and the
-    # others (most, on a refined mesh) need no other point tested.
-    weight = np.zeros(len(faces))
-    weight[facing] = GLIMPSE_WEIGHT * sight(facing, **GLIMPSE).weight
-    candidates = facing[weight[facing] > 0]
-    at_corners = sight(candidates, corners=True)
-    least = np.minimum(sight(candidates).weight, at_corners.weight.reshape(-1, 3).min(axis=1))
-    full = np.zeros(len(faces), bool)
-    full[candidates] = least > 0
-    weight[full] = least[least > 0]
-    area_px = np.zeros(len(faces))
-    area_px[candidates] = _projected_area(at_corners)
-    return np.where(weight > 0, weight * np.nan_to_num(area_px), 0.0), full
-
-
-def _facing_cos(camera: Camera, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
-    """(m,) cosine between each unit normal (m, 3) and the direction from its point
-    (m, 3) metres towards ``camera``."""
-    if camera.orthographic:
-        return normals @ -camera.R[2]
-    out = np.empty(len(points))
-    _cos_towards(points, normals, camera.center, out)
-    return out
+    found = list(map_in_threads(maps, zip(cameras, masks)))
+    # The maps as planes of one array (padded with zeros, never read, where sizes differ).
+    height = max(edge.shape[0] for edge, *_ in found)
+    width = max(edge.shape[1] for edge, *_ in found)
+    edges = np.zeros((len(cameras), height, width, 1), np.float32)
+    depths = np.zeros((len(cameras), height, width, 1))
+    for j, (edge, depth, _, _) in enumerate(found):
+        edges[j, :edge.shape[0], :edge.shape[1]] = edge
+        depths[j, :depth.shape[0], :depth.shape[1]] = depth
+    quality = np.zeros((len(faces), len(cameras)))
+    full = np.zeros((len(faces), len(cameras)), bool)
+    views = (np.array([c.R for c in cameras]), np.array([c.t for c in cameras]),
+             np.array([c.K for c in cameras]), np.array([bool(c.orthographic) for c in cameras]),
+             np.array([c.width - 1.0 for c in cameras]),
+             np.array([c.height - 1.0 for c in cameras]), edges, depths,
+             np.array([per_metre for _, _, per_metre, _ in found]),
+             np.array([constant for *_, constant in found]), np.array(_SIGHT_OPTIONS))
+    # Blocks of faces taken by the cores as each comes free (a core busy with other work
+    # takes fewer).
+    for _ in map_in_threads(lambda start: _face_sight(start, start + _FACES_A_TASK, points,
+                                                      normals, *views, quality, full),
+                            range(0, len(faces), _FACES_A_TASK)):
+        pass
+    return quality, full
 
 
 @njit(cache=True, nogil=True)
-def _cos_towards(points, normals, centre, out):
-    """:func:`_facing_cos` of a pinhole camera at ``centre`` (3,) metres, into ``out``."""
-    for i in range(points.shape[0]):
-        dx, dy, dz = centre[0] - points[i, 0], centre[1] - points[i, 1], centre[2] - points[i, 2]
-        length = max(np.sqrt(dx * dx + dy * dy + dz * dz), 1e-300)
-        out[i] = (normals[i, 0] * dx + normals[i, 1] * dy + normals[i, 2] * dz) / length
+def _face_sight(start, stop, points, normals, R, t, K, orthographic, last_u, last_v, edge_px,
+                behind_all, per_metre, constant, options, quality, full):
+    """:func:`face_qualities`' sight tests of faces ``start`` to ``stop`` (exclusive) into
+    ``quality`` (m, V) and ``full`` (m, V):
+    ``points`` (m, 4, 3) and ``normals`` (m, 3) the :func:`face_samples`; of each view
+    ``j``, ``R[j]``, ``t[j]``, ``K[j]``, ``orthographic[j]``, its last pixel centres
+    ``last_u[j]``, ``last_v[j]``, its
+    :func:`~sfs_ros.core.meshing.colour.sight_maps` ``edge_px[j]`` and ``behind_all[j]``
+    (H, W, 1) (the depths those :func:`farthest_around` the z-buffer), ``per_metre[j]`` and
+    ``constant[j]``; ``options`` (4,) the sight test's :data:`_SIGHT_OPTIONS`. Views by
+    faces a few thousand at a time: the faces' samples stay in the cache while every view
+    tests them.
+
+    The glimpse of the centroid first: its narrower ramp off the edges weighs a point
+    above zero exactly where the full test does (the ramps start at one margin), so the
+    faces it finds are those whose centroid passes the full test, and the others (most,
+    on a refined mesh, half of them turned away) need no other point tested."""
+    min_cos, power, ramp, tolerance = options[0], options[1], options[2], options[3]
+    stop = min(stop, points.shape[0])
+    for first in range(start, stop, _FACES_A_PASS):
+        for j in range(R.shape[0]):
+            Rj, tj, Kj, edge, depth = R[j], t[j], K[j], edge_px[j], behind_all[j]
+            for f in range(first, min(first + _FACES_A_PASS, stop)):
+                # (scalars, not the tuple of :func:`_point_weight`: most faces end here)
+                u, v, z, cos = view_point(Rj, tj, Kj, orthographic[j], points[f, 0, 0],
+                                          points[f, 0, 1], points[f, 0, 2], normals[f, 0],
+                                          normals[f, 1], normals[f, 2])
+                if (u >= 0.0 and u <= last_u[j] and v >= 0.0 and v <= last_v[j]
+                        and cos > min_cos
+                        and sight_weight(u, v, z, cos, edge, depth, min_cos, power,
+                                         GLIMPSE_RAMP_PX, tolerance, per_metre[j],
+                                         constant[j])[0] > 0.0):
+                    view = (Rj, tj, Kj, orthographic[j], last_u[j], last_v[j], edge, depth,
+                            per_metre[j], constant[j], min_cos, power, tolerance)
+                    quality[f, j], full[f, j] = _fully(points, normals, f, view, ramp)
 
 
-def _projected_area(corners) -> np.ndarray:
-    """(k,) area in pixels^2 of the faces whose three pulled corners' sight test
-    (``corners.u``, ``corners.v`` (3k,)) is given, scaled back to the whole face (NaN
-    where a corner falls outside the image)."""
-    u, v = corners.u.reshape(-1, 3), corners.v.reshape(-1, 3)
-    return 0.5 * np.abs((u[:, 1] - u[:, 0]) * (v[:, 2] - v[:, 0])
-                        - (u[:, 2] - u[:, 0]) * (v[:, 1] - v[:, 0])) / (1 - CORNER_PULL) ** 2
+@njit(cache=True, nogil=True, inline="always")
+def _fully(points, normals, f, view, ramp):
+    """The full test of glimpsed face ``f`` (``points`` and ``normals`` as
+    :func:`_face_sight`'s) in ``view`` (:func:`_point_weight`'s): ``(quality, full)``."""
+    least = _point_weight(points, normals, f, 0, view, ramp)[0]
+    w0, u0, v0 = _point_weight(points, normals, f, 1, view, ramp)
+    w1, u1, v1 = _point_weight(points, normals, f, 2, view, ramp)
+    w2, u2, v2 = _point_weight(points, normals, f, 3, view, ramp)
+    least = min(least, w0, w1, w2)
+    full = least > 0.0
+    weight = least if full else \
+        GLIMPSE_WEIGHT * _point_weight(points, normals, f, 0, view, GLIMPSE_RAMP_PX)[0]
+    # The corners' projected area, scaled back to the whole face (NaN, so 0, where a
+    # corner falls outside the image).
+    area = 0.5 * abs((u1 - u0) * (v2 - v0) - (u2 - u0) * (v1 - v0)) / _AREA_OF_PULLED
+    return (weight * area if np.isfinite(area) else 0.0), full
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _point_weight(points, normals, f, k, view, ramp):
+    """The sight test of sample ``k`` of face ``f`` (``points`` and ``normals`` as
+    :func:`_face_sight`'s) in
+    ``view`` (``R, t, K, orthographic, last_u, last_v, edge_px, behind_all, per_metre,
+    constant`` as :func:`_face_sight`'s of one view, then the least cosine, the angle's
+    power and the depth tolerance) with ``ramp`` pixels off the edges: ``(weight, u, v)``,
+    ``u, v`` pixels (NaN outside the image)."""
+    (R, t, K, orthographic, last_u, last_v, edge_px, behind_all, per_metre, constant, min_cos,
+     power, tolerance) = view
+    u, v, z, cos = view_point(R, t, K, orthographic, points[f, k, 0], points[f, k, 1],
+                              points[f, k, 2], normals[f, 0], normals[f, 1], normals[f, 2])
+    if not (u >= 0.0 and u <= last_u and v >= 0.0 and v <= last_v):
+        return 0.0, np.nan, np.nan
+    if not cos > min_cos:
+        return 0.0, u, v
+    return sight_weight(u, v, z, cos, edge_px, behind_all, min_cos, power, ramp, tolerance,
+                        per_metre, constant)[0], u, v
 
 
 def farthest_around(zbuf: np.ndarray) -> np.ndarray:
@@ -189,32 +265,59 @@ def farthest_around(zbuf: np.ndarray) -> np.ndarray:
 def face_neighbours(faces: np.ndarray) -> np.ndarray:
     """(m, 3) int64: the face across each edge of each face (edge k joins corners k and
     k + 1), -1 where the edge has no face or more than one across it."""
-    m = len(faces)
-    ends = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
-    key = np.sort(ends, axis=1)
-    key = key[:, 0] * (int(faces.max()) + 1) + key[:, 1]
-    order = np.argsort(key, kind="stable")
-    sorted_key = key[order]
-    starts = np.flatnonzero(np.concatenate([[True], sorted_key[1:] != sorted_key[:-1]]))
-    pair = starts[np.diff(np.append(starts, len(key))) == 2]   # edges of exactly two faces
-    a, b = order[pair], order[pair + 1]
-    neighbours = np.full(3 * m, -1, np.int64)
-    neighbours[a], neighbours[b] = b // 3, a // 3
-    return neighbours.reshape(m, 3)
+    faces = np.ascontiguousarray(faces, np.int64)
+    neighbours = np.full((len(faces), 3), -1, np.int64)
+    if len(faces):
+        _face_neighbours(faces, int(faces.max()) + 1, neighbours)
+    return neighbours
 
 
 @njit(cache=True, nogil=True)
-def _icm(cost, neighbours, labels, smoothness, max_sweeps):
-    """Iterated conditional modes on ``labels`` (m,) in place; returns the sweeps made."""
-    m, n_views = cost.shape
+def _face_neighbours(faces, n_vertices, neighbours):
+    """:func:`face_neighbours` into ``neighbours`` (m, 3) (all -1): the edges of the faces
+    grouped by their lower vertex (a counting sort), the two of an edge found in its
+    group."""
+    m = faces.shape[0]
+    start = np.zeros(n_vertices + 1, np.int64)
+    for f in range(m):
+        for k in range(3):
+            start[min(faces[f, k], faces[f, (k + 1) % 3]) + 1] += 1
+    for i in range(n_vertices):
+        start[i + 1] += start[i]
+    filled = start[:-1].copy()
+    edge = np.empty(3 * m, np.int64)               # face * 3 + k, by lower vertex
+    for f in range(m):
+        for k in range(3):
+            low = min(faces[f, k], faces[f, (k + 1) % 3])
+            edge[filled[low]] = 3 * f + k
+            filled[low] += 1
+    for low in range(n_vertices):
+        for i in range(start[low], start[low + 1]):
+            f, k = edge[i] // 3, edge[i] % 3
+            high = max(faces[f, k], faces[f, (k + 1) % 3])
+            other, count = -1, 0
+            for j in range(start[low], start[low + 1]):
+                g, h = edge[j] // 3, edge[j] % 3
+                if max(faces[g, h], faces[g, (h + 1) % 3]) == high:
+                    count += 1
+                    if j != i:
+                        other = g
+            if count == 2:                         # edges of exactly two faces
+                neighbours[f, k] = other
+
+
+@njit(cache=True, nogil=True)
+def _icm(cost, seen, neighbours, labels, smoothness, max_sweeps):
+    """Iterated conditional modes on ``labels`` (m,) in place, over the faces ``seen`` (s,)
+    (increasing) whose costs are the rows of ``cost`` (s, V); returns the sweeps made."""
+    n_views = cost.shape[1]
     for sweep in range(max_sweeps):
         changed = 0
-        for f in range(m):
-            if labels[f] < 0:
-                continue
+        for i in range(seen.size):
+            f = seen[i]
             best, best_cost = labels[f], np.inf
             for label in range(n_views):
-                c = cost[f, label]
+                c = cost[i, label]
                 if not np.isfinite(c):
                     continue
                 for k in range(3):
@@ -239,11 +342,42 @@ def label_faces(quality: np.ndarray, neighbours: np.ndarray, *,
     each face."""
     if not (np.isfinite(smoothness) and smoothness >= 0):
         raise ValueError(f"smoothness must be a finite number >= 0, got {smoothness}")
-    best = quality.max(axis=1)
-    labels = np.where(best > 0, quality.argmax(axis=1), -1).astype(np.int64)
-    # Only the seen faces' costs are read (often a minority of a refined mesh's faces).
-    seen = np.flatnonzero(best > 0)
-    cost = np.full(quality.shape, np.inf)
-    cost[seen] = np.where(quality[seen] > 0, 1.0 - quality[seen] / best[seen, None], np.inf)
-    sweeps = _icm(cost, neighbours, labels, float(smoothness), MAX_SWEEPS) if smoothness else 0
+    quality = np.ascontiguousarray(quality, np.float64)
+    labels = np.empty(len(quality), np.int64)
+    seen = _best_views(quality, labels)
+    # Only the seen faces' costs are made (often a minority of a refined mesh's faces).
+    cost = np.empty((len(seen), quality.shape[1]))
+    _costs(quality, seen, labels, cost)
+    sweeps = (_icm(cost, seen, neighbours, labels, float(smoothness), MAX_SWEEPS)
+              if smoothness else 0)
     return labels, sweeps
+
+
+@njit(cache=True, nogil=True)
+def _best_views(quality, labels):
+    """Each face's best view (the first of the highest quality in ``quality`` (m, V)) into
+    ``labels`` (m,), -1 where no view sees the face; returns the faces seen (s,)."""
+    seen = np.empty(quality.shape[0], np.int64)
+    n = 0
+    for f in range(quality.shape[0]):
+        best, label = quality[f, 0], 0
+        for j in range(1, quality.shape[1]):
+            if quality[f, j] > best:
+                best, label = quality[f, j], j
+        labels[f] = label if best > 0.0 else -1
+        if best > 0.0:
+            seen[n] = f
+            n += 1
+    return seen[:n]
+
+
+@njit(cache=True, nogil=True)
+def _costs(quality, seen, labels, cost):
+    """The data costs (module docstring) of the faces ``seen`` (s,) into ``cost`` (s, V)
+    (infinite where the view does not see the face), from ``quality`` (m, V) and the best
+    views ``labels`` (m,)."""
+    for i in range(seen.size):
+        f = seen[i]
+        best = quality[f, labels[f]]
+        for j in range(quality.shape[1]):
+            cost[i, j] = 1.0 - quality[f, j] / best if quality[f, j] > 0.0 else np.inf

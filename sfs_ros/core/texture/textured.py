@@ -30,6 +30,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from numba import njit
 
 from ..carving.carve import validate_masks
 from ..geometry.camera import Camera
@@ -50,8 +51,7 @@ from .levelling import (
 from .selection import (
     SMOOTHNESS,
     face_neighbours,
-    face_quality,
-    face_samples,
+    face_qualities,
     label_faces,
     sharpness,
 )
@@ -274,18 +274,31 @@ def _levelled(images, cameras, vertices, faces, labels, seams, seen, level: bool
 def _qualities(vertices, faces, images, cameras, masks, closed: bool) -> tuple:
     """(m, V) quality of each view for each face (:mod:`.selection`), sharpness included,
     and (m, V) bool where the view sees the face fully (not a glimpse)."""
-    samples = face_samples(vertices, faces)
+    quality, full = face_qualities(vertices, faces, cameras, masks, closed=closed)
+    sharp = np.array(list(map_in_threads(lambda view: sharpness(*view), zip(images, masks))))
+    quality *= sharp / sharp.max() if sharp.max() > 0 else np.ones_like(sharp)
+    return quality, full
 
-    def one(view):
-        image, camera, mask = view
-        return (*face_quality(vertices, faces, camera, mask, closed=closed, samples=samples),
-                sharpness(image, mask))
 
-    found = list(map_in_threads(one, zip(images, cameras, masks)))
-    sharp = np.array([s for _, _, s in found])
-    relative = sharp / sharp.max() if sharp.max() > 0 else np.ones_like(sharp)
-    return (np.stack([q * r for (q, _, _), r in zip(found, relative)], axis=1),
-            np.stack([full for _, full, _ in found], axis=1))
+@njit(cache=True, nogil=True)
+def _blend_weights(quality, full, labels, least, power, blend):
+    """The weight of each view in each face's texels into ``blend`` (m, V) (zeros): of a
+    face with a view (``labels`` (m,) >= 0), its quality (``quality`` (m, V)) relative to
+    its best view's, to the ``power``, where that is at least ``least`` and the view sees
+    the face fully (``full`` (m, V)) or, for a face no view sees fully, glimpses it."""
+    for f in range(quality.shape[0]):
+        if labels[f] < 0:
+            continue
+        best, any_full = quality[f, 0], False
+        for j in range(quality.shape[1]):
+            best = max(best, quality[f, j])
+            any_full |= full[f, j]
+        best = max(best, 1e-300)
+        for j in range(quality.shape[1]):
+            relative = quality[f, j] / best
+            supported = full[f, j] if any_full else quality[f, j] > 0.0
+            if supported and relative >= least:
+                blend[f, j] = relative ** power
 
 
 def texture_mesh(vertices, faces, images: Sequence, cameras: Sequence[Camera], *,
@@ -345,11 +358,7 @@ def texture_mesh(vertices, faces, images: Sequence, cameras: Sequence[Camera], *
     blend = None
     if blend_power is not None:
         blend = np.zeros(quality.shape)
-        seen = np.flatnonzero(labels >= 0)
-        relative = quality[seen] / np.maximum(quality[seen].max(axis=1, keepdims=True), 1e-300)
-        # A face no view sees fully blends the views that glimpse it.
-        support = np.where(full[seen].any(axis=1, keepdims=True), full[seen], quality[seen] > 0)
-        blend[seen] = np.where(support & (relative >= BLEND_MIN), relative ** blend_power, 0.0)
+        _blend_weights(quality, full, labels, BLEND_MIN, float(blend_power), blend)
     textured = textured_from_labels(vertices, faces, labels, neighbours, images, cameras,
                                     seen=full, level=level, blend=blend, texels_per_pixel=texels_per_pixel,
                                     max_size=max_size, padding=padding, kernel=kernel,
@@ -371,7 +380,7 @@ def textured_from_labels(vertices: np.ndarray, faces: np.ndarray, labels: np.nda
     chosen: ``labels`` (m,) int64 (-1: none), ``neighbours`` (m, 3)
     (:func:`.selection.face_neighbours`); ``vertices`` (n, 3) float64, ``faces`` (m, 3)
     int64 checked, ``images`` (H, W, 3) uint8 each its camera's size; ``seen`` (m, V)
-    bool the faces each view sees fully (:func:`.selection.face_quality`; needed to
+    bool the faces each view sees fully (:func:`.selection.face_qualities`; needed to
     ``level``: the views are compared on those faces only); ``blend`` (m, V) the weight of
     each view in each face's texels (0: none; None: the face's one view, with the seam
     offsets); the other arguments as there."""
