@@ -18,9 +18,10 @@ Texels around each chart repeat its border's colours (``padding`` of them) so th
 filtering does not bleed across a seam; the rest of the atlas is the texture's mean
 colour. Faces no view sees (the underside on the plate) take colours interpolated from
 their corners, each corner's colour the mean of its seen faces' or, for corners no view
-sees, spread along the edges from the nearest seen ones and smoothed
-(:class:`~sfs_ros.core.meshing.colour.SmoothedFill`: no view sees them, their colour
-need only be smooth and meet the seen ones without a seam).
+sees, near the harmonic interpolation along the edges the vertex colours use, solved
+on patches of a few edges and smoothed (:class:`~sfs_ros.core.meshing.colour.SmoothedFill`:
+no view sees them, their colour need only be smooth and meet the seen ones without a
+seam).
 """
 
 from __future__ import annotations
