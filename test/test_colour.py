@@ -16,6 +16,7 @@ from sfs_ros.core.exchange.export import export_mesh, load_mesh
 from sfs_ros.core.geometry.camera import Camera
 from sfs_ros.core.meshing.colour import (
     HarmonicFill,
+    SmoothedFill,
     fill_from_neighbours,
     spread_views,
     vertex_colours,
@@ -150,19 +151,30 @@ def test_unseen_vertices_take_the_colour_of_their_neighbours():
     assert calls == [1] and np.array_equal(again.colours, result.colours)
 
 
-def test_the_harmonic_fill_factored_once_reproduces_every_linear_colouring():
-    # A grid of 30 x 20 vertices cut into triangles along one diagonal: each inner vertex
-    # has six neighbours in three opposite pairs, so a colour linear in (x, y) is the mean
-    # of its neighbours' (harmonic), and with the border seen the fill must give it back.
-    nx, ny = 30, 20
+def _grid(nx: int, ny: int) -> tuple:
+    """A grid of nx x ny vertices cut into triangles along one diagonal: (x, y) (ny, nx)
+    float, faces (m, 3) int64, the border vertices (ny * nx,) bool."""
     x, y = np.meshgrid(np.arange(nx, dtype=float), np.arange(ny, dtype=float))
     index = np.arange(nx * ny).reshape(ny, nx)
     a, b, c, d = (index[:-1, :-1], index[:-1, 1:], index[1:, :-1], index[1:, 1:])
     faces = np.concatenate([np.stack([a, b, d], -1).reshape(-1, 3),
                             np.stack([a, d, c], -1).reshape(-1, 3)])
-    seen = np.zeros((ny, nx), bool)
-    seen[[0, -1], :] = seen[:, [0, -1]] = True
-    seen = seen.ravel()
+    border = np.zeros((ny, nx), bool)
+    border[[0, -1], :] = border[:, [0, -1]] = True
+    return x, y, faces, border.ravel()
+
+
+def _edge_energy(colours: np.ndarray, faces: np.ndarray) -> float:
+    """The sum over the mesh's edges (each once) of the squared colour difference."""
+    edges = np.unique(np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0)
+    return float(((colours[edges[:, 0]] - colours[edges[:, 1]]) ** 2).sum())
+
+
+def test_the_harmonic_fill_factored_once_reproduces_every_linear_colouring():
+    # A grid of 30 x 20 vertices cut into triangles along one diagonal: each inner vertex
+    # has six neighbours in three opposite pairs, so a colour linear in (x, y) is the mean
+    # of its neighbours' (harmonic), and with the border seen the fill must give it back.
+    x, y, faces, seen = _grid(30, 20)
     fill = HarmonicFill.of(seen, faces)                   # before any colour is known
     for slope in ((2.0, -1.0, 0.5), (-3.0, 4.0, 1.0)):
         truth = np.stack([x.ravel() * s + y.ravel() * (1 - s) + 7 for s in slope], axis=1)
@@ -172,6 +184,58 @@ def test_the_harmonic_fill_factored_once_reproduces_every_linear_colouring():
         assert np.abs(filled - truth).max() < 1e-9
         assert np.array_equal(filled, fill_from_neighbours(given, seen, faces))
         assert np.array_equal(filled[seen], given[seen])
+
+
+def test_the_smoothed_fill_tends_to_the_harmonic_one_and_smooths_at_every_sweep():
+    # Each sweep sets every unseen vertex to the mean of its neighbours: the exact minimum
+    # of the edge energy over that vertex, so the energy never rises from one sweep to the
+    # next, and the sweeps tend to the harmonic fill (its minimum), which gives back any
+    # linear colour on this grid (the test above).
+    x, y, faces, seen = _grid(30, 20)
+    truth = np.stack([2 * x.ravel() - y.ravel() + 7, -3 * x.ravel() + 4 * y.ravel()], axis=1)
+    truth = np.concatenate([truth, truth[:, :1] * 0.5], axis=1)
+    given = np.where(seen[:, None], truth, 0.0)
+    energies, errors = [], []
+    for sweeps in (0, 1, 4, 16, 64):
+        filled = SmoothedFill.of(seen, faces, sweeps=sweeps)(given)
+        assert np.array_equal(filled[seen], given[seen])
+        # A weighted mean of the seen colours: within their range (up to rounding).
+        low, high = given[seen].min(axis=0) - 1e-9, given[seen].max(axis=0) + 1e-9
+        assert np.all(filled >= low) and np.all(filled <= high)
+        energies.append(_edge_energy(filled, faces))
+        errors.append(np.abs(filled - truth).max())
+    assert all(later <= earlier for earlier, later in zip(energies, energies[1:]))
+    assert errors[-1] < errors[0]
+    # Patches of one vertex each: the harmonic fill itself, solved directly.
+    single = SmoothedFill.of(seen, faces, sweeps=0, radius=0)(given)
+    assert np.abs(single - truth).max() < 1e-9
+    # Converged (a 28 x 18 interior: the slowest mode decays by about 1 - 1e-2 a sweep).
+    converged = SmoothedFill.of(seen, faces, sweeps=2000)(given)
+    assert np.abs(converged - truth).max() < 1e-6
+    assert np.isclose(_edge_energy(converged, faces), _edge_energy(truth, faces))
+
+
+def test_the_smoothed_fill_keeps_a_constant_and_gives_lost_parts_the_mean():
+    # The grid with one corner seen in one colour and one in another; a second grid with
+    # no seen vertex (a component no view sees) takes the mean of the seen colours.
+    _, _, faces, _ = _grid(12, 9)
+    n = 12 * 9
+    all_faces = np.concatenate([faces, faces + n])
+    seen = np.zeros(2 * n, bool)
+    seen[[0, n - 1]] = True
+    colours = np.zeros((2 * n, 3))
+    colours[0], colours[n - 1] = (10.0, 20.0, 30.0), (10.0, 20.0, 30.0)
+    fill = SmoothedFill.of(seen, all_faces)
+    # Up to the patches' solve's rounding.
+    assert np.abs(fill(colours) - (10.0, 20.0, 30.0)).max() < 1e-9
+    colours[n - 1] = (50.0, 0.0, 30.0)
+    filled = fill(colours)
+    assert np.allclose(filled[n:], (30.0, 10.0, 30.0))
+    # Between the two seen colours, a vertex nearer the first nearer its colour.
+    assert np.all((filled[:n, 0] >= 10 - 1e-9) & (filled[:n, 0] <= 50 + 1e-9))
+    assert filled[1, 0] < filled[n // 2, 0] < filled[n - 2, 0]
+    with pytest.raises(ValueError, match="sweeps"):
+        SmoothedFill.of(seen, all_faces, radius=-1)
 
 
 def test_spread_views_takes_the_farthest_directions_first():

@@ -18,7 +18,10 @@ Texels around each chart repeat its border's colours (``padding`` of them) so th
 filtering does not bleed across a seam; the rest of the atlas is the texture's mean
 colour. Faces no view sees (the underside on the plate) take colours interpolated from
 their corners, each corner's colour the mean of its seen faces' or, for corners no view
-sees, harmonic interpolation along the edges (as the vertex colours do).
+sees, near the harmonic interpolation along the edges the vertex colours use, solved
+on patches of a few edges and smoothed (:class:`~sfs_ros.core.meshing.colour.SmoothedFill`:
+no view sees them, their colour need only be smooth and meet the seen ones without a
+seam).
 """
 
 from __future__ import annotations
@@ -34,7 +37,7 @@ from numba import njit
 
 from ..carving.carve import validate_masks
 from ..geometry.camera import Camera
-from ..meshing.colour import HarmonicFill, check_image
+from ..meshing.colour import SmoothedFill, check_image
 from ..render import as_mesh_arrays
 from ..workers import map_in_threads
 from .agreement import BLUR_LEVELS_PX, blurred_views, face_blur
@@ -243,13 +246,13 @@ def _compared(labels: np.ndarray, seen: np.ndarray | None, level: bool) -> np.nd
     return np.where(seen[np.arange(len(labels)), np.maximum(labels, 0)], labels, -1)
 
 
-def _vertex_fill(faces: np.ndarray, compared: np.ndarray, n_vertices: int) -> HarmonicFill | None:
-    """The harmonic fill of the vertices of no face with a view in ``compared`` (m,)
+def _vertex_fill(faces: np.ndarray, compared: np.ndarray, n_vertices: int) -> SmoothedFill | None:
+    """The smoothed fill of the vertices of no face with a view in ``compared`` (m,)
     (:func:`_compared`), None when there are none; it needs no colour, so it is factored
     beside the levelling."""
     seen = np.zeros(n_vertices, bool)
     seen[faces[compared >= 0]] = True
-    return None if seen.all() else HarmonicFill.of(seen, faces)
+    return None if seen.all() else SmoothedFill.of(seen, faces)
 
 
 def _levelled(images, cameras, vertices, faces, labels, seams, seen, level: bool,
