@@ -26,7 +26,30 @@ from numba import njit
 
 from .render import FRONT_FACING
 
-__all__ = ["edge_faces", "outline_cover"]
+__all__ = ["edge_faces", "edges_by_lower_vertex", "outline_cover"]
+
+
+@njit(cache=True, nogil=True)
+def edges_by_lower_vertex(faces, n):
+    """The half-edges of ``faces`` (m, 3) int64 (half-edge ``3 t + k`` runs from corner
+    ``k`` of face ``t`` to corner ``k + 1``) grouped by their lower vertex of ``n``, by a
+    counting sort: ``(start (n + 1,), grouped (3 m,))`` int64, the half-edges of vertex
+    ``i`` being ``grouped[start[i]:start[i + 1]]``, in the faces' order."""
+    m = faces.shape[0]
+    start = np.zeros(n + 1, np.int64)
+    for t in range(m):
+        for k in range(3):
+            start[min(faces[t, k], faces[t, (k + 1) % 3]) + 1] += 1
+    for i in range(n):
+        start[i + 1] += start[i]
+    grouped = np.empty(3 * m, np.int64)
+    fill = start[:-1].copy()
+    for t in range(m):
+        for k in range(3):
+            low = min(faces[t, k], faces[t, (k + 1) % 3])
+            grouped[fill[low]] = 3 * t + k
+            fill[low] += 1
+    return start, grouped
 
 
 @njit(cache=True, nogil=True)
@@ -37,19 +60,7 @@ def _pair_half_edges(faces, n):
     oriented, edge-manifold mesh without repeated corners). Half-edges are grouped by
     their lower vertex (a counting sort), then matched within each group."""
     m = faces.shape[0]
-    start = np.zeros(n + 1, np.int64)
-    for t in range(m):
-        for k in range(3):
-            start[min(faces[t, k], faces[t, (k + 1) % 3]) + 1] += 1
-    for i in range(n):
-        start[i + 1] += start[i]
-    grouped = np.empty(3 * m, np.int64)   # half-edge 3 t + k runs from corner k of face t
-    fill = start[:-1].copy()
-    for t in range(m):
-        for k in range(3):
-            low = min(faces[t, k], faces[t, (k + 1) % 3])
-            grouped[fill[low]] = 3 * t + k
-            fill[low] += 1
+    start, grouped = edges_by_lower_vertex(faces, n)
     edges = np.empty(((3 * m) // 2, 4), np.int64)
     if (3 * m) % 2:
         return edges, False

@@ -43,6 +43,7 @@ from scipy import ndimage
 
 from ..geometry.camera import Camera
 from ..meshing.colour import sight_maps, sight_weight, view_point
+from ..outline import edges_by_lower_vertex
 from ..render import rasterize_depth
 from ..workers import map_in_threads
 
@@ -275,22 +276,9 @@ def face_neighbours(faces: np.ndarray) -> np.ndarray:
 @njit(cache=True, nogil=True)
 def _face_neighbours(faces, n_vertices, neighbours):
     """:func:`face_neighbours` into ``neighbours`` (m, 3) (all -1): the edges of the faces
-    grouped by their lower vertex (a counting sort), the two of an edge found in its
-    group."""
-    m = faces.shape[0]
-    start = np.zeros(n_vertices + 1, np.int64)
-    for f in range(m):
-        for k in range(3):
-            start[min(faces[f, k], faces[f, (k + 1) % 3]) + 1] += 1
-    for i in range(n_vertices):
-        start[i + 1] += start[i]
-    filled = start[:-1].copy()
-    edge = np.empty(3 * m, np.int64)               # face * 3 + k, by lower vertex
-    for f in range(m):
-        for k in range(3):
-            low = min(faces[f, k], faces[f, (k + 1) % 3])
-            edge[filled[low]] = 3 * f + k
-            filled[low] += 1
+    grouped by their lower vertex (:func:`~sfs_ros.core.outline.edges_by_lower_vertex`),
+    the two of an edge found in its group."""
+    start, edge = edges_by_lower_vertex(faces, n_vertices)
     for low in range(n_vertices):
         for i in range(start[low], start[low + 1]):
             f, k = edge[i] // 3, edge[i] % 3
