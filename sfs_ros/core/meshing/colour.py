@@ -51,7 +51,8 @@ from ..render import as_mesh_arrays, depth_of_checked
 from ..settings import MAX_COLOUR_VIEWS
 from ..workers import map_in_threads
 
-__all__ = ["MAX_COLOUR_VIEWS", "HarmonicFill", "SmoothedFill", "VertexColours", "ViewSight",
+__all__ = ["ANGLE_POWER", "DEPTH_TOLERANCE_PX", "EDGE_RAMP_PX", "MAX_COLOUR_VIEWS", "MIN_COS",
+           "HarmonicFill", "SmoothedFill", "VertexColours", "ViewSight",
            "check_image", "fill_from_neighbours", "sight_maps", "sight_weight", "spread_views",
            "vertex_colours", "vertex_normals", "view_point", "view_sight"]
 
@@ -61,6 +62,10 @@ __all__ = ["MAX_COLOUR_VIEWS", "HarmonicFill", "SmoothedFill", "VertexColours", 
 DEPTH_STEP_FOOTPRINTS = 4.0
 #: Distance (pixels) to an edge pixel below which the edge ramp is zero.
 EDGE_MARGIN_PX = 1.5
+#: The sight test's defaults (:func:`view_sight`, :func:`vertex_colours`): the least
+#: cosine between a normal and the direction to the camera, the power of the angle's
+#: weight, the pixels of ramp off the edges and of depth tolerance.
+MIN_COS, ANGLE_POWER, EDGE_RAMP_PX, DEPTH_TOLERANCE_PX = 0.2, 2.0, 3.0, 1.0
 
 
 @dataclass(frozen=True)
@@ -410,8 +415,9 @@ class ViewSight:
 
 
 def view_sight(camera: Camera, points: np.ndarray, normals: np.ndarray, zbuf: np.ndarray | None,
-               mask: np.ndarray | None, *, angle_power: float = 2.0, min_cos: float = 0.2,
-               edge_ramp_px: float = 3.0, depth_tolerance_px: float = 1.0,
+               mask: np.ndarray | None, *, angle_power: float = ANGLE_POWER,
+               min_cos: float = MIN_COS, edge_ramp_px: float = EDGE_RAMP_PX,
+               depth_tolerance_px: float = DEPTH_TOLERANCE_PX,
                depth_zbuf: np.ndarray | None = None) -> ViewSight:
     """Which of ``points`` (k, 3) metres, with unit ``normals`` (k, 3), ``camera`` sees and
     how well: the test and weight :func:`vertex_colours` blends with, against the mesh's
@@ -845,8 +851,9 @@ class _Weighing:
 
 def vertex_colours(vertices, faces, images: Sequence, cameras: Sequence[Camera], *,
                    masks: Sequence | None = None, occlusion: bool = True,
-                   angle_power: float = 2.0, min_cos: float = 0.2, edge_ramp_px: float = 3.0,
-                   depth_tolerance_px: float = 1.0, coverage: bool = False,
+                   angle_power: float = ANGLE_POWER, min_cos: float = MIN_COS,
+                   edge_ramp_px: float = EDGE_RAMP_PX,
+                   depth_tolerance_px: float = DEPTH_TOLERANCE_PX, coverage: bool = False,
                    closed: bool = False, on_blended: Callable[[], None] | None = None
                    ) -> VertexColours:
     """Colour every vertex of a closed mesh from the views that see it.

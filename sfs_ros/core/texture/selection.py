@@ -42,7 +42,15 @@ from numba import njit
 from scipy import ndimage
 
 from ..geometry.camera import Camera
-from ..meshing.colour import sight_maps, sight_weight, view_point
+from ..meshing.colour import (
+    ANGLE_POWER,
+    DEPTH_TOLERANCE_PX,
+    EDGE_RAMP_PX,
+    MIN_COS,
+    sight_maps,
+    sight_weight,
+    view_point,
+)
 from ..outline import edges_by_lower_vertex
 from ..render import rasterize_depth
 from ..workers import map_in_threads
@@ -64,7 +72,7 @@ GLIMPSE_RAMP_PX = 0.5
 #: The sight test's options, as the vertex colours use them (the defaults of
 #: :func:`~sfs_ros.core.meshing.colour.view_sight`): least cosine, angle power, pixels of
 #: ramp off the edges and of depth tolerance.
-_SIGHT_OPTIONS = (0.2, 2.0, 3.0, 1.0)
+_SIGHT_OPTIONS = (MIN_COS, ANGLE_POWER, EDGE_RAMP_PX, DEPTH_TOLERANCE_PX)
 #: A face's area over the area of its corners pulled :data:`CORNER_PULL` towards its
 #: centroid.
 _AREA_OF_PULLED = (1 - CORNER_PULL) ** 2
