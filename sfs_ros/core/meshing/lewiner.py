@@ -369,14 +369,20 @@ def _crossing_of(p, i, j, k, shape, bi, ordinal):
         if at < 0 or at >= shape[a] - 1 or step < 0 or step > 1:
             return -1, axis, 0
         d = 2 * d + step
-    lo = _CORNER_AT[d]
-    up = _CORNER_AT[d + (4 >> axis)]
-    which = -1
-    if bi[lo] >= 0:
-        which = ordinal[bi[lo], axis]
+    return (_edge_crossing(bi, _CORNER_AT[d], _CORNER_AT[d + (4 >> axis)], axis, ordinal),
+            axis, np.int64(lower[axis]))
+
+
+@njit(cache=True, nogil=True)
+def _edge_crossing(bi, lo, up, axis, ordinal):
+    """The crossing (its row of the crossings, else -1) of the cube's grid edge from
+    corner ``lo`` to corner ``up`` along ``axis``, whose corners' band rows are ``bi``
+    (-1: off the band): numbered at its lower end, or at its upper end when the lower
+    is off the band (``marching.crossing_edges``)."""
+    which = ordinal[bi[lo], axis] if bi[lo] >= 0 else -1
     if which < 0 and bi[up] >= 0:
         which = ordinal[bi[up], axis + 3]
-    return which, axis, np.int64(lower[axis])
+    return which
 
 
 @njit(cache=True, nogil=True)
@@ -471,10 +477,8 @@ def _new_vertex(edge, i, j, k, v, bi, shape, ordinal, point, place):
     if (i + _CORNER[lo, 0] >= shape[0] - 1 or j + _CORNER[lo, 1] >= shape[1] - 1
             or k + _CORNER[lo, 2] >= shape[2] - 1):
         return
-    which = ordinal[bi[lo], axis] if bi[lo] >= 0 else -1
-    if which < 0 and bi[up] >= 0:
-        which = ordinal[bi[up], axis + 3]
-    place[0], place[1], place[2] = which, axis, (i, j, k)[axis] + _CORNER[lo, axis]
+    place[0], place[1], place[2] = (_edge_crossing(bi, lo, up, axis, ordinal), axis,
+                                    (i, j, k)[axis] + _CORNER[lo, axis])
 
 
 @njit(cache=True, nogil=True)
