@@ -206,6 +206,28 @@ class RosProbe:
                 raise AssertionError(f"timed out after {timeout:.0f} s waiting for {what}{log}")
             self.executor.spin_once(timeout_sec=0.05)
 
+    def call_resending(self, client, request, *, resend_after_s: float, attempts: int,
+                       process: NodeProcess | None = None, timeout: float = MESSAGE_TIMEOUT_S):
+        """The first answer to ``request`` on ``client``, the request sent again each
+        ``resend_after_s`` without an answer, ``attempts`` times in all (the last one
+        waited on for ``timeout``). A request can go unanswered through no fault of the
+        server: Fast DDS drops a response when the server has not matched a just-made
+        client's reply reader yet, and a request sent to a restarted server before it is
+        matched is lost. The caller makes sure the request may run twice, or reads a
+        second answer for what it is."""
+        futures = []
+        for attempt in range(attempts):
+            futures.append(client.call_async(request))
+            last = attempt == attempts - 1
+            due = time.monotonic() + (timeout if last else resend_after_s)
+            self.spin_until(lambda: any(f.done() for f in futures) or time.monotonic() > due,
+                            timeout=timeout + 1.0, what=f"answer of {client.srv_name}",
+                            process=process)
+            answered = next((f for f in futures if f.done()), None)
+            if answered is not None:
+                return answered.result()
+        raise AssertionError(f"no answer of {client.srv_name} in {attempts} attempts")
+
     def spin_for(self, seconds: float) -> None:
         """Spin the probe for ``seconds`` (to catch messages that should not come)."""
         deadline = time.monotonic() + seconds

@@ -127,18 +127,9 @@ class Cell(NodeUnderTest):
         """``call``, sent again while no answer comes: a request sent when a restarted
         server is in the graph but not yet matched with the client is lost (the dead
         server's endpoints stay in the graph until their lease ends)."""
-        futures = []
-        for _ in range(attempts):
-            futures.append(self.clients[name].call_async(Trigger.Request()))
-            deadline = time.monotonic() + attempt_s
-            self.probe.spin_until(lambda: any(f.done() for f in futures)
-                                  or time.monotonic() > deadline,
-                                  timeout=attempt_s + 1.0, what=f"{name} answer",
-                                  process=self.process)
-            for future in futures:
-                if future.done():
-                    return future.result()
-        raise AssertionError(f"no {name} answer in {attempts} attempts of {attempt_s:g} s")
+        return self.probe.call_resending(self.clients[name], Trigger.Request(),
+                                         resend_after_s=attempt_s, attempts=attempts,
+                                         process=self.process, timeout=attempt_s)
 
     def statuses(self):
         """The carving node's diagnostic statuses, oldest first."""

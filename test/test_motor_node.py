@@ -68,21 +68,10 @@ class Cell(NodeUnderTest):
                               what="home and stop services", process=self.process)
 
     def call(self, client) -> Trigger.Response:
-        """Call a Trigger service; sent again once if unanswered for 10 s: Fast DDS drops a
-        response when the client's reply reader is not matched yet at the server (it waits
-        100 ms), which can happen to a client just made ready on a loaded machine. Home and
-        stop may safely run twice."""
-        futures = [client.call_async(Trigger.Request())]
-        try:
-            self.probe.spin_until(futures[0].done, timeout=10.0, process=self.process,
-                                  what=f"answer of {client.srv_name}")
-        except AssertionError:
-            if not self.process.alive():
-                raise
-            futures.append(client.call_async(Trigger.Request()))
-            self.probe.spin_until(lambda: any(f.done() for f in futures), process=self.process,
-                                  what=f"answer of {client.srv_name}, sent again")
-        return next(f for f in futures if f.done()).result()
+        """Call a Trigger service, sent again once if unanswered for 10 s
+        (``RosProbe.call_resending``); home and stop may safely run twice."""
+        return self.probe.call_resending(client, Trigger.Request(), resend_after_s=10.0,
+                                         attempts=2, process=self.process)
 
     def command(self, theta: float, phi: float) -> None:
         self.command_pub.publish(joint_state(theta, phi, stamp=(0, 0)))

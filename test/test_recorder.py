@@ -39,7 +39,6 @@ from ros_harness import NAMESPACE, NodeProcess, NodeUnderTest, RosProbe
 RECORDER = "sfs_ros.nodes.recorder_node"
 PLAN = ring_plan([20.0, 55.0], 8, top_view=True)                 # 17 views
 RESEND_S = 5.0          # no answer to record/start this long: the request goes again
-MAX_RESENDS = 3
 BOUNDS = [-0.05, -0.05, 0.0, 0.05, 0.05, 0.09]
 MASKS = f"{NAMESPACE}/capture/mask"
 JOINTS = f"{NAMESPACE}/capture/mask_joint_state"
@@ -102,29 +101,16 @@ class Recorder:
         return future.result()
 
     def start(self) -> str:
-        """Start recording; the bag's path.
-
-        The first answer of a just-made client can be lost: Fast DDS drops a response
-        when the server has not matched the client's reply reader yet. So the request
-        goes again after ``RESEND_S`` without an answer; this fresh recorder then
-        answers that it records to the bag the first request opened.
-        """
-        client = self.clients["start"]
-        futures = [client.call_async(Trigger.Request())]
-        while True:
-            resend_at = time.monotonic() + RESEND_S
-            self.probe.spin_until(lambda: any(f.done() for f in futures)
-                                  or (len(futures) <= MAX_RESENDS and time.monotonic() > resend_at),
-                                  what="record/start answer", process=self.process)
-            answered = [f.result() for f in futures if f.done()]
-            if answered:
-                break
-            futures.append(client.call_async(Trigger.Request()))
-        answer = answered[0]
+        """Start recording; the bag's path. The request goes again after ``RESEND_S``
+        without an answer (``RosProbe.call_resending``): this fresh recorder then answers
+        that it records to the bag the first request opened."""
+        answer = self.probe.call_resending(self.clients["start"], Trigger.Request(),
+                                           resend_after_s=RESEND_S, attempts=3,
+                                           process=self.process)
         if answer.success:
             return json.loads(answer.message)["path"]
         recording_to = "already recording to "
-        assert len(futures) > 1 and answer.message.startswith(recording_to), answer.message
+        assert answer.message.startswith(recording_to), answer.message
         return answer.message.removeprefix(recording_to).split(";")[0]
 
     def close(self) -> None:
