@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 from numba import njit
 
-from .grabcut import _density, _gaussians, _graph, _max_flow, grabcut
+from .grabcut import _gaussians, _graph, _max_flow, _mixture, grabcut
 from .kmeans import OpenCVRandom
 
 __all__ = ["band_cut", "coarse_to_fine_grabcut", "frozen_data_term", "grabcut_beta"]
@@ -73,11 +73,7 @@ def _data_term(g, colours):
     out = np.empty(colours.shape[0])
     for v in range(colours.shape[0]):
         r, gr, b = colours[v, 0], colours[v, 1], colours[v, 2]
-        backdrop, thing = 0.0, 0.0
-        for k in range(g.shape[1]):
-            backdrop += g[0, k, 0] * _density(g[0, k], r, gr, b)
-        for k in range(g.shape[1]):
-            thing += g[1, k, 0] * _density(g[1, k], r, gr, b)
+        backdrop, thing = _mixture(g[0], r, gr, b), _mixture(g[1], r, gr, b)
         if backdrop > 0.0 and thing > 0.0:
             data = -math.log(backdrop) - -math.log(thing)
         elif thing > 0.0:
