@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from sfs_ros.core.segmentation.band_cut import band_cut, gmm_likelihood, grabcut_beta
+from sfs_ros.core.segmentation.band_cut import band_cut, frozen_data_term, grabcut_beta
 
 from painted import painted
 
@@ -66,16 +66,57 @@ def test_sure_pixels_stay_and_nothing_undecided_is_left_alone():
     assert np.array_equal(labels, before)
 
 
-def test_grabcut_beta_and_the_mixture_density_in_closed_form():
+def _mixture(weights, means, covariances) -> np.ndarray:
+    """A (1, 65) GrabCut model from 5 weights, 5 x 3 means and 5 x 3 x 3 covariances."""
+    return np.concatenate([np.ravel(weights), np.ravel(means), np.ravel(covariances)])[None]
+
+
+def _density(model: np.ndarray, colours: np.ndarray) -> np.ndarray:
+    """The mixture's density at (n, 3) colours, as written (without (2 pi)^-3/2)."""
+    model = model.ravel()
+    weights, means, covs = model[:5], model[5:20].reshape(5, 3), model[20:65].reshape(5, 3, 3)
+    out = np.zeros(len(colours))
+    for k in np.flatnonzero(weights > 0):
+        diff = colours - means[k]
+        mahalanobis = np.einsum("ni,ij,nj->n", diff, np.linalg.inv(covs[k]), diff)
+        out += weights[k] / np.sqrt(np.linalg.det(covs[k])) * np.exp(-0.5 * mahalanobis)
+    return out
+
+
+def test_grabcut_beta_and_the_data_term_in_closed_form():
     # Two pixels of colours 0 and 10 (each channel): GrabCut's count of neighbour pairs,
     # 4 w h - 3 w - 3 h + 2, is 1 for a 1 x 2 image, and its squared difference 300.
     image = np.array([[[0, 0, 0], [10, 10, 10]]], np.uint8)
     assert grabcut_beta(image) == pytest.approx(1.0 / (2.0 * 300.0))
     assert grabcut_beta(np.zeros((4, 4, 3), np.uint8)) == 0.0
-    # One component of weight 1, mean 10, identity covariance: exp(-|d|^2 / 2).
-    model = np.zeros(65)
-    model[0] = 1.0
-    model[5:8] = 10.0
-    model[20:29] = np.eye(3).ravel()
-    colours = np.array([[10.0, 10.0, 10.0], [11.0, 10.0, 12.0]])
-    assert gmm_likelihood(model[None], colours) == pytest.approx([1.0, np.exp(-2.5)])
+    # One component each, identity covariances, the backdrop's mean at 0 and the object's
+    # at 10: -log P(c | backdrop) + log P(c | object) = (|c|^2 - |c - 10|^2) / 2.
+    eye = np.tile(np.eye(3), (5, 1, 1))
+    one = np.array([1.0, 0, 0, 0, 0])
+    backdrop = _mixture(one, np.zeros((5, 3)), eye)
+    thing = _mixture(one, np.full((5, 3), 10.0), eye)
+    colours = np.array([[10, 10, 10], [11, 10, 12], [0, 0, 0], [5, 5, 5]], np.uint8)
+    c = colours.astype(np.float64)
+    expected = 0.5 * ((c ** 2).sum(axis=1) - ((c - 10) ** 2).sum(axis=1))
+    assert frozen_data_term((backdrop, thing), colours) == pytest.approx(expected, abs=1e-9)
+    # A colour a model gives no probability at all (its density underflows): past any
+    # finite weight, towards the other side; neither: no pull.
+    far = np.array([[255, 255, 255]], np.uint8)
+    narrow = _mixture(one, np.zeros((5, 3)), eye * 1e-2)
+    wide = _mixture(one, np.zeros((5, 3)), eye * 1e4)
+    assert frozen_data_term((narrow, wide), far)[0] == 1e300
+    assert frozen_data_term((wide, narrow), far)[0] == -1e300
+    assert frozen_data_term((narrow, narrow), far)[0] == 0.0
+
+
+def test_the_data_term_is_the_mixtures_densities():
+    # Five components each, learnt by GrabCut on a picture, at every colour of it.
+    image, truth = _picture(4)
+    models = np.zeros((1, 65)), np.zeros((1, 65))
+    cv2.setRNGSeed(0)
+    cv2.grabCut(image, _band_labels(truth, 8), None, *models, 2, cv2.GC_INIT_WITH_MASK)
+    colours = image.reshape(-1, 3)
+    expected = -np.log(_density(models[0], colours.astype(np.float64))) \
+        + np.log(_density(models[1], colours.astype(np.float64)))
+    assert np.count_nonzero(models[0][0, :5] > 0) == 5
+    np.testing.assert_allclose(frozen_data_term(models, colours), expected, rtol=1e-9, atol=1e-9)

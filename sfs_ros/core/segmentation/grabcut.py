@@ -321,6 +321,16 @@ def _density(g, r, gr, b):
     return g[13] * math.exp(-0.5 * _mahalanobis(g, r, gr, b))
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _mixture(g, r, gr, b):
+    """A colour model ((5, 15) from :func:`_gaussians`) at colour (r, gr, b): its
+    components' densities times their weights, summed in OpenCV's order."""
+    total = 0.0
+    for k in range(_COMPONENTS):
+        total += g[k, 0] * _density(g[k], r, gr, b)
+    return total
+
+
 @njit(cache=True, nogil=True)
 def _relearn(labels, colours, colour_of, probable, fold, models):
     """The first half of a GrabCut iteration: each pixel's component under the model of
@@ -354,12 +364,7 @@ def _relearn(labels, colours, colour_of, probable, fold, models):
         j = colour_of[probable[v]]
         if not computed[j]:
             r, gr, b = colours[j, 0], colours[j, 1], colours[j, 2]
-            backdrop, thing = 0.0, 0.0
-            for k in range(_COMPONENTS):
-                backdrop += g[0, k, 0] * _density(g[0, k], r, gr, b)
-            for k in range(_COMPONENTS):
-                thing += g[1, k, 0] * _density(g[1, k], r, gr, b)
-            data[j] = -math.log(backdrop) - -math.log(thing)
+            data[j] = -math.log(_mixture(g[0], r, gr, b)) - -math.log(_mixture(g[1], r, gr, b))
             computed[j] = True
         excess[v] = data[j] + fold[v]
     return excess
