@@ -59,9 +59,9 @@ class KeptBand:
 
     Memory: per voxel of the band of the hull followed, its index and place (16 bytes),
     centre (24 bytes) and ``rank`` values (8 bytes each); per edge its level crosses (about
-    as many), its key, end values and zero (32 bytes) and trace (:data:`.marching.
-    CROSSING_ITERATIONS` points and values, 32 bytes each, and a count); per view, its
-    packed mask.
+    as many), its key, end values and zero (32 bytes) and trace
+    (:data:`~.marching.CROSSING_ITERATIONS` points and values, 32 bytes each, and a
+    count); per view, its packed mask.
     """
 
     def __init__(self, grid: VoxelGrid, *, max_misses: int, known: DistanceImages,
@@ -180,8 +180,8 @@ class KeptBand:
 class _KeptZeros:
     """The zeros of the hull's distance along band edges (:class:`.marching.BandEdges`) kept
     with their traces, by edge: ``keys`` (ascending: the lower end's padded linear index
-    times 3 plus the axis), the ends' values, the zeros (``fractions``, as :meth:`.marching.BandEdges.zeros`
-    gives them) and :class:`ZeroTrace` rows, and
+    times 3 plus the axis), the ends' values, the zeros (``fractions``, as
+    :meth:`.marching.BandEdges.zeros` gives them), the :class:`ZeroTrace` rows, and
     ``valid``: no view added since raised the distance at the trace's points."""
 
     def __init__(self, keys, f_lower, f_upper, fractions, trace: ZeroTrace, valid):
