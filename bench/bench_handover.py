@@ -7,8 +7,8 @@ and the images); then, for each mesher, with and without colour: the carving
 (:meth:`LiveReconstruction.carve`, the baseline, measured in the same run), and the
 hand-over: the carved scan made into its message, serialised, deserialised and made back
 (:mod:`sfs_ros.ros.carved_scan_msg`), as it crosses between the nodes (without the transport
-itself); with colour also as it crosses when the meshing node holds the images (sent as the
-views were stored). Ratio = carving / hand-over (above 1: the hand-over costs less than the
+itself); with colour also as it crosses when the meshing node holds the images and masks
+(sent as the views were stored). Ratio = carving / hand-over (above 1: the hand-over costs less than the
 carving). The serialised size goes in the notes.
 
 Run: ``python -m bench.bench_handover`` (``--quick`` for the small camera).
@@ -34,12 +34,14 @@ from .bench_colour import PLAN, RIGS
 from .timing import best_of, main
 
 
-def _round_trip(carved, held: dict) -> int:
+def _round_trip(carved, held: dict, masks: dict) -> int:
     """The carved scan through its serialised message and back, without the images in
-    ``held`` ({view name: image}, those the meshing node holds); the message's bytes."""
+    ``held`` ({view name: image}) and the masks in ``masks`` ({view name: mask}), those the
+    meshing node holds; the message's bytes."""
     wire = serialize_message(carved_scan_to_msg(carved, HandOver("scan", "/scan", 49, "t"),
-                                                stamp=Time(), held=frozenset(held)))
-    carved_scan_from_msg(deserialize_message(wire, CarvedScanMsg), held)
+                                                stamp=Time(), held=frozenset(held),
+                                                masks_held=masks))
+    carved_scan_from_msg(deserialize_message(wire, CarvedScanMsg), held, masks_held=masks)
     return len(wire)
 
 
@@ -63,11 +65,13 @@ def run(quick: bool = False) -> list[dict]:
                 carved = live.carve(mesher=mesher, colour=colour)
                 held = ({carved.views[i].name: image for i, image
                          in zip(carved.colour_views, carved.colour_images)} if holding else {})
+                masks = ({view.name: mask for view, mask in zip(carved.views, carved.masks)}
+                         if holding else {})
                 repeats = 2 if quick else 3
                 baseline = best_of(lambda: live.carve(mesher=mesher, colour=colour), repeats)
-                seconds = best_of(lambda: _round_trip(carved, held), repeats)
-                size = _round_trip(carved, held)
-                what = ("colour, images held by the meshing node" if holding
+                seconds = best_of(lambda: _round_trip(carved, held, masks), repeats)
+                size = _round_trip(carved, held, masks)
+                what = ("colour, images and masks held by the meshing node" if holding
                         else "colour" if colour else "no colour")
                 rows.append({
                     "name": f"hand-over {mesher}, {what}, "

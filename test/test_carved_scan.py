@@ -13,14 +13,22 @@ import numpy as np
 import pytest
 from builtin_interfaces.msg import Time
 from rclpy.serialization import deserialize_message, serialize_message
+from std_msgs.msg import Header
 
 from sfs_ros.cell_logic.mesh_files import THUMBNAIL_PX, thumbnail
 from sfs_ros.core.exchange.views import read_image
 from sfs_ros.core.mesh_scan import mesh_scan
 from sfs_ros.core.meshing.meshers import MESHERS, mesher
 from sfs_ros.core.pipeline import ReconstructionParams, carve_scan, reconstruct
-from sfs_ros.ros.carved_scan_msg import HandOver, carved_scan_from_msg, carved_scan_to_msg
+from sfs_ros.ros.carved_scan_msg import (
+    HandOver,
+    carved_scan_from_msg,
+    carved_scan_to_msg,
+    view_mask_from_msg,
+    view_mask_msg,
+)
 from sfs_ros_interfaces.msg import CarvedScan as CarvedScanMsg
+from sfs_ros_interfaces.msg import ViewImage
 
 HAND_OVER = HandOver(scan_name="scan_007", session_dir="/data/scan_007", views_received=24,
                      frame_id="sfs_turntable")
@@ -79,16 +87,19 @@ def test_the_message_carries_the_carving_exactly(halves):
 
 
 def test_the_message_is_sized_for_the_wire(halves):
-    """A bit a voxel of the occupied box, a bit a pixel of each mask, the colour images
-    raw, the mesher's input as it is (but the band's voxels, which the meshing finds again):
-    within 10 % of that sum (headers, names, report)."""
+    """A bit a voxel of the occupied box, a bit a pixel of each mask (and of each colour
+    view's silhouette as carved where the fusion repaired it), the colour images raw, the
+    mesher's input as it is (but the band's voxels, which the meshing finds again): within
+    10 % of that sum (headers, names, report)."""
     _, carved, _, _, size = halves
     lo = np.argwhere(carved.occupancy).min(axis=0)
     hi = np.argwhere(carved.occupancy).max(axis=0) + 1
     pixels = carved.masks[0].size
     mesher_input = carved.mesher_input
-    payload = (np.prod(hi - lo) / 8 + len(carved.masks) * pixels / 8
-               + len(carved.colour_views) * pixels * (3 + 1 / 8)
+    repaired = sum(not np.array_equal(mask, carved.masks[i])
+                   for i, mask in zip(carved.colour_views, carved.colour_masks))
+    payload = (np.prod(hi - lo) / 8 + (len(carved.masks) + repaired) * pixels / 8
+               + len(carved.colour_views) * pixels * 3
                + sum(np.asarray(a).nbytes for name, a in vars(mesher_input).items()
                      if isinstance(a, np.ndarray) and name != "voxels"))
     assert payload <= size <= 1.1 * payload + 64_000
@@ -152,6 +163,59 @@ def test_images_the_receiver_holds_are_left_out_and_the_mesh_is_the_same(halves)
     missing = sorted(held_names)[0]
     with pytest.raises(ValueError, match=re.escape(f"view {missing!r}'s image was left out")):
         carved_scan_from_msg(msg, {n: held[n] for n in held_names if n != missing})
+
+
+def test_silhouettes_the_receiver_holds_are_left_out_and_the_mesh_is_the_same(halves):
+    """The meshing node holds each view's silhouette as the carving node sent it when the
+    view was stored: the carved scan leaves out those that are the carving's, and a
+    colour view's silhouette as carved where it is the view's (the fusion repaired
+    nothing); meshing it gives the mesh the offline path makes."""
+    offline, carved, _, _, full_size = halves
+    masks = {view.name: mask for view, mask in zip(carved.views, carved.masks)}
+    other = carved.views[1].name                     # one the receiver holds another of
+    held = {**masks, other: ~masks[other]}
+    kept_back = carved.views[0].name                 # and one it missed
+    del held[kept_back]
+    wire = serialize_message(carved_scan_to_msg(carved, HAND_OVER, stamp=_stamp(),
+                                                masks_held=held))
+    msg = deserialize_message(wire, CarvedScanMsg)
+    sent = {v.name: len(v.mask_bits) for v in msg.views}
+    packed = (masks[kept_back].size + 7) // 8
+    assert sent[kept_back] == packed and sent[other] == packed
+    assert all(sent[name] == 0 for name in held if name != other)
+    assert all(len(msg.views[i].colour_mask_bits) == 0 for i in carved.colour_views
+               if np.array_equal(carved.colour_masks[carved.colour_views.index(i)],
+                                 carved.masks[i]))
+    assert full_size - len(wire) == (len(held) - 1) * packed
+    received, _ = carved_scan_from_msg(msg, masks_held={n: masks[n] for n in held})
+    for got, mask in zip(received.masks, carved.masks):
+        assert np.array_equal(got, mask)
+    for got, mask in zip(received.colour_masks, carved.colour_masks):
+        assert np.array_equal(got, mask)
+    result = mesh_scan(received)
+    assert result.vertices.tobytes() == offline.vertices.tobytes()
+    assert result.vertex_colors.tobytes() == offline.vertex_colors.tobytes()
+    assert _without_times(result.report) == _without_times(offline.report)
+    missing = sorted(set(held) - {other})[0]
+    with pytest.raises(ValueError, match=re.escape(f"view {missing!r}'s mask_bits was left "
+                                                   "out as held")):
+        carved_scan_from_msg(msg, masks_held={n: masks[n] for n in held if n != missing})
+
+
+def test_a_view_mask_message_carries_the_silhouette_and_refuses_anything_else(halves):
+    _, carved, _, _, _ = halves
+    mask = carved.masks[0]
+    msg = view_mask_msg("/data/scan_007", "v000.png", mask, header=Header())
+    session, name, got = view_mask_from_msg(deserialize_message(serialize_message(msg),
+                                                                ViewImage))
+    assert (session, name) == ("/data/scan_007", "v000.png")
+    assert got.dtype == bool and np.array_equal(got, mask)
+    msg.image.data[0] = 7
+    with pytest.raises(ValueError, match="expected only 0 and 255"):
+        view_mask_from_msg(msg)
+    msg.image.encoding = "rgb8"
+    with pytest.raises(ValueError, match="expected a named, packed mono8 image"):
+        view_mask_from_msg(msg)
 
 
 def test_a_message_that_does_not_add_up_is_refused_by_name(halves):

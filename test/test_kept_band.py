@@ -16,7 +16,15 @@ from sfs_ros.core.geometry.grid import VoxelGrid
 from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
 from sfs_ros.core.meshing.hull_distance import DistanceImages, HullDistance
 from sfs_ros.core.meshing.kept_band import KeptBand
-from sfs_ros.core.meshing.marching import band_voxel_indices, hull_band_distance, padded_crop
+from sfs_ros.core.meshing.marching import (
+    CROSSING_ITERATIONS,
+    BandEdges,
+    band_values,
+    band_voxel_indices,
+    hull_band_distance,
+    hull_band_floor_m,
+    padded_crop,
+)
 
 from analytic_masks import sphere_mask
 
@@ -67,10 +75,45 @@ def test_the_band_kept_as_the_views_arrive_is_the_band_evaluated_after_them(
     kept = hull_band_distance(occupancy, grid, HullDistance(
         cameras, masks, max_misses=max_misses, bounds_m=box, known=known, kept=band))
     np.testing.assert_array_equal(kept.values, evaluated.values)
-    # Not vacuous: most of the final band was kept, not evaluated after the last view.
+    # The marching cubes' vertices too: the zeros along the edges, kept or found again.
+    np.testing.assert_array_equal(kept.crossings, evaluated.crossings)
+    # Not vacuous: most of the final band was kept, not evaluated after the last view,
+    # and with the band followed at every view most of its edges' zeros were kept too.
     crop, corner = padded_crop(occupancy, 1)
-    _, missing = band._kept_at(band._linear(band_voxel_indices(crop, 1) + corner))
+    voxels = band_voxel_indices(crop, 1)
+    _, missing = band._kept_at(band._linear(voxels + corner))
     assert missing.mean() < 0.5, missing.mean()
+    edges = BandEdges.of(crop, corner, voxels, evaluated.values, grid, 1)
+    _, rows = band._edges._found(band._linear, edges)
+    assert len(edges) > 100
+    if follow_every == 1:
+        assert (rows >= 0).mean() > 0.5, (rows >= 0).mean()
+
+
+def test_a_zero_is_kept_only_while_no_view_raises_the_distance_where_it_was_stepped(views):
+    cameras, masks = views
+    grid = VoxelGrid.cube(BOX[0], BOX[1], 40)
+    box = (grid.bounds_min, grid.bounds_max)
+    floor = hull_band_floor_m(grid, 1)
+    first = HullDistance(cameras[:12], masks[:12], bounds_m=box)
+    occupancy = carve(grid, cameras[:12], masks[:12])
+    crop, corner = padded_crop(occupancy, 1)
+    voxels = band_voxel_indices(crop, 1)
+    values = band_values(first(grid.index_to_world(voxels + corner), floor_m=floor), grid, 1)
+    edges = BandEdges.of(crop, corner, voxels, values, grid, 1)
+    zeros, trace = edges.zeros(first, traced=True)
+    np.testing.assert_array_equal(zeros, edges.zeros(first))     # traced or not, the same
+    assert trace.counts.min() >= 1 and trace.counts.max() <= CROSSING_ITERATIONS
+    every = HullDistance(cameras, masks, bounds_m=box)
+    raised = np.zeros(len(edges), bool)
+    for camera, mask in zip(cameras[12:], masks[12:]):
+        raised |= HullDistance([camera], [mask]).raises(trace)
+    # Where no later view raised the distance at the steps, all views find the same zero;
+    # the later views cut the hull of the first twelve, so some zeros move.
+    again = edges.zeros(every)
+    np.testing.assert_array_equal(again[~raised], zeros[~raised])
+    assert 0 < raised.sum() < len(edges)
+    assert np.any(again[raised] != zeros[raised])
 
 
 def test_a_band_holds_only_the_views_it_was_given(views):

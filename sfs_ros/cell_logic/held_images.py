@@ -1,8 +1,8 @@
-"""The colour images a meshing process holds of the scan being received.
+"""The colour images and silhouettes a meshing process holds of the scan being received.
 
-The carving node sends each view's colour image as it stores the view; the meshing node
-keeps those of the newest scan here, so that the carved scan it asks for at the end can
-leave them out (the hand-over then carries the masks and the hull, not the images).
+The carving node sends each view's colour image and silhouette as it stores the view; the
+meshing node keeps those of the newest scan here, so that the carved scan it asks for at
+the end can leave them out (the hand-over then carries the hull and the mesher's input).
 Whatever is not held (a meshing node started mid-scan, an image dropped on the way, one
 given up to the byte limit) comes in the carved scan itself: holding is an optimisation,
 never a condition.
@@ -15,6 +15,7 @@ import time
 
 import numpy as np
 
+from ..core.carving.carve import unpack_bits
 from .mesh_files import thumbnail
 
 __all__ = ["HeldImages"]
@@ -27,7 +28,9 @@ class HeldImages:
 
     Thread-safe: images are added from a subscription while a reconstruction reads them.
     An image of another scan (``session_dir``) replaces those held; past ``max_bytes``
-    the oldest images are given up (their thumbnails kept: a few kB each).
+    the oldest images are given up (their thumbnails kept: a few kB each). The views'
+    silhouettes are held beside them, packed (:meth:`add_mask`: 38 kB a view of 640 x
+    480), as long as the scan's.
     """
 
     def __init__(self, max_bytes: int):
@@ -37,13 +40,19 @@ class HeldImages:
         self._session = ""
         self._images: dict[str, np.ndarray] = {}
         self._thumbnails: dict[str, np.ndarray] = {}
+        self._masks: dict[str, tuple[np.ndarray, tuple]] = {}   # packed, shape
+
+    def _take_up(self, session_dir: str) -> None:
+        """Hold the scan ``session_dir`` from now on (another scan's are given up)."""
+        if session_dir != self._session:
+            self._session, self._images, self._thumbnails, self._masks = \
+                session_dir, {}, {}, {}
 
     def add(self, session_dir: str, name: str, rgb: np.ndarray) -> None:
         """Hold view ``name``'s image of the scan ``session_dir``."""
         small = thumbnail(rgb)
         with self._lock:
-            if session_dir != self._session:
-                self._session, self._images, self._thumbnails = session_dir, {}, {}
+            self._take_up(session_dir)
             self._images.pop(name, None)
             self._images[name] = rgb
             self._thumbnails[name] = small
@@ -52,16 +61,32 @@ class HeldImages:
                 total -= self._images.pop(next(iter(self._images))).nbytes
             self._came.notify_all()
 
+    def add_mask(self, session_dir: str, name: str, mask: np.ndarray) -> None:
+        """Hold view ``name``'s silhouette ((H, W) bool) of the scan ``session_dir``."""
+        packed = np.packbits(mask, axis=None)
+        with self._lock:
+            self._take_up(session_dir)
+            self._masks[name] = (packed, mask.shape)
+
+    def masks(self, session_dir: str, names) -> dict[str, np.ndarray]:
+        """{view name: (H, W) bool} of the silhouettes held of the views ``names`` of the
+        scan ``session_dir`` (empty for another scan)."""
+        with self._lock:
+            held = dict(self._masks) if session_dir == self._session else {}
+        return {name: unpack_bits(*held[name]) for name in names if name in held}
+
     def thumbnails(self, session_dir: str) -> dict[str, np.ndarray]:
         """{view name: (h, w, 3) uint8} of the images of the scan ``session_dir`` that came
         (empty for another scan); the dict is the caller's own."""
         with self._lock:
             return dict(self._thumbnails) if session_dir == self._session else {}
 
-    def snapshot(self) -> tuple[str, dict[str, np.ndarray]]:
-        """``(scan folder, {view name: image})`` held now; the dict is the caller's own."""
+    def snapshot(self) -> tuple[str, dict[str, np.ndarray], list[str]]:
+        """``(scan folder, {view name: image}, names)`` held now, ``names`` those of the
+        views whose silhouette is held too; the dict and list are the caller's own."""
         with self._lock:
-            return self._session, dict(self._images)
+            return self._session, dict(self._images), \
+                [name for name in self._images if name in self._masks]
 
     def wait_for(self, session_dir: str, names, timeout_s: float) -> dict[str, np.ndarray]:
         """{view name: image} of the views ``names`` of the scan ``session_dir`` held, once

@@ -525,6 +525,26 @@ class LiveReconstruction:
                 return view.name, undistort_image(rgb, view.camera)
         return None
 
+    def view_mask(self, key) -> tuple[str, np.ndarray] | None:
+        """``(view name, (H, W) bool)`` of view ``key``: its silhouette undistorted onto its
+        ideal camera, as :meth:`carve` hands it over (the received masks are not segmented
+        again); None for a view not received or with an empty mask (it carves nothing)."""
+        received = self._views.get(_check_key(key))
+        if received is None or not received.packed_mask.any():
+            return None
+        return received.name, self._ideal(received)
+
+    def view_masks(self, names) -> dict[str, np.ndarray]:
+        """{view name: (H, W) bool} of :meth:`view_mask` for the views named ``names`` (the
+        names not received or with an empty mask left out)."""
+        wanted = set(names)
+        return {v.name: self._ideal(v) for v in self._views.values()
+                if v.name in wanted and v.packed_mask.any()}
+
+    def _ideal(self, received: _Received) -> np.ndarray:
+        return self._unpacked(received.packed_mask if received.packed_ideal is None
+                              else received.packed_ideal)
+
     def hull_points(self, max_points: int = 100_000) -> np.ndarray:
         """(n, 3) float64 surface voxel centres of the live hull, metres (see
         :func:`surface_points`); empty (0, 3) until a non-empty mask has carved."""

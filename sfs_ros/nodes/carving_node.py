@@ -306,8 +306,8 @@ class CarvingNode(Node):
     def _carve(self, options: MeshOptions, images_session: str,
                held: frozenset) -> tuple[bool, str, CarvedScanMsg | None]:
         """The carved scan of the views received, with ``options``: ``(success, summary or
-        the reason, the message or None)``; without the images of the views in ``held`` if
-        the caller holds them of this scan (``images_session``)."""
+        the reason, the message or None)``; without the images and silhouettes of the views
+        in ``held`` if the caller holds them of this scan (``images_session``)."""
         if self._scan.live is None:
             return False, self._scan.refusal, None
         success, text, msg = carved_scan_message(

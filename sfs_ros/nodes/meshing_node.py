@@ -31,11 +31,18 @@ from sfs_ros.ros.carved_scan_msg import (
     carve_scan_request,
     carved_scan_from_msg,
     view_image_from_msg,
+    view_mask_from_msg,
 )
 from sfs_ros.ros.frames import FRAME_PARAMS, frame_names
 from sfs_ros.ros.meshing_outputs import MeshingOutputs
 from sfs_ros.ros.meshing_params import PARAMS
-from sfs_ros.ros.names import TYPED_SERVICES, VIEW_IMAGE_DEPTH, VIEW_IMAGES, private
+from sfs_ros.ros.names import (
+    TYPED_SERVICES,
+    VIEW_IMAGE_DEPTH,
+    VIEW_IMAGES,
+    VIEW_MASKS,
+    private,
+)
 from sfs_ros.ros.params import declare, output_folder
 from sfs_ros.ros.rehearsal import Rehearsal
 from sfs_ros.ros.services import ServiceError, call
@@ -80,9 +87,11 @@ class MeshingNode(Node):
         self._held = HeldImages(values["held_images_mb"] << 20)
         self._repeats = RepeatedRequests()
         if self._held.max_bytes:
+            held_group = MutuallyExclusiveCallbackGroup()
             self.create_subscription(ViewImage, VIEW_IMAGES, self._on_view_image,
-                                     capture_qos(VIEW_IMAGE_DEPTH),
-                                     callback_group=MutuallyExclusiveCallbackGroup())
+                                     capture_qos(VIEW_IMAGE_DEPTH), callback_group=held_group)
+            self.create_subscription(ViewImage, VIEW_MASKS, self._on_view_mask,
+                                     capture_qos(VIEW_IMAGE_DEPTH), callback_group=held_group)
         self._out = MeshingOutputs(self, self._frame_id)
         self.create_service(Trigger, private("reconstruct"), self._on_reconstruct,
                             callback_group=services)
@@ -124,6 +133,13 @@ class MeshingNode(Node):
         except ValueError as exc:   # the carved scan will carry that image instead
             self.get_logger().warning(f"{exc}: not held")
 
+    def _on_view_mask(self, msg) -> None:
+        """A view's silhouette as the carving node stored it: held with its image."""
+        try:
+            self._held.add_mask(*view_mask_from_msg(msg))
+        except ValueError as exc:   # the carved scan will carry that silhouette instead
+            self.get_logger().warning(f"{exc}: not held")
+
     # -- requests (services group) -------------------------------------------------------------
 
     def _on_reconstruct(self, _request, response):
@@ -154,8 +170,8 @@ class MeshingNode(Node):
         # The previous answer is out (this group ran one callback at a time): should its
         # timer not have run yet, the jobs held for it must not hold this one up.
         self._release_after_answer()
-        held_session, held = self._held.snapshot()
-        carved = self._carved_scan(options, held_session, list(held))
+        held_session, held, with_masks = self._held.snapshot()
+        carved = self._carved_scan(options, held_session, with_masks)
         if isinstance(carved, str):
             return self._failed(carved)
         # A request sent again (its first copy or answer lost): the answer made, not the
@@ -167,7 +183,7 @@ class MeshingNode(Node):
             return repeated
         try:
             answer = self._worker.submit(lambda: self._mesh(carved, options, held_session,
-                                                            held),
+                                                            held, with_masks),
                                          name="mesh").result()
         except Exception as exc:  # noqa: BLE001 -- the worker reported it; the caller gets it
             answer = False, internal_error("mesh", exc), None
@@ -179,7 +195,8 @@ class MeshingNode(Node):
 
     def _carved_scan(self, options: MeshOptions, held_session: str, held: list):
         """The carving node's carved scan for ``options`` (a message), or why there is none;
-        without the images ``held`` of the scan ``held_session``."""
+        without the images and silhouettes of the views ``held`` of the scan
+        ``held_session``."""
         # The texture needs the images the carving node sends to colour the mesh.
         colour = options.coloured(self._values["colour"]) or \
             options.textured(self._values["texture"])
@@ -203,15 +220,16 @@ class MeshingNode(Node):
 
     # -- worker thread ---------------------------------------------------------------------------
 
-    def _mesh(self, msg, options: MeshOptions, held_session: str,
-              held: dict) -> tuple[bool, str, dict | None]:
+    def _mesh(self, msg, options: MeshOptions, held_session: str, held: dict,
+              with_masks: list) -> tuple[bool, str, dict | None]:
         """Mesh a carved scan message (``held``: the images of the scan ``held_session``,
-        those it leaves out among them) and write the files; the messages, the pictures
-        and the products (the textured model, the refined mesh) are queued to follow the
-        answer."""
+        those it leaves out among them; ``with_masks``: the views whose silhouettes it may
+        leave out) and write the files; the messages, the pictures and the products (the
+        textured model, the refined mesh) are queued to follow the answer."""
         try:
-            carved, hand_over = carved_scan_from_msg(msg, held,
-                                                     self._held.thumbnails(held_session))
+            carved, hand_over = carved_scan_from_msg(
+                msg, held, self._held.thumbnails(held_session),
+                self._held.masks(held_session, with_masks))
             # Images asked for the texture alone do not colour the mesh.
             meshed = carved if options.coloured(self._values["colour"]) \
                 else without_colour(carved)

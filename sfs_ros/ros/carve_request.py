@@ -26,17 +26,18 @@ def carved_scan_message(scan: CarvingScan, options: MeshOptions, *, frame_id: st
     """The carved scan of the views ``scan`` received, with ``options``: ``(success, summary
     or the reason, the message or None)``. The message is in the turntable frame
     ``frame_id``, stamped by ``clock`` (an rclpy clock) once carved, and leaves out the
-    images of the views in ``held`` if the caller holds them of this scan
-    (``images_session``, its session folder). ``scan`` must have a live reconstruction."""
+    images and silhouettes of the views in ``held`` if the caller holds them of this scan
+    (``images_session``, its session folder; a silhouette only where the one sent is the
+    carving's). ``scan`` must have a live reconstruction."""
     live = scan.live
     start = time.perf_counter()
     try:
         carved = live.carve(resolution=options.resolution, bounds_m=options.bounds_m,
                             mesher=options.mesher, colour=options.colour)
         hand_over = replace(live.hand_over(), frame_id=frame_id)
-        msg = carved_scan_to_msg(
-            carved, hand_over, stamp=clock.now().to_msg(),
-            held=held if images_session == hand_over.session_dir else frozenset())
+        held = held if images_session == hand_over.session_dir else frozenset()
+        msg = carved_scan_to_msg(carved, hand_over, stamp=clock.now().to_msg(), held=held,
+                                 masks_held=live.view_masks(held))
     except ValueError as exc:
         return False, scan.carving_failed(exc), None
     return True, scan.carved(carved, time.perf_counter() - start), msg

@@ -2,11 +2,14 @@
 message and back, bit for bit (the meshing node makes the mesh the offline path makes).
 
 The hull travels as its occupied box, packed a bit a voxel; each silhouette packed a bit a
-pixel; the mesher's input as it is (float32 band distances, float64 points); the images
-that colour the mesh as rgb8 (sizes: ``bench/bench_handover.py``), but for those the
-receiver holds already (``held``: the carving node sends each view's image as it is
-stored, :func:`view_image_msg`); the hand-over's thumbnails, for the contact sheet only,
-as JPEG, but for the images the receiver holds (it makes those thumbnails itself).
+pixel, but for those the receiver holds already (``masks_held``: the carving node sends
+each view's silhouette as it is stored, :func:`view_mask_msg`), and a colour view's
+silhouette as carved only where the fusion repaired it (else it is the view's); the
+mesher's input as it is (float32 band distances, float64 points); the images that colour
+the mesh as rgb8 (sizes: ``bench/bench_handover.py``), but for those the receiver holds
+already (``held``: the carving node sends each view's image as it is stored,
+:func:`view_image_msg`); the hand-over's thumbnails, for the contact sheet only, as JPEG,
+but for the images the receiver holds (it makes those thumbnails itself).
 """
 
 from __future__ import annotations
@@ -31,7 +34,7 @@ from sfs_ros_interfaces.msg import CarvedView, ViewImage
 from sfs_ros_interfaces.srv import CarveScan
 
 __all__ = ["HandOver", "carve_scan_request", "carved_scan_from_msg", "carved_scan_to_msg",
-           "view_image_from_msg", "view_image_msg"]
+           "view_image_from_msg", "view_image_msg", "view_mask_from_msg", "view_mask_msg"]
 
 #: JPEG quality of the views' thumbnails (pictures only: the mesh never sees them).
 THUMBNAIL_QUALITY = 90
@@ -74,7 +77,7 @@ def _unjpeg(data, name: str) -> np.ndarray:
 
 
 def _view_msg(view: ScanView, mask: np.ndarray, colour: tuple | None,
-              thumb: np.ndarray | None, held: bool) -> CarvedView:
+              thumb: np.ndarray | None, held: bool, mask_held: bool) -> CarvedView:
     camera = view.camera
     theta, phi = view.angles_rad if view.angles_rad is not None else (math.nan, math.nan)
     msg = CarvedView(name=view.name, role=view.role, orthographic=bool(camera.orthographic),
@@ -82,12 +85,14 @@ def _view_msg(view: ScanView, mask: np.ndarray, colour: tuple | None,
     msg.k = np.asarray(camera.K, np.float64).ravel()
     msg.r = np.asarray(camera.R, np.float64).ravel()
     msg.t = np.asarray(camera.t, np.float64).ravel()
-    msg.mask_bits = _bits(mask)
+    if not mask_held:
+        msg.mask_bits = _bits(mask)
     if thumb is not None:
         msg.thumbnail_jpeg = _jpeg(thumb)
     if colour is not None:
         colour_mask, image = colour
-        msg.colour_mask_bits = _bits(colour_mask)
+        if not np.array_equal(colour_mask, mask):
+            msg.colour_mask_bits = _bits(colour_mask)
         if held:
             msg.image_held = True
         else:
@@ -111,10 +116,11 @@ def _mesher_fields(msg: CarvedScanMsg, mesher_input) -> None:
 
 
 def carved_scan_to_msg(carved: CarvedScan, hand_over: HandOver, *, stamp,
-                       held=frozenset()) -> CarvedScanMsg:
+                       held=frozenset(), masks_held: dict | None = None) -> CarvedScanMsg:
     """The message of ``carved`` (its ``taken`` masks stay behind), stamped ``stamp``;
     the images of the views named in ``held``, and their thumbnails, are left out (the
-    receiver holds them)."""
+    receiver holds them), and so are the silhouettes of ``masks_held`` ({view name: (H, W)
+    bool} the receiver holds) where they are the view's."""
     box = occupied_bounds(carved.occupancy)
     if box is None:
         raise ValueError("the carved hull is empty: nothing to hand over")
@@ -136,9 +142,11 @@ def carved_scan_to_msg(carved: CarvedScan, hand_over: HandOver, *, stamp,
     colours = {i: (m, image) for i, m, image in zip(carved.colour_views, carved.colour_masks,
                                                     carved.colour_images)}
     # The receiver makes the thumbnails of the images it holds.
+    masks_held = masks_held or {}
     msg.views = [_view_msg(view, mask, colours.get(i),
                            None if view.name in held else hand_over.thumbnails.get(view.name),
-                           view.name in held)
+                           view.name in held,
+                           np.array_equal(masks_held.get(view.name), mask))
                  for i, (view, mask) in enumerate(zip(carved.views, carved.masks))]
     msg.colour_views = _bytes(np.asarray(carved.colour_views, np.uint32), "I")
     return msg
@@ -175,22 +183,30 @@ def _mesher_input(msg: CarvedScanMsg):
                      stats=json.loads(msg.cloud_stats_json or "{}"))
 
 
-def _view(view: CarvedView, width: int, height: int) -> tuple[ScanView, np.ndarray]:
+def _view(view: CarvedView, width: int, height: int,
+          masks_held: dict) -> tuple[ScanView, np.ndarray]:
     if view.role not in ROLES:
         raise ValueError(f"view {view.name!r} has role {view.role!r}, expected one of {ROLES}")
     camera = Camera(K=np.array(view.k, np.float64).reshape(3, 3),
                     R=np.array(view.r, np.float64).reshape(3, 3),
                     t=np.array(view.t, np.float64), width=width, height=height,
                     orthographic=bool(view.orthographic))
-    mask = _unbits(view.mask_bits, (height, width), f"view {view.name!r}'s mask_bits")
+    if len(view.mask_bits):
+        mask = _unbits(view.mask_bits, (height, width), f"view {view.name!r}'s mask_bits")
+    else:
+        mask = masks_held.get(view.name)
+        if mask is None or mask.shape != (height, width):
+            raise ValueError(f"view {view.name!r}'s mask_bits was left out as held, but no "
+                             f"{width} x {height} silhouette of it is held")
     angles = None if math.isnan(view.theta_rad) else (view.theta_rad, view.phi_rad)
     return ScanView(view.name, camera, view.role, angles), mask
 
 
-def _colour(view: CarvedView, width: int, height: int,
+def _colour(view: CarvedView, view_mask: np.ndarray, width: int, height: int,
             held: dict) -> tuple[np.ndarray, np.ndarray]:
     mask = _unbits(view.colour_mask_bits, (height, width),
-                   f"view {view.name!r}'s colour_mask_bits")
+                   f"view {view.name!r}'s colour_mask_bits") \
+        if len(view.colour_mask_bits) else view_mask
     if view.image_held:
         image = held.get(view.name)
         if image is None or image.shape != (height, width, 3):
@@ -205,20 +221,24 @@ def _colour(view: CarvedView, width: int, height: int,
 
 
 def carved_scan_from_msg(msg: CarvedScanMsg, held: dict | None = None,
-                         held_thumbnails: dict | None = None) -> tuple[CarvedScan, HandOver]:
+                         held_thumbnails: dict | None = None,
+                         masks_held: dict | None = None) -> tuple[CarvedScan, HandOver]:
     """The carved scan of a message, and what it says of its scan; ValueError naming the
     field that does not add up. ``held``: {view name: (H, W, 3) uint8} of the images
     left out of the message (``image_held``); ``held_thumbnails``: {view name: (h, w, 3)
     uint8} of the views whose thumbnail the message leaves out (a view with neither
-    shows its image or its mask on the contact sheet)."""
+    shows its image or its mask on the contact sheet); ``masks_held``: {view name: (H, W)
+    bool} of the silhouettes it leaves out (an empty ``mask_bits``)."""
     width, height = int(msg.image_width), int(msg.image_height)
     grid, occupancy = _grid_and_occupancy(msg)
-    views, masks = zip(*[_view(v, width, height) for v in msg.views]) if msg.views else ((), ())
+    views, masks = zip(*[_view(v, width, height, masks_held or {}) for v in msg.views]) \
+        if msg.views else ((), ())
     colour_views = [int(i) for i in msg.colour_views]
     if any(i >= len(msg.views) for i in colour_views):
         raise ValueError(f"colour_views {colour_views} name views beyond the "
                          f"{len(msg.views)} given")
-    colours = [_colour(msg.views[i], width, height, held or {}) for i in colour_views]
+    colours = [_colour(msg.views[i], masks[i], width, height, held or {})
+               for i in colour_views]
     carved = CarvedScan(grid=grid, occupancy=occupancy, mesher=msg.mesher,
                         mesher_input=_mesher_input(msg), views=list(views), masks=list(masks),
                         colour_views=colour_views, colour_masks=[m for m, _ in colours],
@@ -242,6 +262,36 @@ def view_image_msg(session_dir: str, name: str, rgb: np.ndarray, *, header) -> V
     msg.image.encoding, msg.image.step = "rgb8", int(width) * 3
     msg.image.data = _bytes(np.asarray(rgb, np.uint8), "B")
     return msg
+
+
+def view_mask_msg(session_dir: str, name: str, mask: np.ndarray, *, header) -> ViewImage:
+    """A view's silhouette (``(H, W)`` bool on its ideal camera, as the carved scan carries
+    it: :meth:`LiveReconstruction.view_mask`) as a view image message: mono8, 255 on the
+    object, 0 elsewhere, with ``header`` (the capture's stamp)."""
+    msg = ViewImage(header=header, session_dir=session_dir, view_name=name)
+    height, width = mask.shape
+    msg.image.header = header
+    msg.image.height, msg.image.width = int(height), int(width)
+    msg.image.encoding, msg.image.step = "mono8", int(width)
+    msg.image.data = _bytes(np.asarray(mask, np.uint8) * np.uint8(255), "B")
+    return msg
+
+
+def view_mask_from_msg(msg: ViewImage) -> tuple[str, str, np.ndarray]:
+    """``(session folder, view name, (H, W) bool)`` of a view mask message
+    (:func:`view_mask_msg`); ValueError for anything but a packed mono8 image of 0 and 255."""
+    image = msg.image
+    height, width = int(image.height), int(image.width)
+    if image.encoding != "mono8" or image.step != width \
+            or len(image.data) != height * width or not msg.view_name:
+        raise ValueError(f"view mask {msg.view_name!r}: expected a named, packed mono8 image, "
+                         f"got {image.encoding!r} {width} x {height}, step {image.step}, "
+                         f"{len(image.data)} bytes")
+    values = np.frombuffer(image.data, np.uint8).reshape(height, width)
+    mask = values == 255
+    if np.count_nonzero(mask) + np.count_nonzero(values == 0) != values.size:
+        raise ValueError(f"view mask {msg.view_name!r}: expected only 0 and 255")
+    return msg.session_dir, msg.view_name, mask
 
 
 def view_image_from_msg(msg: ViewImage) -> tuple[str, str, np.ndarray]:

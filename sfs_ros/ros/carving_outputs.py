@@ -16,13 +16,14 @@ from std_msgs.msg import Header
 
 from sfs_ros.cell_logic.carving_scan import CarvingScan
 from sfs_ros.ros import capture_qos, result_qos
-from sfs_ros.ros.carved_scan_msg import view_image_msg
+from sfs_ros.ros.carved_scan_msg import view_image_msg, view_mask_msg
 from sfs_ros.ros.convert import camera_poses, diagnostic_array, header, health, points_to_cloud
 from sfs_ros.ros.names import (
     DIAGNOSTICS,
     RECONSTRUCTION_STATUS,
     VIEW_IMAGE_DEPTH,
     VIEW_IMAGES,
+    VIEW_MASKS,
     status_name,
 )
 from sfs_ros_interfaces.msg import ReconstructionStatus, ViewImage
@@ -32,7 +33,7 @@ __all__ = ["CarvingOutputs"]
 
 class CarvingOutputs:
     """The publishers of ``node``: ``capture/stored`` (captures QoS, ``depth``), ``hull``
-    and ``camera_poses`` (results QoS), ``~/view_image``, ``~/status`` and
+    and ``camera_poses`` (results QoS), ``~/view_image``, ``~/view_mask``, ``~/status`` and
     ``/diagnostics``."""
 
     def __init__(self, node: Node, depth: int, frame_id: str):
@@ -43,6 +44,8 @@ class CarvingOutputs:
         self._poses = node.create_publisher(PoseArray, "camera_poses", result_qos())
         self._view_image = node.create_publisher(
             ViewImage, "~/" + VIEW_IMAGES.split("/", 1)[1], capture_qos(VIEW_IMAGE_DEPTH))
+        self._view_mask = node.create_publisher(
+            ViewImage, "~/" + VIEW_MASKS.split("/", 1)[1], capture_qos(VIEW_IMAGE_DEPTH))
         self._diagnostics = node.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
         self._status = node.create_publisher(ReconstructionStatus,
                                              "~/" + RECONSTRUCTION_STATUS.split("/", 1)[1],
@@ -64,13 +67,17 @@ class CarvingOutputs:
         self._hull.publish(points_to_cloud(points, stamp=self._now(), frame_id=self._frame_id))
 
     def view_image(self, scan: CarvingScan, stamp, key: str) -> None:
-        """``~/view_image``: the view's colour image, once both the view and its image
-        are in."""
+        """``~/view_image`` and ``~/view_mask``: the view's colour image and its silhouette,
+        once both the view and its image are in."""
         found = scan.live.colour_image(key)
-        if found is not None:
-            self._view_image.publish(view_image_msg(
-                str(scan.live.session_dir), *found,
-                header=header(stamp=stamp, frame_id=self._frame_id)))
+        if found is None:
+            return
+        session = str(scan.live.session_dir)
+        stamped = header(stamp=stamp, frame_id=self._frame_id)
+        self._view_image.publish(view_image_msg(session, *found, header=stamped))
+        mask = scan.live.view_mask(key)
+        if mask is not None:
+            self._view_mask.publish(view_mask_msg(session, *mask, header=stamped))
 
     def status(self, scan: CarvingScan) -> None:
         """``~/status``: this scan's session folder, views stored and rejected, the problem."""

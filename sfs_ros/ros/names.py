@@ -20,7 +20,7 @@ from __future__ import annotations
 
 __all__ = ["NAMESPACE", "DIAGNOSTICS", "CARVING_NODE", "RECORDER_NODE", "SERVICES", "TYPED_SERVICES",
            "SCAN_ACTION", "CALIBRATE_ACTION", "CELL_STATUS", "RECONSTRUCTION_STATUS", "MESHING_STATUS",
-           "VIEW_IMAGES", "VIEW_IMAGE_DEPTH",
+           "VIEW_IMAGES", "VIEW_IMAGE_DEPTH", "VIEW_MASKS",
            "CONFIGURATION_ERROR",
            "private", "status_name"]
 
@@ -79,6 +79,9 @@ MESHING_STATUS = "meshing/status"
 #: The carving node's colour image of each view as it is stored
 #: (``sfs_ros_interfaces/msg/ViewImage``), held by the meshing node.
 VIEW_IMAGES = "carving/view_image"
+#: The carving node's silhouette of each view with its image (the same type, mono8), held
+#: by the meshing node with the image.
+VIEW_MASKS = "carving/view_mask"
 #: Its depth (reliable, volatile): an image missed by a slow reader comes in the carved
 #: scan instead.
 VIEW_IMAGE_DEPTH = 8

@@ -41,6 +41,7 @@ the carving box bounds the hull too (its signed distance joins the views').
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Sequence
 
 import cv2
@@ -51,7 +52,7 @@ from ..carving.carve import validate_masks
 from ..geometry.camera import Camera
 from ..workers import map_in_threads
 
-__all__ = ["DistanceImages", "HullDistance", "point_groups"]
+__all__ = ["DistanceImages", "HullDistance", "ZeroTrace", "point_groups"]
 
 #: Pixels kept around each silhouette's bounding box in the stored distance
 #: image; beyond them a lower bound of the outside distance is used (see
@@ -523,7 +524,7 @@ def _value_from_views(hull, x, y, z, views, n_views, floor, top, p):
 
 @njit(parallel=True, cache=True)
 def _segment_zero_kernel(hull, starts, ends, f_start, f_end, groups, floor, iterations,
-                         tolerance, top, out):
+                         tolerance, top, out, traced, trace_points, trace_values, trace_counts):
     """``out[p]``: the fraction along ``starts[p] -> ends[p]`` where the distance is zero,
     the two ends' values ``f_start[p]``, ``f_end[p]`` (metres) of opposite signs:
     ``iterations`` steps of regula falsi, Illinois variant (an end kept twice in a row
@@ -532,7 +533,11 @@ def _segment_zero_kernel(hull, starts, ends, f_start, f_end, groups, floor, iter
 
     The segments come group by group (``groups[g]:groups[g + 1]``); a view below
     ``floor`` (metres, < 0; -inf: none) over a group's box is not evaluated there
-    (:func:`_below_floor`), and the distance is taken no lower than ``floor``."""
+    (:func:`_below_floor`), and the distance is taken no lower than ``floor``.
+
+    ``traced``: each point the distance was evaluated at and its value recorded in
+    ``trace_points[p, i]`` (metres) and ``trace_values[p, i]``, ``trace_counts[p]`` of
+    them (``(n, iterations, 3)``, ``(n, iterations)`` and ``(n,)``; else not written)."""
     n_all = hull[0].shape[0]
     for g in prange(groups.shape[0] - 1):
         first, stop = groups[g], groups[g + 1]
@@ -552,11 +557,17 @@ def _segment_zero_kernel(hull, starts, ends, f_start, f_end, groups, floor, iter
             f_lo, f_hi = f_start[p], f_end[p]
             kept = 0      # which end the last step kept: -1 the start side, 1 the end side
             t = f_lo / (f_lo - f_hi)
-            for _ in range(iterations):
-                f = _value_from_views(hull, starts[p, 0] + t * (ends[p, 0] - starts[p, 0]),
-                                      starts[p, 1] + t * (ends[p, 1] - starts[p, 1]),
-                                      starts[p, 2] + t * (ends[p, 2] - starts[p, 2]),
-                                      views, n_views, floor, top, p)
+            for step in range(iterations):
+                x = starts[p, 0] + t * (ends[p, 0] - starts[p, 0])
+                y = starts[p, 1] + t * (ends[p, 1] - starts[p, 1])
+                z = starts[p, 2] + t * (ends[p, 2] - starts[p, 2])
+                f = _value_from_views(hull, x, y, z, views, n_views, floor, top, p)
+                if traced:
+                    trace_points[p, step, 0] = x
+                    trace_points[p, step, 1] = y
+                    trace_points[p, step, 2] = z
+                    trace_values[p, step] = f
+                    trace_counts[p] = step + 1
                 if abs(f) <= tolerance:
                     break
                 if (f > 0.0) == (f_lo > 0.0):
@@ -574,6 +585,23 @@ def _segment_zero_kernel(hull, starts, ends, f_start, f_end, groups, floor, iter
                 else:         # (no view sees a point there and no box bounds it)
                     t = 0.5 * (lo_t + hi_t)
             out[p] = t
+
+
+@njit(parallel=True, cache=True)
+def _raises_kernel(hull, points, values, counts, out):
+    """``out[p]``: whether a view's value (:func:`_view_value`) is above ``values[p, i]``
+    at ``points[p, i]`` (metres) for an ``i < counts[p]``."""
+    for p in prange(counts.shape[0]):
+        raised = False
+        for i in range(counts[p]):
+            for v in range(hull[0].shape[0]):
+                if _view_value(hull, v, points[p, i, 0], points[p, i, 1],
+                               points[p, i, 2]) > values[p, i]:
+                    raised = True
+                    break
+            if raised:
+                break
+        out[p] = raised
 
 
 def _check_coverage(masks: list, coverage) -> list:
@@ -594,6 +622,50 @@ def _check_coverage(masks: list, coverage) -> list:
                                  f"mask's {mask.shape}")
         out.append(alpha)
     return out
+
+
+def _segments(starts, ends, start_values, end_values, iterations, tolerance_m,
+              floor_m) -> tuple:
+    """:meth:`HullDistance.segment_zeros`' arguments checked: ``(starts, ends, start
+    values, end values, floor, iterations, tolerance)`` as its kernel takes them;
+    ValueError naming the one that is wrong."""
+    a = np.ascontiguousarray(starts, dtype=np.float64)
+    b = np.ascontiguousarray(ends, dtype=np.float64)
+    fa = np.ascontiguousarray(start_values, dtype=np.float64)
+    fb = np.ascontiguousarray(end_values, dtype=np.float64)
+    if a.ndim != 2 or a.shape[1] != 3 or b.shape != a.shape or fa.shape != (len(a),) \
+            or fb.shape != fa.shape:
+        raise ValueError(f"starts and ends must be (n, 3) and their values (n,), got "
+                         f"{a.shape}, {b.shape}, {fa.shape} and {fb.shape}")
+    if np.any((fa > 0) == (fb > 0)) or np.any(fa == 0) or np.any(fb == 0):
+        raise ValueError("each segment's end values must be non-zero and of opposite signs")
+    if isinstance(iterations, bool) or not isinstance(iterations, (int, np.integer)) \
+            or iterations < 0:
+        raise ValueError(f"iterations must be an integer >= 0, got {iterations!r}")
+    if not (math.isfinite(tolerance_m) and tolerance_m >= 0):
+        raise ValueError(f"tolerance_m must be a finite distance >= 0 metres, got "
+                         f"{tolerance_m}")
+    floor = -np.inf if floor_m is None else float(floor_m)
+    if not (floor == -np.inf or (math.isfinite(floor) and floor < 0)):
+        raise ValueError(f"floor_m must be a finite distance < 0 metres, got {floor_m}")
+    return a, b, fa, fb, floor, int(iterations), float(tolerance_m)
+
+
+@dataclass(frozen=True)
+class ZeroTrace:
+    """Where :meth:`HullDistance.segment_zeros` evaluated the distance on each segment:
+    ``points`` (n, iterations, 3) metres and the ``values`` there (n, iterations), the
+    first ``counts`` (n,) of each row (the others undefined). The steps follow from those
+    values alone: views whose values stay at or below them there
+    (:meth:`HullDistance.raises`) leave every step, and the zero found, as they were."""
+
+    points: np.ndarray
+    values: np.ndarray
+    counts: np.ndarray
+
+    def __getitem__(self, rows) -> "ZeroTrace":
+        """The trace of the segments ``rows`` (an index array or a bool mask)."""
+        return ZeroTrace(self.points[rows], self.values[rows], self.counts[rows])
 
 
 class HullDistance:
@@ -801,25 +873,25 @@ class HullDistance:
         (the distance is a largest of views' values, with kinks where two views meet:
         the chord misplaces it there, the steps do not).
         """
-        a = np.ascontiguousarray(starts, dtype=np.float64)
-        b = np.ascontiguousarray(ends, dtype=np.float64)
-        fa = np.ascontiguousarray(start_values, dtype=np.float64)
-        fb = np.ascontiguousarray(end_values, dtype=np.float64)
-        if a.ndim != 2 or a.shape[1] != 3 or b.shape != a.shape or fa.shape != (len(a),) \
-                or fb.shape != fa.shape:
-            raise ValueError(f"starts and ends must be (n, 3) and their values (n,), got "
-                             f"{a.shape}, {b.shape}, {fa.shape} and {fb.shape}")
-        if np.any((fa > 0) == (fb > 0)) or np.any(fa == 0) or np.any(fb == 0):
-            raise ValueError("each segment's end values must be non-zero and of opposite signs")
-        if isinstance(iterations, bool) or not isinstance(iterations, (int, np.integer)) \
-                or iterations < 0:
-            raise ValueError(f"iterations must be an integer >= 0, got {iterations!r}")
-        if not (math.isfinite(tolerance_m) and tolerance_m >= 0):
-            raise ValueError(f"tolerance_m must be a finite distance >= 0 metres, got "
-                             f"{tolerance_m}")
-        floor = -np.inf if floor_m is None else float(floor_m)
-        if not (floor == -np.inf or (math.isfinite(floor) and floor < 0)):
-            raise ValueError(f"floor_m must be a finite distance < 0 metres, got {floor_m}")
+        return self._segment_zeros(*_segments(starts, ends, start_values, end_values,
+                                              iterations, tolerance_m, floor_m), None)
+
+    def traced_segment_zeros(self, starts, ends, start_values, end_values, *,
+                             iterations: int, tolerance_m: float = 0.0,
+                             floor_m: float | None = None) -> tuple[np.ndarray, ZeroTrace]:
+        """:meth:`segment_zeros` (the same zeros, the same checks) and where it evaluated
+        the distance (:class:`ZeroTrace`), for :meth:`raises`."""
+        segments = _segments(starts, ends, start_values, end_values, iterations, tolerance_m,
+                             floor_m)
+        n = len(segments[0])
+        trace = ZeroTrace(np.empty((n, iterations, 3)), np.empty((n, iterations)),
+                          np.zeros(n, np.int64))
+        return self._segment_zeros(*segments, trace), trace
+
+    def _segment_zeros(self, a, b, fa, fb, floor: float, iterations: int, tolerance: float,
+                       trace: ZeroTrace | None) -> np.ndarray:
+        """The zeros of checked segments (:func:`_segments`), their steps written into
+        ``trace`` (its rows in the segments' order) when one is given."""
         out = np.empty(len(a))
         if not len(a):
             return out
@@ -829,8 +901,30 @@ class HullDistance:
         else:
             order, groups = _groups(0.5 * (a + b), _GROUP_FLOORS * -floor)
         grouped = np.empty(len(a))
+        traced = trace is not None
+        points = np.empty((len(a) if traced else 0, iterations, 3))
+        values = np.empty((len(a) if traced else 0, iterations))
+        counts = np.zeros(len(a) if traced else 0, np.int64)
         _segment_zero_kernel(self._kernel_data, a[order], b[order], fa[order], fb[order],
-                             groups, floor, int(iterations), float(tolerance_m),
-                             np.empty((len(a), self._rank)), grouped)
+                             groups, floor, iterations, tolerance,
+                             np.empty((len(a), self._rank)), grouped, traced, points, values,
+                             counts)
         out[order] = grouped
+        if traced:
+            trace.points[order], trace.values[order], trace.counts[order] = \
+                points, values, counts
+        return out
+
+    def raises(self, trace: ZeroTrace) -> np.ndarray:
+        """(n,) bool: for each segment of ``trace`` (of another hull's
+        :meth:`traced_segment_zeros`), whether a view of this hull gives a value above the
+        distance recorded at one of its points. Where none does, that hull with these
+        views added finds the same zero on the segment, the ends' values the same (its
+        distance there is the same: a ``rank``-th largest value, or the box's, or the
+        floor, stays where no value above it is added)."""
+        out = np.empty(len(trace.counts), bool)
+        if len(out):
+            _raises_kernel(self._kernel_data, np.ascontiguousarray(trace.points),
+                           np.ascontiguousarray(trace.values),
+                           np.ascontiguousarray(trace.counts), out)
         return out

@@ -34,7 +34,8 @@ from ..geometry.grid import VoxelGrid
 from .hull_distance import HullDistance
 from .lewiner import band_rows, march_band
 
-__all__ = ["BandDistance", "band_marching_cubes", "band_voxel_indices", "crossing_edges",
+__all__ = ["BandDistance", "BandEdges", "band_marching_cubes", "band_values",
+           "band_voxel_indices", "crossing_edges",
            "hull_band_distance", "hull_band_floor_m", "hull_marching_cubes_mesh",
            "marching_cubes_mesh", "padded_crop"]
 
@@ -227,27 +228,73 @@ def hull_band_distance(occupancy, grid: VoxelGrid, hull: HullDistance, *,
     occ = _check_occupancy(occupancy, grid)
     band = _check_band(band_voxels)
     crop, corner = padded_crop(occ, band)
-    pad = band + 1
     voxels = band_voxel_indices(crop, band)
     kept = hull.kept
-    if kept is not None and kept.band_voxels == band and same_grid(kept.grid, grid):
-        distance = kept.distance(hull, voxels + corner) / grid.voxel_size
-    else:
-        distance = hull(grid.index_to_world(voxels + corner),
-                        floor_m=hull_band_floor_m(grid, band)) / grid.voxel_size
-    distance = np.clip(distance, -pad, pad).astype(np.float32)
+    if kept is None or kept.band_voxels != band or not same_grid(kept.grid, grid):
+        kept = None
+    distance = band_values(
+        kept.distance(hull, voxels + corner) if kept is not None else
+        hull(grid.index_to_world(voxels + corner), floor_m=hull_band_floor_m(grid, band)),
+        grid, band)
+    edges = BandEdges.of(crop, corner, voxels, distance, grid, band)
+    fractions = kept.crossings(hull, edges) if kept is not None else edges.zeros(hull)
+    return BandDistance(values=distance, band_voxels=band,
+                        crossings=fractions.astype(np.float32), voxels=voxels.astype(np.int32))
+
+
+def band_values(distance_m: np.ndarray, grid: VoxelGrid, band_voxels: int) -> np.ndarray:
+    """:attr:`BandDistance.values` of the hull's distance (n,) metres at the band's voxels:
+    in voxels, clipped to ``+-(band_voxels + 1)``, float32, none exactly 0."""
+    pad = band_voxels + 1
+    distance = np.clip(distance_m / grid.voxel_size, -pad, pad).astype(np.float32)
     # A sample exactly on the level makes Lewiner's ambiguity tests tie (see
     # LEVEL); counting it as just outside (by 1e-6 voxel) breaks the tie.
     distance[distance == 0.0] = np.float32(1e-6)
-    volume = _band_volume_of(crop, voxels, distance, pad)
-    starts, ends = _crossing_ends(crop, voxels, distance)
-    fractions = hull.segment_zeros(
-        grid.index_to_world(starts + corner), grid.index_to_world(ends + corner),
-        -grid.voxel_size * volume[tuple(starts.T)], -grid.voxel_size * volume[tuple(ends.T)],
-        iterations=CROSSING_ITERATIONS, tolerance_m=CROSSING_TOLERANCE * grid.voxel_size,
-        floor_m=hull_band_floor_m(grid, band))
-    return BandDistance(values=distance, band_voxels=band,
-                        crossings=fractions.astype(np.float32), voxels=voxels.astype(np.int32))
+    return distance
+
+
+@dataclass(frozen=True)
+class BandEdges:
+    """The grid edges the level of a band's values crosses (:func:`crossing_edges`, in
+    its order), where :func:`hull_band_distance` finds the hull's zero: their ``lower``
+    and ``upper`` ends, (m, 3) int64 grid indices (one step apart along an axis), and the
+    volume's values there as :meth:`HullDistance.segment_zeros` takes them, ``f_lower``
+    and ``f_upper`` (m,) metres (the band's values, or its ``+-(band + 1)`` voxels off
+    it); on ``grid``, for a band of ``band_voxels``."""
+
+    lower: np.ndarray
+    upper: np.ndarray
+    f_lower: np.ndarray
+    f_upper: np.ndarray
+    grid: VoxelGrid
+    band_voxels: int
+
+    @classmethod
+    def of(cls, crop: np.ndarray, corner: np.ndarray, voxels: np.ndarray,
+           values: np.ndarray, grid: VoxelGrid, band_voxels: int) -> "BandEdges":
+        """The edges of the band's ``values`` (:func:`band_values`) at ``voxels`` (n, 3)
+        of ``crop`` (:func:`padded_crop` of the occupancy, whose ``[0, 0, 0]`` is the grid
+        index ``corner``)."""
+        volume = _band_volume_of(crop, voxels, values, band_voxels + 1)
+        starts, ends = _crossing_ends(crop, voxels, values)
+        return cls(starts + corner, ends + corner,
+                   -grid.voxel_size * volume[tuple(starts.T)],
+                   -grid.voxel_size * volume[tuple(ends.T)], grid, band_voxels)
+
+    def __len__(self) -> int:
+        return len(self.lower)
+
+    def zeros(self, hull: HullDistance, rows=slice(None), *, traced: bool = False):
+        """(m,) float64: where ``hull``'s distance is zero along the edges ``rows`` (all by
+        default), as the fraction from the lower end (:data:`CROSSING_ITERATIONS` steps);
+        with ``traced``, ``(that, its ZeroTrace)``
+        (:meth:`HullDistance.traced_segment_zeros`)."""
+        find = hull.traced_segment_zeros if traced else hull.segment_zeros
+        return find(self.grid.index_to_world(self.lower[rows]),
+                    self.grid.index_to_world(self.upper[rows]),
+                    self.f_lower[rows], self.f_upper[rows], iterations=CROSSING_ITERATIONS,
+                    tolerance_m=CROSSING_TOLERANCE * self.grid.voxel_size,
+                    floor_m=hull_band_floor_m(self.grid, self.band_voxels))
 
 
 def _band_volume_of(crop: np.ndarray, voxels: np.ndarray, values: np.ndarray,
