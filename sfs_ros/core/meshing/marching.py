@@ -35,6 +35,7 @@ from .hull_distance import HullDistance
 from .lewiner import band_rows, march_band
 
 __all__ = ["BandDistance", "band_marching_cubes", "band_voxel_indices", "crossing_edges",
+           "crossing_ends",
            "hull_band_distance", "hull_band_floor_m", "hull_marching_cubes_mesh",
            "marching_cubes_mesh", "padded_crop"]
 
@@ -239,38 +240,14 @@ def hull_band_distance(occupancy, grid: VoxelGrid, hull: HullDistance, *,
     # A sample exactly on the level makes Lewiner's ambiguity tests tie (see
     # LEVEL); counting it as just outside (by 1e-6 voxel) breaks the tie.
     distance[distance == 0.0] = np.float32(1e-6)
-    volume = _band_volume_of(crop, voxels, distance, pad)
-    starts, ends = _crossing_ends(crop, voxels, distance)
+    starts, ends, start_values, end_values = crossing_ends(crop, voxels, distance, pad)
     fractions = hull.segment_zeros(
         grid.index_to_world(starts + corner), grid.index_to_world(ends + corner),
-        -grid.voxel_size * volume[tuple(starts.T)], -grid.voxel_size * volume[tuple(ends.T)],
+        grid.voxel_size * start_values, grid.voxel_size * end_values,
         iterations=CROSSING_ITERATIONS, tolerance_m=CROSSING_TOLERANCE * grid.voxel_size,
         floor_m=hull_band_floor_m(grid, band))
     return BandDistance(values=distance, band_voxels=band,
                         crossings=fractions.astype(np.float32), voxels=voxels.astype(np.int32))
-
-
-def _band_volume_of(crop: np.ndarray, voxels: np.ndarray, values: np.ndarray,
-                    pad: int) -> np.ndarray:
-    """The volume the level is found in (the crop's shape, float32: the negated distance
-    in voxels at the band's ``voxels``, ``+-pad`` by the occupancy off it)."""
-    volume = np.empty(crop.shape, np.float32)
-    _band_volume(crop, voxels, values, np.float32(pad), volume)
-    return volume
-
-
-def _crossing_ends(crop: np.ndarray, voxels: np.ndarray,
-                   distance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The grid edges the level crosses at a band voxel, in :func:`crossing_edges`' order:
-    their lower and upper ends, (m, 3) int64 indices each."""
-    ordinal, m = crossing_edges(crop, voxels, distance)
-    at, slot = np.nonzero(ordinal >= 0)
-    order = np.argsort(ordinal[at, slot])
-    at, slot = at[order], slot[order]
-    step = np.zeros((m, 3), np.int64)
-    step[np.arange(m), slot % 3] = 1
-    lower = voxels[at] - step * (slot >= 3)[:, None]
-    return lower, lower + step
 
 
 def band_marching_cubes(occupancy, grid: VoxelGrid, band: BandDistance):
@@ -326,26 +303,62 @@ def crossing_edges(crop: np.ndarray, voxels: np.ndarray,
     """The grid edges at a band voxel whose ends lie on either side of the hull's surface:
     where marching cubes puts a vertex. The volume is the distance ``values`` (n,) float32
     (voxels, positive outside) at the band's ``voxels`` (n, 3) of the 3-D bool ``crop``
-    (C order) and, off the band, the occupancy's sign (:func:`_band_volume_of`, negated):
-    an end is inside where the distance is below 0, or off the band where occupied. An
-    edge is at the band voxel ``voxels[i]`` as its lower end, or as its upper end when its
-    lower end is off the band (where the distance was not computed, and keeps the
-    occupancy's sign: a band voxel beside it may be on the other side of the hull's
-    surface, which lies up to a voxel from the carved one).
+    (C order) and, off the band, the occupancy's sign: an end is inside where the distance
+    is below 0, or off the band where occupied. An edge is at the band voxel ``voxels[i]``
+    as its lower end, or as its upper end when its lower end is off the band (where the
+    distance was not computed, and keeps the occupancy's sign: a band voxel beside it may
+    be on the other side of the hull's surface, which lies up to a voxel from the carved
+    one).
 
     Returns ``ordinal`` (n, 6) int64: for band voxel ``i``, the edge's place in the order
     (band voxel by band voxel) from it ahead along x, y, z (columns 0-2) and behind it
     (columns 3-5), -1 where the level does not cross or the edge is another voxel's;
     and ``m``, how many edges the level crosses. Found from the band's rows
-    (:func:`.lewiner.band_rows`): no pass over the crop.
+    (:func:`.lewiner.band_rows`), the crop's planes side by side: no pass over the crop.
     """
+    ordinal = np.empty((len(voxels), 6), np.int64)
+    m = _crossings(crop, voxels, values, 1.0, ordinal=ordinal)
+    return ordinal, m
+
+
+def crossing_ends(crop: np.ndarray, voxels: np.ndarray, values: np.ndarray,
+                  pad: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The ends of the grid edges the level crosses (:func:`crossing_edges`, in its
+    order) and the distance there: ``lower``, ``upper`` (m, 3) int64 indices of ``crop``
+    (the upper end one step from the lower along the edge's axis) and the distance at each,
+    (m,) float32 voxels: the band's value, else ``-pad`` where ``crop`` is occupied and
+    ``pad`` where it is not (the occupancy's sign, as off the band in
+    :func:`band_marching_cubes`). Read from the band's values and the occupancy: no volume
+    of the crop's size."""
+    ends, end_values = _crossings(crop, voxels, values, pad, with_ends=True)
+    lower = np.ascontiguousarray(ends[:, :3])
+    upper = lower.copy()
+    upper[np.arange(len(upper)), ends[:, 3]] += 1
+    return lower, upper, end_values[:, 0].copy(), end_values[:, 1].copy()
+
+
+def _crossings(crop, voxels, values, pad, *, ordinal=None, with_ends=False):
+    """:func:`_crossings_pass` twice (a count per plane, then the fill): the number of
+    crossings into ``ordinal`` (n, 6) when given, returning how many there are; with
+    ``with_ends``, ``(ends (m, 4) int64, end_values (m, 2) float32)`` instead."""
     crop = np.ascontiguousarray(crop, dtype=bool)
     rows = band_rows(voxels, crop.shape[0], crop.shape[1])
-    ordinal = np.empty((len(voxels), 6), np.int64)
-    m = _number_crossings(crop, rows,
-                          np.ascontiguousarray(voxels[:, 2], dtype=np.int64),
-                          np.ascontiguousarray(values, dtype=np.float32), ordinal)
-    return ordinal, int(m)
+    band_k = np.ascontiguousarray(voxels[:, 2], dtype=np.int64)
+    values = np.ascontiguousarray(values, dtype=np.float32)
+    counts = np.zeros(crop.shape[0] + 1, np.int64)
+    no_ordinal, no_ends, no_values = (np.empty((0, 6), np.int64), np.empty((0, 4), np.int64),
+                                      np.empty((0, 2), np.float32))
+    pad = np.float32(pad)
+    _crossings_pass(crop, rows, band_k, values, pad, False, counts, no_ordinal, no_ends,
+                    no_values)
+    np.cumsum(counts, out=counts)
+    m = int(counts[-1])
+    ends, end_values = ((np.empty((m, 4), np.int64), np.empty((m, 2), np.float32))
+                        if with_ends else (no_ends, no_values))
+    if ordinal is not None or (with_ends and m):
+        _crossings_pass(crop, rows, band_k, values, pad, True, counts,
+                        no_ordinal if ordinal is None else ordinal, ends, end_values)
+    return (ends, end_values) if with_ends else m
 
 
 def hull_marching_cubes_mesh(occupancy, grid: VoxelGrid, hull: HullDistance, *,
@@ -502,27 +515,21 @@ def _narrowed_meet(run_lo, run_hi, r0, r1, band, so_far, n, first, out):
 
 
 @njit(parallel=True, cache=True, nogil=True)
-def _band_volume(crop, voxels, values, pad, volume):
-    """Fill ``volume`` (crop's shape, float32): ``pad`` in the occupied voxels of ``crop``,
-    ``-pad`` elsewhere, ``-values[n]`` at band voxel ``voxels[n]``."""
-    nx, ny, nz = crop.shape
-    for i in prange(nx):
-        for j in range(ny):
-            for k in range(nz):
-                volume[i, j, k] = pad if crop[i, j, k] else -pad
-    for n in prange(voxels.shape[0]):
-        volume[voxels[n, 0], voxels[n, 1], voxels[n, 2]] = -values[n]
-
-
-@njit(cache=True, nogil=True)
-def _number_crossings(crop, rows, band_k, values, ordinal):
-    """Fill ``ordinal`` (:func:`crossing_edges`) from the band's ``rows`` and their voxels'
-    k; returns how many edges cross."""
+def _crossings_pass(crop, rows, band_k, values, pad, fill, counts, ordinal, ends, end_values):
+    """The grid edges the level crosses at the band's voxels (:func:`crossing_edges`), in
+    parallel over the crop's i-planes: without ``fill``, ``counts[1 + i]`` = the crossings
+    of plane i. With ``fill`` (``counts`` their running sum from 0, the first crossing of
+    each plane): their numbers into ``ordinal`` (n, 6) (if not empty), and (if ``ends``
+    is not empty) each crossing's lower end and axis into ``ends`` (m, 4) int64 ``[i, j,
+    k, axis]`` and the distance at its lower and upper end into ``end_values`` (m, 2)
+    float32 (the band's value, else ``-pad`` where occupied, ``pad`` where not)."""
     n0, n1, n2 = crop.shape
-    ptr = np.empty(4, np.int64)      # rows (i + 1, j), (i, j + 1), (i - 1, j), (i, j - 1)
-    end = np.empty(4, np.int64)
-    m = 0
-    for i in range(n0):
+    with_ordinal = ordinal.shape[0] > 0
+    with_ends = ends.shape[0] > 0
+    for i in prange(n0):
+        m = counts[i] if fill else 0
+        ptr = np.empty(4, np.int64)      # rows (i + 1, j), (i, j + 1), (i - 1, j), (i, j - 1)
+        end = np.empty(4, np.int64)
         for j in range(n1):
             first, last = rows[i * n1 + j], rows[i * n1 + j + 1]
             for s in range(4):
@@ -534,7 +541,8 @@ def _number_crossings(crop, rows, band_k, values, ordinal):
                 k = band_k[n]
                 inside = values[n] < 0.0
                 for s in range(6):      # ahead along i, j, k, then behind
-                    ordinal[n, s] = -1
+                    if fill and with_ordinal:
+                        ordinal[n, s] = -1
                     step = 1 if s < 3 else -1
                     ii = i + step * (s % 3 == 0)
                     jj = j + step * (s % 3 == 1)
@@ -553,7 +561,19 @@ def _number_crossings(crop, rows, band_k, values, ordinal):
                     if s >= 3 and banded:
                         continue        # the edge is the band voxel behind's
                     other = (values[at] < 0.0) if banded else crop[ii, jj, kk]
-                    if other != inside:
+                    if other == inside:
+                        continue
+                    if fill and with_ordinal:
                         ordinal[n, s] = m
-                        m += 1
-    return m
+                    if fill and with_ends:
+                        value = values[at] if banded else (-pad if other else pad)
+                        ahead = s < 3
+                        ends[m, 0] = i if ahead else ii
+                        ends[m, 1] = j if ahead else jj
+                        ends[m, 2] = k if ahead else kk
+                        ends[m, 3] = s % 3
+                        end_values[m, 0] = values[n] if ahead else value
+                        end_values[m, 1] = value if ahead else values[n]
+                    m += 1
+        if not fill:
+            counts[1 + i] = m
