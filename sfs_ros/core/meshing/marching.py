@@ -34,10 +34,9 @@ from ..geometry.grid import VoxelGrid
 from .hull_distance import HullDistance
 from .lewiner import band_rows, march_band
 
-__all__ = ["BandDistance", "band_marching_cubes", "band_voxel_indices", "crossing_edges",
-           "crossing_ends",
-           "hull_band_distance", "hull_band_floor_m", "hull_marching_cubes_mesh",
-           "marching_cubes_mesh", "padded_crop"]
+__all__ = ["BandDistance", "FoundBand", "band_marching_cubes", "band_voxel_indices",
+           "crossing_edges", "crossing_ends", "hull_band_distance", "hull_band_floor_m",
+           "hull_marching_cubes_mesh", "marching_cubes_mesh", "padded_crop", "plane_crossings"]
 
 #: Iso-level between empty (0) and occupied (1) voxels: just below 0.5. At
 #: exactly 0.5, Lewiner's ambiguity tests tie on 0/1 data (a cube face whose
@@ -133,17 +132,34 @@ class BandDistance:
         (:func:`crossing_edges`, in their order), as the fraction of the edge from its
         lower end (the smaller index): the vertex of marching cubes on that edge. None:
         the linear interpolation of the values.
-    voxels : (n, 3) int32 or None
-        The band's voxels (:func:`band_voxel_indices` of the occupancy's padded crop) as
-        :func:`hull_band_distance` found them, so that :func:`band_marching_cubes` of the
-        same occupancy need not find them again; None (e.g. after crossing a process):
-        found again, the same.
+    found : :class:`FoundBand` or None
+        What :func:`hull_band_distance` found of the occupancy, so that
+        :func:`band_marching_cubes` of the same occupancy need not find it again; None
+        (e.g. after crossing a process): found again, the same.
     """
 
     values: np.ndarray
     band_voxels: int = 1
     crossings: np.ndarray | None = None
-    voxels: np.ndarray | None = field(default=None, compare=False, repr=False)
+    found: FoundBand | None = field(default=None, compare=False, repr=False)
+
+
+@dataclass(frozen=True)
+class FoundBand:
+    """The band of an occupancy as :func:`hull_band_distance` found it.
+
+    crop, corner : :func:`padded_crop` of the occupancy.
+    voxels : (n, 3) int32, :func:`band_voxel_indices` of ``crop``.
+    values : the band's values the crossings were counted from (the very array).
+    plane_crossings : (crop.shape[0] + 1,) int64, the crossings (:func:`crossing_edges`)
+        before each i-plane of ``crop``, and in all.
+    """
+
+    crop: np.ndarray
+    corner: np.ndarray
+    voxels: np.ndarray
+    values: np.ndarray
+    plane_crossings: np.ndarray
 
 
 def padded_crop(occ: np.ndarray, band: int) -> tuple[np.ndarray, np.ndarray]:
@@ -240,14 +256,16 @@ def hull_band_distance(occupancy, grid: VoxelGrid, hull: HullDistance, *,
     # A sample exactly on the level makes Lewiner's ambiguity tests tie (see
     # LEVEL); counting it as just outside (by 1e-6 voxel) breaks the tie.
     distance[distance == 0.0] = np.float32(1e-6)
-    starts, ends, start_values, end_values = crossing_ends(crop, voxels, distance, pad)
+    counts = plane_crossings(crop, voxels, distance)
+    starts, ends, start_values, end_values = crossing_ends(crop, voxels, distance, pad, counts)
     fractions = hull.segment_zeros(
         grid.index_to_world(starts + corner), grid.index_to_world(ends + corner),
         grid.voxel_size * start_values, grid.voxel_size * end_values,
         iterations=CROSSING_ITERATIONS, tolerance_m=CROSSING_TOLERANCE * grid.voxel_size,
         floor_m=hull_band_floor_m(grid, band))
     return BandDistance(values=distance, band_voxels=band,
-                        crossings=fractions.astype(np.float32), voxels=voxels.astype(np.int32))
+                        crossings=fractions.astype(np.float32),
+                        found=FoundBand(crop, corner, voxels.astype(np.int32), distance, counts))
 
 
 def band_marching_cubes(occupancy, grid: VoxelGrid, band: BandDistance):
@@ -273,10 +291,12 @@ def band_marching_cubes(occupancy, grid: VoxelGrid, band: BandDistance):
     """
     occ = _check_occupancy(occupancy, grid)
     width = _check_band(band.band_voxels)
-    crop, corner = padded_crop(occ, width)
     pad = width + 1
-    voxels = band.voxels
-    if voxels is None or len(voxels) != len(band.values):
+    found = band.found
+    if found is not None and len(found.voxels) == len(band.values):
+        crop, corner, voxels = found.crop, found.corner, found.voxels
+    else:
+        crop, corner = padded_crop(occ, width)
         voxels = band_voxel_indices(crop, width)
     values = np.asarray(band.values)
     if values.dtype != np.float32 or values.shape != (len(voxels),):
@@ -284,7 +304,9 @@ def band_marching_cubes(occupancy, grid: VoxelGrid, band: BandDistance):
                          f"({len(voxels)},): one value per voxel of the band")
     ordinal = crossings = None
     if band.crossings is not None:
-        ordinal, m = crossing_edges(crop, voxels, values)
+        counted = found is not None and found.values is band.values and found.voxels is voxels
+        ordinal, m = crossing_edges(crop, voxels, values,
+                                    found.plane_crossings if counted else None)
         crossings = np.asarray(band.crossings)
         if crossings.dtype != np.float32 or crossings.shape != (m,):
             raise ValueError(f"band crossings are {crossings.dtype} {crossings.shape}, expected "
@@ -298,8 +320,8 @@ def band_marching_cubes(occupancy, grid: VoxelGrid, band: BandDistance):
     return _oriented(verts, faces, corner, grid)
 
 
-def crossing_edges(crop: np.ndarray, voxels: np.ndarray,
-                   values: np.ndarray) -> tuple[np.ndarray, int]:
+def crossing_edges(crop: np.ndarray, voxels: np.ndarray, values: np.ndarray,
+                   plane_crossings: np.ndarray | None = None) -> tuple[np.ndarray, int]:
     """The grid edges at a band voxel whose ends lie on either side of the hull's surface:
     where marching cubes puts a vertex. The volume is the distance ``values`` (n,) float32
     (voxels, positive outside) at the band's ``voxels`` (n, 3) of the 3-D bool ``crop``
@@ -308,7 +330,7 @@ def crossing_edges(crop: np.ndarray, voxels: np.ndarray,
     as its lower end, or as its upper end when its lower end is off the band (where the
     distance was not computed, and keeps the occupancy's sign: a band voxel beside it may
     be on the other side of the hull's surface, which lies up to a voxel from the carved
-    one).
+    one). ``plane_crossings``: :func:`plane_crossings` of the same arguments, if made.
 
     Returns ``ordinal`` (n, 6) int64: for band voxel ``i``, the edge's place in the order
     (band voxel by band voxel) from it ahead along x, y, z (columns 0-2) and behind it
@@ -316,13 +338,22 @@ def crossing_edges(crop: np.ndarray, voxels: np.ndarray,
     and ``m``, how many edges the level crosses. Found from the band's rows
     (:func:`.lewiner.band_rows`), the crop's planes side by side: no pass over the crop.
     """
+    band = _Band.of(crop, voxels, values)
+    counts = band.plane_crossings() if plane_crossings is None else plane_crossings
     ordinal = np.empty((len(voxels), 6), np.int64)
-    m = _crossings(crop, voxels, values, 1.0, ordinal=ordinal)
-    return ordinal, m
+    band.fill(counts, 1.0, ordinal, _NO_ENDS, _NO_END_VALUES)
+    return ordinal, int(counts[-1])
 
 
-def crossing_ends(crop: np.ndarray, voxels: np.ndarray, values: np.ndarray,
-                  pad: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def plane_crossings(crop: np.ndarray, voxels: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """(crop.shape[0] + 1,) int64: how many of :func:`crossing_edges`' crossings come
+    before each i-plane of ``crop``, and in all (the last entry)."""
+    return _Band.of(crop, voxels, values).plane_crossings()
+
+
+def crossing_ends(crop: np.ndarray, voxels: np.ndarray, values: np.ndarray, pad: float,
+                  plane_crossings: np.ndarray | None = None
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The ends of the grid edges the level crosses (:func:`crossing_edges`, in its
     order) and the distance there: ``lower``, ``upper`` (m, 3) int64 indices of ``crop``
     (the upper end one step from the lower along the edge's axis) and the distance at each,
@@ -330,35 +361,49 @@ def crossing_ends(crop: np.ndarray, voxels: np.ndarray, values: np.ndarray,
     ``pad`` where it is not (the occupancy's sign, as off the band in
     :func:`band_marching_cubes`). Read from the band's values and the occupancy: no volume
     of the crop's size."""
-    ends, end_values = _crossings(crop, voxels, values, pad, with_ends=True)
+    band = _Band.of(crop, voxels, values)
+    counts = band.plane_crossings() if plane_crossings is None else plane_crossings
+    m = int(counts[-1])
+    ends, end_values = np.empty((m, 4), np.int64), np.empty((m, 2), np.float32)
+    if m:
+        band.fill(counts, pad, _NO_ORDINAL, ends, end_values)
     lower = np.ascontiguousarray(ends[:, :3])
     upper = lower.copy()
-    upper[np.arange(len(upper)), ends[:, 3]] += 1
+    upper[np.arange(m), ends[:, 3]] += 1
     return lower, upper, end_values[:, 0].copy(), end_values[:, 1].copy()
 
 
-def _crossings(crop, voxels, values, pad, *, ordinal=None, with_ends=False):
-    """:func:`_crossings_pass` twice (a count per plane, then the fill): the number of
-    crossings into ``ordinal`` (n, 6) when given, returning how many there are; with
-    ``with_ends``, ``(ends (m, 4) int64, end_values (m, 2) float32)`` instead."""
-    crop = np.ascontiguousarray(crop, dtype=bool)
-    rows = band_rows(voxels, crop.shape[0], crop.shape[1])
-    band_k = np.ascontiguousarray(voxels[:, 2], dtype=np.int64)
-    values = np.ascontiguousarray(values, dtype=np.float32)
-    counts = np.zeros(crop.shape[0] + 1, np.int64)
-    no_ordinal, no_ends, no_values = (np.empty((0, 6), np.int64), np.empty((0, 4), np.int64),
-                                      np.empty((0, 2), np.float32))
-    pad = np.float32(pad)
-    _crossings_pass(crop, rows, band_k, values, pad, False, counts, no_ordinal, no_ends,
-                    no_values)
-    np.cumsum(counts, out=counts)
-    m = int(counts[-1])
-    ends, end_values = ((np.empty((m, 4), np.int64), np.empty((m, 2), np.float32))
-                        if with_ends else (no_ends, no_values))
-    if ordinal is not None or (with_ends and m):
-        _crossings_pass(crop, rows, band_k, values, pad, True, counts,
-                        no_ordinal if ordinal is None else ordinal, ends, end_values)
-    return (ends, end_values) if with_ends else m
+_NO_ORDINAL = np.empty((0, 6), np.int64)
+_NO_ENDS = np.empty((0, 4), np.int64)
+_NO_END_VALUES = np.empty((0, 2), np.float32)
+
+
+@dataclass(frozen=True)
+class _Band:
+    """A band as :func:`_crossings_pass` reads it: the crop, the band's rows
+    (:func:`.lewiner.band_rows`), their voxels' k and values."""
+
+    crop: np.ndarray
+    rows: np.ndarray
+    band_k: np.ndarray
+    values: np.ndarray
+
+    @classmethod
+    def of(cls, crop, voxels, values) -> _Band:
+        crop = np.ascontiguousarray(crop, dtype=bool)
+        return cls(crop, band_rows(voxels, crop.shape[0], crop.shape[1]),
+                   np.ascontiguousarray(voxels[:, 2], dtype=np.int64),
+                   np.ascontiguousarray(values, dtype=np.float32))
+
+    def plane_crossings(self) -> np.ndarray:
+        counts = np.zeros(self.crop.shape[0] + 1, np.int64)
+        _crossings_pass(self.crop, self.rows, self.band_k, self.values, np.float32(1.0),
+                        False, counts, _NO_ORDINAL, _NO_ENDS, _NO_END_VALUES)
+        return np.cumsum(counts, out=counts)
+
+    def fill(self, counts, pad, ordinal, ends, end_values) -> None:
+        _crossings_pass(self.crop, self.rows, self.band_k, self.values, np.float32(pad), True,
+                        counts, ordinal, ends, end_values)
 
 
 def hull_marching_cubes_mesh(occupancy, grid: VoxelGrid, hull: HullDistance, *,
