@@ -36,7 +36,7 @@ from .lewiner import band_rows, march_band
 
 __all__ = ["BandDistance", "FoundBand", "band_marching_cubes", "band_voxel_indices",
            "crossing_edges", "crossing_ends", "hull_band_distance", "hull_band_floor_m",
-           "hull_marching_cubes_mesh", "marching_cubes_mesh", "padded_crop", "plane_crossings"]
+           "hull_marching_cubes_mesh", "marching_cubes_mesh", "padded_crop"]
 
 #: Iso-level between empty (0) and occupied (1) voxels: just below 0.5. At
 #: exactly 0.5, Lewiner's ambiguity tests tie on 0/1 data (a cube face whose
@@ -150,16 +150,16 @@ class FoundBand:
 
     crop, corner : :func:`padded_crop` of the occupancy.
     voxels : (n, 3) int32, :func:`band_voxel_indices` of ``crop``.
-    values : the band's values the crossings were counted from (the very array).
-    plane_crossings : (crop.shape[0] + 1,) int64, the crossings (:func:`crossing_edges`)
-        before each i-plane of ``crop``, and in all.
+    values : the band's values the crossings were found from (the very array).
+    ordinal, crossed : :func:`crossing_edges` of ``crop``, ``voxels`` and ``values``.
     """
 
     crop: np.ndarray
     corner: np.ndarray
     voxels: np.ndarray
     values: np.ndarray
-    plane_crossings: np.ndarray
+    ordinal: np.ndarray
+    crossed: int
 
 
 def padded_crop(occ: np.ndarray, band: int) -> tuple[np.ndarray, np.ndarray]:
@@ -256,8 +256,9 @@ def hull_band_distance(occupancy, grid: VoxelGrid, hull: HullDistance, *,
     # A sample exactly on the level makes Lewiner's ambiguity tests tie (see
     # LEVEL); counting it as just outside (by 1e-6 voxel) breaks the tie.
     distance[distance == 0.0] = np.float32(1e-6)
-    counts = plane_crossings(crop, voxels, distance)
-    starts, ends, start_values, end_values = crossing_ends(crop, voxels, distance, pad, counts)
+    ordinal = np.empty((len(voxels), 6), np.int64)
+    starts, ends, start_values, end_values = crossing_ends(crop, voxels, distance, pad,
+                                                           ordinal=ordinal)
     fractions = hull.segment_zeros(
         grid.index_to_world(starts + corner), grid.index_to_world(ends + corner),
         grid.voxel_size * start_values, grid.voxel_size * end_values,
@@ -265,7 +266,8 @@ def hull_band_distance(occupancy, grid: VoxelGrid, hull: HullDistance, *,
         floor_m=hull_band_floor_m(grid, band))
     return BandDistance(values=distance, band_voxels=band,
                         crossings=fractions.astype(np.float32),
-                        found=FoundBand(crop, corner, voxels.astype(np.int32), distance, counts))
+                        found=FoundBand(crop, corner, voxels.astype(np.int32), distance,
+                                        ordinal, len(starts)))
 
 
 def band_marching_cubes(occupancy, grid: VoxelGrid, band: BandDistance):
@@ -304,9 +306,10 @@ def band_marching_cubes(occupancy, grid: VoxelGrid, band: BandDistance):
                          f"({len(voxels)},): one value per voxel of the band")
     ordinal = crossings = None
     if band.crossings is not None:
-        counted = found is not None and found.values is band.values and found.voxels is voxels
-        ordinal, m = crossing_edges(crop, voxels, values,
-                                    found.plane_crossings if counted else None)
+        if found is not None and found.values is band.values and found.voxels is voxels:
+            ordinal, m = found.ordinal, found.crossed
+        else:
+            ordinal, m = crossing_edges(crop, voxels, values)
         crossings = np.asarray(band.crossings)
         if crossings.dtype != np.float32 or crossings.shape != (m,):
             raise ValueError(f"band crossings are {crossings.dtype} {crossings.shape}, expected "
@@ -320,8 +323,8 @@ def band_marching_cubes(occupancy, grid: VoxelGrid, band: BandDistance):
     return _oriented(verts, faces, corner, grid)
 
 
-def crossing_edges(crop: np.ndarray, voxels: np.ndarray, values: np.ndarray,
-                   plane_crossings: np.ndarray | None = None) -> tuple[np.ndarray, int]:
+def crossing_edges(crop: np.ndarray, voxels: np.ndarray,
+                   values: np.ndarray) -> tuple[np.ndarray, int]:
     """The grid edges at a band voxel whose ends lie on either side of the hull's surface:
     where marching cubes puts a vertex. The volume is the distance ``values`` (n,) float32
     (voxels, positive outside) at the band's ``voxels`` (n, 3) of the 3-D bool ``crop``
@@ -330,29 +333,24 @@ def crossing_edges(crop: np.ndarray, voxels: np.ndarray, values: np.ndarray,
     as its lower end, or as its upper end when its lower end is off the band (where the
     distance was not computed, and keeps the occupancy's sign: a band voxel beside it may
     be on the other side of the hull's surface, which lies up to a voxel from the carved
-    one). ``plane_crossings``: :func:`plane_crossings` of the same arguments, if made.
+    one).
 
     Returns ``ordinal`` (n, 6) int64: for band voxel ``i``, the edge's place in the order
     (band voxel by band voxel) from it ahead along x, y, z (columns 0-2) and behind it
     (columns 3-5), -1 where the level does not cross or the edge is another voxel's;
     and ``m``, how many edges the level crosses. Found from the band's rows
-    (:func:`.lewiner.band_rows`), the crop's planes side by side: no pass over the crop.
+    (:func:`.lewiner.band_rows`), the crop's planes side by side (a count, then the
+    numbers): no pass over the crop.
     """
     band = _Band.of(crop, voxels, values)
-    counts = band.plane_crossings() if plane_crossings is None else plane_crossings
+    counts = band.plane_crossings()
     ordinal = np.empty((len(voxels), 6), np.int64)
     band.fill(counts, 1.0, ordinal, _NO_ENDS, _NO_END_VALUES)
     return ordinal, int(counts[-1])
 
 
-def plane_crossings(crop: np.ndarray, voxels: np.ndarray, values: np.ndarray) -> np.ndarray:
-    """(crop.shape[0] + 1,) int64: how many of :func:`crossing_edges`' crossings come
-    before each i-plane of ``crop``, and in all (the last entry)."""
-    return _Band.of(crop, voxels, values).plane_crossings()
-
-
-def crossing_ends(crop: np.ndarray, voxels: np.ndarray, values: np.ndarray, pad: float,
-                  plane_crossings: np.ndarray | None = None
+def crossing_ends(crop: np.ndarray, voxels: np.ndarray, values: np.ndarray, pad: float, *,
+                  ordinal: np.ndarray | None = None
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The ends of the grid edges the level crosses (:func:`crossing_edges`, in its
     order) and the distance there: ``lower``, ``upper`` (m, 3) int64 indices of ``crop``
@@ -360,13 +358,14 @@ def crossing_ends(crop: np.ndarray, voxels: np.ndarray, values: np.ndarray, pad:
     (m,) float32 voxels: the band's value, else ``-pad`` where ``crop`` is occupied and
     ``pad`` where it is not (the occupancy's sign, as off the band in
     :func:`band_marching_cubes`). Read from the band's values and the occupancy: no volume
-    of the crop's size."""
+    of the crop's size. ``ordinal`` ((n, 6) int64, optional): filled with
+    :func:`crossing_edges`' ``ordinal`` in the same pass."""
     band = _Band.of(crop, voxels, values)
-    counts = band.plane_crossings() if plane_crossings is None else plane_crossings
+    counts = band.plane_crossings()
     m = int(counts[-1])
     ends, end_values = np.empty((m, 4), np.int64), np.empty((m, 2), np.float32)
-    if m:
-        band.fill(counts, pad, _NO_ORDINAL, ends, end_values)
+    if m or ordinal is not None:
+        band.fill(counts, pad, _NO_ORDINAL if ordinal is None else ordinal, ends, end_values)
     lower = np.ascontiguousarray(ends[:, :3])
     upper = lower.copy()
     upper[np.arange(m), ends[:, 3]] += 1
