@@ -478,24 +478,24 @@ def _groups(points: np.ndarray, edge_m: float) -> tuple[np.ndarray, np.ndarray]:
 _COUNTING_SORT_KEYS_PER_POINT = 4
 
 
-@njit(cache=True, nogil=True)
+@njit(parallel=True, cache=True, nogil=True)
 def _cube_keys(points, edge_m):
     """(n,) int64: each point's cube of ``edge_m`` metres from the points' lowest corner,
     in C order (``(cx * size_y + cy) * size_z + cz``), and how many keys there are (a
-    float: there may be more than int64 holds)."""
+    float: there may be more than int64 holds). The points side by side."""
     n = points.shape[0]
     lo = np.empty(3)
     for axis in range(3):
         lo[axis] = points[:, axis].min()
     cells = np.empty((n, 3), np.int64)
-    size = np.zeros(3, np.int64)
-    for p in range(n):
+    for p in prange(n):
         for axis in range(3):
-            c = np.int64(np.floor((points[p, axis] - lo[axis]) / edge_m))
-            cells[p, axis] = c
-            size[axis] = max(size[axis], c + 1)
+            cells[p, axis] = np.int64(np.floor((points[p, axis] - lo[axis]) / edge_m))
+    size = np.zeros(3, np.int64)
+    for axis in range(3):
+        size[axis] = cells[:, axis].max() + 1
     keys = np.empty(n, np.int64)
-    for p in range(n):
+    for p in prange(n):
         keys[p] = (cells[p, 0] * size[1] + cells[p, 1]) * size[2] + cells[p, 2]
     return keys, np.float64(size[0]) * np.float64(size[1]) * np.float64(size[2])
 

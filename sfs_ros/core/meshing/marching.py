@@ -36,7 +36,7 @@ from .lewiner import band_rows, march_band
 
 __all__ = ["BandDistance", "FoundBand", "band_marching_cubes", "band_voxel_indices",
            "crossing_edges", "crossing_ends", "hull_band_distance", "hull_band_floor_m",
-           "hull_marching_cubes_mesh", "marching_cubes_mesh", "padded_crop"]
+           "hull_marching_cubes_mesh", "marching_cubes_mesh", "padded_crop", "voxel_centres"]
 
 #: Iso-level between empty (0) and occupied (1) voxels: just below 0.5. At
 #: exactly 0.5, Lewiner's ambiguity tests tie on 0/1 data (a cube face whose
@@ -194,6 +194,24 @@ def band_voxel_indices(crop: np.ndarray, band: int) -> np.ndarray:
     return out
 
 
+def voxel_centres(grid: VoxelGrid, voxels: np.ndarray, corner: np.ndarray) -> np.ndarray:
+    """(n, 3) float64 metres: ``grid.index_to_world(voxels + corner)`` (the same numbers)
+    of ``voxels`` (n, 3) int indices of a crop whose ``[0, 0, 0]`` is the grid's voxel
+    ``corner`` (3,), in one compiled pass over them side by side."""
+    out = np.empty((len(voxels), 3))
+    _centres(np.ascontiguousarray(voxels), np.asarray(corner, np.int64), grid.origin,
+             float(grid.voxel_size), out)
+    return out
+
+
+@njit(parallel=True, cache=True, nogil=True)
+def _centres(voxels, corner, origin, size, out):
+    """``out[p] = origin + (voxels[p] + corner) * size``, as numpy computes it."""
+    for p in prange(voxels.shape[0]):
+        for axis in range(3):
+            out[p, axis] = origin[axis] + np.float64(voxels[p, axis] + corner[axis]) * size
+
+
 def hull_band_floor_m(grid: VoxelGrid, band_voxels: int) -> float:
     """The floor (metres, < 0) of :func:`hull_band_distance`'s distances: below
     ``-(band_voxels + 1)`` voxels a value is clipped anyway, and the floor spares the views
@@ -250,7 +268,7 @@ def hull_band_distance(occupancy, grid: VoxelGrid, hull: HullDistance, *,
     if kept is not None and kept.band_voxels == band and same_grid(kept.grid, grid):
         distance = kept.distance(hull, voxels + corner) / grid.voxel_size
     else:
-        distance = hull(grid.index_to_world(voxels + corner),
+        distance = hull(voxel_centres(grid, voxels, corner),
                         floor_m=hull_band_floor_m(grid, band)) / grid.voxel_size
     distance = np.clip(distance, -pad, pad).astype(np.float32)
     # A sample exactly on the level makes Lewiner's ambiguity tests tie (see
@@ -260,7 +278,7 @@ def hull_band_distance(occupancy, grid: VoxelGrid, hull: HullDistance, *,
     starts, ends, start_values, end_values = crossing_ends(crop, voxels, distance, pad,
                                                            ordinal=ordinal)
     fractions = hull.segment_zeros(
-        grid.index_to_world(starts + corner), grid.index_to_world(ends + corner),
+        voxel_centres(grid, starts, corner), voxel_centres(grid, ends, corner),
         grid.voxel_size * start_values, grid.voxel_size * end_values,
         iterations=CROSSING_ITERATIONS, tolerance_m=CROSSING_TOLERANCE * grid.voxel_size,
         floor_m=hull_band_floor_m(grid, band))
