@@ -12,6 +12,7 @@ from sfs_ros.core.meshing.marching import (
     _oriented,
     band_voxel_indices,
     marching_cubes_mesh,
+    voxel_centres,
 )
 from sfs_ros.core.meshing.mesh_checks import check_mesh
 
@@ -176,3 +177,15 @@ def test_contouring_only_the_cubes_with_a_corner_in_the_band_gives_the_same_mesh
     assert len(whole[1]) > 1000
     for a, b in zip(whole, banded):
         np.testing.assert_array_equal(a, b)
+
+
+def test_voxel_centres_are_the_grids_own_numbers():
+    # The compiled pass against VoxelGrid.index_to_world, bit for bit, on a grid whose
+    # origin and voxel are not round numbers, with crop offsets either side of zero.
+    grid = VoxelGrid([-0.0731, 0.0193, -0.2417], [0.0816, 0.1704, -0.0311], 0.000731)
+    rng = np.random.default_rng(4)
+    voxels = rng.integers(0, 300, (5000, 3))
+    for corner in (np.array([-3, -3, -3]), np.array([17, 0, 211])):
+        np.testing.assert_array_equal(voxel_centres(grid, voxels, corner),
+                                      grid.index_to_world(voxels + corner))
+    assert voxel_centres(grid, voxels[:0], corner).shape == (0, 3)
