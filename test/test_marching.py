@@ -189,3 +189,6 @@ def test_voxel_centres_are_the_grids_own_numbers():
         np.testing.assert_array_equal(voxel_centres(grid, voxels, corner),
                                       grid.index_to_world(voxels + corner))
     assert voxel_centres(grid, voxels[:0], corner).shape == (0, 3)
+    between = voxels + rng.random(voxels.shape)     # a mesh's vertices, in voxels
+    np.testing.assert_array_equal(voxel_centres(grid, between, corner),
+                                  grid.origin + (between + corner) * grid.voxel_size)

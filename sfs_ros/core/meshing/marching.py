@@ -196,8 +196,9 @@ def band_voxel_indices(crop: np.ndarray, band: int) -> np.ndarray:
 
 def voxel_centres(grid: VoxelGrid, voxels: np.ndarray, corner: np.ndarray) -> np.ndarray:
     """(n, 3) float64 metres: ``grid.index_to_world(voxels + corner)`` (the same numbers)
-    of ``voxels`` (n, 3) int indices of a crop whose ``[0, 0, 0]`` is the grid's voxel
-    ``corner`` (3,), in one compiled pass over them side by side."""
+    of ``voxels`` (n, 3) indices (int, or float64 for points between them) of a crop whose
+    ``[0, 0, 0]`` is the grid's voxel ``corner`` (3,), in one compiled pass over them side
+    by side."""
     out = np.empty((len(voxels), 3))
     _centres(np.ascontiguousarray(voxels), np.asarray(corner, np.int64), grid.origin,
              float(grid.voxel_size), out)
@@ -462,8 +463,8 @@ def _oriented(verts: np.ndarray, faces: np.ndarray, corner: np.ndarray, grid: Vo
     """``(vertices (n, 3) float64 metres, faces (m, 3) int64)`` of a mesh of voxel indices
     ``verts`` (n, 3) float64 of a volume whose ``[0, 0, 0]`` is voxel ``corner``, its faces
     turned counter-clockwise seen from outside."""
-    vertices = grid.origin + (verts + corner) * grid.voxel_size
-    faces = faces.astype(np.int64)
+    vertices = voxel_centres(grid, verts, corner)
+    faces = faces.astype(np.int64, copy=False)
     if _signed_volume(vertices, faces) < 0:
         faces = faces[:, ::-1].copy()
     return vertices, faces
