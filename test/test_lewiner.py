@@ -245,7 +245,7 @@ def test_crossing_ends_are_the_dense_volumes_at_the_numbered_edges(seed):
         distance = np.where(rng.random(len(voxels)) < 0.1, 0.0,
                             rng.uniform(-PAD, PAD, len(voxels))).astype(np.float32)
         pad = [PAD, 3.0][trial % 2]
-        numbers = np.full((len(voxels), 6), -7, np.int64)
+        numbers = np.full((len(voxels), 6), -7, np.int32)
         lower, upper, at_lower, at_upper = crossing_ends(crop, voxels, distance, pad,
                                                          ordinal=numbers)
         ordinal, m = numbered_crossings(crop, voxels, distance)

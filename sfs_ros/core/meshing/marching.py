@@ -275,7 +275,7 @@ def hull_band_distance(occupancy, grid: VoxelGrid, hull: HullDistance, *,
     # A sample exactly on the level makes Lewiner's ambiguity tests tie (see
     # LEVEL); counting it as just outside (by 1e-6 voxel) breaks the tie.
     distance[distance == 0.0] = np.float32(1e-6)
-    ordinal = np.empty((len(voxels), 6), np.int64)
+    ordinal = np.empty((len(voxels), 6), np.int32)
     starts, ends, start_values, end_values = crossing_ends(crop, voxels, distance, pad,
                                                            ordinal=ordinal)
     fractions = hull.segment_zeros(
@@ -354,7 +354,7 @@ def crossing_edges(crop: np.ndarray, voxels: np.ndarray,
     be on the other side of the hull's surface, which lies up to a voxel from the carved
     one).
 
-    Returns ``ordinal`` (n, 6) int64: for band voxel ``i``, the edge's place in the order
+    Returns ``ordinal`` (n, 6) int32: for band voxel ``i``, the edge's place in the order
     (band voxel by band voxel) from it ahead along x, y, z (columns 0-2) and behind it
     (columns 3-5), -1 where the level does not cross or the edge is another voxel's;
     and ``m``, how many edges the level crosses. Found from the band's rows
@@ -363,7 +363,7 @@ def crossing_edges(crop: np.ndarray, voxels: np.ndarray,
     """
     band = _Band.of(crop, voxels, values)
     counts = band.plane_crossings()
-    ordinal = np.empty((len(voxels), 6), np.int64)
+    ordinal = np.empty((len(voxels), 6), np.int32)
     band.fill(counts, 1.0, ordinal, _NO_ENDS, _NO_END_VALUES)
     return ordinal, int(counts[-1])
 
@@ -377,7 +377,7 @@ def crossing_ends(crop: np.ndarray, voxels: np.ndarray, values: np.ndarray, pad:
     (m,) float32 voxels: the band's value, else ``-pad`` where ``crop`` is occupied and
     ``pad`` where it is not (the occupancy's sign, as off the band in
     :func:`band_marching_cubes`). Read from the band's values and the occupancy: no volume
-    of the crop's size. ``ordinal`` ((n, 6) int64, optional): filled with
+    of the crop's size. ``ordinal`` ((n, 6) int32, optional): filled with
     :func:`crossing_edges`' ``ordinal`` in the same pass."""
     band = _Band.of(crop, voxels, values)
     counts = band.plane_crossings()
@@ -391,7 +391,7 @@ def crossing_ends(crop: np.ndarray, voxels: np.ndarray, values: np.ndarray, pad:
     return lower, upper, end_values[:, 0].copy(), end_values[:, 1].copy()
 
 
-_NO_ORDINAL = np.empty((0, 6), np.int64)
+_NO_ORDINAL = np.empty((0, 6), np.int32)
 _NO_ENDS = np.empty((0, 4), np.int64)
 _NO_END_VALUES = np.empty((0, 2), np.float32)
 
