@@ -180,18 +180,42 @@ def band_voxel_indices(crop: np.ndarray, band: int) -> np.ndarray:
     whose (2 band + 1)^3 cube, beyond the array empty, holds both an occupied and an
     empty voxel. Found from the occupied runs along z of each column
     (:func:`~sfs_ros.core.carving.hull.column_runs`), in compiled passes over the
-    x-planes (a count, then the indices), as intervals of z (:func:`_band_pass`): no
-    pass over the whole volume per step, and no (n, 3) search of a dense mask."""
+    x-planes side by side: the band's intervals of z in each column (:func:`_band_pass`),
+    then their voxels: no pass over the whole volume per step, and no (n, 3) search of a
+    dense mask."""
     crop = np.ascontiguousarray(crop, dtype=bool)
     column_start, run_lo, run_hi = column_runs(crop)
     nx, ny, nz = crop.shape
+    # Room for each plane's intervals: a column's are at most twice the runs of the
+    # (2 band + 1)^2 columns around it (each union of widened runs, less the erosion,
+    # whose intervals are at most as many).
+    runs = np.diff(column_start).reshape(nx, ny).sum(axis=1)
+    near = np.convolve(np.concatenate([np.zeros(band, np.int64), runs,
+                                       np.zeros(band, np.int64)]),
+                       np.ones(2 * band + 1, np.int64), mode="valid")
+    room = np.zeros(nx + 1, np.int64)
+    np.cumsum(2 * (2 * band + 1) * near + 1, out=room[1:])
+    intervals = np.empty((room[-1], 3), np.int32)     # j, first z, last z
+    n_intervals = np.zeros(nx, np.int64)
     counts = np.zeros(nx + 1, np.int64)
-    _band_pass(column_start, run_lo, run_hi, ny, nz, band, counts, np.zeros((0, 3), np.int64))
+    _band_pass(column_start, run_lo, run_hi, ny, nz, band, room, intervals, n_intervals,
+               counts)
     np.cumsum(counts, out=counts)    # counts[i + 1] - counts[i]: the voxels of plane i
     out = np.empty((counts[-1], 3), np.int64)
-    if len(out):
-        _band_pass(column_start, run_lo, run_hi, ny, nz, band, counts, out)
+    _interval_voxels(room, intervals, n_intervals, counts, out)
     return out
+
+
+@njit(parallel=True, cache=True, nogil=True)
+def _interval_voxels(room, intervals, n_intervals, counts, out):
+    """The voxels of each plane's intervals (:func:`_band_pass`) into ``out`` from row
+    ``counts[i]``, in C order."""
+    for i in prange(n_intervals.shape[0]):
+        row = counts[i]
+        for q in range(room[i], room[i] + n_intervals[i]):
+            for k in range(intervals[q, 1], intervals[q, 2] + 1):
+                out[row, 0], out[row, 1], out[row, 2] = i, intervals[q, 0], k
+                row += 1
 
 
 def voxel_centres(grid: VoxelGrid, voxels: np.ndarray, corner: np.ndarray) -> np.ndarray:
@@ -483,26 +507,28 @@ def _signed_volume(vertices: np.ndarray, faces: np.ndarray) -> float:
 
 
 @njit(parallel=True, cache=True, nogil=True)
-def _band_pass(column_start, run_lo, run_hi, ny, nz, band, counts, out):
-    """With an empty ``out``: ``counts[1 + i]`` = the band voxels (:func:`band_voxel_indices`)
-    of x-plane i. Else (``counts`` their running sum from 0): their indices into ``out``
-    from row ``counts[i]``, in C order.
+def _band_pass(column_start, run_lo, run_hi, ny, nz, band, room, intervals, n_intervals,
+               counts):
+    """The band's voxels (:func:`band_voxel_indices`) of each x-plane i as intervals of z,
+    ``(j, first z, last z)`` in C order, into ``intervals`` from row ``room[i]`` (``room[i +
+    1] - room[i]`` of them at most), how many into ``n_intervals[i]``, and their voxels
+    into ``counts[1 + i]``.
 
     Along a column, as intervals of z: the dilation holds the runs of the (2 band + 1)^2
     columns around it each widened by ``band`` (their union), the erosion the runs each
     narrowed by ``band`` (their intersection; empty when a column around lies beyond the
     array); the band is the one less the other."""
     nx = (column_start.shape[0] - 1) // ny
-    fill = out.shape[0] > 0
     most_runs = 0
     for c in range(column_start.shape[0] - 1):
         most_runs = max(most_runs, column_start[c + 1] - column_start[c])
-    room = (2 * band + 1) ** 2 * most_runs + 1
+    scratch = (2 * band + 1) ** 2 * most_runs + 1
     for i in prange(nx):
-        grown = np.empty((room, 2), np.int64)     # widened runs, by their start
-        shrunk = np.empty((room, 2), np.int64)    # the intersection so far
-        other = np.empty((room, 2), np.int64)
-        row = counts[i] if fill else 0
+        grown = np.empty((scratch, 2), np.int64)     # widened runs, by their start
+        shrunk = np.empty((scratch, 2), np.int64)    # the intersection so far
+        other = np.empty((scratch, 2), np.int64)
+        row = 0
+        q = room[i]
         for j in range(ny):
             n_grown = 0
             n_shrunk = 0
@@ -540,14 +566,14 @@ def _band_pass(column_start, run_lo, run_hi, ny, nz, band, counts, out):
                     while e < n_shrunk and shrunk[e, 1] < z:
                         e += 1
                     stop = b if e == n_shrunk or shrunk[e, 0] > b else shrunk[e, 0] - 1
-                    for k in range(z, stop + 1):
-                        if fill:
-                            out[row, 0], out[row, 1], out[row, 2] = i, j, k
-                        row += 1
+                    if stop >= z:
+                        intervals[q, 0], intervals[q, 1], intervals[q, 2] = j, z, stop
+                        q += 1
+                        row += stop - z + 1
                     z = stop + 1 if e == n_shrunk or shrunk[e, 0] > b \
                         else shrunk[e, 1] + 1
-        if not fill:
-            counts[1 + i] = row
+        n_intervals[i] = q - room[i]
+        counts[1 + i] = row
 
 
 @njit(cache=True, nogil=True)
