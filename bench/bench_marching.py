@@ -31,7 +31,6 @@ from sfs_ros.core.meshing.lewiner import march_band
 from sfs_ros.core.meshing.marching import (
     _CROSSING_MARGIN,
     LEVEL,
-    _band_volume_of,
     band_voxel_indices,
     crossing_edges,
     hull_marching_cubes_mesh,
@@ -158,7 +157,8 @@ def run_band(quick: bool = False) -> list[dict]:
     voxels = band_voxel_indices(inside, 1)
     values = np.clip(distance[tuple(voxels.T)], -pad, pad)
     del distance
-    volume = _band_volume_of(inside, voxels, values, pad)
+    volume = np.where(inside, np.float32(pad), np.float32(-pad)).astype(np.float32)
+    volume[tuple(voxels.T)] = -values     # the band's volume, written out for scikit-image
     ordinal, m = crossing_edges(inside, voxels, values)
     crossings = np.random.default_rng(0).uniform(0.0, 1.0, m).astype(np.float32)
     cubes = np.zeros(shape, bool)

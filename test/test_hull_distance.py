@@ -18,8 +18,9 @@ from sfs_ros.core.geometry.camera import Camera
 from sfs_ros.core.geometry.grid import VoxelGrid
 from sfs_ros.core.meshing.advancing_front import advancing_front
 from sfs_ros.core.meshing.cloud import cloud_of_points
-from sfs_ros.core.meshing.hull_distance import DistanceImages, HullDistance
+from sfs_ros.core.meshing.hull_distance import DistanceImages, HullDistance, _groups
 from sfs_ros.core.meshing.marching import (
+    FoundBand,
     band_marching_cubes,
     hull_band_distance,
     hull_marching_cubes_mesh,
@@ -500,3 +501,40 @@ def test_segment_zeros_find_where_two_views_meet():
         hull.segment_zeros(starts, ends, f_start, f_end, iterations=-1)
     with pytest.raises(ValueError, match="floor_m"):
         hull.segment_zeros(starts, ends, f_start, f_end, iterations=2, floor_m=0.0)
+
+
+def sorted_cubes(points, edge_m):
+    """:func:`_groups` written out with numpy: each point's cube of ``edge_m`` from the
+    points' lowest corner as one C-order key, the points ordered by it stably."""
+    cells = np.floor((points - points.min(axis=0)) / edge_m).astype(np.int64)
+    size = cells.max(axis=0) + 1
+    keys = (cells[:, 0] * size[1] + cells[:, 1]) * size[2] + cells[:, 2]
+    order = np.argsort(keys, kind="stable")
+    starts = np.flatnonzero(np.diff(keys[order])) + 1
+    return order, np.concatenate([[0], starts, [len(points)]])
+
+
+@pytest.mark.parametrize("n, spread_m, edge_m", [
+    (1, 1.0, 0.1), (2000, 1.0, 0.01), (200_000, 0.3, 0.002),   # counted
+    (50, 1.0, 1e-4)])                                          # far more cubes than points
+def test_points_are_grouped_in_cubes_in_the_order_a_stable_sort_gives(n, spread_m, edge_m):
+    points = np.random.default_rng(n).random((n, 3)) * spread_m
+    points[: n // 3] = points[0]    # points sharing a cube keep their order
+    order, starts = _groups(points, edge_m)
+    expected_order, expected_starts = sorted_cubes(points, edge_m)
+    np.testing.assert_array_equal(order, expected_order)
+    np.testing.assert_array_equal(starts, expected_starts)
+
+
+def test_the_band_found_by_its_distance_gives_the_mesh_of_the_band_found_again(sphere_scan):
+    # hull_band_distance hands band_marching_cubes the crop, the band's voxels and the
+    # crossings per plane it found; without them (as after crossing a process) they are
+    # found again: the same mesh, bit for bit.
+    _, grid, occupancy, hull = sphere_scan
+    band = hull_band_distance(occupancy, grid, hull)
+    assert isinstance(band.found, FoundBand) and band.found.values is band.values
+    kept = band_marching_cubes(occupancy, grid, band)
+    again = band_marching_cubes(occupancy, grid, replace(band, found=None))
+    for a, b in zip(kept, again):
+        assert a.dtype == b.dtype and a.shape == b.shape
+        np.testing.assert_array_equal(a, b)

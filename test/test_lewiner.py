@@ -11,13 +11,21 @@ from skimage import measure
 from sfs_ros.core.meshing.lewiner import march_band
 from sfs_ros.core.meshing.marching import (
     _CROSSING_MARGIN,
-    _band_volume_of,
     band_voxel_indices,
     crossing_edges,
+    crossing_ends,
 )
 from sfs_ros.core.meshing.mesh_checks import check_mesh
 
 PAD = 2.0
+
+
+def dense_volume(crop, voxels, distance, pad=PAD):
+    """The volume the band stands for, written out: the negated ``distance`` at the band's
+    ``voxels``, ``pad`` where ``crop`` is occupied off it, ``-pad`` elsewhere (float32)."""
+    volume = np.where(crop, np.float32(pad), np.float32(-pad)).astype(np.float32)
+    volume[tuple(np.asarray(voxels).T)] = -np.asarray(distance, np.float32)
+    return volume
 
 
 def band_mask(shape, voxels):
@@ -64,7 +72,7 @@ def placed_on_crossings(verts, shape, voxels, ordinal, crossings):
 def reference(crop, voxels, distance, crossings):
     """scikit-image's mesh of the band's volume (the negated ``distance`` at the band's
     voxels, ``+-PAD`` by ``crop`` off it), placed on ``crossings`` (None: as it is)."""
-    volume = _band_volume_of(crop, voxels, distance, PAD)
+    volume = dense_volume(crop, voxels, distance)
     verts, faces, _, _ = measure.marching_cubes(volume, 0.0, allow_degenerate=False,
                                                 mask=band_mask(crop.shape, voxels))
     if crossings is None:
@@ -128,7 +136,7 @@ def test_random_volumes_and_bands_give_scikit_images_mesh(seed):
                     np.where(rng.random(n) < 0.3, [1e-6, 1e-9][trial % 2],
                              rng.uniform(-PAD, PAD, n))][trial % 3]
         distance = distance.astype(np.float32)
-        volume = _band_volume_of(crop, voxels, distance, PAD)
+        volume = dense_volume(crop, voxels, distance)
         if volume.min() >= 0 or volume.max() <= 0:
             continue    # no surface
         patterns |= cube_patterns(volume, band_mask(shape, voxels))
@@ -146,7 +154,7 @@ def test_degenerate_faces_are_dropped_as_scikit_image_drops_them():
     voxels = np.argwhere(np.ones(crop.shape, bool))
     distance = np.where(rng.random(len(voxels)) < 0.4, 1e-9,
                         rng.uniform(-PAD, PAD, len(voxels))).astype(np.float32)
-    volume = _band_volume_of(crop, voxels, distance, PAD)
+    volume = dense_volume(crop, voxels, distance)
     kept = measure.marching_cubes(volume, 0.0, allow_degenerate=False)[1]
     every = measure.marching_cubes(volume, 0.0, allow_degenerate=True)[1]
     assert len(kept) < len(every)
@@ -192,7 +200,7 @@ def numbered_crossings(crop, voxels, distance):
     """:func:`crossing_edges` written out on the dense volume: each band voxel's edges
     ahead along i, j, k, then behind (those whose lower end is off the band), numbered in
     turn where the ends' signs differ."""
-    inside = _band_volume_of(crop, voxels, distance, PAD) > 0
+    inside = dense_volume(crop, voxels, distance) > 0
     in_band = np.zeros(crop.shape, bool)
     in_band[tuple(voxels.T)] = True
     ordinal = np.full((len(voxels), 6), -1, np.int64)
@@ -222,3 +230,39 @@ def test_crossing_edges_are_numbered_as_on_the_dense_volume(seed):
         expected, expected_m = numbered_crossings(crop, voxels, distance)
         assert m == expected_m
         np.testing.assert_array_equal(ordinal, expected)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_crossing_ends_are_the_dense_volumes_at_the_numbered_edges(seed):
+    # Each crossing's two ends, in the crossings' order, and the distance there: the band's
+    # value, the occupancy's sign (+-pad) off it, as the dense volume holds them.
+    rng = np.random.default_rng(10 + seed)
+    crossed = 0
+    for trial in range(12):
+        shape = tuple(int(n) for n in rng.integers(2, 11, 3))
+        crop = rng.random(shape) < 0.5
+        voxels = np.argwhere(rng.random(shape) < rng.uniform(0.2, 1.0))
+        distance = np.where(rng.random(len(voxels)) < 0.1, 0.0,
+                            rng.uniform(-PAD, PAD, len(voxels))).astype(np.float32)
+        pad = [PAD, 3.0][trial % 2]
+        numbers = np.full((len(voxels), 6), -7, np.int32)
+        lower, upper, at_lower, at_upper = crossing_ends(crop, voxels, distance, pad,
+                                                         ordinal=numbers)
+        ordinal, m = numbered_crossings(crop, voxels, distance)
+        np.testing.assert_array_equal(numbers, ordinal)     # numbered in the same pass
+        volume = dense_volume(crop, voxels, distance, pad)
+        assert lower.shape == upper.shape == (m, 3) and at_lower.shape == at_upper.shape == (m,)
+        assert at_lower.dtype == at_upper.dtype == np.float32
+        expected_lower = np.empty((m, 3), np.int64)
+        expected_upper = np.empty((m, 3), np.int64)
+        for n, s in zip(*np.nonzero(ordinal >= 0)):
+            step = np.eye(3, dtype=np.int64)[s % 3]
+            ends = (voxels[n], voxels[n] + step) if s < 3 else (voxels[n] - step, voxels[n])
+            expected_lower[ordinal[n, s]], expected_upper[ordinal[n, s]] = ends
+        np.testing.assert_array_equal(lower, expected_lower)
+        np.testing.assert_array_equal(upper, expected_upper)
+        np.testing.assert_array_equal(at_lower, -volume[tuple(expected_lower.T)])
+        np.testing.assert_array_equal(at_upper, -volume[tuple(expected_upper.T)])
+        assert np.all((at_lower < 0) != (at_upper < 0))
+        crossed += m
+    assert crossed > 500

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from sfs_ros.core.meshing.mesh_checks import check_mesh
+from sfs_ros.core.meshing.mesh_checks import _closed_topology, _open_topology, check_mesh
+from sfs_ros.core.outline import edge_faces
 
 from tolerances import ROUND_OFF
 
@@ -147,6 +148,37 @@ def test_torus_genus_one_and_agrees_with_trimesh():
     assert r.area_m2 == pytest.approx(mesh.area, rel=ROUND_OFF)
     # The polygonal torus is inscribed in the smooth one, 2 pi^2 R r^2: below it.
     assert r.volume_m3 < 2.0 * np.pi ** 2 * 0.05 * 0.012 ** 2
+
+
+def closed_meshes():
+    """Closed, consistently oriented meshes: a cube, two cubes sharing a vertex (not
+    vertex-manifold), two apart, a torus, and a noisy sphere with its faces shuffled."""
+    shared = np.vstack([CUBE_VERTICES, CUBE_VERTICES[1:] + 1.0])
+    torus = trimesh.creation.torus(major_radius=0.05, minor_radius=0.012)
+    sphere = trimesh.creation.icosphere(subdivisions=4)
+    rng = np.random.default_rng(5)
+    return [(CUBE_VERTICES, CUBE_FACES),
+            (shared, np.vstack([CUBE_FACES, np.r_[7, np.arange(8, 15)][CUBE_FACES]])),
+            (np.vstack([CUBE_VERTICES, CUBE_VERTICES + 3.0]),
+             np.vstack([CUBE_FACES, CUBE_FACES + 8])),
+            (torus.vertices, torus.faces.astype(np.int64)),
+            (sphere.vertices + rng.normal(0, 0.01, sphere.vertices.shape),
+             np.roll(sphere.faces[rng.permutation(len(sphere.faces))], 1, axis=1))]
+
+
+@pytest.mark.parametrize("index", range(5))
+def test_a_closed_mesh_checked_from_its_paired_edges_as_from_its_sorted_half_edges(index):
+    # The closed path (edges paired by outline.edge_faces) against the general one on the
+    # same mesh: the same topology, field by field.
+    vertices, faces = closed_meshes()[index]
+    faces = np.ascontiguousarray(faces, np.int64)
+    paired = edge_faces(faces, len(vertices))
+    assert paired is not None
+    assert _closed_topology(faces, len(vertices), *paired) == \
+        _open_topology(faces, len(vertices))
+    given = check_mesh(vertices, faces, edges=paired)
+    assert given == check_mesh(vertices, faces)
+    assert given.vertex_manifold == (index != 1)
 
 
 def test_as_dict_is_json_ready():

@@ -23,6 +23,7 @@ from .meshing.colour import vertex_colours
 from .meshing.mesh_checks import check_mesh
 from .meshing.meshers import mesher
 from .metrics import reprojection_ious
+from .outline import edge_faces
 from .scan_report import meshing_report, per_view_ious, silhouette_iou_section
 
 __all__ = ["Reconstruction", "mesh_scan", "timed"]
@@ -66,7 +67,9 @@ class _Finish:
     """Colour, checks and evaluation of one mesh, overlapped: the colour blends its views
     (both cores), then fills the vertices no view sees (one core) beside the checks and
     then the evaluation (both cores), which wait for the views to be blended; with no
-    colour, the checks run beside the evaluation. With
+    colour, the checks run beside the evaluation. A mesh closed by construction has its
+    edges paired once (:func:`.outline.edge_faces`, :attr:`edges`), for the checks and the
+    evaluation both. With
     ``defer``, the evaluation draws only the held-out views (:attr:`deferred`: the others
     it does not draw)."""
 
@@ -81,6 +84,7 @@ class _Finish:
         self.evaluated = [i for i in drawn if not defer or carved.views[i].role == "held-out"]
         self.deferred = sorted(set(drawn) - set(self.evaluated))
         self.colour_views_blended = threading.Event()
+        self.edges = None
 
     def colour(self, closed: bool):
         carved = self.carved
@@ -105,12 +109,12 @@ class _Finish:
         with timed(self.timings, "evaluation"):
             return reprojection_ious(self.vertices, self.faces,
                                      [carved.views[i].camera for i in views],
-                                     [carved.masks[i] for i in views],
-                                     closed=closed) if views else []
+                                     [carved.masks[i] for i in views], closed=closed,
+                                     edges=self.edges if closed else None) if views else []
 
     def checks(self) -> dict:
         with timed(self.timings, "mesh_checks"):
-            return check_mesh(self.vertices, self.faces).as_dict()
+            return check_mesh(self.vertices, self.faces, edges=self.edges).as_dict()
 
     def run(self, closed_by_construction: bool) -> tuple[dict, object, list]:
         """``(mesh report, colours or None, silhouette IoU of the evaluated views)``.
@@ -121,6 +125,9 @@ class _Finish:
         other): on the evaluation's thread before it while the colour fills its unseen
         vertices, or with no colour on this thread while the evaluation runs. Another
         mesher's mesh is checked first."""
+        if closed_by_construction:
+            with timed(self.timings, "mesh_checks"):
+                self.edges = edge_faces(self.faces, len(self.vertices))
         given = None if closed_by_construction else self.checks()
         expect_closed = True if given is None else bool(given["watertight"]
                                                         and given["outward"])

@@ -155,7 +155,8 @@ def _coverage_overlap(vertices, faces, ends, sides, P, heights, widths, masks, m
                            crossings)
 
 
-def reprojection_ious(vertices, faces, cameras, masks, *, closed: bool = False) -> np.ndarray:
+def reprojection_ious(vertices, faces, cameras, masks, *, closed: bool = False,
+                      edges=None) -> np.ndarray:
     """(n,) float64: per camera, IoU of the mesh's silhouette with its (H, W) bool mask.
 
     The same pixel-centre coverage as :func:`reprojection_iou`, for all views
@@ -165,8 +166,9 @@ def reprojection_ious(vertices, faces, cameras, masks, *, closed: bool = False) 
     on a fine mesh; a pixel centre exactly on the outline may go
     the other way), any other from the faces turned towards the camera (every
     ray into a closed surface enters through one). A mesh found not to be
-    closed is drawn face by face. vertices : (n, 3) float64, metres; faces :
-    (m, 3) int.
+    closed is drawn face by face. ``edges``: :func:`~sfs_ros.core.outline.edge_faces` of
+    the mesh, when made already (with ``closed``; it is made here otherwise). vertices :
+    (n, 3) float64, metres; faces : (m, 3) int.
     """
     vertices, faces = as_mesh_arrays(vertices, faces)
     cameras = list(cameras)
@@ -188,7 +190,9 @@ def reprojection_ious(vertices, faces, cameras, masks, *, closed: bool = False) 
     mask_px = np.array([np.count_nonzero(m) for m in masks], np.int64)
     if len(faces):
         none = np.zeros((0, 2), np.int32)
-        ends, sides = (edge_faces(faces, len(vertices)) if closed else None) or (none, none)
+        if closed and edges is None:
+            edges = edge_faces(faces, len(vertices))
+        ends, sides = (edges if closed else None) or (none, none)
         # (32-bit indices: half the memory each view reads)
         _coverage_overlap(vertices, faces.astype(np.int32), ends, sides, P, heights, widths,
                           flat, moff, mask_px, bool(closed),

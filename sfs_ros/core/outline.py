@@ -54,16 +54,18 @@ def edges_by_lower_vertex(faces, n):
 
 @njit(cache=True, nogil=True)
 def _pair_half_edges(faces, n):
-    """Undirected edges ``(a, b, f_ab, f_ba)``, ``a < b`` vertex indices, ``f_ab`` the
-    face whose corner runs from ``a`` to ``b`` and ``f_ba`` the one that runs back; and
-    whether every half-edge found exactly one running back (a closed, consistently
-    oriented, edge-manifold mesh without repeated corners). Half-edges are grouped by
-    their lower vertex (a counting sort), then matched within each group."""
+    """Undirected edges: ``ends`` ``(a, b)``, ``a < b`` vertex indices, and ``sides``
+    ``(f_ab, f_ba)``, ``f_ab`` the face whose corner runs from ``a`` to ``b`` and ``f_ba``
+    the one that runs back, (3 m / 2, 2) int32 each; and whether every half-edge found
+    exactly one running back (a closed, consistently oriented, edge-manifold mesh without
+    repeated corners). Half-edges are grouped by their lower vertex (a counting sort),
+    then matched within each group."""
     m = faces.shape[0]
-    start, grouped = edges_by_lower_vertex(faces, n)
-    edges = np.empty(((3 * m) // 2, 4), np.int64)
+    ends = np.empty(((3 * m) // 2, 2), np.int32)
+    sides = np.empty(((3 * m) // 2, 2), np.int32)
     if (3 * m) % 2:
-        return edges, False
+        return ends, sides, False
+    start, grouped = edges_by_lower_vertex(faces, n)
     count = 0
     for i in range(n):
         for p in range(start[i], start[i + 1]):
@@ -72,7 +74,7 @@ def _pair_half_edges(faces, n):
                 continue   # matched already
             tail, head = faces[hp // 3, hp % 3], faces[hp // 3, (hp % 3 + 1) % 3]
             if tail == head:
-                return edges, False
+                return ends, sides, False
             match = -1
             for q in range(p + 1, start[i + 1]):
                 hq = grouped[q]
@@ -83,16 +85,16 @@ def _pair_half_edges(faces, n):
                 if max(other_tail, other_head) != max(tail, head):
                     continue
                 if match >= 0 or other_tail != head or other_head != tail:
-                    return edges, False   # a third use, or the same way round
+                    return ends, sides, False   # a third use, or the same way round
                 match = q
-            if match < 0 or count == edges.shape[0]:
-                return edges, False       # a boundary edge
+            if match < 0 or count == ends.shape[0]:
+                return ends, sides, False       # a boundary edge
             forward, backward = (hp, grouped[match]) if tail < head else (grouped[match], hp)
-            edges[count, 0], edges[count, 1] = min(tail, head), max(tail, head)
-            edges[count, 2], edges[count, 3] = forward // 3, backward // 3
+            ends[count, 0], ends[count, 1] = min(tail, head), max(tail, head)
+            sides[count, 0], sides[count, 1] = forward // 3, backward // 3
             grouped[match] = -1
             count += 1
-    return edges, count == edges.shape[0]
+    return ends, sides, count == ends.shape[0]
 
 
 def edge_faces(faces: np.ndarray, n_vertices: int) -> tuple[np.ndarray, np.ndarray] | None:
@@ -113,11 +115,9 @@ def edge_faces(faces: np.ndarray, n_vertices: int) -> tuple[np.ndarray, np.ndarr
         back. None unless every edge is used by exactly two faces, once each way
         (closed, consistently oriented, no corner repeated in a face).
     """
-    edges, closed = _pair_half_edges(np.ascontiguousarray(faces, np.int64), int(n_vertices))
-    if not closed:
-        return None
-    return (np.ascontiguousarray(edges[:, :2], np.int32),
-            np.ascontiguousarray(edges[:, 2:], np.int32))
+    ends, sides, closed = _pair_half_edges(np.ascontiguousarray(faces, np.int64),
+                                           int(n_vertices))
+    return (ends, sides) if closed else None
 
 
 @njit(cache=True, inline="always")

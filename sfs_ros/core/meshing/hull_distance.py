@@ -462,17 +462,73 @@ def point_groups(points: np.ndarray, floor_m: float) -> tuple[np.ndarray, np.nda
 
 def _groups(points: np.ndarray, edge_m: float) -> tuple[np.ndarray, np.ndarray]:
     """The points (n, 3) in cubes of ``edge_m`` metres: ``order`` (n,) int64, the point
-    indices cube by cube, and ``starts`` (groups + 1,) int64, where each cube's begin."""
-    # (column by column: numpy reduces an (n, 3) array along its first axis much slower)
-    cells = np.floor((points - [points[:, k].min() for k in range(3)]) / edge_m).astype(np.int64)
-    size = [cells[:, k].max() + 1 for k in range(3)]
-    keys = (cells[:, 0] * size[1] + cells[:, 1]) * size[2] + cells[:, 2]
-    if keys.max() < 1 << 16:  # numpy sorts 16-bit integers by radix, much faster
-        keys = keys.astype(np.uint16)
-    order = np.argsort(keys, kind="stable")
-    sorted_keys = keys[order]
-    starts = np.flatnonzero(np.diff(sorted_keys)) + 1
-    return order, np.concatenate([[0], starts, [len(points)]]).astype(np.int64)
+    indices cube by cube (cubes in C order from the points' lowest corner, points in their
+    order within a cube), and ``starts`` (groups + 1,) int64, where each cube's begin."""
+    pts = np.ascontiguousarray(points, dtype=np.float64)
+    if not len(pts):
+        return np.zeros(0, np.int64), np.zeros(1, np.int64)
+    keys, n_keys = _cube_keys(pts, float(edge_m))
+    if n_keys <= _COUNTING_SORT_KEYS_PER_POINT * len(pts) + (1 << 16):
+        order = _counting_order(keys, int(n_keys))
+    else:       # cubes far apart: as many counters as cubes would not pay
+        order = np.argsort(keys, kind="stable")
+    return order, _group_starts(keys, order)
+
+
+#: Cube keys per point up to which :func:`_groups` sorts by counting (one counter per key).
+_COUNTING_SORT_KEYS_PER_POINT = 4
+
+
+@njit(parallel=True, cache=True, nogil=True)
+def _cube_keys(points, edge_m):
+    """(n,) int64: each point's cube of ``edge_m`` metres from the points' lowest corner,
+    in C order (``(cx * size_y + cy) * size_z + cz``), and how many keys there are (a
+    float: there may be more than int64 holds). The points side by side."""
+    n = points.shape[0]
+    lo = np.empty(3)
+    for axis in range(3):
+        lo[axis] = points[:, axis].min()
+    cells = np.empty((n, 3), np.int64)
+    for p in prange(n):
+        for axis in range(3):
+            cells[p, axis] = np.int64(np.floor((points[p, axis] - lo[axis]) / edge_m))
+    size = np.zeros(3, np.int64)
+    for axis in range(3):
+        size[axis] = cells[:, axis].max() + 1
+    keys = np.empty(n, np.int64)
+    for p in prange(n):
+        keys[p] = (cells[p, 0] * size[1] + cells[p, 1]) * size[2] + cells[p, 2]
+    return keys, np.float64(size[0]) * np.float64(size[1]) * np.float64(size[2])
+
+
+@njit(cache=True, nogil=True)
+def _counting_order(keys, n_keys):
+    """(n,) int64: a stable order of ``keys`` (n,) int64 in ``[0, n_keys)`` (a counting
+    sort: ``np.argsort(keys, kind="stable")``)."""
+    first = np.zeros(n_keys + 1, np.int64)
+    for p in range(keys.shape[0]):
+        first[keys[p] + 1] += 1
+    for k in range(n_keys):
+        first[k + 1] += first[k]
+    order = np.empty(keys.shape[0], np.int64)
+    for p in range(keys.shape[0]):
+        order[first[keys[p]]] = p
+        first[keys[p]] += 1
+    return order
+
+
+@njit(cache=True, nogil=True)
+def _group_starts(keys, order):
+    """(groups + 1,) int64: where each run of equal ``keys[order]`` begins, and the end."""
+    n = order.shape[0]
+    starts = np.empty(n + 1, np.int64)
+    count = 0
+    for q in range(n):
+        if q == 0 or keys[order[q]] != keys[order[q - 1]]:
+            starts[count] = q
+            count += 1
+    starts[count] = n
+    return starts[:count + 1].copy()
 
 
 @njit(parallel=True, cache=True)

@@ -113,7 +113,7 @@ def march_band(crop: np.ndarray, pad: float, voxels: np.ndarray, values: np.ndar
     the band's ``voxels`` (n, 3) (C order) and ``pad`` where ``crop`` (3-D bool) is
     occupied, ``-pad`` elsewhere; only the cubes with a corner in the band are visited.
 
-    ``ordinal`` (n, 6) and ``crossings`` (m,) float32 (``marching.crossing_edges``): a vertex
+    ``ordinal`` (n, 6) int32 and ``crossings`` (m,) float32 (``marching.crossing_edges``): a vertex
     on a grid edge with a crossing is placed on it, at its fraction of the edge from the
     lower end clipped to ``[margin, 1 - margin]``; None: every vertex where the linear
     interpolation puts it.
@@ -129,7 +129,7 @@ def march_band(crop: np.ndarray, pad: float, voxels: np.ndarray, values: np.ndar
     n0, n1, _ = crop.shape
     rows = band_rows(voxels, n0, n1)
     if ordinal is None or crossings is None:
-        ordinal = np.full((0, 6), -1, np.int64)
+        ordinal = np.full((0, 6), -1, np.int32)
         crossings = np.zeros(0, np.float32)
     band_k = np.ascontiguousarray(voxels[:, 2], dtype=np.int64)
     values = np.ascontiguousarray(values, dtype=np.float32)

@@ -34,10 +34,10 @@ from ..geometry.grid import VoxelGrid
 from .hull_distance import HullDistance
 from .lewiner import band_rows, march_band
 
-__all__ = ["BandDistance", "BandEdges", "band_marching_cubes", "band_values",
-           "band_voxel_indices", "crossing_edges",
-           "hull_band_distance", "hull_band_floor_m", "hull_marching_cubes_mesh",
-           "marching_cubes_mesh", "padded_crop"]
+__all__ = ["BandDistance", "BandEdges", "FoundBand", "band_marching_cubes", "band_values",
+           "band_voxel_indices", "crossing_edges", "crossing_ends", "hull_band_distance",
+           "hull_band_floor_m", "hull_marching_cubes_mesh", "marching_cubes_mesh",
+           "padded_crop", "voxel_centres"]
 
 #: Iso-level between empty (0) and occupied (1) voxels: just below 0.5. At
 #: exactly 0.5, Lewiner's ambiguity tests tie on 0/1 data (a cube face whose
@@ -133,17 +133,34 @@ class BandDistance:
         (:func:`crossing_edges`, in their order), as the fraction of the edge from its
         lower end (the smaller index): the vertex of marching cubes on that edge. None:
         the linear interpolation of the values.
-    voxels : (n, 3) int32 or None
-        The band's voxels (:func:`band_voxel_indices` of the occupancy's padded crop) as
-        :func:`hull_band_distance` found them, so that :func:`band_marching_cubes` of the
-        same occupancy need not find them again; None (e.g. after crossing a process):
-        found again, the same.
+    found : :class:`FoundBand` or None
+        What :func:`hull_band_distance` found of the occupancy, so that
+        :func:`band_marching_cubes` of the same occupancy need not find it again; None
+        (e.g. after crossing a process): found again, the same.
     """
 
     values: np.ndarray
     band_voxels: int = 1
     crossings: np.ndarray | None = None
-    voxels: np.ndarray | None = field(default=None, compare=False, repr=False)
+    found: FoundBand | None = field(default=None, compare=False, repr=False)
+
+
+@dataclass(frozen=True)
+class FoundBand:
+    """The band of an occupancy as :func:`hull_band_distance` found it.
+
+    crop, corner : :func:`padded_crop` of the occupancy.
+    voxels : (n, 3) int32, :func:`band_voxel_indices` of ``crop``.
+    values : the band's values the crossings were found from (the very array).
+    ordinal, crossed : :func:`crossing_edges` of ``crop``, ``voxels`` and ``values``.
+    """
+
+    crop: np.ndarray
+    corner: np.ndarray
+    voxels: np.ndarray
+    values: np.ndarray
+    ordinal: np.ndarray
+    crossed: int
 
 
 def padded_crop(occ: np.ndarray, band: int) -> tuple[np.ndarray, np.ndarray]:
@@ -164,18 +181,61 @@ def band_voxel_indices(crop: np.ndarray, band: int) -> np.ndarray:
     whose (2 band + 1)^3 cube, beyond the array empty, holds both an occupied and an
     empty voxel. Found from the occupied runs along z of each column
     (:func:`~sfs_ros.core.carving.hull.column_runs`), in compiled passes over the
-    x-planes (a count, then the indices), as intervals of z (:func:`_band_pass`): no
-    pass over the whole volume per step, and no (n, 3) search of a dense mask."""
+    x-planes side by side: the band's intervals of z in each column (:func:`_band_pass`),
+    then their voxels: no pass over the whole volume per step, and no (n, 3) search of a
+    dense mask."""
     crop = np.ascontiguousarray(crop, dtype=bool)
     column_start, run_lo, run_hi = column_runs(crop)
     nx, ny, nz = crop.shape
+    # Room for each plane's intervals: a column's are at most twice the runs of the
+    # (2 band + 1)^2 columns around it (each union of widened runs, less the erosion,
+    # whose intervals are at most as many).
+    runs = np.diff(column_start).reshape(nx, ny).sum(axis=1)
+    near = np.convolve(np.concatenate([np.zeros(band, np.int64), runs,
+                                       np.zeros(band, np.int64)]),
+                       np.ones(2 * band + 1, np.int64), mode="valid")
+    room = np.zeros(nx + 1, np.int64)
+    np.cumsum(2 * (2 * band + 1) * near + 1, out=room[1:])
+    intervals = np.empty((room[-1], 3), np.int32)     # j, first z, last z
+    n_intervals = np.zeros(nx, np.int64)
     counts = np.zeros(nx + 1, np.int64)
-    _band_pass(column_start, run_lo, run_hi, ny, nz, band, counts, np.zeros((0, 3), np.int64))
+    _band_pass(column_start, run_lo, run_hi, ny, nz, band, room, intervals, n_intervals,
+               counts)
     np.cumsum(counts, out=counts)    # counts[i + 1] - counts[i]: the voxels of plane i
     out = np.empty((counts[-1], 3), np.int64)
-    if len(out):
-        _band_pass(column_start, run_lo, run_hi, ny, nz, band, counts, out)
+    _interval_voxels(room, intervals, n_intervals, counts, out)
     return out
+
+
+@njit(parallel=True, cache=True, nogil=True)
+def _interval_voxels(room, intervals, n_intervals, counts, out):
+    """The voxels of each plane's intervals (:func:`_band_pass`) into ``out`` from row
+    ``counts[i]``, in C order."""
+    for i in prange(n_intervals.shape[0]):
+        row = counts[i]
+        for q in range(room[i], room[i] + n_intervals[i]):
+            for k in range(intervals[q, 1], intervals[q, 2] + 1):
+                out[row, 0], out[row, 1], out[row, 2] = i, intervals[q, 0], k
+                row += 1
+
+
+def voxel_centres(grid: VoxelGrid, voxels: np.ndarray, corner: np.ndarray) -> np.ndarray:
+    """(n, 3) float64 metres: ``grid.index_to_world(voxels + corner)`` (the same numbers)
+    of ``voxels`` (n, 3) indices (int, or float64 for points between them) of a crop whose
+    ``[0, 0, 0]`` is the grid's voxel ``corner`` (3,), in one compiled pass over them side
+    by side."""
+    out = np.empty((len(voxels), 3))
+    _centres(np.ascontiguousarray(voxels), np.asarray(corner, np.int64), grid.origin,
+             float(grid.voxel_size), out)
+    return out
+
+
+@njit(parallel=True, cache=True, nogil=True)
+def _centres(voxels, corner, origin, size, out):
+    """``out[p] = origin + (voxels[p] + corner) * size``, as numpy computes it."""
+    for p in prange(voxels.shape[0]):
+        for axis in range(3):
+            out[p, axis] = origin[axis] + np.float64(voxels[p, axis] + corner[axis]) * size
 
 
 def hull_band_floor_m(grid: VoxelGrid, band_voxels: int) -> float:
@@ -234,12 +294,15 @@ def hull_band_distance(occupancy, grid: VoxelGrid, hull: HullDistance, *,
         kept = None
     distance = band_values(
         kept.distance(hull, voxels + corner) if kept is not None else
-        hull(grid.index_to_world(voxels + corner), floor_m=hull_band_floor_m(grid, band)),
+        hull(voxel_centres(grid, voxels, corner), floor_m=hull_band_floor_m(grid, band)),
         grid, band)
-    edges = BandEdges.of(crop, corner, voxels, distance, grid, band)
+    ordinal = np.empty((len(voxels), 6), np.int32)
+    edges = BandEdges.of(crop, corner, voxels, distance, grid, band, ordinal=ordinal)
     fractions = kept.crossings(hull, edges) if kept is not None else edges.zeros(hull)
     return BandDistance(values=distance, band_voxels=band,
-                        crossings=fractions.astype(np.float32), voxels=voxels.astype(np.int32))
+                        crossings=fractions.astype(np.float32),
+                        found=FoundBand(crop, corner, voxels.astype(np.int32), distance,
+                                        ordinal, len(edges)))
 
 
 def band_values(distance_m: np.ndarray, grid: VoxelGrid, band_voxels: int) -> np.ndarray:
@@ -258,9 +321,9 @@ class BandEdges:
     """The grid edges the level of a band's values crosses (:func:`crossing_edges`, in
     its order), where :func:`hull_band_distance` finds the hull's zero: their ``lower``
     and ``upper`` ends, (m, 3) int64 grid indices (one step apart along an axis), and the
-    volume's values there as :meth:`HullDistance.segment_zeros` takes them, ``f_lower``
-    and ``f_upper`` (m,) metres (the band's values, or its ``+-(band + 1)`` voxels off
-    it); on ``grid``, for a band of ``band_voxels``."""
+    distance there as :meth:`HullDistance.segment_zeros` takes it, ``f_lower`` and
+    ``f_upper`` (m,) metres (the band's values, or its ``+-(band + 1)`` voxels off it);
+    on ``grid``, for a band of ``band_voxels``."""
 
     lower: np.ndarray
     upper: np.ndarray
@@ -271,15 +334,15 @@ class BandEdges:
 
     @classmethod
     def of(cls, crop: np.ndarray, corner: np.ndarray, voxels: np.ndarray,
-           values: np.ndarray, grid: VoxelGrid, band_voxels: int) -> "BandEdges":
+           values: np.ndarray, grid: VoxelGrid, band_voxels: int, *,
+           ordinal: np.ndarray | None = None) -> "BandEdges":
         """The edges of the band's ``values`` (:func:`band_values`) at ``voxels`` (n, 3)
         of ``crop`` (:func:`padded_crop` of the occupancy, whose ``[0, 0, 0]`` is the grid
-        index ``corner``)."""
-        volume = _band_volume_of(crop, voxels, values, band_voxels + 1)
-        starts, ends = _crossing_ends(crop, voxels, values)
-        return cls(starts + corner, ends + corner,
-                   -grid.voxel_size * volume[tuple(starts.T)],
-                   -grid.voxel_size * volume[tuple(ends.T)], grid, band_voxels)
+        index ``corner``); ``ordinal`` filled as :func:`crossing_ends` fills it."""
+        lower, upper, f_lower, f_upper = crossing_ends(crop, voxels, values, band_voxels + 1,
+                                                       ordinal=ordinal)
+        return cls(lower + corner, upper + corner, grid.voxel_size * f_lower,
+                   grid.voxel_size * f_upper, grid, band_voxels)
 
     def __len__(self) -> int:
         return len(self.lower)
@@ -290,34 +353,14 @@ class BandEdges:
         with ``traced``, ``(that, its ZeroTrace)``
         (:meth:`HullDistance.traced_segment_zeros`)."""
         find = hull.traced_segment_zeros if traced else hull.segment_zeros
-        return find(self.grid.index_to_world(self.lower[rows]),
-                    self.grid.index_to_world(self.upper[rows]),
+        return find(voxel_centres(self.grid, self.lower[rows], _NO_CORNER),
+                    voxel_centres(self.grid, self.upper[rows], _NO_CORNER),
                     self.f_lower[rows], self.f_upper[rows], iterations=CROSSING_ITERATIONS,
                     tolerance_m=CROSSING_TOLERANCE * self.grid.voxel_size,
                     floor_m=hull_band_floor_m(self.grid, self.band_voxels))
 
 
-def _band_volume_of(crop: np.ndarray, voxels: np.ndarray, values: np.ndarray,
-                    pad: int) -> np.ndarray:
-    """The volume the level is found in (the crop's shape, float32: the negated distance
-    in voxels at the band's ``voxels``, ``+-pad`` by the occupancy off it)."""
-    volume = np.empty(crop.shape, np.float32)
-    _band_volume(crop, voxels, values, np.float32(pad), volume)
-    return volume
-
-
-def _crossing_ends(crop: np.ndarray, voxels: np.ndarray,
-                   distance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The grid edges the level crosses at a band voxel, in :func:`crossing_edges`' order:
-    their lower and upper ends, (m, 3) int64 indices each."""
-    ordinal, m = crossing_edges(crop, voxels, distance)
-    at, slot = np.nonzero(ordinal >= 0)
-    order = np.argsort(ordinal[at, slot])
-    at, slot = at[order], slot[order]
-    step = np.zeros((m, 3), np.int64)
-    step[np.arange(m), slot % 3] = 1
-    lower = voxels[at] - step * (slot >= 3)[:, None]
-    return lower, lower + step
+_NO_CORNER = np.zeros(3, np.int64)
 
 
 def band_marching_cubes(occupancy, grid: VoxelGrid, band: BandDistance):
@@ -343,10 +386,12 @@ def band_marching_cubes(occupancy, grid: VoxelGrid, band: BandDistance):
     """
     occ = _check_occupancy(occupancy, grid)
     width = _check_band(band.band_voxels)
-    crop, corner = padded_crop(occ, width)
     pad = width + 1
-    voxels = band.voxels
-    if voxels is None or len(voxels) != len(band.values):
+    found = band.found
+    if found is not None and len(found.voxels) == len(band.values):
+        crop, corner, voxels = found.crop, found.corner, found.voxels
+    else:
+        crop, corner = padded_crop(occ, width)
         voxels = band_voxel_indices(crop, width)
     values = np.asarray(band.values)
     if values.dtype != np.float32 or values.shape != (len(voxels),):
@@ -354,7 +399,10 @@ def band_marching_cubes(occupancy, grid: VoxelGrid, band: BandDistance):
                          f"({len(voxels)},): one value per voxel of the band")
     ordinal = crossings = None
     if band.crossings is not None:
-        ordinal, m = crossing_edges(crop, voxels, values)
+        if found is not None and found.values is band.values and found.voxels is voxels:
+            ordinal, m = found.ordinal, found.crossed
+        else:
+            ordinal, m = crossing_edges(crop, voxels, values)
         crossings = np.asarray(band.crossings)
         if crossings.dtype != np.float32 or crossings.shape != (m,):
             raise ValueError(f"band crossings are {crossings.dtype} {crossings.shape}, expected "
@@ -373,26 +421,81 @@ def crossing_edges(crop: np.ndarray, voxels: np.ndarray,
     """The grid edges at a band voxel whose ends lie on either side of the hull's surface:
     where marching cubes puts a vertex. The volume is the distance ``values`` (n,) float32
     (voxels, positive outside) at the band's ``voxels`` (n, 3) of the 3-D bool ``crop``
-    (C order) and, off the band, the occupancy's sign (:func:`_band_volume_of`, negated):
-    an end is inside where the distance is below 0, or off the band where occupied. An
-    edge is at the band voxel ``voxels[i]`` as its lower end, or as its upper end when its
-    lower end is off the band (where the distance was not computed, and keeps the
-    occupancy's sign: a band voxel beside it may be on the other side of the hull's
-    surface, which lies up to a voxel from the carved one).
+    (C order) and, off the band, the occupancy's sign: an end is inside where the distance
+    is below 0, or off the band where occupied. An edge is at the band voxel ``voxels[i]``
+    as its lower end, or as its upper end when its lower end is off the band (where the
+    distance was not computed, and keeps the occupancy's sign: a band voxel beside it may
+    be on the other side of the hull's surface, which lies up to a voxel from the carved
+    one).
 
-    Returns ``ordinal`` (n, 6) int64: for band voxel ``i``, the edge's place in the order
+    Returns ``ordinal`` (n, 6) int32: for band voxel ``i``, the edge's place in the order
     (band voxel by band voxel) from it ahead along x, y, z (columns 0-2) and behind it
     (columns 3-5), -1 where the level does not cross or the edge is another voxel's;
     and ``m``, how many edges the level crosses. Found from the band's rows
-    (:func:`.lewiner.band_rows`): no pass over the crop.
+    (:func:`.lewiner.band_rows`), the crop's planes side by side (a count, then the
+    numbers): no pass over the crop.
     """
-    crop = np.ascontiguousarray(crop, dtype=bool)
-    rows = band_rows(voxels, crop.shape[0], crop.shape[1])
-    ordinal = np.empty((len(voxels), 6), np.int64)
-    m = _number_crossings(crop, rows,
-                          np.ascontiguousarray(voxels[:, 2], dtype=np.int64),
-                          np.ascontiguousarray(values, dtype=np.float32), ordinal)
-    return ordinal, int(m)
+    band = _Band.of(crop, voxels, values)
+    counts = band.plane_crossings()
+    ordinal = np.empty((len(voxels), 6), np.int32)
+    band.fill(counts, 1.0, ordinal, _NO_ENDS, _NO_END_VALUES)
+    return ordinal, int(counts[-1])
+
+
+def crossing_ends(crop: np.ndarray, voxels: np.ndarray, values: np.ndarray, pad: float, *,
+                  ordinal: np.ndarray | None = None
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The ends of the grid edges the level crosses (:func:`crossing_edges`, in its
+    order) and the distance there: ``lower``, ``upper`` (m, 3) int64 indices of ``crop``
+    (the upper end one step from the lower along the edge's axis) and the distance at each,
+    (m,) float32 voxels: the band's value, else ``-pad`` where ``crop`` is occupied and
+    ``pad`` where it is not (the occupancy's sign, as off the band in
+    :func:`band_marching_cubes`). Read from the band's values and the occupancy: no volume
+    of the crop's size. ``ordinal`` ((n, 6) int32, optional): filled with
+    :func:`crossing_edges`' ``ordinal`` in the same pass."""
+    band = _Band.of(crop, voxels, values)
+    counts = band.plane_crossings()
+    m = int(counts[-1])
+    ends, end_values = np.empty((m, 4), np.int64), np.empty((m, 2), np.float32)
+    if m or ordinal is not None:
+        band.fill(counts, pad, _NO_ORDINAL if ordinal is None else ordinal, ends, end_values)
+    lower = np.ascontiguousarray(ends[:, :3])
+    upper = lower.copy()
+    upper[np.arange(m), ends[:, 3]] += 1
+    return lower, upper, end_values[:, 0].copy(), end_values[:, 1].copy()
+
+
+_NO_ORDINAL = np.empty((0, 6), np.int32)
+_NO_ENDS = np.empty((0, 4), np.int64)
+_NO_END_VALUES = np.empty((0, 2), np.float32)
+
+
+@dataclass(frozen=True)
+class _Band:
+    """A band as :func:`_crossings_pass` reads it: the crop, the band's rows
+    (:func:`.lewiner.band_rows`), their voxels' k and values."""
+
+    crop: np.ndarray
+    rows: np.ndarray
+    band_k: np.ndarray
+    values: np.ndarray
+
+    @classmethod
+    def of(cls, crop, voxels, values) -> _Band:
+        crop = np.ascontiguousarray(crop, dtype=bool)
+        return cls(crop, band_rows(voxels, crop.shape[0], crop.shape[1]),
+                   np.ascontiguousarray(voxels[:, 2], dtype=np.int64),
+                   np.ascontiguousarray(values, dtype=np.float32))
+
+    def plane_crossings(self) -> np.ndarray:
+        counts = np.zeros(self.crop.shape[0] + 1, np.int64)
+        _crossings_pass(self.crop, self.rows, self.band_k, self.values, np.float32(1.0),
+                        False, counts, _NO_ORDINAL, _NO_ENDS, _NO_END_VALUES)
+        return np.cumsum(counts, out=counts)
+
+    def fill(self, counts, pad, ordinal, ends, end_values) -> None:
+        _crossings_pass(self.crop, self.rows, self.band_k, self.values, np.float32(pad), True,
+                        counts, ordinal, ends, end_values)
 
 
 def hull_marching_cubes_mesh(occupancy, grid: VoxelGrid, hull: HullDistance, *,
@@ -434,8 +537,8 @@ def _oriented(verts: np.ndarray, faces: np.ndarray, corner: np.ndarray, grid: Vo
     """``(vertices (n, 3) float64 metres, faces (m, 3) int64)`` of a mesh of voxel indices
     ``verts`` (n, 3) float64 of a volume whose ``[0, 0, 0]`` is voxel ``corner``, its faces
     turned counter-clockwise seen from outside."""
-    vertices = grid.origin + (verts + corner) * grid.voxel_size
-    faces = faces.astype(np.int64)
+    vertices = voxel_centres(grid, verts, corner)
+    faces = faces.astype(np.int64, copy=False)
     if _signed_volume(vertices, faces) < 0:
         faces = faces[:, ::-1].copy()
     return vertices, faces
@@ -454,26 +557,28 @@ def _signed_volume(vertices: np.ndarray, faces: np.ndarray) -> float:
 
 
 @njit(parallel=True, cache=True, nogil=True)
-def _band_pass(column_start, run_lo, run_hi, ny, nz, band, counts, out):
-    """With an empty ``out``: ``counts[1 + i]`` = the band voxels (:func:`band_voxel_indices`)
-    of x-plane i. Else (``counts`` their running sum from 0): their indices into ``out``
-    from row ``counts[i]``, in C order.
+def _band_pass(column_start, run_lo, run_hi, ny, nz, band, room, intervals, n_intervals,
+               counts):
+    """The band's voxels (:func:`band_voxel_indices`) of each x-plane i as intervals of z,
+    ``(j, first z, last z)`` in C order, into ``intervals`` from row ``room[i]`` (``room[i +
+    1] - room[i]`` of them at most), how many into ``n_intervals[i]``, and their voxels
+    into ``counts[1 + i]``.
 
     Along a column, as intervals of z: the dilation holds the runs of the (2 band + 1)^2
     columns around it each widened by ``band`` (their union), the erosion the runs each
     narrowed by ``band`` (their intersection; empty when a column around lies beyond the
     array); the band is the one less the other."""
     nx = (column_start.shape[0] - 1) // ny
-    fill = out.shape[0] > 0
     most_runs = 0
     for c in range(column_start.shape[0] - 1):
         most_runs = max(most_runs, column_start[c + 1] - column_start[c])
-    room = (2 * band + 1) ** 2 * most_runs + 1
+    scratch = (2 * band + 1) ** 2 * most_runs + 1
     for i in prange(nx):
-        grown = np.empty((room, 2), np.int64)     # widened runs, by their start
-        shrunk = np.empty((room, 2), np.int64)    # the intersection so far
-        other = np.empty((room, 2), np.int64)
-        row = counts[i] if fill else 0
+        grown = np.empty((scratch, 2), np.int64)     # widened runs, by their start
+        shrunk = np.empty((scratch, 2), np.int64)    # the intersection so far
+        other = np.empty((scratch, 2), np.int64)
+        row = 0
+        q = room[i]
         for j in range(ny):
             n_grown = 0
             n_shrunk = 0
@@ -511,14 +616,14 @@ def _band_pass(column_start, run_lo, run_hi, ny, nz, band, counts, out):
                     while e < n_shrunk and shrunk[e, 1] < z:
                         e += 1
                     stop = b if e == n_shrunk or shrunk[e, 0] > b else shrunk[e, 0] - 1
-                    for k in range(z, stop + 1):
-                        if fill:
-                            out[row, 0], out[row, 1], out[row, 2] = i, j, k
-                        row += 1
+                    if stop >= z:
+                        intervals[q, 0], intervals[q, 1], intervals[q, 2] = j, z, stop
+                        q += 1
+                        row += stop - z + 1
                     z = stop + 1 if e == n_shrunk or shrunk[e, 0] > b \
                         else shrunk[e, 1] + 1
-        if not fill:
-            counts[1 + i] = row
+        n_intervals[i] = q - room[i]
+        counts[1 + i] = row
 
 
 @njit(cache=True, nogil=True)
@@ -549,27 +654,21 @@ def _narrowed_meet(run_lo, run_hi, r0, r1, band, so_far, n, first, out):
 
 
 @njit(parallel=True, cache=True, nogil=True)
-def _band_volume(crop, voxels, values, pad, volume):
-    """Fill ``volume`` (crop's shape, float32): ``pad`` in the occupied voxels of ``crop``,
-    ``-pad`` elsewhere, ``-values[n]`` at band voxel ``voxels[n]``."""
-    nx, ny, nz = crop.shape
-    for i in prange(nx):
-        for j in range(ny):
-            for k in range(nz):
-                volume[i, j, k] = pad if crop[i, j, k] else -pad
-    for n in prange(voxels.shape[0]):
-        volume[voxels[n, 0], voxels[n, 1], voxels[n, 2]] = -values[n]
-
-
-@njit(cache=True, nogil=True)
-def _number_crossings(crop, rows, band_k, values, ordinal):
-    """Fill ``ordinal`` (:func:`crossing_edges`) from the band's ``rows`` and their voxels'
-    k; returns how many edges cross."""
+def _crossings_pass(crop, rows, band_k, values, pad, fill, counts, ordinal, ends, end_values):
+    """The grid edges the level crosses at the band's voxels (:func:`crossing_edges`), in
+    parallel over the crop's i-planes: without ``fill``, ``counts[1 + i]`` = the crossings
+    of plane i. With ``fill`` (``counts`` their running sum from 0, the first crossing of
+    each plane): their numbers into ``ordinal`` (n, 6) (if not empty), and (if ``ends``
+    is not empty) each crossing's lower end and axis into ``ends`` (m, 4) int64 ``[i, j,
+    k, axis]`` and the distance at its lower and upper end into ``end_values`` (m, 2)
+    float32 (the band's value, else ``-pad`` where occupied, ``pad`` where not)."""
     n0, n1, n2 = crop.shape
-    ptr = np.empty(4, np.int64)      # rows (i + 1, j), (i, j + 1), (i - 1, j), (i, j - 1)
-    end = np.empty(4, np.int64)
-    m = 0
-    for i in range(n0):
+    with_ordinal = ordinal.shape[0] > 0
+    with_ends = ends.shape[0] > 0
+    for i in prange(n0):
+        m = counts[i] if fill else 0
+        ptr = np.empty(4, np.int64)      # rows (i + 1, j), (i, j + 1), (i - 1, j), (i, j - 1)
+        end = np.empty(4, np.int64)
         for j in range(n1):
             first, last = rows[i * n1 + j], rows[i * n1 + j + 1]
             for s in range(4):
@@ -581,7 +680,8 @@ def _number_crossings(crop, rows, band_k, values, ordinal):
                 k = band_k[n]
                 inside = values[n] < 0.0
                 for s in range(6):      # ahead along i, j, k, then behind
-                    ordinal[n, s] = -1
+                    if fill and with_ordinal:
+                        ordinal[n, s] = -1
                     step = 1 if s < 3 else -1
                     ii = i + step * (s % 3 == 0)
                     jj = j + step * (s % 3 == 1)
@@ -600,7 +700,19 @@ def _number_crossings(crop, rows, band_k, values, ordinal):
                     if s >= 3 and banded:
                         continue        # the edge is the band voxel behind's
                     other = (values[at] < 0.0) if banded else crop[ii, jj, kk]
-                    if other != inside:
+                    if other == inside:
+                        continue
+                    if fill and with_ordinal:
                         ordinal[n, s] = m
-                        m += 1
-    return m
+                    if fill and with_ends:
+                        value = values[at] if banded else (-pad if other else pad)
+                        ahead = s < 3
+                        ends[m, 0] = i if ahead else ii
+                        ends[m, 1] = j if ahead else jj
+                        ends[m, 2] = k if ahead else kk
+                        ends[m, 3] = s % 3
+                        end_values[m, 0] = values[n] if ahead else value
+                        end_values[m, 1] = value if ahead else values[n]
+                    m += 1
+        if not fill:
+            counts[1 + i] = m

@@ -11,6 +11,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from numba import njit
 
+from ..outline import edge_faces
 from ..union_find import join, settle
 
 __all__ = ["MeshReport", "check_mesh"]
@@ -84,7 +85,7 @@ class MeshReport:
         return asdict(self)
 
 
-def check_mesh(vertices, faces) -> MeshReport:
+def check_mesh(vertices, faces, *, edges=None) -> MeshReport:
     """Check a triangle mesh's topology and measure it.
 
     Parameters
@@ -94,6 +95,10 @@ def check_mesh(vertices, faces) -> MeshReport:
     faces : (m, 3) int
         Vertex indices, m >= 1; counter-clockwise seen from outside is
         reported as ``outward``.
+    edges : optional
+        :func:`~sfs_ros.core.outline.edge_faces` of these faces and vertices, when made
+        already (it is made here otherwise): a mesh it pairs every edge of is closed,
+        consistently oriented and edge-manifold, and is checked from those pairs.
 
     Returns
     -------
@@ -109,44 +114,22 @@ def check_mesh(vertices, faces) -> MeshReport:
         raise ValueError(f"faces must be an (m, 3) array with m >= 1, got shape {f.shape}")
     if not np.issubdtype(f.dtype, np.integer):
         raise ValueError(f"faces must hold integer vertex indices, got dtype {f.dtype}")
-    f = f.astype(np.int64, copy=False)
+    f = np.ascontiguousarray(f, dtype=np.int64)
     n, m = len(v), len(f)
     if f.min() < 0 or f.max() >= n:
         raise ValueError(f"face indices must lie in [0, {n}), got [{f.min()}, {f.max()}]")
 
-    # Half-edges: face t, corner k goes from f[t, k] to f[t, (k + 1) % 3].
-    start = f.reshape(-1)
-    end = f[:, [1, 2, 0]].reshape(-1)
-    order, edge_of_sorted, counts, opposite, lo, hi = _sorted_half_edges(start, end, n)
-    n_edges = len(counts)
-
-    watertight = bool(np.all(counts == 2))
-    edge_manifold = bool(np.all(counts <= 2))
-    # On an edge-manifold mesh, consecutive sorted half-edges of the same edge are the two
-    # uses of an interior edge: they must start at different ends (``opposite``).
-    pair = edge_of_sorted[1:] == edge_of_sorted[:-1]
-    consistently_oriented = edge_manifold and opposite
-    vertex_manifold = edge_manifold and _single_fans(f, start, end, order, pair, n)
-
-    referenced = np.zeros(n, dtype=bool)
-    referenced[start] = True
-    n_ref = int(referenced.sum())
+    paired = edge_faces(f, n) if edges is None else edges
+    topology = _open_topology(f, n) if paired is None else _closed_topology(f, n, *paired)
+    watertight, edge_manifold, consistently_oriented, vertex_manifold, n_edges, \
+        n_components, n_boundary_loops, n_ref = topology
     euler = n_ref - n_edges + m
-
-    n_components = _count_roots(_roots(n, start, end), start)
-
-    n_boundary_loops = 0
-    if not watertight:
-        boundary = counts[edge_of_sorted] == 1
-        n_boundary_loops = _count_loops(lo[order][boundary], hi[order][boundary], n)
 
     double_area, six_volume = _face_measures(v, f)
     area = 0.5 * float(double_area.sum())
     volume = float(six_volume.sum()) / 6.0
-    used = v[referenced]   # (column by column: numpy reduces along axis 0 much slower)
-    extent = float(max(np.ptp(used[:, k]) for k in range(3)))
-    repeated = (f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 2] == f[:, 0])
-    degenerate = repeated | (double_area <= DEGENERATE_REL_AREA * extent * extent)
+    extent = _referenced_extent(v, f)
+    degenerate = _count_degenerate(f, double_area, DEGENERATE_REL_AREA * extent * extent)
     duplicates = _count_duplicate_faces(f, n)
 
     closed = watertight and consistently_oriented
@@ -167,9 +150,104 @@ def check_mesh(vertices, faces) -> MeshReport:
         genus=None if genus is None else int(genus),
         volume_m3=volume,
         area_m2=area,
-        degenerate_faces=int(degenerate.sum()),
+        degenerate_faces=int(degenerate),
         duplicate_faces=int(duplicates),
     )
+
+
+def _open_topology(f: np.ndarray, n: int) -> tuple:
+    """:func:`check_mesh`'s topology of any mesh, from its half-edges sorted by edge:
+    ``(watertight, edge_manifold, consistently_oriented, vertex_manifold, n_edges,
+    n_components, n_boundary_loops, referenced vertices)``."""
+    # Half-edges: face t, corner k goes from f[t, k] to f[t, (k + 1) % 3].
+    start = f.reshape(-1)
+    end = f[:, [1, 2, 0]].reshape(-1)
+    order, edge_of_sorted, counts, opposite, lo, hi = _sorted_half_edges(start, end, n)
+    watertight = bool(np.all(counts == 2))
+    edge_manifold = bool(np.all(counts <= 2))
+    # On an edge-manifold mesh, consecutive sorted half-edges of the same edge are the two
+    # uses of an interior edge: they must start at different ends (``opposite``).
+    pair = edge_of_sorted[1:] == edge_of_sorted[:-1]
+    consistently_oriented = edge_manifold and opposite
+    vertex_manifold = edge_manifold and _single_fans(f, start, end, order, pair, n)
+    n_components = _count_roots(_roots(n, start, end), start)
+    n_boundary_loops = 0
+    if not watertight:
+        boundary = counts[edge_of_sorted] == 1
+        n_boundary_loops = _count_loops(lo[order][boundary], hi[order][boundary], n)
+    return (watertight, edge_manifold, consistently_oriented, vertex_manifold, len(counts),
+            n_components, n_boundary_loops, _count_referenced(f, n))
+
+
+def _closed_topology(f: np.ndarray, n: int, ends: np.ndarray, sides: np.ndarray) -> tuple:
+    """:func:`_open_topology` of a mesh whose every edge :func:`~sfs_ros.core.outline.
+    edge_faces` paired (``ends``, ``sides``): closed, consistently oriented and
+    edge-manifold; its fans and pieces from those pairs."""
+    n_ref = _count_referenced(f, n)
+    vertex_manifold = _count_closed_fans(f, ends, sides) == n_ref
+    n_components = _count_roots(_roots(n, ends[:, 0], ends[:, 1]), f.reshape(-1))
+    return True, True, True, vertex_manifold, len(ends), n_components, 0, n_ref
+
+
+@njit(cache=True, nogil=True)
+def _count_referenced(f, n):
+    """How many of the ``n`` vertices the faces ``f`` (m, 3) use."""
+    seen = np.zeros(n, np.bool_)
+    count = 0
+    for t in range(f.shape[0]):
+        for k in range(3):
+            if not seen[f[t, k]]:
+                seen[f[t, k]] = True
+                count += 1
+    return count
+
+
+@njit(cache=True, nogil=True)
+def _count_closed_fans(f, ends, sides):
+    """:func:`_count_fans` from the paired edges of a closed mesh: the corners of the two
+    faces of each edge (``sides``) at each of its ``ends`` are linked."""
+    parent = np.arange(3 * f.shape[0])
+    for e in range(ends.shape[0]):
+        for end in range(2):
+            a = ends[e, end]
+            join(parent, _corner_at(f, sides[e, 0], a), _corner_at(f, sides[e, 1], a))
+    count = 0
+    for x in range(parent.size):
+        if parent[x] == x:
+            count += 1
+    return count
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _corner_at(f, t, a):
+    """The corner ``3 t + k`` of face ``t`` at vertex ``a``."""
+    k = 0 if f[t, 0] == a else (1 if f[t, 1] == a else 2)
+    return 3 * t + k
+
+
+@njit(cache=True, nogil=True)
+def _referenced_extent(v, f):
+    """The largest side, metres, of the box around the vertices the faces use."""
+    lo = np.full(3, np.inf)
+    hi = np.full(3, -np.inf)
+    for t in range(f.shape[0]):
+        for k in range(3):
+            for axis in range(3):
+                x = v[f[t, k], axis]
+                lo[axis] = min(lo[axis], x)
+                hi[axis] = max(hi[axis], x)
+    return max(hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2])
+
+
+@njit(cache=True, nogil=True)
+def _count_degenerate(f, double_area, least):
+    """Faces with a repeated vertex index or twice their area at most ``least``."""
+    count = 0
+    for t in range(f.shape[0]):
+        a, b, c = f[t, 0], f[t, 1], f[t, 2]
+        if a == b or b == c or c == a or double_area[t] <= least:
+            count += 1
+    return count
 
 
 @njit(cache=True, nogil=True)
