@@ -10,11 +10,11 @@ from sfs_ros.core.geometry.camera import Camera
 from sfs_ros.core.meshing.colour import view_sight
 from sfs_ros.core.render import render_image
 from sfs_ros.core.texture import texture_mesh
-from sfs_ros.core.texture.atlas import CELL_TEXELS, build_atlas, rasterize_atlas
+from sfs_ros.core.texture.atlas import build_atlas, rasterize_atlas
 from sfs_ros.core.texture.selection import face_neighbours, farthest_around
 
 #: Side of the atlas the tests allow, texels: far less than one chart with padding per
-#: unseen face needs (5 x 5 texels each at least, against 4 or 1 for a cell).
+#: unseen face needs (5 x 5 texels each at least, against 1 for a cell).
 MAX_SIZE = 256
 
 
@@ -63,7 +63,7 @@ def test_a_fine_sphere_seen_from_above_is_textured_in_a_small_atlas():
 
 def test_many_tiny_disconnected_unseen_faces_fit_with_a_texel_each():
     rng = np.random.default_rng(0)
-    count = 60000                    # 4 texels each would fill far more than half the atlas
+    count = 60000                    # nearly the whole atlas
     origins = rng.uniform(-0.05, 0.05, (count, 3))
     vertices = (origins[:, None, :] + rng.uniform(0, 1e-3, (count, 3, 3))).reshape(-1, 3)
     faces = np.arange(3 * count, dtype=np.int64).reshape(-1, 3)
@@ -72,15 +72,15 @@ def test_many_tiny_disconnected_unseen_faces_fit_with_a_texel_each():
                         max_size=MAX_SIZE)
     assert max(atlas.shape) <= MAX_SIZE
     claimed = np.bincount(atlas.face_index[atlas.face_index >= 0], minlength=count)
-    assert (claimed == 1).all()                 # cells of one texel (4 x 60000 > 256^2 / 2)
-    # Each face's corners lie within a quarter texel of its texel's centre.
+    assert (claimed == 1).all()                 # cells of one texel
+    # Each face's corners lie at its texel's centre.
     rows, cols = np.nonzero(atlas.face_index >= 0)
     centre = np.zeros((count, 2))
     centre[atlas.face_index[rows, cols]] = np.stack([cols, rows], axis=1)
-    assert np.abs(atlas.corners - centre[:, None, :]).max() <= 0.25
+    assert np.abs(atlas.corners - centre[:, None, :]).max() <= 1e-9
 
 
-def test_cells_of_two_texels_hold_a_bilinear_look_up_inside_the_face():
+def test_a_face_in_a_cell_reads_its_own_texel_alone():
     count = 500
     rng = np.random.default_rng(1)
     vertices = (rng.uniform(-0.05, 0.05, (count, 1, 3)) + rng.uniform(0, 1e-3, (count, 3, 3))
@@ -89,12 +89,13 @@ def test_cells_of_two_texels_hold_a_bilinear_look_up_inside_the_face():
     atlas = build_atlas(vertices, faces, np.full(count, -1, np.int64), face_neighbours(faces),
                         [camera_above(0, 1)], max_size=MAX_SIZE)
     claimed = np.bincount(atlas.face_index[atlas.face_index >= 0], minlength=count)
-    assert (claimed == CELL_TEXELS ** 2).all()
-    # The four texels a bilinear look-up at any corner reads are the face's own.
+    assert (claimed == 1).all()
+    # All three corners at the centre of the face's texel: a bilinear look-up anywhere in
+    # the face weighs that texel alone.
     for f in range(0, count, 37):
         for x, y in atlas.corners[f]:
-            c, r = int(np.floor(x)), int(np.floor(y))
-            assert (atlas.face_index[r:r + 2, c:c + 2] == f).all()
+            assert x == round(x) and y == round(y)
+            assert atlas.face_index[int(y), int(x)] == f
     # No face's charted triangle claims a texel of another: the cells are off the rasteriser.
     assert rasterize_atlas(atlas.corners, atlas.shape)[2] == 0
 

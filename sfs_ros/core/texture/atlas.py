@@ -9,12 +9,14 @@ per metre on the object as many as the view's pixels per metre there). Faces no 
 sees (the underside on the plate) are grouped by the axis (+-X, +-Y, +-Z) their normal
 is nearest, and each connected patch of one group is projected onto the plane across
 its mean normal when every face turns within 60 degrees of it, at half the seen faces' median
-texels per metre (its colours are interpolated, smooth); otherwise (a curved patch) its
-faces take *cells*. A cell is :data:`CELL_TEXELS` x :data:`CELL_TEXELS` texels of one
-colour, the face's at its centroid, and the face's corners lie inside it, a quarter of a
-texel from its border, so that a bilinear look-up anywhere in the face reads its own
-cell alone: the cells of all such faces are packed side by side as one rectangle, with
-no padding between them. Seen faces that would still overlap another in the atlas (a
+texels per metre (its colours are interpolated, smooth); otherwise (a curved patch), or
+where its faces would take fewer texels so than the plane with its padding (a patch of
+a few faces: the many a rough refined mesh breaks its underside into), its faces take
+*cells*. A cell is one texel, the face's colour at its centroid, and the
+face's three corners lie at its centre, so that a look-up anywhere in the face reads
+that texel alone (bilinear or nearest, at any level of detail: the texture coordinates
+do not vary across the face): the cells of all such faces are packed side by side as
+one rectangle, with no padding between them. Seen faces that would still overlap another in the atlas (a
 patch seen partly hidden) are made charts of their own (after :data:`_SPLIT_TRIES`
 tries, cells), the faces of a curved unseen patch that would overlap take cells, and
 the atlas is laid out again, from the scale the last layout reached (at an unchanged
@@ -46,13 +48,8 @@ from scipy.sparse import csgraph
 from ..geometry.camera import Camera
 from ..render import covered_point, edge_tuple, pixel_box, triangle_edges
 
-__all__ = ["CELL_TEXELS", "MIN_SCALE", "Atlas", "build_atlas", "cell_corners", "chart_of_faces"]
+__all__ = ["MIN_SCALE", "Atlas", "build_atlas", "cell_corners", "chart_of_faces"]
 
-#: Side of the cell of one colour a face takes when it has no chart (module docstring),
-#: texels: 2 x 2 texels hold a bilinear look-up anywhere inside the face's corners; a mesh
-#: of more faces than the atlas holds so takes cells of one texel (a look-up then mixes a
-#: quarter of the next cells' colours in at most).
-CELL_TEXELS = 2
 #: The charts are scaled down to at most this share of the asked texels per pixel before
 #: small charts are given cells instead.
 MIN_SCALE = 0.25
@@ -211,18 +208,14 @@ def _texels_per_metre(corners, area, seen, out):
         out[i] = np.sqrt(pixel_area / max(area[f], 1e-300))
 
 
-def cell_corners(count: int, side: int, columns: int) -> np.ndarray:
-    """(count, 3, 2) corners of ``count`` faces in cells of ``side`` texels, ``columns``
-    cells a row, face k in cell ``(k % columns, k // columns)`` of a block whose first
-    texel centre is (0, 0): the corners a quarter of a texel inside the cell's texel
-    centres, so that a bilinear look-up in the face reads that cell's texels alone."""
+def cell_corners(count: int, columns: int) -> np.ndarray:
+    """(count, 3, 2) corners of ``count`` faces in cells of one texel, ``columns`` cells a
+    row, face k in cell ``(k % columns, k // columns)`` of a block whose first texel
+    centre is (0, 0): all three at the cell's texel centre, so that a look-up anywhere in
+    the face reads that texel alone."""
     k = np.arange(count)
-    origin = side * np.stack([k % columns, k // columns], axis=1).astype(np.float64)
-    # Between the four texel centres of a cell of 2, or within a quarter of a texel of
-    # the one centre of a cell of 1.
-    low, high = (0.25, 0.75) if side > 1 else (-0.25, 0.25)
-    shape = np.array([[low, low], [high, low], [low, high]])
-    return origin[:, None, :] + shape[None]
+    origin = np.stack([k % columns, k // columns], axis=1).astype(np.float64)
+    return np.repeat(origin[:, None, :], 3, axis=1)
 
 
 def _shelves(sizes: np.ndarray, width: int) -> tuple[np.ndarray, int]:
@@ -300,14 +293,14 @@ def _strip_width(sizes: np.ndarray) -> int:
     return 4 * math.ceil(width / 4)
 
 
-def _cell_block(n_cells: int, cell: int, padding: int) -> tuple[int, np.ndarray | None]:
-    """Columns of the block of ``n_cells`` cells of ``cell`` texels, and its rectangle
-    (1, 2) (width, height) texels with ``padding`` (None without cells)."""
+def _cell_block(n_cells: int, padding: int) -> tuple[int, np.ndarray | None]:
+    """Columns of the block of ``n_cells`` cells of one texel, and its rectangle (1, 2)
+    (width, height) texels with ``padding`` (None without cells)."""
     columns = max(1, math.ceil(math.sqrt(n_cells)))
     if not n_cells:
         return columns, None
     rows = math.ceil(n_cells / columns)
-    return columns, np.array([[cell * columns + 2 * padding, cell * rows + 2 * padding]], float)
+    return columns, np.array([[columns + 2 * padding, rows + 2 * padding]], float)
 
 
 @njit(cache=True, nogil=True)
@@ -367,18 +360,16 @@ def rasterize_atlas(corners: np.ndarray, shape: tuple) -> tuple:
     return face_id, bary, again, overlapping
 
 
-def _fill_cells(face_id: np.ndarray, bary: np.ndarray, celled: np.ndarray, block: tuple,
-                cell: int) -> None:
-    """Give each texel of the cells of the ``celled`` (m,) faces (``block`` and ``cell``
-    from :func:`_pack`) to its face, at the face's centroid."""
+def _fill_cells(face_id: np.ndarray, bary: np.ndarray, celled: np.ndarray,
+                block: tuple) -> None:
+    """Give the texel of each cell of the ``celled`` (m,) faces (``block`` from
+    :func:`_layout`) to its face, at the face's centroid."""
     faces = np.flatnonzero(celled)
     row, column, _, columns = block
     k = np.arange(len(faces))
-    for dr in range(cell):
-        for dc in range(cell):
-            r, c = row + cell * (k // columns) + dr, column + cell * (k % columns) + dc
-            face_id[r, c] = faces
-            bary[r, c] = 1.0 / 3.0
+    r, c = row + k // columns, column + k % columns
+    face_id[r, c] = faces
+    bary[r, c] = 1.0 / 3.0
 
 
 @dataclass(frozen=True)
@@ -420,29 +411,32 @@ class _Fit:
 
 def _layout(unit: _UnitCharts, labels, chart, celled, fit: _Fit, padding: int,
             max_size: int) -> tuple:
-    """Corners (m, 3, 2), shape, the fit reached, cell faces (m,) bool, cells' block and
-    side of the packed charts, from ``fit`` on: scaled down to fit, down to
+    """Corners (m, 3, 2), shape, the fit reached, cell faces (m,) bool and cells' block of
+    the packed charts, from ``fit`` on: scaled down to fit, down to
     :data:`MIN_SCALE` of the asked density, then the charts of fewest faces given cells
     until they fit."""
     cells = celled | unit.curved
     charts = _Charts.of(unit, labels, chart, cells)
     scale, fewest = fit.scale, fit.fewest
     while True:
-        kept = charts.faces_in >= fewest
-        if not (kept & charts.seen).any():        # planes take their density from views
-            kept &= charts.seen
-        if kept.all():
-            in_cells = cells.copy()
-        else:
-            in_cells = np.ones(len(labels), bool)
-            in_cells[charts.charted[kept[charts.group]]] = False
-        n_cells = int(in_cells.sum())
-        cell = CELL_TEXELS if CELL_TEXELS ** 2 * n_cells <= 0.5 * max_size ** 2 else 1
-        columns, block_size = _cell_block(n_cells, cell, padding)
+        large = charts.faces_in >= fewest
+        if not (large & charts.seen).any():       # planes take their density from views
+            large &= charts.seen
         for _ in range(_FIT_TRIES):
-            density = np.where(charts.seen, scale, scale * unit.plane_density)[kept, None]
-            low = np.floor(density * charts.low[kept])    # texel centres on whole coordinates
-            sizes = np.ceil(density * charts.high[kept] - low) + 1 + 2 * padding
+            density = np.where(charts.seen, scale, scale * unit.plane_density)[:, None]
+            low = np.floor(density * charts.low)    # texel centres on whole coordinates
+            sizes = np.ceil(density * charts.high - low) + 1 + 2 * padding
+            # A plane whose faces take fewer texels as cells than it takes with its
+            # padding takes cells (its colours are smooth either way).
+            kept = large & (charts.seen | (charts.faces_in > np.prod(sizes, axis=1)))
+            if kept.all():
+                in_cells = cells.copy()
+            else:
+                in_cells = np.ones(len(labels), bool)
+                in_cells[charts.charted[kept[charts.group]]] = False
+            n_cells = int(in_cells.sum())
+            columns, block_size = _cell_block(n_cells, padding)
+            density, low, sizes = density[kept], low[kept], sizes[kept]
             if block_size is not None:
                 sizes = np.concatenate([sizes, block_size])
             width = _strip_width(sizes)
@@ -452,7 +446,7 @@ def _layout(unit: _UnitCharts, labels, chart, celled, fit: _Fit, padding: int,
                 return (_layout_corners(unit, charts, kept, density, low, origin, padding,
                                         len(labels)),
                         shape, _Fit(scale, fewest, fit.asked), in_cells,
-                        _block_of(origin, padding, n_cells, columns), cell)
+                        _block_of(origin, padding, n_cells, columns))
             if scale <= MIN_SCALE * fit.asked:
                 break
             scale = max(MIN_SCALE * fit.asked, scale * 0.97 * max_size / max(shape))
@@ -487,13 +481,12 @@ def _layout_corners(unit: _UnitCharts, charts: _Charts, kept: np.ndarray, densit
     return out
 
 
-def _corners_in_cells(corners: np.ndarray, cells: np.ndarray, block: tuple | None,
-                      cell: int) -> None:
+def _corners_in_cells(corners: np.ndarray, cells: np.ndarray, block: tuple | None) -> None:
     """Set the ``corners`` (m, 3, 2) of the faces in ``cells`` (m,) bool, in their block
-    (``block`` and ``cell`` from :func:`_layout`; :func:`cell_corners`)."""
+    (``block`` from :func:`_layout`; :func:`cell_corners`)."""
     if block is not None:
         row, column, _, columns = block
-        corners[cells] = cell_corners(int(cells.sum()), cell, columns) + np.array(
+        corners[cells] = cell_corners(int(cells.sum()), columns) + np.array(
             [column, row], np.float64)
 
 
@@ -524,15 +517,15 @@ def build_atlas(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray,
     fit = _Fit(float(texels_per_pixel), 1, float(texels_per_pixel))
     for split in itertools.count():
         chart = _dense(np.where(alone | celled, patch.max() + 1 + np.arange(len(faces)), patch))
-        corners, shape, fit, cells, block, cell = _layout(
+        corners, shape, fit, cells, block = _layout(
             unit, labels, chart, celled, fit, int(padding), int(max_size))
         charted = np.flatnonzero(~cells)
         face_id, bary, again, overlapping_charted = rasterize_atlas(corners[charted], shape)
         if not again:
             face_id = np.where(face_id >= 0, np.append(charted, -1)[face_id], -1)
-            _corners_in_cells(corners, cells, block, cell)
+            _corners_in_cells(corners, cells, block)
             if block is not None:
-                _fill_cells(face_id, bary, cells, block, cell)
+                _fill_cells(face_id, bary, cells, block)
             # A face in a cell has corners of its own.
             chart = np.where(cells, chart.max() + 1 + np.arange(len(faces)), chart)
             return Atlas(shape=shape, corners=corners,
