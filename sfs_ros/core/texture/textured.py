@@ -134,16 +134,54 @@ class TexturedMesh:
 def _dilate(image: np.ndarray, filled: np.ndarray, steps: int) -> None:
     """Grow the filled texels of ``image`` (H, W, 3) float32 by ``steps`` texels in place,
     each new texel the mean of its filled 8-neighbours; then the rest the mean colour."""
-    kernel = np.ones((3, 3), np.uint8)
-    for _ in range(steps):
-        grown = cv2.dilate(filled.astype(np.uint8), kernel).astype(bool) & ~filled
-        if not grown.any():
+    _grow(image, filled.astype(np.uint8), int(steps))
+
+
+@njit(cache=True, nogil=True)
+def _grow(image, filled, steps):
+    """:func:`_dilate`'s loops; ``filled`` (H, W) uint8 (1: filled) is marked with the step
+    that filled each texel (2, 3, ...), so that a step reads the texels filled before it
+    alone."""
+    height, width = filled.shape
+    for step in range(steps):
+        stamp, grown = step + 2, 0
+        for r in range(height):
+            for c in range(width):
+                if filled[r, c]:
+                    continue
+                total0 = total1 = total2 = 0.0
+                count = 0
+                for rr in range(max(r - 1, 0), min(r + 2, height)):
+                    for cc in range(max(c - 1, 0), min(c + 2, width)):
+                        if filled[rr, cc] and filled[rr, cc] < stamp:
+                            total0 += image[rr, cc, 0]
+                            total1 += image[rr, cc, 1]
+                            total2 += image[rr, cc, 2]
+                            count += 1
+                if count:
+                    image[r, c, 0] = total0 / count
+                    image[r, c, 1] = total1 / count
+                    image[r, c, 2] = total2 / count
+                    filled[r, c] = stamp
+                    grown += 1
+        if grown == 0:
             break
-        total = cv2.boxFilter(image * filled[..., None], -1, (3, 3), normalize=False)
-        count = cv2.boxFilter(filled.astype(np.float32), -1, (3, 3), normalize=False)
-        image[grown] = total[grown] / count[grown, None]
-        filled |= grown
-    image[~filled] = image[filled].mean(axis=0) if filled.any() else 0.0
+    mean0 = mean1 = mean2 = 0.0
+    count = 0
+    for r in range(height):
+        for c in range(width):
+            if filled[r, c]:
+                mean0 += image[r, c, 0]
+                mean1 += image[r, c, 1]
+                mean2 += image[r, c, 2]
+                count += 1
+    count = max(count, 1)
+    for r in range(height):
+        for c in range(width):
+            if not filled[r, c]:
+                image[r, c, 0] = mean0 / count
+                image[r, c, 1] = mean1 / count
+                image[r, c, 2] = mean2 / count
 
 
 def _texels(atlas: Atlas, vertices, faces, labels, images, cameras, gains, offsets,
@@ -229,11 +267,46 @@ def _views_colours(vertices, faces, labels, neighbours, images, cameras, seen, l
 
 
 def _split_by_chart(faces: np.ndarray, atlas: Atlas, n_vertices: int) -> tuple:
-    """One vertex per (chart, vertex): (source vertex (k,), faces (m, 3), uv (k, 2))."""
-    key = (atlas.chart[:, None] * n_vertices + faces).ravel()
-    keys, first, inverse = np.unique(key, return_index=True, return_inverse=True)
-    uv = atlas.uv.reshape(-1, 2)[first]
-    return keys % n_vertices, inverse.reshape(-1, 3).astype(np.int64), uv
+    """One vertex per (chart, vertex): (source vertex (k,), faces (m, 3), uv (k, 2)), the
+    vertices chart by chart."""
+    source = np.empty(faces.size, np.int64)
+    corner = np.empty(faces.size, np.int64)
+    new_faces = np.empty_like(faces, np.int64)
+    k = _copies_by_chart(np.ascontiguousarray(faces, np.int64), atlas.chart, n_vertices,
+                         source, corner, new_faces)
+    return source[:k], new_faces, atlas.uv.reshape(-1, 2)[corner[:k]]
+
+
+@njit(cache=True, nogil=True)
+def _copies_by_chart(faces, chart, n_vertices, source, corner, new_faces):
+    """:func:`_split_by_chart`'s loop over the faces chart by chart (``chart`` (m,) int >= 0,
+    counting sort): each vertex's
+    copy in a chart made at its first corner there (``source``, ``corner`` (3m,) the
+    vertex and that corner, flat), ``new_faces`` (m, 3) indexing the copies; returns the
+    copies made."""
+    start = np.zeros(chart.max() + 2, np.int64)
+    for f in range(chart.shape[0]):
+        start[chart[f] + 1] += 1
+    start = np.cumsum(start)
+    order = np.empty(chart.shape[0], np.int64)
+    for f in range(chart.shape[0]):
+        order[start[chart[f]]] = f
+        start[chart[f]] += 1
+    seen_in = np.full(n_vertices, -1, np.int64)
+    copy_of = np.empty(n_vertices, np.int64)
+    k = 0
+    for i in range(order.shape[0]):
+        f = order[i]
+        for j in range(3):
+            v = faces[f, j]
+            if seen_in[v] != chart[f]:
+                seen_in[v] = chart[f]
+                copy_of[v] = k
+                source[k] = v
+                corner[k] = 3 * f + j
+                k += 1
+            new_faces[f, j] = copy_of[v]
+    return k
 
 
 def _compared(labels: np.ndarray, seen: np.ndarray | None, level: bool) -> np.ndarray:
