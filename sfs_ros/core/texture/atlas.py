@@ -6,21 +6,16 @@ projection in the view's image, in pixels, times ``texels_per_pixel``. The view 
 every face of the patch unhidden and facing it, so the projection is one to one and the
 texture is the image itself, resampled only when ``texels_per_pixel`` is not 1 (texels
 per metre on the object as many as the view's pixels per metre there). Faces no view
-sees (the underside on the plate) are grouped by the axis (+-X, +-Y, +-Z) their normal
-is nearest, and each connected patch of one group is projected onto the plane across
-its mean normal when every face turns within 60 degrees of it, at half the seen faces' median
-texels per metre (its colours are interpolated, smooth); otherwise (a curved patch), or
-where its faces would take fewer texels so than the plane with its padding (a patch of
-a few faces: the many a rough refined mesh breaks its underside into), its faces take
-*cells*. A cell is one texel, the face's colour at its centroid, and the
-face's three corners lie at its centre, so that a look-up anywhere in the face reads
-that texel alone (bilinear or nearest, at any level of detail: the texture coordinates
-do not vary across the face): the cells of all such faces are packed side by side as
-one rectangle, with no padding between them. Seen faces that would still overlap another in the atlas (a
-patch seen partly hidden) are made charts of their own (after :data:`_SPLIT_TRIES`
-tries, cells), the faces of a curved unseen patch that would overlap take cells, and
-the atlas is laid out again, from the scale the last layout reached (at an unchanged
-scale the charts left whole claim the texels they claimed: no new overlap).
+sees (the underside on the plate, a refined mesh's hidden folds) carry only colours
+interpolated from the seen ones, smooth: each takes a *cell*. A cell is one texel, the
+face's colour at its centroid, and the face's three corners lie at its centre, so that a
+look-up anywhere in the face reads that texel alone (bilinear or nearest, at any level
+of detail: the texture coordinates do not vary across the face); the cells are packed
+side by side as one rectangle, with no padding between them. Faces that would still
+overlap another in the atlas (a patch seen partly hidden) are made charts of their own
+(after :data:`_SPLIT_TRIES` tries, cells), and the atlas is laid out again, from the
+scale the last layout reached (at an unchanged scale the charts left whole claim the
+texels they claimed: no new overlap).
 
 Charts are packed as rectangles on shelves (tallest first), ``2 * padding`` texels
 apart, into an atlas about as wide as high; when that exceeds ``max_size`` texels a
@@ -57,9 +52,6 @@ MIN_SCALE = 0.25
 _FIT_TRIES = 6
 #: Times overlapping faces are split off into charts of their own before they take cells.
 _SPLIT_TRIES = 4
-#: A patch no view sees is projected onto a plane when its faces' normals are all within
-#: acos of this of their mean.
-_FLAT_COS = 0.5
 
 
 @dataclass(frozen=True)
@@ -100,112 +92,28 @@ class Atlas:
 
 def chart_of_faces(labels: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
     """(m,) int64 chart of each face: the connected patches (across edges, ``neighbours``
-    (m, 3)) of faces with one label (m,) (-1, unseen, being a label too)."""
+    (m, 3)) of faces with one label (m,) >= 0; a face labelled -1 (unseen) is a chart of
+    its own."""
     m = len(labels)
     f = np.repeat(np.arange(m), 3)
     g = neighbours.ravel()
-    keep = (g >= 0) & (labels[f] == labels[np.maximum(g, 0)])
+    keep = (g >= 0) & (labels[f] >= 0) & (labels[f] == labels[np.maximum(g, 0)])
     graph = sparse.csr_matrix((np.ones(int(keep.sum())), (f[keep], g[keep])), shape=(m, m))
     return csgraph.connected_components(graph, directed=False)[1].astype(np.int64)
 
 
-def _nearest_axis(normal: np.ndarray) -> np.ndarray:
-    """(m,) int64 the axis +X, +Y, +Z, -X, -Y, -Z (0..5) nearest each face's ``normal``
-    (m, 3)."""
-    return np.argmax(np.concatenate([normal, -normal], axis=1), axis=1).astype(np.int64)
-
-
-def _plane_axes(corners_3d: np.ndarray, normal: np.ndarray,
-                patch: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Coordinates (k, 3, 2) of faces with corners ``corners_3d`` (k, 3, 3) metres and
-    normals ``normal`` (k, 3) (twice their area long) on the plane across their patch's
-    mean normal (``patch`` (k,) their patches), metres; and (k,) bool where the patch is
-    flat enough (:data:`_FLAT_COS`) for it."""
-    _, local = np.unique(patch, return_inverse=True)
-    mean = np.zeros((local.max() + 1, 3))
-    np.add.at(mean, local, normal)
-    mean /= np.maximum(np.linalg.norm(mean, axis=1, keepdims=True), 1e-300)
-    axis_u = np.cross(mean, np.where(np.abs(mean[:, 2:]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0, 0]]))
-    axis_u /= np.linalg.norm(axis_u, axis=1, keepdims=True)
-    axis_v = np.cross(mean, axis_u)
-    cos = np.einsum("kd,kd->k", normal, mean[local]) / np.maximum(
-        np.linalg.norm(normal, axis=1), 1e-300)
-    flat = np.ones(len(mean), bool)
-    np.logical_and.at(flat, local, cos > _FLAT_COS)
-    plane = np.stack([np.einsum("kcd,kd->kc", corners_3d, axis_u[local]),
-                      np.einsum("kcd,kd->kc", corners_3d, axis_v[local])], axis=-1)
-    return plane, flat[local]
-
-
-@dataclass(frozen=True)
-class _UnitCharts:
-    """Each face's corners in its chart before packing and scaling, computed once for all
-    the layouts tried (scaling a chart scales its bounds exactly: a product rounds
-    monotonically).
-
-    Attributes
-    ----------
-    corners : (m, 3, 2) float64
-        A seen face's corners in its view's pixels; an unseen face's on its patch's
-        plane (:func:`_plane_axes`), metres; zero for an unseen face of a curved patch.
-    curved : (m,) bool
-        The unseen faces whose patch is not flat: they take cells.
-    area : (m,) float64
-        Each face's area, square metres.
-    plane_density : float
-        Texels per metre of the unseen faces' planes at one texel per pixel: half the
-        median over the seen faces (:func:`_plane_density`); a layout's scale times it.
-    """
-
-    corners: np.ndarray
-    curved: np.ndarray
-    area: np.ndarray
-    plane_density: float
-
-    @classmethod
-    def of(cls, tri: np.ndarray, normal: np.ndarray, labels: np.ndarray, patch: np.ndarray,
-           cameras: list[Camera]) -> _UnitCharts:
-        """The unit charts of faces with corners ``tri`` (m, 3, 3) metres and normals
-        ``normal`` (m, 3) (twice their area long) labelled ``labels`` (m,) (-1: unseen) in
-        ``patch`` (m,) (the unseen faces' patches flattened each onto its plane)."""
-        corners = np.zeros((len(tri), 3, 2))
-        for label, camera in enumerate(cameras):
-            mine = np.flatnonzero(labels == label)
-            if mine.size:
-                corners[mine] = camera.project(tri[mine].reshape(-1, 3)).reshape(-1, 3, 2)
-        area = 0.5 * np.linalg.norm(normal, axis=1)
-        unseen = np.flatnonzero(labels < 0)
-        curved = np.zeros(len(tri), bool)
-        if unseen.size:
-            plane, flat = _plane_axes(tri[unseen], normal[unseen], patch[unseen])
-            corners[unseen] = plane
-            curved[unseen] = ~flat
-        return cls(corners=corners, curved=curved, area=area,
-                   plane_density=_plane_density(corners, area, np.flatnonzero(labels >= 0)))
-
-
-def _plane_density(corners: np.ndarray, area: np.ndarray, seen: np.ndarray) -> float:
-    """Texels per metre of the unseen faces' planes at one texel per pixel: half the
-    median over the ``seen`` (k,) faces (``corners`` (m, 3, 2) in their views' pixels,
-    ``area`` (m,) square metres) of their texels per metre; 0 without seen faces."""
-    if not len(seen):
-        return 0.0
-    texels_per_m = np.empty(len(seen))
-    _texels_per_metre(corners, area, seen, texels_per_m)
-    return 0.5 * float(np.median(texels_per_m))
-
-
-@njit(cache=True, nogil=True)
-def _texels_per_metre(corners, area, seen, out):
-    """:func:`_plane_density`'s loop: the square root of each ``seen`` (k,) face's area in
-    pixels (its ``corners`` (m, 3, 2)) over its ``area`` (m,) into ``out``."""
-    for i in range(seen.shape[0]):
-        f = seen[i]
-        x0, y0 = corners[f, 0, 0], corners[f, 0, 1]
-        d1x, d1y = corners[f, 1, 0] - x0, corners[f, 1, 1] - y0
-        d2x, d2y = corners[f, 2, 0] - x0, corners[f, 2, 1] - y0
-        pixel_area = 0.5 * abs(d1x * d2y - d1y * d2x)
-        out[i] = np.sqrt(pixel_area / max(area[f], 1e-300))
+def _seen_corners(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray,
+                  cameras: list[Camera]) -> np.ndarray:
+    """(m, 3, 2) float64 each seen face's corners in its view's pixels (``labels`` (m,),
+    -1: unseen, whose corners are zero): the charts before packing and scaling, made
+    once for all the layouts tried (scaling a chart scales its bounds exactly: a product
+    rounds monotonically)."""
+    corners = np.zeros((len(faces), 3, 2))
+    for label, camera in enumerate(cameras):
+        mine = np.flatnonzero(labels == label)
+        if mine.size:
+            corners[mine] = camera.project(vertices[faces[mine]].reshape(-1, 3)).reshape(-1, 3, 2)
+    return corners
 
 
 def cell_corners(count: int, columns: int) -> np.ndarray:
@@ -252,14 +160,6 @@ def _dense(ids: np.ndarray) -> np.ndarray:
     return (np.cumsum(present) - 1)[ids]
 
 
-def _members(ids: np.ndarray, chosen: np.ndarray) -> np.ndarray:
-    """(k,) bool where ``ids`` (k,) int >= 0 is one of ``chosen`` (``np.isin`` without
-    sorting)."""
-    table = np.zeros(int(ids.max()) + 1 if len(ids) else 0, bool)
-    table[chosen] = True
-    return table[ids]
-
-
 def _chart_bounds(corners: np.ndarray, faces: np.ndarray, chart: np.ndarray) -> tuple:
     """Each of ``faces``' (k,) group (k,) int64 (its chart's rank among the charts of
     ``chart`` (k,) int >= 0, theirs) and each group's least and greatest corner
@@ -304,17 +204,16 @@ def _cell_block(n_cells: int, padding: int) -> tuple[int, np.ndarray | None]:
 
 
 @njit(cache=True, nogil=True)
-def _place(unit_corners, faces, group, density, low, origin, padding, out):
+def _place(unit_corners, faces, group, scale, low, origin, padding, out):
     """Corners of ``faces`` (k,) in charts ``group`` (k,) into ``out`` (m, 3, 2): their
-    ``unit_corners`` (m, 3, 2) times their chart's ``density`` (n,), moved from the
+    ``unit_corners`` (m, 3, 2) times ``scale``, moved from the
     chart's least corner ``low`` (n, 2) (whole texels) to its ``origin`` (n, 2) in the
     atlas, ``padding`` texels in."""
     for i in range(faces.shape[0]):
         f, g = faces[i], group[i]
         for k in range(3):
             for d in range(2):
-                out[f, k, d] = density[g] * unit_corners[f, k, d] - low[g, d] + origin[g, d] \
-                    + padding
+                out[f, k, d] = scale * unit_corners[f, k, d] - low[g, d] + origin[g, d] + padding
 
 
 @njit(cache=True, nogil=True)
@@ -376,27 +275,24 @@ def _fill_cells(face_id: np.ndarray, bary: np.ndarray, celled: np.ndarray,
 class _Charts:
     """The charts of one split (:func:`build_atlas`) at unit density: of the faces not in
     cells (``charted`` (k,), ``group`` (k,) each one's chart by rank), each chart's least
-    and greatest corner (n, 2) (:func:`_chart_bounds`), its faces (n,) and whether its
-    view sees it (n,) bool (else: an unseen plane)."""
+    and greatest corner (n, 2) (:func:`_chart_bounds`) and its faces (n,)."""
 
     charted: np.ndarray
     group: np.ndarray
     low: np.ndarray
     high: np.ndarray
     faces_in: np.ndarray
-    seen: np.ndarray
 
     @classmethod
-    def of(cls, unit: _UnitCharts, labels: np.ndarray, chart: np.ndarray,
-           cells: np.ndarray) -> _Charts:
-        """The charts ``chart`` (m,) of the faces not in ``cells`` (m,) bool."""
+    def of(cls, corners: np.ndarray, chart: np.ndarray, cells: np.ndarray) -> _Charts:
+        """The charts ``chart`` (m,) of the faces not in ``cells`` (m,) bool, their
+        ``corners`` (m, 3, 2) (:func:`_seen_corners`)."""
         charted = np.flatnonzero(~cells)
-        group, low, high = _chart_bounds(unit.corners, charted, chart[charted])
+        group, low, high = _chart_bounds(corners, charted, chart[charted])
         member = np.zeros(len(low), np.int64)
         member[group] = charted
         faces_in = np.bincount(chart, minlength=int(chart.max()) + 1)[chart[member]]
-        return cls(charted=charted, group=group, low=low, high=high, faces_in=faces_in,
-                   seen=labels[member] >= 0)
+        return cls(charted=charted, group=group, low=low, high=high, faces_in=faces_in)
 
 
 @dataclass(frozen=True)
@@ -409,49 +305,42 @@ class _Fit:
     asked: float
 
 
-def _layout(unit: _UnitCharts, labels, chart, celled, fit: _Fit, padding: int,
+def _layout(unit_corners: np.ndarray, chart, cells, fit: _Fit, padding: int,
             max_size: int) -> tuple:
     """Corners (m, 3, 2), shape, the fit reached, cell faces (m,) bool and cells' block of
-    the packed charts, from ``fit`` on: scaled down to fit, down to
+    the packed charts (``unit_corners`` (m, 3, 2), :func:`_seen_corners`), the faces in
+    ``cells`` (m,) bool taking cells, from ``fit`` on: scaled down to fit, down to
     :data:`MIN_SCALE` of the asked density, then the charts of fewest faces given cells
     until they fit."""
-    cells = celled | unit.curved
-    charts = _Charts.of(unit, labels, chart, cells)
+    charts = _Charts.of(unit_corners, chart, cells)
     scale, fewest = fit.scale, fit.fewest
     while True:
-        large = charts.faces_in >= fewest
-        if not (large & charts.seen).any():       # planes take their density from views
-            large &= charts.seen
+        kept = charts.faces_in >= fewest
+        if kept.all():
+            in_cells = cells.copy()
+        else:
+            in_cells = np.ones(len(chart), bool)
+            in_cells[charts.charted[kept[charts.group]]] = False
+        n_cells = int(in_cells.sum())
+        columns, block_size = _cell_block(n_cells, padding)
         for _ in range(_FIT_TRIES):
-            density = np.where(charts.seen, scale, scale * unit.plane_density)[:, None]
-            low = np.floor(density * charts.low)    # texel centres on whole coordinates
-            sizes = np.ceil(density * charts.high - low) + 1 + 2 * padding
-            # A plane whose faces take fewer texels as cells than it takes with its
-            # padding takes cells (its colours are smooth either way).
-            kept = large & (charts.seen | (charts.faces_in > np.prod(sizes, axis=1)))
-            if kept.all():
-                in_cells = cells.copy()
-            else:
-                in_cells = np.ones(len(labels), bool)
-                in_cells[charts.charted[kept[charts.group]]] = False
-            n_cells = int(in_cells.sum())
-            columns, block_size = _cell_block(n_cells, padding)
-            density, low, sizes = density[kept], low[kept], sizes[kept]
+            low = np.floor(scale * charts.low[kept])    # texel centres on whole coordinates
+            sizes = np.ceil(scale * charts.high[kept] - low) + 1 + 2 * padding
             if block_size is not None:
                 sizes = np.concatenate([sizes, block_size])
             width = _strip_width(sizes)
             origin, height = _shelves(sizes, width)
             shape = (4 * math.ceil(height / 4), width)
             if max(shape) <= max_size:
-                return (_layout_corners(unit, charts, kept, density, low, origin, padding,
-                                        len(labels)),
+                return (_layout_corners(unit_corners, charts, kept, scale, low, origin,
+                                        padding, len(chart)),
                         shape, _Fit(scale, fewest, fit.asked), in_cells,
                         _block_of(origin, padding, n_cells, columns))
             if scale <= MIN_SCALE * fit.asked:
                 break
             scale = max(MIN_SCALE * fit.asked, scale * 0.97 * max_size / max(shape))
         if in_cells.all():
-            raise ValueError(f"the mesh's {len(labels)} faces do not fit a {max_size} texel "
+            raise ValueError(f"the mesh's {len(chart)} faces do not fit a {max_size} texel "
                              "atlas even at one texel each: allow a larger max_size or "
                              "simplify the mesh")
         fewest *= 4
@@ -466,18 +355,17 @@ def _block_of(origin: np.ndarray, padding: int, n_cells: int, columns: int) -> t
     return (int(top_left[1]), int(top_left[0]), math.ceil(n_cells / columns), columns)
 
 
-def _layout_corners(unit: _UnitCharts, charts: _Charts, kept: np.ndarray, density: np.ndarray,
+def _layout_corners(unit_corners: np.ndarray, charts: _Charts, kept: np.ndarray, scale: float,
                     low: np.ndarray, origin: np.ndarray, padding: int, m: int) -> np.ndarray:
-    """(m, 3, 2) the corners in the atlas of the faces of the ``kept`` (n,) charts at their
-    ``density`` (k, 1) texels per unit, moved to their ``origin``; those of the faces in cells left
-    unset (:func:`_corners_in_cells`, once the layout is kept)."""
+    """(m, 3, 2) the corners in the atlas of the faces of the ``kept`` (n,) charts at
+    ``scale`` texels per pixel, moved to their ``origin``; those of the faces in cells
+    left unset (:func:`_corners_in_cells`, once the layout is kept)."""
     faces, group = charts.charted, charts.group
     if not kept.all():
         mine = kept[group]
         faces, group = faces[mine], (np.cumsum(kept) - 1)[group[mine]]
     out = np.empty((m, 3, 2))
-    _place(unit.corners, faces, group, np.ascontiguousarray(density[:, 0]), low, origin,
-           float(padding), out)
+    _place(unit_corners, faces, group, float(scale), low, origin, float(padding), out)
     return out
 
 
@@ -504,13 +392,10 @@ def build_atlas(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray,
     if int(padding) < 1 or int(max_size) < 64:
         raise ValueError(f"padding must be >= 1 texel and max_size >= 64, got {padding}, "
                          f"{max_size}")
-    tri = vertices[faces]
-    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])     # twice the area
-    patch = chart_of_faces(np.where(labels >= 0, labels, -1 - _nearest_axis(normal)), neighbours)
-    unit = _UnitCharts.of(tri, normal, labels, patch, cameras)
-    del tri, normal
+    patch = chart_of_faces(labels, neighbours)
+    unit_corners = _seen_corners(vertices, faces, labels, cameras)
     alone = np.zeros(len(faces), bool)
-    celled = np.zeros(len(faces), bool)
+    celled = labels < 0
     # Each split starts from the scale the last one reached: at an unchanged scale a
     # chart's texel centres fall where they fell (its corner moves by whole texels), so
     # the faces left in a split chart claim no texel twice and the splits end.
@@ -518,7 +403,7 @@ def build_atlas(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray,
     for split in itertools.count():
         chart = _dense(np.where(alone | celled, patch.max() + 1 + np.arange(len(faces)), patch))
         corners, shape, fit, cells, block = _layout(
-            unit, labels, chart, celled, fit, int(padding), int(max_size))
+            unit_corners, chart, celled, fit, int(padding), int(max_size))
         charted = np.flatnonzero(~cells)
         face_id, bary, again, overlapping_charted = rasterize_atlas(corners[charted], shape)
         if not again:
@@ -533,10 +418,8 @@ def build_atlas(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray,
                          face_index=face_id, barycentric=bary, texels_per_pixel=fit.scale)
         overlapping = np.zeros(len(faces), bool)
         overlapping[charted] = overlapping_charted
-        # A patch no view sees overlaps where it curves: all its faces take cells at once
-        # (their colours are interpolated, smooth) rather than ring by ring. Seen faces
-        # that still overlap after a few splits (folds finer than a texel, met again at
-        # each new scale) take cells too: cells never overlap, so this ends.
-        curved = _members(chart, chart[overlapping & (labels < 0)])
-        celled |= curved | (overlapping if split >= _SPLIT_TRIES else False)
+        # Faces that still overlap after a few splits (folds finer than a texel, met again
+        # at each new scale) take cells: cells never overlap, so this ends.
+        if split >= _SPLIT_TRIES:
+            celled |= overlapping
         alone |= overlapping & ~celled

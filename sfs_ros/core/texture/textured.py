@@ -217,23 +217,28 @@ def _blend_views(colour, face, bary, vertices, faces, blend, blur, images, camer
     each view's colour (``images[blur[face]][view]``, ``blur`` (m,) the face's level of
     :func:`.agreement.blurred_views`) times its gain; returns (k,) bool the texels set."""
     blended = np.flatnonzero(blend.any(axis=1)[face])
-    total = np.zeros((len(blended), 3))
-    weight_sum = np.zeros(len(blended))
     points = np.einsum("kc,kcd->kd", bary[blended], vertices[faces[face[blended]]])
-    level = blur[face[blended]]
-    for view in range(blend.shape[1]):
-        weight = blend[face[blended], view]
-        mine = np.flatnonzero(weight > 0)
-        if not mine.size:
-            continue
-        pixels = np.nan_to_num(cameras[view].project(points[mine]), nan=-1.0)
-        colour_here = np.empty((len(mine), 3), np.float32)
-        for blurred in np.unique(level[mine]):
-            at = level[mine] == blurred
-            colour_here[at] = interpolate(images[blurred][view], pixels[at, 0], pixels[at, 1],
-                                          kernel=kernel)
-        total[mine] += weight[mine, None] * gains[view] * colour_here
-        weight_sum[mine] += weight[mine]
+    # Every (texel, view) with a weight, grouped by view and blur (a stable radix sort of
+    # small keys), so that each view is read once at each blur.
+    weights = blend[face[blended]]
+    texel, view = np.nonzero(weights > 0)
+    weight = weights[texel, view]
+    n_levels = len(images)
+    key = (view * n_levels + blur[face[blended]][texel]).astype(
+        np.int16 if blend.shape[1] * n_levels < 2 ** 15 else np.int64)
+    order = np.argsort(key, kind="stable")
+    bounds = np.searchsorted(key[order], np.arange(blend.shape[1] * n_levels + 1))
+    colour_here = np.empty((len(texel), 3), np.float32)
+    for group in range(blend.shape[1] * n_levels):
+        mine = order[bounds[group]:bounds[group + 1]]
+        if mine.size:
+            at_view, blurred = divmod(group, n_levels)
+            pixels = np.nan_to_num(cameras[at_view].project(points[texel[mine]]), nan=-1.0)
+            colour_here[mine] = gains[at_view] * interpolate(
+                images[blurred][at_view], pixels[:, 0], pixels[:, 1], kernel=kernel)
+    total = np.stack([np.bincount(texel, weights=weight * colour_here[:, c],
+                                  minlength=len(blended)) for c in range(3)], axis=1)
+    weight_sum = np.bincount(texel, weights=weight, minlength=len(blended))
     colour[blended] = total / weight_sum[:, None]
     out = np.zeros(len(face), bool)
     out[blended] = True
