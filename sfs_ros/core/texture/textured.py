@@ -134,12 +134,12 @@ class TexturedMesh:
 def _dilate(image: np.ndarray, filled: np.ndarray, steps: int) -> None:
     """Grow the filled texels of ``image`` (H, W, 3) float32 by ``steps`` texels in place,
     each new texel the mean of its filled 8-neighbours; then the rest the mean colour."""
-    _grow(image, filled.astype(np.uint8), int(steps))
+    _grow(image, filled.astype(np.int32), int(steps))
 
 
 @njit(cache=True, nogil=True)
 def _grow(image, filled, steps):
-    """:func:`_dilate`'s loops; ``filled`` (H, W) uint8 (1: filled) is marked with the step
+    """:func:`_dilate`'s loops; ``filled`` (H, W) int32 (1: filled) is marked with the step
     that filled each texel (2, 3, ...), so that a step reads the texels filled before it
     alone."""
     height, width = filled.shape
@@ -285,10 +285,9 @@ def _split_by_chart(faces: np.ndarray, atlas: Atlas, n_vertices: int) -> tuple:
 @njit(cache=True, nogil=True)
 def _copies_by_chart(faces, chart, n_vertices, source, corner, new_faces):
     """:func:`_split_by_chart`'s loop over the faces chart by chart (``chart`` (m,) int >= 0,
-    counting sort): each vertex's
-    copy in a chart made at its first corner there (``source``, ``corner`` (3m,) the
-    vertex and that corner, flat), ``new_faces`` (m, 3) indexing the copies; returns the
-    copies made."""
+    counting sort): each vertex's copy in a chart made at its first corner there
+    (``source``, ``corner`` (3m,) the vertex and that corner, flat), ``new_faces`` (m, 3)
+    indexing the copies; returns the copies made."""
     start = np.zeros(chart.max() + 2, np.int64)
     for f in range(chart.shape[0]):
         start[chart[f] + 1] += 1
