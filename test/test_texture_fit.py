@@ -1,7 +1,8 @@
 """The texture atlas fits whatever the mesh: a finely divided rough sphere seen from above
 only (its lower half, curved, seen by no view: every such face a chart of its own would not
 fit)
-and many tiny disconnected faces no view sees, in a small atlas."""
+and many tiny disconnected faces no view sees, in a small atlas; the agreement test's
+smoothing made near the faces it is wanted at."""
 
 import numpy as np
 import trimesh
@@ -151,3 +152,37 @@ def test_a_point_between_pixel_centres_is_hidden_only_behind_all_four():
                             depth_zbuf=farthest_around(zbuf)).hidden
     np.testing.assert_array_equal(blended, 3 * np.minimum(fractions, 1.0) > 1.0)
     np.testing.assert_array_equal(behind_all, fractions >= 1.5)
+
+
+def test_the_agreement_smoothing_near_the_wanted_faces_equals_the_full_sums():
+    # A sphere of 5120 faces, a few far-apart blobs of faces wanted (values there alone):
+    # the ring sums at the wanted faces, made on the faces within half the rings of them,
+    # equal the sums over the whole mesh's adjacency (face and its neighbours), ring after
+    # ring; the faces not wanted are left zero.
+    from scipy import sparse
+
+    from sfs_ros.core.texture.agreement import _smoothed
+
+    sphere = trimesh.creation.icosphere(subdivisions=4, radius=0.05)
+    faces = np.asarray(sphere.faces, np.int64)
+    neighbours = face_neighbours(faces)
+    m = len(faces)
+    centroids = np.asarray(sphere.triangles_center)
+    wanted = np.zeros(m, bool)
+    for direction in ([1, 0, 0], [0, -1, 0], [0, 0, 1]):
+        wanted |= centroids @ np.array(direction, float) > 0.045
+    values = np.random.default_rng(3).uniform(0, 1, (m, 5)) * wanted[:, None]
+    rows = np.repeat(np.arange(m), 3)
+    keep = neighbours.ravel() >= 0
+    adjacency = sparse.csr_matrix((np.ones(int(keep.sum())), (rows[keep], neighbours.ravel()[keep])),
+                                  shape=(m, m)) + sparse.identity(m, format="csr")
+    for rings in (1, 4, 7):
+        full = values.copy()
+        for _ in range(rings):
+            full = adjacency @ full
+        near = _smoothed(values, neighbours, rings, wanted)
+        # Float sums in another order: equal to a few units in the last place.
+        np.testing.assert_allclose(near[wanted], full[wanted], rtol=1e-12)
+        assert not near[~wanted].any()
+        # The neighbourhood matters: ring sums reach faces that are not wanted.
+        assert full[~wanted].any()
