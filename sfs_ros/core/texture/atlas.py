@@ -259,16 +259,33 @@ def rasterize_atlas(corners: np.ndarray, shape: tuple) -> tuple:
     return face_id, bary, again, overlapping
 
 
-def _fill_cells(face_id: np.ndarray, bary: np.ndarray, celled: np.ndarray,
-                block: tuple) -> None:
-    """Give the texel of each cell of the ``celled`` (m,) faces (``block`` from
-    :func:`_layout`) to its face, at the face's centroid."""
-    faces = np.flatnonzero(celled)
+def _cell_keys(faces: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """(m,) int64 the key of the cell each face takes if it takes one: for a face no view
+    sees (``labels`` (m,) -1), its lowest corner, shared with the other unseen faces whose
+    lowest corner it is; for another face, a key of its own (the vertices' count plus its
+    index)."""
+    n = int(faces.max()) + 1 if len(faces) else 0
+    return np.where(labels < 0, faces.min(axis=1), n + np.arange(len(faces)))
+
+
+def _fill_cells(face_id: np.ndarray, bary: np.ndarray, faces: np.ndarray, cells: np.ndarray,
+                cell_of: np.ndarray, keys: np.ndarray, block: tuple) -> None:
+    """Give the texel of each cell (``cell_of`` (k,) the cell of each of the faces in
+    ``cells`` (m,) bool, ``keys`` (m,) :func:`_cell_keys`, ``block`` from :func:`_layout`)
+    to one of its faces: at the face's corner that keys the cell (its colour the vertex's),
+    or at its centroid (a cell of its own)."""
+    in_cells = np.flatnonzero(cells)
+    first = np.empty(int(cell_of.max()) + 1, np.int64)
+    first[cell_of] = in_cells
     row, column, _, columns = block
-    k = np.arange(len(faces))
+    k = np.arange(len(first))
     r, c = row + k // columns, column + k % columns
-    face_id[r, c] = faces
-    bary[r, c] = 1.0 / 3.0
+    face_id[r, c] = first
+    corner = np.argmin(faces[first], axis=1)
+    by_vertex = keys[first] < (int(faces.max()) + 1)
+    weights = np.full((len(first), 3), 1.0 / 3.0)
+    weights[by_vertex] = np.eye(3)[corner[by_vertex]]
+    bary[r, c] = weights
 
 
 @dataclass(frozen=True)
@@ -305,11 +322,12 @@ class _Fit:
     asked: float
 
 
-def _layout(unit_corners: np.ndarray, chart, cells, fit: _Fit, padding: int,
+def _layout(unit_corners: np.ndarray, chart, cells, keys, fit: _Fit, padding: int,
             max_size: int) -> tuple:
-    """Corners (m, 3, 2), shape, the fit reached, cell faces (m,) bool and cells' block of
-    the packed charts (``unit_corners`` (m, 3, 2), :func:`_seen_corners`), the faces in
-    ``cells`` (m,) bool taking cells, from ``fit`` on: scaled down to fit, down to
+    """Corners (m, 3, 2), shape, the fit reached, cell faces (m,) bool, the cell of each of
+    them (k,) and cells' block of the packed charts (``unit_corners`` (m, 3, 2),
+    :func:`_seen_corners`), the faces in ``cells`` (m,) bool taking cells (those of one of
+    ``keys`` (m,), :func:`_cell_keys`, sharing one), from ``fit`` on: scaled down to fit, down to
     :data:`MIN_SCALE` of the asked density, then the charts of fewest faces given cells
     until they fit."""
     charts = _Charts.of(unit_corners, chart, cells)
@@ -321,7 +339,8 @@ def _layout(unit_corners: np.ndarray, chart, cells, fit: _Fit, padding: int,
         else:
             in_cells = np.ones(len(chart), bool)
             in_cells[charts.charted[kept[charts.group]]] = False
-        n_cells = int(in_cells.sum())
+        cell_of = _dense(keys[in_cells])
+        n_cells = int(cell_of.max()) + 1 if len(cell_of) else 0
         columns, block_size = _cell_block(n_cells, padding)
         for _ in range(_FIT_TRIES):
             low = np.floor(scale * charts.low[kept])    # texel centres on whole coordinates
@@ -334,7 +353,7 @@ def _layout(unit_corners: np.ndarray, chart, cells, fit: _Fit, padding: int,
             if max(shape) <= max_size:
                 return (_layout_corners(unit_corners, charts, kept, scale, low, origin,
                                         padding, len(chart)),
-                        shape, _Fit(scale, fewest, fit.asked), in_cells,
+                        shape, _Fit(scale, fewest, fit.asked), in_cells, cell_of,
                         _block_of(origin, padding, n_cells, columns))
             if scale <= MIN_SCALE * fit.asked:
                 break
@@ -369,12 +388,13 @@ def _layout_corners(unit_corners: np.ndarray, charts: _Charts, kept: np.ndarray,
     return out
 
 
-def _corners_in_cells(corners: np.ndarray, cells: np.ndarray, block: tuple | None) -> None:
-    """Set the ``corners`` (m, 3, 2) of the faces in ``cells`` (m,) bool, in their block
-    (``block`` from :func:`_layout`; :func:`cell_corners`)."""
+def _corners_in_cells(corners: np.ndarray, cells: np.ndarray, cell_of: np.ndarray,
+                      block: tuple | None) -> None:
+    """Set the ``corners`` (m, 3, 2) of the faces in ``cells`` (m,) bool, in their cells
+    ``cell_of`` (k,) of their block (``block`` from :func:`_layout`; :func:`cell_corners`)."""
     if block is not None:
         row, column, _, columns = block
-        corners[cells] = cell_corners(int(cells.sum()), columns) + np.array(
+        corners[cells] = cell_corners(int(cell_of.max()) + 1, columns)[cell_of] + np.array(
             [column, row], np.float64)
 
 
@@ -394,6 +414,7 @@ def build_atlas(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray,
                          f"{max_size}")
     patch = chart_of_faces(labels, neighbours)
     unit_corners = _seen_corners(vertices, faces, labels, cameras)
+    keys = _cell_keys(faces, labels)
     alone = np.zeros(len(faces), bool)
     celled = labels < 0
     # Each split starts from the scale the last one reached: at an unchanged scale a
@@ -402,17 +423,19 @@ def build_atlas(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray,
     fit = _Fit(float(texels_per_pixel), 1, float(texels_per_pixel))
     for split in itertools.count():
         chart = _dense(np.where(alone | celled, patch.max() + 1 + np.arange(len(faces)), patch))
-        corners, shape, fit, cells, block = _layout(
-            unit_corners, chart, celled, fit, int(padding), int(max_size))
+        corners, shape, fit, cells, cell_of, block = _layout(
+            unit_corners, chart, celled, keys, fit, int(padding), int(max_size))
         charted = np.flatnonzero(~cells)
         face_id, bary, again, overlapping_charted = rasterize_atlas(corners[charted], shape)
         if not again:
             face_id = np.where(face_id >= 0, np.append(charted, -1)[face_id], -1)
-            _corners_in_cells(corners, cells, block)
+            _corners_in_cells(corners, cells, cell_of, block)
             if block is not None:
-                _fill_cells(face_id, bary, cells, block)
-            # A face in a cell has corners of its own.
-            chart = np.where(cells, chart.max() + 1 + np.arange(len(faces)), chart)
+                _fill_cells(face_id, bary, faces, cells, cell_of, keys, block)
+            # The faces of a cell share its corners.
+            in_cell = np.zeros(len(faces), np.int64)
+            in_cell[cells] = cell_of
+            chart = np.where(cells, chart.max() + 1 + in_cell, chart)
             return Atlas(shape=shape, corners=corners,
                          chart=_dense(chart),
                          face_index=face_id, barycentric=bary, texels_per_pixel=fit.scale)
