@@ -5,6 +5,7 @@ and many tiny disconnected faces no view sees, in a small atlas; the agreement t
 smoothing made near the faces it is wanted at."""
 
 import numpy as np
+import pytest
 import trimesh
 
 from sfs_ros.core.geometry.camera import Camera
@@ -186,3 +187,26 @@ def test_the_agreement_smoothing_near_the_wanted_faces_equals_the_full_sums():
         assert not near[~wanted].any()
         # The neighbourhood matters: ring sums reach faces that are not wanted.
         assert full[~wanted].any()
+
+
+def test_unseen_faces_around_a_vertex_share_its_cell_and_its_colour():
+    # An icosahedron no view sees (20 faces): the faces whose lowest corner is one vertex
+    # share one cell, read at that vertex; every face's corners at its cell's centre.
+    icosahedron = trimesh.creation.icosphere(subdivisions=0)
+    faces = np.asarray(icosahedron.faces, np.int64)
+    vertices = np.asarray(icosahedron.vertices) * 0.05
+    labels = np.full(len(faces), -1, np.int64)
+    atlas = build_atlas(vertices, faces, labels, face_neighbours(faces), [camera_above(0, 1)],
+                        max_size=MAX_SIZE)
+    lowest = faces.min(axis=1)
+    claimed = atlas.face_index >= 0
+    assert claimed.sum() == len(np.unique(lowest))
+    for r, c in zip(*np.nonzero(claimed)):
+        face = atlas.face_index[r, c]
+        # The texel reads its cell's vertex alone.
+        assert atlas.barycentric[r, c] @ vertices[faces[face]] == pytest.approx(
+            vertices[lowest[face]])
+        sharing = lowest == lowest[face]
+        assert np.abs(atlas.corners[sharing] - [c, r]).max() <= 1e-9
+    # The faces of a cell are one chart: their shared corners are one vertex each.
+    assert len(np.unique(atlas.chart)) == len(np.unique(lowest))

@@ -7,10 +7,12 @@ every face of the patch unhidden and facing it, so the projection is one to one 
 texture is the image itself, resampled only when ``texels_per_pixel`` is not 1 (texels
 per metre on the object as many as the view's pixels per metre there). Faces no view
 sees (the underside on the plate, a refined mesh's hidden folds) carry only colours
-interpolated from the seen ones, smooth: each takes a *cell*. A cell is one texel, the
-face's colour at its centroid, and the face's three corners lie at its centre, so that a
-look-up anywhere in the face reads that texel alone (bilinear or nearest, at any level
-of detail: the texture coordinates do not vary across the face); the cells are packed
+interpolated from the seen ones, smooth: they take *cells*. A cell is one texel, and the
+three corners of each face in it lie at its centre, so that a look-up anywhere in the
+face reads that texel alone (bilinear or nearest, at any level of detail: the texture
+coordinates do not vary across the face). The unseen faces whose lowest corner is one
+vertex share its cell, of that vertex's colour (and the copies of their corners); a seen
+face that takes a cell has its own, of its colour at its centroid. The cells are packed
 side by side as one rectangle, with no padding between them. Faces that would still
 overlap another in the atlas (a patch seen partly hidden) are made charts of their own
 (after :data:`_SPLIT_TRIES` tries, cells), and the atlas is laid out again, from the

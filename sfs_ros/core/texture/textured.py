@@ -16,8 +16,8 @@ the views agree on and averages their noise: unblurred on a true mesh, where the
 agree, blurred where the mesh departs from the surface (doc/benchmarks.md, the atlas).
 Texels around each chart repeat its border's colours (``padding`` of them) so that
 filtering does not bleed across a seam; the rest of the atlas is the texture's mean
-colour. Faces no view sees (the underside on the plate) take the colour at their
-centroid interpolated from their corners (:mod:`.atlas`: a texel each), each corner's
+colour. Faces no view sees (the underside on the plate) take the colour of their lowest
+corner (:mod:`.atlas`: one texel for the unseen faces around a vertex), each corner's
 colour the mean of its seen faces' or, for corners no view sees, near the harmonic
 interpolation along the edges the vertex colours use, solved on patches of a few edges
 and smoothed (:class:`~sfs_ros.core.meshing.colour.SmoothedFill`: no view sees them,
