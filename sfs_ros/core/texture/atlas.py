@@ -208,9 +208,9 @@ def _cell_block(n_cells: int, padding: int) -> tuple[int, np.ndarray | None]:
 @njit(cache=True, nogil=True)
 def _place(unit_corners, faces, group, scale, low, origin, padding, out):
     """Corners of ``faces`` (k,) in charts ``group`` (k,) into ``out`` (m, 3, 2): their
-    ``unit_corners`` (m, 3, 2) times ``scale``, moved from the
-    chart's least corner ``low`` (n, 2) (whole texels) to its ``origin`` (n, 2) in the
-    atlas, ``padding`` texels in."""
+    ``unit_corners`` (m, 3, 2) times ``scale``, moved from the chart's least corner
+    ``low`` (n, 2) (whole texels) to its ``origin`` (n, 2) in the atlas, ``padding``
+    texels in."""
     for i in range(faces.shape[0]):
         f, g = faces[i], group[i]
         for k in range(3):
@@ -327,11 +327,11 @@ class _Fit:
 def _layout(unit_corners: np.ndarray, chart, cells, keys, fit: _Fit, padding: int,
             max_size: int) -> tuple:
     """Corners (m, 3, 2), shape, the fit reached, cell faces (m,) bool, the cell of each of
-    them (k,) and cells' block of the packed charts (``unit_corners`` (m, 3, 2),
-    :func:`_seen_corners`), the faces in ``cells`` (m,) bool taking cells (those of one of
-    ``keys`` (m,), :func:`_cell_keys`, sharing one), from ``fit`` on: scaled down to fit, down to
-    :data:`MIN_SCALE` of the asked density, then the charts of fewest faces given cells
-    until they fit."""
+    them (k,) and the cells' block of the packed charts (``unit_corners`` (m, 3, 2),
+    :func:`_seen_corners`), the faces in ``cells`` (m,) bool taking cells (those of one
+    of ``keys`` (m,), :func:`_cell_keys`, sharing one), from ``fit`` on: scaled down to
+    fit, down to :data:`MIN_SCALE` of the asked density, then the charts of fewest faces
+    given cells until they fit."""
     charts = _Charts.of(unit_corners, chart, cells)
     scale, fewest = fit.scale, fit.fewest
     while True:
