@@ -88,27 +88,37 @@ def _ring_sums(values, neighbours, rings, wanted, out):
                 steps[g] = steps[f] + 1
                 region[n] = g
                 n += 1
-    inside = np.zeros(m, np.bool_)
+    # Those faces in the mesh's order (which keeps neighbours near in memory), numbered
+    # apart with their neighbours among them (-1: none, or outside: zero throughout).
+    region = np.sort(region[:n])
+    local = np.full(m, -1, np.int64)
     for i in range(n):
-        inside[region[i]] = True
-    # In the mesh's order, which keeps neighbours near in memory.
-    now, after = values.copy(), np.zeros_like(values)
+        local[region[i]] = i
+    around = np.full((n, 3), -1, np.int64)
+    now = np.empty((n, c))
+    for i in range(n):
+        f = region[i]
+        for k in range(3):
+            if neighbours[f, k] >= 0:
+                around[i, k] = local[neighbours[f, k]]
+        for j in range(c):
+            now[i, j] = values[f, j]
+    after = np.empty_like(now)
     for _ in range(rings):
-        for f in range(m):
-            if not inside[f]:
-                continue
+        for i in range(n):
             for j in range(c):
-                after[f, j] = now[f, j]
+                after[i, j] = now[i, j]
             for k in range(3):
-                g = neighbours[f, k]
+                g = around[i, k]
                 if g >= 0:
                     for j in range(c):
-                        after[f, j] += now[g, j]
+                        after[i, j] += now[g, j]
         now, after = after, now
-    for f in range(m):
+    for i in range(n):
+        f = region[i]
         if wanted[f]:
             for j in range(c):
-                out[f, j] = now[f, j]
+                out[f, j] = now[i, j]
 
 
 def face_blur(points: np.ndarray, blend: np.ndarray, gains: np.ndarray,
