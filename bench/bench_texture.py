@@ -22,7 +22,8 @@ Then, where the Middlebury data sets lie beside the repository
 (``../shared/datasets/middlebury``; said and skipped where they do not), the same cost on
 real photographs: the temple's 16 views reconstructed as ``sfs-reconstruct --preset
 middlebury-temple`` does by default (refined, the pixel-footprint grid: millions of faces,
-most of them seen by no view) and textured, one run of each in the same process
+most of them seen by no view) and textured, one run of each in the same process, wall
+and CPU seconds (all threads) and their ratios, the load average before and after
 (:func:`cost_of_the_temple`).
 
 Run: ``python -m bench.bench_texture`` (``--cost``: the costs alone; ``--temple``: the
@@ -156,14 +157,19 @@ def cost_of_the_temple(par: Path = TEMPLE) -> None:
     view_set = load_views(par)
     params = ReconstructionParams(refine=True, segmentation=SegmentationParams.from_dict(
         PRESETS["middlebury-temple"]))
-    start = time.perf_counter()
+    load_before = os.getloadavg()[0]
+    start, cpu = time.perf_counter(), time.process_time()
     result = reconstruct(view_set, params)
-    mesh_s = time.perf_counter() - start
+    mesh_s, mesh_cpu = time.perf_counter() - start, time.process_time() - cpu
+    cpu = time.process_time()
     textured, texture_s, peak = timed_peak(lambda: texture_reconstruction(view_set, result))
+    texture_cpu = time.process_time() - cpu
     stats = textured.stats
     print(f"the temple, {len(view_set.views)} views, {stats['faces']} faces "
-          f"({stats['unseen_faces']} seen by no view): reconstruction {mesh_s:.2f} s, texture "
-          f"{texture_s:.2f} s ({texture_s / mesh_s:.2f} x; "
+          f"({stats['unseen_faces']} seen by no view), load {load_before:.1f} to "
+          f"{os.getloadavg()[0]:.1f}: reconstruction {mesh_s:.2f} s ({mesh_cpu:.2f} s CPU), "
+          f"texture {texture_s:.2f} s ({texture_cpu:.2f} s CPU): {texture_s / mesh_s:.2f} x "
+          f"the reconstruction's wall time, {texture_cpu / mesh_cpu:.2f} x its CPU ("
           f"{({k: round(v, 2) for k, v in stats['seconds'].items()})}), peak "
           f"{peak / 2**20:.0f} MiB above the process's, atlas {stats['atlas_size']} at "
           f"{stats['texels_per_pixel']:.2f} texels a pixel, {stats['charts']} charts")

@@ -1,20 +1,22 @@
 """The texture atlas fits whatever the mesh: a finely divided rough sphere seen from above
 only (its lower half, curved, seen by no view: every such face a chart of its own would not
 fit)
-and many tiny disconnected faces no view sees, in a small atlas."""
+and many tiny disconnected faces no view sees, in a small atlas; the agreement test's
+smoothing made near the faces it is wanted at."""
 
 import numpy as np
+import pytest
 import trimesh
 
 from sfs_ros.core.geometry.camera import Camera
 from sfs_ros.core.meshing.colour import view_sight
 from sfs_ros.core.render import render_image
 from sfs_ros.core.texture import texture_mesh
-from sfs_ros.core.texture.atlas import CELL_TEXELS, build_atlas, rasterize_atlas
+from sfs_ros.core.texture.atlas import build_atlas, rasterize_atlas
 from sfs_ros.core.texture.selection import face_neighbours, farthest_around
 
 #: Side of the atlas the tests allow, texels: far less than one chart with padding per
-#: unseen face needs (5 x 5 texels each at least, against 4 or 1 for a cell).
+#: unseen face needs (5 x 5 texels each at least, against 1 for a cell).
 MAX_SIZE = 256
 
 
@@ -63,7 +65,7 @@ def test_a_fine_sphere_seen_from_above_is_textured_in_a_small_atlas():
 
 def test_many_tiny_disconnected_unseen_faces_fit_with_a_texel_each():
     rng = np.random.default_rng(0)
-    count = 60000                    # 4 texels each would fill far more than half the atlas
+    count = 60000                    # nearly the whole atlas
     origins = rng.uniform(-0.05, 0.05, (count, 3))
     vertices = (origins[:, None, :] + rng.uniform(0, 1e-3, (count, 3, 3))).reshape(-1, 3)
     faces = np.arange(3 * count, dtype=np.int64).reshape(-1, 3)
@@ -72,15 +74,15 @@ def test_many_tiny_disconnected_unseen_faces_fit_with_a_texel_each():
                         max_size=MAX_SIZE)
     assert max(atlas.shape) <= MAX_SIZE
     claimed = np.bincount(atlas.face_index[atlas.face_index >= 0], minlength=count)
-    assert (claimed == 1).all()                 # cells of one texel (4 x 60000 > 256^2 / 2)
-    # Each face's corners lie within a quarter texel of its texel's centre.
+    assert (claimed == 1).all()                 # cells of one texel
+    # Each face's corners lie at its texel's centre.
     rows, cols = np.nonzero(atlas.face_index >= 0)
     centre = np.zeros((count, 2))
     centre[atlas.face_index[rows, cols]] = np.stack([cols, rows], axis=1)
-    assert np.abs(atlas.corners - centre[:, None, :]).max() <= 0.25
+    assert np.abs(atlas.corners - centre[:, None, :]).max() <= 1e-9
 
 
-def test_cells_of_two_texels_hold_a_bilinear_look_up_inside_the_face():
+def test_a_face_in_a_cell_reads_its_own_texel_alone():
     count = 500
     rng = np.random.default_rng(1)
     vertices = (rng.uniform(-0.05, 0.05, (count, 1, 3)) + rng.uniform(0, 1e-3, (count, 3, 3))
@@ -89,12 +91,13 @@ def test_cells_of_two_texels_hold_a_bilinear_look_up_inside_the_face():
     atlas = build_atlas(vertices, faces, np.full(count, -1, np.int64), face_neighbours(faces),
                         [camera_above(0, 1)], max_size=MAX_SIZE)
     claimed = np.bincount(atlas.face_index[atlas.face_index >= 0], minlength=count)
-    assert (claimed == CELL_TEXELS ** 2).all()
-    # The four texels a bilinear look-up at any corner reads are the face's own.
+    assert (claimed == 1).all()
+    # All three corners at the centre of the face's texel: a bilinear look-up anywhere in
+    # the face weighs that texel alone.
     for f in range(0, count, 37):
         for x, y in atlas.corners[f]:
-            c, r = int(np.floor(x)), int(np.floor(y))
-            assert (atlas.face_index[r:r + 2, c:c + 2] == f).all()
+            assert x == round(x) and y == round(y)
+            assert atlas.face_index[int(y), int(x)] == f
     # No face's charted triangle claims a texel of another: the cells are off the rasteriser.
     assert rasterize_atlas(atlas.corners, atlas.shape)[2] == 0
 
@@ -150,3 +153,60 @@ def test_a_point_between_pixel_centres_is_hidden_only_behind_all_four():
                             depth_zbuf=farthest_around(zbuf)).hidden
     np.testing.assert_array_equal(blended, 3 * np.minimum(fractions, 1.0) > 1.0)
     np.testing.assert_array_equal(behind_all, fractions >= 1.5)
+
+
+def test_the_agreement_smoothing_near_the_wanted_faces_equals_the_full_sums():
+    # A sphere of 5120 faces, a few far-apart blobs of faces wanted (values there alone):
+    # the ring sums at the wanted faces, made on the faces within half the rings of them,
+    # equal the sums over the whole mesh's adjacency (face and its neighbours), ring after
+    # ring; the faces not wanted are left zero.
+    from scipy import sparse
+
+    from sfs_ros.core.texture.agreement import _smoothed
+
+    sphere = trimesh.creation.icosphere(subdivisions=4, radius=0.05)
+    faces = np.asarray(sphere.faces, np.int64)
+    neighbours = face_neighbours(faces)
+    m = len(faces)
+    centroids = np.asarray(sphere.triangles_center)
+    wanted = np.zeros(m, bool)
+    for direction in ([1, 0, 0], [0, -1, 0], [0, 0, 1]):
+        wanted |= centroids @ np.array(direction, float) > 0.045
+    values = np.random.default_rng(3).uniform(0, 1, (m, 5)) * wanted[:, None]
+    rows = np.repeat(np.arange(m), 3)
+    keep = neighbours.ravel() >= 0
+    adjacency = sparse.csr_matrix((np.ones(int(keep.sum())), (rows[keep], neighbours.ravel()[keep])),
+                                  shape=(m, m)) + sparse.identity(m, format="csr")
+    for rings in (1, 4, 7):
+        full = values.copy()
+        for _ in range(rings):
+            full = adjacency @ full
+        near = _smoothed(values, neighbours, rings, wanted)
+        # Float sums in another order: equal to a few units in the last place.
+        np.testing.assert_allclose(near[wanted], full[wanted], rtol=1e-12)
+        assert not near[~wanted].any()
+        # The neighbourhood matters: ring sums reach faces that are not wanted.
+        assert full[~wanted].any()
+
+
+def test_unseen_faces_around_a_vertex_share_its_cell_and_its_colour():
+    # An icosahedron no view sees (20 faces): the faces whose lowest corner is one vertex
+    # share one cell, read at that vertex; every face's corners at its cell's centre.
+    icosahedron = trimesh.creation.icosphere(subdivisions=0)
+    faces = np.asarray(icosahedron.faces, np.int64)
+    vertices = np.asarray(icosahedron.vertices) * 0.05
+    labels = np.full(len(faces), -1, np.int64)
+    atlas = build_atlas(vertices, faces, labels, face_neighbours(faces), [camera_above(0, 1)],
+                        max_size=MAX_SIZE)
+    lowest = faces.min(axis=1)
+    claimed = atlas.face_index >= 0
+    assert claimed.sum() == len(np.unique(lowest))
+    for r, c in zip(*np.nonzero(claimed)):
+        face = atlas.face_index[r, c]
+        # The texel reads its cell's vertex alone.
+        assert atlas.barycentric[r, c] @ vertices[faces[face]] == pytest.approx(
+            vertices[lowest[face]])
+        sharing = lowest == lowest[face]
+        assert np.abs(atlas.corners[sharing] - [c, r]).max() <= 1e-9
+    # The faces of a cell are one chart: their shared corners are one vertex each.
+    assert len(np.unique(atlas.chart)) == len(np.unique(lowest))

@@ -24,7 +24,7 @@ from collections.abc import Sequence
 
 import cv2
 import numpy as np
-from scipy import sparse
+from numba import njit
 
 from ..geometry.camera import Camera
 from .levelling import interpolate
@@ -50,19 +50,75 @@ def blurred_views(images: Sequence[np.ndarray], levels_px: Sequence[float] = BLU
              for image in images] for sigma in levels_px]
 
 
-def _smoothed(values: np.ndarray, neighbours: np.ndarray, rings: int) -> np.ndarray:
-    """``values`` (m, ...) summed over each face and its neighbours (``neighbours`` (m, 3),
-    -1: none), ``rings`` times over."""
-    m = len(neighbours)
-    f = np.repeat(np.arange(m), 3)
-    g = neighbours.ravel()
-    keep = g >= 0
-    adjacency = sparse.csr_matrix((np.ones(int(keep.sum())), (f[keep], g[keep])), shape=(m, m))
-    adjacency = adjacency + sparse.identity(m, format="csr")
-    flat = values.reshape(m, -1)
+def _smoothed(values: np.ndarray, neighbours: np.ndarray, rings: int,
+              wanted: np.ndarray) -> np.ndarray:
+    """``values`` (m, c) float64 summed over each face and its neighbours (``neighbours``
+    (m, 3), -1: none), ``rings`` times over, at the ``wanted`` (m,) bool faces (the others
+    zero); ``values`` are zero but at wanted faces."""
+    out = np.zeros_like(values)
+    _ring_sums(np.ascontiguousarray(values), neighbours, int(rings), wanted, out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _ring_sums(values, neighbours, rings, wanted, out):
+    """:func:`_smoothed` into ``out`` (m, c) (zeros). A sum over ``rings`` rings at a wanted
+    face gathers the walks of as many steps from a wanted face (where the values are not
+    zero): every face they pass lies within half as many steps of one or the other, so
+    the sums are made on those faces alone, the others left zero."""
+    m, c = values.shape
+    # The faces within (rings + 1) // 2 steps of a wanted face, breadth first.
+    steps = np.full(m, -1, np.int64)
+    region = np.empty(m, np.int64)
+    n = 0
+    for f in range(m):
+        if wanted[f]:
+            steps[f] = 0
+            region[n] = f
+            n += 1
+    half, head = (rings + 1) // 2, 0
+    while head < n:
+        f = region[head]
+        head += 1
+        if steps[f] == half:
+            continue
+        for k in range(3):
+            g = neighbours[f, k]
+            if g >= 0 and steps[g] < 0:
+                steps[g] = steps[f] + 1
+                region[n] = g
+                n += 1
+    # Those faces in the mesh's order (which keeps neighbours near in memory), numbered
+    # apart with their neighbours among them (-1: none, or outside: zero throughout).
+    region = np.sort(region[:n])
+    local = np.full(m, -1, np.int64)
+    for i in range(n):
+        local[region[i]] = i
+    around = np.full((n, 3), -1, np.int64)
+    now = np.empty((n, c))
+    for i in range(n):
+        f = region[i]
+        for k in range(3):
+            if neighbours[f, k] >= 0:
+                around[i, k] = local[neighbours[f, k]]
+        for j in range(c):
+            now[i, j] = values[f, j]
+    after = np.empty_like(now)
     for _ in range(rings):
-        flat = adjacency @ flat
-    return flat.reshape(values.shape)
+        for i in range(n):
+            for j in range(c):
+                after[i, j] = now[i, j]
+            for k in range(3):
+                g = around[i, k]
+                if g >= 0:
+                    for j in range(c):
+                        after[i, j] += now[g, j]
+        now, after = after, now
+    for i in range(n):
+        f = region[i]
+        if wanted[f]:
+            for j in range(c):
+                out[f, j] = now[i, j]
 
 
 def face_blur(points: np.ndarray, blend: np.ndarray, gains: np.ndarray,
@@ -70,7 +126,7 @@ def face_blur(points: np.ndarray, blend: np.ndarray, gains: np.ndarray,
               neighbours: np.ndarray, *, kernel: str = "bilinear",
               rings: int = SMOOTHING_RINGS, every: int = JUDGED_EVERY) -> np.ndarray:
     """(m,) int64 index into ``levels`` of the blur each face's blend takes (module
-    docstring).
+    docstring; 0 for a face no view is blended into).
 
     ``points`` (m, k, 3) metres, sample points of each face; ``blend`` (m, V) weight of
     each view in each face (0: none); ``gains`` (V, 3) each view's colour gain; ``levels``
@@ -80,28 +136,31 @@ def face_blur(points: np.ndarray, blend: np.ndarray, gains: np.ndarray,
     """
     m, k = points.shape[:2]
     n_levels = len(levels)
-    total = np.zeros((m, n_levels, k, 3), np.float32)
-    weight_sum = np.zeros(m)
-    judged_here = np.zeros(m, bool)
-    judged_here[::max(1, int(every))] = True
-    used = [np.flatnonzero(judged_here & (blend[:, view] > 0)) for view in range(blend.shape[1])]
+    every = max(1, int(every))
+    blended = (blend > 0).any(axis=1)
+    # The faces judged (each ``every``-th, with a view), and their weights: (j,), (j, V).
+    judged_faces = every * np.flatnonzero(blended[::every])
+    weights = blend[judged_faces]
+    total = np.zeros((len(judged_faces), n_levels, k, 3), np.float32)
+    weight_sum = np.zeros(len(judged_faces))
+    used = [np.flatnonzero(weights[:, view] > 0) for view in range(blend.shape[1])]
     # Each view's colours at its faces' points at every level: (faces, levels, k, 3).
     reads = []
     for view, mine in enumerate(used):
-        pixels = np.nan_to_num(cameras[view].project(points[mine].reshape(-1, 3)),
-                               nan=-1.0).astype(np.float32)
+        pixels = np.nan_to_num(cameras[view].project(
+            points[judged_faces[mine]].reshape(-1, 3)), nan=-1.0).astype(np.float32)
         reads.append(gains[view].astype(np.float32) * np.stack(
             [interpolate(levels[level][view], pixels[:, 0], pixels[:, 1],
                          kernel=kernel).reshape(-1, k, 3) for level in range(n_levels)],
             axis=1))
         if mine.size:
-            total[mine] += blend[mine, view].astype(np.float32)[:, None, None, None] \
+            total[mine] += weights[mine, view].astype(np.float32)[:, None, None, None] \
                 * reads[view]
-            weight_sum[mine] += blend[mine, view]
-    error = np.zeros((m, n_levels))
-    judged = np.zeros(m)
+            weight_sum[mine] += weights[mine, view]
+    # Each judged face's leave-one-out errors at every level, then its weight: (m, levels + 1).
+    errors = np.zeros((m, n_levels + 1))
     for view, mine in enumerate(used):
-        weight = blend[mine, view]
+        weight = weights[mine, view]
         others = weight_sum[mine] - weight
         left_out = others > 0
         if not left_out.any():
@@ -110,9 +169,10 @@ def face_blur(points: np.ndarray, blend: np.ndarray, gains: np.ndarray,
         own = reads[view][left_out]
         predicted = (total[mine] - weight[:, None, None, None] * own) \
             / others[:, None, None, None]
-        error[mine] += weight[:, None] * np.square(predicted - own[:, :1]).sum(axis=(2, 3))
-        judged[mine] += weight
-    smoothed = _smoothed(np.column_stack([error, judged]), neighbours, rings)
+        face = judged_faces[mine]
+        errors[face, :-1] += weight[:, None] * np.square(predicted - own[:, :1]).sum(axis=(2, 3))
+        errors[face, -1] += weight
+    smoothed = _smoothed(errors, neighbours, rings, blended)
     error, judged = smoothed[:, :-1], smoothed[:, -1]
     # A face with no judged face (two views or more) within its rings stays unblurred.
     return np.where(judged > 0, np.argmin(error, axis=1), 0).astype(np.int64)

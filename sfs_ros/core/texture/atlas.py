@@ -6,19 +6,18 @@ projection in the view's image, in pixels, times ``texels_per_pixel``. The view 
 every face of the patch unhidden and facing it, so the projection is one to one and the
 texture is the image itself, resampled only when ``texels_per_pixel`` is not 1 (texels
 per metre on the object as many as the view's pixels per metre there). Faces no view
-sees (the underside on the plate) are grouped by the axis (+-X, +-Y, +-Z) their normal
-is nearest, and each connected patch of one group is projected onto the plane across
-its mean normal when every face turns within 60 degrees of it, at half the seen faces' median
-texels per metre (its colours are interpolated, smooth); otherwise (a curved patch) its
-faces take *cells*. A cell is :data:`CELL_TEXELS` x :data:`CELL_TEXELS` texels of one
-colour, the face's at its centroid, and the face's corners lie inside it, a quarter of a
-texel from its border, so that a bilinear look-up anywhere in the face reads its own
-cell alone: the cells of all such faces are packed side by side as one rectangle, with
-no padding between them. Seen faces that would still overlap another in the atlas (a
-patch seen partly hidden) are made charts of their own (after :data:`_SPLIT_TRIES`
-tries, cells), the faces of a curved unseen patch that would overlap take cells, and
-the atlas is laid out again, from the scale the last layout reached (at an unchanged
-scale the charts left whole claim the texels they claimed: no new overlap).
+sees (the underside on the plate, a refined mesh's hidden folds) carry only colours
+interpolated from the seen ones, smooth: they take *cells*. A cell is one texel, and the
+three corners of each face in it lie at its centre, so that a look-up anywhere in the
+face reads that texel alone (bilinear or nearest, at any level of detail: the texture
+coordinates do not vary across the face). The unseen faces whose lowest corner is one
+vertex share its cell, of that vertex's colour (and the copies of their corners); a seen
+face that takes a cell has its own, of its colour at its centroid. The cells are packed
+side by side as one rectangle, with no padding between them. Faces that would still
+overlap another in the atlas (a patch seen partly hidden) are made charts of their own
+(after :data:`_SPLIT_TRIES` tries, cells), and the atlas is laid out again, from the
+scale the last layout reached (at an unchanged scale the charts left whole claim the
+texels they claimed: no new overlap).
 
 Charts are packed as rectangles on shelves (tallest first), ``2 * padding`` texels
 apart, into an atlas about as wide as high; when that exceeds ``max_size`` texels a
@@ -46,13 +45,8 @@ from scipy.sparse import csgraph
 from ..geometry.camera import Camera
 from ..render import covered_point, edge_tuple, pixel_box, triangle_edges
 
-__all__ = ["CELL_TEXELS", "MIN_SCALE", "Atlas", "build_atlas", "cell_corners", "chart_of_faces"]
+__all__ = ["MIN_SCALE", "Atlas", "build_atlas", "cell_corners", "chart_of_faces"]
 
-#: Side of the cell of one colour a face takes when it has no chart (module docstring),
-#: texels: 2 x 2 texels hold a bilinear look-up anywhere inside the face's corners; a mesh
-#: of more faces than the atlas holds so takes cells of one texel (a look-up then mixes a
-#: quarter of the next cells' colours in at most).
-CELL_TEXELS = 2
 #: The charts are scaled down to at most this share of the asked texels per pixel before
 #: small charts are given cells instead.
 MIN_SCALE = 0.25
@@ -60,9 +54,6 @@ MIN_SCALE = 0.25
 _FIT_TRIES = 6
 #: Times overlapping faces are split off into charts of their own before they take cells.
 _SPLIT_TRIES = 4
-#: A patch no view sees is projected onto a plane when its faces' normals are all within
-#: acos of this of their mean.
-_FLAT_COS = 0.5
 
 
 @dataclass(frozen=True)
@@ -103,126 +94,38 @@ class Atlas:
 
 def chart_of_faces(labels: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
     """(m,) int64 chart of each face: the connected patches (across edges, ``neighbours``
-    (m, 3)) of faces with one label (m,) (-1, unseen, being a label too)."""
+    (m, 3)) of faces with one label (m,) >= 0; a face labelled -1 (unseen) is a chart of
+    its own."""
     m = len(labels)
     f = np.repeat(np.arange(m), 3)
     g = neighbours.ravel()
-    keep = (g >= 0) & (labels[f] == labels[np.maximum(g, 0)])
+    keep = (g >= 0) & (labels[f] >= 0) & (labels[f] == labels[np.maximum(g, 0)])
     graph = sparse.csr_matrix((np.ones(int(keep.sum())), (f[keep], g[keep])), shape=(m, m))
     return csgraph.connected_components(graph, directed=False)[1].astype(np.int64)
 
 
-def _nearest_axis(normal: np.ndarray) -> np.ndarray:
-    """(m,) int64 the axis +X, +Y, +Z, -X, -Y, -Z (0..5) nearest each face's ``normal``
-    (m, 3)."""
-    return np.argmax(np.concatenate([normal, -normal], axis=1), axis=1).astype(np.int64)
+def _seen_corners(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray,
+                  cameras: list[Camera]) -> np.ndarray:
+    """(m, 3, 2) float64 each seen face's corners in its view's pixels (``labels`` (m,),
+    -1: unseen, whose corners are zero): the charts before packing and scaling, made
+    once for all the layouts tried (scaling a chart scales its bounds exactly: a product
+    rounds monotonically)."""
+    corners = np.zeros((len(faces), 3, 2))
+    for label, camera in enumerate(cameras):
+        mine = np.flatnonzero(labels == label)
+        if mine.size:
+            corners[mine] = camera.project(vertices[faces[mine]].reshape(-1, 3)).reshape(-1, 3, 2)
+    return corners
 
 
-def _plane_axes(corners_3d: np.ndarray, normal: np.ndarray,
-                patch: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Coordinates (k, 3, 2) of faces with corners ``corners_3d`` (k, 3, 3) metres and
-    normals ``normal`` (k, 3) (twice their area long) on the plane across their patch's
-    mean normal (``patch`` (k,) their patches), metres; and (k,) bool where the patch is
-    flat enough (:data:`_FLAT_COS`) for it."""
-    _, local = np.unique(patch, return_inverse=True)
-    mean = np.zeros((local.max() + 1, 3))
-    np.add.at(mean, local, normal)
-    mean /= np.maximum(np.linalg.norm(mean, axis=1, keepdims=True), 1e-300)
-    axis_u = np.cross(mean, np.where(np.abs(mean[:, 2:]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0, 0]]))
-    axis_u /= np.linalg.norm(axis_u, axis=1, keepdims=True)
-    axis_v = np.cross(mean, axis_u)
-    cos = np.einsum("kd,kd->k", normal, mean[local]) / np.maximum(
-        np.linalg.norm(normal, axis=1), 1e-300)
-    flat = np.ones(len(mean), bool)
-    np.logical_and.at(flat, local, cos > _FLAT_COS)
-    plane = np.stack([np.einsum("kcd,kd->kc", corners_3d, axis_u[local]),
-                      np.einsum("kcd,kd->kc", corners_3d, axis_v[local])], axis=-1)
-    return plane, flat[local]
-
-
-@dataclass(frozen=True)
-class _UnitCharts:
-    """Each face's corners in its chart before packing and scaling, computed once for all
-    the layouts tried (scaling a chart scales its bounds exactly: a product rounds
-    monotonically).
-
-    Attributes
-    ----------
-    corners : (m, 3, 2) float64
-        A seen face's corners in its view's pixels; an unseen face's on its patch's
-        plane (:func:`_plane_axes`), metres; zero for an unseen face of a curved patch.
-    curved : (m,) bool
-        The unseen faces whose patch is not flat: they take cells.
-    area : (m,) float64
-        Each face's area, square metres.
-    plane_density : float
-        Texels per metre of the unseen faces' planes at one texel per pixel: half the
-        median over the seen faces (:func:`_plane_density`); a layout's scale times it.
-    """
-
-    corners: np.ndarray
-    curved: np.ndarray
-    area: np.ndarray
-    plane_density: float
-
-    @classmethod
-    def of(cls, tri: np.ndarray, normal: np.ndarray, labels: np.ndarray, patch: np.ndarray,
-           cameras: list[Camera]) -> _UnitCharts:
-        """The unit charts of faces with corners ``tri`` (m, 3, 3) metres and normals
-        ``normal`` (m, 3) (twice their area long) labelled ``labels`` (m,) (-1: unseen) in
-        ``patch`` (m,) (the unseen faces' patches flattened each onto its plane)."""
-        corners = np.zeros((len(tri), 3, 2))
-        for label, camera in enumerate(cameras):
-            mine = np.flatnonzero(labels == label)
-            if mine.size:
-                corners[mine] = camera.project(tri[mine].reshape(-1, 3)).reshape(-1, 3, 2)
-        area = 0.5 * np.linalg.norm(normal, axis=1)
-        unseen = np.flatnonzero(labels < 0)
-        curved = np.zeros(len(tri), bool)
-        if unseen.size:
-            plane, flat = _plane_axes(tri[unseen], normal[unseen], patch[unseen])
-            corners[unseen] = plane
-            curved[unseen] = ~flat
-        return cls(corners=corners, curved=curved, area=area,
-                   plane_density=_plane_density(corners, area, np.flatnonzero(labels >= 0)))
-
-
-def _plane_density(corners: np.ndarray, area: np.ndarray, seen: np.ndarray) -> float:
-    """Texels per metre of the unseen faces' planes at one texel per pixel: half the
-    median over the ``seen`` (k,) faces (``corners`` (m, 3, 2) in their views' pixels,
-    ``area`` (m,) square metres) of their texels per metre; 0 without seen faces."""
-    if not len(seen):
-        return 0.0
-    texels_per_m = np.empty(len(seen))
-    _texels_per_metre(corners, area, seen, texels_per_m)
-    return 0.5 * float(np.median(texels_per_m))
-
-
-@njit(cache=True, nogil=True)
-def _texels_per_metre(corners, area, seen, out):
-    """:func:`_plane_density`'s loop: the square root of each ``seen`` (k,) face's area in
-    pixels (its ``corners`` (m, 3, 2)) over its ``area`` (m,) into ``out``."""
-    for i in range(seen.shape[0]):
-        f = seen[i]
-        x0, y0 = corners[f, 0, 0], corners[f, 0, 1]
-        d1x, d1y = corners[f, 1, 0] - x0, corners[f, 1, 1] - y0
-        d2x, d2y = corners[f, 2, 0] - x0, corners[f, 2, 1] - y0
-        pixel_area = 0.5 * abs(d1x * d2y - d1y * d2x)
-        out[i] = np.sqrt(pixel_area / max(area[f], 1e-300))
-
-
-def cell_corners(count: int, side: int, columns: int) -> np.ndarray:
-    """(count, 3, 2) corners of ``count`` faces in cells of ``side`` texels, ``columns``
-    cells a row, face k in cell ``(k % columns, k // columns)`` of a block whose first
-    texel centre is (0, 0): the corners a quarter of a texel inside the cell's texel
-    centres, so that a bilinear look-up in the face reads that cell's texels alone."""
+def cell_corners(count: int, columns: int) -> np.ndarray:
+    """(count, 3, 2) corners of ``count`` faces in cells of one texel, ``columns`` cells a
+    row, face k in cell ``(k % columns, k // columns)`` of a block whose first texel
+    centre is (0, 0): all three at the cell's texel centre, so that a look-up anywhere in
+    the face reads that texel alone."""
     k = np.arange(count)
-    origin = side * np.stack([k % columns, k // columns], axis=1).astype(np.float64)
-    # Between the four texel centres of a cell of 2, or within a quarter of a texel of
-    # the one centre of a cell of 1.
-    low, high = (0.25, 0.75) if side > 1 else (-0.25, 0.25)
-    shape = np.array([[low, low], [high, low], [low, high]])
-    return origin[:, None, :] + shape[None]
+    origin = np.stack([k % columns, k // columns], axis=1).astype(np.float64)
+    return np.repeat(origin[:, None, :], 3, axis=1)
 
 
 def _shelves(sizes: np.ndarray, width: int) -> tuple[np.ndarray, int]:
@@ -259,14 +162,6 @@ def _dense(ids: np.ndarray) -> np.ndarray:
     return (np.cumsum(present) - 1)[ids]
 
 
-def _members(ids: np.ndarray, chosen: np.ndarray) -> np.ndarray:
-    """(k,) bool where ``ids`` (k,) int >= 0 is one of ``chosen`` (``np.isin`` without
-    sorting)."""
-    table = np.zeros(int(ids.max()) + 1 if len(ids) else 0, bool)
-    table[chosen] = True
-    return table[ids]
-
-
 def _chart_bounds(corners: np.ndarray, faces: np.ndarray, chart: np.ndarray) -> tuple:
     """Each of ``faces``' (k,) group (k,) int64 (its chart's rank among the charts of
     ``chart`` (k,) int >= 0, theirs) and each group's least and greatest corner
@@ -300,28 +195,27 @@ def _strip_width(sizes: np.ndarray) -> int:
     return 4 * math.ceil(width / 4)
 
 
-def _cell_block(n_cells: int, cell: int, padding: int) -> tuple[int, np.ndarray | None]:
-    """Columns of the block of ``n_cells`` cells of ``cell`` texels, and its rectangle
-    (1, 2) (width, height) texels with ``padding`` (None without cells)."""
+def _cell_block(n_cells: int, padding: int) -> tuple[int, np.ndarray | None]:
+    """Columns of the block of ``n_cells`` cells of one texel, and its rectangle (1, 2)
+    (width, height) texels with ``padding`` (None without cells)."""
     columns = max(1, math.ceil(math.sqrt(n_cells)))
     if not n_cells:
         return columns, None
     rows = math.ceil(n_cells / columns)
-    return columns, np.array([[cell * columns + 2 * padding, cell * rows + 2 * padding]], float)
+    return columns, np.array([[columns + 2 * padding, rows + 2 * padding]], float)
 
 
 @njit(cache=True, nogil=True)
-def _place(unit_corners, faces, group, density, low, origin, padding, out):
+def _place(unit_corners, faces, group, scale, low, origin, padding, out):
     """Corners of ``faces`` (k,) in charts ``group`` (k,) into ``out`` (m, 3, 2): their
-    ``unit_corners`` (m, 3, 2) times their chart's ``density`` (n,), moved from the
-    chart's least corner ``low`` (n, 2) (whole texels) to its ``origin`` (n, 2) in the
-    atlas, ``padding`` texels in."""
+    ``unit_corners`` (m, 3, 2) times ``scale``, moved from the chart's least corner
+    ``low`` (n, 2) (whole texels) to its ``origin`` (n, 2) in the atlas, ``padding``
+    texels in."""
     for i in range(faces.shape[0]):
         f, g = faces[i], group[i]
         for k in range(3):
             for d in range(2):
-                out[f, k, d] = density[g] * unit_corners[f, k, d] - low[g, d] + origin[g, d] \
-                    + padding
+                out[f, k, d] = scale * unit_corners[f, k, d] - low[g, d] + origin[g, d] + padding
 
 
 @njit(cache=True, nogil=True)
@@ -367,45 +261,57 @@ def rasterize_atlas(corners: np.ndarray, shape: tuple) -> tuple:
     return face_id, bary, again, overlapping
 
 
-def _fill_cells(face_id: np.ndarray, bary: np.ndarray, celled: np.ndarray, block: tuple,
-                cell: int) -> None:
-    """Give each texel of the cells of the ``celled`` (m,) faces (``block`` and ``cell``
-    from :func:`_pack`) to its face, at the face's centroid."""
-    faces = np.flatnonzero(celled)
+def _cell_keys(faces: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """(m,) int64 the key of the cell each face takes if it takes one: for a face no view
+    sees (``labels`` (m,) -1), its lowest corner, shared with the other unseen faces whose
+    lowest corner it is; for another face, a key of its own (the vertices' count plus its
+    index)."""
+    n = int(faces.max()) + 1 if len(faces) else 0
+    return np.where(labels < 0, faces.min(axis=1), n + np.arange(len(faces)))
+
+
+def _fill_cells(face_id: np.ndarray, bary: np.ndarray, faces: np.ndarray, cells: np.ndarray,
+                cell_of: np.ndarray, keys: np.ndarray, block: tuple) -> None:
+    """Give the texel of each cell (``cell_of`` (k,) the cell of each of the faces in
+    ``cells`` (m,) bool, ``keys`` (m,) :func:`_cell_keys`, ``block`` from :func:`_layout`)
+    to one of its faces: at the face's corner that keys the cell (its colour the vertex's),
+    or at its centroid (a cell of its own)."""
+    in_cells = np.flatnonzero(cells)
+    first = np.empty(int(cell_of.max()) + 1, np.int64)
+    first[cell_of] = in_cells
     row, column, _, columns = block
-    k = np.arange(len(faces))
-    for dr in range(cell):
-        for dc in range(cell):
-            r, c = row + cell * (k // columns) + dr, column + cell * (k % columns) + dc
-            face_id[r, c] = faces
-            bary[r, c] = 1.0 / 3.0
+    k = np.arange(len(first))
+    r, c = row + k // columns, column + k % columns
+    face_id[r, c] = first
+    corner = np.argmin(faces[first], axis=1)
+    by_vertex = keys[first] < (int(faces.max()) + 1)
+    weights = np.full((len(first), 3), 1.0 / 3.0)
+    weights[by_vertex] = np.eye(3)[corner[by_vertex]]
+    bary[r, c] = weights
 
 
 @dataclass(frozen=True)
 class _Charts:
     """The charts of one split (:func:`build_atlas`) at unit density: of the faces not in
     cells (``charted`` (k,), ``group`` (k,) each one's chart by rank), each chart's least
-    and greatest corner (n, 2) (:func:`_chart_bounds`), its faces (n,) and whether its
-    view sees it (n,) bool (else: an unseen plane)."""
+    and greatest corner (n, 2) (:func:`_chart_bounds`) and its faces (n,)."""
 
     charted: np.ndarray
     group: np.ndarray
     low: np.ndarray
     high: np.ndarray
     faces_in: np.ndarray
-    seen: np.ndarray
 
     @classmethod
-    def of(cls, unit: _UnitCharts, labels: np.ndarray, chart: np.ndarray,
-           cells: np.ndarray) -> _Charts:
-        """The charts ``chart`` (m,) of the faces not in ``cells`` (m,) bool."""
+    def of(cls, corners: np.ndarray, chart: np.ndarray, cells: np.ndarray) -> _Charts:
+        """The charts ``chart`` (m,) of the faces not in ``cells`` (m,) bool, their
+        ``corners`` (m, 3, 2) (:func:`_seen_corners`)."""
         charted = np.flatnonzero(~cells)
-        group, low, high = _chart_bounds(unit.corners, charted, chart[charted])
+        group, low, high = _chart_bounds(corners, charted, chart[charted])
         member = np.zeros(len(low), np.int64)
         member[group] = charted
         faces_in = np.bincount(chart, minlength=int(chart.max()) + 1)[chart[member]]
-        return cls(charted=charted, group=group, low=low, high=high, faces_in=faces_in,
-                   seen=labels[member] >= 0)
+        return cls(charted=charted, group=group, low=low, high=high, faces_in=faces_in)
 
 
 @dataclass(frozen=True)
@@ -418,46 +324,44 @@ class _Fit:
     asked: float
 
 
-def _layout(unit: _UnitCharts, labels, chart, celled, fit: _Fit, padding: int,
+def _layout(unit_corners: np.ndarray, chart, cells, keys, fit: _Fit, padding: int,
             max_size: int) -> tuple:
-    """Corners (m, 3, 2), shape, the fit reached, cell faces (m,) bool, cells' block and
-    side of the packed charts, from ``fit`` on: scaled down to fit, down to
-    :data:`MIN_SCALE` of the asked density, then the charts of fewest faces given cells
-    until they fit."""
-    cells = celled | unit.curved
-    charts = _Charts.of(unit, labels, chart, cells)
+    """Corners (m, 3, 2), shape, the fit reached, cell faces (m,) bool, the cell of each of
+    them (k,) and the cells' block of the packed charts (``unit_corners`` (m, 3, 2),
+    :func:`_seen_corners`), the faces in ``cells`` (m,) bool taking cells (those of one
+    of ``keys`` (m,), :func:`_cell_keys`, sharing one), from ``fit`` on: scaled down to
+    fit, down to :data:`MIN_SCALE` of the asked density, then the charts of fewest faces
+    given cells until they fit."""
+    charts = _Charts.of(unit_corners, chart, cells)
     scale, fewest = fit.scale, fit.fewest
     while True:
         kept = charts.faces_in >= fewest
-        if not (kept & charts.seen).any():        # planes take their density from views
-            kept &= charts.seen
         if kept.all():
             in_cells = cells.copy()
         else:
-            in_cells = np.ones(len(labels), bool)
+            in_cells = np.ones(len(chart), bool)
             in_cells[charts.charted[kept[charts.group]]] = False
-        n_cells = int(in_cells.sum())
-        cell = CELL_TEXELS if CELL_TEXELS ** 2 * n_cells <= 0.5 * max_size ** 2 else 1
-        columns, block_size = _cell_block(n_cells, cell, padding)
+        cell_of = _dense(keys[in_cells])
+        n_cells = int(cell_of.max()) + 1 if len(cell_of) else 0
+        columns, block_size = _cell_block(n_cells, padding)
         for _ in range(_FIT_TRIES):
-            density = np.where(charts.seen, scale, scale * unit.plane_density)[kept, None]
-            low = np.floor(density * charts.low[kept])    # texel centres on whole coordinates
-            sizes = np.ceil(density * charts.high[kept] - low) + 1 + 2 * padding
+            low = np.floor(scale * charts.low[kept])    # texel centres on whole coordinates
+            sizes = np.ceil(scale * charts.high[kept] - low) + 1 + 2 * padding
             if block_size is not None:
                 sizes = np.concatenate([sizes, block_size])
             width = _strip_width(sizes)
             origin, height = _shelves(sizes, width)
             shape = (4 * math.ceil(height / 4), width)
             if max(shape) <= max_size:
-                return (_layout_corners(unit, charts, kept, density, low, origin, padding,
-                                        len(labels)),
-                        shape, _Fit(scale, fewest, fit.asked), in_cells,
-                        _block_of(origin, padding, n_cells, columns), cell)
+                return (_layout_corners(unit_corners, charts, kept, scale, low, origin,
+                                        padding, len(chart)),
+                        shape, _Fit(scale, fewest, fit.asked), in_cells, cell_of,
+                        _block_of(origin, padding, n_cells, columns))
             if scale <= MIN_SCALE * fit.asked:
                 break
             scale = max(MIN_SCALE * fit.asked, scale * 0.97 * max_size / max(shape))
         if in_cells.all():
-            raise ValueError(f"the mesh's {len(labels)} faces do not fit a {max_size} texel "
+            raise ValueError(f"the mesh's {len(chart)} faces do not fit a {max_size} texel "
                              "atlas even at one texel each: allow a larger max_size or "
                              "simplify the mesh")
         fewest *= 4
@@ -472,28 +376,27 @@ def _block_of(origin: np.ndarray, padding: int, n_cells: int, columns: int) -> t
     return (int(top_left[1]), int(top_left[0]), math.ceil(n_cells / columns), columns)
 
 
-def _layout_corners(unit: _UnitCharts, charts: _Charts, kept: np.ndarray, density: np.ndarray,
+def _layout_corners(unit_corners: np.ndarray, charts: _Charts, kept: np.ndarray, scale: float,
                     low: np.ndarray, origin: np.ndarray, padding: int, m: int) -> np.ndarray:
-    """(m, 3, 2) the corners in the atlas of the faces of the ``kept`` (n,) charts at their
-    ``density`` (k, 1) texels per unit, moved to their ``origin``; those of the faces in cells left
-    unset (:func:`_corners_in_cells`, once the layout is kept)."""
+    """(m, 3, 2) the corners in the atlas of the faces of the ``kept`` (n,) charts at
+    ``scale`` texels per pixel, moved to their ``origin``; those of the faces in cells
+    left unset (:func:`_corners_in_cells`, once the layout is kept)."""
     faces, group = charts.charted, charts.group
     if not kept.all():
         mine = kept[group]
         faces, group = faces[mine], (np.cumsum(kept) - 1)[group[mine]]
     out = np.empty((m, 3, 2))
-    _place(unit.corners, faces, group, np.ascontiguousarray(density[:, 0]), low, origin,
-           float(padding), out)
+    _place(unit_corners, faces, group, float(scale), low, origin, float(padding), out)
     return out
 
 
-def _corners_in_cells(corners: np.ndarray, cells: np.ndarray, block: tuple | None,
-                      cell: int) -> None:
-    """Set the ``corners`` (m, 3, 2) of the faces in ``cells`` (m,) bool, in their block
-    (``block`` and ``cell`` from :func:`_layout`; :func:`cell_corners`)."""
+def _corners_in_cells(corners: np.ndarray, cells: np.ndarray, cell_of: np.ndarray,
+                      block: tuple | None) -> None:
+    """Set the ``corners`` (m, 3, 2) of the faces in ``cells`` (m,) bool, in their cells
+    ``cell_of`` (k,) of their block (``block`` from :func:`_layout`; :func:`cell_corners`)."""
     if block is not None:
         row, column, _, columns = block
-        corners[cells] = cell_corners(int(cells.sum()), cell, columns) + np.array(
+        corners[cells] = cell_corners(int(cell_of.max()) + 1, columns)[cell_of] + np.array(
             [column, row], np.float64)
 
 
@@ -511,39 +414,37 @@ def build_atlas(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray,
     if int(padding) < 1 or int(max_size) < 64:
         raise ValueError(f"padding must be >= 1 texel and max_size >= 64, got {padding}, "
                          f"{max_size}")
-    tri = vertices[faces]
-    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])     # twice the area
-    patch = chart_of_faces(np.where(labels >= 0, labels, -1 - _nearest_axis(normal)), neighbours)
-    unit = _UnitCharts.of(tri, normal, labels, patch, cameras)
-    del tri, normal
+    patch = chart_of_faces(labels, neighbours)
+    unit_corners = _seen_corners(vertices, faces, labels, cameras)
+    keys = _cell_keys(faces, labels)
     alone = np.zeros(len(faces), bool)
-    celled = np.zeros(len(faces), bool)
+    celled = labels < 0
     # Each split starts from the scale the last one reached: at an unchanged scale a
     # chart's texel centres fall where they fell (its corner moves by whole texels), so
     # the faces left in a split chart claim no texel twice and the splits end.
     fit = _Fit(float(texels_per_pixel), 1, float(texels_per_pixel))
     for split in itertools.count():
         chart = _dense(np.where(alone | celled, patch.max() + 1 + np.arange(len(faces)), patch))
-        corners, shape, fit, cells, block, cell = _layout(
-            unit, labels, chart, celled, fit, int(padding), int(max_size))
+        corners, shape, fit, cells, cell_of, block = _layout(
+            unit_corners, chart, celled, keys, fit, int(padding), int(max_size))
         charted = np.flatnonzero(~cells)
         face_id, bary, again, overlapping_charted = rasterize_atlas(corners[charted], shape)
         if not again:
             face_id = np.where(face_id >= 0, np.append(charted, -1)[face_id], -1)
-            _corners_in_cells(corners, cells, block, cell)
+            _corners_in_cells(corners, cells, cell_of, block)
             if block is not None:
-                _fill_cells(face_id, bary, cells, block, cell)
-            # A face in a cell has corners of its own.
-            chart = np.where(cells, chart.max() + 1 + np.arange(len(faces)), chart)
+                _fill_cells(face_id, bary, faces, cells, cell_of, keys, block)
+            # The faces of a cell share its corners.
+            in_cell = np.zeros(len(faces), np.int64)
+            in_cell[cells] = cell_of
+            chart = np.where(cells, chart.max() + 1 + in_cell, chart)
             return Atlas(shape=shape, corners=corners,
                          chart=_dense(chart),
                          face_index=face_id, barycentric=bary, texels_per_pixel=fit.scale)
         overlapping = np.zeros(len(faces), bool)
         overlapping[charted] = overlapping_charted
-        # A patch no view sees overlaps where it curves: all its faces take cells at once
-        # (their colours are interpolated, smooth) rather than ring by ring. Seen faces
-        # that still overlap after a few splits (folds finer than a texel, met again at
-        # each new scale) take cells too: cells never overlap, so this ends.
-        curved = _members(chart, chart[overlapping & (labels < 0)])
-        celled |= curved | (overlapping if split >= _SPLIT_TRIES else False)
+        # Faces that still overlap after a few splits (folds finer than a texel, met again
+        # at each new scale) take cells: cells never overlap, so this ends.
+        if split >= _SPLIT_TRIES:
+            celled |= overlapping
         alone |= overlapping & ~celled

@@ -16,12 +16,12 @@ the views agree on and averages their noise: unblurred on a true mesh, where the
 agree, blurred where the mesh departs from the surface (doc/benchmarks.md, the atlas).
 Texels around each chart repeat its border's colours (``padding`` of them) so that
 filtering does not bleed across a seam; the rest of the atlas is the texture's mean
-colour. Faces no view sees (the underside on the plate) take colours interpolated from
-their corners, each corner's colour the mean of its seen faces' or, for corners no view
-sees, near the harmonic interpolation along the edges the vertex colours use, solved
-on patches of a few edges and smoothed (:class:`~sfs_ros.core.meshing.colour.SmoothedFill`:
-no view sees them, their colour need only be smooth and meet the seen ones without a
-seam).
+colour. Faces no view sees (the underside on the plate) take the colour of their lowest
+corner (:mod:`.atlas`: one texel for the unseen faces around a vertex), each corner's
+colour the mean of its seen faces' or, for corners no view sees, near the harmonic
+interpolation along the edges the vertex colours use, solved on patches of a few edges
+and smoothed (:class:`~sfs_ros.core.meshing.colour.SmoothedFill`: no view sees them,
+their colour need only be smooth and meet the seen ones without a seam).
 """
 
 from __future__ import annotations
@@ -134,16 +134,54 @@ class TexturedMesh:
 def _dilate(image: np.ndarray, filled: np.ndarray, steps: int) -> None:
     """Grow the filled texels of ``image`` (H, W, 3) float32 by ``steps`` texels in place,
     each new texel the mean of its filled 8-neighbours; then the rest the mean colour."""
-    kernel = np.ones((3, 3), np.uint8)
-    for _ in range(steps):
-        grown = cv2.dilate(filled.astype(np.uint8), kernel).astype(bool) & ~filled
-        if not grown.any():
+    _grow(image, filled.astype(np.int32), int(steps))
+
+
+@njit(cache=True, nogil=True)
+def _grow(image, filled, steps):
+    """:func:`_dilate`'s loops; ``filled`` (H, W) int32 (1: filled) is marked with the step
+    that filled each texel (2, 3, ...), so that a step reads the texels filled before it
+    alone."""
+    height, width = filled.shape
+    for step in range(steps):
+        stamp, grown = step + 2, 0
+        for r in range(height):
+            for c in range(width):
+                if filled[r, c]:
+                    continue
+                total0 = total1 = total2 = 0.0
+                count = 0
+                for rr in range(max(r - 1, 0), min(r + 2, height)):
+                    for cc in range(max(c - 1, 0), min(c + 2, width)):
+                        if filled[rr, cc] and filled[rr, cc] < stamp:
+                            total0 += image[rr, cc, 0]
+                            total1 += image[rr, cc, 1]
+                            total2 += image[rr, cc, 2]
+                            count += 1
+                if count:
+                    image[r, c, 0] = total0 / count
+                    image[r, c, 1] = total1 / count
+                    image[r, c, 2] = total2 / count
+                    filled[r, c] = stamp
+                    grown += 1
+        if grown == 0:
             break
-        total = cv2.boxFilter(image * filled[..., None], -1, (3, 3), normalize=False)
-        count = cv2.boxFilter(filled.astype(np.float32), -1, (3, 3), normalize=False)
-        image[grown] = total[grown] / count[grown, None]
-        filled |= grown
-    image[~filled] = image[filled].mean(axis=0) if filled.any() else 0.0
+    mean0 = mean1 = mean2 = 0.0
+    count = 0
+    for r in range(height):
+        for c in range(width):
+            if filled[r, c]:
+                mean0 += image[r, c, 0]
+                mean1 += image[r, c, 1]
+                mean2 += image[r, c, 2]
+                count += 1
+    count = max(count, 1)
+    for r in range(height):
+        for c in range(width):
+            if not filled[r, c]:
+                image[r, c, 0] = mean0 / count
+                image[r, c, 1] = mean1 / count
+                image[r, c, 2] = mean2 / count
 
 
 def _texels(atlas: Atlas, vertices, faces, labels, images, cameras, gains, offsets,
@@ -179,23 +217,28 @@ def _blend_views(colour, face, bary, vertices, faces, blend, blur, images, camer
     each view's colour (``images[blur[face]][view]``, ``blur`` (m,) the face's level of
     :func:`.agreement.blurred_views`) times its gain; returns (k,) bool the texels set."""
     blended = np.flatnonzero(blend.any(axis=1)[face])
-    total = np.zeros((len(blended), 3))
-    weight_sum = np.zeros(len(blended))
     points = np.einsum("kc,kcd->kd", bary[blended], vertices[faces[face[blended]]])
-    level = blur[face[blended]]
-    for view in range(blend.shape[1]):
-        weight = blend[face[blended], view]
-        mine = np.flatnonzero(weight > 0)
-        if not mine.size:
-            continue
-        pixels = np.nan_to_num(cameras[view].project(points[mine]), nan=-1.0)
-        colour_here = np.empty((len(mine), 3), np.float32)
-        for blurred in np.unique(level[mine]):
-            at = level[mine] == blurred
-            colour_here[at] = interpolate(images[blurred][view], pixels[at, 0], pixels[at, 1],
-                                          kernel=kernel)
-        total[mine] += weight[mine, None] * gains[view] * colour_here
-        weight_sum[mine] += weight[mine]
+    # Every (texel, view) with a weight, grouped by view and blur (a stable radix sort of
+    # small keys), so that each view is read once at each blur.
+    weights = blend[face[blended]]
+    texel, view = np.nonzero(weights > 0)
+    weight = weights[texel, view]
+    n_levels = len(images)
+    key = (view * n_levels + blur[face[blended]][texel]).astype(
+        np.int16 if blend.shape[1] * n_levels < 2 ** 15 else np.int64)
+    order = np.argsort(key, kind="stable")
+    bounds = np.searchsorted(key[order], np.arange(blend.shape[1] * n_levels + 1))
+    colour_here = np.empty((len(texel), 3), np.float32)
+    for group in range(blend.shape[1] * n_levels):
+        mine = order[bounds[group]:bounds[group + 1]]
+        if mine.size:
+            at_view, blurred = divmod(group, n_levels)
+            pixels = np.nan_to_num(cameras[at_view].project(points[texel[mine]]), nan=-1.0)
+            colour_here[mine] = gains[at_view] * interpolate(
+                images[blurred][at_view], pixels[:, 0], pixels[:, 1], kernel=kernel)
+    total = np.stack([np.bincount(texel, weights=weight * colour_here[:, c],
+                                  minlength=len(blended)) for c in range(3)], axis=1)
+    weight_sum = np.bincount(texel, weights=weight, minlength=len(blended))
     colour[blended] = total / weight_sum[:, None]
     out = np.zeros(len(face), bool)
     out[blended] = True
@@ -229,11 +272,45 @@ def _views_colours(vertices, faces, labels, neighbours, images, cameras, seen, l
 
 
 def _split_by_chart(faces: np.ndarray, atlas: Atlas, n_vertices: int) -> tuple:
-    """One vertex per (chart, vertex): (source vertex (k,), faces (m, 3), uv (k, 2))."""
-    key = (atlas.chart[:, None] * n_vertices + faces).ravel()
-    keys, first, inverse = np.unique(key, return_index=True, return_inverse=True)
-    uv = atlas.uv.reshape(-1, 2)[first]
-    return keys % n_vertices, inverse.reshape(-1, 3).astype(np.int64), uv
+    """One vertex per (chart, vertex): (source vertex (k,), faces (m, 3), uv (k, 2)), the
+    vertices chart by chart."""
+    source = np.empty(faces.size, np.int64)
+    corner = np.empty(faces.size, np.int64)
+    new_faces = np.empty_like(faces, np.int64)
+    k = _copies_by_chart(np.ascontiguousarray(faces, np.int64), atlas.chart, n_vertices,
+                         source, corner, new_faces)
+    return source[:k], new_faces, atlas.uv.reshape(-1, 2)[corner[:k]]
+
+
+@njit(cache=True, nogil=True)
+def _copies_by_chart(faces, chart, n_vertices, source, corner, new_faces):
+    """:func:`_split_by_chart`'s loop over the faces chart by chart (``chart`` (m,) int >= 0,
+    counting sort): each vertex's copy in a chart made at its first corner there
+    (``source``, ``corner`` (3m,) the vertex and that corner, flat), ``new_faces`` (m, 3)
+    indexing the copies; returns the copies made."""
+    start = np.zeros(chart.max() + 2, np.int64)
+    for f in range(chart.shape[0]):
+        start[chart[f] + 1] += 1
+    start = np.cumsum(start)
+    order = np.empty(chart.shape[0], np.int64)
+    for f in range(chart.shape[0]):
+        order[start[chart[f]]] = f
+        start[chart[f]] += 1
+    seen_in = np.full(n_vertices, -1, np.int64)
+    copy_of = np.empty(n_vertices, np.int64)
+    k = 0
+    for i in range(order.shape[0]):
+        f = order[i]
+        for j in range(3):
+            v = faces[f, j]
+            if seen_in[v] != chart[f]:
+                seen_in[v] = chart[f]
+                copy_of[v] = k
+                source[k] = v
+                corner[k] = 3 * f + j
+                k += 1
+            new_faces[f, j] = copy_of[v]
+    return k
 
 
 def _compared(labels: np.ndarray, seen: np.ndarray | None, level: bool) -> np.ndarray:
