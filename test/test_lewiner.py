@@ -217,15 +217,22 @@ def numbered_crossings(crop, voxels, distance):
     return ordinal, m
 
 
+def random_band(rng, *, max_side: int):
+    """A random crop (sides 2 to ``max_side``, half occupied), a random band of its voxels
+    and distances at them in ``[-PAD, PAD]``, a tenth exactly 0 (float32)."""
+    shape = tuple(int(n) for n in rng.integers(2, max_side + 1, 3))
+    crop = rng.random(shape) < 0.5
+    voxels = np.argwhere(rng.random(shape) < rng.uniform(0.2, 1.0))
+    distance = np.where(rng.random(len(voxels)) < 0.1, 0.0,
+                        rng.uniform(-PAD, PAD, len(voxels))).astype(np.float32)
+    return crop, voxels, distance
+
+
 @pytest.mark.parametrize("seed", range(3))
 def test_crossing_edges_are_numbered_as_on_the_dense_volume(seed):
     rng = np.random.default_rng(seed)
     for _ in range(10):
-        shape = tuple(int(n) for n in rng.integers(2, 10, 3))
-        crop = rng.random(shape) < 0.5
-        voxels = np.argwhere(rng.random(shape) < rng.uniform(0.2, 1.0))
-        distance = np.where(rng.random(len(voxels)) < 0.1, 0.0,
-                            rng.uniform(-PAD, PAD, len(voxels))).astype(np.float32)
+        crop, voxels, distance = random_band(rng, max_side=9)
         ordinal, m = crossing_edges(crop, voxels, distance)
         expected, expected_m = numbered_crossings(crop, voxels, distance)
         assert m == expected_m
@@ -239,11 +246,7 @@ def test_crossing_ends_are_the_dense_volumes_at_the_numbered_edges(seed):
     rng = np.random.default_rng(10 + seed)
     crossed = 0
     for trial in range(12):
-        shape = tuple(int(n) for n in rng.integers(2, 11, 3))
-        crop = rng.random(shape) < 0.5
-        voxels = np.argwhere(rng.random(shape) < rng.uniform(0.2, 1.0))
-        distance = np.where(rng.random(len(voxels)) < 0.1, 0.0,
-                            rng.uniform(-PAD, PAD, len(voxels))).astype(np.float32)
+        crop, voxels, distance = random_band(rng, max_side=10)
         pad = [PAD, 3.0][trial % 2]
         numbers = np.full((len(voxels), 6), -7, np.int32)
         lower, upper, at_lower, at_upper = crossing_ends(crop, voxels, distance, pad,

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from numba import njit
 
-__all__ = ["root", "join", "settle"]
+__all__ = ["root", "join", "set_count", "settle"]
 
 
 @njit(cache=True)
@@ -35,3 +35,13 @@ def settle(parent):
     """Point every node at its root (roots come first, as :func:`join` keeps them)."""
     for x in range(parent.size):
         parent[x] = parent[parent[x]]
+
+
+@njit(cache=True)
+def set_count(parent):
+    """How many sets the nodes form: the roots, nodes that are their own parent."""
+    count = 0
+    for x in range(parent.size):
+        if parent[x] == x:
+            count += 1
+    return count

@@ -12,7 +12,7 @@ import numpy as np
 from numba import njit
 
 from ..outline import edge_faces
-from ..union_find import join, settle
+from ..union_find import join, set_count, settle
 
 __all__ = ["MeshReport", "check_mesh"]
 
@@ -211,11 +211,7 @@ def _count_closed_fans(f, ends, sides):
         for end in range(2):
             a = ends[e, end]
             join(parent, _corner_at(f, sides[e, 0], a), _corner_at(f, sides[e, 1], a))
-    count = 0
-    for x in range(parent.size):
-        if parent[x] == x:
-            count += 1
-    return count
+    return set_count(parent)
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -329,11 +325,7 @@ def _count_fans(start, end, order, pair):
             low_b, high_b = _corners(start, end, order[p + 1])
             join(parent, low_a, low_b)
             join(parent, high_a, high_b)
-    count = 0
-    for x in range(parent.size):
-        if parent[x] == x:
-            count += 1
-    return count
+    return set_count(parent)
 
 
 @njit(cache=True, nogil=True, inline="always")
