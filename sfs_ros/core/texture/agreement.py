@@ -89,36 +89,35 @@ def _ring_sums(values, neighbours, rings, wanted, out):
                 region[n] = g
                 n += 1
     # Those faces in the mesh's order (which keeps neighbours near in memory), numbered
-    # apart with their neighbours among them (-1: none, or outside: zero throughout).
+    # apart with their neighbours among them (n where there is none, or it lies
+    # outside: a row of zeros throughout, whose addition changes no sum), each column's
+    # values in a row of their own.
     region = np.sort(region[:n])
-    local = np.full(m, -1, np.int64)
+    local = np.full(m, n, np.int64)
     for i in range(n):
         local[region[i]] = i
-    around = np.full((n, 3), -1, np.int64)
-    now = np.empty((n, c))
+    around = np.full((n, 3), n, np.int64)
+    now = np.zeros((c, n + 1))
     for i in range(n):
         f = region[i]
         for k in range(3):
             if neighbours[f, k] >= 0:
                 around[i, k] = local[neighbours[f, k]]
         for j in range(c):
-            now[i, j] = values[f, j]
-    after = np.empty_like(now)
+            now[j, i] = values[f, j]
+    after = np.zeros_like(now)
     for _ in range(rings):
-        for i in range(n):
-            for j in range(c):
-                after[i, j] = now[i, j]
-            for k in range(3):
-                g = around[i, k]
-                if g >= 0:
-                    for j in range(c):
-                        after[i, j] += now[g, j]
+        for j in range(c):
+            plane, summed = now[j], after[j]
+            for i in range(n):
+                summed[i] = ((plane[i] + plane[around[i, 0]]) + plane[around[i, 1]]) \
+                    + plane[around[i, 2]]
         now, after = after, now
     for i in range(n):
         f = region[i]
         if wanted[f]:
             for j in range(c):
-                out[f, j] = now[i, j]
+                out[f, j] = now[j, i]
 
 
 def face_blur(points: np.ndarray, blend: np.ndarray, gains: np.ndarray,

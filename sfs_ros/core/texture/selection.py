@@ -52,7 +52,7 @@ from ..meshing.colour import (
     view_point,
 )
 from ..outline import edges_by_lower_vertex
-from ..render import rasterize_depth
+from ..render import as_mesh_arrays, depth_of_checked
 from ..workers import map_in_threads
 
 __all__ = ["CORNER_PULL", "GLIMPSE_RAMP_PX", "GLIMPSE_WEIGHT", "SMOOTHNESS", "face_neighbours",
@@ -150,11 +150,12 @@ def face_qualities(vertices: np.ndarray, faces: np.ndarray, cameras: Sequence[Ca
     z-buffers and edge maps are made side by side, then every face is tested in every
     view in one pass over the faces, blocks of them side by side.
     """
+    vertices, faces = as_mesh_arrays(vertices, faces)            # (checked once, not per view)
     points, normals = face_samples(vertices, faces)
 
     def maps(view):
         camera, mask = view
-        zbuf = rasterize_depth(vertices, faces, camera, closed=closed)
+        zbuf = depth_of_checked(vertices, faces, camera, closed=closed)
         return sight_maps(camera, zbuf, mask, farthest_around(zbuf))
 
     found = list(map_in_threads(maps, zip(cameras, masks)))
@@ -287,19 +288,22 @@ def _face_neighbours(faces, n_vertices, neighbours):
     grouped by their lower vertex (:func:`~sfs_ros.core.outline.edges_by_lower_vertex`),
     the two of an edge found in its group."""
     start, edge = edges_by_lower_vertex(faces, n_vertices)
+    # Each grouped edge's higher vertex, in the groups' order: the pairs are matched
+    # within a group on these alone, read in a row rather than across the faces.
+    high = np.empty(edge.size, np.int64)
+    for i in range(edge.size):
+        f, k = edge[i] // 3, edge[i] % 3
+        high[i] = max(faces[f, k], faces[f, (k + 1) % 3])
     for low in range(n_vertices):
         for i in range(start[low], start[low + 1]):
-            f, k = edge[i] // 3, edge[i] % 3
-            high = max(faces[f, k], faces[f, (k + 1) % 3])
             other, count = -1, 0
             for j in range(start[low], start[low + 1]):
-                g, h = edge[j] // 3, edge[j] % 3
-                if max(faces[g, h], faces[g, (h + 1) % 3]) == high:
+                if high[j] == high[i]:
                     count += 1
                     if j != i:
-                        other = g
+                        other = edge[j] // 3
             if count == 2:                         # edges of exactly two faces
-                neighbours[f, k] = other
+                neighbours[edge[i] // 3, edge[i] % 3] = other
 
 
 @njit(cache=True, nogil=True)
