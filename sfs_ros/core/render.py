@@ -70,8 +70,11 @@ def _project_kernel(vertices, P, R, t, h, depth, uv):
         for r in range(3):
             h[i, r] = P[r, 0] * x + P[r, 1] * y + P[r, 2] * z + P[r, 3]
         depth[i] = R[2, 0] * x + R[2, 1] * y + R[2, 2] * z + t[2]
-        uv[i, 0] = h[i, 0] / h[i, 2]
-        uv[i, 1] = h[i, 1] / h[i, 2]
+        if h[i, 2] > 0.0:   # (else behind a pinhole camera, or on its plane: not read)
+            uv[i, 0] = h[i, 0] / h[i, 2]
+            uv[i, 1] = h[i, 1] / h[i, 2]
+        else:
+            uv[i, 0] = uv[i, 1] = np.nan
 
 
 def _projected(vertices: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray,
