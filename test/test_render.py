@@ -134,6 +134,20 @@ def test_pinhole_triangles_behind_camera():
     assert not rasterize_silhouette(behind, faces, camera).any()
 
 
+def test_pinhole_vertices_on_the_camera_plane():
+    """A floor whose near corners lie on the camera's plane (depth 0, no pixel): the rays
+    that meet it are those of ``test_pinhole_triangles_behind_camera``, at the same depth."""
+    f = 100.0
+    camera = Camera(K=[[f, 0, 31.5], [0, f, 31.5], [0, 0, 1]], R=np.eye(3), t=np.zeros(3),
+                    width=64, height=64)
+    vertices, faces = straddling_floor(0.0, 2.0)
+    depth = rasterize_depth(vertices, faces, camera)
+    u, v = np.meshgrid(np.arange(64.0), np.arange(64.0))
+    truth = v >= 36.5
+    np.testing.assert_array_equal(np.isfinite(depth), truth)
+    np.testing.assert_allclose(depth[truth], 0.1 * f / (v[truth] - 31.5), rtol=ROUND_OFF)
+
+
 def test_shared_edges_and_vertices_on_pixel_centres():
     """A square split along a diagonal through pixel centres covers exactly its pixels."""
     camera = Camera(K=np.eye(3), R=np.eye(3), t=np.zeros(3), width=32, height=32,

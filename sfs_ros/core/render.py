@@ -64,22 +64,30 @@ def homogeneous_pixels(vertices: np.ndarray, camera: Camera) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True)
-def _project_kernel(vertices, P, R, t, h, depth):
+def _project_kernel(vertices, P, R, t, h, depth, uv):
     for i in range(vertices.shape[0]):
         x, y, z = vertices[i, 0], vertices[i, 1], vertices[i, 2]
         for r in range(3):
             h[i, r] = P[r, 0] * x + P[r, 1] * y + P[r, 2] * z + P[r, 3]
         depth[i] = R[2, 0] * x + R[2, 1] * y + R[2, 2] * z + t[2]
+        if h[i, 2] > 0.0:   # (else behind a pinhole camera, or on its plane: not read)
+            uv[i, 0] = h[i, 0] / h[i, 2]
+            uv[i, 1] = h[i, 1] / h[i, 2]
+        else:
+            uv[i, 0] = uv[i, 1] = np.nan
 
 
-def _projected(vertices: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`homogeneous_pixels` (n, 3) and :meth:`Camera.depth` (n,) of ``vertices``, in
-    one compiled pass. (A matrix product here would go through BLAS, whose own threads
-    fight the per-view threads that render views side by side.)"""
+def _projected(vertices: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray,
+                                                               np.ndarray]:
+    """:func:`homogeneous_pixels` (n, 3), :meth:`Camera.depth` (n,) and the pixels ``(u,
+    v)`` (n, 2) of ``vertices`` (meaningful where the third homogeneous coordinate is
+    positive), in one compiled pass. (A matrix product here would go through BLAS, whose
+    own threads fight the per-view threads that render views side by side.)"""
     vertices = np.ascontiguousarray(vertices, dtype=np.float64)
-    h, depth = np.empty((len(vertices), 3)), np.empty(len(vertices))
-    _project_kernel(vertices, camera.projection_matrix, camera.R, camera.t, h, depth)
-    return h, depth
+    h, depth, uv = np.empty((len(vertices), 3)), np.empty(len(vertices)), \
+        np.empty((len(vertices), 2))
+    _project_kernel(vertices, camera.projection_matrix, camera.R, camera.t, h, depth, uv)
+    return h, depth, uv
 
 
 #: Orientation (sign of det(h_a, h_b, h_c), :func:`face_orientation`) of the faces of an
@@ -195,10 +203,10 @@ def pixel_box(h, faces, f, width, height):
 
 
 @njit(cache=True, nogil=True)
-def _rasterize_kernel(h, depth, faces, face_id, bary, zbuf, front_only):
+def _rasterize_kernel(h, depth, uv, faces, face_id, bary, zbuf, front_only):
     """Z-buffer ``zbuf`` (H, W) of the faces (only those turned towards the camera when
     ``front_only``); ``face_id`` (H, W) and ``bary`` (H, W, 3) too, unless they are empty
-    (0, 0) and (0, 0, 3) (the depth alone)."""
+    (0, 0) and (0, 0, 3) (the depth alone). ``h``, ``depth``, ``uv``: :func:`_projected`'s."""
     height, width = zbuf.shape
     with_ids = face_id.shape[0] > 0
     coef = np.empty((3, 4))
@@ -207,13 +215,21 @@ def _rasterize_kernel(h, depth, faces, face_id, bary, zbuf, front_only):
         # box, which most faces of a fine mesh fail: they hold no pixel centre)
         if front_only and face_orientation(h, faces, f) != FRONT_FACING:
             continue
-        c0, c1, r0, r1 = pixel_box(h, faces, f, width, height)
+        i, j, k = faces[f, 0], faces[f, 1], faces[f, 2]
+        if h[i, 2] > 0.0 and h[j, 2] > 0.0 and h[k, 2] > 0.0:
+            # pixel_box, from the pixels divided out once per vertex
+            c0, c1, r0, r1 = centre_box(
+                min(uv[i, 0], uv[j, 0], uv[k, 0]), max(uv[i, 0], uv[j, 0], uv[k, 0]),
+                min(uv[i, 1], uv[j, 1], uv[k, 1]), max(uv[i, 1], uv[j, 1], uv[k, 1]),
+                width, height)
+        else:
+            c0, c1, r0, r1 = pixel_box(h, faces, f, width, height)
         if c0 > c1 or r0 > r1:
             continue
         if triangle_edges(h, faces, f, coef) == 0.0:
             continue
         edges = edge_tuple(coef)
-        d0, d1, d2 = depth[faces[f, 0]], depth[faces[f, 1]], depth[faces[f, 2]]
+        d0, d1, d2 = depth[i], depth[j], depth[k]
         for r in range(r0, r1 + 1):
             v = float(r)
             for c in range(c0, c1 + 1):
@@ -284,7 +300,8 @@ def _rasterize(vertices, faces, camera: Camera, face_id, bary, front_only: bool,
         vertices, faces = as_mesh_arrays(vertices, faces)
     zbuf = np.full((camera.height, camera.width), np.inf)
     if len(faces):
-        _rasterize_kernel(*_projected(vertices, camera), faces, face_id, bary, zbuf, front_only)
+        _rasterize_kernel(*_projected(vertices, camera), faces, face_id, bary, zbuf,
+                          front_only)
     return zbuf
 
 
