@@ -719,6 +719,12 @@ class ZeroTrace:
     values: np.ndarray
     counts: np.ndarray
 
+    @classmethod
+    def empty(cls, n: int, iterations: int) -> "ZeroTrace":
+        """The trace of ``n`` segments of up to ``iterations`` steps, none recorded yet."""
+        return cls(np.empty((n, iterations, 3)), np.empty((n, iterations)),
+                   np.zeros(n, np.int64))
+
     def __getitem__(self, rows) -> "ZeroTrace":
         """The trace of the segments ``rows`` (an index array or a bool mask)."""
         return ZeroTrace(self.points[rows], self.values[rows], self.counts[rows])
@@ -939,9 +945,7 @@ class HullDistance:
         the distance (:class:`ZeroTrace`), for :meth:`raises`."""
         segments = _segments(starts, ends, start_values, end_values, iterations, tolerance_m,
                              floor_m)
-        n = len(segments[0])
-        trace = ZeroTrace(np.empty((n, iterations, 3)), np.empty((n, iterations)),
-                          np.zeros(n, np.int64))
+        trace = ZeroTrace.empty(len(segments[0]), iterations)
         return self._segment_zeros(*segments, trace), trace
 
     def _segment_zeros(self, a, b, fa, fb, floor: float, iterations: int, tolerance: float,

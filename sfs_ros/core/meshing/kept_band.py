@@ -192,8 +192,7 @@ class _KeptZeros:
     def none(cls) -> "_KeptZeros":
         empty = np.empty(0)
         return cls(np.empty(0, np.int64), empty, empty, empty,
-                   ZeroTrace(np.empty((0, CROSSING_ITERATIONS, 3)),
-                             np.empty((0, CROSSING_ITERATIONS)), np.empty(0, np.int64)),
+                   ZeroTrace.empty(0, CROSSING_ITERATIONS),
                    np.empty(0, bool))
 
     def __len__(self) -> int:
@@ -235,8 +234,7 @@ class _KeptZeros:
         held = rows >= 0
         n = len(edges)
         zeros = np.empty(n)
-        trace = ZeroTrace(np.empty((n, CROSSING_ITERATIONS, 3)),
-                          np.empty((n, CROSSING_ITERATIONS)), np.zeros(n, np.int64))
+        trace = ZeroTrace.empty(n, CROSSING_ITERATIONS)
         zeros[held] = self.fractions[rows[held]]
         _set_rows(trace, held, self.trace[rows[held]])
         zeros[~held], found = edges.zeros(hull, ~held, traced=True)
