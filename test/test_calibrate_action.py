@@ -33,14 +33,14 @@ from sfs_ros.core.geometry.grid import VoxelGrid
 from sfs_ros.core.geometry.rig import rig_camera
 from sfs_ros.core.simulation.objects import make_object
 from sfs_ros.core.simulation.synthetic import carving_box, score_against_truth
-from sfs_ros.ros import capture_qos, result_qos
+from sfs_ros.ros import capture_qos
 from sfs_ros.ros.rig_apply import read_rig_file
 from sfs_ros.ros.rig_params import rig_calibration
 
 from mock_cell import RESOLUTION, SCAN_TIMEOUT_S, running_cell
 from ros_harness import NAMESPACE
 from test_frames import chain
-from test_tf_node import matrix
+from test_tf_node import matrix, static_listener_qos
 from waiting import wait
 
 pytestmark = pytest.mark.cell
@@ -88,7 +88,7 @@ class _Tf:
         self.tf, self.static, self.joints = [], [], {}
         node.create_subscription(TFMessage, "/tf", self._keep(self.tf), capture_qos(100))
         node.create_subscription(TFMessage, "/tf_static", self._keep(self.static),
-                                 result_qos())
+                                 static_listener_qos())
         node.create_subscription(JointState, "joint_states", self._on_joints, 10)
 
     @staticmethod

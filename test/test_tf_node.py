@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 import yaml
 from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosbags.typesys import Stores, get_typestore
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
@@ -44,6 +45,18 @@ def rig_parameters(rig: RigCalibration) -> dict:
     values["cx"] = -1.0 if rig.cx is None else rig.cx
     values["cy"] = -1.0 if rig.cy is None else rig.cy
     return values
+
+
+def static_listener_qos() -> QoSProfile:
+    """tf2's ``StaticListenerQoS``: reliable, transient-local, keep-last 100.
+
+    The depth matters: each static broadcaster (each cell's state publisher, and any other
+    run's in the same ROS domain) keeps its last message for late joiners, and a reader of
+    depth 1 keeps only one of the messages that arrive together.
+    """
+    return QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST,
+                      reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 def matrix(transform) -> np.ndarray:
@@ -85,7 +98,7 @@ class Cell(NodeUnderTest):
         self.joints = node.create_publisher(JointState, "joint_states", 10)
         subs = [node.create_subscription(TFMessage, "/tf", keep_ours(self.tf), capture_qos(100)),
                 node.create_subscription(TFMessage, "/tf_static", keep_ours(self.static),
-                                         result_qos()),
+                                         static_listener_qos()),
                 node.create_subscription(String, "robot_description", self.descriptions.append,
                                          result_qos())]
         self.probe.wait_connected(publishers=[self.joints], subscriptions=subs,

@@ -17,9 +17,9 @@ import numpy as np
 from sensor_msgs.msg import JointState
 from tf2_msgs.msg import TFMessage
 
-from sfs_ros.ros import capture_qos, result_qos
+from sfs_ros.ros import capture_qos
 
-from test_tf_node import matrix
+from test_tf_node import matrix, static_listener_qos
 
 
 def transform_matrix(R, t) -> np.ndarray:
@@ -52,7 +52,8 @@ class TfWatch:
         self.joints: dict[str, dict] = {p: {} for p in joint_topics}   # stamp -> (theta, phi)
         self.subscriptions = [
             node.create_subscription(TFMessage, "/tf", self._on_tf, capture_qos(100)),
-            node.create_subscription(TFMessage, "/tf_static", self._on_static, result_qos())]
+            node.create_subscription(TFMessage, "/tf_static", self._on_static,
+                                     static_listener_qos())]
         self.subscriptions += [
             node.create_subscription(JointState, topic,
                                      lambda msg, p=prefix: self._on_joints(p, msg), 10)
