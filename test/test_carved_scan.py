@@ -22,6 +22,7 @@ from sfs_ros.core.meshing.meshers import MESHERS, mesher
 from sfs_ros.core.pipeline import ReconstructionParams, carve_scan, reconstruct
 from sfs_ros.ros.carved_scan_msg import (
     HandOver,
+    carried_images,
     carved_scan_from_msg,
     carved_scan_to_msg,
     view_mask_from_msg,
@@ -163,6 +164,39 @@ def test_images_the_receiver_holds_are_left_out_and_the_mesh_is_the_same(halves)
     missing = sorted(held_names)[0]
     with pytest.raises(ValueError, match=re.escape(f"view {missing!r}'s image was left out")):
         carved_scan_from_msg(msg, {n: held[n] for n in held_names if n != missing})
+
+
+def test_every_views_image_crosses_when_asked_and_colours_nothing_more(halves, mug_views):
+    """The refinement reads the image of every view used: given them all, the carved scan
+    carries each (but those the receiver holds), :func:`carried_images` gives back every
+    one bit for bit, and the mesh and its colours stay the offline path's."""
+    offline, carved, _, _, _ = halves
+    used = [view.name for view in carved.views if view.role == "used"]
+    colour_names = {carved.views[i].name for i in carved.colour_views}
+    # Any images of the right size will do: these are the views' own files.
+    images = {v.name: read_image(v.image_path) for v in mug_views.views if v.name in used}
+    further = [name for name in used if name not in colour_names]
+    assert further                                  # the mug has views that colour nothing
+    held_name = further[0]
+    msg = deserialize_message(serialize_message(carved_scan_to_msg(
+        carved, HAND_OVER, stamp=_stamp(), images=images, held=frozenset({held_name}))),
+        CarvedScanMsg)
+    sent = {v.name: (v.image_held, len(v.image_rgb)) for v in msg.views}
+    assert sent[held_name] == (True, 0)
+    assert all(sent[name] == (False, images[name].size) for name in further[1:])
+    got = carried_images(msg, {held_name: images[held_name]})
+    assert sorted(got) == sorted(used)
+    colour_images = {carved.views[i].name: image
+                     for i, image in zip(carved.colour_views, carved.colour_images)}
+    for name in used:
+        expected = colour_images.get(name, images[name])
+        assert got[name].tobytes() == np.asarray(expected, np.uint8).tobytes(), name
+    received, _ = carved_scan_from_msg(msg, {held_name: images[held_name]})
+    result = mesh_scan(received)
+    assert result.vertices.tobytes() == offline.vertices.tobytes()
+    assert result.vertex_colors.tobytes() == offline.vertex_colors.tobytes()
+    with pytest.raises(ValueError, match=re.escape(f"view {held_name!r}'s image was left out")):
+        carried_images(msg)
 
 
 def test_silhouettes_the_receiver_holds_are_left_out_and_the_mesh_is_the_same(halves):

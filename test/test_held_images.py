@@ -1,8 +1,6 @@
 """The colour images a meshing process holds, their thumbnails and the views' silhouettes
 (sfs_ros.cell_logic.held_images)."""
 
-import threading
-
 import numpy as np
 
 from sfs_ros.cell_logic.held_images import HeldImages
@@ -50,31 +48,3 @@ def test_silhouettes_are_held_beside_the_images_and_named_with_them():
     assert sorted(masks) == ["a.png", "c.png"]
     assert masks["a.png"].dtype == bool and np.array_equal(masks["a.png"], mask)
     assert held.masks("/out/scan_000", ["a.png"]) == {}   # another scan's: none
-
-
-def test_waiting_for_images_on_their_way_returns_when_the_last_one_comes():
-    held = HeldImages(max_bytes=1 << 30)
-    held.add("/out/scan_001", "a.png", _image(10))
-    waiting = threading.Event()
-    got = {}
-
-    def wait() -> None:
-        waiting.set()
-        # Far longer than any run needs: returning at all means the last image woke it.
-        got.update(held.wait_for("/out/scan_001", ["a.png", "b.png"], timeout_s=600.0))
-
-    waiter = threading.Thread(target=wait)
-    waiter.start()
-    assert waiting.wait(timeout=60.0)
-    held.add("/out/scan_001", "b.png", _image(20))
-    waiter.join(timeout=60.0)
-    assert not waiter.is_alive()
-    assert sorted(got) == ["a.png", "b.png"] and int(got["b.png"][0, 0, 0]) == 20
-
-
-def test_waiting_gives_what_came_at_the_deadline_and_nothing_once_another_scan_comes():
-    held = HeldImages(max_bytes=1 << 30)
-    held.add("/out/scan_001", "a.png", _image(10))
-    assert list(held.wait_for("/out/scan_001", ["a.png", "b.png"], timeout_s=0.0)) == ["a.png"]
-    held.add("/out/scan_002", "c.png", _image(30))
-    assert held.wait_for("/out/scan_001", ["a.png"], timeout_s=600.0) == {}

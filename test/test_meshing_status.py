@@ -47,30 +47,6 @@ def test_products_that_cannot_be_made_are_left_out_with_the_reason(tmp_path):
                           refine=False) == ([], [])
 
 
-def test_a_refined_mesh_waits_for_images_on_their_way_and_says_so_when_they_do_not_come(
-        tmp_path):
-    # The image of the one view used is not held when the answer is made: the refined mesh
-    # is named, and asks for it when it is made; it never comes.
-    carved = SimpleNamespace(colour_views=[], colour_images=[],
-                             views=[SimpleNamespace(name="view_000_a.png", role="used")])
-    made = SimpleNamespace(result=None, summary={"path": str(tmp_path / "m.ply"),
-                                                 "report_path": str(tmp_path / "m.report.json")})
-    asked = []
-
-    def on_the_way(names):
-        asked.append(list(names))
-        return {}
-
-    products, notes = products_after(carved, carved, made, tmp_path, {}, texture=False,
-                                     refine=True, on_the_way=on_the_way)
-    assert notes == [] and [p.path.name for p in products] == ["m.refined.ply"]
-    assert asked == []                                  # not before it is made
-    with pytest.raises(ValueError, match="no refined mesh: the images of 1 of the 1 views"):
-        products[0].make()
-    assert asked == [["view_000_a.png"]]
-    assert not (tmp_path / "m.refined.ply").exists()
-
-
 def test_the_status_counts_meshes_and_failures_and_clears_the_problem():
     status = MeshingStatus()
     status.failed()

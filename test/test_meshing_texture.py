@@ -5,6 +5,7 @@ hull) answers with the mesh and names the textured model (the refined mesh), mad
 the answer."""
 
 import json
+import signal
 from pathlib import Path
 
 import numpy as np
@@ -29,6 +30,8 @@ from sfs_ros.ros.names import TYPED_SERVICES
 from sfs_ros.ros.pairing import view_key
 from sfs_ros_interfaces.srv import Reconstruct
 
+from ros_harness import NodeProcess
+
 #: That module's fixtures: the mug, the output folder, the nodes' parameters.
 mug, out_dir, params_file = carving_meshing.mug, carving_meshing.out_dir, carving_meshing.params_file
 
@@ -36,6 +39,9 @@ mug, out_dir, params_file = carving_meshing.mug, carving_meshing.out_dir, carvin
 #: (a second or two on a quiet one).
 TEXTURE_TIMEOUT_S = 240.0
 RECONSTRUCT_TIMEOUT_S = 240.0
+#: A request to a restarted node is sent again after this long without an answer (one sent
+#: before the node's service is matched is lost).
+RESEND_AFTER_S = 30.0
 
 
 class TexturingCell(Cell):
@@ -113,11 +119,25 @@ def test_reconstruct_names_the_textured_model_and_writes_it_after(scanned, out_d
     assert report["texture"]["faces"] == answer.n_faces == len(model.faces)
 
 
-def test_reconstruct_names_the_refined_mesh_and_writes_the_librarys_after(scanned, painted,
-                                                                         masks, mug, tmp_path):
+@pytest.fixture(scope="module")
+def librarys_refined(painted, masks, mug, tmp_path_factory):
+    """The refined mesh the library makes of the painted views and images in one process
+    (carving as the carving node does, refining, meshing)."""
+    live = LiveReconstruction(RIG, carving_box(mug), output_dir=tmp_path_factory.mktemp("live"),
+                              resolution=RESOLUTION)
+    for i, (capture, mask) in enumerate(zip(painted, masks)):
+        key = view_key(_stamp(i))
+        live.add_view(key, mask, capture.theta_rad, capture.phi_rad)
+        live.add_colour_image(key, capture.image)
+    images = dict(live.colour_image(view_key(_stamp(i))) for i in range(len(painted)))
+    return mesh_scan(refine_carved_scan(live.carve(colour=False), images))
+
+
+def test_reconstruct_names_the_refined_mesh_and_writes_the_librarys_after(scanned,
+                                                                         librarys_refined):
     """The refined mesh the meshing node writes after its answer, from the images it held
-    as the views were stored, is the one the library makes of the same views and images in
-    one process (carving as the carving node does, refining, meshing), byte for byte."""
+    as the views were stored (or, for those it did not hold, the carved scan's), is the
+    library's, byte for byte."""
     answer = scanned.reconstruct(refine="yes", colour="no", output_name="carved.ply")
     assert answer.success, answer.message
     summary = mesh_summary(answer)
@@ -125,14 +145,7 @@ def test_reconstruct_names_the_refined_mesh_and_writes_the_librarys_after(scanne
     assert refined.name == "carved.refined.ply" and not answer.textured_path
     assert wait_for_product(summary, "refined_mesh_path",
                             timeout_s=TEXTURE_TIMEOUT_S) == refined
-    live = LiveReconstruction(RIG, carving_box(mug), output_dir=tmp_path,
-                              resolution=RESOLUTION)
-    for i, (capture, mask) in enumerate(zip(painted, masks)):
-        key = view_key(_stamp(i))
-        live.add_view(key, mask, capture.theta_rad, capture.phi_rad)
-        live.add_colour_image(key, capture.image)
-    images = dict(live.colour_image(view_key(_stamp(i))) for i in range(len(painted)))
-    expected = mesh_scan(refine_carved_scan(live.carve(colour=False), images))
+    expected = librarys_refined
     assert refined.read_bytes() == mesh_bytes(expected.vertices, expected.faces, refined)
     report = json.loads(Path(answer.report_path).read_text())
     assert report["refined_mesh_path"] == str(refined)
@@ -141,3 +154,47 @@ def test_reconstruct_names_the_refined_mesh_and_writes_the_librarys_after(scanne
     hull_vertices, hull_faces = load_mesh(answer.mesh_path)
     volume = report["refined_mesh"]["volume_m3"]
     assert 0 < volume <= trimesh.Trimesh(hull_vertices, hull_faces).volume
+
+
+@pytest.fixture(scope="module")
+def meshing_restarted(scanned, params_file):
+    """The meshing node killed (SIGKILL) after the scan and started again: it holds none
+    of the scan's images (a module fixture: the new node outlives the test)."""
+    cell = scanned
+    cell.meshing.process.send_signal(signal.SIGKILL)
+    assert cell.meshing.process.wait(timeout=30) == -signal.SIGKILL
+    cell.meshing.cleanup()
+    cell.meshing = NodeProcess(carving_meshing.MESHING, params_file=params_file)
+    cell.probe.spin_until(lambda: "meshing into" in cell.meshing.output(),
+                          what="the new meshing node", process=cell.meshing)
+    return cell
+
+
+def test_a_meshing_node_started_after_the_scan_refines_from_the_carved_scans_images(
+        meshing_restarted, librarys_refined):
+    """A meshing node that held none of the views' images asks the carving node for them
+    all with the carved scan: its refined mesh is the library's, byte for byte."""
+    cell = meshing_restarted
+    answer = cell.probe.call_resending(
+        cell.typed, Reconstruct.Request(refine="yes", colour="no", output_name="again.ply"),
+        resend_after_s=RESEND_AFTER_S, attempts=4, process=cell.meshing,
+        timeout=RECONSTRUCT_TIMEOUT_S)
+    assert answer.success, answer.message
+    refined = Path(answer.refined_mesh_path)
+    assert refined.name == "again.refined.ply"
+    assert wait_for_product(mesh_summary(answer), "refined_mesh_path",
+                            timeout_s=TEXTURE_TIMEOUT_S) == refined
+    expected = librarys_refined
+    assert refined.read_bytes() == mesh_bytes(expected.vertices, expected.faces, refined)
+    # The new node's diagnostics: every colour image came in the carved scan.
+    cell.probe.spin_until(lambda: meshing_values(cell).get("reconstructions") == "1",
+                          what="the new meshing node's diagnostics", process=cell.meshing)
+    values = meshing_values(cell)
+    assert (values["images_held"], values["images_carried"]) == ("0", str(len(PLAN)))
+
+
+def meshing_values(cell) -> dict:
+    """The latest diagnostic values of the meshing node (as strings)."""
+    statuses = [s for array in cell.diagnostics for s in array.status
+                if s.name.endswith(": meshing")]
+    return {kv.key: kv.value for kv in statuses[-1].values} if statuses else {}

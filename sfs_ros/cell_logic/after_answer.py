@@ -75,8 +75,7 @@ def textured_model(carved, result, output_dir, report_path) -> Product:
 
 
 def refined_model(carved, images: dict, output_dir, report_path, mesh_path,
-                  on_mesh: Callable | None = None, on_the_way: Callable | None = None
-                  ) -> Product:
+                  on_mesh: Callable | None = None) -> Product:
     """The mesh of ``carved`` refined below its hull from the views' colours
     (:func:`sfs_ros.core.refinement.refine_carved_scan`, then meshed, coloured when
     ``carved`` colours its mesh) as a product: ``<stem>.refined<suffix>`` beside the mesh
@@ -85,27 +84,19 @@ def refined_model(carved, images: dict, output_dir, report_path, mesh_path,
 
     images : {view name: (H, W, 3) uint8 RGB on the view's ideal camera}, of every view
         the hull was carved with (the carving node's ``view_image`` of each view, or the
-        images the carved scan carries).
-    on_the_way : ``(view names) -> {view name: image}``, waiting for images still on their
-        way (:meth:`~sfs_ros.cell_logic.held_images.HeldImages.wait_for`), called when
-        the product is made. Without it, ValueError at once when an image is missing,
-        naming how many; with it, the product's ``make`` raises that ValueError when they
-        did not come.
+        images the carved scan carries); ValueError at once when one is missing, naming
+        how many.
     """
     used = [view.name for view in carved.views if view.role == "used"]
     missing = [name for name in used if name not in images]
-    if missing and on_the_way is None:
+    if missing:
         raise ValueError(_missing_images(missing, used))
     suffix = Path(mesh_path).suffix.lower()
     path = product_path(output_dir, report_path, REFINED_STEM + suffix)
     root = Path(output_dir).resolve()
 
     def make() -> dict:
-        came = on_the_way(missing) if missing else {}
-        if len(came) < len(missing):
-            raise ValueError(_missing_images([name for name in missing if name not in came],
-                                             used))
-        refined = mesh_scan(refine_carved_scan(carved, {**images, **came}))
+        refined = mesh_scan(refine_carved_scan(carved, images))
         write_atomic_all([(path, mesh_bytes(refined.vertices, refined.faces, path,
                                             vertex_colors=refined.vertex_colors))], within=root)
         if on_mesh is not None:
@@ -121,22 +112,22 @@ def refined_model(carved, images: dict, output_dir, report_path, mesh_path,
 
 def _missing_images(missing: list, used: list) -> str:
     """Why no refined mesh: the images of ``missing`` of the views ``used`` are not here."""
-    return (f"no refined mesh: the images of {len(missing)} of the {len(used)} views used are "
-            f"not held here (first {missing[0]}): a meshing node started during the scan, or "
-            "images given up to held_images_mb")
+    return (f"no refined mesh: the images of {len(missing)} of the {len(used)} views used did "
+            f"not come (first {missing[0]}): the carving node keeps no captured image of them "
+            "(none received, or its colour parameter false)")
 
 
-def products_after(carved, meshed, made, output_dir, held: dict, *, texture: bool,
-                   refine: bool, on_mesh: Callable | None = None,
-                   on_the_way: Callable | None = None
+def products_after(carved, meshed, made, output_dir, images: dict, *, texture: bool,
+                   refine: bool, on_mesh: Callable | None = None
                    ) -> tuple[list[Product], list[tuple[str, str]]]:
     """The products to make after the answer to the mesh ``made``
     (:class:`sfs_ros.cell_logic.mesh_files.MeshFiles`) of the carved scan ``carved``:
     ``(products, notes)``, a product that cannot be made left out with a note
     ``(level, text)`` (``"error"`` for the texture, ``"warning"`` for the refined mesh:
     the hull's mesh is out). ``meshed``: the carved scan as the mesh was made of it
-    (without its images when not coloured); ``held``: the images of this scan's views held
-    by the caller; ``on_mesh`` and ``on_the_way`` as :func:`refined_model`'s."""
+    (without its images when not coloured); ``images``: {view name: (H, W, 3) uint8} of
+    this scan's views, held by the caller or carried by the carved scan; ``on_mesh`` as
+    :func:`refined_model`'s."""
     summary, products, notes = made.summary, [], []
     if texture:
         try:
@@ -145,12 +136,10 @@ def products_after(carved, meshed, made, output_dir, held: dict, *, texture: boo
         except ValueError as exc:
             notes.append(("error", f"{exc}; the mesh {summary['path']} is written"))
     if refine:
-        carried = {carved.views[i].name: image
-                   for i, image in zip(carved.colour_views, carved.colour_images)}
         try:
-            products.append(refined_model(meshed, {**held, **carried}, output_dir,
+            products.append(refined_model(meshed, images, output_dir,
                                           summary["report_path"], summary["path"],
-                                          on_mesh=on_mesh, on_the_way=on_the_way))
+                                          on_mesh=on_mesh))
         except ValueError as exc:
             notes.append(("warning", f"{exc}; the hull's mesh {summary['path']} is written"))
     return products, notes

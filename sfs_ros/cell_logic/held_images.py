@@ -11,7 +11,6 @@ never a condition.
 from __future__ import annotations
 
 import threading
-import time
 
 import numpy as np
 
@@ -36,7 +35,6 @@ class HeldImages:
     def __init__(self, max_bytes: int):
         self.max_bytes = int(max_bytes)
         self._lock = threading.Lock()
-        self._came = threading.Condition(self._lock)
         self._session = ""
         self._images: dict[str, np.ndarray] = {}
         self._thumbnails: dict[str, np.ndarray] = {}
@@ -59,7 +57,6 @@ class HeldImages:
             total = sum(image.nbytes for image in self._images.values())
             while total > self.max_bytes and self._images:
                 total -= self._images.pop(next(iter(self._images))).nbytes
-            self._came.notify_all()
 
     def add_mask(self, session_dir: str, name: str, mask: np.ndarray) -> None:
         """Hold view ``name``'s silhouette ((H, W) bool) of the scan ``session_dir``."""
@@ -87,22 +84,6 @@ class HeldImages:
         with self._lock:
             return self._session, dict(self._images), \
                 [name for name in self._images if name in self._masks]
-
-    def wait_for(self, session_dir: str, names, timeout_s: float) -> dict[str, np.ndarray]:
-        """{view name: image} of the views ``names`` of the scan ``session_dir`` held, once
-        all of them are, ``timeout_s`` seconds have passed (images still on their way) or
-        another scan's images come; the dict is the caller's own."""
-        wanted = set(names)
-        deadline = time.monotonic() + timeout_s
-        with self._came:
-            while True:
-                if self._session not in ("", session_dir):
-                    return {}
-                got = {name: self._images[name] for name in wanted if name in self._images}
-                left = deadline - time.monotonic()
-                if len(got) == len(wanted) or left <= 0:
-                    return got
-                self._came.wait(left)
 
     @property
     def n_bytes(self) -> int:

@@ -534,6 +534,14 @@ class LiveReconstruction:
             return None
         return received.name, self._ideal(received)
 
+    def colour_images(self, names) -> dict[str, np.ndarray]:
+        """{view name: (H, W, 3) uint8 RGB} of :meth:`colour_image` for the views named
+        ``names`` (those not received or without an image left out)."""
+        wanted = set(names)
+        found = (self.colour_image(key) for key, received in self._views.items()
+                 if received.name in wanted)
+        return dict(item for item in found if item is not None)
+
     def view_masks(self, names) -> dict[str, np.ndarray]:
         """{view name: (H, W) bool} of :meth:`view_mask` for the views named ``names`` (the
         names not received or with an empty mask left out)."""

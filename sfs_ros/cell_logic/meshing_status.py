@@ -10,8 +10,8 @@ __all__ = ["MeshingStatus"]
 
 class MeshingStatus:
     """The meshes made and failed, the last mesh and its session folder, the problem (until
-    the next mesh), and where the last carved scan's colour images came from
-    (``images_held``: held here as they came; ``images_carried``: carried by it)."""
+    the next mesh), and where the last carved scan's images came from (``images_held``:
+    held here as they came; ``images_carried``: carried by it)."""
 
     def __init__(self):
         self._lock = threading.Lock()

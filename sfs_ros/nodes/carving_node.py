@@ -176,7 +176,8 @@ class CarvingNode(Node):
         try:
             held = frozenset(request.images_held)
             response.success, response.message, scan = self._submit(
-                "carve", self._carve, options, request.images_session, held).result()
+                "carve", self._carve, options, request.images_session, held,
+                request.every_image).result()
         except Exception as exc:  # noqa: BLE001 -- the worker reported it; the caller gets it
             response.success, response.message, scan = False, internal_error("carve", exc), None
         if scan is not None:
@@ -303,16 +304,17 @@ class CarvingNode(Node):
         self._out.status(self._scan)
         self._out.view_image(self._scan, stamp, view_key(stamp))
 
-    def _carve(self, options: MeshOptions, images_session: str,
-               held: frozenset) -> tuple[bool, str, CarvedScanMsg | None]:
+    def _carve(self, options: MeshOptions, images_session: str, held: frozenset,
+               every_image: bool) -> tuple[bool, str, CarvedScanMsg | None]:
         """The carved scan of the views received, with ``options``: ``(success, summary or
-        the reason, the message or None)``; without the images and silhouettes of the views
-        in ``held`` if the caller holds them of this scan (``images_session``)."""
+        the reason, the message or None)``; with every used view's image when
+        ``every_image``, without the images and silhouettes of the views in ``held`` if the
+        caller holds them of this scan (``images_session``)."""
         if self._scan.live is None:
             return False, self._scan.refusal, None
         success, text, msg = carved_scan_message(
             self._scan, options, frame_id=self._frame_id, clock=self.get_clock(),
-            images_session=images_session, held=held)
+            images_session=images_session, held=held, every_image=every_image)
         if success:
             self.get_logger().info(text)
         else:

@@ -28,6 +28,7 @@ from sfs_ros.nodes.entry import run_node
 from sfs_ros.process import configure_process
 from sfs_ros.ros import capture_qos
 from sfs_ros.ros.carved_scan_msg import (
+    carried_images,
     carve_scan_request,
     carved_scan_from_msg,
     view_image_from_msg,
@@ -58,10 +59,6 @@ NODE_NAME = "meshing"
 #: Period (s) of the timer that releases the jobs after a ``reconstruct`` answer (it runs
 #: once per answer, as soon as the answer is sent).
 ANSWER_CHECK_S = 0.001
-#: How long (s) the refined mesh, made after the answer, waits for view images still on
-#: their way (the carving node sends each as it stores the view: a request right after
-#: the scan may come before the last ones; seconds on a loaded machine).
-IMAGES_ON_THE_WAY_S = 10.0
 
 
 class MeshingNode(Node):
@@ -197,10 +194,12 @@ class MeshingNode(Node):
         """The carving node's carved scan for ``options`` (a message), or why there is none;
         without the images and silhouettes of the views ``held`` of the scan
         ``held_session``."""
-        # The texture needs the images the carving node sends to colour the mesh.
-        colour = options.coloured(self._values["colour"]) or \
-            options.textured(self._values["texture"])
-        request = carve_scan_request(options, colour, held_session, held)
+        # The texture needs the images the carving node sends to colour the mesh, the
+        # refinement those of every view used: those not held here come in the carved scan.
+        values = self._values
+        colour = options.coloured(values["colour"]) or options.textured(values["texture"])
+        request = carve_scan_request(options, colour, held_session, held,
+                                     every_image=options.refined(values["refine"]))
         try:
             answer = call(self._carve_client, request,
                           timeout_s=self._values["carve_timeout_s"])
@@ -230,6 +229,7 @@ class MeshingNode(Node):
             carved, hand_over = carved_scan_from_msg(
                 msg, held, self._held.thumbnails(held_session),
                 self._held.masks(held_session, with_masks))
+            images = carried_images(msg, held)
             # Images asked for the texture alone do not colour the mesh.
             meshed = carved if options.coloured(self._values["colour"]) \
                 else without_colour(carved)
@@ -238,15 +238,12 @@ class MeshingNode(Node):
         except (ValueError, OSError) as exc:
             return self._failed(f"reconstruction failed: {exc}")
         summary = made.summary
-        n_held = sum(msg.views[i].image_held for i in msg.colour_views)
-        images = held if held_session == msg.session_dir else {}
-        on_the_way = partial(self._held.wait_for, msg.session_dir,
-                             timeout_s=IMAGES_ON_THE_WAY_S) if self._held.max_bytes else None
-        products = self._products(carved, meshed, made, options, images, on_the_way)
+        n_held = sum(view.image_held for view in msg.views)
+        n_carried = sum(len(view.image_rgb) > 0 for view in msg.views)
+        products = self._products(carved, meshed, made, options, images)
         for key in ("textured_path", "refined_mesh_path"):
             summary[key] = next((str(p.path) for p in products if p.key == key), "")
-        self._status.meshed(summary["path"], summary["session"], n_held,
-                            len(msg.colour_views) - n_held)
+        self._status.meshed(summary["path"], summary["session"], n_held, n_carried)
         self.get_logger().info(f"mesh written to {summary['path']} ({summary['views_used']} "
                                f"views, {summary['n_faces']} faces, "
                                f"{summary['seconds']:.1f} s)")
@@ -266,15 +263,13 @@ class MeshingNode(Node):
                                 name=product.key)
         return True, json.dumps(summary), summary
 
-    def _products(self, carved, meshed, made, options: MeshOptions, held: dict,
-                  on_the_way) -> list:
+    def _products(self, carved, meshed, made, options: MeshOptions, held: dict) -> list:
         """The products to make after the answer (:func:`products_after`); one that cannot
         be made is reported and left out."""
         products, notes = products_after(
             carved, meshed, made, self._output_dir, held,
             texture=options.textured(self._values["texture"]),
-            refine=options.refined(self._values["refine"]), on_mesh=self._publish_refined,
-            on_the_way=on_the_way)
+            refine=options.refined(self._values["refine"]), on_mesh=self._publish_refined)
         for level, text in notes:
             if level == "error":
                 self._report_problem(text)

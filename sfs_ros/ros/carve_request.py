@@ -21,14 +21,15 @@ __all__ = ["carved_scan_message"]
 
 
 def carved_scan_message(scan: CarvingScan, options: MeshOptions, *, frame_id: str, clock,
-                        images_session: str,
-                        held: frozenset) -> tuple[bool, str, CarvedScanMsg | None]:
+                        images_session: str, held: frozenset,
+                        every_image: bool = False) -> tuple[bool, str, CarvedScanMsg | None]:
     """The carved scan of the views ``scan`` received, with ``options``: ``(success, summary
     or the reason, the message or None)``. The message is in the turntable frame
-    ``frame_id``, stamped by ``clock`` (an rclpy clock) once carved, and leaves out the
-    images and silhouettes of the views in ``held`` if the caller holds them of this scan
-    (``images_session``, its session folder; a silhouette only where the one sent is the
-    carving's). ``scan`` must have a live reconstruction."""
+    ``frame_id``, stamped by ``clock`` (an rclpy clock) once carved, carries the image of
+    every view used when ``every_image`` (else those that colour the mesh), and leaves out
+    the images and silhouettes of the views in ``held`` if the caller holds them of this
+    scan (``images_session``, its session folder; a silhouette only where the one sent is
+    the carving's). ``scan`` must have a live reconstruction."""
     live = scan.live
     start = time.perf_counter()
     try:
@@ -36,8 +37,10 @@ def carved_scan_message(scan: CarvingScan, options: MeshOptions, *, frame_id: st
                             mesher=options.mesher, colour=options.colour)
         hand_over = replace(live.hand_over(), frame_id=frame_id)
         held = held if images_session == hand_over.session_dir else frozenset()
+        used = [view.name for view in carved.views if view.role == "used"]
         msg = carved_scan_to_msg(carved, hand_over, stamp=clock.now().to_msg(), held=held,
-                                 masks_held=live.view_masks(held))
+                                 masks_held=live.view_masks(held),
+                                 images=live.colour_images(used) if every_image else None)
     except ValueError as exc:
         return False, scan.carving_failed(exc), None
     return True, scan.carved(carved, time.perf_counter() - start), msg

@@ -6,8 +6,9 @@ pixel, but for those the receiver holds already (``masks_held``: the carving nod
 each view's silhouette as it is stored, :func:`view_mask_msg`), and a colour view's
 silhouette as carved only where the fusion repaired it (else it is the view's); the
 mesher's input as it is (float32 band distances, float64 points); the images that colour
-the mesh as rgb8 (sizes: ``bench/bench_handover.py``), but for those the receiver holds
-already (``held``: the carving node sends each view's image as it is stored,
+the mesh, and when asked those of every view used (:func:`carried_images`), as rgb8
+(sizes: ``bench/bench_handover.py``), but for those the receiver holds already
+(``held``: the carving node sends each view's image as it is stored,
 :func:`view_image_msg`); the hand-over's thumbnails, for the contact sheet only, as JPEG,
 but for the images the receiver holds (it makes those thumbnails itself).
 """
@@ -33,8 +34,9 @@ from sfs_ros_interfaces.msg import CarvedScan as CarvedScanMsg
 from sfs_ros_interfaces.msg import CarvedView, ViewImage
 from sfs_ros_interfaces.srv import CarveScan
 
-__all__ = ["HandOver", "carve_scan_request", "carved_scan_from_msg", "carved_scan_to_msg",
-           "view_image_from_msg", "view_image_msg", "view_mask_from_msg", "view_mask_msg"]
+__all__ = ["HandOver", "carried_images", "carve_scan_request", "carved_scan_from_msg",
+           "carved_scan_to_msg", "view_image_from_msg", "view_image_msg", "view_mask_from_msg",
+           "view_mask_msg"]
 
 #: JPEG quality of the views' thumbnails (pictures only: the mesh never sees them).
 THUMBNAIL_QUALITY = 90
@@ -76,8 +78,9 @@ def _unjpeg(data, name: str) -> np.ndarray:
     return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
 
 
-def _view_msg(view: ScanView, mask: np.ndarray, colour: tuple | None,
-              thumb: np.ndarray | None, held: bool, mask_held: bool) -> CarvedView:
+def _view_msg(view: ScanView, mask: np.ndarray, colour_mask: np.ndarray | None,
+              image: np.ndarray | None, thumb: np.ndarray | None, held: bool,
+              mask_held: bool) -> CarvedView:
     camera = view.camera
     theta, phi = view.angles_rad if view.angles_rad is not None else (math.nan, math.nan)
     msg = CarvedView(name=view.name, role=view.role, orthographic=bool(camera.orthographic),
@@ -89,10 +92,9 @@ def _view_msg(view: ScanView, mask: np.ndarray, colour: tuple | None,
         msg.mask_bits = _bits(mask)
     if thumb is not None:
         msg.thumbnail_jpeg = _jpeg(thumb)
-    if colour is not None:
-        colour_mask, image = colour
-        if not np.array_equal(colour_mask, mask):
-            msg.colour_mask_bits = _bits(colour_mask)
+    if colour_mask is not None and not np.array_equal(colour_mask, mask):
+        msg.colour_mask_bits = _bits(colour_mask)
+    if image is not None:
         if held:
             msg.image_held = True
         else:
@@ -116,11 +118,14 @@ def _mesher_fields(msg: CarvedScanMsg, mesher_input) -> None:
 
 
 def carved_scan_to_msg(carved: CarvedScan, hand_over: HandOver, *, stamp,
-                       held=frozenset(), masks_held: dict | None = None) -> CarvedScanMsg:
-    """The message of ``carved`` (its ``taken`` masks stay behind), stamped ``stamp``;
-    the images of the views named in ``held``, and their thumbnails, are left out (the
-    receiver holds them), and so are the silhouettes of ``masks_held`` ({view name: (H, W)
-    bool} the receiver holds) where they are the view's."""
+                       held=frozenset(), masks_held: dict | None = None,
+                       images: dict | None = None) -> CarvedScanMsg:
+    """The message of ``carved`` (its ``taken`` masks stay behind), stamped ``stamp``,
+    with the images that colour the mesh and ``images`` ({view name: (H, W, 3) uint8} of
+    further views, as :meth:`LiveReconstruction.colour_image` gives them); the images of
+    the views named in ``held``, and their thumbnails, are left out (the receiver holds
+    them), and so are the silhouettes of ``masks_held`` ({view name: (H, W) bool} the
+    receiver holds) where they are the view's."""
     box = occupied_bounds(carved.occupancy)
     if box is None:
         raise ValueError("the carved hull is empty: nothing to hand over")
@@ -139,11 +144,13 @@ def carved_scan_to_msg(carved: CarvedScan, hand_over: HandOver, *, stamp,
     msg.occupied_size = (hi - lo).astype(np.uint32)
     msg.occupied_bits = _bits(carved.occupancy[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]])
     _mesher_fields(msg, carved.mesher_input)
-    colours = {i: (m, image) for i, m, image in zip(carved.colour_views, carved.colour_masks,
-                                                    carved.colour_images)}
+    colour_masks = dict(zip(carved.colour_views, carved.colour_masks))
+    colour_images = dict(zip(carved.colour_views, carved.colour_images))
+    images = images or {}
     # The receiver makes the thumbnails of the images it holds.
     masks_held = masks_held or {}
-    msg.views = [_view_msg(view, mask, colours.get(i),
+    msg.views = [_view_msg(view, mask, colour_masks.get(i),
+                           colour_images.get(i, images.get(view.name)),
                            None if view.name in held else hand_over.thumbnails.get(view.name),
                            view.name in held,
                            np.array_equal(masks_held.get(view.name), mask))
@@ -207,17 +214,30 @@ def _colour(view: CarvedView, view_mask: np.ndarray, width: int, height: int,
     mask = _unbits(view.colour_mask_bits, (height, width),
                    f"view {view.name!r}'s colour_mask_bits") \
         if len(view.colour_mask_bits) else view_mask
+    return mask, _image(view, width, height, held)
+
+
+def _image(view: CarvedView, width: int, height: int, held: dict) -> np.ndarray:
     if view.image_held:
         image = held.get(view.name)
         if image is None or image.shape != (height, width, 3):
             raise ValueError(f"view {view.name!r}'s image was left out as held, but no "
                              f"{width} x {height} image of it is held")
-        return mask, image
+        return image
     image = np.frombuffer(view.image_rgb, np.uint8)
     if image.size != height * width * 3:
         raise ValueError(f"view {view.name!r}'s image_rgb has {image.size} bytes, expected "
                          f"{height * width * 3} ({width} x {height} rgb8)")
-    return mask, image.reshape(height, width, 3).copy()
+    return image.reshape(height, width, 3).copy()
+
+
+def carried_images(msg: CarvedScanMsg, held: dict | None = None) -> dict[str, np.ndarray]:
+    """{view name: (H, W, 3) uint8} of every view of a carved scan message that has an
+    image, in it or left out as held (``held`` as :func:`carved_scan_from_msg`'s);
+    ValueError as that function's for an image that does not add up."""
+    width, height = int(msg.image_width), int(msg.image_height)
+    return {view.name: _image(view, width, height, held or {}) for view in msg.views
+            if view.image_held or len(view.image_rgb)}
 
 
 def carved_scan_from_msg(msg: CarvedScanMsg, held: dict | None = None,
@@ -308,14 +328,16 @@ def view_image_from_msg(msg: ViewImage) -> tuple[str, str, np.ndarray]:
             np.frombuffer(image.data, np.uint8).reshape(height, width, 3).copy())
 
 
-def carve_scan_request(options, colour: bool, images_session: str,
-                       images_held: list) -> CarveScan.Request:
+def carve_scan_request(options, colour: bool, images_session: str, images_held: list, *,
+                       every_image: bool = False) -> CarveScan.Request:
     """The ``CarveScan`` request of a reconstruction's ``options``
     (:class:`sfs_ros.cell_logic.mesh_options.MeshOptions`; each left empty is the carving node's
-    setting), with the images that colour the mesh when ``colour``, without those of the
-    views ``images_held`` of the scan ``images_session``."""
+    setting), with the images that colour the mesh when ``colour`` and the image of every
+    view used when ``every_image``, without those of the views ``images_held`` of the scan
+    ``images_session``."""
     return CarveScan.Request(
         resolution=options.resolution or 0,
         bounds_m=[] if options.bounds_m is None else options.bounds_m.ravel().tolist(),
         mesher=options.mesher or "", colour="yes" if colour else "no",
-        images_session=images_session, images_held=images_held)
+        every_image=bool(every_image), images_session=images_session,
+        images_held=images_held)
