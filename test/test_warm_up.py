@@ -16,8 +16,8 @@ from ros_harness import SOURCE_ROOT
 #: only catches a hang.
 TIMEOUT_S = 900
 
-#: Reconstructs the warm-up's scan again, then counts the compiled functions of the
-#: package that came from the cache and those that were compiled.
+#: Reconstructs the warm-up's scan again, then names the compiled functions of the
+#: package that came from the cache and those that were compiled (a line each).
 SECOND_RUN = """
 import sys, tempfile
 from pathlib import Path
@@ -25,26 +25,37 @@ from numba.core.registry import CPUDispatcher
 from sfs_ros.cli import warm_up
 with tempfile.TemporaryDirectory() as tmp:
     warm_up.run(Path(tmp))
-hits, compiled = 0, []
+loaded, compiled = [], []
 for name, module in list(sys.modules.items()):
     if name.startswith("sfs_ros"):
         for attr, value in vars(module).items():
             if isinstance(value, CPUDispatcher) and value.signatures:
-                hits += sum(value.stats.cache_hits.values())
+                if sum(value.stats.cache_hits.values()):
+                    loaded.append(f"{name}.{attr}")
                 if sum(value.stats.cache_misses.values()):
                     compiled.append(f"{name}.{attr}")
-print(hits, " ".join(sorted(set(compiled))))
+print(" ".join(sorted(set(loaded))))
+print(" ".join(sorted(set(compiled))))
 """
 
+#: Kernels the cell's nodes call in the middle of a scan that a rehearsal of clean views
+#: never reaches: the carving's kept band once it has followed the hull, the removal of a
+#: speck or the filling of a hole in a view's mask, the threshold method's colour distance.
+MID_SCAN_KERNELS = {"sfs_ros.core.meshing.hull_distance._largest_kernel",
+                    "sfs_ros.core.meshing.hull_distance._floored_values_kernel",
+                    "sfs_ros.core.meshing.hull_distance._raises_kernel",
+                    "sfs_ros.core.segmentation.segment._lookup",
+                    "sfs_ros.core.segmentation.segment._distance_kernel"}
 
-def _compiled_again(cwd, env=None) -> tuple[int, str]:
-    """The warm-up's scan reconstructed in a new process (run in ``cwd``): the kernels it
-    loaded from the cache, and the names of those it compiled, space-separated."""
+
+def _compiled_again(cwd, env=None) -> tuple[set, str]:
+    """The warm-up's scan reconstructed in a new process (run in ``cwd``): the names of
+    the kernels it loaded from the cache, and of those it compiled, space-separated."""
     second = subprocess.run([sys.executable, "-c", SECOND_RUN], cwd=cwd, env=env,
                             capture_output=True, text=True, timeout=TIMEOUT_S)
     assert second.returncode == 0, second.stderr
-    hits, _, compiled = second.stdout.strip().partition(" ")
-    return int(hits), compiled
+    loaded, compiled = (second.stdout.rstrip("\n").split("\n") + [""])[:2]
+    return set(loaded.split()), compiled
 
 
 def test_after_the_warm_up_nothing_compiles_again(tmp_path):
@@ -53,18 +64,19 @@ def test_after_the_warm_up_nothing_compiles_again(tmp_path):
                            capture_output=True, text=True, timeout=TIMEOUT_S)
     assert first.returncode == 0, first.stderr
     assert "kernels compiled and cached in" in first.stdout
-    hits, compiled = _compiled_again(tmp_path)
+    loaded, compiled = _compiled_again(tmp_path)
     assert compiled == "", f"compiled again instead of loaded from the cache: {compiled}"
-    assert hits >= 20  # the carving, meshing, colour and rendering kernels, at least
+    assert len(loaded) >= 20  # the carving, meshing, colour and rendering kernels, at least
+    assert MID_SCAN_KERNELS <= loaded, sorted(MID_SCAN_KERNELS - loaded)
 
 
 def test_the_copy_the_tests_import_is_warm_for_its_node_processes(kernels_warmed):
     # As test/ros_harness.py starts a node: the tests' sfs_ros first on the module path.
     env = dict(os.environ, PYTHONPATH=str(SOURCE_ROOT))
     assert warm_up.is_warm()
-    hits, compiled = _compiled_again(SOURCE_ROOT, env)
+    loaded, compiled = _compiled_again(SOURCE_ROOT, env)
     assert compiled == "", f"compiled again instead of loaded from the cache: {compiled}"
-    assert hits >= 20
+    assert len(loaded) >= 20 and MID_SCAN_KERNELS <= loaded
 
 
 def _package(root: Path) -> Path:

@@ -9,7 +9,9 @@ compilation, which takes far longer than a warm reconstruction
 temporary folder, both ways the package does: offline from the images (segmentation,
 consensus, fusion, carving, meshing, evaluation) and live, view by view (incremental
 carving, then the pipeline on the received masks with colour, the mesh file and its
-pictures: :func:`sfs_ros.cell_logic.rehearsal.rehearse`). Prints the seconds it took.
+pictures: :func:`sfs_ros.cell_logic.rehearsal.rehearse`); then what the cell's nodes
+reach in the middle of a real scan and those runs do not (:func:`follow_a_band`,
+:func:`segment_a_speckled_picture`). Prints the seconds it took.
 
 numba keys a cached kernel on its source file's content (and location: beside the file,
 or under ``NUMBA_CACHE_DIR``), its own version, the Python and the host CPU. Each copy of
@@ -30,22 +32,28 @@ import re
 import sys
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
 import numba
 import numpy as np
 
+from ..cell_logic import rehearsal
+from ..cell_logic.live_reconstruction import LiveReconstruction
 from ..cell_logic.rehearsal import REHEARSAL_PLAN, REHEARSAL_RESOLUTION, REHEARSAL_RIG, rehearse
 from ..core.exchange.inputs import load_views
 from ..core.exchange.session import write_session
+from ..core.geometry.rig import rig_camera
 from ..core.pipeline import ReconstructionParams, reconstruct
+from ..core.render import rasterize_silhouette
 from ..core.segmentation.band_cut import band_cut
 from ..core.segmentation.grabcut import grabcut
 from ..core.segmentation.kmeans import OpenCVRandom
-from ..core.segmentation.segment import segment
+from ..core.segmentation.segment import SegmentationParams, segment
 from ..core.simulation.objects import make_object
-from ..core.simulation.synthetic import simulate_scan
+from ..core.simulation.plan import ring_plan
+from ..core.simulation.synthetic import carving_box, simulate_scan
 from ..process import configure_process
 
 #: This package's folder (``.../sfs_ros``): the copy whose kernels a warm-up compiles.
@@ -56,15 +64,40 @@ _CACHED = re.compile(r"^\s*@[\w.]*jit\(.*\bcache=True", re.MULTILINE)
 _CPU_FIELDS = ("model name", "flags", "CPU implementer", "CPU part", "Features")
 
 
+#: A live scan long enough for the carving's kept band to follow the hull (every
+#: ``ExpectedCarves.BAND_FOLLOWS_EVERY`` views once the grid has settled) and for views to
+#: come after it: the rehearsal's 25 views end while the grid still changes. On a camera
+#: smaller still: the kernels are compiled for the arrays' types, not their sizes.
+BAND_PLAN = ring_plan([20.0, 50.0], 20, top_view=True)
+BAND_RIG = replace(REHEARSAL_RIG, width=80, height=60, fx=175.0, fy=175.0)
+
+
 def run(folder: Path) -> None:
-    """Reconstruct a 25-view simulated scan of the mug offline and live, in ``folder``."""
+    """Reconstruct a 25-view simulated scan of the mug offline and live, in ``folder``;
+    then what those leave out (a longer live scan, small pictures)."""
     captures = simulate_scan(make_object("mug"), REHEARSAL_RIG, REHEARSAL_PLAN, seed=0)
     session = write_session(folder / "session", [(c.name, c.image) for c in captures],
                             [(c.theta_rad, c.phi_rad) for c in captures], REHEARSAL_RIG)
     reconstruct(load_views(session), ReconstructionParams(resolution=REHEARSAL_RESOLUTION))
     rehearse(folder / "live", [(segment(c.image).mask, c.image) for c in captures])
+    follow_a_band(folder / "band")
     cut_a_band()
     grabcut_a_picture()
+    segment_a_speckled_picture()
+
+
+def follow_a_band(folder: Path) -> None:
+    """The live carving's kept band (:class:`~sfs_ros.core.meshing.kept_band.KeptBand`):
+    the mug's silhouettes from :data:`BAND_PLAN` on :data:`BAND_RIG` received view by view
+    in ``folder``, then carved."""
+    mug = make_object("mug")
+    live = LiveReconstruction(BAND_RIG, carving_box(mug), output_dir=folder,
+                              resolution=REHEARSAL_RESOLUTION)
+    for n, (theta, phi) in enumerate(BAND_PLAN):
+        camera = rig_camera(theta, phi, BAND_RIG)
+        live.add_view(n, rasterize_silhouette(mug.mesh.vertices, mug.mesh.faces, camera),
+                      theta, phi)
+    live.carve(colour=False)
 
 
 def cut_a_band() -> None:
@@ -94,6 +127,19 @@ def grabcut_a_picture() -> None:
     grabcut(image, labels, 1, OpenCVRandom())
 
 
+def segment_a_speckled_picture() -> None:
+    """Both segmentation methods on a small picture with a speck and a hole: the
+    rehearsal's clean renders leave the threshold method, the removal of specks and the
+    filling of holes unused."""
+    image = np.full((160, 200, 3), 225, np.uint8)
+    image[:, :, 0] += np.linspace(0, 20, 200, dtype=np.uint8)   # a backdrop not flat
+    image[20:140, 30:170] = (60, 40, 30)
+    image[70:76, 90:96] = 225                                   # a hole
+    image[5:9, 185:189] = (60, 40, 30)                          # a speck
+    for method in ("graph-cut", "threshold"):
+        segment(image, SegmentationParams(method=method))
+
+
 def host_cpu() -> str:
     """The machine type and the first CPU's model and features (``/proc/cpuinfo``, where
     there is one): numba compiles each kernel for the host's CPU."""
@@ -113,10 +159,13 @@ def kernel_modules(package: Path = PACKAGE) -> list[Path]:
 def cache_key(package: Path = PACKAGE) -> str:
     """Hex digest of what numba's cache of the package's kernels depends on: each kernel
     module's path in the package and bytes, numba's version, the Python (its cache tag),
-    the host CPU and ``NUMBA_CACHE_DIR``."""
+    the host CPU and ``NUMBA_CACHE_DIR``; and of what the warm-up runs (this module's and
+    the rehearsal's bytes: a kernel they come to call is not cached yet)."""
     digest = hashlib.sha256()
     for path in kernel_modules(package):
         digest.update(f"{path.relative_to(package)}\0".encode())
+        digest.update(path.read_bytes())
+    for path in (Path(__file__), Path(rehearsal.__file__)):
         digest.update(path.read_bytes())
     digest.update(f"\0{numba.__version__}\0{sys.implementation.cache_tag}\0{host_cpu()}\0"
                   f"{os.environ.get('NUMBA_CACHE_DIR', '')}".encode())
