@@ -229,7 +229,9 @@ class MeshingNode(Node):
             carved, hand_over = carved_scan_from_msg(
                 msg, held, self._held.thumbnails(held_session),
                 self._held.masks(held_session, with_masks))
-            images = carried_images(msg, held)
+            # The refinement's images: every view's, held or carried.
+            images = carried_images(msg, held) if options.refined(self._values["refine"]) \
+                else {}
             # Images asked for the texture alone do not colour the mesh.
             meshed = carved if options.coloured(self._values["colour"]) \
                 else without_colour(carved)
