@@ -168,9 +168,9 @@ def _with_scan_backdrop(views: list[View], results: list, params: SegmentationPa
     graph cut segmented, when there are three or more) where that changes its own
     border's model (:func:`.segmentation.segment.scan_backdrop_changes`): the turntable
     plate is backdrop in a view that sees it wholly in the frame, the object's colours are
-    not in a view whose frame it reaches (their images kept with ``keep_images``). Also the
-    report's ``backdrop`` piece (the scan's backdrop colours and the views segmented with
-    it), None without one."""
+    not in a view whose frame it reaches; with ``keep_images``, the images read again are
+    kept. Also the report's ``backdrop`` piece (the scan's backdrop colours and the views
+    segmented with it), None without one."""
     results = list(results)
     bands = [getattr(r, "band", None) for r in results]
     learnt = [band for band in bands if band is not None]
