@@ -6,6 +6,7 @@ a hull that holds the object: the disc grown by a few pixels, as the tolerant
 hull's projection is (its voxel footprint and the facets of few views).
 """
 
+import cv2
 import numpy as np
 from test_fusion import BAD, bite, scan
 
@@ -13,6 +14,8 @@ from sfs_ros.core.geometry.grid import VoxelGrid
 from sfs_ros.core.segmentation.consensus import (
     _CHROMA_GAIN,
     _DARK_FLOOR,
+    _dilated_by_disk,
+    _disk,
     _features,
     consensus_masks,
     resegment,
@@ -184,3 +187,19 @@ def test_features_of_every_colour_are_the_float32_formula():
     np.testing.assert_array_equal(_features(rgb), expected)
     # A crop (not contiguous) of a picture is taken as it is.
     np.testing.assert_array_equal(_features(rgb[5:300, 7:900]), expected[5:300, 7:900])
+
+
+def test_the_dilation_by_a_disk_is_opencvs():
+    # Against cv2.dilate with the same elliptical kernel (its rows, runs of rounded
+    # half-widths, are the disk): masks from a lone pixel to half the pixels, images
+    # smaller and larger than the disk, radii up to the prior's bands (about 20 px).
+    rng = np.random.default_rng(5)
+    cases = [(np.zeros((9, 7), np.uint8), 3), (np.ones((9, 7), np.uint8), 3),
+             (np.ones((1, 1), np.uint8), 4), (disc(80, 60, 30).astype(np.uint8), 22)]
+    for _ in range(200):
+        h, w = rng.integers(1, 70, 2)
+        density = rng.choice([0.002, 0.02, 0.2, 0.5])
+        cases.append(((rng.random((h, w)) < density).astype(np.uint8), int(rng.integers(1, 30))))
+    for mask, radius in cases:
+        np.testing.assert_array_equal(_dilated_by_disk(mask, radius),
+                                      cv2.dilate(mask, _disk(radius)))

@@ -379,7 +379,8 @@ def carve_scan(view_set: ViewSet, params: ReconstructionParams = ReconstructionP
     _check_lenses(view_set.views)
     with timed(timings, "segmentation"):
         segmented = segment_views(view_set, seg_params, masks or {}, progress,
-                                  undistorted=precomputed.undistorted_masks)
+                                  undistorted=precomputed.undistorted_masks,
+                                  keep_images=params.consensus and seg_params.method == "graph-cut")
     first = _first_used(segmented, params.holdout, len(view_set.views))
     box = params.bounds_m if params.bounds_m is not None else view_set.bounds_m
     check_directions([segmented.views[i].camera for i in first],

@@ -45,6 +45,9 @@ __all__ = ["ColourViews", "Fused", "GridChoice", "Hull", "Resegmented", "Segment
 
 #: Progress callback: (stage name, fraction of the stage done in [0, 1]).
 Progress = Callable[[str, float], None]
+#: The segmentation keeps the views' images for the consensus (which would decode them
+#: again) when all of them take at most this many bytes: 100 views of 800 x 800 take 192 MB.
+KEPT_IMAGES_BYTES = 256 << 20
 
 
 @dataclass(frozen=True)
@@ -64,6 +67,8 @@ class Segmented:
     backdrop : the report's piece on the backdrop of the whole scan, ``{"colours_rgb":
         [[r, g, b], ...], "views": [names segmented with it]}``, or None (fewer than
         three views segmented by the graph cut)
+    images : {view name: (H, W, 3) uint8 RGB image as read} the segmentation kept for the
+        consensus to cut again (:func:`segment_views`' ``keep_images``); empty after it
     """
 
     views: list[View]
@@ -74,6 +79,7 @@ class Segmented:
     exact: frozenset = frozenset()
     coverage: dict = field(default_factory=dict)
     backdrop: dict | None = None
+    images: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -102,21 +108,24 @@ class _ViewMask:
     ideal pinhole (``ideal``), the alpha channel it is exact from, undistorted
     (``coverage``, (H, W) uint8; None: segmented or given), and the pixels of its
     image's border its graph cut learnt the backdrop from (``band``, (n, 3) uint8; None:
-    not segmented by the graph cut)."""
+    not segmented by the graph cut), and its (H, W, 3) uint8 RGB image as read when kept
+    (``image``; else None)."""
 
     taken: np.ndarray
     ideal: np.ndarray
     coverage: np.ndarray | None
     band: np.ndarray | None = None
+    image: np.ndarray | None = None
 
 
 def _read_and_segment(view: View, params: SegmentationParams, given: np.ndarray | None,
                       undistorted: np.ndarray | None,
-                      scan_backdrop: BackdropModel | None = None) -> _ViewMask | str:
+                      scan_backdrop: BackdropModel | None = None,
+                      keep_image: bool = False) -> _ViewMask | str:
     """The view's silhouette (``given``, else segmented from its image, with the scan's
     backdrop ``scan_backdrop`` when given) and what it is exact from, each undistorted
     (``undistorted``: the mask's undistortion already made), or why the view cannot be
-    used."""
+    used. With ``keep_image``, an RGB image read is kept in the result."""
     if given is not None:
         expected = (view.camera.height, view.camera.width)
         if np.shape(given) != expected or np.asarray(given).dtype != np.bool_:
@@ -124,7 +133,7 @@ def _read_and_segment(view: View, params: SegmentationParams, given: np.ndarray 
                     f"expected {expected} bool (the camera's size)")
         if not given.any():
             return "empty silhouette: no object found"
-        mask, alpha, band = given, None, None
+        mask, alpha, band, image = given, None, None, None
     else:
         try:
             image = read_image(view.image_path, keep_alpha=not params.ignore_alpha,
@@ -138,8 +147,9 @@ def _read_and_segment(view: View, params: SegmentationParams, given: np.ndarray 
         exact = image.ndim == 3 and image.shape[2] == 4 and not params.ignore_alpha
         mask, alpha = result.mask, (image[:, :, 3].copy() if exact else None)
     ideal = undistort_mask(mask, view.camera) if undistorted is None else undistorted
+    rgb = image is not None and image.ndim == 3 and image.shape[2] == 3
     return _ViewMask(mask, ideal, None if alpha is None else undistort_image(alpha, view.camera),
-                     band)
+                     band, image if keep_image and rgb else None)
 
 
 @dataclass(frozen=True)
@@ -150,16 +160,17 @@ class _Empty:
     reason: str = "empty silhouette: no object found"
 
 
-def _with_scan_backdrop(views: list[View], results: list,
-                        params: SegmentationParams) -> tuple[list, dict | None]:
+def _with_scan_backdrop(views: list[View], results: list, params: SegmentationParams,
+                        keep_images: bool) -> tuple[list, dict | None]:
     """``results`` (one per view: :class:`_ViewMask`, :class:`_Empty` or the reason it
     cannot be used), each view segmented again with the backdrop of the whole scan
     (:func:`.segmentation.backdrop.fit_scan_backdrop`, from the borders of the views the
     graph cut segmented, when there are three or more) where that changes its own
     border's model (:func:`.segmentation.segment.scan_backdrop_changes`): the turntable
     plate is backdrop in a view that sees it wholly in the frame, the object's colours are
-    not in a view whose frame it reaches. Also the report's ``backdrop`` piece (the scan's
-    backdrop colours and the views segmented with it), None without one."""
+    not in a view whose frame it reaches; with ``keep_images``, the images read again are
+    kept. Also the report's ``backdrop`` piece (the scan's backdrop colours and the views
+    segmented with it), None without one."""
     results = list(results)
     bands = [getattr(r, "band", None) for r in results]
     learnt = [band for band in bands if band is not None]
@@ -168,7 +179,8 @@ def _with_scan_backdrop(views: list[View], results: list,
     scan = fit_scan_backdrop(learnt)
     again = [n for n, band in enumerate(bands)
              if band is not None and scan_backdrop_changes(band, scan, params)]
-    redone = map_in_threads(lambda n: _read_and_segment(views[n], params, None, None, scan), again)
+    redone = map_in_threads(
+        lambda n: _read_and_segment(views[n], params, None, None, scan, keep_images), again)
     for n, result in zip(again, redone):
         results[n] = result
     return results, {"colours_rgb": [[round(float(c), 1) for c in m] for m in scan.means],
@@ -176,7 +188,8 @@ def _with_scan_backdrop(views: list[View], results: list,
 
 
 def segment_views(view_set: ViewSet, params: SegmentationParams, given: dict,
-                  progress: Progress, undistorted: dict | None = None) -> Segmented:
+                  progress: Progress, undistorted: dict | None = None, *,
+                  keep_images: bool = False) -> Segmented:
     """Read, segment and undistort every view not in ``given`` ({view name: (H, W) bool
     silhouette already made}), in threads (one view's decoding beside another's
     segmentation), results in input order; the views that cannot be used
@@ -184,15 +197,20 @@ def segment_views(view_set: ViewSet, params: SegmentationParams, given: dict,
     undistorted once onto its view's ideal pinhole (:mod:`.geometry.lens`), unless
     ``undistorted`` ({view name: (H, W) bool}) holds that undistortion already. The views
     whose border disagrees with the backdrop of the whole scan are segmented again with
-    it (:func:`_with_scan_backdrop`)."""
+    it (:func:`_with_scan_backdrop`). With ``keep_images`` (a consensus to follow), the RGB
+    images read are kept in :attr:`Segmented.images` when all the views' images fit in
+    :data:`KEPT_IMAGES_BYTES`."""
     undistorted = undistorted or {}
     views = view_set.views
     rejected = [{"view": name, "reason": reason} for name, reason in view_set.rejected]
-    kept, masks, taken, coverage = [], [], {}, {}
+    kept, masks, taken, coverage, images = [], [], {}, {}, {}
+    keep = keep_images and sum(3 * v.camera.width * v.camera.height
+                               for v in views) <= KEPT_IMAGES_BYTES
     progress("segmentation", 0.0)
     results, backdrop = _with_scan_backdrop(views, map_in_threads(
         lambda view: _read_and_segment(view, params, given.get(view.name),
-                                       undistorted.get(view.name)), views), params)
+                                       undistorted.get(view.name), keep_image=keep), views),
+        params, keep)
     for n, (view, result) in enumerate(zip(views, results)):
         if isinstance(result, (str, _Empty)):
             rejected.append({"view": view.name, "reason": getattr(result, "reason", result)})
@@ -202,9 +220,11 @@ def segment_views(view_set: ViewSet, params: SegmentationParams, given: dict,
             taken[view.name] = result.taken
             if result.coverage is not None:
                 coverage[view.name] = result.coverage
+            if result.image is not None:
+                images[view.name] = result.image
         progress("segmentation", (n + 1) / max(1, len(views)))
     return Segmented(kept, masks, taken, {v.name: v.camera for v in views}, rejected,
-                     frozenset(coverage), coverage, backdrop)
+                     frozenset(coverage), coverage, backdrop, images)
 
 
 @dataclass(frozen=True)
@@ -328,14 +348,18 @@ def resegment_views(segmented: Segmented, used: UsedViews, grid: VoxelGrid,
     """The used views' masks re-segmented with the hull of all views as a prior
     (:func:`sfs_ros.core.segmentation.consensus.consensus_masks`); alpha masks are kept. The masks
     and cameras are on the ideal pinhole's pixel grid, so each image is undistorted
-    through its lens before it is read."""
-    views, lenses = segmented.views, segmented.lenses
+    through its lens before it is read (the one the segmentation kept, else read again).
+    The images kept are let go (:attr:`Segmented.images` empty)."""
+    views, lenses, kept = segmented.views, segmented.lenses, segmented.images
+    segmented = replace(segmented, images={})
     reference = (VoxelGrid(grid.bounds_min, grid.bounds_max, 2 * grid.voxel_size)
                  if max(grid.shape) >= 128 else grid)
 
     def read_rgb(n: int) -> np.ndarray | None:
         view = views[used.indices[n]]
-        image = read_image(view.image_path, keep_alpha=not params.ignore_alpha)
+        image = kept.get(view.name)
+        if image is None:
+            image = read_image(view.image_path, keep_alpha=not params.ignore_alpha)
         if image.ndim != 3 or image.shape[2] != 3:
             return None
         return undistort_image(image, lenses[view.name])

@@ -98,6 +98,64 @@ def _disk(radius: int) -> np.ndarray:
     return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
 
 
+def _dilated_by_disk(mask: np.ndarray, radius: int) -> np.ndarray:
+    """``cv2.dilate(mask, _disk(radius))`` of (h, w) uint8 ``mask`` (0 or 1): the same (h, w)
+    uint8 0 or 1, in time that does not grow with the radius (OpenCV's takes every pixel of
+    the disk, about 3 radius^2 of them).
+
+    The disk's rows are runs centred on its middle column. So a pixel is reached from the
+    row ``k`` rows away when that row holds a mask pixel no farther along it than the
+    half-width of the disk's ``k``-th row from the middle: each pixel's gap to the nearest
+    mask pixel of its own row, then down and up the columns how far each gap reaches
+    (:func:`_rows_reached`)."""
+    return _dilate_kernel(np.ascontiguousarray(mask, np.uint8), _rows_reached(radius))
+
+
+def _rows_reached(radius: int) -> np.ndarray:
+    """(radius + 1,) int64: for a gap of ``g`` pixels along a row (0..radius), the most rows
+    away from the middle a row of ``_disk(radius)`` at least ``g`` pixels wide each side is."""
+    half_widths = _disk(radius).sum(axis=1) // 2
+    rows_away = np.abs(np.arange(-radius, radius + 1))
+    return np.array([rows_away[half_widths >= g].max() for g in range(radius + 1)], np.int64)
+
+
+@njit(cache=True, nogil=True)
+def _dilate_kernel(mask, reach):
+    """:func:`_dilated_by_disk` of (h, w) uint8 ``mask`` with ``reach`` from
+    :func:`_rows_reached`."""
+    h, w = mask.shape
+    radius = reach.shape[0] - 1
+    far = 1 << 40
+    gap = np.empty((h, w), np.int64)          # to the nearest mask pixel of the row
+    for y in range(h):
+        last = -far
+        for x in range(w):
+            if mask[y, x]:
+                last = x
+            gap[y, x] = x - last
+        last = far
+        for x in range(w - 1, -1, -1):
+            if mask[y, x]:
+                last = x
+            gap[y, x] = min(gap[y, x], last - x)
+    out = np.zeros((h, w), np.uint8)
+    down = np.full(w, -far, np.int64)         # the last row reached from the rows above
+    for y in range(h):
+        for x in range(w):
+            if gap[y, x] <= radius:
+                down[x] = max(down[x], y + reach[gap[y, x]])
+            if down[x] >= y:
+                out[y, x] = 1
+    up = np.full(w, far, np.int64)            # the first row reached from the rows below
+    for y in range(h - 1, -1, -1):
+        for x in range(w):
+            if gap[y, x] <= radius:
+                up[x] = min(up[x], y - reach[gap[y, x]])
+            if up[x] <= y:
+                out[y, x] = 1
+    return out
+
+
 def _features(rgb: np.ndarray) -> np.ndarray:
     """(h, w, 3) uint8 colours GrabCut models: brightness and two opponent
     chromaticities, each divided by the brightness plus ``_DARK_FLOOR``.
@@ -156,7 +214,7 @@ def resegment(rgb: np.ndarray, prior: np.ndarray, mask: np.ndarray) -> np.ndarra
     m_full = np.asarray(mask, bool).view(np.uint8)
     m = m_full[y0:y1, x0:x1]
     labels = np.full(p.shape, cv2.GC_BGD, np.uint8)
-    labels[cv2.dilate(p, _disk(band)) > 0] = cv2.GC_PR_BGD
+    labels[_dilated_by_disk(p, band) > 0] = cv2.GC_PR_BGD
     labels[p > 0] = cv2.GC_PR_FGD
     sure = max(1, int(round(_SURE_FRACTION * size)))
     labels[cv2.erode(p & m, _disk(sure)) > 0] = cv2.GC_FGD

@@ -135,15 +135,19 @@ def _graph(image, beta, probable, labels):
 
     A sure pixel's terminal weight (9 gamma) outweighs all its links (at most
     4 (1 + 1 / sqrt 2) gamma): it is on its own side in every minimum cut, and its link to
-    a probable pixel counts as that pixel's terminal weight towards that side."""
+    a probable pixel counts as that pixel's terminal weight towards that side.
+
+    Only the probable pixels are visited (a narrow band is a small part of its box): each
+    makes its links to the earlier probable neighbours (left, up-left, up, up-right, as
+    OpenCV's raster pass makes them, so the edges come in its order) and folds those to
+    sure neighbours, the earlier ones and then the later ones (right, down-left, down,
+    down-right) in the order OpenCV's pass meets them, so every sum is the same."""
     h, w = image.shape[:2]
     index = np.full(h * w, -1, np.int64)
-    n = 0
-    for y in range(h):
-        for x in range(w):
-            if probable[y, x]:
-                index[y * w + x] = n
-                n += 1
+    pixels = np.flatnonzero(probable.ravel())
+    n = pixels.shape[0]
+    for v in range(n):
+        index[pixels[v]] = v
     m = 8 * n + 2  # each link made once, by its later pixel, a probable one: 4 per vertex
     first = np.zeros(n, np.int64)
     head = np.zeros(m, np.int64)
@@ -152,35 +156,43 @@ def _graph(image, beta, probable, labels):
     fold = np.zeros(n)
     contrast = np.full(_MAX_SQUARED_DIFFERENCE + 1, -1.0)  # exp(-beta d^2), on first use
     e = 2  # edge 0 would end its tail's list (and edge 1 make a parent of none): unused
-    for y in range(h):
-        for x in range(w):
-            for dy, dx, gamma in ((0, -1, _GAMMA), (-1, -1, _GAMMA_DIAGONAL), (-1, 0, _GAMMA),
-                                  (-1, 1, _GAMMA_DIAGONAL)):
-                yy, xx = y + dy, x + dx
-                if yy < 0 or xx < 0 or xx >= w:
-                    continue
-                i, j = index[y * w + x], index[yy * w + xx]
-                if i < 0 and j < 0:
-                    continue
-                d0 = float(image[y, x, 0]) - float(image[yy, xx, 0])
-                d1 = float(image[y, x, 1]) - float(image[yy, xx, 1])
-                d2 = float(image[y, x, 2]) - float(image[yy, xx, 2])
-                squared = d0 * d0 + d1 * d1 + d2 * d2
-                k = int(squared)
-                if contrast[k] < 0:
-                    contrast[k] = math.exp(-beta * squared)
-                weight = gamma * contrast[k]
-                if j < 0:
-                    fold[i] += weight if labels[yy, xx] == _FGD else -weight
-                elif i < 0:
-                    fold[j] += weight if labels[y, x] == _FGD else -weight
-                else:
-                    head[e], after[e], capacity[e] = j, first[i], weight
-                    first[i] = e
-                    head[e + 1], after[e + 1], capacity[e + 1] = i, first[j], weight
-                    first[j] = e + 1
-                    e += 2
+    for i in range(n):
+        y, x = pixels[i] // w, pixels[i] % w
+        for dy, dx, gamma in ((0, -1, _GAMMA), (-1, -1, _GAMMA_DIAGONAL), (-1, 0, _GAMMA),
+                              (-1, 1, _GAMMA_DIAGONAL), (0, 1, _GAMMA),
+                              (1, -1, _GAMMA_DIAGONAL), (1, 0, _GAMMA),
+                              (1, 1, _GAMMA_DIAGONAL)):
+            yy, xx = y + dy, x + dx
+            if yy < 0 or yy >= h or xx < 0 or xx >= w:
+                continue
+            j = index[yy * w + xx]
+            later = dy > 0 or (dy == 0 and dx > 0)
+            if later and j >= 0:
+                continue                       # that link is made by the later pixel
+            weight = gamma * _contrast(image, contrast, beta, y, x, yy, xx)
+            if j < 0:
+                fold[i] += weight if labels[yy, xx] == _FGD else -weight
+            else:
+                head[e], after[e], capacity[e] = j, first[i], weight
+                first[i] = e
+                head[e + 1], after[e + 1], capacity[e + 1] = i, first[j], weight
+                first[j] = e + 1
+                e += 2
     return first, head[:e], after[:e], capacity[:e], fold
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _contrast(image, contrast, beta, y, x, yy, xx):
+    """``exp(-beta d^2)`` of the squared colour difference ``d^2`` of pixels (y, x) and
+    (yy, xx) of ``image``, kept in ``contrast`` (by ``d^2``, -1 until first used)."""
+    d0 = float(image[y, x, 0]) - float(image[yy, xx, 0])
+    d1 = float(image[y, x, 1]) - float(image[yy, xx, 1])
+    d2 = float(image[y, x, 2]) - float(image[yy, xx, 2])
+    squared = d0 * d0 + d1 * d1 + d2 * d2
+    k = int(squared)
+    if contrast[k] < 0:
+        contrast[k] = math.exp(-beta * squared)
+    return contrast[k]
 
 
 @njit(cache=True, nogil=True)
