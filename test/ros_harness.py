@@ -106,8 +106,11 @@ class NodeProcess:
         """Wait for the process to end by itself; returns its exit code."""
         return self.process.wait(timeout=timeout)
 
-    def stop(self, grace_s: float = 10.0) -> int:
-        """SIGINT, then (only if ignored for ``grace_s`` s) SIGTERM, then SIGKILL; the exit code."""
+    def stop(self, grace_s: float = 60.0) -> int:
+        """SIGINT, then (only if ignored for ``grace_s`` s) SIGTERM, then SIGKILL; the exit code.
+
+        The grace bounds a hang only: on SIGINT a node finishes the work it has queued
+        (a carving, a mesh), seconds on a loaded 2-core machine."""
         for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
             if not self.alive():
                 break
