@@ -14,11 +14,10 @@ from .outline import edge_faces, outline_cover
 from .render import (
     FRONT_FACING,
     as_mesh_arrays,
-    centre_box,
     covered_point,
     edge_tuple,
     face_orientation,
-    pixel_box,
+    projected_pixel_box,
     rasterize_silhouette,
     triangle_edges,
 )
@@ -109,14 +108,7 @@ def _drawn_coverage(faces, h, uv, H, W, front_only, cover, coef):
     (only those turned towards the camera when ``front_only``)."""
     cover[:H * W] = 0
     for f in range(faces.shape[0]):
-        a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
-        if h[a, 2] > 0.0 and h[b, 2] > 0.0 and h[c, 2] > 0.0:
-            # render.pixel_box, from the projections computed once per vertex
-            c0, c1, r0, r1 = centre_box(
-                min(uv[a, 0], uv[b, 0], uv[c, 0]), max(uv[a, 0], uv[b, 0], uv[c, 0]),
-                min(uv[a, 1], uv[b, 1], uv[c, 1]), max(uv[a, 1], uv[b, 1], uv[c, 1]), W, H)
-        else:
-            c0, c1, r0, r1 = pixel_box(h, faces, f, W, H)
+        c0, c1, r0, r1 = projected_pixel_box(h, uv, faces, f, W, H)
         if c0 > c1 or r0 > r1:
             continue  # most faces of a fine mesh hold no pixel centre (some lie off the image)
         if front_only and face_orientation(h, faces, f) != FRONT_FACING:

@@ -202,6 +202,18 @@ def pixel_box(h, faces, f, width, height):
     return 0, width - 1, 0, height - 1
 
 
+@njit(cache=True, inline="always")
+def projected_pixel_box(h, uv, faces, f, width, height):
+    """:func:`pixel_box` of face ``f``, from its corners' pixels ``uv`` (divided out once
+    per vertex: :func:`_projected`) where all three lie in front of the camera."""
+    i, j, k = faces[f, 0], faces[f, 1], faces[f, 2]
+    if h[i, 2] > 0.0 and h[j, 2] > 0.0 and h[k, 2] > 0.0:
+        return centre_box(min(uv[i, 0], uv[j, 0], uv[k, 0]), max(uv[i, 0], uv[j, 0], uv[k, 0]),
+                          min(uv[i, 1], uv[j, 1], uv[k, 1]), max(uv[i, 1], uv[j, 1], uv[k, 1]),
+                          width, height)
+    return pixel_box(h, faces, f, width, height)
+
+
 @njit(cache=True, nogil=True)
 def _rasterize_kernel(h, depth, uv, faces, face_id, bary, zbuf, front_only):
     """Z-buffer ``zbuf`` (H, W) of the faces (only those turned towards the camera when
@@ -215,21 +227,13 @@ def _rasterize_kernel(h, depth, uv, faces, face_id, bary, zbuf, front_only):
         # box, which most faces of a fine mesh fail: they hold no pixel centre)
         if front_only and face_orientation(h, faces, f) != FRONT_FACING:
             continue
-        i, j, k = faces[f, 0], faces[f, 1], faces[f, 2]
-        if h[i, 2] > 0.0 and h[j, 2] > 0.0 and h[k, 2] > 0.0:
-            # pixel_box, from the pixels divided out once per vertex
-            c0, c1, r0, r1 = centre_box(
-                min(uv[i, 0], uv[j, 0], uv[k, 0]), max(uv[i, 0], uv[j, 0], uv[k, 0]),
-                min(uv[i, 1], uv[j, 1], uv[k, 1]), max(uv[i, 1], uv[j, 1], uv[k, 1]),
-                width, height)
-        else:
-            c0, c1, r0, r1 = pixel_box(h, faces, f, width, height)
+        c0, c1, r0, r1 = projected_pixel_box(h, uv, faces, f, width, height)
         if c0 > c1 or r0 > r1:
             continue
         if triangle_edges(h, faces, f, coef) == 0.0:
             continue
         edges = edge_tuple(coef)
-        d0, d1, d2 = depth[i], depth[j], depth[k]
+        d0, d1, d2 = depth[faces[f, 0]], depth[faces[f, 1]], depth[faces[f, 2]]
         for r in range(r0, r1 + 1):
             v = float(r)
             for c in range(c0, c1 + 1):
