@@ -104,6 +104,18 @@ class Cell(NodeUnderTest):
         meshing_code, meshing_output = self.meshing.stop_and_read()
         return code or meshing_code, output + meshing_output
 
+    def kill_meshing(self, params_file) -> None:
+        """SIGKILL the meshing node and start another with ``params_file`` (not waited for)."""
+        self.meshing.process.send_signal(signal.SIGKILL)
+        assert self.meshing.process.wait(timeout=30) == -signal.SIGKILL
+        self.meshing.cleanup()
+        self.meshing = NodeProcess(MESHING, params_file=params_file)
+
+    def wait_meshing_up(self) -> None:
+        """Until the (new) meshing node says it is meshing."""
+        self.probe.spin_until(lambda: "meshing into" in self.meshing.output(),
+                              what="the new meshing node", process=self.meshing)
+
     def send(self, stamp, mask, theta, phi, *, joints_first=False, encoding=None):
         image = image_to_msg(mask, stamp=stamp, frame_id="camera_optical")
         if encoding is not None:
@@ -219,12 +231,8 @@ def meshing_restarted(scan, cell, params_file):
     wait_for_pictures(first, timeout_s=60.0)
     mesh_file = Path(first["path"])
     before = mesh_file.read_bytes()
-    cell.meshing.process.send_signal(signal.SIGKILL)
-    assert cell.meshing.process.wait(timeout=30) == -signal.SIGKILL
-    cell.meshing.cleanup()
-    cell.meshing = NodeProcess(MESHING, params_file=params_file)
-    cell.probe.spin_until(lambda: "meshing into" in cell.meshing.output(),
-                          what="the new meshing node", process=cell.meshing)
+    cell.kill_meshing(params_file)
+    cell.wait_meshing_up()
     return mesh_file, before
 
 
@@ -411,10 +419,7 @@ def meshing_just_restarted(cell, masks, params_file):
     cell.probe.spin_until(lambda: all(_receipts(cell, _stamp(500 + i)) for i in range(len(PLAN))),
                           what=f"the receipts of a new scan's {len(PLAN)} views",
                           process=cell.process)
-    cell.meshing.process.send_signal(signal.SIGKILL)
-    assert cell.meshing.process.wait(timeout=30) == -signal.SIGKILL
-    cell.meshing.cleanup()
-    cell.meshing = NodeProcess(MESHING, params_file=params_file)
+    cell.kill_meshing(params_file)
 
 
 def test_reconstruct_sent_at_once_to_a_restarted_meshing_node_is_answered_and_made_once(

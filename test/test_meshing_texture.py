@@ -5,7 +5,6 @@ hull) answers with the mesh and names the textured model (the refined mesh), mad
 the answer."""
 
 import json
-import signal
 from pathlib import Path
 
 import numpy as np
@@ -29,8 +28,6 @@ from sfs_ros.ros.convert import image_to_msg
 from sfs_ros.ros.names import TYPED_SERVICES
 from sfs_ros.ros.pairing import view_key
 from sfs_ros_interfaces.srv import Reconstruct
-
-from ros_harness import NodeProcess
 
 #: That module's fixtures: the mug, the output folder, the nodes' parameters.
 mug, out_dir, params_file = carving_meshing.mug, carving_meshing.out_dir, carving_meshing.params_file
@@ -161,12 +158,8 @@ def meshing_restarted(scanned, params_file):
     """The meshing node killed (SIGKILL) after the scan and started again: it holds none
     of the scan's images (a module fixture: the new node outlives the test)."""
     cell = scanned
-    cell.meshing.process.send_signal(signal.SIGKILL)
-    assert cell.meshing.process.wait(timeout=30) == -signal.SIGKILL
-    cell.meshing.cleanup()
-    cell.meshing = NodeProcess(carving_meshing.MESHING, params_file=params_file)
-    cell.probe.spin_until(lambda: "meshing into" in cell.meshing.output(),
-                          what="the new meshing node", process=cell.meshing)
+    cell.kill_meshing(params_file)
+    cell.wait_meshing_up()
     return cell
 
 
