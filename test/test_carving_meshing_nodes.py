@@ -143,13 +143,14 @@ class Cell(NodeUnderTest):
                                          resend_after_s=attempt_s, attempts=attempts,
                                          process=self.process, timeout=attempt_s)
 
-    def statuses(self):
-        """The carving node's diagnostic statuses, oldest first."""
+    def statuses(self, node: str = "carving"):
+        """The diagnostic statuses of the node named ``node``, oldest first."""
         return [s for array in self.diagnostics for s in array.status
-                if s.name.endswith(": carving")]
+                if s.name.endswith(f": {node}")]
 
-    def last_values(self) -> dict:
-        statuses = self.statuses()
+    def last_values(self, node: str = "carving") -> dict:
+        """The latest diagnostic values of the node named ``node`` (as strings)."""
+        statuses = self.statuses(node)
         return {kv.key: kv.value for kv in statuses[-1].values} if statuses else {}
 
     def wait_values(self, what: str, **expected) -> None:

@@ -180,14 +180,7 @@ def test_a_meshing_node_started_after_the_scan_refines_from_the_carved_scans_ima
     expected = librarys_refined
     assert refined.read_bytes() == mesh_bytes(expected.vertices, expected.faces, refined)
     # The new node's diagnostics: every colour image came in the carved scan.
-    cell.probe.spin_until(lambda: meshing_values(cell).get("reconstructions") == "1",
+    cell.probe.spin_until(lambda: cell.last_values("meshing").get("reconstructions") == "1",
                           what="the new meshing node's diagnostics", process=cell.meshing)
-    values = meshing_values(cell)
+    values = cell.last_values("meshing")
     assert (values["images_held"], values["images_carried"]) == ("0", str(len(PLAN)))
-
-
-def meshing_values(cell) -> dict:
-    """The latest diagnostic values of the meshing node (as strings)."""
-    statuses = [s for array in cell.diagnostics for s in array.status
-                if s.name.endswith(": meshing")]
-    return {kv.key: kv.value for kv in statuses[-1].values} if statuses else {}
