@@ -251,6 +251,25 @@ class RosProbe:
         self.context.try_shutdown()
 
 
+def set_node_parameters(node_name: str, **values) -> None:
+    """Set parameters of ``node_name`` (in the tests' namespace) through its parameter
+    services from a probe of its own, as a user would at run time; ``AssertionError``
+    with the node's reasons if it refuses any."""
+    from rclpy.parameter import Parameter
+    from rclpy.parameter_client import AsyncParameterClient
+
+    probe = RosProbe(f"set_{node_name}_parameters")
+    try:
+        client = AsyncParameterClient(probe.node, node_name)
+        probe.spin_until(client.services_are_ready, what=f"{node_name}'s parameter services")
+        future = client.set_parameters([Parameter(k, value=v) for k, v in values.items()])
+        probe.spin_until(future.done, what=f"setting {node_name}'s parameters")
+        results = future.result().results
+        assert all(r.successful for r in results), results
+    finally:
+        probe.close()
+
+
 class NodeUnderTest:
     """A node process and the test's probe; subclasses add the probe's publishers,
     subscriptions and clients, and wait until the node is up.

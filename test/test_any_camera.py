@@ -20,8 +20,6 @@ from pathlib import Path
 
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
-from rclpy.parameter import Parameter
-from rclpy.parameter_client import AsyncParameterClient
 
 from sfs_ros.cell_logic.message_fields import status_namespace
 from sfs_ros.core.exchange.export import load_mesh
@@ -31,7 +29,7 @@ from sfs_ros.core.simulation.objects import make_object
 from sfs_ros.core.simulation.synthetic import carving_box, score_against_truth
 
 from mock_cell import PLAN, RESOLUTION, SCAN_TIMEOUT_S, running_cell
-from ros_harness import NAMESPACE, RosProbe
+from ros_harness import NAMESPACE, RosProbe, set_node_parameters
 from tolerances import MUG_IOU_SPARSE_MIN
 
 pytestmark = pytest.mark.cell
@@ -92,24 +90,12 @@ def _scan_and_reconstruct(client) -> tuple[str, dict]:
     return triggers[str(scan)], summary
 
 
-def _set_scan_parameters(**values) -> None:
-    probe = RosProbe("any_camera_parameters")
-    try:
-        client = AsyncParameterClient(probe.node, "scan")
-        probe.spin_until(client.services_are_ready, what="the scan node's parameter services")
-        future = client.set_parameters([Parameter(k, value=v) for k, v in values.items()])
-        probe.spin_until(future.done, what="setting the scan node's parameters")
-        assert all(r.successful for r in future.result().results), future.result().results
-    finally:
-        probe.close()
-
-
 def test_a_scan_through_a_streaming_camera_reaches_the_mesh_of_our_camera_node(cell):
     client = cell["client"]
     shutter_trigger, shutter = _scan_and_reconstruct(client)
     assert shutter_trigger == "shutter"
 
-    _set_scan_parameters(camera_trigger="stream", exposure_delay_s=EXPOSURE_DELAY_S)
+    set_node_parameters("scan", camera_trigger="stream", exposure_delay_s=EXPOSURE_DELAY_S)
     stream_trigger, stream = _scan_and_reconstruct(client)
     assert stream_trigger == "stream"          # this scan took the streamed frames
 

@@ -26,8 +26,6 @@ import yaml
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from PIL import Image as PILImage
 from rclpy.executors import SingleThreadedExecutor
-from rclpy.parameter import Parameter
-from rclpy.parameter_client import AsyncParameterClient
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, CompressedImage, JointState
 
@@ -41,7 +39,7 @@ from sfs_ros.ros.convert import angles_from_joint_state, camera_info
 from sfs_ros.ros.rig_params import rig_calibration
 
 from mock_cell import PLAN, RESOLUTION, SCAN_TIMEOUT_S, running_cell
-from ros_harness import NAMESPACE, RosProbe
+from ros_harness import NAMESPACE, RosProbe, set_node_parameters
 from tolerances import MUG_IOU_SPARSE_MIN
 
 pytestmark = pytest.mark.cell
@@ -147,18 +145,6 @@ class ScanDiagnostics:
         return [(s, v) for s, v in self.statuses if v.get("scan") == str(scan)]
 
 
-def _set_scan_parameters(**values) -> None:
-    probe = RosProbe("driver_camera_parameters")
-    try:
-        client = AsyncParameterClient(probe.node, "scan")
-        probe.spin_until(client.services_are_ready, what="the scan node's parameter services")
-        future = client.set_parameters([Parameter(k, value=v) for k, v in values.items()])
-        probe.spin_until(future.done, what="setting the scan node's parameters")
-        assert all(r.successful for r in future.result().results), future.result().results
-    finally:
-        probe.close()
-
-
 def test_a_driver_with_best_effort_jpeg_and_its_own_calibration(cell):
     client = cell["client"]
     diagnostics = ScanDiagnostics()
@@ -173,7 +159,7 @@ def test_a_driver_with_best_effort_jpeg_and_its_own_calibration(cell):
             what="the WARN of the driver's intrinsics")
 
         # intrinsics_source driver: the whole plan, carved with the driver's intrinsics.
-        _set_scan_parameters(intrinsics_source="driver")
+        set_node_parameters("scan", intrinsics_source="driver")
         scan = client.start_scan()
         client.wait_scan_done(scan, timeout_s=SCAN_TIMEOUT_S)
         diagnostics.probe.spin_until(lambda: diagnostics.of_scan(scan),
