@@ -31,22 +31,24 @@ __all__ = ["edge_faces", "edges_by_lower_vertex", "outline_cover"]
 
 @njit(cache=True, nogil=True)
 def edges_by_lower_vertex(faces, n):
-    """The half-edges of ``faces`` (m, 3) int64 (half-edge ``3 t + k`` runs from corner
+    """The half-edges of ``faces`` (m, 3) int (half-edge ``3 t + k`` runs from corner
     ``k`` of face ``t`` to corner ``k + 1``) grouped by their lower vertex of ``n``, by a
-    counting sort: ``(start (n + 1,), grouped (3 m,))`` int64, the half-edges of vertex
-    ``i`` being ``grouped[start[i]:start[i + 1]]``, in the faces' order."""
+    counting sort: ``(start (n + 1,), grouped (3 m,))`` int32 (3 m < 2^31), the half-edges
+    of vertex ``i`` being ``grouped[start[i]:start[i + 1]]``, in the faces' order."""
     m = faces.shape[0]
-    start = np.zeros(n + 1, np.int64)
+    start = np.zeros(n + 1, np.int32)
     for t in range(m):
-        for k in range(3):
-            start[min(faces[t, k], faces[t, (k + 1) % 3]) + 1] += 1
+        a, b, c = faces[t, 0], faces[t, 1], faces[t, 2]
+        start[min(a, b) + 1] += 1
+        start[min(b, c) + 1] += 1
+        start[min(c, a) + 1] += 1
     for i in range(n):
         start[i + 1] += start[i]
-    grouped = np.empty(3 * m, np.int64)
+    grouped = np.empty(3 * m, np.int32)
     fill = start[:-1].copy()
     for t in range(m):
-        for k in range(3):
-            low = min(faces[t, k], faces[t, (k + 1) % 3])
+        a, b, c = faces[t, 0], faces[t, 1], faces[t, 2]
+        for k, low in enumerate((min(a, b), min(b, c), min(c, a))):
             grouped[fill[low]] = 3 * t + k
             fill[low] += 1
     return start, grouped
