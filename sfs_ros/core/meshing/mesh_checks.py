@@ -212,16 +212,20 @@ def _closed_fans_and_duplicates(f, ends, sides):
     cycles of that order. Duplicates: every edge is used by two faces, so a face can
     repeat the vertices of one other face only, the face across each of its three edges;
     such a pair is found at its three edges, as faces whose third vertices are the same.
+    (Corners numbered in int32: 3 m < 2^31.)
     """
-    following = np.empty(3 * f.shape[0], np.int64)
+    following = np.empty(3 * f.shape[0], np.int32)
     same_third = 0
     for e in range(ends.shape[0]):
-        a, b = ends[e, 0], ends[e, 1]
+        a = ends[e, 0]
         forward, backward = sides[e, 0], sides[e, 1]   # a to b, b to a
-        following[_corner_at(f, forward, a)] = _corner_at(f, backward, a)
-        following[_corner_at(f, backward, b)] = _corner_at(f, forward, b)
-        if f[forward, 0] + f[forward, 1] + f[forward, 2] == \
-                f[backward, 0] + f[backward, 1] + f[backward, 2]:
+        p0, p1, p2 = f[forward, 0], f[forward, 1], f[forward, 2]
+        q0, q1, q2 = f[backward, 0], f[backward, 1], f[backward, 2]
+        i = 0 if p0 == a else (1 if p1 == a else 2)     # a at corner i of forward, b at i + 1
+        j = 2 if q0 == a else (0 if q1 == a else 1)     # b at corner j of backward, a at j + 1
+        following[3 * forward + i] = 3 * backward + (j + 1) % 3            # round a
+        following[3 * backward + j] = 3 * forward + (i + 1) % 3            # round b
+        if p0 + p1 + p2 == q0 + q1 + q2:
             same_third += 1
     fans = 0
     for corner in range(following.size):
@@ -234,13 +238,6 @@ def _closed_fans_and_duplicates(f, ends, sides):
             following[x] = -1
             x = after
     return fans, same_third // 3
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _corner_at(f, t, a):
-    """The corner ``3 t + k`` of face ``t`` at vertex ``a``."""
-    k = 0 if f[t, 0] == a else (1 if f[t, 1] == a else 2)
-    return 3 * t + k
 
 
 @njit(cache=True, nogil=True)
