@@ -6,7 +6,12 @@ import numpy as np
 import pytest
 import trimesh
 
-from sfs_ros.core.meshing.mesh_checks import _closed_topology, _open_topology, check_mesh
+from sfs_ros.core.meshing.mesh_checks import (
+    _closed_topology,
+    _open_topology,
+    _referenced,
+    check_mesh,
+)
 from sfs_ros.core.outline import edge_faces
 
 from tolerances import ROUND_OFF
@@ -152,7 +157,8 @@ def test_torus_genus_one_and_agrees_with_trimesh():
 
 def closed_meshes():
     """Closed, consistently oriented meshes: a cube, two cubes sharing a vertex (not
-    vertex-manifold), two apart, a torus, and a noisy sphere with its faces shuffled."""
+    vertex-manifold), two apart, a torus, a noisy sphere with its faces shuffled, and a
+    cube beside a triangle closed by its own reverse (a duplicate face)."""
     shared = np.vstack([CUBE_VERTICES, CUBE_VERTICES[1:] + 1.0])
     torus = trimesh.creation.torus(major_radius=0.05, minor_radius=0.012)
     sphere = trimesh.creation.icosphere(subdivisions=4)
@@ -163,10 +169,12 @@ def closed_meshes():
              np.vstack([CUBE_FACES, CUBE_FACES + 8])),
             (torus.vertices, torus.faces.astype(np.int64)),
             (sphere.vertices + rng.normal(0, 0.01, sphere.vertices.shape),
-             np.roll(sphere.faces[rng.permutation(len(sphere.faces))], 1, axis=1))]
+             np.roll(sphere.faces[rng.permutation(len(sphere.faces))], 1, axis=1)),
+            (np.vstack([CUBE_VERTICES, [[3.0, 0, 0], [4.0, 0, 0], [3.0, 1.0, 0]]]),
+             np.vstack([CUBE_FACES, [[8, 9, 10], [10, 9, 8]]]))]
 
 
-@pytest.mark.parametrize("index", range(5))
+@pytest.mark.parametrize("index", range(6))
 def test_a_closed_mesh_checked_from_its_paired_edges_as_from_its_sorted_half_edges(index):
     # The closed path (edges paired by outline.edge_faces) against the general one on the
     # same mesh: the same topology, field by field.
@@ -174,11 +182,13 @@ def test_a_closed_mesh_checked_from_its_paired_edges_as_from_its_sorted_half_edg
     faces = np.ascontiguousarray(faces, np.int64)
     paired = edge_faces(faces, len(vertices))
     assert paired is not None
-    assert _closed_topology(faces, len(vertices), *paired) == \
-        _open_topology(faces, len(vertices))
+    referenced = _referenced(faces, len(vertices))
+    assert _closed_topology(faces, len(vertices), referenced, *paired) == \
+        _open_topology(faces, len(vertices), referenced)
     given = check_mesh(vertices, faces, edges=paired)
     assert given == check_mesh(vertices, faces)
     assert given.vertex_manifold == (index != 1)
+    assert given.duplicate_faces == (index == 5)
 
 
 def test_as_dict_is_json_ready():

@@ -49,6 +49,29 @@ def test_a_closed_mesh_is_covered_from_its_outline_as_drawn(mug, scored):
     assert np.all(reprojection_ious(v, f, cameras, drawn, closed=True) == 1.0)
 
 
+def test_views_moved_and_cut_by_the_image_border_cover_as_drawn_one_after_another(mug, scored):
+    # Each view's crossings are counted in a scratch that the next view on its thread
+    # reuses, those right of its box and out of the image too: views of the mug moved
+    # sideways by a tenth of the image (its outline's crossings where the next view's
+    # lie) and cut by the image's left, right, top or bottom border (the principal point
+    # moved by half the image), two at a time between two whole views.
+    cameras, _ = scored
+    v, f = mug.mesh.vertices, mug.mesh.faces
+    shifts = [(-0.1, 0.0), (0.1, 0.0), (-0.5, 0.0), (0.5, 0.0), (0.0, -0.5), (0.0, 0.5)]
+    views = []
+    for n, (dx, dy) in enumerate(shifts):
+        moved = []
+        for c in cameras[2 * n:2 * n + 2]:
+            K = c.K.copy()
+            K[0, 2] += dx * c.width
+            K[1, 2] += dy * c.height
+            moved.append(Camera(K=K, R=c.R, t=c.t, width=c.width, height=c.height))
+        views += moved + cameras[2 * n:2 * n + 2]
+    drawn = [rasterize_silhouette(v, f, c) for c in views]
+    assert all(0 < d.sum() < d.size for d in drawn)
+    assert np.all(reprojection_ious(v, f, views, drawn, closed=True) == 1.0)
+
+
 def _bar_and_camera(far_end_m: float):
     """A bar along y from -0.1 m to ``far_end_m``, and a camera 1 m above it at y = 0.5
     looking along -y, 60 degrees down: the bar's far end runs towards the camera's plane

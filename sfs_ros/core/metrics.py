@@ -70,7 +70,7 @@ def reprojection_iou(vertices, faces, camera: Camera, mask: np.ndarray) -> float
 
 @njit(cache=True, inline="always")
 def _view_coverage(vertices, faces, ends, sides, P, heights, widths, masks, moff, mask_px,
-                   front_only, out, v, h, uv, cover, coef, front, outline, crossings):
+                   front_only, out, v, h, uv, cover, coef, front, crossings):
     """Row ``v`` of :func:`_coverage_overlap`'s ``out``, with the scratch arrays given."""
     H = heights[v]
     W = widths[v]
@@ -82,8 +82,7 @@ def _view_coverage(vertices, faces, ends, sides, P, heights, widths, masks, moff
         uv[i, 1] = (P[v, 1, 0] * x + P[v, 1, 1] * y + P[v, 1, 2] * z + P[v, 1, 3]) / w
         in_front = in_front and w > 0.0
     if sides.shape[0] > 0 and in_front:
-        r0, r1, c0, c1 = outline_cover(uv, faces, ends, sides, W, H, front, outline, crossings,
-                                       cover)
+        r0, r1, c0, c1 = outline_cover(uv, faces, ends, sides, W, H, front, crossings, cover)
     else:
         for i in range(vertices.shape[0]):
             for r in range(3):
@@ -139,12 +138,10 @@ def _coverage_overlap(vertices, faces, ends, sides, P, heights, widths, masks, m
         coef = np.empty((3, 4))
         with_outline = sides.shape[0] > 0
         front = np.empty(faces.shape[0] if with_outline else 0, np.bool_)
-        outline = np.empty(sides.shape[0], np.int64)
-        crossings = np.empty(pixels if with_outline else 0, np.int32)
+        crossings = np.zeros(pixels if with_outline else 0, np.int32)   # (left zero)
         for v in range(lane, P.shape[0], lanes):
             _view_coverage(vertices, faces, ends, sides, P, heights, widths, masks, moff,
-                           mask_px, front_only, out, v, h, uv, cover, coef, front, outline,
-                           crossings)
+                           mask_px, front_only, out, v, h, uv, cover, coef, front, crossings)
 
 
 def reprojection_ious(vertices, faces, cameras, masks, *, closed: bool = False,

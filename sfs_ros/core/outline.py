@@ -31,22 +31,24 @@ __all__ = ["edge_faces", "edges_by_lower_vertex", "outline_cover"]
 
 @njit(cache=True, nogil=True)
 def edges_by_lower_vertex(faces, n):
-    """The half-edges of ``faces`` (m, 3) int64 (half-edge ``3 t + k`` runs from corner
+    """The half-edges of ``faces`` (m, 3) int (half-edge ``3 t + k`` runs from corner
     ``k`` of face ``t`` to corner ``k + 1``) grouped by their lower vertex of ``n``, by a
-    counting sort: ``(start (n + 1,), grouped (3 m,))`` int64, the half-edges of vertex
-    ``i`` being ``grouped[start[i]:start[i + 1]]``, in the faces' order."""
+    counting sort: ``(start (n + 1,), grouped (3 m,))`` int32 (3 m < 2^31), the half-edges
+    of vertex ``i`` being ``grouped[start[i]:start[i + 1]]``, in the faces' order."""
     m = faces.shape[0]
-    start = np.zeros(n + 1, np.int64)
+    start = np.zeros(n + 1, np.int32)
     for t in range(m):
-        for k in range(3):
-            start[min(faces[t, k], faces[t, (k + 1) % 3]) + 1] += 1
+        a, b, c = faces[t, 0], faces[t, 1], faces[t, 2]
+        start[min(a, b) + 1] += 1
+        start[min(b, c) + 1] += 1
+        start[min(c, a) + 1] += 1
     for i in range(n):
         start[i + 1] += start[i]
-    grouped = np.empty(3 * m, np.int64)
+    grouped = np.empty(3 * m, np.int32)
     fill = start[:-1].copy()
     for t in range(m):
-        for k in range(3):
-            low = min(faces[t, k], faces[t, (k + 1) % 3])
+        a, b, c = faces[t, 0], faces[t, 1], faces[t, 2]
+        for k, low in enumerate((min(a, b), min(b, c), min(c, a))):
             grouped[fill[low]] = 3 * t + k
             fill[low] += 1
     return start, grouped
@@ -121,7 +123,7 @@ def edge_faces(faces: np.ndarray, n_vertices: int) -> tuple[np.ndarray, np.ndarr
 
 
 @njit(cache=True, inline="always")
-def outline_cover(uv, faces, ends, sides, width, height, front, outline, crossings, cover):
+def outline_cover(uv, faces, ends, sides, width, height, front, crossings, cover):
     """Coverage of a closed mesh at the pixel centres, from its outline.
 
     ``uv`` (n, 2): the pixels of the vertices, all in front of the camera;
@@ -129,8 +131,8 @@ def outline_cover(uv, faces, ends, sides, width, height, front, outline, crossin
     col]`` (>= height * width uint8) with 1 where covered, 0 where not, inside the
     returned box ``(r0, r1, c0, c1)`` (inclusive; nothing is covered outside it,
     where ``cover`` is left as it was; ``r0 > r1`` when nothing is covered).
-    Scratch: ``front`` (m,) bool, ``outline`` (3 m / 2,) int64, ``crossings`` (>=
-    height * width) int32. Inlined where called.
+    Scratch: ``front`` (m,) bool; ``crossings`` (>= height * width) int32, zero on entry
+    and left zero. Inlined where called.
     """
     for f in range(faces.shape[0]):
         # The sign of the face's area in the image: face_orientation's, all three corners
@@ -139,45 +141,48 @@ def outline_cover(uv, faces, ends, sides, width, height, front, outline, crossin
         area = ((uv[b, 0] - uv[a, 0]) * (uv[c, 1] - uv[a, 1])
                 - (uv[b, 1] - uv[a, 1]) * (uv[c, 0] - uv[a, 0]))
         front[f] = area * FRONT_FACING > 0.0
-    n_outline = 0
+    # The outline's crossings counted as its edges are found, in one pass over the edges.
     umin = vmin = np.inf
     umax = vmax = -np.inf
     for e in range(sides.shape[0]):
-        if front[sides[e, 0]] != front[sides[e, 1]]:
-            outline[n_outline] = e
-            n_outline += 1
-            for a in (ends[e, 0], ends[e, 1]):
-                umin, umax = min(umin, uv[a, 0]), max(umax, uv[a, 0])
-                vmin, vmax = min(vmin, uv[a, 1]), max(vmax, uv[a, 1])
-    if n_outline == 0:
-        return 0, -1, 0, -1
-    # Covered centres lie right of a crossing (col > umin) and left of one (col < umax).
+        forward = front[sides[e, 0]]
+        if forward == front[sides[e, 1]]:
+            continue   # not on the outline
+        a, b = ends[e, 0], ends[e, 1]
+        xa, ya, xb, yb = uv[a, 0], uv[a, 1], uv[b, 0], uv[b, 1]
+        umin, umax = min(umin, xa, xb), max(umax, xa, xb)
+        vmin, vmax = min(vmin, ya, yb), max(vmax, ya, yb)
+        if ya == yb:
+            continue   # crosses no row
+        # Run as in the face turned towards the camera: a to b when it is f_ab.
+        step = 1 if (yb > ya) == forward else -1
+        slope = (xb - xa) / (yb - ya)
+        for row in range(max(0, int(np.ceil(max(min(ya, yb), -1.0)))),   # (clamped for int)
+                         min(height - 1, int(np.ceil(min(max(ya, yb), float(height)))) - 1) + 1):
+            x = min(max(xa + (row - ya) * slope, -1.0), float(width))  # (clamped for int)
+            col = max(0, int(np.floor(x)) + 1)   # the first centre right of the crossing
+            if col < width:
+                crossings[row * width + col] += step
+    if umin > umax:
+        return 0, -1, 0, -1   # no outline
+    # Covered centres lie right of a crossing (col > umin) and left of one (col < umax):
+    # the box. A crossing rounded to a column left of it counts from its first column, and
+    # those right of it cover nothing; the rows r0..r1 hold every crossing.
     r0 = max(0, int(np.ceil(max(vmin, -1.0))))
     r1 = min(height - 1, int(np.ceil(min(vmax, float(height)))) - 1)
     c0 = max(0, int(np.floor(max(umin, -1.0))) + 1)
     c1 = min(width - 1, int(np.floor(min(umax, float(width)))))
+    for row in range(r0, r1 + 1):
+        base = row * width
+        winding = 0
+        for col in range(min(c0, width)):
+            winding += crossings[base + col]
+            crossings[base + col] = 0
+        for col in range(c0, c1 + 1):
+            winding += crossings[base + col]
+            crossings[base + col] = 0
+            cover[base + col] = 1 if winding != 0 else 0
+        crossings[base + min(max(c0, c1 + 1), width):base + width] = 0
     if r0 > r1 or c0 > c1:
         return 0, -1, 0, -1
-    span = c1 - c0 + 1
-    crossings[:(r1 - r0 + 1) * span] = 0
-    for k in range(n_outline):
-        e = outline[k]
-        a, b = ends[e, 0], ends[e, 1]
-        xa, ya, xb, yb = uv[a, 0], uv[a, 1], uv[b, 0], uv[b, 1]
-        if ya == yb:
-            continue   # crosses no row
-        # Run as in the face turned towards the camera: a to b when it is f_ab.
-        step = 1 if (yb > ya) == front[sides[e, 0]] else -1
-        slope = (xb - xa) / (yb - ya)
-        for row in range(max(r0, int(np.ceil(max(min(ya, yb), -1.0)))),   # (clamped for int)
-                         min(r1, int(np.ceil(min(max(ya, yb), float(height)))) - 1) + 1):
-            x = min(max(xa + (row - ya) * slope, -1.0), float(width))  # (clamped for int)
-            col = max(c0, int(np.floor(x)) + 1)   # the first centre right of the crossing
-            if col <= c1:
-                crossings[(row - r0) * span + col - c0] += step
-    for row in range(r0, r1 + 1):
-        winding = 0
-        for col in range(c0, c1 + 1):
-            winding += crossings[(row - r0) * span + col - c0]
-            cover[row * width + col] = 1 if winding != 0 else 0
     return r0, r1, c0, c1

@@ -120,17 +120,18 @@ def check_mesh(vertices, faces, *, edges=None) -> MeshReport:
         raise ValueError(f"face indices must lie in [0, {n}), got [{f.min()}, {f.max()}]")
 
     paired = edge_faces(f, n) if edges is None else edges
-    topology = _open_topology(f, n) if paired is None else _closed_topology(f, n, *paired)
+    referenced = _referenced(f, n)
+    topology = _open_topology(f, n, referenced) if paired is None else \
+        _closed_topology(f, n, referenced, *paired)
     watertight, edge_manifold, consistently_oriented, vertex_manifold, n_edges, \
-        n_components, n_boundary_loops, n_ref = topology
-    euler = n_ref - n_edges + m
+        n_components, n_boundary_loops, duplicates = topology
+    euler = int(np.count_nonzero(referenced)) - n_edges + m
 
     double_area, six_volume = _face_measures(v, f)
     area = 0.5 * float(double_area.sum())
     volume = float(six_volume.sum()) / 6.0
-    extent = _referenced_extent(v, f)
+    extent = _referenced_extent(v, referenced)
     degenerate = _count_degenerate(f, double_area, DEGENERATE_REL_AREA * extent * extent)
-    duplicates = _count_duplicate_faces(f, n)
 
     closed = watertight and consistently_oriented
     genus = None
@@ -155,10 +156,10 @@ def check_mesh(vertices, faces, *, edges=None) -> MeshReport:
     )
 
 
-def _open_topology(f: np.ndarray, n: int) -> tuple:
+def _open_topology(f: np.ndarray, n: int, referenced: np.ndarray) -> tuple:
     """:func:`check_mesh`'s topology of any mesh, from its half-edges sorted by edge:
     ``(watertight, edge_manifold, consistently_oriented, vertex_manifold, n_edges,
-    n_components, n_boundary_loops, referenced vertices)``."""
+    n_components, n_boundary_loops, duplicate faces)``; ``referenced``: :func:`_referenced`."""
     # Half-edges: face t, corner k goes from f[t, k] to f[t, (k + 1) % 3].
     start = f.reshape(-1)
     end = f[:, [1, 2, 0]].reshape(-1)
@@ -169,69 +170,87 @@ def _open_topology(f: np.ndarray, n: int) -> tuple:
     # uses of an interior edge: they must start at different ends (``opposite``).
     pair = edge_of_sorted[1:] == edge_of_sorted[:-1]
     consistently_oriented = edge_manifold and opposite
-    vertex_manifold = edge_manifold and _single_fans(f, start, end, order, pair, n)
-    n_components = _count_roots(_roots(n, start, end), start)
+    vertex_manifold = edge_manifold and _count_fans(start, end, order, pair) == \
+        np.count_nonzero(referenced)
+    n_components = _count_roots(_roots(n, start, end), referenced)
     n_boundary_loops = 0
     if not watertight:
         boundary = counts[edge_of_sorted] == 1
         n_boundary_loops = _count_loops(lo[order][boundary], hi[order][boundary], n)
     return (watertight, edge_manifold, consistently_oriented, vertex_manifold, len(counts),
-            n_components, n_boundary_loops, _count_referenced(f, n))
+            n_components, n_boundary_loops, _count_duplicate_faces(f, n))
 
 
-def _closed_topology(f: np.ndarray, n: int, ends: np.ndarray, sides: np.ndarray) -> tuple:
+def _closed_topology(f: np.ndarray, n: int, referenced: np.ndarray, ends: np.ndarray,
+                     sides: np.ndarray) -> tuple:
     """:func:`_open_topology` of a mesh whose every edge :func:`~sfs_ros.core.outline.
     edge_faces` paired (``ends``, ``sides``): closed, consistently oriented and
-    edge-manifold; its fans and pieces from those pairs."""
-    n_ref = _count_referenced(f, n)
-    vertex_manifold = _count_closed_fans(f, ends, sides) == n_ref
-    n_components = _count_roots(_roots(n, ends[:, 0], ends[:, 1]), f.reshape(-1))
-    return True, True, True, vertex_manifold, len(ends), n_components, 0, n_ref
+    edge-manifold; its fans, pieces and duplicate faces from those pairs."""
+    fans, duplicates = _closed_fans_and_duplicates(f, ends, sides)
+    vertex_manifold = fans == np.count_nonzero(referenced)
+    n_components = _count_roots(_roots(n, ends[:, 0], ends[:, 1]), referenced)
+    return True, True, True, vertex_manifold, len(ends), n_components, 0, duplicates
 
 
 @njit(cache=True, nogil=True)
-def _count_referenced(f, n):
-    """How many of the ``n`` vertices the faces ``f`` (m, 3) use."""
+def _referenced(f, n):
+    """(n,) bool: which of the ``n`` vertices the faces ``f`` (m, 3) use."""
     seen = np.zeros(n, np.bool_)
-    count = 0
     for t in range(f.shape[0]):
         for k in range(3):
-            if not seen[f[t, k]]:
-                seen[f[t, k]] = True
-                count += 1
-    return count
+            seen[f[t, k]] = True
+    return seen
 
 
 @njit(cache=True, nogil=True)
-def _count_closed_fans(f, ends, sides):
-    """:func:`_count_fans` from the paired edges of a closed mesh: the corners of the two
-    faces of each edge (``sides``) at each of its ``ends`` are linked."""
-    parent = np.arange(3 * f.shape[0])
+def _closed_fans_and_duplicates(f, ends, sides):
+    """The fans (:func:`_count_fans`) and duplicate faces (:func:`_count_duplicate_faces`)
+    of a closed mesh, from its paired edges.
+
+    Fans: each corner ``3 t + k`` is followed, round its vertex ``a``, by the corner at
+    ``a`` of the face across the edge that leaves ``a`` in face ``t``; the fans are the
+    cycles of that order. Duplicates: every edge is used by two faces, so a face can
+    repeat the vertices of one other face only, the face across each of its three edges;
+    such a pair is found at its three edges, as faces whose third vertices are the same.
+    (Corners numbered in int32: 3 m < 2^31.)
+    """
+    following = np.empty(3 * f.shape[0], np.int32)
+    same_third = 0
     for e in range(ends.shape[0]):
-        for end in range(2):
-            a = ends[e, end]
-            join(parent, _corner_at(f, sides[e, 0], a), _corner_at(f, sides[e, 1], a))
-    return set_count(parent)
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _corner_at(f, t, a):
-    """The corner ``3 t + k`` of face ``t`` at vertex ``a``."""
-    k = 0 if f[t, 0] == a else (1 if f[t, 1] == a else 2)
-    return 3 * t + k
+        a = ends[e, 0]
+        forward, backward = sides[e, 0], sides[e, 1]   # a to b, b to a
+        p0, p1, p2 = f[forward, 0], f[forward, 1], f[forward, 2]
+        q0, q1, q2 = f[backward, 0], f[backward, 1], f[backward, 2]
+        i = 0 if p0 == a else (1 if p1 == a else 2)     # a at corner i of forward, b at i + 1
+        j = 2 if q0 == a else (0 if q1 == a else 1)     # b at corner j of backward, a at j + 1
+        following[3 * forward + i] = 3 * backward + (j + 1) % 3            # round a
+        following[3 * backward + j] = 3 * forward + (i + 1) % 3            # round b
+        if p0 + p1 + p2 == q0 + q1 + q2:
+            same_third += 1
+    fans = 0
+    for corner in range(following.size):
+        if following[corner] < 0:
+            continue   # on a fan counted already
+        fans += 1
+        x = corner
+        while following[x] >= 0:
+            after = following[x]
+            following[x] = -1
+            x = after
+    return fans, same_third // 3
 
 
 @njit(cache=True, nogil=True)
-def _referenced_extent(v, f):
-    """The largest side, metres, of the box around the vertices the faces use."""
+def _referenced_extent(v, referenced):
+    """The largest side, metres, of the box around the vertices ``v`` (n, 3) that the faces
+    use (``referenced``, (n,) bool)."""
     lo = np.full(3, np.inf)
     hi = np.full(3, -np.inf)
-    for t in range(f.shape[0]):
-        for k in range(3):
+    for i in range(v.shape[0]):
+        if referenced[i]:
             for axis in range(3):
-                x = v[f[t, k], axis]
-                lo[axis] = min(lo[axis], x)
-                hi[axis] = max(hi[axis], x)
+                lo[axis] = min(lo[axis], v[i, axis])
+                hi[axis] = max(hi[axis], v[i, axis])
     return max(hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2])
 
 
@@ -299,19 +318,6 @@ def _sorted_half_edges(start, end, n):
     return order, edge_of_sorted, counts, opposite, lo, hi
 
 
-def _single_fans(f, start, end, order, pair, n) -> bool:
-    """True if the corners around every vertex form one connected fan.
-
-    Corners (face t, slot k) of the same vertex are linked when their faces
-    share an edge through that vertex; a vertex is a single fan when its
-    corners form one connected component. Assumes an edge-manifold mesh.
-    """
-    # Corners are only linked to corners of the same vertex, so every fan belongs to
-    # one vertex: single fans when there are as many fans as referenced vertices.
-    n_fans = _count_fans(start, end, order, pair)
-    return n_fans == np.count_nonzero(np.bincount(f.reshape(-1), minlength=n))
-
-
 @njit(cache=True, nogil=True)
 def _count_fans(start, end, order, pair):
     """Connected pieces of the graph of corners (``3 t + k``: face t, slot k) in which
@@ -340,7 +346,9 @@ def _count_loops(lo, hi, n) -> int:
     """Connected pieces of the graph of boundary edges ``(lo[i], hi[i])``."""
     if len(lo) == 0:
         return 0
-    return _count_roots(_roots(n, lo, hi), np.concatenate((lo, hi)))
+    on_boundary = np.zeros(n, bool)
+    on_boundary[lo] = on_boundary[hi] = True
+    return _count_roots(_roots(n, lo, hi), on_boundary)
 
 
 @njit(cache=True, nogil=True)
@@ -355,14 +363,14 @@ def _roots(n, a, b):
 
 
 @njit(cache=True, nogil=True)
-def _count_roots(roots, nodes) -> int:
-    """Connected components among ``nodes`` (int indices), given :func:`_roots`."""
+def _count_roots(roots, among) -> int:
+    """Connected components among the nodes where ``among`` ((n,) bool) holds, given
+    :func:`_roots`."""
     seen = np.zeros(roots.size, np.bool_)
     count = 0
-    for x in nodes:
-        r = roots[x]
-        if not seen[r]:
-            seen[r] = True
+    for x in range(roots.size):
+        if among[x] and not seen[roots[x]]:
+            seen[roots[x]] = True
             count += 1
     return count
 
