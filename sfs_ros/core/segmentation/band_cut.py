@@ -68,7 +68,7 @@ def _components(model: np.ndarray) -> np.ndarray:
 @njit(cache=True, nogil=True)
 def _data_term(g, colours):
     """(n,) float64 terminal weights of (n, 3) float64 ``colours`` under the Gaussians
-    ``g`` ((2, 5, 15) from :func:`~.grabcut._gaussians`, backdrop then object), source
+    ``g`` ((2, 5, 16) from :func:`~.grabcut._gaussians`, backdrop then object), source
     minus sink (:func:`frozen_data_term`)."""
     out = np.empty(colours.shape[0])
     for v in range(colours.shape[0]):
