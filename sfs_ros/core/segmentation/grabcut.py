@@ -108,23 +108,37 @@ def grabcut(image: np.ndarray, labels: np.ndarray, iterations: int,
 @njit(cache=True, nogil=True)
 def _beta(image):
     """GrabCut's contrast scale of (h, w, 3) uint8 ``image``: 1 / (2 x the mean squared
-    colour difference of neighbouring pixels), summed in OpenCV's order; 0 for a flat
-    image."""
+    colour difference of neighbouring pixels); 0 for a flat image. OpenCV sums the
+    squared differences in double precision, each a whole number below 2^18 and their
+    total below 2^53 for any image under 2^33 pixels: exact, so summed here in whole
+    numbers, a neighbour direction at a time."""
     h, w = image.shape[:2]
-    total = 0.0
+    total = 0
     for y in range(h):
+        row = image[y]
+        for x in range(1, w):
+            total += _squared_difference(row[x], row[x - 1])
+        if y == 0:
+            continue
+        above = image[y - 1]
         for x in range(w):
-            for dy, dx in ((0, -1), (-1, -1), (-1, 0), (-1, 1)):
-                yy, xx = y + dy, x + dx
-                if yy < 0 or xx < 0 or xx >= w:
-                    continue
-                d0 = float(image[y, x, 0]) - float(image[yy, xx, 0])
-                d1 = float(image[y, x, 1]) - float(image[yy, xx, 1])
-                d2 = float(image[y, x, 2]) - float(image[yy, xx, 2])
-                total += d0 * d0 + d1 * d1 + d2 * d2
-    if total <= _EPSILON:
+            total += _squared_difference(row[x], above[x])
+        for x in range(1, w):
+            total += _squared_difference(row[x], above[x - 1])
+        for x in range(w - 1):
+            total += _squared_difference(row[x], above[x + 1])
+    if total == 0:
         return 0.0
-    return 1.0 / (2.0 * total / (4 * w * h - 3 * w - 3 * h + 2))
+    return 1.0 / (2.0 * np.float64(total) / (4 * w * h - 3 * w - 3 * h + 2))
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _squared_difference(a, b):
+    """Squared difference of two (3,) uint8 colours, a whole number."""
+    d0 = np.int64(a[0]) - np.int64(b[0])
+    d1 = np.int64(a[1]) - np.int64(b[1])
+    d2 = np.int64(a[2]) - np.int64(b[2])
+    return d0 * d0 + d1 * d1 + d2 * d2
 
 
 @njit(cache=True, nogil=True)

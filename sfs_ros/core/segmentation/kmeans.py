@@ -274,7 +274,7 @@ def _drawn_sample(p, colour_of, dist, blocks):
         for i in range(b * _BLOCK, min(n, (b + 1) * _BLOCK)):
             reached += dist[colour_of[i]]
             if reached >= p:
-                return min(i, n - 1)
+                return i
     return n - 1
 
 
