@@ -160,17 +160,16 @@ def _graph(image, beta, probable, labels):
     sure neighbours, the earlier ones and then the later ones (right, down-left, down,
     down-right) in the order OpenCV's pass meets them, so every sum is the same."""
     h, w = image.shape[:2]
-    index = np.full(h * w, -1, np.int32)
+    index = np.full(h * w, -1, np.int64)
     pixels = np.flatnonzero(probable.ravel())
     n = pixels.shape[0]
     for v in range(n):
         index[pixels[v]] = v
     m = 8 * n + 2  # each link made once, by its later pixel, a probable one: 4 per vertex
     first = np.zeros(n, np.int64)
-    head = np.empty(m, np.int64)               # the edges made are written; 0 and 1 unused
-    after = np.empty(m, np.int64)
-    capacity = np.empty(m)
-    head[:2], after[:2], capacity[:2] = 0, 0, 0.0
+    head = np.zeros(m, np.int64)
+    after = np.zeros(m, np.int64)
+    capacity = np.zeros(m)
     fold = np.zeros(n)
     contrast = np.full(_MAX_SQUARED_DIFFERENCE + 1, -1.0)  # exp(-beta d^2), on first use
     e = 2  # edge 0 would end its tail's list (and edge 1 make a parent of none): unused
