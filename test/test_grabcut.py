@@ -113,6 +113,21 @@ def test_the_kmeans_is_opencvs_and_draws_as_much(seed, k, criteria):
         assert np.array_equal(ours, theirs.ravel())
 
 
+def test_the_kmeans_sums_past_single_precision_as_opencv_does():
+    """200 000 samples of 230..255 in two clusters: one holds at least 100 000, its sums
+    of a channel pass 2^24, where OpenCV's single-precision sums round; ours sum such a
+    cluster sample by sample as it does: the same labels."""
+    rng = np.random.default_rng(7)
+    samples = rng.integers(230, 256, (200_000, 3), dtype=np.uint8)
+    for seed in range(3):
+        cv2.setRNGSeed(seed)
+        _, theirs, _ = cv2.kmeans(samples.astype(np.float32), 2, None,
+                                  (cv2.TERM_CRITERIA_MAX_ITER, 10, 0.0), 1, cv2.KMEANS_PP_CENTERS)
+        colours, colour_of = distinct_colours(samples)
+        ours = kmeans_colours(colours, colour_of, 2, OpenCVRandom(seed), max_iterations=10)
+        assert np.array_equal(ours, theirs.ravel())
+
+
 def test_an_emptied_cluster_is_refilled_as_opencv_does():
     """Three colours for five clusters: k-means++ draws a colour twice, one of the two
     clusters stays empty and takes the farthest sample of the largest."""

@@ -22,7 +22,7 @@ import numpy as np
 from numba import njit
 
 from .grabcut import _gaussians, _graph, _max_flow, _mixture, grabcut
-from .kmeans import OpenCVRandom
+from .kmeans import OpenCVRandom, distinct_colours
 
 __all__ = ["band_cut", "coarse_to_fine_grabcut", "frozen_data_term", "grabcut_beta"]
 
@@ -68,7 +68,7 @@ def _components(model: np.ndarray) -> np.ndarray:
 @njit(cache=True, nogil=True)
 def _data_term(g, colours):
     """(n,) float64 terminal weights of (n, 3) float64 ``colours`` under the Gaussians
-    ``g`` ((2, 5, 15) from :func:`~.grabcut._gaussians`, backdrop then object), source
+    ``g`` ((2, 5, 16) from :func:`~.grabcut._gaussians`, backdrop then object), source
     minus sink (:func:`frozen_data_term`)."""
     out = np.empty(colours.shape[0])
     for v in range(colours.shape[0]):
@@ -100,7 +100,8 @@ def band_cut(image: np.ndarray, labels: np.ndarray, models: tuple[np.ndarray, np
         return
     image = np.ascontiguousarray(image, np.uint8)
     first, head, after, capacity, fold = _graph(image, grabcut_beta(image), free, labels)
-    excess = frozen_data_term(models, image[free]) + fold
+    colours, colour_of = distinct_colours(image[free])   # a band has half as many colours
+    excess = frozen_data_term(models, colours)[colour_of] + fold
     chosen = _max_flow(first, head, after, capacity, excess)
     labels[free] = np.where(chosen, cv2.GC_PR_FGD, cv2.GC_PR_BGD)
 

@@ -56,6 +56,9 @@ _INT_MAX = 2147483647
 #: density far from underflow) and leads the next by this margin (relative).
 _LOG_NORMAL = -700.0
 _LOG_MARGIN = 1e-9
+#: A mixture's term whose logarithm is this far below an earlier term's leaves the sum
+#: as it is: 54 ln 2 (below 2^-54 of it), and 1 more against the logarithms' rounding.
+_NEGLIGIBLE = 54 * math.log(2.0) + 1.0
 #: Largest squared colour difference of two uint8 RGB pixels.
 _MAX_SQUARED_DIFFERENCE = 3 * 255 ** 2
 
@@ -105,23 +108,37 @@ def grabcut(image: np.ndarray, labels: np.ndarray, iterations: int,
 @njit(cache=True, nogil=True)
 def _beta(image):
     """GrabCut's contrast scale of (h, w, 3) uint8 ``image``: 1 / (2 x the mean squared
-    colour difference of neighbouring pixels), summed in OpenCV's order; 0 for a flat
-    image."""
+    colour difference of neighbouring pixels); 0 for a flat image. OpenCV sums the
+    squared differences in double precision, each a whole number below 2^18 and their
+    total below 2^53 for any image under 2^33 pixels: exact, so summed here in whole
+    numbers, a neighbour direction at a time."""
     h, w = image.shape[:2]
-    total = 0.0
+    total = 0
     for y in range(h):
+        row = image[y]
+        for x in range(1, w):
+            total += _squared_difference(row[x], row[x - 1])
+        if y == 0:
+            continue
+        above = image[y - 1]
         for x in range(w):
-            for dy, dx in ((0, -1), (-1, -1), (-1, 0), (-1, 1)):
-                yy, xx = y + dy, x + dx
-                if yy < 0 or xx < 0 or xx >= w:
-                    continue
-                d0 = float(image[y, x, 0]) - float(image[yy, xx, 0])
-                d1 = float(image[y, x, 1]) - float(image[yy, xx, 1])
-                d2 = float(image[y, x, 2]) - float(image[yy, xx, 2])
-                total += d0 * d0 + d1 * d1 + d2 * d2
-    if total <= _EPSILON:
+            total += _squared_difference(row[x], above[x])
+        for x in range(1, w):
+            total += _squared_difference(row[x], above[x - 1])
+        for x in range(w - 1):
+            total += _squared_difference(row[x], above[x + 1])
+    if total == 0:
         return 0.0
-    return 1.0 / (2.0 * total / (4 * w * h - 3 * w - 3 * h + 2))
+    return 1.0 / (2.0 * np.float64(total) / (4 * w * h - 3 * w - 3 * h + 2))
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _squared_difference(a, b):
+    """Squared difference of two (3,) uint8 colours, a whole number."""
+    d0 = np.int64(a[0]) - np.int64(b[0])
+    d1 = np.int64(a[1]) - np.int64(b[1])
+    d2 = np.int64(a[2]) - np.int64(b[2])
+    return d0 * d0 + d1 * d1 + d2 * d2
 
 
 @njit(cache=True, nogil=True)
@@ -257,10 +274,11 @@ def _determinant(c):
 
 @njit(cache=True, nogil=True)
 def _gaussians(models):
-    """Per model and component, what OpenCV evaluates a Gaussian with: (2, 5, 15)
+    """Per model and component, what OpenCV evaluates a Gaussian with: (2, 5, 16)
     float64 weight (0: unused), mean (3), inverse covariance (9, as OpenCV indexes it:
-    ``inverse[a][b]`` at ``3 a + b``), ``1 / sqrt(determinant)`` and its logarithm."""
-    out = np.zeros((2, _COMPONENTS, 15))
+    ``inverse[a][b]`` at ``3 a + b``), ``1 / sqrt(determinant)``, its logarithm, and
+    the logarithm of the weight over the square root of the determinant."""
+    out = np.zeros((2, _COMPONENTS, 16))
     for side in range(2):
         for k in range(_COMPONENTS):
             model = models[side, k]
@@ -285,12 +303,13 @@ def _gaussians(models):
             g[12] = (c[0] * c[4] - c[1] * c[3]) * inv
             g[13] = 1.0 / math.sqrt(determinant)
             g[14] = math.log(g[13])
+            g[15] = math.log(g[0]) + g[14]
     return out
 
 
 @njit(cache=True, nogil=True)
 def _likeliest(g, r, gr, b):
-    """The component of a colour model ((5, 15) from :func:`_gaussians`) OpenCV assigns
+    """The component of a colour model ((5, 16) from :func:`_gaussians`) OpenCV assigns
     colour (r, gr, b) to: the first of the largest densities. Picked by the logarithms of
     the densities, without an exponential, when the largest leads the next by far more
     than their rounding (1e-9 against errors of 1e-15); by the densities as OpenCV
@@ -316,7 +335,7 @@ def _likeliest(g, r, gr, b):
 
 @njit(cache=True, nogil=True)
 def _mahalanobis(g, r, gr, b):
-    """Squared Mahalanobis distance of colour (r, gr, b) to a Gaussian ((15,) from
+    """Squared Mahalanobis distance of colour (r, gr, b) to a Gaussian ((16,) from
     :func:`_gaussians`), in OpenCV's order of operations."""
     d0, d1, d2 = r - g[1], gr - g[2], b - g[3]
     return d0 * (d0 * g[4] + d1 * g[7] + d2 * g[10]) \
@@ -326,7 +345,7 @@ def _mahalanobis(g, r, gr, b):
 
 @njit(cache=True, nogil=True)
 def _density(g, r, gr, b):
-    """One Gaussian ((15,) from :func:`_gaussians`) at colour (r, gr, b), without its
+    """One Gaussian ((16,) from :func:`_gaussians`) at colour (r, gr, b), without its
     weight, in OpenCV's order of operations; 0 for an unused component."""
     if g[0] <= 0:
         return 0.0
@@ -335,11 +354,25 @@ def _density(g, r, gr, b):
 
 @njit(cache=True, nogil=True, inline="always")
 def _mixture(g, r, gr, b):
-    """A colour model ((5, 15) from :func:`_gaussians`) at colour (r, gr, b): its
-    components' densities times their weights, summed in OpenCV's order."""
+    """A colour model ((5, 16) from :func:`_gaussians`) at colour (r, gr, b): its
+    components' densities times their weights, summed in OpenCV's order.
+
+    A term below 2^-54 of an earlier one is below half the last bit of the sum it is
+    added to (the sum of positive terms is at least each of them), so the sum rounds
+    back to itself: its exponential is skipped. Which terms those are is read off the
+    logarithms of the terms, without an exponential, with a margin (``_NEGLIGIBLE``)
+    far beyond their rounding."""
     total = 0.0
+    largest = -np.inf                          # the logarithm of the largest term added
     for k in range(_COMPONENTS):
-        total += g[k, 0] * _density(g[k], r, gr, b)
+        if g[k, 0] <= 0:
+            continue                           # an unused component adds 0
+        m = _mahalanobis(g[k], r, gr, b)
+        log_term = g[k, 15] - 0.5 * m
+        if log_term < largest - _NEGLIGIBLE:
+            continue
+        total += g[k, 0] * (g[k, 13] * math.exp(-0.5 * m))
+        largest = max(largest, log_term)
     return total
 
 

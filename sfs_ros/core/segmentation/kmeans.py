@@ -4,9 +4,12 @@ for bit, for a fraction of the work on colours.
 
 The samples are colours of an image (whole numbers 0..255 in three channels): many
 share a colour, and every distance OpenCV computes for a sample is that of its colour.
-So the distances are computed once per distinct colour; what depends on the samples'
-order (the k-means++ draw, its sums, the centres' sums, an emptied cluster refilled)
-runs over the samples in their order, as OpenCV runs it.
+So the distances are computed once per distinct colour. What OpenCV sums over the
+samples in their order is summed over the colours times their samples where the sums
+are whole numbers that no rounding touches: the k-means++ distances (exact in single
+precision by eights and in double precision in total) and the centres' sums while
+they stay within 2^24; the draw's walk along the samples, the centres' larger sums and
+an emptied cluster refilled run over the samples in their order, as OpenCV runs them.
 
 :class:`OpenCVRandom` is OpenCV's ``cv::RNG`` (a multiply-with-carry generator):
 seeded with 0 it draws what ``cv2.setRNGSeed(0)`` makes ``cv2.kmeans`` draw.
@@ -24,9 +27,20 @@ _MULTIPLIER = np.uint64(4164903690)
 _LOW_32 = np.uint64(0xFFFFFFFF)
 _SHIFT_32 = np.uint64(32)
 _TO_UNIT = 5.4210108624275221700372640043497e-20
+#: Knuth's multiplier (2^32 over the golden ratio) of the colours' hash table, and the
+#: table's least and largest first size (2^bits slots). At most 2^24 colours fill half of
+#: 2^25 slots, whose numbers are the high bits of the product's low 32 (its low bits
+#: would depend on the last channels alone).
+_GOLDEN = 2654435761
+_FIRST_TABLE_BITS = 8
+_LAST_TABLE_BITS = 25
 #: k-means++ candidates tried per centre (OpenCV's SPP_TRIALS).
 _TRIALS = 3
 _DBL_MAX = 1.7976931348623157e308
+#: Samples per block of the k-means++ draw's running sums.
+_BLOCK = 256
+#: Whole numbers up to this are exact in single precision.
+_EXACT_SINGLE = 1 << 24
 
 
 class OpenCVRandom:
@@ -49,29 +63,54 @@ def _draw(state):
 @njit(cache=True, nogil=True)
 def distinct_colours(pixels):
     """The distinct colours of (n, 3) uint8 ``pixels`` in order of first appearance,
-    (c, 3) float64, and each pixel's, (n,) int32 (an open-addressing hash table)."""
+    (c, 3) float64, and each pixel's, (n,) int32: an open-addressing hash table of about
+    as many slots as pixels (a photograph's working copy has a quarter as many colours),
+    doubled and the pixels hashed again should the colours fill half of it."""
     n = pixels.shape[0]
-    size = 1
-    while size < 2 * n:
-        size *= 2
-    slots = np.full(size, -1, np.int64)        # colour code of the slot; -1: empty
-    ids = np.empty(size, np.int32)
-    colours = np.empty((n, 3))
+    bits = _FIRST_TABLE_BITS
+    while (1 << bits) < n and bits < _LAST_TABLE_BITS:
+        bits += 1
     colour_of = np.empty(n, np.int32)
+    codes = np.full(1 << bits, -1, np.int32)   # colour code of each slot; -1: empty
+    ids = np.empty(1 << bits, np.int32)
+    c = _hash_colours(pixels, bits, codes, ids, colour_of)
+    while c < 0:
+        bits += 1
+        codes = np.full(1 << bits, -1, np.int32)
+        ids = np.empty(1 << bits, np.int32)
+        c = _hash_colours(pixels, bits, codes, ids, colour_of)
+    colours = np.empty((c, 3))
+    for slot in range(codes.shape[0]):
+        if codes[slot] != -1:
+            colours[ids[slot], 0] = codes[slot] >> 16
+            colours[ids[slot], 1] = (codes[slot] >> 8) & 255
+            colours[ids[slot], 2] = codes[slot] & 255
+    return colours, colour_of
+
+
+@njit(cache=True, nogil=True)
+def _hash_colours(pixels, bits, codes, ids, colour_of):
+    """Each pixel's colour number (in order of first appearance) into ``colour_of``,
+    through the empty hash table ``codes`` ((2^bits,) int32 colour codes, -1: empty)
+    and ``ids`` ((2^bits,) int32 their numbers). Linear probing from the high bits of
+    the code times Knuth's multiplier (they depend on every channel). Returns the
+    number of colours, or -1 when they would fill more than half of the table."""
+    mask = (1 << bits) - 1
     c = 0
-    for i in range(n):
-        code = (np.int64(pixels[i, 0]) << 16) | (np.int64(pixels[i, 1]) << 8) | pixels[i, 2]
-        slot = (code * 2654435761) & (size - 1)
-        while slots[slot] != -1 and slots[slot] != code:
-            slot = (slot + 1) & (size - 1)
-        if slots[slot] == -1:
-            slots[slot] = code
+    for i in range(pixels.shape[0]):
+        code = (np.int32(pixels[i, 0]) << 16) | (np.int32(pixels[i, 1]) << 8) \
+            | np.int32(pixels[i, 2])
+        slot = ((np.int64(code) * _GOLDEN) & 0xFFFFFFFF) >> (32 - bits)
+        while codes[slot] != -1 and codes[slot] != code:
+            slot = (slot + 1) & mask
+        if codes[slot] == -1:
+            if 2 * (c + 1) > mask + 1:
+                return -1
+            codes[slot] = code
             ids[slot] = c
-            for a in range(3):
-                colours[c, a] = pixels[i, a]
             c += 1
         colour_of[i] = ids[slot]
-    return colours[:c], colour_of
+    return c
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -86,14 +125,18 @@ def kmeans_colours(colours: np.ndarray, colour_of: np.ndarray, k: int, random: O
     """Cluster labels of samples given by their colours, as ``cv2.kmeans`` with
     ``KMEANS_PP_CENTERS``, one attempt, drawing from ``random``.
 
-    colours : (c, 3) the distinct colours (:func:`distinct_colours`); colour_of : (n,)
-    int32 each sample's colour (0 < k <= n); max_iterations and
+    colours : (c, 3) the distinct colours, whole numbers 0..255 (:func:`distinct_colours`);
+    colour_of : (n,) int32 each sample's colour (0 < k <= n); max_iterations and
     epsilon : the termination criteria (``TERM_CRITERIA_MAX_ITER`` and, when given,
     ``TERM_CRITERIA_EPS``). Returns (n,) int32 labels.
     """
     n = len(colour_of)
     if not 0 < k <= n:
         raise ValueError(f"expected 0 < k <= samples, got k = {k} and {n} samples")
+    colours = np.asarray(colours)
+    if colours.size and (colours.min() < 0 or colours.max() > 255
+                         or np.any(colours != np.floor(colours))):
+        raise ValueError("expected colours of whole numbers 0..255")
     # OpenCV's criteria: the epsilon squared (FLT_EPSILON without EPS), 2..100 iterations.
     eps = max(epsilon, 0.0) if epsilon is not None else float(np.finfo(np.float32).eps)
     count = min(max(max_iterations, 2), 100) if k > 1 else 2
@@ -123,17 +166,23 @@ def _to_centre(colours, centre, used, out):
 def _kmeans(colours, colour_of, k, max_count, epsilon_sq, state):
     n = colour_of.shape[0]
     nc = colours.shape[0]
-    used = np.zeros(nc, np.bool_)
+    samples = np.zeros(nc, np.int64)           # samples of each colour
     for i in range(n):
-        used[colour_of[i]] = True
-    centres = _plus_plus(colours, colour_of, used, k, state)
+        samples[colour_of[i]] += 1
+    used = samples > 0
+    centres = _plus_plus(colours, colour_of, samples, k, state)
     labels = np.empty(n, np.int32)
     best = np.empty(nc, np.int32)
-    _assign(colours, colour_of, used, centres, best, labels)
+    _assign(colours, used, centres, best)
+    by_colour = True                           # the labels are best[colour_of], not written yet
     iteration = 1
     while True:
         old = centres.copy()
-        centres = _centres(colours, colour_of, labels, k)
+        centres, exact = _centres_by_colour(colours, samples, best, k)
+        if not exact:
+            _label(colour_of, best, labels)
+            centres = _centres(colours, colour_of, labels, k)
+            by_colour = False
         shift = 0.0
         for c in range(k):
             moved = 0.0
@@ -143,48 +192,54 @@ def _kmeans(colours, colour_of, k, max_count, epsilon_sq, state):
             shift = max(shift, moved)
         iteration += 1
         if iteration == max_count or shift <= epsilon_sq:
+            if by_colour:
+                _label(colour_of, best, labels)
             return labels
-        _assign(colours, colour_of, used, centres, best, labels)
+        _assign(colours, used, centres, best)
+        by_colour = True
 
 
 @njit(cache=True, nogil=True)
-def _plus_plus(colours, colour_of, used, k, state):
-    """OpenCV's generateCentersPP: (k, 3) float32 centres, samples drawn by k-means++."""
+def _plus_plus(colours, colour_of, samples, k, state):
+    """OpenCV's generateCentersPP: (k, 3) float32 centres, samples drawn by k-means++.
+
+    Every distance OpenCV sums here is a whole number (a squared difference of two
+    colours, below 2^18), and so are its sums of eight in single precision and its
+    totals in double precision (below 2^53): each is the exact sum, taken here over the
+    colours times their ``samples`` ((c,) int64). The draw walks the samples subtracting
+    their distances from a double ``p``; every difference that stays positive is exact
+    (a multiple of ``p``'s last bit, below ``p``), so it stops at the first sample where
+    the running sum of the distances reaches ``p`` (:func:`_drawn_sample`)."""
     n = colour_of.shape[0]
-    dist = np.empty(n, np.float32)
-    tdist = np.empty(n, np.float32)
-    tdist2 = np.empty(n, np.float32)
-    to_centre = np.empty(colours.shape[0], np.float32)
+    nc = colours.shape[0]
+    used = samples > 0
+    dist = np.empty(nc, np.float32)            # each colour's distance to the nearest centre
+    trial = np.empty(nc, np.float32)
+    kept = np.empty(nc, np.float32)
+    to_centre = np.empty(nc, np.float32)
+    blocks = np.empty((n + _BLOCK - 1) // _BLOCK)
     chosen = np.empty(k, np.int64)
     chosen[0] = np.int64(_draw(state) % np.uint64(n))
-    _to_centre(colours, colours[colour_of[chosen[0]]], used, to_centre)
-    total = 0.0
-    for i in range(n):
-        dist[i] = to_centre[colour_of[i]]
-        total += dist[i]
+    _to_centre(colours, colours[colour_of[chosen[0]]], used, dist)
+    total = _block_sums(colour_of, dist, blocks)
     for c in range(1, k):
         best_sum, best = _DBL_MAX, -1
         for _ in range(_TRIALS):
-            p = _unit(state) * total
-            ci = 0
-            while ci < n - 1:
-                p -= dist[ci]
-                if p <= 0:
-                    break
-                ci += 1
+            ci = _drawn_sample(_unit(state) * total, colour_of, dist, blocks)
             _to_centre(colours, colours[colour_of[ci]], used, to_centre)
-            for i in range(n):
-                d = to_centre[colour_of[i]]
-                tdist2[i] = dist[i] if dist[i] < d else d
-            s = _unrolled_sum(tdist2)
+            s = 0.0
+            for j in range(nc):
+                if used[j]:
+                    trial[j] = dist[j] if dist[j] < to_centre[j] else to_centre[j]
+                    s += samples[j] * np.float64(trial[j])
             if s < best_sum:
                 best_sum, best = s, ci
-                tdist, tdist2 = tdist2, tdist
+                trial, kept = kept, trial
         if best < 0:
             raise ValueError("k-means: no centre could be drawn (huge or NaN distances)")
         chosen[c] = best
-        total = best_sum
-        dist, tdist = tdist, dist
+        dist, kept = kept, dist
+        total = _block_sums(colour_of, dist, blocks)
     centres = np.empty((k, 3), np.float32)
     for c in range(k):
         centres[c] = colours[colour_of[chosen[c]]]
@@ -192,25 +247,74 @@ def _plus_plus(colours, colour_of, used, k, state):
 
 
 @njit(cache=True, nogil=True)
-def _unrolled_sum(values):
-    """OpenCV's sum of (n,) float32 ``values`` into a double: eight at a time added in
-    single precision, then each group to the total."""
-    s = 0.0
-    n = values.shape[0]
-    i = 0
-    while i + 7 < n:
-        s += values[i] + values[i + 1] + values[i + 2] + values[i + 3] + values[i + 4] \
-            + values[i + 5] + values[i + 6] + values[i + 7]
-        i += 8
-    while i < n:
-        s += values[i]
-        i += 1
-    return s
+def _block_sums(colour_of, dist, blocks):
+    """The samples' distances (their colours' in (c,) float32 ``dist``, whole numbers)
+    summed by blocks of ``_BLOCK`` samples into ``blocks``; returns their total. Exact."""
+    n = colour_of.shape[0]
+    total = 0.0
+    for b in range(blocks.shape[0]):
+        s = 0.0
+        for i in range(b * _BLOCK, min(n, (b + 1) * _BLOCK)):
+            s += dist[colour_of[i]]
+        blocks[b] = s
+        total += s
+    return total
 
 
 @njit(cache=True, nogil=True)
-def _assign(colours, colour_of, used, centres, best, labels):
-    """Each sample's nearest centre (the first of equals), through its colour's."""
+def _drawn_sample(p, colour_of, dist, blocks):
+    """The sample OpenCV's k-means++ draws for ``p``: the first whose running sum of
+    distances reaches ``p``, at most the last (the sums exact: :func:`_plus_plus`)."""
+    n = colour_of.shape[0]
+    reached = 0.0
+    for b in range(blocks.shape[0]):
+        if reached + blocks[b] < p:
+            reached += blocks[b]
+            continue
+        for i in range(b * _BLOCK, min(n, (b + 1) * _BLOCK)):
+            reached += dist[colour_of[i]]
+            if reached >= p:
+                return i
+    return n - 1
+
+
+@njit(cache=True, nogil=True)
+def _centres_by_colour(colours, samples, best, k):
+    """The clusters' means as :func:`_centres` computes them, from each colour's cluster
+    ``best`` ((c,) int32) and ``samples``: (k, 3) float32, and whether they are exact.
+    OpenCV's single-precision sums of whole numbers are exact while they stay within
+    2^24; when a sum goes beyond, or a cluster is empty (refilled sample by sample), they
+    are not (False: take :func:`_centres`)."""
+    sums = np.zeros((k, 3), np.int64)
+    counts = np.zeros(k, np.int64)
+    for c in range(colours.shape[0]):
+        if samples[c] == 0:
+            continue
+        counts[best[c]] += samples[c]
+        for j in range(3):
+            sums[best[c], j] += samples[c] * np.int64(colours[c, j])
+    centres = np.empty((k, 3), np.float32)
+    for c in range(k):
+        if counts[c] == 0:
+            return centres, False
+        scale = np.float32(1.0) / np.float32(counts[c])
+        for j in range(3):
+            if sums[c, j] > _EXACT_SINGLE:
+                return centres, False
+            centres[c, j] = np.float32(sums[c, j]) * scale
+    return centres, True
+
+
+@njit(cache=True, nogil=True)
+def _label(colour_of, best, labels):
+    """Each sample's cluster, its colour's ``best``, into ``labels``."""
+    for i in range(colour_of.shape[0]):
+        labels[i] = best[colour_of[i]]
+
+
+@njit(cache=True, nogil=True)
+def _assign(colours, used, centres, best):
+    """Each used colour's nearest centre (the first of equals) into ``best``."""
     k = centres.shape[0]
     for c in range(colours.shape[0]):
         if not used[c]:
@@ -221,8 +325,6 @@ def _assign(colours, colour_of, used, centres, best, labels):
             if least > d:
                 least, k_best = d, j
         best[c] = k_best
-    for i in range(colour_of.shape[0]):
-        labels[i] = best[colour_of[i]]
 
 
 @njit(cache=True, nogil=True)
