@@ -448,23 +448,29 @@ def _floored_value(hull, x, y, z, top, p, floor):
 
 
 @njit(parallel=True, cache=True)
-def _floored_kernel(hull, points, starts, floor, top, out):
+def _floored_kernel(hull, points, order, starts, floor, top, out):
     """``out[p]``: the signed distance of ``points[p]`` or ``floor``, whichever is larger.
 
-    The points come group by group, group ``g`` at ``starts[g]:starts[g + 1]``. A view
+    The points come group by group, group ``g`` the points ``order[starts[g]:starts[g +
+    1]]`` (each group's copied together, not the whole array in their order). A view
     whose value is below ``floor`` over a group's box (:func:`_below_floor`) is not
     evaluated there. The ``rank`` largest values start as ``floor`` (``top`` (n, rank)
-    scratch): the ``rank``-th largest of the views evaluated and ``rank`` floors is the
-    ``rank``-th largest of all views, or ``floor`` if that is lower (the views left out
-    are all below ``floor``).
+    scratch, in the groups' order): the ``rank``-th largest of the views evaluated and
+    ``rank`` floors is the ``rank``-th largest of all views, or ``floor`` if that is lower
+    (the views left out are all below ``floor``).
     """
     for g in prange(starts.shape[0] - 1):
         first, stop = starts[g], starts[g + 1]
-        top[first:stop] = floor
-        _group_largest(hull, points, first, stop, floor, top)
-        for p in range(first, stop):
-            out[p] = _floored_value(hull, points[p, 0], points[p, 1], points[p, 2], top, p,
-                                    floor)
+        at = np.empty((stop - first, 3))
+        for q in range(first, stop):
+            for axis in range(3):
+                at[q - first, axis] = points[order[q], axis]
+        rows = top[first:stop]
+        rows[:] = floor
+        _group_largest(hull, at, 0, stop - first, floor, rows)
+        for q in range(stop - first):
+            out[order[first + q]] = _floored_value(hull, at[q, 0], at[q, 1], at[q, 2], rows,
+                                                   q, floor)
 
 
 @njit(parallel=True, cache=True)
@@ -615,7 +621,7 @@ def _project_kernel(hull, points, unit, steps, bisections, top, moved, found):
 
 
 @njit(parallel=True, cache=True)
-def _segment_zero_kernel(hull, starts, ends, f_start, f_end, groups, floor, iterations,
+def _segment_zero_kernel(hull, starts, ends, f_start, f_end, order, groups, floor, iterations,
                          tolerance, top, out, traced, trace_points, trace_values, trace_counts):
     """``out[p]``: the fraction along ``starts[p] -> ends[p]`` where the distance is zero,
     the two ends' values ``f_start[p]``, ``f_end[p]`` (metres) of opposite signs:
@@ -623,11 +629,11 @@ def _segment_zero_kernel(hull, starts, ends, f_start, f_end, groups, floor, iter
     has its value halved), from the chord between the ends; done early where the
     distance is within ``tolerance`` (metres) of zero.
 
-    The segments come group by group (``groups[g]:groups[g + 1]``); a view below
+    The segments come group by group (``order[groups[g]:groups[g + 1]]``); a view below
     ``floor`` (metres, < 0; -inf: none) over a group's box is not evaluated there
     (:func:`_below_floor`), and the distance is taken no lower than ``floor``. A group's
     segments not yet done take each step together, view by view (:func:`_add_view`);
-    ``top`` (n, rank) is scratch.
+    ``top`` (n, rank) is scratch, in the groups' order.
 
     ``traced``: each point the distance was evaluated at and its value recorded in
     ``trace_points[p, i]`` (metres) and ``trace_values[p, i]``, ``trace_counts[p]`` of
@@ -638,8 +644,10 @@ def _segment_zero_kernel(hull, starts, ends, f_start, f_end, groups, floor, iter
         lo = np.empty(3)
         hi = np.empty(3)
         for axis in range(3):
-            lo[axis] = min(starts[first:stop, axis].min(), ends[first:stop, axis].min())
-            hi[axis] = max(starts[first:stop, axis].max(), ends[first:stop, axis].max())
+            start_lo, start_hi = _extent(starts, order, first, stop, axis)
+            end_lo, end_hi = _extent(ends, order, first, stop, axis)
+            lo[axis] = min(start_lo, end_lo)
+            hi[axis] = max(start_hi, end_hi)
         views = np.empty(n_all, np.int64)
         n_views = 0
         for v in range(n_all):
@@ -649,8 +657,8 @@ def _segment_zero_kernel(hull, starts, ends, f_start, f_end, groups, floor, iter
         n = stop - first
         # Each segment's bracket: t and f at its start side and its end side, its next t,
         # and which end its last step kept (-1 the start side, 1 the end side).
-        lo_t, hi_t, f_lo, f_hi, t = (np.zeros(n), np.ones(n), f_start[first:stop].copy(),
-                                     f_end[first:stop].copy(), np.empty(n))
+        lo_t, hi_t, f_lo, f_hi, t = (np.zeros(n), np.ones(n), f_start[order[first:stop]],
+                                     f_end[order[first:stop]], np.empty(n))
         kept = np.zeros(n, np.int64)
         going = np.arange(n)        # the segments not done, the first ``n_going``
         n_going = n
@@ -661,7 +669,7 @@ def _segment_zero_kernel(hull, starts, ends, f_start, f_end, groups, floor, iter
         for step in range(iterations):
             for r in range(n_going):
                 q = going[r]
-                p = first + q
+                p = order[first + q]
                 for axis in range(3):
                     at[r, axis] = starts[p, axis] + t[q] * (ends[p, axis] - starts[p, axis])
                 rows[r] = floor
@@ -670,7 +678,7 @@ def _segment_zero_kernel(hull, starts, ends, f_start, f_end, groups, floor, iter
             still = 0
             for r in range(n_going):
                 q = going[r]
-                p = first + q
+                p = order[first + q]
                 f = _floored_value(hull, at[r, 0], at[r, 1], at[r, 2], rows, r, floor)
                 if traced:
                     for axis in range(3):
@@ -696,7 +704,23 @@ def _segment_zero_kernel(hull, starts, ends, f_start, f_end, groups, floor, iter
                 going[still] = q
                 still += 1
             n_going = still
-        out[first:stop] = t
+        for q in range(n):
+            out[order[first + q]] = t[q]
+
+
+@njit(cache=True, inline="always")
+def _extent(points, order, first, stop, axis):
+    """The lowest and the highest ``points[p, axis]`` of ``p`` in ``order[first:stop]``
+    (``stop > first``), the first of equals kept (as numpy's ``min`` and ``max`` of them in
+    that order)."""
+    low = high = points[order[first], axis]
+    for q in range(first + 1, stop):
+        value = points[order[q], axis]
+        if value < low:
+            low = value
+        if value > high:
+            high = value
+    return low, high
 
 
 @njit(parallel=True, cache=True)
@@ -889,9 +913,7 @@ class HullDistance:
             raise ValueError(f"floor_m must be a finite distance < 0 metres, got {floor_m}")
         if len(pts):
             order, starts = _groups(pts, _GROUP_FLOORS * -floor_m)
-            grouped = np.empty(len(pts))
-            _floored_kernel(self._kernel_data, pts[order], starts, float(floor_m), top, grouped)
-            out[order] = grouped
+            _floored_kernel(self._kernel_data, pts, order, starts, float(floor_m), top, out)
         return out
 
     def add_largest(self, points: np.ndarray, top: np.ndarray, *, floor_m: float,
@@ -1016,19 +1038,12 @@ class HullDistance:
             groups = np.append(np.arange(0, len(a), _BLOCK_POINTS), len(a)).astype(np.int64)
         else:
             order, groups = _groups(0.5 * (a + b), _GROUP_FLOORS * -floor)
-        grouped = np.empty(len(a))
         traced = trace is not None
-        points = np.empty((len(a) if traced else 0, iterations, 3))
-        values = np.empty((len(a) if traced else 0, iterations))
-        counts = np.zeros(len(a) if traced else 0, np.int64)
-        _segment_zero_kernel(self._kernel_data, a[order], b[order], fa[order], fb[order],
-                             groups, floor, iterations, tolerance,
-                             np.empty((len(a), self._rank)), grouped, traced, points, values,
-                             counts)
-        out[order] = grouped
-        if traced:
-            trace.points[order], trace.values[order], trace.counts[order] = \
-                points, values, counts
+        if not traced:
+            trace = ZeroTrace.empty(0, iterations)
+        _segment_zero_kernel(self._kernel_data, a, b, fa, fb, order, groups, floor, iterations,
+                             tolerance, np.empty((len(a), self._rank)), out, traced,
+                             trace.points, trace.values, trace.counts)
         return out
 
     def raises(self, trace: ZeroTrace) -> np.ndarray:
