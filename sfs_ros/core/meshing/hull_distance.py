@@ -518,9 +518,9 @@ _COUNTING_SORT_KEYS_PER_POINT = 4
 def _cube_keys(points, edge_m):
     """(n,) int64: each point's cube of ``edge_m`` metres from the points' lowest corner,
     in C order (``(cx * size_y + cy) * size_z + cz``), and how many keys there are (a
-    float: there may be more than int64 holds). The points side by side; the cubes along
-    an axis are as many as the highest point's (a cube's number does not decrease as
-    the coordinate grows), so no cube of a point is kept."""
+    float: there may be more than int64 holds). The points side by side, each key made in
+    one go: the cubes along an axis are as many as the highest point's (a cube's number
+    does not decrease as the coordinate grows), so no (n, 3) array of cubes is needed."""
     lo, hi = _corners(points)
     size = np.empty(3, np.int64)
     for axis in range(3):
