@@ -128,6 +128,8 @@ def _run_counts(occ, column_start):
     """``column_start[c + 1]`` = the runs of column c (c = i * ny + j): its voxels occupied
     after an empty one (or first), counted without a branch a voxel."""
     nx, ny, nz = occ.shape
+    if nz == 0:
+        return          # (no voxel: no run; ``column_start`` stays 0)
     for i in prange(nx):
         for j in range(ny):
             column = occ[i, j]
