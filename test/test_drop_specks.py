@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from sfs_ros.core.carving.hull import drop_specks
+from sfs_ros.core.carving.hull import column_runs, drop_specks
 
 
 def reference(occupancy, min_fraction):
@@ -50,3 +50,29 @@ def test_a_block_and_its_specks():
         assert drop_specks(alone) == (alone, 0)
     with pytest.raises(ValueError, match="min_fraction"):
         drop_specks(occupancy, min_fraction=1.5)
+
+
+def runs_written_out(occupancy):
+    """``column_runs`` of a 3-D bool array, each column's runs read off with numpy: where
+    the column, padded with an empty voxel each end, steps up and down."""
+    nx, ny, nz = occupancy.shape
+    starts, lows, highs = [0], [], []
+    for column in occupancy.reshape(nx * ny, nz):
+        step = np.diff(np.concatenate([[0], column.astype(np.int8), [0]]))
+        up, down = np.flatnonzero(step == 1), np.flatnonzero(step == -1) - 1
+        starts.append(starts[-1] + len(up))
+        lows += up.tolist()
+        highs += down.tolist()
+    return np.array(starts), np.array(lows, np.int64), np.array(highs, np.int64)
+
+
+@pytest.mark.parametrize("shape", [(5, 6, 7), (8, 3, 20), (1, 1, 1), (4, 4, 2), (3, 4, 0)])
+def test_the_columns_runs_as_numpy_reads_them(shape):
+    # Every density from none to full, so runs start and end at the columns' ends and
+    # in between; a Fortran-ordered and a reversed view read as the array they show.
+    rng = np.random.default_rng(sum(shape))
+    for density in (0.0, 0.3, 0.7, 1.0):
+        occupancy = rng.random(shape) < density
+        for seen in (occupancy, np.asfortranarray(occupancy), occupancy[:, ::-1]):
+            for got, expected in zip(column_runs(seen), runs_written_out(seen)):
+                np.testing.assert_array_equal(got, expected)

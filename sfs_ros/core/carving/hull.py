@@ -114,37 +114,54 @@ def column_runs(occ: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     int64. In compiled passes over the x-planes: a count, then the runs."""
     nx, ny, _ = occ.shape
     column_start = np.zeros(nx * ny + 1, np.int64)
-    _runs_pass(occ, column_start, np.zeros(0, np.int64), np.zeros(0, np.int64))
+    _run_counts(occ, column_start)
     np.cumsum(column_start, out=column_start)
     run_lo = np.empty(column_start[-1], np.int64)
     run_hi = np.empty(column_start[-1], np.int64)
     if len(run_lo):
-        _runs_pass(occ, column_start, run_lo, run_hi)
+        _run_ends(occ, column_start, run_lo, run_hi)
     return column_start, run_lo, run_hi
 
 
 @njit(parallel=True, cache=True, nogil=True)
-def _runs_pass(occ, column_start, run_lo, run_hi):
-    """With empty ``run_lo``: ``column_start[c + 1]`` = the runs of column c. Else
-    (``column_start`` their running sum from 0): the runs, column c's from
-    ``column_start[c]``."""
+def _run_counts(occ, column_start):
+    """``column_start[c + 1]`` = the runs of column c (c = i * ny + j): its voxels occupied
+    after an empty one (or first), counted without a branch a voxel."""
     nx, ny, nz = occ.shape
-    fill = run_lo.shape[0] > 0
+    if nz == 0:
+        return          # (no voxel: no run; ``column_start`` stays 0)
     for i in prange(nx):
         for j in range(ny):
-            c = i * ny + j
-            r = column_start[c] if fill else 0
-            n = 0
+            column = occ[i, j]
+            n = np.int64(column[0])
+            for k in range(1, nz):
+                n += column[k] > column[k - 1]
+            column_start[i * ny + j + 1] = n
+
+
+@njit(parallel=True, cache=True, nogil=True)
+def _run_ends(occ, column_start, run_lo, run_hi):
+    """The runs of column c from ``column_start[c]`` (their running count from 0) into
+    ``run_lo`` and ``run_hi``: where the column changes, the columns without runs
+    skipped."""
+    nx, ny, nz = occ.shape
+    for i in prange(nx):
+        for j in range(ny):
+            r = column_start[i * ny + j]
+            if r == column_start[i * ny + j + 1]:
+                continue
+            column = occ[i, j]
+            previous = False
             for k in range(nz):
-                if occ[i, j, k]:
-                    if k == 0 or not occ[i, j, k - 1]:
-                        if fill:
-                            run_lo[r + n] = k
-                        n += 1
-                    if fill and (k == nz - 1 or not occ[i, j, k + 1]):
-                        run_hi[r + n - 1] = k
-            if not fill:
-                column_start[c + 1] = n
+                if column[k] != previous:
+                    previous = column[k]
+                    if previous:
+                        run_lo[r] = k
+                    else:
+                        run_hi[r] = k - 1
+                        r += 1
+            if previous:
+                run_hi[r] = nz - 1
 
 
 @njit(cache=True)

@@ -301,6 +301,40 @@ def _keep_largest(top, p, value):
 
 
 @njit(cache=True, inline="always")
+def _add_view(hull, v, points, first, stop, top):
+    """Insert view ``v``'s value (:func:`_view_value`, the same numbers) at ``points[p]``
+    into row ``p`` of ``top`` (:func:`_keep_largest`) for ``p`` in ``first:stop``: the
+    view's numbers read once for the points, not once a point (where they could not stay
+    in registers beside the writes to ``top``)."""
+    proj, orthographic, metres_per_px, image_size = hull[0], hull[1], hull[2], hull[3]
+    crops, images, margin = hull[4], hull[5], hull[6]
+    a00, a01, a02, a03 = proj[v, 0, 0], proj[v, 0, 1], proj[v, 0, 2], proj[v, 0, 3]
+    a10, a11, a12, a13 = proj[v, 1, 0], proj[v, 1, 1], proj[v, 1, 2], proj[v, 1, 3]
+    a20, a21, a22, a23 = proj[v, 2, 0], proj[v, 2, 1], proj[v, 2, 2], proj[v, 2, 3]
+    orthographic_v, per_px = orthographic[v], metres_per_px[v]
+    width, height = image_size[v, 0], image_size[v, 1]
+    offset, crop_w, crop_h, u0, v0 = crops[v, 0], crops[v, 1], crops[v, 2], crops[v, 3], \
+        crops[v, 4]
+    for p in range(first, stop):
+        x, y, z = points[p, 0], points[p, 1], points[p, 2]
+        hu = a00 * x + a01 * y + a02 * z + a03
+        hv = a10 * x + a11 * y + a12 * z + a13
+        depth = 1.0
+        if not orthographic_v:
+            depth = a20 * x + a21 * y + a22 * z + a23
+            if depth <= 0.0:
+                continue        # -inf: nothing to insert
+            hu = hu / depth
+            hv = hv / depth
+        if not (-0.5 <= hu < width - 0.5 and -0.5 <= hv < height - 0.5):
+            continue
+        hu = min(max(hu, 0.0), width - 1.0)
+        hv = min(max(hv, 0.0), height - 1.0)
+        _keep_largest(top, p, per_px * depth * _sample(images, offset, crop_w, crop_h, u0, v0,
+                                                        margin, hu, hv))
+
+
+@njit(cache=True, inline="always")
 def _box_value(hull, x, y, z):
     """Signed distance (metres, Chebyshev) of ``(x, y, z)`` to the carving box."""
     box_lo, box_hi = hull[7], hull[8]
@@ -340,9 +374,7 @@ def _distance_kernel(hull, points, top, out):
         stop = min(n, start + _BLOCK_POINTS)
         top[start:stop] = -np.inf
         for v in range(hull[0].shape[0]):
-            for p in range(start, stop):
-                _keep_largest(top, p, _view_value(hull, v, points[p, 0], points[p, 1],
-                                                  points[p, 2]))
+            _add_view(hull, v, points, start, stop, top)
         for p in range(start, stop):
             out[p] = max(top[p, top.shape[1] - 1],
                          _box_value(hull, points[p, 0], points[p, 1], points[p, 2]))
@@ -404,11 +436,8 @@ def _group_largest(hull, points, first, stop, floor, top):
         lo[axis] = points[first:stop, axis].min()
         hi[axis] = points[first:stop, axis].max()
     for v in range(hull[0].shape[0]):
-        if _below_floor(hull, v, lo, hi, floor):
-            continue
-        for p in range(first, stop):
-            _keep_largest(top, p, _view_value(hull, v, points[p, 0], points[p, 1],
-                                              points[p, 2]))
+        if not _below_floor(hull, v, lo, hi, floor):
+            _add_view(hull, v, points, first, stop, top)
 
 
 @njit(cache=True, inline="always")
@@ -419,23 +448,29 @@ def _floored_value(hull, x, y, z, top, p, floor):
 
 
 @njit(parallel=True, cache=True)
-def _floored_kernel(hull, points, starts, floor, top, out):
+def _floored_kernel(hull, points, order, starts, floor, top, out):
     """``out[p]``: the signed distance of ``points[p]`` or ``floor``, whichever is larger.
 
-    The points come group by group, group ``g`` at ``starts[g]:starts[g + 1]``. A view
+    The points come group by group, group ``g`` the points ``order[starts[g]:starts[g +
+    1]]`` (each group's copied together, not the whole array in their order). A view
     whose value is below ``floor`` over a group's box (:func:`_below_floor`) is not
     evaluated there. The ``rank`` largest values start as ``floor`` (``top`` (n, rank)
-    scratch): the ``rank``-th largest of the views evaluated and ``rank`` floors is the
-    ``rank``-th largest of all views, or ``floor`` if that is lower (the views left out
-    are all below ``floor``).
+    scratch, in the groups' order): the ``rank``-th largest of the views evaluated and
+    ``rank`` floors is the ``rank``-th largest of all views, or ``floor`` if that is lower
+    (the views left out are all below ``floor``).
     """
     for g in prange(starts.shape[0] - 1):
         first, stop = starts[g], starts[g + 1]
-        top[first:stop] = floor
-        _group_largest(hull, points, first, stop, floor, top)
-        for p in range(first, stop):
-            out[p] = _floored_value(hull, points[p, 0], points[p, 1], points[p, 2], top, p,
-                                    floor)
+        at = np.empty((stop - first, 3))
+        for q in range(first, stop):
+            for axis in range(3):
+                at[q - first, axis] = points[order[q], axis]
+        rows = top[first:stop]
+        rows[:] = floor
+        _group_largest(hull, at, 0, stop - first, floor, rows)
+        for q in range(stop - first):
+            out[order[first + q]] = _floored_value(hull, at[q, 0], at[q, 1], at[q, 2], rows,
+                                                   q, floor)
 
 
 @njit(parallel=True, cache=True)
@@ -483,22 +518,39 @@ _COUNTING_SORT_KEYS_PER_POINT = 4
 def _cube_keys(points, edge_m):
     """(n,) int64: each point's cube of ``edge_m`` metres from the points' lowest corner,
     in C order (``(cx * size_y + cy) * size_z + cz``), and how many keys there are (a
-    float: there may be more than int64 holds). The points side by side."""
-    n = points.shape[0]
-    lo = np.empty(3)
+    float: there may be more than int64 holds). The points side by side, each key made in
+    one go: the cubes along an axis are as many as the highest point's (a cube's number
+    does not decrease as the coordinate grows), so no (n, 3) array of cubes is needed."""
+    lo, hi = _corners(points)
+    size = np.empty(3, np.int64)
     for axis in range(3):
-        lo[axis] = points[:, axis].min()
-    cells = np.empty((n, 3), np.int64)
-    for p in prange(n):
-        for axis in range(3):
-            cells[p, axis] = np.int64(np.floor((points[p, axis] - lo[axis]) / edge_m))
-    size = np.zeros(3, np.int64)
-    for axis in range(3):
-        size[axis] = cells[:, axis].max() + 1
-    keys = np.empty(n, np.int64)
-    for p in prange(n):
-        keys[p] = (cells[p, 0] * size[1] + cells[p, 1]) * size[2] + cells[p, 2]
+        size[axis] = _cube(hi[axis], lo[axis], edge_m) + 1
+    keys = np.empty(points.shape[0], np.int64)
+    for p in prange(points.shape[0]):
+        keys[p] = ((_cube(points[p, 0], lo[0], edge_m) * size[1]
+                    + _cube(points[p, 1], lo[1], edge_m)) * size[2]
+                   + _cube(points[p, 2], lo[2], edge_m))
     return keys, np.float64(size[0]) * np.float64(size[1]) * np.float64(size[2])
+
+
+@njit(cache=True, nogil=True)
+def _corners(points):
+    """The lowest and the highest coordinates (3,) of ``points`` (n >= 1, 3), in one pass
+    (in a parallel kernel each of the six reductions would be a parallel loop of its
+    own)."""
+    lo = points[0].copy()
+    hi = points[0].copy()
+    for p in range(1, points.shape[0]):
+        for axis in range(3):
+            lo[axis] = min(lo[axis], points[p, axis])
+            hi[axis] = max(hi[axis], points[p, axis])
+    return lo, hi
+
+
+@njit(cache=True, inline="always")
+def _cube(x, lo, edge_m):
+    """The cube of ``edge_m`` from ``lo`` that holds the coordinate ``x`` (>= ``lo``)."""
+    return np.int64(np.floor((x - lo) / edge_m))
 
 
 @njit(cache=True, nogil=True)
@@ -568,18 +620,8 @@ def _project_kernel(hull, points, unit, steps, bisections, top, moved, found):
         moved[p, 2] = z + t * uz
 
 
-@njit(cache=True, inline="always")
-def _value_from_views(hull, x, y, z, views, n_views, floor, top, p):
-    """The distance of ``(x, y, z)`` from the views ``views[:n_views]`` alone, or ``floor``
-    if larger (as :func:`_floored_kernel` gives it, the others below ``floor`` there)."""
-    top[p] = floor
-    for n in range(n_views):
-        _keep_largest(top, p, _view_value(hull, views[n], x, y, z))
-    return _floored_value(hull, x, y, z, top, p, floor)
-
-
 @njit(parallel=True, cache=True)
-def _segment_zero_kernel(hull, starts, ends, f_start, f_end, groups, floor, iterations,
+def _segment_zero_kernel(hull, starts, ends, f_start, f_end, order, groups, floor, iterations,
                          tolerance, top, out, traced, trace_points, trace_values, trace_counts):
     """``out[p]``: the fraction along ``starts[p] -> ends[p]`` where the distance is zero,
     the two ends' values ``f_start[p]``, ``f_end[p]`` (metres) of opposite signs:
@@ -587,9 +629,11 @@ def _segment_zero_kernel(hull, starts, ends, f_start, f_end, groups, floor, iter
     has its value halved), from the chord between the ends; done early where the
     distance is within ``tolerance`` (metres) of zero.
 
-    The segments come group by group (``groups[g]:groups[g + 1]``); a view below
+    The segments come group by group (``order[groups[g]:groups[g + 1]]``); a view below
     ``floor`` (metres, < 0; -inf: none) over a group's box is not evaluated there
-    (:func:`_below_floor`), and the distance is taken no lower than ``floor``.
+    (:func:`_below_floor`), and the distance is taken no lower than ``floor``. A group's
+    segments not yet done take each step together, view by view (:func:`_add_view`);
+    ``top`` (n, rank) is scratch, in the groups' order.
 
     ``traced``: each point the distance was evaluated at and its value recorded in
     ``trace_points[p, i]`` (metres) and ``trace_values[p, i]``, ``trace_counts[p]`` of
@@ -600,47 +644,83 @@ def _segment_zero_kernel(hull, starts, ends, f_start, f_end, groups, floor, iter
         lo = np.empty(3)
         hi = np.empty(3)
         for axis in range(3):
-            lo[axis] = min(starts[first:stop, axis].min(), ends[first:stop, axis].min())
-            hi[axis] = max(starts[first:stop, axis].max(), ends[first:stop, axis].max())
+            start_lo, start_hi = _extent(starts, order, first, stop, axis)
+            end_lo, end_hi = _extent(ends, order, first, stop, axis)
+            lo[axis] = min(start_lo, end_lo)
+            hi[axis] = max(start_hi, end_hi)
         views = np.empty(n_all, np.int64)
         n_views = 0
         for v in range(n_all):
             if floor == -np.inf or not _below_floor(hull, v, lo, hi, floor):
                 views[n_views] = v
                 n_views += 1
-        for p in range(first, stop):
-            lo_t, hi_t = 0.0, 1.0
-            f_lo, f_hi = f_start[p], f_end[p]
-            kept = 0      # which end the last step kept: -1 the start side, 1 the end side
-            t = f_lo / (f_lo - f_hi)
-            for step in range(iterations):
-                x = starts[p, 0] + t * (ends[p, 0] - starts[p, 0])
-                y = starts[p, 1] + t * (ends[p, 1] - starts[p, 1])
-                z = starts[p, 2] + t * (ends[p, 2] - starts[p, 2])
-                f = _value_from_views(hull, x, y, z, views, n_views, floor, top, p)
+        n = stop - first
+        # Each segment's bracket: t and f at its start side and its end side, its next t,
+        # and which end its last step kept (-1 the start side, 1 the end side).
+        lo_t, hi_t, f_lo, f_hi, t = (np.zeros(n), np.ones(n), f_start[order[first:stop]],
+                                     f_end[order[first:stop]], np.empty(n))
+        kept = np.zeros(n, np.int64)
+        going = np.arange(n)        # the segments not done, the first ``n_going``
+        n_going = n
+        at = np.empty((n, 3))
+        rows = top[first:stop]
+        for q in range(n):
+            t[q] = f_lo[q] / (f_lo[q] - f_hi[q])
+        for step in range(iterations):
+            for r in range(n_going):
+                q = going[r]
+                p = order[first + q]
+                for axis in range(3):
+                    at[r, axis] = starts[p, axis] + t[q] * (ends[p, axis] - starts[p, axis])
+                rows[r] = floor
+            for m in range(n_views):
+                _add_view(hull, views[m], at, 0, n_going, rows)
+            still = 0
+            for r in range(n_going):
+                q = going[r]
+                p = order[first + q]
+                f = _floored_value(hull, at[r, 0], at[r, 1], at[r, 2], rows, r, floor)
                 if traced:
-                    trace_points[p, step, 0] = x
-                    trace_points[p, step, 1] = y
-                    trace_points[p, step, 2] = z
+                    for axis in range(3):
+                        trace_points[p, step, axis] = at[r, axis]
                     trace_values[p, step] = f
                     trace_counts[p] = step + 1
                 if abs(f) <= tolerance:
-                    break
-                if (f > 0.0) == (f_lo > 0.0):
-                    lo_t, f_lo = t, f
-                    if kept == 1:
-                        f_hi *= 0.5
-                    kept = 1
+                    continue
+                if (f > 0.0) == (f_lo[q] > 0.0):
+                    lo_t[q], f_lo[q] = t[q], f
+                    if kept[q] == 1:
+                        f_hi[q] *= 0.5
+                    kept[q] = 1
                 else:
-                    hi_t, f_hi = t, f
-                    if kept == -1:
-                        f_lo *= 0.5
-                    kept = -1
-                if math.isfinite(f_lo) and math.isfinite(f_hi):
-                    t = lo_t + (hi_t - lo_t) * f_lo / (f_lo - f_hi)
+                    hi_t[q], f_hi[q] = t[q], f
+                    if kept[q] == -1:
+                        f_lo[q] *= 0.5
+                    kept[q] = -1
+                if math.isfinite(f_lo[q]) and math.isfinite(f_hi[q]):
+                    t[q] = lo_t[q] + (hi_t[q] - lo_t[q]) * f_lo[q] / (f_lo[q] - f_hi[q])
                 else:         # (no view sees a point there and no box bounds it)
-                    t = 0.5 * (lo_t + hi_t)
-            out[p] = t
+                    t[q] = 0.5 * (lo_t[q] + hi_t[q])
+                going[still] = q
+                still += 1
+            n_going = still
+        for q in range(n):
+            out[order[first + q]] = t[q]
+
+
+@njit(cache=True, inline="always")
+def _extent(points, order, first, stop, axis):
+    """The lowest and the highest ``points[p, axis]`` of ``p`` in ``order[first:stop]``
+    (``stop > first``), the first of equals kept (as numpy's ``min`` and ``max`` of them in
+    that order)."""
+    low = high = points[order[first], axis]
+    for q in range(first + 1, stop):
+        value = points[order[q], axis]
+        if value < low:
+            low = value
+        if value > high:
+            high = value
+    return low, high
 
 
 @njit(parallel=True, cache=True)
@@ -833,9 +913,7 @@ class HullDistance:
             raise ValueError(f"floor_m must be a finite distance < 0 metres, got {floor_m}")
         if len(pts):
             order, starts = _groups(pts, _GROUP_FLOORS * -floor_m)
-            grouped = np.empty(len(pts))
-            _floored_kernel(self._kernel_data, pts[order], starts, float(floor_m), top, grouped)
-            out[order] = grouped
+            _floored_kernel(self._kernel_data, pts, order, starts, float(floor_m), top, out)
         return out
 
     def add_largest(self, points: np.ndarray, top: np.ndarray, *, floor_m: float,
@@ -960,19 +1038,12 @@ class HullDistance:
             groups = np.append(np.arange(0, len(a), _BLOCK_POINTS), len(a)).astype(np.int64)
         else:
             order, groups = _groups(0.5 * (a + b), _GROUP_FLOORS * -floor)
-        grouped = np.empty(len(a))
         traced = trace is not None
-        points = np.empty((len(a) if traced else 0, iterations, 3))
-        values = np.empty((len(a) if traced else 0, iterations))
-        counts = np.zeros(len(a) if traced else 0, np.int64)
-        _segment_zero_kernel(self._kernel_data, a[order], b[order], fa[order], fb[order],
-                             groups, floor, iterations, tolerance,
-                             np.empty((len(a), self._rank)), grouped, traced, points, values,
-                             counts)
-        out[order] = grouped
-        if traced:
-            trace.points[order], trace.values[order], trace.counts[order] = \
-                points, values, counts
+        if not traced:
+            trace = ZeroTrace.empty(0, iterations)
+        _segment_zero_kernel(self._kernel_data, a, b, fa, fb, order, groups, floor, iterations,
+                             tolerance, np.empty((len(a), self._rank)), out, traced,
+                             trace.points, trace.values, trace.counts)
         return out
 
     def raises(self, trace: ZeroTrace) -> np.ndarray:

@@ -473,29 +473,33 @@ _NO_END_VALUES = np.empty((0, 2), np.float32)
 @dataclass(frozen=True)
 class _Band:
     """A band as :func:`_crossings_pass` reads it: the crop, the band's rows
-    (:func:`.lewiner.band_rows`), their voxels' k and values."""
+    (:func:`.lewiner.band_rows`), their voxels' k and values, and which edges of each
+    voxel the level crosses (filled by :meth:`plane_crossings`)."""
 
     crop: np.ndarray
     rows: np.ndarray
     band_k: np.ndarray
     values: np.ndarray
+    crossed: np.ndarray
 
     @classmethod
     def of(cls, crop, voxels, values) -> _Band:
         crop = np.ascontiguousarray(crop, dtype=bool)
         return cls(crop, band_rows(voxels, crop.shape[0], crop.shape[1]),
                    np.ascontiguousarray(voxels[:, 2], dtype=np.int64),
-                   np.ascontiguousarray(values, dtype=np.float32))
+                   np.ascontiguousarray(values, dtype=np.float32),
+                   np.empty(len(voxels), np.uint8))
 
     def plane_crossings(self) -> np.ndarray:
         counts = np.zeros(self.crop.shape[0] + 1, np.int64)
         _crossings_pass(self.crop, self.rows, self.band_k, self.values, np.float32(1.0),
-                        False, counts, _NO_ORDINAL, _NO_ENDS, _NO_END_VALUES)
+                        False, counts, self.crossed, _NO_ORDINAL, _NO_ENDS, _NO_END_VALUES)
         return np.cumsum(counts, out=counts)
 
     def fill(self, counts, pad, ordinal, ends, end_values) -> None:
+        """After :meth:`plane_crossings`."""
         _crossings_pass(self.crop, self.rows, self.band_k, self.values, np.float32(pad), True,
-                        counts, ordinal, ends, end_values)
+                        counts, self.crossed, ordinal, ends, end_values)
 
 
 def hull_marching_cubes_mesh(occupancy, grid: VoxelGrid, hull: HullDistance, *,
@@ -654,14 +658,18 @@ def _narrowed_meet(run_lo, run_hi, r0, r1, band, so_far, n, first, out):
 
 
 @njit(parallel=True, cache=True, nogil=True)
-def _crossings_pass(crop, rows, band_k, values, pad, fill, counts, ordinal, ends, end_values):
+def _crossings_pass(crop, rows, band_k, values, pad, fill, counts, crossed, ordinal, ends,
+                    end_values):
     """The grid edges the level crosses at the band's voxels (:func:`crossing_edges`), in
     parallel over the crop's i-planes: without ``fill``, ``counts[1 + i]`` = the crossings
-    of plane i. With ``fill`` (``counts`` their running sum from 0, the first crossing of
-    each plane): their numbers into ``ordinal`` (n, 6) (if not empty), and (if ``ends``
-    is not empty) each crossing's lower end and axis into ``ends`` (m, 4) int64 ``[i, j,
-    k, axis]`` and the distance at its lower and upper end into ``end_values`` (m, 2)
-    float32 (the band's value, else ``-pad`` where occupied, ``pad`` where not)."""
+    of plane i, and ``crossed[n]`` (n,) uint8 the edges band voxel n has (bit s: the edge
+    ahead along axis s, 3 + s behind). With ``fill`` (``counts`` their running sum from 0,
+    the first crossing of each plane; ``crossed`` as the count left it, so that only those
+    edges are looked at again): their numbers into ``ordinal`` (n, 6) (if not empty), and
+    (if ``ends`` is not empty) each crossing's lower end and axis into ``ends`` (m, 4)
+    int64 ``[i, j, k, axis]`` and the distance at its lower and upper end into
+    ``end_values`` (m, 2) float32 (the band's value, else ``-pad`` where occupied, ``pad``
+    where not)."""
     n0, n1, n2 = crop.shape
     with_ordinal = ordinal.shape[0] > 0
     with_ends = ends.shape[0] > 0
@@ -677,11 +685,19 @@ def _crossings_pass(crop, rows, band_k, values, pad, fill, counts, ordinal, ends
                 if 0 <= ii < n0 and 0 <= jj < n1:
                     ptr[s], end[s] = rows[ii * n1 + jj], rows[ii * n1 + jj + 1]
             for n in range(first, last):
+                if fill:
+                    if with_ordinal:
+                        for s in range(6):
+                            ordinal[n, s] = -1
+                    if crossed[n] == 0:
+                        continue
+                else:
+                    crossed[n] = 0
                 k = band_k[n]
                 inside = values[n] < 0.0
                 for s in range(6):      # ahead along i, j, k, then behind
-                    if fill and with_ordinal:
-                        ordinal[n, s] = -1
+                    if fill and not (crossed[n] >> s) & 1:
+                        continue
                     step = 1 if s < 3 else -1
                     ii = i + step * (s % 3 == 0)
                     jj = j + step * (s % 3 == 1)
@@ -691,7 +707,7 @@ def _crossings_pass(crop, rows, band_k, values, pad, fill, counts, ordinal, ends
                     if s % 3 == 2:      # along the row itself: its neighbour voxel
                         at = n + step
                         banded = first <= at < last and band_k[at] == kk
-                    else:
+                    else:               # (the rows' pointers only move ahead: k grows)
                         r = (0, 1, 0, 2, 3, 0)[s]
                         while ptr[r] < end[r] and band_k[ptr[r]] < kk:
                             ptr[r] += 1
@@ -702,6 +718,8 @@ def _crossings_pass(crop, rows, band_k, values, pad, fill, counts, ordinal, ends
                     other = (values[at] < 0.0) if banded else crop[ii, jj, kk]
                     if other == inside:
                         continue
+                    if not fill:
+                        crossed[n] |= np.uint8(1 << s)
                     if fill and with_ordinal:
                         ordinal[n, s] = m
                     if fill and with_ends:
