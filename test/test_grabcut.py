@@ -113,6 +113,17 @@ def test_the_kmeans_is_opencvs_and_draws_as_much(seed, k, criteria):
         assert np.array_equal(ours, theirs.ravel())
 
 
+def _kmeans_both(samples: np.ndarray, k: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """(n,) labels of (n, 3) uint8 ``samples`` in ``k`` clusters by ``cv2.kmeans`` (k-means++,
+    10 iterations) and by ours, both drawing from a generator seeded with ``seed``."""
+    cv2.setRNGSeed(seed)
+    _, theirs, _ = cv2.kmeans(samples.astype(np.float32), k, None,
+                              (cv2.TERM_CRITERIA_MAX_ITER, 10, 0.0), 1, cv2.KMEANS_PP_CENTERS)
+    colours, colour_of = distinct_colours(samples)
+    return theirs.ravel(), kmeans_colours(colours, colour_of, k, OpenCVRandom(seed),
+                                          max_iterations=10)
+
+
 def test_the_kmeans_sums_past_single_precision_as_opencv_does():
     """200 000 samples of 230..255 in two clusters: one holds at least 100 000, its sums
     of a channel pass 2^24, where OpenCV's single-precision sums round; ours sum such a
@@ -120,12 +131,8 @@ def test_the_kmeans_sums_past_single_precision_as_opencv_does():
     rng = np.random.default_rng(7)
     samples = rng.integers(230, 256, (200_000, 3), dtype=np.uint8)
     for seed in range(3):
-        cv2.setRNGSeed(seed)
-        _, theirs, _ = cv2.kmeans(samples.astype(np.float32), 2, None,
-                                  (cv2.TERM_CRITERIA_MAX_ITER, 10, 0.0), 1, cv2.KMEANS_PP_CENTERS)
-        colours, colour_of = distinct_colours(samples)
-        ours = kmeans_colours(colours, colour_of, 2, OpenCVRandom(seed), max_iterations=10)
-        assert np.array_equal(ours, theirs.ravel())
+        theirs, ours = _kmeans_both(samples, 2, seed)
+        assert np.array_equal(ours, theirs)
 
 
 def test_an_emptied_cluster_is_refilled_as_opencv_does():
@@ -135,11 +142,7 @@ def test_an_emptied_cluster_is_refilled_as_opencv_does():
     samples[::7] = (10, 20, 30)
     samples[::11] = (200, 10, 10)
     for seed in range(6):
-        cv2.setRNGSeed(seed)
-        _, theirs, _ = cv2.kmeans(samples.astype(np.float32), 5, None,
-                                  (cv2.TERM_CRITERIA_MAX_ITER, 10, 0.0), 1, cv2.KMEANS_PP_CENTERS)
-        colours, colour_of = distinct_colours(samples)
-        ours = kmeans_colours(colours, colour_of, 5, OpenCVRandom(seed), max_iterations=10)
-        assert np.array_equal(ours, theirs.ravel())
+        theirs, ours = _kmeans_both(samples, 5, seed)
+        assert np.array_equal(ours, theirs)
         # Five clusters out of three colours: some colour is split, as OpenCV splits it.
         assert len(np.unique(ours)) == 5
