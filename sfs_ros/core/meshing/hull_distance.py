@@ -268,24 +268,48 @@ def _pixel(proj, orthographic, v, x, y, z):
 
 
 @njit(cache=True, inline="always")
-def _view_value(hull, v, x, y, z):
-    """Signed distance (metres) of the point ``(x, y, z)`` to view ``v``'s silhouette cone;
-    -inf where the view knows nothing of the point (behind it, or outside its image)."""
-    proj, orthographic, metres_per_px, image_size = hull[0], hull[1], hull[2], hull[3]
-    crops, images, margin = hull[4], hull[5], hull[6]
-    hu, hv, depth = _pixel(proj, orthographic, v, x, y, z)
-    if depth <= 0.0:
-        return -np.inf
-    scale = metres_per_px[v] * depth
-    width, height = image_size[v, 0], image_size[v, 1]
+def _view_numbers(hull, v):
+    """View ``v``'s numbers for :func:`_value_in_view`, read once for a run of points (so
+    that they stay in registers): its projection's rows, whether it is orthographic, its
+    metres a pixel at depth 1, its image size and its distance image's crop."""
+    proj, orthographic, metres_per_px, image_size, crops = \
+        hull[0], hull[1], hull[2], hull[3], hull[4]
+    return (proj[v, 0, 0], proj[v, 0, 1], proj[v, 0, 2], proj[v, 0, 3],
+            proj[v, 1, 0], proj[v, 1, 1], proj[v, 1, 2], proj[v, 1, 3],
+            proj[v, 2, 0], proj[v, 2, 1], proj[v, 2, 2], proj[v, 2, 3],
+            orthographic[v], metres_per_px[v], image_size[v, 0], image_size[v, 1],
+            crops[v, 0], crops[v, 1], crops[v, 2], crops[v, 3], crops[v, 4])
+
+
+@njit(cache=True, inline="always")
+def _value_in_view(view, images, margin, x, y, z):
+    """Signed distance (metres) of the point ``(x, y, z)`` to the silhouette cone of the
+    view whose :func:`_view_numbers` are ``view``; -inf where the view knows nothing of
+    the point (behind it, or outside its image)."""
+    a00, a01, a02, a03, a10, a11, a12, a13, a20, a21, a22, a23, orthographic, per_px, \
+        width, height, offset, crop_w, crop_h, u0, v0 = view
+    hu = a00 * x + a01 * y + a02 * z + a03
+    hv = a10 * x + a11 * y + a12 * z + a13
+    depth = 1.0          # an orthographic view's pixel size does not change with depth
+    if not orthographic:
+        depth = a20 * x + a21 * y + a22 * z + a23
+        if depth <= 0.0:
+            return -np.inf
+        hu = hu / depth
+        hv = hv / depth
     # The carver's pixel is floor(u + 1/2): inside the image for u in [-1/2, W - 1/2).
     if not (-0.5 <= hu < width - 0.5 and -0.5 <= hv < height - 0.5):
         return -np.inf
     # Within the outer half pixel, the edge pixel's value holds.
     hu = min(max(hu, 0.0), width - 1.0)
     hv = min(max(hv, 0.0), height - 1.0)
-    return scale * _sample(images, crops[v, 0], crops[v, 1], crops[v, 2],
-                           crops[v, 3], crops[v, 4], margin, hu, hv)
+    return per_px * depth * _sample(images, offset, crop_w, crop_h, u0, v0, margin, hu, hv)
+
+
+@njit(cache=True, inline="always")
+def _view_value(hull, v, x, y, z):
+    """:func:`_value_in_view` of view ``v`` at the point ``(x, y, z)``."""
+    return _value_in_view(_view_numbers(hull, v), hull[5], hull[6], x, y, z)
 
 
 @njit(cache=True, inline="always")
@@ -302,36 +326,13 @@ def _keep_largest(top, p, value):
 
 @njit(cache=True, inline="always")
 def _add_view(hull, v, points, first, stop, top):
-    """Insert view ``v``'s value (:func:`_view_value`, the same numbers) at ``points[p]``
-    into row ``p`` of ``top`` (:func:`_keep_largest`) for ``p`` in ``first:stop``: the
-    view's numbers read once for the points, not once a point (where they could not stay
-    in registers beside the writes to ``top``)."""
-    proj, orthographic, metres_per_px, image_size = hull[0], hull[1], hull[2], hull[3]
-    crops, images, margin = hull[4], hull[5], hull[6]
-    a00, a01, a02, a03 = proj[v, 0, 0], proj[v, 0, 1], proj[v, 0, 2], proj[v, 0, 3]
-    a10, a11, a12, a13 = proj[v, 1, 0], proj[v, 1, 1], proj[v, 1, 2], proj[v, 1, 3]
-    a20, a21, a22, a23 = proj[v, 2, 0], proj[v, 2, 1], proj[v, 2, 2], proj[v, 2, 3]
-    orthographic_v, per_px = orthographic[v], metres_per_px[v]
-    width, height = image_size[v, 0], image_size[v, 1]
-    offset, crop_w, crop_h, u0, v0 = crops[v, 0], crops[v, 1], crops[v, 2], crops[v, 3], \
-        crops[v, 4]
+    """Insert view ``v``'s value (:func:`_view_value`) at ``points[p]`` into row ``p`` of
+    ``top`` (:func:`_keep_largest`) for ``p`` in ``first:stop``, the view's numbers read
+    once for the points (where they stay in registers beside the writes to ``top``)."""
+    view, images, margin = _view_numbers(hull, v), hull[5], hull[6]
     for p in range(first, stop):
-        x, y, z = points[p, 0], points[p, 1], points[p, 2]
-        hu = a00 * x + a01 * y + a02 * z + a03
-        hv = a10 * x + a11 * y + a12 * z + a13
-        depth = 1.0
-        if not orthographic_v:
-            depth = a20 * x + a21 * y + a22 * z + a23
-            if depth <= 0.0:
-                continue        # -inf: nothing to insert
-            hu = hu / depth
-            hv = hv / depth
-        if not (-0.5 <= hu < width - 0.5 and -0.5 <= hv < height - 0.5):
-            continue
-        hu = min(max(hu, 0.0), width - 1.0)
-        hv = min(max(hv, 0.0), height - 1.0)
-        _keep_largest(top, p, per_px * depth * _sample(images, offset, crop_w, crop_h, u0, v0,
-                                                        margin, hu, hv))
+        _keep_largest(top, p, _value_in_view(view, images, margin,
+                                             points[p, 0], points[p, 1], points[p, 2]))
 
 
 @njit(cache=True, inline="always")
