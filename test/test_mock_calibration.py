@@ -50,11 +50,12 @@ DEG = math.pi / 180
 # (error; the fit's own standard uncertainty). The principal point is the weak parameter:
 # through a 26 degree lens a camera turned on its carriage looks almost like a shifted
 # principal point, which only the image's corners tell apart.
-INTRINSICS_REL = 0.005     # 0.5 %: fx, fy ~0.02 %; cx -0.05 % to +0.40 % over ten noise
-#                            draws (fit: 0.3 %), cy under 0.14 % (doc/calibration.md)
-K1_ABS = 0.01              # k1: ~0.003 (0.004)
-AXIS_POINT_M = 0.5e-3      # ~0.02 mm (0.04 mm)
-ANGLE_RAD = 0.1 * DEG      # tilt and encoder zeros: ~0.002 degree (0.005)
+INTRINSICS_REL = 0.005     # 0.5 %: fx, fy ~0.01 %; cx -0.16 % to +0.15 % over ten noise
+#                            draws (fit: 0.1 %), cy -0.14 % to +0.24 % (0.09 %)
+#                            (doc/calibration.md)
+K1_ABS = 0.01              # k1: ~0.001 (0.0014)
+AXIS_POINT_M = 0.5e-3      # ~0.01 mm (0.006 mm)
+ANGLE_RAD = 0.1 * DEG      # tilt and encoder zeros: ~0.002 degree (0.0007)
 # A calibrated scan carves as well as a scan of a perfect world: the same views of the
 # same mug, through a lens that resamples the silhouettes (edge pixels) and read-backs
 # with the same 0.01 degree of noise.

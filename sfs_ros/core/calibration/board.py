@@ -4,6 +4,15 @@ Board frame (OpenCV's): origin at the board's top-left outer corner, x along
 the ``squares_x`` columns, y along the ``squares_y`` rows (down in the
 board's picture), z into the board, metres. Chessboard corner ``i`` (the id
 the detector reports) sits at ``object_points[i]``.
+
+Finding the corners: OpenCV's ChArUco detector reads the markers and places
+the chessboard corners (``cv2.cornerSubPix``, which leaves an error of a few
+hundredths of a pixel that depends on where the corner falls on the pixel
+grid, the same in every image of the same view); each corner is then refined
+to the saddle point of the smoothed image (:func:`refine_saddle_points`). The
+principal point is where this matters: a camera turned on its carriage looks
+almost like a shifted principal point, so the calibration magnifies the corners'
+error many times there (doc/calibration.md).
 """
 
 from __future__ import annotations
@@ -13,13 +22,24 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-__all__ = ["BoardSpec", "Detection", "detect_board", "MIN_SQUARE_M", "MAX_SQUARE_M",
-           "MAX_SQUARES"]
+__all__ = ["BoardSpec", "Detection", "detect_board", "refine_saddle_points", "MIN_SQUARE_M",
+           "MAX_SQUARE_M", "MAX_SQUARES"]
 
 #: Range of a chessboard square's side, metres: a printed board on a turntable.
 MIN_SQUARE_M, MAX_SQUARE_M = 1e-4, 1.0
 #: Most squares along a side of the board.
 MAX_SQUARES = 100
+
+#: The saddle-point refinement: the image is smoothed by a Gaussian of this standard
+#: deviation, pixels, and a quadratic fitted to the (2 h + 1)^2 samples about the corner,
+#: h = ``_SADDLE_HALF_PX``; it stops when a step is shorter than ``_SADDLE_STEP_PX``.
+_SADDLE_SIGMA_PX = 1.5
+_SADDLE_HALF_PX = 3
+_SADDLE_STEP_PX = 1e-3
+_SADDLE_ITERATIONS = 20
+#: A refined corner further than this from the detector's, pixels, is not trusted (the
+#: detector's is kept).
+_SADDLE_REACH_PX = 1.0
 
 
 @dataclass(frozen=True)
@@ -144,5 +164,73 @@ def detect_board(image: np.ndarray, board: BoardSpec, *,
     if found < min_corners:
         return None, (f"only {found} board corners found from {len(markers)} markers "
                       f"(need {min_corners})")
-    return Detection(ids=ids.reshape(-1).astype(np.int64),
-                     pixels=corners.reshape(-1, 2).astype(np.float64)), ""
+    pixels = refine_saddle_points(grey, corners.reshape(-1, 2).astype(np.float64))
+    return Detection(ids=ids.reshape(-1).astype(np.int64), pixels=pixels), ""
+
+
+def _saddle_fit() -> np.ndarray:
+    """(6, (2 h + 1)^2) least-squares solution of the quadratic
+    ``a x^2 + b x y + c y^2 + d x + e y + f`` over the samples at integer offsets
+    ``-h..h`` (rows of the patch: y; columns: x), h = ``_SADDLE_HALF_PX``."""
+    r = np.arange(-_SADDLE_HALF_PX, _SADDLE_HALF_PX + 1, dtype=np.float64)
+    x, y = np.meshgrid(r, r)
+    design = np.stack([x * x, x * y, y * y, x, y, np.ones_like(x)], axis=-1).reshape(-1, 6)
+    return np.linalg.pinv(design)
+
+
+def _saddle_point(smooth: np.ndarray, start: np.ndarray, fit: np.ndarray) -> np.ndarray | None:
+    """(2,) the saddle point of ``smooth`` (float32 image) near ``start`` (u, v), pixels,
+    or None when the image there is not a saddle or the search does not settle within
+    ``_SADDLE_REACH_PX`` of ``start``."""
+    side = 2 * _SADDLE_HALF_PX + 1
+    point = start.copy()
+    for _ in range(_SADDLE_ITERATIONS):
+        patch = cv2.getRectSubPix(smooth, (side, side), (float(point[0]), float(point[1])))
+        a, b, c, d, e, _ = fit @ patch.astype(np.float64).ravel()
+        hessian = np.array([[2.0 * a, b], [b, 2.0 * c]])
+        if np.linalg.det(hessian) >= 0.0:             # a blob or an edge, not a corner
+            return None
+        step = np.linalg.solve(hessian, [-d, -e])
+        point = point + step
+        if np.hypot(*(point - start)) > _SADDLE_REACH_PX:
+            return None
+        if np.hypot(*step) < _SADDLE_STEP_PX:
+            return point
+    return None
+
+
+def refine_saddle_points(grey: np.ndarray, corners: np.ndarray) -> np.ndarray:
+    """Chessboard corners moved to the saddle point of the smoothed image.
+
+    A chessboard corner (two dark and two light sectors meeting, under any perspective)
+    is a saddle of the image's brightness, point-symmetric about the corner; smoothed
+    and fitted with a quadratic over a window centred on it, the quadratic's saddle is
+    the corner, wherever the corner falls on the pixel grid. The fit is repeated at the
+    new point (sampled between pixels) until it stays put.
+
+    Parameters
+    ----------
+    grey : (H, W) uint8
+    corners : (n, 2) float64
+        The corners' ``(u, v)`` as the detector placed them, pixels (integer values at
+        pixel centres).
+
+    Returns
+    -------
+    (n, 2) float64
+        The refined corners; a corner too near the image border for the window, or where
+        the fit finds no saddle within ``_SADDLE_REACH_PX``, keeps the detector's position.
+    """
+    smooth = cv2.GaussianBlur(grey.astype(np.float32), (0, 0), _SADDLE_SIGMA_PX)
+    fit = _saddle_fit()
+    border = _SADDLE_HALF_PX + 3 * _SADDLE_SIGMA_PX + 1
+    height, width = grey.shape
+    refined = corners.copy()
+    for i, corner in enumerate(corners):
+        if not (border <= corner[0] <= width - 1 - border
+                and border <= corner[1] <= height - 1 - border):
+            continue
+        point = _saddle_point(smooth, corner, fit)
+        if point is not None:
+            refined[i] = point
+    return refined
