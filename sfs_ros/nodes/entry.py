@@ -11,10 +11,11 @@ import tempfile
 from collections.abc import Callable
 
 import rclpy
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
+from sfs_ros.ros.executor import DrainingExecutor
 from sfs_ros.ros.names import CONFIGURATION_ERROR
 from sfs_ros.ros.params import ParameterError
 
@@ -77,7 +78,7 @@ def run_node(prog: str, make_node: Callable[[], Node | list[Node]], args=None, *
         rclpy.try_shutdown()
         sys.exit(CONFIGURATION_ERROR)
     nodes = made if isinstance(made, list) else [made]
-    executor = _Executor(num_threads=threads) if threads > 1 else SingleThreadedExecutor()
+    executor = DrainingExecutor(num_threads=threads) if threads > 1 else SingleThreadedExecutor()
     for node in nodes:
         executor.add_node(node)
     try:
@@ -92,19 +93,6 @@ def run_node(prog: str, make_node: Callable[[], Node | list[Node]], args=None, *
             node.destroy_node()
         rclpy.try_shutdown()
         stop.restore()
-
-
-class _Executor(MultiThreadedExecutor):
-    """A :class:`MultiThreadedExecutor` whose shutdown first runs to their end the callbacks
-    handed to its thread pool, while its guard condition exists. rclpy's destroys the
-    guard condition first, then lets the pool run what is queued: each such callback
-    then triggers the destroyed guard condition, an exception that no one retrieves ("The
-    following exception was never retrieved: cannot use Destroyable because destruction
-    was requested"); dropping them instead leaves their coroutines never awaited."""
-
-    def shutdown(self, timeout_sec: float | None = None, *, wait_for_threads: bool = True) -> bool:
-        self._executor.shutdown(wait=True)      # rclpy's thread pool: nothing new comes
-        return super().shutdown(timeout_sec, wait_for_threads=wait_for_threads)
 
 
 def _init_rclpy(prog: str, args) -> None:

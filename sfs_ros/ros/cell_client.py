@@ -58,6 +58,8 @@ READY = ("scan/start", "scan/cancel", "scan/resume", "reconstruct", "reset")
 
 #: Longest wait for the spinning thread to end at :meth:`CellClient.close`, s.
 CLOSE_S = 10.0
+#: Longest wait of the spinning thread before it looks whether the client is closing, s.
+SPIN_POLL_S = 0.1
 #: Seconds without an answer after which :meth:`CellClient.reconstruct` sends its request
 #: again (then twice as long each time): a request sent to a meshing node just restarted,
 #: before it matched the client, is lost; the node answers a repeat with the answer it made
@@ -228,7 +230,8 @@ class CellClient:
     def __init__(self, namespace: str = NAMESPACE, *, name: str = "cell_client"):
         import rclpy
         from rclpy.context import Context
-        from rclpy.executors import MultiThreadedExecutor
+
+        from .executor import DrainingExecutor
 
         self._context = Context()
         rclpy.init(context=self._context)
@@ -244,10 +247,17 @@ class CellClient:
                                                     TYPED_SERVICES["reconstruct_mesh"])
         self._action = ActionClient(self.node, Scan, SCAN_ACTION)
         self._calibrate = ActionClient(self.node, Calibrate, CALIBRATE_ACTION)
-        self._executor = MultiThreadedExecutor(num_threads=2, context=self._context)
+        self._executor = DrainingExecutor(num_threads=2, context=self._context)
         self._executor.add_node(self.node)
-        self._spinner = threading.Thread(target=self._executor.spin, daemon=True)
+        self._closing = threading.Event()
+        self._spinner = threading.Thread(target=self._spin, daemon=True)
         self._spinner.start()
+
+    def _spin(self) -> None:
+        """Spin the client's node until :meth:`close` (which shuts the executor down once
+        this has stopped handing it callbacks)."""
+        while not self._closing.is_set():
+            self._executor.spin_once(timeout_sec=SPIN_POLL_S)
 
     def _on_status(self, msg: CellStatus) -> None:
         with self._changed:
@@ -423,8 +433,9 @@ class CellClient:
         return mesh_summary(answer)
 
     def close(self) -> None:
-        self._executor.shutdown()
+        self._closing.set()
         self._spinner.join(timeout=CLOSE_S)
+        self._executor.shutdown()
         self._action.destroy()
         self._calibrate.destroy()
         self.node.destroy_node()
