@@ -32,14 +32,11 @@ import yaml
 
 from ..process import configure_process
 from ..ros.names import NAMESPACE
-from ..ros.services import ServiceError, call
+from ..ros.services import PARAMETER_RESEND_S, ServiceError, call
 
 PROG = "sfs-ctl"
 #: How long a command waits for the cell to answer, s (a scan's result: --timeout).
 ANSWER_S = 30.0
-#: A parameter call unanswered this long is sent again, then twice as long each time (a get
-#: or a set may run twice; Fast DDS may drop the answer to a client it has just matched).
-PARAM_RESEND_S = 2.0
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -205,7 +202,7 @@ def _param(client, args) -> int:
     if args.action == "get":
         answer = call(node.create_client(GetParameters, f"{prefix}/get_parameters"),
                       GetParameters.Request(names=[args.name]), timeout_s=ANSWER_S,
-                      resend_after_s=PARAM_RESEND_S, keep_resending=True)
+                      resend_after_s=PARAMETER_RESEND_S, keep_resending=True)
         if not answer.values or answer.values[0].type == 0:
             raise ValueError(f"{prefix} has no parameter {args.name!r}")
         print(yaml.safe_dump(Parameter.from_parameter_msg(
@@ -222,7 +219,7 @@ def _param(client, args) -> int:
         raise ValueError(f"value {args.value!r} cannot be a parameter: {exc}") from None
     answer = call(node.create_client(SetParameters, f"{prefix}/set_parameters"),
                   SetParameters.Request(parameters=[parameter]), timeout_s=ANSWER_S,
-                  resend_after_s=PARAM_RESEND_S, keep_resending=True)
+                  resend_after_s=PARAMETER_RESEND_S, keep_resending=True)
     result = answer.results[0]
     if not result.successful:
         raise ValueError(f"{prefix} refused {args.name} = {args.value}: {result.reason}")

@@ -56,7 +56,7 @@ from sfs_ros.cell_logic.intrinsics import (
 from sfs_ros.ros.convert import camera_info_intrinsics
 from sfs_ros.ros.names import CARVING_NODE
 from sfs_ros.ros.params import Param
-from sfs_ros.ros.services import ServiceError, call
+from sfs_ros.ros.services import PARAMETER_RESEND_S, ServiceError, call
 
 __all__ = ["DriverCamera", "DRIVER_PARAMS", "TRANSPORTS", "RELIABILITIES", "INTRINSICS_SOURCES"]
 
@@ -69,8 +69,6 @@ RECONSTRUCTION = CARVING_NODE
 _RIG_NAMES = ("projection", "width", "height", "fx", "fy", "cx", "cy", "distortion")
 #: Depth of the frames' subscription (a second of a 10 Hz stream).
 _DEPTH = 10
-#: Seconds after which an unanswered parameter call is sent again.
-_RESEND_S = 2.0
 
 DRIVER_PARAMS: list[Param] = [
     Param("image_reliability", "auto", "QoS reliability of the frames' subscription: auto "
@@ -233,7 +231,7 @@ class DriverCamera:
             Parameter(name, value=value).to_parameter_msg()
             for name, value in rig_update(info).items()])
         try:
-            answer = call(self._set, request, timeout_s=timeout_s, resend_after_s=_RESEND_S)
+            answer = call(self._set, request, timeout_s=timeout_s, resend_after_s=PARAMETER_RESEND_S)
         except ServiceError as exc:
             return f"intrinsics_source driver: the rig cannot be set: {exc}"
         if not answer.result.successful:
@@ -248,7 +246,7 @@ class DriverCamera:
     def _rig_values(self, timeout_s: float) -> dict:
         """``{name: value}`` of the carving node's rig parameters now."""
         answer = call(self._get, GetParameters.Request(names=list(_RIG_NAMES)),
-                      timeout_s=timeout_s, resend_after_s=_RESEND_S)
+                      timeout_s=timeout_s, resend_after_s=PARAMETER_RESEND_S)
         if len(answer.values) != len(_RIG_NAMES):
             raise ServiceError(f"{RECONSTRUCTION} answered {len(answer.values)} rig values, "
                                f"expected {len(_RIG_NAMES)}")

@@ -32,6 +32,7 @@ from sfs_ros.core.geometry.rig import RigCalibration
 from sfs_ros.ros.names import CARVING_NODE
 from sfs_ros.ros.params import ParameterError, check
 from sfs_ros.ros.rig_params import RIG_PARAMS, rig_calibration
+from sfs_ros.ros.services import PARAMETER_RESEND_S
 
 __all__ = ["AppliedRig", "HOLDER_PARAMETER", "apply_rig", "cell_rig", "read_rig_file"]
 
@@ -39,8 +40,6 @@ __all__ = ["AppliedRig", "HOLDER_PARAMETER", "apply_rig", "cell_rig", "read_rig_
 HOLDER_PARAMETER = "camera_distance_m"
 #: The node whose ``output_dir`` is the cell's output folder (it holds the rig too).
 RECONSTRUCTION_NODE = CARVING_NODE
-#: Seconds after which an unanswered parameter service call is sent again.
-RESEND_S = 2.0
 #: Discovery: the cell's nodes are taken as found once the carving node is and the
 #: list of nodes in the namespace has not changed for this long, seconds (a new participant
 #: learns of the running ones within a fraction of a second on one machine).
@@ -192,8 +191,9 @@ def _set(client: AsyncParameterClient, values: dict, full_name: str, deadline: f
 def _call(client: AsyncParameterClient, send, full_name: str, what: str, deadline: float):
     """The answer of a parameter service call ``send()`` (returning its future), once the
     node's parameter services are there, by ``deadline``. A call not answered within
-    :data:`RESEND_S` is sent again (each is idempotent), as Fast DDS may drop the answer
-    to a client it has just matched (:func:`sfs_ros.ros.services.call`)."""
+    :data:`~sfs_ros.ros.services.PARAMETER_RESEND_S` is sent again (each is idempotent), as
+    Fast DDS may drop the answer to a client it has just matched
+    (:func:`sfs_ros.ros.services.call`)."""
     while not client.services_are_ready():
         _check_deadline(deadline, f"{full_name} has no parameter services ({what})")
         time.sleep(0.05)
@@ -201,7 +201,7 @@ def _call(client: AsyncParameterClient, send, full_name: str, what: str, deadlin
     sent = time.monotonic()
     while not any(f.done() for f in futures):
         _check_deadline(deadline, f"{full_name} did not answer in time ({what})")
-        if time.monotonic() - sent > RESEND_S:
+        if time.monotonic() - sent > PARAMETER_RESEND_S:
             futures.append(send())
             sent = time.monotonic()
         time.sleep(0.01)

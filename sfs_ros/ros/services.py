@@ -11,7 +11,11 @@ from __future__ import annotations
 import threading
 import time
 
-__all__ = ["ServiceError", "call"]
+__all__ = ["PARAMETER_RESEND_S", "ServiceError", "call"]
+
+#: Seconds after which an unanswered parameter get or set is sent again (each may run
+#: twice; Fast DDS may drop the answer to a client it has just matched: :func:`call`).
+PARAMETER_RESEND_S = 2.0
 
 
 class ServiceError(RuntimeError):
