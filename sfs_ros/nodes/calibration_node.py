@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 from builtin_interfaces.msg import Time
-from rclpy.action import ActionClient, ActionServer, CancelResponse, GoalResponse
+from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.node import Node
 from sensor_msgs.msg import Image, JointState
@@ -50,6 +50,7 @@ from sfs_ros.core.calibration import BoardSpec
 from sfs_ros.nodes.entry import run_node
 from sfs_ros.process import configure_process
 from sfs_ros.ros import capture_qos
+from sfs_ros.ros.action_client import RaceFreeActionClient
 from sfs_ros.ros.calibration_params import PARAMS
 from sfs_ros.ros.names import CALIBRATE_ACTION, SCAN_ACTION
 from sfs_ros.ros.paired_input import PairedInput, Stream
@@ -117,7 +118,7 @@ class CalibrationNode(Node):
                     on_problem=lambda _kind, text: self.get_logger().warning(text),
                     callback_group=MutuallyExclusiveCallbackGroup())
         actions = ReentrantCallbackGroup()
-        self._scan = ActionClient(self, Scan, SCAN_ACTION, callback_group=actions)
+        self._scan = RaceFreeActionClient(self, Scan, SCAN_ACTION, callback_group=actions)
         self._action = ActionServer(self, Calibrate, CALIBRATE_ACTION, self._execute,
                                     goal_callback=self._on_goal,
                                     cancel_callback=lambda _h: CancelResponse.ACCEPT,

@@ -31,10 +31,10 @@ import time
 from pathlib import Path
 from typing import Callable
 
-from rclpy.action import ActionClient
 from std_srvs.srv import Trigger
 
 from sfs_ros.ros import result_qos
+from sfs_ros.ros.action_client import RaceFreeActionClient
 from sfs_ros.ros.names import (
     CALIBRATE_ACTION,
     CELL_STATUS,
@@ -245,8 +245,8 @@ class CellClient:
                          SERVICES.items()}
         self._reconstruct = self.node.create_client(Reconstruct,
                                                     TYPED_SERVICES["reconstruct_mesh"])
-        self._action = ActionClient(self.node, Scan, SCAN_ACTION)
-        self._calibrate = ActionClient(self.node, Calibrate, CALIBRATE_ACTION)
+        self._action = RaceFreeActionClient(self.node, Scan, SCAN_ACTION)
+        self._calibrate = RaceFreeActionClient(self.node, Calibrate, CALIBRATE_ACTION)
         self._executor = DrainingExecutor(num_threads=2, context=self._context)
         self._executor.add_node(self.node)
         self._closing = threading.Event()
