@@ -47,12 +47,12 @@ from sfs_ros.core.exchange.inputs import load_views
 from sfs_ros.core.exchange.session import write_session
 from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
 from sfs_ros.core.pipeline import ReconstructionParams, reconstruct
-from sfs_ros.core.render import rasterize_silhouette, render_image
+from sfs_ros.core.render import render_image
 from sfs_ros.core.segmentation.presets import PRESETS
 from sfs_ros.core.segmentation.segment import SegmentationParams
 from sfs_ros.core.simulation.objects import fine_color_at, make_object
 from sfs_ros.core.simulation.plan import ring_plan
-from sfs_ros.core.simulation.synthetic import carving_box, simulate_scan
+from sfs_ros.core.simulation.synthetic import carving_box, held_out_colour_error, simulate_scan
 from sfs_ros.core.texture import texture_reconstruction
 
 RIG = RigCalibration(width=320, height=240, projection="pinhole", fx=700.0, fy=700.0,
@@ -66,19 +66,6 @@ HELD_OUT = (3, 21, 38, 48)
 RESOLUTIONS = (40, 64, None)
 #: Runs of the reconstruction and the texture at default settings, the best kept.
 REPEATS = 3
-
-
-def held_out_error(mug, captures, vertices, faces, **colouring) -> float:
-    """Mean absolute colour error (grey levels) in the held-out views (module docstring)."""
-    errors = []
-    for i in HELD_OUT:
-        camera = rig_camera(captures[i].theta_rad, captures[i].phi_rad, RIG)
-        drawn = render_image(vertices, faces, camera, ambient=1.0, noise_sigma=0.0, **colouring)
-        both = (rasterize_silhouette(vertices, faces, camera)
-                & rasterize_silhouette(mug.mesh.vertices, mug.mesh.faces, camera))
-        both = cv2.erode(both.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
-        errors.append(np.abs(drawn.astype(float) - captures[i].image)[both].mean())
-    return float(np.mean(errors))
 
 
 def resident_bytes() -> int:
@@ -190,13 +177,17 @@ def main() -> None:
             textured = texture_reconstruction(view_set, result)
             texture_s = time.perf_counter() - start
             stats = textured.stats
+            held_out = [captures[i] for i in HELD_OUT]
+            texture_error = held_out_colour_error(mug, held_out, RIG, textured.vertices,
+                                                  textured.faces, pixel_colors=textured.colour_at)
+            vertex_error = held_out_colour_error(mug, held_out, RIG, result.vertices,
+                                                 result.faces, vertex_colors=result.vertex_colors)
             print(f"grid {resolution or 'footprint'}: {stats['faces']} faces; mesh {mesh_s:.2f} s "
                   f"(colour {result.report['timings_s'].get('colour', 0):.2f} s), texture "
                   f"{texture_s:.2f} s {({k: round(v, 2) for k, v in stats['seconds'].items()})}; "
                   f"{stats['charts']} charts, {stats['seam_edges']} seam edges, atlas "
                   f"{stats['atlas_size']} used {stats['atlas_use']:.2f}; held-out error: "
-                  f"texture {held_out_error(mug, captures, textured.vertices, textured.faces, pixel_colors=textured.colour_at):.1f}, "  # noqa: E501
-                  f"vertex colours {held_out_error(mug, captures, result.vertices, result.faces, vertex_colors=result.vertex_colors):.1f}")  # noqa: E501
+                  f"texture {texture_error:.1f}, vertex colours {vertex_error:.1f}")
     cost_of_48_views(mug)
     cost_of_the_temple()
 

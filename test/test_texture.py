@@ -8,7 +8,6 @@ import re
 import shutil
 import subprocess
 
-import cv2
 import numpy as np
 import pytest
 import trimesh
@@ -22,9 +21,9 @@ from sfs_ros.core.geometry.rig import rig_camera
 from sfs_ros.core.meshing.colour import spread_views
 from sfs_ros.core.pictures.html_viewer import write_html_viewer
 from sfs_ros.core.pipeline import ReconstructionParams, reconstruct
-from sfs_ros.core.render import rasterize_depth, rasterize_silhouette, render_image
+from sfs_ros.core.render import rasterize_depth, rasterize_silhouette
 from sfs_ros.core.simulation.objects import fine_color_at
-from sfs_ros.core.simulation.synthetic import carving_box, simulate_scan
+from sfs_ros.core.simulation.synthetic import carving_box, held_out_colour_error, simulate_scan
 from sfs_ros.core.texture import TexturedMesh, texture_mesh, texture_reconstruction
 from sfs_ros.core.texture.agreement import blurred_views
 from sfs_ros.core.texture.evaluation import held_out_psnr
@@ -67,21 +66,6 @@ def textured(scan, result):
     return texture_reconstruction(scan[2], result)
 
 
-def held_out_error(mug, captures, vertices, faces, **colouring) -> float:
-    """Mean absolute colour error (grey levels) of the mesh drawn unshaded into the held-out
-    views against their images, over the pixels both the mesh and the true mug cover,
-    eroded by 2 px (the outline's pixels mix object and backdrop)."""
-    errors = []
-    for i in HELD_OUT:
-        camera = rig_camera(captures[i].theta_rad, captures[i].phi_rad, TEST_RIG)
-        drawn = render_image(vertices, faces, camera, ambient=1.0, noise_sigma=0.0, **colouring)
-        both = (rasterize_silhouette(vertices, faces, camera)
-                & rasterize_silhouette(mug.mesh.vertices, mug.mesh.faces, camera))
-        both = cv2.erode(both.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
-        errors.append(np.abs(drawn.astype(float) - captures[i].image)[both].mean())
-    return float(np.mean(errors))
-
-
 def camera_of(capture):
     return rig_camera(capture.theta_rad, capture.phi_rad, TEST_RIG)
 
@@ -92,11 +76,12 @@ def true_silhouette(mug, capture):
 
 def test_texture_beats_vertex_colours_in_held_out_views(mug, scan, result, textured):
     captures = scan[0]
-    texture = held_out_error(mug, captures, textured.vertices, textured.faces,
-                             pixel_colors=textured.colour_at)
-    vertex = held_out_error(mug, captures, result.vertices, result.faces,
-                            vertex_colors=result.vertex_colors)
-    # Measured 17.4 against 27.8 grey levels. The pattern's 5 mm period spans 5.8 px, so
+    held_out = [captures[i] for i in HELD_OUT]
+    texture = held_out_colour_error(mug, held_out, TEST_RIG, textured.vertices, textured.faces,
+                                    pixel_colors=textured.colour_at)
+    vertex = held_out_colour_error(mug, held_out, TEST_RIG, result.vertices, result.faces,
+                                   vertex_colors=result.vertex_colors)
+    # Measured 17.5 against 27.9 grey levels. The pattern's 5 mm period spans 5.8 px, so
     # a tenth of a pixel of misregistration (the hull is not the mug, the views' angles
     # are off by 3 mrad) and resampling twice cost the texture most of its error; the
     # vertices, 2-3 mm apart, cannot hold the pattern at all. (Deterministic: seeded.)

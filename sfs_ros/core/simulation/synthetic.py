@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
@@ -29,7 +30,7 @@ from ..render import corner_normals, rasterize_silhouette, render_image, solid_c
 from .objects import SyntheticObject
 
 __all__ = ["Capture", "carving_box", "exact_silhouettes", "simulate_scan", "score_against_truth",
-           "distance_to_mesh", "surface_errors", "true_visual_hull"]
+           "distance_to_mesh", "held_out_colour_error", "surface_errors", "true_visual_hull"]
 
 
 @dataclass(frozen=True)
@@ -150,6 +151,27 @@ def score_against_truth(obj: SyntheticObject, vertices: np.ndarray, faces: np.nd
                       "chamfer_to_true_hull_m": to_hull.mean,
                       "hausdorff_to_true_hull_m": to_hull.hausdorff})
     return score
+
+
+def held_out_colour_error(obj: SyntheticObject, captures, calibration: RigCalibration,
+                          vertices: np.ndarray, faces: np.ndarray, *, erode_px: int = 2,
+                          **colouring) -> float:
+    """Mean absolute colour error (grey levels) of a coloured mesh drawn unshaded into
+    ``captures`` (views the reconstruction did not use, taken with ``calibration``) against
+    their images, over the pixels both the mesh and the true ``obj`` cover, eroded by
+    ``erode_px`` (the outline's pixels mix object and backdrop). ``colouring``: the mesh's
+    colours as :func:`~sfs_ros.core.render.render_image` takes them (``vertex_colors`` or
+    ``pixel_colors``)."""
+    size = 2 * int(erode_px) + 1
+    errors = []
+    for capture in captures:
+        camera = rig_camera(capture.theta_rad, capture.phi_rad, calibration)
+        drawn = render_image(vertices, faces, camera, ambient=1.0, noise_sigma=0.0, **colouring)
+        both = (rasterize_silhouette(vertices, faces, camera)
+                & rasterize_silhouette(obj.mesh.vertices, obj.mesh.faces, camera))
+        both = cv2.erode(both.astype(np.uint8), np.ones((size, size), np.uint8)).astype(bool)
+        errors.append(np.abs(drawn.astype(float) - capture.image)[both].mean())
+    return float(np.mean(errors))
 
 
 def _closest_on_triangles(points: np.ndarray, tri: np.ndarray) -> np.ndarray:
