@@ -17,9 +17,9 @@ __all__ = ["RaceFreeActionClient"]
 
 
 class RaceFreeActionClient(ActionClient):
-    """:class:`rclpy.action.ActionClient` with :meth:`send_goal_async` registering the
-    goal's one future, and its feedback callback, before the goal is sent and under the
-    client's lock (which the executor takes to read an answer)."""
+    """:class:`rclpy.action.ActionClient` with :meth:`send_goal_async` sending the goal and
+    registering its one future and its feedback callback under the client's lock, which
+    the executor takes to read an answer or a feedback message."""
 
     def send_goal_async(self, goal, feedback_callback=None, goal_uuid=None) -> Future:
         """Send ``goal``; a future of its ClientGoalHandle, done when the server accepts or
@@ -33,11 +33,11 @@ class RaceFreeActionClient(ActionClient):
         request.goal = goal
         future = Future()
         with self._lock:
-            if feedback_callback is not None:
-                self._feedback_callbacks[bytes(request.goal_id.uuid)] = feedback_callback
             sequence_number = self._client_handle.send_goal_request(request)
             if sequence_number in self._pending_goal_requests:
                 raise RuntimeError(f"goal request {sequence_number} is already pending")
+            if feedback_callback is not None:
+                self._feedback_callbacks[bytes(request.goal_id.uuid)] = feedback_callback
             self._pending_goal_requests[sequence_number] = future
             self._goal_sequence_number_to_goal_id[sequence_number] = request.goal_id
             future.add_done_callback(self._remove_pending_goal_request)
