@@ -13,6 +13,7 @@ from sfs_ros.core.segmentation.segment import (
     PRESETS,
     Segmentation,
     SegmentationParams,
+    _enclosed_patches,
     estimate_background,
     segment,
 )
@@ -224,6 +225,28 @@ def test_graph_cut_opens_an_enclosed_hole_on_a_plain_backdrop():
     _, filled_truth = ground_truth()
     assert iou(mask, filled_truth) > IOU_MIN
     assert not mask[_disk((H, W), BIG_HOLE[0], BIG_HOLE[1] - BAND_PX - 0.5)].any()
+
+
+def test_enclosed_patches_are_backdrop_colours_ringed_by_object_colours():
+    """A patch of a backdrop colour is enclosed when it misses the frame and more than
+    half its outline is object colour; one of ``_SPECK_PX`` pixels or more is a guess."""
+    far = np.zeros((30, 40), bool)                   # object colours
+    nearest = np.zeros((30, 40), np.int64)           # each pixel's backdrop colour
+    edge = np.zeros((30, 40), bool)
+    edge[:2], edge[-2:], edge[:, :2], edge[:, -2:] = True, True, True, True
+    far[5:20, 5:20] = True
+    far[9:14, 9:14] = False                          # a hole of colour 0 in an object
+    nearest[24:27, 30:33] = 1                        # colour 1 on open backdrop of colour 0
+    far[5:8, 30:33] = True
+    far[6, 31] = False                               # a one-pixel hole: a speck
+    enclosed, guessed = _enclosed_patches(nearest, far, 2, edge)
+    expected = np.zeros((30, 40), bool)
+    expected[9:14, 9:14] = expected[6, 31] = True
+    np.testing.assert_array_equal(enclosed, expected)
+    assert guessed
+    far[9:14, 9:14] = True                           # the speck alone is no guess
+    enclosed, guessed = _enclosed_patches(nearest, far, 2, edge)
+    assert enclosed.sum() == 1 and not guessed
 
 
 def test_grey_input_matches_rgb():

@@ -736,6 +736,69 @@ def _undecided_window(labels: np.ndarray) -> tuple[slice, slice]:
             slice(max(0, cols.min() - margin), cols.max() + margin + 1))
 
 
+def _enclosed_patches(nearest: np.ndarray, far: np.ndarray, clusters: int,
+                      edge: np.ndarray) -> tuple[np.ndarray, bool]:
+    """The patches of a backdrop colour that do not reach the frame and whose outline
+    borders object colours for more than ``_ENCLOSED_FRACTION`` of its pixels.
+
+    nearest : (h, w) int, each pixel's nearest of the backdrop's ``clusters`` colours;
+    far : (h, w) bool, the pixels far from every one (object colours); edge : (h, w)
+    bool, the frame. A patch is a connected (8-neighbour) region of pixels near one
+    colour; its outline, the pixels not of it next to it (8-neighbour), each counted for
+    the highest-numbered patch of that colour it touches.
+
+    Returns the enclosed patches' pixels, (h, w) bool, and whether one of them is of
+    ``_SPECK_PX`` pixels or more (a guess the graph cut must test, not a noise speck).
+    """
+    enclosed = np.zeros(far.shape, bool)
+    guessed = False
+    for k in range(clusters):
+        near = (~far & (nearest == k)).view(np.uint8)
+        n, components = cv2.connectedComponents(near, connectivity=8)
+        if n > 1:
+            guessed |= _mark_enclosed(near, components, n, far, edge, enclosed)
+    return enclosed, guessed
+
+
+@njit(cache=True, nogil=True)
+def _mark_enclosed(near, components, n, far, edge, enclosed):
+    """Set in (h, w) bool ``enclosed`` the pixels of the patches of (h, w) uint8 ``near``
+    (``components``: (h, w) int32 labels 1 .. n - 1 of its 8-connected regions, 0 off
+    them) that :func:`_enclosed_patches` keeps; whether one of them has ``_SPECK_PX``
+    pixels or more."""
+    h, w = near.shape
+    across = np.empty((h, w), np.int32)   # the highest label of each pixel's row of three
+    for y in range(h):
+        row, out = components[y], across[y]
+        for x in range(w):
+            out[x] = max(row[max(x - 1, 0)], row[x], row[min(x + 1, w - 1)])
+    framed = np.zeros(n, np.bool_)
+    size = np.zeros(n, np.int64)
+    around = np.zeros(n, np.int64)       # outline pixels
+    around_far = np.zeros(n, np.int64)   # of them, far from the backdrop
+    for y in range(h):
+        above, below = across[max(y - 1, 0)], across[min(y + 1, h - 1)]
+        for x in range(w):
+            c = components[y, x]
+            if near[y, x]:
+                size[c] += 1
+                framed[c] |= edge[y, x]
+            else:
+                owner = max(above[x], across[y, x], below[x])
+                around[owner] += 1
+                around_far[owner] += far[y, x]
+    patch = np.zeros(n, np.bool_)
+    guessed = False
+    for c in range(1, n):
+        patch[c] = not framed[c] and around_far[c] > _ENCLOSED_FRACTION * max(around[c], 1)
+        guessed |= patch[c] and size[c] >= _SPECK_PX
+    for y in range(h):
+        for x in range(w):
+            if patch[components[y, x]]:
+                enclosed[y, x] = True
+    return guessed
+
+
 def _graph_cut_mask(rgb: np.ndarray, params: SegmentationParams,
                     scan_backdrop: BackdropModel | None = None,
                     ) -> tuple[np.ndarray, np.ndarray, float]:
@@ -755,27 +818,9 @@ def _graph_cut_mask(rgb: np.ndarray, params: SegmentationParams,
     # A backdrop colour away from the frame and enclosed mostly by object colours (the
     # white top of an object seen from above, on a grey plate, before a white sweep) is
     # no evidence of backdrop: such a patch of one cluster's colour starts as object.
-    _, nearest = backdrop.nearest(small)
     far = small_distance > params.object_sigma
-    enclosed = np.zeros(size[::-1], bool)
-    guessed = False  # an enclosed patch larger than a noise speck: a guess the cut must test
-    for k in range(len(backdrop.means)):
-        near_k = (~far & (nearest == k)).astype(np.uint8)
-        n, components = cv2.connectedComponents(near_k, connectivity=8)
-        if n <= 1:
-            continue
-        framed = np.zeros(n, bool)
-        framed[np.unique(components[edge & (near_k > 0)])] = True
-        ring = (cv2.dilate(near_k, np.ones((3, 3), np.uint8)) > 0) & (near_k == 0)
-        owner = cv2.dilate(components.astype(np.float32), np.ones((3, 3), np.uint8))
-        owner = owner.astype(np.int64)[ring]  # the (largest-numbered) patch a ring pixel borders
-        around = np.bincount(owner, minlength=n)
-        around_far = np.bincount(owner, weights=far[ring], minlength=n)
-        patch = ~framed & (around_far > _ENCLOSED_FRACTION * np.maximum(around, 1))
-        patch[0] = False
-        enclosed |= patch[components]
-        guessed |= bool(np.any(patch & (np.bincount(components.ravel(), minlength=n)
-                                        >= _SPECK_PX)))
+    enclosed, guessed = _enclosed_patches(backdrop.nearest(small)[1], far, len(backdrop.means),
+                                          edge)
     labels = np.where(far | enclosed, cv2.GC_PR_FGD, cv2.GC_PR_BGD).astype(np.uint8)
     labels[edge] = cv2.GC_PR_BGD  # seeds the backdrop colours with whatever reaches the frame
     # Sure backdrop: near a cluster and connected to the frame, minus thin parts
