@@ -19,9 +19,9 @@ import pytest
 import rclpy
 from rclpy.action import ActionClient, ActionServer, GoalResponse
 from rclpy.context import Context
-from rclpy.executors import MultiThreadedExecutor
 
 from sfs_ros.ros.action_client import RaceFreeActionClient
+from sfs_ros.ros.executor import DrainingExecutor
 from sfs_ros_interfaces.action import Calibrate
 
 from ros_harness import NAMESPACE
@@ -43,7 +43,7 @@ def _execute(goal_handle) -> Calibrate.Result:
 @contextmanager
 def _server_and_client(client_class):
     """An action server accepting every goal and a ``client_class`` client, each node
-    spun by its own multi-threaded executor in its own thread."""
+    spun by its own multi-threaded executor in its own thread (as ``CellClient`` spins)."""
     context = Context()
     rclpy.init(context=context)
     nodes = [rclpy.create_node(name, namespace=NAMESPACE, context=context)
@@ -51,14 +51,25 @@ def _server_and_client(client_class):
     server = ActionServer(nodes[0], Calibrate, "goal_race", _execute,
                           goal_callback=lambda _goal: GoalResponse.ACCEPT)
     client = client_class(nodes[1], Calibrate, "goal_race")
-    executors = [MultiThreadedExecutor(num_threads=2, context=context) for _ in nodes]
+    executors = [DrainingExecutor(num_threads=2, context=context) for _ in nodes]
+    stop = threading.Event()
+
+    def spin(executor) -> None:
+        while not stop.is_set():
+            executor.spin_once(timeout_sec=0.1)
+
+    spinners = []
     for executor, node in zip(executors, nodes):
         executor.add_node(node)
-        threading.Thread(target=executor.spin, daemon=True).start()
+        spinners.append(threading.Thread(target=spin, args=(executor,)))
+        spinners[-1].start()
     try:
         assert client.wait_for_server(timeout_sec=DEADLINE_S)
         yield client
     finally:
+        stop.set()
+        for spinner in spinners:
+            spinner.join()
         for executor in executors:
             executor.shutdown()
         client.destroy()
