@@ -169,10 +169,10 @@ def _mask_boxes(masks) -> np.ndarray:
 
 
 def _flat_views(cameras, masks):
-    """Masks, flattened for the block path, and the summed-area tables of their
-    foreground's bounding boxes (a few times smaller than the images). One mask
-    array given for several views (e.g. :func:`~.bounds.seen_by`'s full frames) is
-    stored and tabled once; those views' offsets point at it."""
+    """The masks' foreground bounding boxes (a few times smaller than the images), their
+    pixels flat for the block path, and their summed-area tables. One mask array given
+    for several views (e.g. :func:`~.bounds.seen_by`'s full frames) is stored and tabled
+    once; those views' offsets point at it."""
     heights = np.array([c.height for c in cameras], np.int64)
     widths = np.array([c.width for c in cameras], np.int64)
     slot: dict[int, int] = {}   # id of a mask array -> its place among the distinct ones
@@ -181,12 +181,13 @@ def _flat_views(cameras, masks):
     boxes = _mask_boxes([masks[v] for v in distinct])
     sizes = (boxes[:, 2] + 1) * (boxes[:, 3] + 1)
     moff = np.zeros(len(distinct), np.int64)
-    moff[1:] = np.cumsum((heights * widths)[distinct])[:-1]
+    moff[1:] = np.cumsum(boxes[:, 2] * boxes[:, 3])[:-1]
     ioff = np.zeros(len(distinct), np.int64)
     ioff[1:] = np.cumsum(sizes)[:-1]
-    flat = np.concatenate([masks[v].ravel() for v in distinct]).view(np.uint8)
+    flat = np.concatenate([masks[v][y:y + h, x:x + w].ravel()
+                           for v, (x, y, w, h) in zip(distinct, boxes)]).view(np.uint8)
     integ = np.empty(int(np.sum(sizes)), np.int32)
-    _k.integral_images(flat, moff, widths[distinct], boxes, ioff, integ)
+    _k.integral_images(flat, moff, boxes, ioff, integ)
     index = np.searchsorted(distinct, first)  # each view's mask among the distinct ones
     ortho = np.array([c.orthographic for c in cameras])
     return ortho, flat, moff[index], integ, ioff[index], boxes[index], heights, widths
@@ -220,7 +221,7 @@ class PreparedMasks:
         return self._keys
 
     def block_tables(self):
-        """The block path's flat masks and summed-area tables (see ``_flat_views``)."""
+        """The block path's flat mask boxes and summed-area tables (see ``_flat_views``)."""
         if self._blocks is None:
             self._blocks = _flat_views(self.cameras, self.masks)
         return self._blocks

@@ -66,16 +66,23 @@ def _h(cv, r, i, j, k):
 
 
 @njit(**_NJIT)
-def voxel_pixel(cv, i, j, k, W, H):
-    """Flat index r * W + c of the pixel voxel (i, j, k) lands in, or -1 outside."""
+def mask_hit(cv, i, j, k, W, H, masks, base, boxes, v, keep):
+    """Whether voxel (i, j, k) lands in view ``v``'s silhouette (``keep`` when its pixel is
+    outside the W x H image): the pixel's value in the mask's bounding box ``boxes[v]`` =
+    (column, row, width, height), stored flat at ``masks[base:]`` (row-major, the box's
+    width a row); outside the box there is no foreground."""
     h2 = _h(cv, 2, i, j, k)
     if not h2 > 0.0:
-        return -1
+        return keep
     pu = np.floor(_h(cv, 0, i, j, k) / h2 + 0.5)
     pv = np.floor(_h(cv, 1, i, j, k) / h2 + 0.5)
     if not (pu >= 0.0 and pu < W and pv >= 0.0 and pv < H):
-        return -1
-    return int(pv) * W + int(pu)
+        return keep
+    c = int(pu) - boxes[v, 0]
+    r = int(pv) - boxes[v, 1]
+    if c < 0 or c >= boxes[v, 2] or r < 0 or r >= boxes[v, 3]:
+        return False
+    return masks[base + r * boxes[v, 2] + c] != 0
 
 
 # ---------------------------------------------------------------------------
@@ -238,14 +245,12 @@ def _push_children(stack, sp, i0, j0, k0, half, nx, ny, nz):
 
 
 @njit(parallel=True, cache=True, error_model="numpy")
-def integral_images(masks, moff, widths, boxes, ioff, integ):
+def integral_images(masks, moff, boxes, ioff, integ):
     """Summed-area tables of the masks' bounding boxes ``boxes`` (n, 4) = (column, row,
-    width, height), flat: ``integ[ioff[v] + r * (w + 1) + c]`` = foreground pixels of
+    width, height), each box's pixels flat at ``masks[moff[v]:]`` (row-major):
+    ``integ[ioff[v] + r * (w + 1) + c]`` = foreground pixels of
     ``mask[y0:y0 + r, x0:x0 + c]``."""
     for v in prange(moff.size):
-        W = widths[v]
-        x0 = boxes[v, 0]
-        y0 = boxes[v, 1]
         w = boxes[v, 2]
         s = w + 1
         b = ioff[v]
@@ -254,7 +259,7 @@ def integral_images(masks, moff, widths, boxes, ioff, integ):
         for r in range(boxes[v, 3]):
             run = 0
             integ[b + (r + 1) * s] = 0
-            row = moff[v] + (y0 + r) * W + x0
+            row = moff[v] + r * w
             for c in range(w):
                 run += masks[row + c]
                 integ[b + (r + 1) * s + c + 1] = integ[b + r * s + c + 1] + run
@@ -324,10 +329,8 @@ def carve_blocks(coef, ortho, masks, moff, integ, ioff, boxes, heights, widths, 
                             m = misses
                             for t in range(n_open):
                                 v = lists[lev, t]
-                                pix = voxel_pixel(view_tuple(coef, v), i, j, k, widths[v],
-                                                  heights[v])
-                                hit = keep if pix < 0 else masks[moff[v] + pix] != 0
-                                if not hit:
+                                if not mask_hit(view_tuple(coef, v), i, j, k, widths[v],
+                                                heights[v], masks, moff[v], boxes, v, keep):
                                     m += 1
                                     if m > max_misses:
                                         break
@@ -344,9 +347,9 @@ def carve_blocks(coef, ortho, masks, moff, integ, ioff, boxes, heights, widths, 
 @njit(parallel=True, **_NJIT)
 def carve_blocks_one(coef, ortho, masks, integ, boxes, W, H, keep, cap, top, leaf, alive,
                      misses):
-    """Add view 0 (mask ``masks`` flat (H * W,), summed-area table ``integ`` of its box
-    ``boxes[0]``) to the miss
-    counters ``misses`` (nx, ny, nz), saturating at ``cap``.
+    """Add view 0 (its mask's bounding box ``boxes[0]``, the box's pixels ``masks`` flat,
+    their summed-area table ``integ``) to the miss counters ``misses`` (nx, ny, nz),
+    saturating at ``cap``.
 
     ``alive`` (n_blocks,) bool flags top blocks that may still hold a voxel
     below ``cap``; blocks flagged dead are skipped, flags are updated.
@@ -388,8 +391,7 @@ def carve_blocks_one(coef, ortho, masks, integ, boxes, W, H, keep, cap, top, lea
                         for k in range(k0, k1 + 1):
                             if misses[i, j, k] < cap:
                                 if st == BLOCK_UNDECIDED:
-                                    pix = voxel_pixel(cv, i, j, k, W, H)
-                                    if (keep if pix < 0 else masks[pix] != 0):
+                                    if mask_hit(cv, i, j, k, W, H, masks, 0, boxes, 0, keep):
                                         continue
                                 misses[i, j, k] += 1
                                 changed = True
