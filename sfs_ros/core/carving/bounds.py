@@ -26,6 +26,7 @@ import numpy as np
 
 from ..geometry.camera import Camera
 from ..geometry.grid import VoxelGrid
+from ..workers import map_in_threads
 from .carve import Carver, PreparedMasks, carve, same_grid, view_key, view_keys
 from .hull import drop_specks, occupied_bounds
 
@@ -123,11 +124,13 @@ def footprint_masks(cameras: list[Camera], masks, grid: VoxelGrid) -> list[np.nd
     """The ``masks`` (n (H, W) bool, or PreparedMasks) grown by the footprint of a voxel of
     ``grid`` in each view (:func:`footprint_radius_px`): a voxel whose centre lands in the
     grown mask may meet the silhouette; one outside it cannot. Carving ``grid`` with
-    them keeps every voxel any part of which every view sees in its silhouette."""
+    them keeps every voxel any part of which every view sees in its silhouette. The views
+    are grown side by side (:func:`~sfs_ros.core.workers.map_in_threads`)."""
     if isinstance(masks, PreparedMasks):
         masks = masks.masks
-    return [_grown(np.asarray(m, dtype=bool), footprint_radius_px(c, grid))
-            for c, m in zip(cameras, masks, strict=True)]
+    return list(map_in_threads(
+        lambda pair: _grown(np.asarray(pair[1], dtype=bool), footprint_radius_px(pair[0], grid)),
+        zip(cameras, masks, strict=True)))
 
 
 def estimate_bounds(cameras: list[Camera], masks: list[np.ndarray], *,
