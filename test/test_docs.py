@@ -211,7 +211,10 @@ def test_the_two_commands_come_first():
 
 
 def github_anchor(heading: str) -> str:
-    text = re.sub(r"[`*_]|\[([^\]]*)\]\([^)]*\)", lambda m: m.group(1) or "", heading.strip())
+    """GitHub's anchor of a heading: its text as shown (code marks, emphasis stars and
+    links' targets gone; an underscore is kept, as in ``sfs_ros``), lower case, without
+    punctuation but hyphens and underscores, spaces as hyphens."""
+    text = re.sub(r"[`*]|\[([^\]]*)\]\([^)]*\)", lambda m: m.group(1) or "", heading.strip())
     text = re.sub(r"[^\w\- ]", "", text.lower())
     return text.replace(" ", "-")
 
