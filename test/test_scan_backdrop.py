@@ -107,3 +107,19 @@ def test_a_colour_the_border_shows_a_little_of_is_not_added():
     assert own.distance(np.array([cloth], np.uint8))[0] > SIGMA
     added = own.adapted_to(model, samples, SIGMA, OBJECT_SIGMA)
     assert added.distance(np.array([cloth], np.uint8))[0] > SIGMA
+
+
+def test_the_segmentation_keeps_the_model_its_border_gives():
+    # The check of whether the scan's backdrop changes a view reuses the model the view's
+    # segmentation learnt: the one its border's samples give, so the check's answer stands.
+    views = scan()
+    model = fit_scan_backdrop([band_samples(image) for image, _ in views])
+    for image, _ in views:
+        samples = band_samples(image)
+        own = segment(image).border_backdrop
+        again = fit_backdrop(samples=samples)
+        assert np.array_equal(own.means, again.means)
+        assert np.array_equal(own.inverse_covariances, again.inverse_covariances)
+        assert scan_backdrop_changes(samples, model, own=own) \
+            == scan_backdrop_changes(samples, model)
+    assert segment(views[0][0], SegmentationParams(method="threshold")).border_backdrop is None

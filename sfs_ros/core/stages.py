@@ -106,15 +106,17 @@ class UsedViews:
 class _ViewMask:
     """One view's silhouette (H, W) bool as taken (``taken``) and undistorted onto its
     ideal pinhole (``ideal``), the alpha channel it is exact from, undistorted
-    (``coverage``, (H, W) uint8; None: segmented or given), and the pixels of its
-    image's border its graph cut learnt the backdrop from (``band``, (n, 3) uint8; None:
-    not segmented by the graph cut), and its (H, W, 3) uint8 RGB image as read when kept
-    (``image``; else None)."""
+    (``coverage``, (H, W) uint8; None: segmented or given), the pixels of its image's
+    border its graph cut learnt the backdrop from (``band``, (n, 3) uint8) and the model
+    it learnt (``own_backdrop``, :attr:`.segmentation.segment.Segmentation.border_backdrop`;
+    both None: not segmented by the graph cut), and its (H, W, 3) uint8 RGB image as read
+    when kept (``image``; else None)."""
 
     taken: np.ndarray
     ideal: np.ndarray
     coverage: np.ndarray | None
     band: np.ndarray | None = None
+    own_backdrop: BackdropModel | None = None
     image: np.ndarray | None = None
 
 
@@ -133,7 +135,7 @@ def _read_and_segment(view: View, params: SegmentationParams, given: np.ndarray 
                     f"expected {expected} bool (the camera's size)")
         if not given.any():
             return "empty silhouette: no object found"
-        mask, alpha, band, image = given, None, None, None
+        mask, alpha, band, own, image = given, None, None, None, None
     else:
         try:
             image = read_image(view.image_path, keep_alpha=not params.ignore_alpha,
@@ -141,22 +143,24 @@ def _read_and_segment(view: View, params: SegmentationParams, given: np.ndarray 
         except ValueError as err:
             return str(err)
         result = segment(image, params, scan_backdrop=scan_backdrop)
-        band = backdrop_samples(image, params)
+        band, own = backdrop_samples(image, params), result.border_backdrop
         if result.empty:
-            return _Empty(band)
+            return _Empty(band, own)
         exact = image.ndim == 3 and image.shape[2] == 4 and not params.ignore_alpha
         mask, alpha = result.mask, (image[:, :, 3].copy() if exact else None)
     ideal = undistort_mask(mask, view.camera) if undistorted is None else undistorted
     rgb = image is not None and image.ndim == 3 and image.shape[2] == 3
     return _ViewMask(mask, ideal, None if alpha is None else undistort_image(alpha, view.camera),
-                     band, image if keep_image and rgb else None)
+                     band, own, image if keep_image and rgb else None)
 
 
 @dataclass(frozen=True)
 class _Empty:
-    """A view segmented empty, and its border's pixels (``band``, as :class:`_ViewMask`'s)."""
+    """A view segmented empty, its border's pixels and their backdrop model (``band`` and
+    ``own_backdrop``, as :class:`_ViewMask`'s)."""
 
     band: np.ndarray | None
+    own_backdrop: BackdropModel | None
     reason: str = "empty silhouette: no object found"
 
 
@@ -177,8 +181,9 @@ def _with_scan_backdrop(views: list[View], results: list, params: SegmentationPa
     if len(learnt) < 3:
         return results, None
     scan = fit_scan_backdrop(learnt)
-    again = [n for n, band in enumerate(bands)
-             if band is not None and scan_backdrop_changes(band, scan, params)]
+    again = [n for n, (band, result) in enumerate(zip(bands, results))
+             if band is not None and scan_backdrop_changes(band, scan, params,
+                                                           own=result.own_backdrop)]
     redone = map_in_threads(
         lambda n: _read_and_segment(views[n], params, None, None, scan, keep_images), again)
     for n, result in zip(again, redone):

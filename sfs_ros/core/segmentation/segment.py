@@ -322,6 +322,9 @@ class Segmentation:
     empty : bool, no object found (the view should be rejected)
     touches_border : bool, the mask reaches the image edge (object partly out
         of frame, or the background was not recognised)
+    border_backdrop : BackdropModel or None, the graph cut's backdrop as the image's own
+        border band shows it (before a scan's backdrop adapts it); None for the
+        threshold method and an alpha mask
     """
 
     mask: np.ndarray
@@ -332,6 +335,7 @@ class Segmentation:
     foreground_fraction: float
     empty: bool
     touches_border: bool
+    border_backdrop: BackdropModel | None = None
 
 
 def _as_rgb(image) -> np.ndarray:
@@ -801,14 +805,15 @@ def _mark_enclosed(near, components, n, far, edge, enclosed):
 
 def _graph_cut_mask(rgb: np.ndarray, params: SegmentationParams,
                     scan_backdrop: BackdropModel | None = None,
-                    ) -> tuple[np.ndarray, np.ndarray, float]:
-    """Graph-cut method up to the closing: (mask (H, W) uint8, backdrop colour (3,), object_sigma)."""
+                    ) -> tuple[np.ndarray, np.ndarray, float, BackdropModel]:
+    """Graph-cut method up to the closing: (mask (H, W) uint8, backdrop colour (3,),
+    object_sigma, the backdrop model of the image's own border)."""
     h, w = rgb.shape[:2]
     random = OpenCVRandom(0)  # the backdrop's k-means draws first, then the GrabCut's
     band = band_samples(rgb, params.border_fraction)
-    backdrop = fit_backdrop(samples=band, random=random)
+    own = backdrop = fit_backdrop(samples=band, random=random)
     if scan_backdrop is not None:
-        backdrop = backdrop.adapted_to(scan_backdrop, band, _SURE_SIGMA, params.object_sigma)
+        backdrop = own.adapted_to(scan_backdrop, band, _SURE_SIGMA, params.object_sigma)
     scale = min(1.0, float(np.sqrt(_WORK_PIXELS / (h * w))))
     size = (max(8, round(w * scale)), max(8, round(h * scale)))
     distance = backdrop.distance(rgb)
@@ -835,7 +840,7 @@ def _graph_cut_mask(rgb: np.ndarray, params: SegmentationParams,
     labels[sure > 0] = cv2.GC_BGD
     background = backdrop.means[0].astype(np.float64)
     if np.count_nonzero(labels == cv2.GC_PR_FGD) == 0:
-        return np.zeros((h, w), np.uint8), background, params.object_sigma
+        return np.zeros((h, w), np.uint8), background, params.object_sigma, own
     decided = not guessed and np.count_nonzero(labels == cv2.GC_PR_BGD) \
         <= _DECIDED_FRACTION * np.count_nonzero(labels == cv2.GC_PR_FGD)
     if decided:
@@ -852,7 +857,7 @@ def _graph_cut_mask(rgb: np.ndarray, params: SegmentationParams,
     # Full-resolution boundary: re-decide a band one working pixel wide on each side.
     _redecide_band(mask, distance, int(np.ceil(1 / scale)) + 1)
     radius = int(round(params.close_fraction * np.sqrt(np.count_nonzero(mask))))
-    return close_mask(mask, radius), background, params.object_sigma
+    return close_mask(mask, radius), background, params.object_sigma, own
 
 
 def segment(image, params: SegmentationParams = SegmentationParams(), *,
@@ -883,8 +888,9 @@ def segment(image, params: SegmentationParams = SegmentationParams(), *,
                             n_blobs_removed=0, holes_filled=0,
                             foreground_fraction=0.0 if empty else float(mask.mean()),
                             empty=empty, touches_border=not empty and _touches_border(mask))
+    own = None
     if params.method == "graph-cut":
-        mask, bg, threshold = _graph_cut_mask(rgb, params, scan_backdrop)
+        mask, bg, threshold, own = _graph_cut_mask(rgb, params, scan_backdrop)
     else:
         mask, bg, threshold = _threshold_mask(rgb, params)
     mask, n_removed, largest = _connectivity_test(mask, params.min_blob_fraction,
@@ -892,7 +898,8 @@ def segment(image, params: SegmentationParams = SegmentationParams(), *,
     if largest < max(1, params.min_area_fraction * h * w):
         return Segmentation(mask=np.zeros((h, w), bool), background_rgb=bg,
                             threshold=float(threshold), n_blobs_removed=n_removed, holes_filled=0,
-                            foreground_fraction=0.0, empty=True, touches_border=False)
+                            foreground_fraction=0.0, empty=True, touches_border=False,
+                            border_backdrop=own)
     mask, holes = fill_small_holes(mask, params.fill_holes_max_fraction)
     if params.dilate_px:
         mask = cv2.dilate(mask, _disk(params.dilate_px))
@@ -900,7 +907,7 @@ def segment(image, params: SegmentationParams = SegmentationParams(), *,
     return Segmentation(mask=mask, background_rgb=bg, threshold=float(threshold),
                         n_blobs_removed=n_removed, holes_filled=holes,
                         foreground_fraction=float(mask.mean()), empty=False,
-                        touches_border=_touches_border(mask))
+                        touches_border=_touches_border(mask), border_backdrop=own)
 
 
 def backdrop_samples(image, params: SegmentationParams = SegmentationParams()) -> np.ndarray | None:
@@ -915,12 +922,15 @@ def backdrop_samples(image, params: SegmentationParams = SegmentationParams()) -
 
 
 def scan_backdrop_changes(samples: np.ndarray, scan_backdrop: BackdropModel,
-                          params: SegmentationParams = SegmentationParams()) -> bool:
+                          params: SegmentationParams = SegmentationParams(), *,
+                          own: BackdropModel | None = None) -> bool:
     """Whether the scan's backdrop changes the model the graph cut learns from a view's
     border band (``samples``, its :func:`backdrop_samples`): then
     ``segment(image, params, scan_backdrop=scan_backdrop)`` may differ from
-    ``segment(image, params)``; else it is the same."""
-    own = fit_backdrop(samples=samples)
+    ``segment(image, params)``; else it is the same. ``own``: that model when the view's
+    segmentation has it already (:attr:`Segmentation.border_backdrop`), else it is
+    learnt from ``samples`` here."""
+    own = fit_backdrop(samples=samples) if own is None else own
     return own.adapted_to(scan_backdrop, samples, _SURE_SIGMA, params.object_sigma) is not own
 
 
