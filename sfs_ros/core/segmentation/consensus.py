@@ -333,7 +333,8 @@ def consensus_masks(grid: VoxelGrid, cameras: Sequence[Camera], masks: Sequence[
     k = reference_misses(len(cameras)) + 1
     prepared = prepared or PreparedMasks(cameras, masks)
     projections, footprint_px = _prior(grid, cameras, prepared, k, range(len(cameras)))
-    prior_iou = np.array([silhouette_iou(p, m) for p, m in zip(projections, masks)])
+    prior_iou = np.array(list(map_in_threads(
+        lambda n: silhouette_iou(projections[n], masks[n]), range(len(masks)))))
     zeros = np.zeros(len(masks), np.int64)
     median = float(np.median(prior_iou))
     if median < MIN_MEDIAN_IOU:
@@ -350,15 +351,17 @@ def consensus_masks(grid: VoxelGrid, cameras: Sequence[Camera], masks: Sequence[
         for n, projection in zip(unsettled, _prior(grid, cameras, prepared, loose, unsettled)[0]):
             projections[n] = projection
 
-    def one_view(n: int) -> np.ndarray | None:
+    def one_view(n: int) -> tuple[np.ndarray, int, int] | None:
+        """View ``n`` cut again, and the pixels that added to and removed from its mask."""
         rgb = read_rgb(n)
-        return None if rgb is None else resegment(rgb, projections[n], masks[n])
+        if rgb is None:
+            return None
+        new = resegment(rgb, projections[n], masks[n])
+        return new, np.count_nonzero(new & ~masks[n]), np.count_nonzero(masks[n] & ~new)
 
-    found = [None] * len(masks)
-    for n, new in zip(unsettled, map_in_threads(one_view, unsettled)):   # views side by side
-        found[n] = new
-    resegmented = np.array([new is not None for new in found], bool)
-    out = [mask if new is None else new for new, mask in zip(found, masks)]
-    added = np.array([np.count_nonzero(new & ~mask) for new, mask in zip(out, masks)], np.int64)
-    removed = np.array([np.count_nonzero(mask & ~new) for new, mask in zip(out, masks)], np.int64)
+    out, added, removed = list(masks), zeros.copy(), zeros.copy()
+    resegmented = np.zeros(len(masks), bool)
+    for n, found in zip(unsettled, map_in_threads(one_view, unsettled)):   # views side by side
+        if found is not None:
+            (out[n], added[n], removed[n]), resegmented[n] = found, True
     return Consensus(out, True, None, prior_iou, resegmented, added, removed)
