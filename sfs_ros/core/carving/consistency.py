@@ -28,28 +28,29 @@ def _splat(coef, voxels, heights, widths, offsets, out, half_max):
     """Paint the projected footprint (bounding box of its cube, at least the
     pixel of its centre) of each voxel whose centre lands inside the image into
     the flat images ``out``; records the largest footprint half-size per view
-    in ``half_max``."""
+    in ``half_max``. A view's coefficients are read once, and a footprint's corners
+    turned to whole pixels once, before its rows are painted."""
     for v in prange(heights.size):
         H = heights[v]
         W = widths[v]
+        a00, a01, a02, a03 = coef[v, 0, 0], coef[v, 0, 1], coef[v, 0, 2], coef[v, 0, 3]
+        a10, a11, a12, a13 = coef[v, 1, 0], coef[v, 1, 1], coef[v, 1, 2], coef[v, 1, 3]
+        a20, a21, a22, a23 = coef[v, 2, 0], coef[v, 2, 1], coef[v, 2, 2], coef[v, 2, 3]
         hmax = 0.0
         for n in range(voxels.shape[0]):
             i = voxels[n, 0]
             j = voxels[n, 1]
             k = voxels[n, 2]
-            h0 = ((coef[v, 0, 0] + i * coef[v, 0, 1]) + j * coef[v, 0, 2]) + k * coef[v, 0, 3]
-            h1 = ((coef[v, 1, 0] + i * coef[v, 1, 1]) + j * coef[v, 1, 2]) + k * coef[v, 1, 3]
-            h2 = ((coef[v, 2, 0] + i * coef[v, 2, 1]) + j * coef[v, 2, 2]) + k * coef[v, 2, 3]
+            h0 = ((a00 + i * a01) + j * a02) + k * a03
+            h1 = ((a10 + i * a11) + j * a12) + k * a13
+            h2 = ((a20 + i * a21) + j * a22) + k * a23
             if not h2 > 0.0:
                 continue
             u = h0 / h2
             w = h1 / h2
             # Half-size of the footprint: |d(u, v)/d(index)| summed over axes / 2.
-            hu = 0.0
-            hv = 0.0
-            for a in range(1, 4):
-                hu += abs(coef[v, 0, a] - u * coef[v, 2, a])
-                hv += abs(coef[v, 1, a] - w * coef[v, 2, a])
+            hu = ((0.0 + abs(a01 - u * a21)) + abs(a02 - u * a22)) + abs(a03 - u * a23)
+            hv = ((0.0 + abs(a11 - w * a21)) + abs(a12 - w * a22)) + abs(a13 - w * a23)
             hu *= 0.5 / h2
             hv *= 0.5 / h2
             hmax = max(hmax, hu, hv)
@@ -57,15 +58,14 @@ def _splat(coef, voxels, heights, widths, offsets, out, half_max):
             cw = np.floor(w + 0.5)
             if not (cu >= 0.0 and cu < W and cw >= 0.0 and cw < H):
                 continue  # the view says nothing about voxels outside its image
-            c0 = max(0.0, min(cu, np.ceil(u - hu)))
-            c1 = min(W - 1.0, max(cu, np.floor(u + hu)))
-            r0 = max(0.0, min(cw, np.ceil(w - hv)))
-            r1 = min(H - 1.0, max(cw, np.floor(w + hv)))
-            if c0 > c1 or r0 > r1:
-                continue
-            for r in range(int(r0), int(r1) + 1):
-                for c in range(int(c0), int(c1) + 1):
-                    out[offsets[v] + r * W + c] = 1
+            c0 = int(max(0.0, min(cu, np.ceil(u - hu))))
+            c1 = int(min(W - 1.0, max(cu, np.floor(u + hu))))
+            r0 = int(max(0.0, min(cw, np.ceil(w - hv))))
+            r1 = int(min(H - 1.0, max(cw, np.floor(w + hv))))
+            for r in range(r0, r1 + 1):
+                row = offsets[v] + r * W
+                for c in range(c0, c1 + 1):
+                    out[row + c] = 1
         half_max[v] = hmax
 
 
