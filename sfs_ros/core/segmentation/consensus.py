@@ -352,7 +352,8 @@ def consensus_masks(grid: VoxelGrid, cameras: Sequence[Camera], masks: Sequence[
             projections[n] = projection
 
     def one_view(n: int) -> tuple[np.ndarray, int, int] | None:
-        """View ``n`` cut again, and the pixels that added to and removed from its mask."""
+        """View ``n`` cut again, and how many pixels the cut added to and removed from its
+        first mask."""
         rgb = read_rgb(n)
         if rgb is None:
             return None
