@@ -364,5 +364,6 @@ def consensus_masks(grid: VoxelGrid, cameras: Sequence[Camera], masks: Sequence[
     resegmented = np.zeros(len(masks), bool)
     for n, found in zip(unsettled, map_in_threads(one_view, unsettled)):   # views side by side
         if found is not None:
-            (out[n], added[n], removed[n]), resegmented[n] = found, True
+            out[n], added[n], removed[n] = found
+            resegmented[n] = True
     return Consensus(out, True, None, prior_iou, resegmented, added, removed)
