@@ -11,11 +11,11 @@ import tempfile
 from collections.abc import Callable
 
 import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
-from sfs_ros.ros.executor import DrainingExecutor
+from sfs_ros.ros.executor import DrainingExecutor, SingleThreadedExecutor
 from sfs_ros.ros.names import CONFIGURATION_ERROR
 from sfs_ros.ros.params import ParameterError
 
@@ -66,9 +66,13 @@ def run_node(prog: str, make_node: Callable[[], Node | list[Node]], args=None, *
     executor's shutdown (now and then a SIGSEGV in
     ``rcl_trigger_guard_condition`` as the node stopped). A fatal signal
     (SIGSEGV, SIGABRT, ...) prints every thread's Python stack to stderr
-    before the process dies, so a crash in native code names where it happened.
+    before the process dies, so a crash in native code names where it happened;
+    SIGUSR1 prints them and the node runs on, so a node that does not stop names
+    where it is held, even in native code (``sfs-cell`` asks for them before it
+    kills a node).
     """
     faulthandler.enable()
+    faulthandler.register(signal.SIGUSR1, all_threads=True)
     _init_rclpy(prog, args)
     stop = _StopSignals()     # from here on: a signal during the start-up ends it cleanly too
     try:
