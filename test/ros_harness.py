@@ -13,7 +13,7 @@
   ``sfs_ros`` as the tests, with message field checks on, logs to a file,
   and stops it with SIGINT (a node killed with SIGKILL leaves Fast DDS
   shared-memory files in /dev/shm; SIGTERM then SIGKILL only if SIGINT is
-  ignored for ``grace_s`` seconds).
+  ignored for ``grace_s`` seconds, the node's threads' stacks written first).
 * :class:`RosProbe` is the test side: an rclpy node in its own context with
   helpers to spin until a condition holds (timeouts generous for a loaded
   2-core machine: node start-up including imports takes several seconds).
@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import atexit
 import os
-import signal
 import subprocess
 import sys
 import tempfile
@@ -38,6 +37,7 @@ from typing import Callable
 
 import sfs_ros
 from sfs_ros.cell_logic.message_fields import status_namespace
+from sfs_ros.cli.bringup import stop_process
 
 from waiting import wait  # noqa: F401  (for a probe spinning in its own thread)
 
@@ -107,19 +107,12 @@ class NodeProcess:
         return self.process.wait(timeout=timeout)
 
     def stop(self, grace_s: float = 60.0) -> int:
-        """SIGINT, then (only if ignored for ``grace_s`` s) SIGTERM, then SIGKILL; the exit code.
+        """SIGINT, then SIGTERM and (after its threads' stacks) SIGKILL only for a node
+        held in its stop (:func:`~sfs_ros.cli.bringup.stop_process`); the exit code.
 
         The grace bounds a hang only: on SIGINT a node finishes the work it has queued
         (a carving, a mesh), seconds on a loaded 2-core machine."""
-        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
-            if not self.alive():
-                break
-            self.process.send_signal(sig)
-            try:
-                self.process.wait(timeout=grace_s)
-            except subprocess.TimeoutExpired:
-                continue
-        code = self.process.wait()
+        code = stop_process(self.process, grace_s)
         self._log.close()
         return code
 

@@ -18,12 +18,14 @@ import pytest
 from std_srvs.srv import Trigger
 
 import sfs_ros
+from sfs_ros.cli import bringup
 from sfs_ros.cli.bringup import (
     DDS_ENVIRONMENT,
     Cell,
     cell_nodes,
     default_config_dir,
     node_environment,
+    stop_process,
 )
 from sfs_ros.ros.names import NAMESPACE as NAMESPACE_DEFAULT
 from sfs_ros.ros.names import SERVICES
@@ -232,6 +234,46 @@ def test_mock_hardware_refuses_a_port_link_in_a_missing_folder(tmp_path):
     code, lines = process.exit_lines()
     assert code == 2
     assert len(lines) == 1 and "'port_link'" in lines[0], lines
+
+
+#: A process held in its stop: SIGINT and SIGTERM ignored; asked for its stacks (SIGUSR1) it
+#: writes them as a node does and then, unlike a node, exits with 7 (so the test need not
+#: wait for the kill); with ``ignore-stacks`` it ignores SIGUSR1 too.
+HELD = """
+import faulthandler, os, signal, sys
+for sig in (signal.SIGINT, signal.SIGTERM):
+    signal.signal(sig, signal.SIG_IGN)
+if sys.argv[1:] == ["ignore-stacks"]:
+    signal.signal(signal.SIGUSR1, signal.SIG_IGN)
+else:
+    signal.signal(signal.SIGUSR1, lambda *_: os._exit(7))
+    faulthandler.register(signal.SIGUSR1, all_threads=True, chain=True)
+print("held", flush=True)
+while True:
+    signal.pause()
+"""
+
+
+def _held(*args: str) -> subprocess.Popen:
+    process = subprocess.Popen([sys.executable, "-c", HELD, *args], stdout=subprocess.PIPE,
+                               stderr=subprocess.STDOUT)
+    assert process.stdout.readline() == b"held\n"
+    return process
+
+
+def test_a_process_held_in_its_stop_is_asked_for_its_stacks(monkeypatch):
+    monkeypatch.setattr(bringup, "STACKS_S", 120.0)      # bounds a hang only: it exits on them
+    process, said = _held(), []
+    assert stop_process(process, grace_s=0.2, held=lambda: said.append("held")) == 7
+    output = process.stdout.read().decode()
+    assert said == ["held"]
+    pause_line = HELD.splitlines().index("    signal.pause()") + 1
+    assert f'File "<string>", line {pause_line} in <module>' in output, output
+
+
+def test_a_process_held_in_its_stop_that_writes_no_stacks_is_killed():
+    process = _held("ignore-stacks")
+    assert stop_process(process, grace_s=0.2) == -signal.SIGKILL
 
 
 def _environment() -> dict:

@@ -7,7 +7,8 @@ own process group (so a Ctrl-C in the terminal reaches the bring-up, which
 then stops the nodes in order), copies their output to the terminal with the
 node's name in front, and stops them with SIGINT, in reverse order, then
 SIGTERM and SIGKILL only for a node that ignores it (a node killed outright
-leaves Fast DDS shared-memory files behind).
+leaves Fast DDS shared-memory files behind; before it is killed, it writes its
+threads' stacks to the log, SIGUSR1, to name where its stop was held).
 
 The recorder node (:mod:`sfs_ros.nodes.recorder_node`) writes its bags to
 ``OUTPUT_DIR/bags/``; the state publisher (:mod:`sfs_ros.nodes.tf_node`) publishes the
@@ -50,6 +51,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -58,7 +60,8 @@ from sfs_ros.process import KEEP_FREED_MEMORY_ENVIRONMENT, PROCESS_ENVIRONMENT
 from sfs_ros.ros.names import CONFIGURATION_ERROR, NAMESPACE
 
 __all__ = ["NodeSpec", "Cell", "DDS_ENVIRONMENT", "RestartPolicy", "cell_nodes",
-           "default_config_dir", "node_environment", "select_nodes", "wait_until_signal"]
+           "default_config_dir", "node_environment", "select_nodes", "stop_process",
+           "wait_until_signal"]
 
 #: Middleware settings of the node processes (a variable already set is left as it is).
 #: Fast DDS's shared-memory transport can leave a restarted process deaf to the peers that
@@ -69,6 +72,8 @@ DDS_ENVIRONMENT = {"FASTDDS_BUILTIN_TRANSPORTS": "UDPv4"}
 
 #: Seconds a node gets to stop after SIGINT (then SIGTERM, then SIGKILL).
 STOP_GRACE_S = 10.0
+#: Seconds a node that did not stop gets to write its threads' stacks (SIGUSR1) before SIGKILL.
+STACKS_S = 1.0
 
 
 def node_environment(env: dict) -> dict:
@@ -291,11 +296,9 @@ class Cell:
     def start_node(self, name: str) -> None:
         """Start (or start again) the node called ``name``."""
         spec = next(s for s in self.specs if s.name == name)
-        if spec.applied_rig_file() and self._log is not None:
-            with self._log_lock:
-                self._log.write(f"sfs-cell: {name} starts with the rig applied last, "
-                                f"{spec.applied_rig_file()}\n")
-                self._log.flush()
+        if spec.applied_rig_file():
+            self._say(f"sfs-cell: {name} starts with the rig applied last, "
+                      f"{spec.applied_rig_file()}")
         process = subprocess.Popen(spec.command(self.namespace), stdin=subprocess.DEVNULL,
                                    stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                    env=self.environment_of(name), start_new_session=True)
@@ -306,28 +309,25 @@ class Cell:
 
     def _copy_output(self, name: str, process: subprocess.Popen) -> None:
         for line in iter(process.stdout.readline, b""):
-            if self._log is not None:
-                with self._log_lock:
-                    self._log.write(f"[{name}] {line.decode(errors='replace').rstrip()}\n")
-                    self._log.flush()
+            self._say(f"[{name}] {line.decode(errors='replace').rstrip()}")
         process.stdout.close()
+
+    def _say(self, line: str) -> None:
+        """One line to the log (none: discarded)."""
+        if self._log is not None:
+            with self._log_lock:
+                self._log.write(line + "\n")
+                self._log.flush()
 
     def exited(self) -> dict[str, int]:
         """``{name: exit code}`` of the nodes that have ended."""
         return {n: p.returncode for n, p in self.processes.items() if p.poll() is not None}
 
     def stop_node(self, name: str, grace_s: float = STOP_GRACE_S) -> int:
-        """SIGINT, then SIGTERM and SIGKILL each after ``grace_s``; the exit code."""
-        process = self.processes[name]
-        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
-            if process.poll() is not None:
-                break
-            process.send_signal(sig)
-            try:
-                process.wait(timeout=grace_s)
-            except subprocess.TimeoutExpired:
-                continue
-        return process.wait()
+        """Stop the node called ``name`` (:func:`stop_process`); the exit code."""
+        return stop_process(self.processes[name], grace_s, held=lambda: self._say(
+            f"sfs-cell: {name} did not stop within {grace_s:g} s of SIGINT nor of SIGTERM: "
+            "its threads' stacks follow, then it is killed"))
 
     def stop(self) -> dict[str, int]:
         """Stop every node, the last started first; ``{name: exit code}``."""
@@ -341,6 +341,33 @@ class Cell:
 
     def __exit__(self, *exc) -> None:
         self.stop()
+
+
+def stop_process(process: subprocess.Popen, grace_s: float,
+                 held: Callable[[], None] | None = None) -> int:
+    """SIGINT, then SIGTERM after ``grace_s``; a process still running ``grace_s`` later
+    is held in its stop: ``held()`` is called, the process is asked for its threads'
+    stacks (SIGUSR1; a node writes them to its output and runs on) and killed
+    :data:`STACKS_S` later. The exit code."""
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        if process.poll() is None:
+            process.send_signal(sig)
+            _wait(process, grace_s)
+    if process.poll() is None:
+        if held is not None:
+            held()
+        process.send_signal(signal.SIGUSR1)
+        _wait(process, STACKS_S)
+        process.kill()
+    return process.wait()
+
+
+def _wait(process: subprocess.Popen, seconds: float) -> None:
+    """Wait up to ``seconds`` for ``process`` to end."""
+    try:
+        process.wait(timeout=seconds)
+    except subprocess.TimeoutExpired:
+        pass
 
 
 @dataclass
