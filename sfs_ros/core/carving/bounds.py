@@ -26,6 +26,7 @@ import numpy as np
 
 from ..geometry.camera import Camera
 from ..geometry.grid import VoxelGrid
+from ..mask_box import foreground_box
 from ..workers import map_in_threads
 from .carve import Carver, PreparedMasks, carve, same_grid, view_key, view_keys
 from .hull import drop_specks, occupied_bounds
@@ -105,14 +106,9 @@ def footprint_radius_px(camera: Camera, grid: VoxelGrid) -> int:
 def _grown(mask: np.ndarray, radius_px: int) -> np.ndarray:
     """``mask`` (H, W) bool grown by ``radius_px`` pixels (Euclidean; the 5 x 5 chamfer
     metric's distances, within 2 % of it, are taken 2 % long)."""
-    rows = np.flatnonzero(mask.any(axis=1))
-    if rows.size == 0 or radius_px <= 0:
+    box = foreground_box(mask, margin_px=radius_px + 1)
+    if box is None or radius_px <= 0:
         return mask
-    cols = np.flatnonzero(mask.any(axis=0))
-    h, w = mask.shape
-    r = radius_px + 1
-    box = (slice(max(0, rows[0] - r), min(h, rows[-1] + r + 1)),
-           slice(max(0, cols[0] - r), min(w, cols[-1] + r + 1)))
     distance = cv2.distanceTransform(np.ascontiguousarray(~mask[box]).view(np.uint8),
                                      cv2.DIST_L2, cv2.DIST_MASK_5)
     out = np.zeros_like(mask)

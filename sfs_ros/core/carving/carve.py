@@ -32,6 +32,7 @@ import numpy as np
 
 from ..geometry.camera import Camera
 from ..geometry.grid import VoxelGrid
+from ..mask_box import foreground_box
 from . import carve_kernels as _k
 
 __all__ = ["OUTSIDE_IMAGE", "PreparedMasks", "carve", "Carver", "KeptCarve", "kept_or_carved",
@@ -162,9 +163,10 @@ def _mask_boxes(masks) -> np.ndarray:
     zeros for an empty mask."""
     boxes = np.zeros((len(masks), 4), np.int64)
     for v, m in enumerate(masks):
-        rows, cols = np.flatnonzero(m.any(axis=1)), np.flatnonzero(m.any(axis=0))
-        if len(rows):
-            boxes[v] = cols[0], rows[0], cols[-1] + 1 - cols[0], rows[-1] + 1 - rows[0]
+        box = foreground_box(m)
+        if box is not None:
+            rows, cols = box
+            boxes[v] = cols.start, rows.start, cols.stop - cols.start, rows.stop - rows.start
     return boxes
 
 

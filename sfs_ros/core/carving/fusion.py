@@ -48,6 +48,7 @@ import numpy as np
 
 from ..geometry.camera import Camera
 from ..geometry.grid import VoxelGrid
+from ..mask_box import foreground_box
 from ..metrics import silhouette_iou
 from ..workers import map_in_threads
 from .bounds import seen_by
@@ -170,12 +171,9 @@ def _distance_to_mask(mask: np.ndarray, projection: np.ndarray) -> np.ndarray:
     the box, so the distances there are those of the whole image). 5 x 5
     chamfer metric: within 2 % of the Euclidean distance."""
     out = np.full(mask.shape, np.inf, np.float32)
-    either = mask | projection
-    rows = np.flatnonzero(either.any(axis=1))
-    if len(rows) == 0 or not mask.any():
+    box = foreground_box(mask, projection)
+    if box is None or not mask.any():
         return out
-    cols = np.flatnonzero(either.any(axis=0))
-    box = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))
     out[box] = cv2.distanceTransform(np.ascontiguousarray(~mask[box]).view(np.uint8),
                                      cv2.DIST_L2, cv2.DIST_MASK_5)
     return out
@@ -214,15 +212,15 @@ class _Look:
 def _look(pair: tuple[np.ndarray, np.ndarray]) -> _Look:
     """:class:`_Look` of ``(mask, projection)``, two (H, W) bool images."""
     mask, proj = pair
-    rows = np.flatnonzero(mask.any(axis=1) | proj.any(axis=1))
-    cols = np.flatnonzero(mask.any(axis=0) | proj.any(axis=0))
-    box = ((slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1)) if rows.size
-           else (slice(0, 0), slice(0, 0)))
+    box = foreground_box(mask, proj)
+    empty = box is None
+    if empty:
+        box = (slice(0, 0), slice(0, 0))
     mask, proj = mask[box], proj[box]
     outside, distance, cut_px = _cut(mask, proj)
     return _Look(box=box, outside=outside, distance=distance, cut_px=cut_px,
                  n_proj=int(np.count_nonzero(proj)),
-                 iou=float(silhouette_iou(proj, mask)) if rows.size else 1.0)
+                 iou=1.0 if empty else float(silhouette_iou(proj, mask)))
 
 
 @dataclass(frozen=True)

@@ -50,6 +50,7 @@ from numba import njit, prange
 
 from ..carving.carve import validate_masks
 from ..geometry.camera import Camera
+from ..mask_box import foreground_box
 from ..workers import map_in_threads
 
 __all__ = ["DistanceImages", "HullDistance", "ZeroTrace", "point_groups"]
@@ -102,15 +103,11 @@ def _silhouette_distance(mask: np.ndarray,
     u0, v0 : int
         Column and row of the crop's first pixel in the image.
     """
-    rows = np.flatnonzero(mask.any(axis=1))
-    cols = np.flatnonzero(mask.any(axis=0))
-    if rows.size == 0:
+    box = foreground_box(mask, margin_px=CROP_MARGIN_PX)
+    if box is None:
         raise ValueError("a mask is empty: an empty silhouette bounds no hull "
                          "(reject the view before meshing)")
-    v0 = max(0, int(rows[0]) - CROP_MARGIN_PX)
-    v1 = min(mask.shape[0], int(rows[-1]) + 1 + CROP_MARGIN_PX)
-    u0 = max(0, int(cols[0]) - CROP_MARGIN_PX)
-    u1 = min(mask.shape[1], int(cols[-1]) + 1 + CROP_MARGIN_PX)
+    (v0, v1), (u0, u1) = ((part.start, part.stop) for part in box)
     # At least 2 x 2 pixels, so that bilinear sampling always has four.
     crop = np.pad(mask[v0:v1, u0:u1], ((0, max(0, 2 - (v1 - v0))), (0, max(0, 2 - (u1 - u0)))),
                   mode="edge").view(np.uint8)

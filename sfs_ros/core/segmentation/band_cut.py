@@ -21,6 +21,7 @@ import cv2
 import numpy as np
 from numba import njit
 
+from ..mask_box import foreground_box
 from .grabcut import _gaussians, _graph, _max_flow, _mixture, grabcut
 from .kmeans import OpenCVRandom, distinct_colours
 
@@ -139,10 +140,9 @@ def coarse_to_fine_grabcut(features: np.ndarray, labels: np.ndarray, *, work_pix
     reach = int(np.ceil(1.0 / scale)) + 1
     square = np.ones((2 * reach + 1, 2 * reach + 1), np.uint8)
     band = (cv2.dilate(chosen, square) > 0) & (cv2.erode(chosen, square) == 0)
-    rows, cols = np.flatnonzero(band.any(axis=1)), np.flatnonzero(band.any(axis=0))
-    if len(rows) == 0:
+    box = foreground_box(band)
+    if box is None:
         return chosen
-    box = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))
     # Outside the band the reduced cut stands (as sure labels); inside, the prior's.
     fine = np.where(chosen[box] > 0, cv2.GC_FGD, cv2.GC_BGD).astype(np.uint8)
     fine[band[box]] = labels[box][band[box]]

@@ -42,6 +42,7 @@ from ..carving.consistency import hull_silhouettes
 from ..carving.fusion import MIN_MEDIAN_IOU, deepest_cut_px, reference_misses
 from ..geometry.camera import Camera
 from ..geometry.grid import VoxelGrid
+from ..mask_box import foreground_box
 from ..metrics import silhouette_iou
 from ..workers import map_in_threads
 from .band_cut import coarse_to_fine_grabcut
@@ -266,9 +267,12 @@ def settled(prior: np.ndarray, mask: np.ndarray, footprint_px: float) -> bool:
     re-segmentation could move such a mask by no more than that; a shadow, clutter
     or a part missed shows as a deeper difference. With few views the tolerant hull
     sticks out of the object by whole facets, so nearly every view is re-segmented.
-    Decided on the box around both (:func:`_box`), as on the whole frame.
+    Decided on the box around both widened by 2 pixels: beyond it both are empty, so a
+    3 x 3 dilation of the prior and a 3 x 3 opening of the mask outside it read nothing
+    else, and the distances from the mask are taken over the same box of both as on the
+    whole frame (:func:`~sfs_ros.core.carving.fusion.deepest_cut_px`).
     """
-    box = _box(prior, mask)
+    box = foreground_box(prior, mask, margin_px=2)
     if box is None:
         return True     # nothing projected, nothing in the mask
     prior, mask = prior[box], mask[box]
@@ -279,19 +283,6 @@ def settled(prior: np.ndarray, mask: np.ndarray, footprint_px: float) -> bool:
     radius = np.sqrt(np.count_nonzero(prior) / np.pi)
     tolerance = max(_SETTLED_MIN_PX, footprint_px + 1.0) + _SETTLED_FRACTION * radius
     return deepest_cut_px(mask, prior) <= tolerance
-
-
-def _box(prior: np.ndarray, mask: np.ndarray) -> tuple[slice, slice] | None:
-    """The rows and columns around the pixels of (H, W) bool ``prior`` and ``mask``, widened
-    by 2 pixels (clipped to the frame), or None when both are empty. Beyond them both are
-    empty, so a 3 x 3 dilation of the prior and a 3 x 3 opening of the mask outside it
-    read nothing else, and the distances from the mask are taken over the same box of
-    both as on the whole frame (:func:`~sfs_ros.core.carving.fusion.deepest_cut_px`)."""
-    rows = np.flatnonzero(prior.any(axis=1) | mask.any(axis=1))
-    if len(rows) == 0:
-        return None
-    cols = np.flatnonzero(prior.any(axis=0) | mask.any(axis=0))
-    return (slice(max(0, rows[0] - 2), rows[-1] + 3), slice(max(0, cols[0] - 2), cols[-1] + 3))
 
 
 def _prior(grid: VoxelGrid, cameras: list, prepared: PreparedMasks, misses: int,
