@@ -46,6 +46,27 @@ OVERRIDES = {
 }
 
 
+#: Seconds the scan and motor nodes wait for what a fault would withhold (a frame, a move
+#: settled, a receipt, a service's answer, the graph matched): bounds a hang only.
+HANG_S = 120.0
+#: The cell's fault deadlines at :data:`HANG_S`, for the modules that make no fault
+#: (:data:`OVERRIDES`' are short, for ``test_cell``'s fault tests): under the load of two
+#: test runs at once the shutter's answer has taken longer than 3 s twice in a row, and a
+#: scan paused that no fault had stopped.
+NO_FAULT = {"scan.yaml": {"move_timeout_s": HANG_S, "stall_s": HANG_S,
+                          "capture_timeout_s": HANG_S, "receipt_timeout_s": HANG_S,
+                          "service_timeout_s": HANG_S, "listen_timeout_s": HANG_S},
+            "motor.yaml": {"move_timeout_s": HANG_S}}
+
+
+def no_fault(more: dict | None = None) -> dict:
+    """:data:`NO_FAULT` with ``more`` (same form) merged into it, file by file."""
+    merged = {name: dict(values) for name, values in NO_FAULT.items()}
+    for name, values in (more or {}).items():
+        merged[name] = {**merged.get(name, {}), **values}
+    return merged
+
+
 def write_config(folder: Path, more: dict | None = None, *, plan: dict | None = None) -> Path:
     """The repository's config with :data:`OVERRIDES`, then ``more`` (same form), and the
     17-view plan (or ``plan``, a plan file's mapping)."""

@@ -11,9 +11,9 @@ plus an exposure delay). The two meshes agree with each other and with the
 truth.
 
 No fault is made here, so the cell's own fault deadlines (a frame, a move, a receipt, a
-service answer) are set to bound a hang only (:data:`NO_FAULT`): two runs of this test
-at once beside a CPU burner on 2 cores (doc/testing.md) saw the shutter's answer take
-longer than :mod:`mock_cell`'s 3 s twice in a row, and the scan paused.
+service answer) are set to bound a hang only (:data:`mock_cell.NO_FAULT`): two runs of
+this test at once beside a CPU burner on 2 cores (doc/testing.md) saw the shutter's answer
+take longer than :mod:`mock_cell`'s 3 s twice in a row, and the scan paused.
 """
 
 from pathlib import Path
@@ -28,7 +28,7 @@ from sfs_ros.core.metrics import mesh_occupancy, volume_iou
 from sfs_ros.core.simulation.objects import make_object
 from sfs_ros.core.simulation.synthetic import carving_box, score_against_truth
 
-from mock_cell import PLAN, RESOLUTION, SCAN_TIMEOUT_S, running_cell
+from mock_cell import PLAN, RESOLUTION, SCAN_TIMEOUT_S, no_fault, running_cell
 from ros_harness import NAMESPACE, RosProbe, set_node_parameters
 from tolerances import MUG_IOU_SPARSE_MIN
 
@@ -44,24 +44,18 @@ EXPOSURE_DELAY_S = 0.05
 #: boundary voxels flip (0.9999 measured); a view taken on the way (a frame exposed before
 #: the axes settled) would cut whole voxel layers away.
 MESHES_AGREE_MIN = 0.99
-#: Seconds the scan and motor nodes wait for what a fault would withhold (a frame, a move
-#: settled, a receipt, a service's answer, the graph matched): bounds a hang only.
-HANG_S = 120.0
-#: The cell's fault deadlines at :data:`HANG_S` (mock_cell's are short, for its fault
-#: tests), and the encoder reading that tags a frame up to 5 s from it: a frame is taken
-#: only after readings settled on the viewpoint, and the next move waits for it, so the
-#: reading nearest the frame is a settled one however late the readings come.
-NO_FAULT = {"scan.yaml": {"move_timeout_s": HANG_S, "stall_s": HANG_S,
-                          "capture_timeout_s": HANG_S, "encoder_max_gap_s": 5.0,
-                          "receipt_timeout_s": HANG_S, "service_timeout_s": HANG_S,
-                          "listen_timeout_s": HANG_S},
-            "motor.yaml": {"move_timeout_s": HANG_S}}
+#: :data:`mock_cell.NO_FAULT`'s deadlines, the streaming camera, and the encoder reading
+#: that tags a frame up to 5 s from it: a frame is taken only after readings settled on the
+#: viewpoint, and the next move waits for it, so the reading nearest the frame is a settled
+#: one however late the readings come.
+SETTINGS = no_fault({"scan.yaml": {"encoder_max_gap_s": 5.0},
+                     "camera.yaml": {"rate_hz": STREAM_HZ}})
 
 
 @pytest.fixture(scope="module")
 def cell(tmp_path_factory):
-    more = {**NO_FAULT, "camera.yaml": {"rate_hz": STREAM_HZ}}
-    with running_cell(tmp_path_factory.mktemp("any_camera"), "any_camera_client", more) as up:
+    with running_cell(tmp_path_factory.mktemp("any_camera"), "any_camera_client",
+                      SETTINGS) as up:
         yield up
 
 

@@ -37,7 +37,7 @@ from sfs_ros.ros import capture_qos
 from sfs_ros.ros.rig_apply import read_rig_file
 from sfs_ros.ros.rig_params import rig_calibration
 
-from mock_cell import RESOLUTION, SCAN_TIMEOUT_S, running_cell
+from mock_cell import RESOLUTION, SCAN_TIMEOUT_S, no_fault, running_cell
 from ros_harness import NAMESPACE
 from test_frames import chain
 from test_tf_node import matrix, static_listener_qos
@@ -126,7 +126,7 @@ def calibrated(tmp_path_factory):
     plan.write_text(yaml.safe_dump(PLAN))
     overrides = {"mock_hardware.yaml": {"world": "wrong", "object": "mug"},
                  "frames.yaml": {"frame_prefix": PREFIX}}
-    with running_cell(root, "calibrate_action_client", overrides) as cell:
+    with running_cell(root, "calibrate_action_client", no_fault(overrides)) as cell:
         client, started = cell["client"], len(cell["log"].read_text())
         tf = _Tf(client.node)
         result = {"nominal": _scan_mug(client, "nominal")}

@@ -38,7 +38,7 @@ from sfs_ros.hardware.cameras import RenderedSource
 from sfs_ros.ros.convert import angles_from_joint_state, camera_info
 from sfs_ros.ros.rig_params import rig_calibration
 
-from mock_cell import PLAN, RESOLUTION, SCAN_TIMEOUT_S, running_cell
+from mock_cell import PLAN, RESOLUTION, SCAN_TIMEOUT_S, no_fault, running_cell
 from ros_harness import NAMESPACE, RosProbe, set_node_parameters
 from tolerances import MUG_IOU_SPARSE_MIN
 
@@ -114,7 +114,7 @@ class DeskDriver:
 
 @pytest.fixture(scope="module")
 def cell(tmp_path_factory):
-    more = {"scan.yaml": {"image_transport": "compressed", "exposure_delay_s": 0.05}}
+    more = no_fault({"scan.yaml": {"image_transport": "compressed", "exposure_delay_s": 0.05}})
     root = tmp_path_factory.mktemp("driver_camera")
     with running_cell(root, "driver_camera_client", more, camera_topic=IMAGE_TOPIC) as up:
         values = yaml.safe_load((root / "config" / "rig.yaml").read_text())

@@ -16,7 +16,7 @@ import pytest
 from sfs_ros.cell_logic.bag import open_bag
 from sfs_ros.ros.cell_client import CellClient
 
-from mock_cell import SCAN_TIMEOUT_S, write_config
+from mock_cell import NO_FAULT, SCAN_TIMEOUT_S, write_config
 from ros_harness import NAMESPACE, SOURCE_ROOT
 from waiting import wait
 
@@ -35,12 +35,9 @@ CAPTURE_TOPICS = ("capture/image", "capture/joint_state", "capture/mask",
 def _sfs_cell(root: Path, namespace: str) -> tuple[subprocess.Popen, Path, Path]:
     """``sfs-cell --mock --record`` on the small config, its output in a file."""
     # The scan's deadlines bound a hang only, so that a retry, which this test looks for,
-    # is never one the machine's load caused: receipts may take long while the first views
-    # compile the carving kernels, and two loaded test runs have taken over the small
-    # config's 3 s for one capture.
-    config = write_config(root / "config", {"scan.yaml": {
-        "receipt_timeout_s": 60.0, "capture_timeout_s": 60.0, "move_timeout_s": 60.0,
-        "stall_s": 30.0}})
+    # is never one the machine's load caused (receipts may take long while the first views
+    # compile the carving kernels, too).
+    config = write_config(root / "config", NO_FAULT)
     output = root / "output"
     log_path = root / "sfs-cell.log"
     env = dict(os.environ, PYTHONPATH=str(SOURCE_ROOT))

@@ -31,7 +31,7 @@ from sfs_ros.core.exchange.views import read_image
 from sfs_ros.ros.names import SERVICES
 from sfs_ros.ros.services import call
 
-from mock_cell import RESOLUTION, SCAN_TIMEOUT_S, running_cell
+from mock_cell import NO_FAULT, RESOLUTION, SCAN_TIMEOUT_S, running_cell
 from ros_harness import NAMESPACE, SOURCE_ROOT, RosProbe, wait
 
 pytestmark = pytest.mark.cell
@@ -43,7 +43,8 @@ CAPTURE_TOPICS = ("capture/image", "capture/joint_state", "capture/mask",
 
 @pytest.fixture(scope="module")
 def cell(tmp_path_factory):
-    with running_cell(tmp_path_factory.mktemp("recorded_cell"), "recorded_cell_client") as up:
+    with running_cell(tmp_path_factory.mktemp("recorded_cell"), "recorded_cell_client",
+                      NO_FAULT) as up:
         probe = RosProbe("recorded_cell_probe")
         services = {n: probe.node.create_client(Trigger, SERVICES[f"record/{n}"]) for n in ("start", "stop")}
         threading.Thread(target=probe.executor.spin, daemon=True).start()

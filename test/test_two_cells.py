@@ -45,7 +45,7 @@ from sfs_ros.ros import capture_qos, result_qos
 from sfs_ros.ros.cell_client import CellClient
 from sfs_ros.ros.rig_params import rig_calibration
 
-from mock_cell import write_config
+from mock_cell import NO_FAULT, write_config
 from ros_harness import NAMESPACE, SOURCE_ROOT
 from test_frames import chain
 from test_urdf import rpy_matrix
@@ -159,7 +159,7 @@ class Listener:
 def cells(tmp_path_factory):
     """Both cells up, a client of each, and everything a test listens to subscribed."""
     root = tmp_path_factory.mktemp("two_cells")
-    config = write_config(root / "config")
+    config = write_config(root / "config", NO_FAULT)
     up = {key: SfsCell(key, root / f"cell_{key}", config) for key in CELLS}
     clients, diagnostics, subscribed = {}, [], []
     try:

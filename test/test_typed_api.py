@@ -22,7 +22,7 @@ from sfs_ros.core.geometry.rig import rig_camera
 from sfs_ros.ros.cell_client import ScanFailed
 from sfs_ros.ros.rig_params import rig_calibration
 
-from mock_cell import SCAN_TIMEOUT_S, running_cell
+from mock_cell import SCAN_TIMEOUT_S, no_fault, running_cell
 from ros_harness import NAMESPACE, SOURCE_ROOT, wait
 from test_frames import chain
 from tf_watch import TfWatch, camera_pose
@@ -44,7 +44,7 @@ POSE_TOL = 1e-6
 @pytest.fixture(scope="module")
 def cell(tmp_path_factory):
     with running_cell(tmp_path_factory.mktemp("typed"), "typed_api_client",
-                      {"frames.yaml": {"frame_prefix": PREFIX}}) as up:
+                      no_fault({"frames.yaml": {"frame_prefix": PREFIX}})) as up:
         yield up
 
 
