@@ -153,6 +153,15 @@ def test_cancel_mid_scan_then_a_new_goal(cell):
     assert result.success and result.views_stored == 6
 
 
+def test_a_feedback_callback_that_raises_leaves_the_client_answering(cell):
+    def faulty(_feedback):
+        raise RuntimeError("a caller's bug")
+
+    result = cell["client"].scan_goal(feedback=faulty, timeout_s=SCAN_TIMEOUT_S, **SMALL)
+    assert result.success and result.views_stored == 6
+    assert cell["client"].reconstruct(pictures=False)["success"]
+
+
 def _ctl(*args) -> subprocess.CompletedProcess:
     env = dict(os.environ, PYTHONPATH=str(SOURCE_ROOT))
     return subprocess.run([sys.executable, "-m", "sfs_ros.cli.ctl", "--namespace", NAMESPACE,

@@ -28,6 +28,7 @@ import json
 import re
 import threading
 import time
+import traceback
 from pathlib import Path
 from typing import Callable
 
@@ -255,9 +256,15 @@ class CellClient:
 
     def _spin(self) -> None:
         """Spin the client's node until :meth:`close` (which shuts the executor down once
-        this has stopped handing it callbacks)."""
+        this has stopped handing it callbacks). A callback that raises (a caller's
+        ``feedback``, say) is logged, ERROR with its traceback, and the spin goes on: the
+        client keeps taking answers."""
         while not self._closing.is_set():
-            self._executor.spin_once(timeout_sec=SPIN_POLL_S)
+            try:
+                self._executor.spin_once(timeout_sec=SPIN_POLL_S)
+            except Exception:  # noqa: BLE001 -- one callback must not end the client
+                self.node.get_logger().error(
+                    f"a callback raised; the client goes on:\n{traceback.format_exc()}")
 
     def _on_status(self, msg: CellStatus) -> None:
         with self._changed:
