@@ -179,7 +179,8 @@ class RosProbe:
     def __init__(self, name: str = "test_probe"):
         import rclpy
         from rclpy.context import Context
-        from rclpy.executors import SingleThreadedExecutor
+
+        from sfs_ros.ros.executor import SingleThreadedExecutor  # safe against a destroy
 
         self.context = Context()
         rclpy.init(context=self.context)
