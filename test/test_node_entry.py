@@ -1,6 +1,7 @@
 """The body every node's ``main()`` shares (:mod:`sfs_ros.nodes.entry`): a node asked for
 its threads' stacks (SIGUSR1) writes them and runs on, and still stops cleanly on SIGINT."""
 
+import re
 import signal
 
 from ros_harness import STARTUP_TIMEOUT_S, NodeProcess
@@ -16,10 +17,10 @@ def test_a_node_asked_for_its_stacks_writes_them_and_runs_on():
     wait(lambda: "bringing nobody to active" in process.output(), what="the node to start",
          timeout=STARTUP_TIMEOUT_S)
     process.process.send_signal(signal.SIGUSR1)
-    wait(lambda: "Current thread" in process.output(), what="the node's stacks",
-         timeout=STARTUP_TIMEOUT_S)
-    stacks = process.output()
-    assert 'sfs_ros/nodes/entry.py", line' in stacks and "in run_node" in stacks, stacks
+    # The main thread's stack, written from its innermost call out, down to run_node.
+    wait(lambda: re.search(r'sfs_ros/nodes/entry\.py", line \d+ in run_node', process.output()),
+         what="the node's stacks down to run_node", timeout=STARTUP_TIMEOUT_S)
+    assert "Current thread" in process.output()
     assert process.alive()
     code, output = process.stop_and_read()
     assert code == 0, output
