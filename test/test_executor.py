@@ -98,19 +98,17 @@ def test_rclpy_s_own_executor_ends_its_spin_there(node):
     # The reason for the executors above: when rclpy keeps the waitable out of its wait
     # set itself, this fails, and they can go.
     _DestroyedMeanwhile(node)
-    executor = RclpySingleThreadedExecutor(context=node.context)
-    executor.add_node(node)
-    try:
-        with pytest.raises(InvalidHandle, match=DESTROYED):
-            executor.spin_once(timeout_sec=0.1)
-    finally:
-        executor.shutdown()
+    _spin_ends_on_the_destroyed(RclpySingleThreadedExecutor(context=node.context), node)
 
 
 @pytest.mark.parametrize("kind", EXECUTORS)
 def test_a_waitable_that_stays_destroyed_on_its_nodes_list_is_an_error(node, kind):
     _DestroyedMeanwhile(node, leaves=False)
-    executor = EXECUTORS[kind](node.context)
+    _spin_ends_on_the_destroyed(EXECUTORS[kind](node.context), node)
+
+
+def _spin_ends_on_the_destroyed(executor, node) -> None:
+    """One spin of ``executor`` over ``node`` raises the destroyed waitable's InvalidHandle."""
     executor.add_node(node)
     try:
         with pytest.raises(InvalidHandle, match=DESTROYED):
