@@ -37,7 +37,7 @@ CONFIG = REPO / "config"
 #: Five node processes importing rclpy, numpy, OpenCV and numba on a loaded 2-core machine.
 CELL_UP_TIMEOUT_S = 120.0
 #: sfs-cell stops its nodes one after the other, each with SIGINT.
-CELL_STOP_TIMEOUT_S = 30.0
+CELL_STOP_TIMEOUT_S = 120.0
 MOCK = [("mock_hardware", "mock_hardware_node",
          ["rig.yaml", "frames.yaml", "camera.yaml", "mock_hardware.yaml"]),
         ("motor", "motor_node", ["motor.yaml"])]

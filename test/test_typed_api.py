@@ -11,11 +11,13 @@ camera where the rig model does.
 import os
 import subprocess
 import sys
+import threading
 from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.action import get_action_names_and_types
 
 from sfs_ros.core.geometry.rig import rig_camera
@@ -160,6 +162,21 @@ def test_a_feedback_callback_that_raises_leaves_the_client_answering(cell):
     result = cell["client"].scan_goal(feedback=faulty, timeout_s=SCAN_TIMEOUT_S, **SMALL)
     assert result.success and result.views_stored == 6
     assert cell["client"].reconstruct(pictures=False)["success"]
+
+
+def test_a_callback_on_the_clients_node_that_raises_leaves_it_answering(scanned, cell):
+    client, raised = cell["client"], threading.Event()
+
+    def faulty(_diagnostics):
+        raised.set()
+        raise RuntimeError("a callback's bug")
+
+    sub = client.node.create_subscription(DiagnosticArray, "/diagnostics", faulty, 10)
+    try:
+        wait(raised.is_set, what="a diagnostics message", timeout=SCAN_TIMEOUT_S)
+        assert client.reconstruct(pictures=False)["success"]
+    finally:
+        client.node.destroy_subscription(sub)
 
 
 def _ctl(*args) -> subprocess.CompletedProcess:

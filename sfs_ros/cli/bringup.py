@@ -70,8 +70,10 @@ __all__ = ["NodeSpec", "Cell", "DDS_ENVIRONMENT", "RestartPolicy", "cell_nodes",
 #: 5053, 5469 and 2811 report the same): the cell's processes talk over UDP on the loopback.
 DDS_ENVIRONMENT = {"FASTDDS_BUILTIN_TRANSPORTS": "UDPv4"}
 
-#: Seconds a node gets to stop after SIGINT (then SIGTERM, then SIGKILL).
-STOP_GRACE_S = 10.0
+#: Seconds a node gets to stop after SIGINT (then SIGTERM, then SIGKILL). On SIGINT a node
+#: finishes the work it has queued (a mesh's pictures after its answer): 10 s was not
+#: enough for the meshing node on a 2-core machine running two test suites.
+STOP_GRACE_S = 60.0
 #: Seconds a node that did not stop gets to write its threads' stacks (SIGUSR1) before SIGKILL.
 STACKS_S = 1.0
 

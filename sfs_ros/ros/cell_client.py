@@ -184,16 +184,22 @@ class ScanGoal:
     #: What the goal does, in messages.
     WHAT = "scan"
 
-    def __init__(self, on_feedback: Callable[[Scan.Feedback], None] | None = None):
+    def __init__(self, on_feedback: Callable[[Scan.Feedback], None] | None, logger):
         self.feedback: Scan.Feedback | None = None
         self._on_feedback = on_feedback
+        self._logger = logger
         self._handle = self._result = None
 
     def feedback_message(self, msg) -> None:
-        """The action client's feedback callback."""
+        """The action client's feedback callback: ``on_feedback`` raising is logged (ERROR,
+        with its traceback) and the goal goes on."""
         self.feedback = msg.feedback
         if self._on_feedback is not None:
-            self._on_feedback(msg.feedback)
+            try:
+                self._on_feedback(msg.feedback)
+            except Exception:  # noqa: BLE001 -- the caller's bug must not end the client
+                self._logger.error(f"the {self.WHAT} goal's feedback callback raised; the "
+                                   f"goal goes on:\n{traceback.format_exc()}")
 
     def accepted(self, handle) -> None:
         """The goal's handle, once the scan node accepted it."""
@@ -256,15 +262,18 @@ class CellClient:
 
     def _spin(self) -> None:
         """Spin the client's node until :meth:`close` (which shuts the executor down once
-        this has stopped handing it callbacks). A callback that raises (a caller's
-        ``feedback``, say) is logged, ERROR with its traceback, and the spin goes on: the
-        client keeps taking answers."""
+        this has stopped handing it callbacks). A callback that raises is logged, ERROR
+        with its traceback, and the spin goes on: the client keeps taking answers. rclpy
+        may raise one task's exception at two spins in a row: it is logged once."""
+        last = None
         while not self._closing.is_set():
             try:
                 self._executor.spin_once(timeout_sec=SPIN_POLL_S)
-            except Exception:  # noqa: BLE001 -- one callback must not end the client
-                self.node.get_logger().error(
-                    f"a callback raised; the client goes on:\n{traceback.format_exc()}")
+            except Exception as exc:  # noqa: BLE001 -- one callback must not end the client
+                if exc is not last:
+                    self.node.get_logger().error(
+                        f"a callback raised; the client goes on:\n{traceback.format_exc()}")
+                last = exc
 
     def _on_status(self, msg: CellStatus) -> None:
         with self._changed:
@@ -359,7 +368,7 @@ class CellClient:
         "board": a calibration board's scan); the accepted goal, or
         ScanFailed when the scan node rejects it (a scan is running). ``feedback`` sees
         every Scan.Feedback (in the client's spinning thread)."""
-        goal = ScanGoal(feedback)
+        goal = ScanGoal(feedback, self.node.get_logger())
         request = Scan.Goal(plan_file=plan_file, theta_rad=[float(v) for v in theta_rad],
                             phi_rad=[float(v) for v in phi_rad], scan_name=scan_name,
                             object=object)
@@ -381,7 +390,7 @@ class CellClient:
         ``board``: ``columns``, ``rows``, ``square_m``, ``marker_m``, ``dictionary``, each
         left out: its parameter); the accepted goal, or ScanFailed when rejected (a
         calibration is running). ``feedback`` sees every Calibrate.Feedback."""
-        goal = CalibrateGoal(feedback)
+        goal = CalibrateGoal(feedback, self.node.get_logger())
         request = Calibrate.Goal(plan_file=plan_file, apply=bool(apply), **board)
         if not self._calibrate.wait_for_server(timeout_sec=timeout_s):
             raise ServiceError(f"the {CALIBRATE_ACTION} action is not available (waited "
