@@ -53,7 +53,8 @@ class Recorder:
         self.joints, self.diagnostics, self.encoders = [], [], []
         self.since_ns = 0
         node.create_subscription(JointState, "joint_states", self.encoders.append, 10)
-        node.create_subscription(JointState, "capture/joint_state", self._on_capture, qos)
+        self.captures = node.create_subscription(JointState, "capture/joint_state",
+                                                 self._on_capture, qos)
         node.create_subscription(DiagnosticArray, DIAGNOSTICS, keep_ours(self.diagnostics),
                                  100)
         self.bad_image_pub = node.create_publisher(Image, "capture/image", qos)
@@ -65,6 +66,13 @@ class Recorder:
                          for name in ("unplug", "hang")}
         self.drop_frame = node.create_client(Trigger, "mock/drop_frame")
         threading.Thread(target=probe.executor.spin, daemon=True).start()
+
+    def wait_matched(self) -> None:
+        """Wait until the scan node's captures reach the probe: a capture published before
+        the probe's reader matched would never reach it (two loaded test runs at once
+        took long enough to match that the first scan's first capture was lost so)."""
+        wait(lambda: self.captures.get_publisher_count() >= 1,
+             what="the scan node's capture/joint_state matched", timeout=MESSAGE_TIMEOUT_S)
 
     def _on_capture(self, msg: JointState) -> None:
         # A late resend of an earlier test's scan is stamped before this test's clear():
@@ -112,7 +120,9 @@ def cell(tmp_path_factory):
     with running_cell(tmp_path_factory.mktemp("cell"), "test_cell_client") as up:
         probe = RosProbe("cell_probe")
         try:
-            yield {**up, "recorder": Recorder(probe)}
+            recorder = Recorder(probe)
+            recorder.wait_matched()
+            yield {**up, "recorder": recorder}
             assert up["cell"].exited() == {}, "a node ended while the tests ran"
         finally:
             probe.close()
