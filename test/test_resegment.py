@@ -82,6 +82,27 @@ def test_leaves_out_a_cast_shadow_joined_to_the_object():
     assert iou(resegment(image, prior, truth), truth) >= IOU_MIN
 
 
+def test_keeps_a_see_through_gap_the_prior_covers_in_part():
+    # A window through the object onto the black backdrop, its rim shaded as dark as the
+    # backdrop (the inner faces of two columns). The first mask has the window; the
+    # tolerant hull's projection keeps all but its middle (one view's see-through is what
+    # a miss forgives), a 3 px rim of it inside the prior: 372 of its 715 pixels.
+    window = (abs(XX - 80) < 28) & (abs(YY - 60) < 7)
+    truth = disc(80, 60, 45) & ~window
+    shaded = truth & (abs(XX - 80) < 34) & (abs(YY - 60) < 13)
+    image = picture((6, 6, 8), [(truth, (190, 150, 100)), (shaded, (20, 16, 12)),
+                                (window, (4, 4, 5))])
+    middle = (abs(XX - 80) < 25) & (abs(YY - 60) < 4)
+    prior = disc(80, 60, 45 + PRIOR_GROWTH_PX) & ~middle
+    result = resegment(image, prior, truth)
+    # Backdrop both the first mask and the hull leave out stays out: without that, the
+    # object's colour model learns the window's colour from the rim and the cut fills
+    # the whole window (IoU 0.887). The rim is decided by colour: measured, 98 of its
+    # pixels become object, inside the bound IOU_MIN allows.
+    assert not (result & middle).any()
+    assert iou(result, truth) >= IOU_MIN
+
+
 def test_an_empty_prior_gives_an_empty_mask():
     image = picture((20, 20, 24), [(disc(70, 55, 30), (200, 200, 200))])
     result = resegment(image, np.zeros((H, W), bool), disc(70, 55, 30))

@@ -11,7 +11,11 @@ neighbourhood of that projection, where
 * pixels outside it, up to a band ``_BAND_FRACTION`` of the object size
   wide (at least ``_BAND_MIN_PX``), are *probable backdrop* (the object
   could still be there if most views cut it);
-* pixels beyond the band are *sure backdrop*.
+* pixels beyond the band are *sure backdrop*, and so are those of a gap the view's
+  first mask encloses (a see-through between two parts) that the projection leaves out
+  too: the hull's miss tolerance forgives the view that sees through, so the projection
+  covers most of such a gap, the object's model learns the gap's colour there, and the
+  cut would fill the rest of it.
 
 The colour models are learnt from these labels, not from the image border:
 the object's colours come from where the views agree the object is, the
@@ -190,6 +194,17 @@ def _features_kernel(rgb, out):
     return out
 
 
+def _enclosed_backdrop(mask: np.ndarray) -> np.ndarray:
+    """(h, w) bool: the pixels outside (h, w) uint8 ``mask`` (0 or 1) that it encloses, the
+    4-connected components of its backdrop that do not reach the array's edge."""
+    n, labels = cv2.connectedComponents((mask == 0).view(np.uint8), connectivity=4)
+    enclosed = np.ones(n, bool)
+    enclosed[0] = False                     # the mask's own pixels
+    for edge in (labels[0], labels[-1], labels[:, 0], labels[:, -1]):
+        enclosed[edge] = False
+    return enclosed[labels]
+
+
 def resegment(rgb: np.ndarray, prior: np.ndarray, mask: np.ndarray) -> np.ndarray:
     """Re-decide the object in one view with the hull's projection as a prior.
 
@@ -217,6 +232,7 @@ def resegment(rgb: np.ndarray, prior: np.ndarray, mask: np.ndarray) -> np.ndarra
     labels = np.full(p.shape, cv2.GC_BGD, np.uint8)
     labels[_dilated_by_disk(p, band) > 0] = cv2.GC_PR_BGD
     labels[p > 0] = cv2.GC_PR_FGD
+    labels[(p == 0) & _enclosed_backdrop(m)] = cv2.GC_BGD
     sure = max(1, int(round(_SURE_FRACTION * size)))
     labels[cv2.erode(p & m, _disk(sure)) > 0] = cv2.GC_FGD
     chosen = coarse_to_fine_grabcut(crop, labels, work_pixels=_WORK_PIXELS,
