@@ -29,7 +29,7 @@ from launch.substitutions import (
 from launch_ros.actions import Node
 
 from launch import LaunchDescription
-from sfs_ros.process import KEEP_FREED_MEMORY_ENVIRONMENT
+from sfs_ros.process import KEEP_FREED_MEMORY_ENVIRONMENT, STOP_GRACE_S
 
 #: Seconds before a node that ended by itself is started again.
 RESPAWN_DELAY_S = 2.0
@@ -44,6 +44,13 @@ def generate_launch_description():
     camera_topic = LaunchConfiguration('camera_topic')
     own_camera = IfCondition(EqualsSubstitution(camera_topic, ''))
     other_camera = IfCondition(NotEqualsSubstitution(camera_topic, ''))
+    # As sfs-cell: a node finishes its queued work on SIGINT (a mesh's pictures), and
+    # launch's own default gives it 5 s before SIGTERM. A sigterm_timeout:= or
+    # sigkill_timeout:= given to ros2 launch wins.
+    stop_grace = {'sigterm_timeout': LaunchConfiguration('sigterm_timeout',
+                                                         default=str(STOP_GRACE_S)),
+                  'sigkill_timeout': LaunchConfiguration('sigkill_timeout',
+                                                         default=str(STOP_GRACE_S))}
     return LaunchDescription([
         DeclareLaunchArgument('output_dir',
                               description='Folder of the scans, meshes and reports'),
@@ -75,53 +82,57 @@ def generate_launch_description():
              output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S, condition=own_camera,
              parameters=[os.path.join(config, 'rig.yaml'), os.path.join(config, 'frames.yaml'),
                          os.path.join(config, 'camera.yaml'), params_file,
-                         {'device': LaunchConfiguration('camera_device'), 'autostart': False}]),
+                         {'device': LaunchConfiguration('camera_device'), 'autostart': False}],
+             **stop_grace),
         Node(package='sfs_ros', executable='sfs-motor', name='motor', namespace=namespace,
              output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
              parameters=[os.path.join(config, 'motor.yaml'), params_file,
-                         {'port': LaunchConfiguration('port'), 'autostart': False}]),
+                         {'port': LaunchConfiguration('port'), 'autostart': False}], **stop_grace),
         Node(package='sfs_ros', executable='sfs-lifecycle-manager', name='lifecycle_manager',
              namespace=namespace, output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
-             condition=own_camera, parameters=[params_file, {'nodes': ['motor', 'camera']}]),
+             condition=own_camera, parameters=[params_file, {'nodes': ['motor', 'camera']}],
+             **stop_grace),
         Node(package='sfs_ros', executable='sfs-lifecycle-manager', name='lifecycle_manager',
              namespace=namespace, output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
-             condition=other_camera, parameters=[params_file, {'nodes': ['motor']}]),
+             condition=other_camera, parameters=[params_file, {'nodes': ['motor']}], **stop_grace),
         # The cell's TF (/tf, /tf_static) and URDF (robot_description) from the motor node's
         # joint_states, the rig and the frames (config/frames.yaml).
         Node(package='sfs_ros', executable='sfs-state-publisher', name='state_publisher',
              namespace=namespace, output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
              parameters=[os.path.join(config, 'rig.yaml'), os.path.join(config, 'frames.yaml'),
-                         params_file]),
+                         params_file], **stop_grace),
         Node(package='sfs_ros', executable='sfs-segmentation', name='segmentation',
              namespace=namespace, output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
              parameters=[os.path.join(config, 'rig.yaml'),
-                         os.path.join(config, 'segmentation.yaml'), params_file]),
+                         os.path.join(config, 'segmentation.yaml'), params_file], **stop_grace),
         Node(package='sfs_ros', executable='sfs-carving', name='carving',
              additional_env=KEEP_FREED_MEMORY_ENVIRONMENT,
              namespace=namespace, output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
              parameters=[os.path.join(config, 'rig.yaml'), os.path.join(config, 'frames.yaml'),
                          os.path.join(config, 'carving.yaml'), params_file,
-                         {'output_dir': output_dir}]),
+                         {'output_dir': output_dir}], **stop_grace),
         Node(package='sfs_ros', executable='sfs-meshing', name='meshing',
              additional_env=KEEP_FREED_MEMORY_ENVIRONMENT,
              namespace=namespace, output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
              parameters=[os.path.join(config, 'frames.yaml'),
                          os.path.join(config, 'meshing.yaml'), params_file,
-                         {'output_dir': output_dir}]),
+                         {'output_dir': output_dir}], **stop_grace),
         Node(package='sfs_ros', executable='sfs-recorder', name='recorder',
              namespace=namespace, output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
              parameters=[os.path.join(config, 'recorder.yaml'), params_file,
-                         {'output_dir': output_dir}]),
+                         {'output_dir': output_dir}], **stop_grace),
         Node(package='sfs_ros', executable='sfs-calibration', name='calibration',
              namespace=namespace, output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
              parameters=[os.path.join(config, 'calibration.yaml'), params_file,
                          {'output_dir': output_dir,
-                          'plan_file': os.path.join(config, 'calibration_plan.yaml')}]),
+                          'plan_file': os.path.join(config, 'calibration_plan.yaml')}],
+             **stop_grace),
         Node(package='sfs_ros', executable='sfs-scan', name='scan', namespace=namespace,
              output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S, condition=own_camera,
              parameters=[os.path.join(config, 'scan.yaml'), params_file,
                          {'plan_file': os.path.join(config, 'scan_plan.yaml'),
-                          'progress_dir': PathJoinSubstitution([output_dir, 'scan_progress'])}]),
+                          'progress_dir': PathJoinSubstitution([output_dir, 'scan_progress'])}],
+             **stop_grace),
         # Another driver's camera: the scan node takes its streamed frames.
         Node(package='sfs_ros', executable='sfs-scan', name='scan', namespace=namespace,
              output='screen', respawn=True, respawn_delay=RESPAWN_DELAY_S,
@@ -129,5 +140,6 @@ def generate_launch_description():
              parameters=[os.path.join(config, 'scan.yaml'), params_file,
                          {'plan_file': os.path.join(config, 'scan_plan.yaml'),
                           'camera_trigger': 'stream',
-                          'progress_dir': PathJoinSubstitution([output_dir, 'scan_progress'])}]),
+                          'progress_dir': PathJoinSubstitution([output_dir, 'scan_progress'])}],
+             **stop_grace),
     ])

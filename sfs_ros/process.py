@@ -41,7 +41,8 @@ from __future__ import annotations
 import os
 import sys
 
-__all__ = ["PROCESS_ENVIRONMENT", "KEEP_FREED_MEMORY_ENVIRONMENT", "configure_process"]
+__all__ = ["PROCESS_ENVIRONMENT", "KEEP_FREED_MEMORY_ENVIRONMENT", "STOP_GRACE_S",
+           "configure_process"]
 
 #: What every process of the package runs with (a variable already set is left as it is).
 PROCESS_ENVIRONMENT = {"OPENBLAS_NUM_THREADS": "1", "OMP_WAIT_POLICY": "PASSIVE"}
@@ -49,6 +50,11 @@ PROCESS_ENVIRONMENT = {"OPENBLAS_NUM_THREADS": "1", "OMP_WAIT_POLICY": "PASSIVE"
 #: (one arena, no mmap, no trimming: the largest size_t), read when a process starts.
 KEEP_FREED_MEMORY_ENVIRONMENT = {"MALLOC_ARENA_MAX": "1", "MALLOC_MMAP_MAX_": "0",
                                  "MALLOC_TRIM_THRESHOLD_": str(2 ** 64 - 1)}
+#: Seconds a node gets to stop after SIGINT, and again after SIGTERM, before it is killed
+#: (``sfs-cell``; the launch files' ``sigterm_timeout`` and ``sigkill_timeout``). On SIGINT
+#: a node finishes the work it has queued (a mesh's pictures after its answer): 10 s was
+#: not enough for the meshing node on a 2-core machine running two test suites.
+STOP_GRACE_S = 60.0
 
 
 def configure_process(*, keep_freed_memory: bool = False) -> bool:

@@ -2,8 +2,9 @@
 
 ``launch`` and ``launch_ros`` are not on PyPI, so the files are parsed with
 ``ast`` and their ``Node(...)`` actions evaluated here for the few
-constructs they use (strings, lists, tuples, dicts, names assigned in the file,
-``os.path.join``, ``PathJoinSubstitution``, ``LaunchConfiguration``,
+constructs they use (strings, lists, tuples, dicts, names assigned in the file and
+``**`` of such a dict, ``str``, ``os.path.join``, ``PathJoinSubstitution``,
+``LaunchConfiguration`` (with a ``default``: of an argument ``launch`` itself reads),
 ``IfCondition`` of ``EqualsSubstitution`` / ``NotEqualsSubstitution`` (a node
 whose condition is false is not started),
 ``get_package_share_directory``, ``Path(...).read_text()``); anything else fails
@@ -67,7 +68,11 @@ class LaunchFile:
         return sorted(found, key=lambda n: (n.lineno, n.col_offset))
 
     def keywords(self, call: ast.Call) -> dict:
-        return {k.arg: self.value(k.value) for k in call.keywords}
+        """The call's keywords, a ``**name`` of a dict assigned in the file among them."""
+        found = {}
+        for k in call.keywords:
+            found.update(self.value(k.value) if k.arg is None else {k.arg: self.value(k.value)})
+        return found
 
     def nodes(self, package: str = "sfs_ros") -> list[dict]:
         """Keywords of the ``Node`` actions of ``package`` that start (condition true)."""
@@ -81,8 +86,9 @@ class LaunchFile:
     def value(self, expr: ast.expr):
         if isinstance(expr, ast.Constant):
             return expr.value
-        if isinstance(expr, ast.Name) and expr.id == "KEEP_FREED_MEMORY_ENVIRONMENT":
-            return process.KEEP_FREED_MEMORY_ENVIRONMENT     # imported from sfs_ros.process
+        if isinstance(expr, ast.Name) and expr.id in ("KEEP_FREED_MEMORY_ENVIRONMENT",
+                                                      "STOP_GRACE_S"):
+            return getattr(process, expr.id)                 # imported from sfs_ros.process
         if isinstance(expr, ast.Name) and expr.id in self.assigned:
             return self.value(self.assigned[expr.id])
         if isinstance(expr, ast.List):
@@ -97,8 +103,14 @@ class LaunchFile:
             if isinstance(receiver, ast.Call) and ast.unparse(receiver.func) == "Path" \
                     and len(receiver.args) == 1 and not receiver.keywords:
                 return Path(self.value(receiver.args[0])).read_text()
+        if isinstance(expr, ast.Call) and ast.unparse(expr.func) == "LaunchConfiguration" \
+                and [k.arg for k in expr.keywords] == ["default"]:
+            name = self.value(expr.args[0])
+            return self.arguments.get(name, self.value(expr.keywords[0].value))
         if isinstance(expr, ast.Call) and not expr.keywords:
             function, args = ast.unparse(expr.func), [self.value(a) for a in expr.args]
+            if function == "str":
+                return str(*args)
             if function == "os.path.join":
                 return os.path.join(*args)
             if function == "PathJoinSubstitution":
@@ -246,6 +258,22 @@ def test_launch_files_set_the_middleware_environment_of_sfs_cell(filename, share
         assert launch.value(value.args[0]) == name
         settings[name] = launch.keywords(value)["default_value"]
     assert settings == DDS_ENVIRONMENT | process.PROCESS_ENVIRONMENT
+
+
+@pytest.mark.parametrize("filename", LAUNCH_FILES)
+def test_launch_files_give_each_node_the_stop_grace_of_sfs_cell(filename, share):
+    # launch's own default (5 s after SIGINT, then SIGTERM) would cut a node finishing its
+    # queued work, as 10 s once cut the meshing node in sfs-cell.
+    launch = LaunchFile(REPO / "launch" / filename, arguments={"output_dir": "out"},
+                        share=share)
+    grace = str(process.STOP_GRACE_S)
+    assert [(n["sigterm_timeout"], n["sigkill_timeout"]) for n in launch.nodes()] == \
+        [(grace, grace)] * len(launch.nodes())
+    # ros2 launch ... sigterm_timeout:=S sigkill_timeout:=K wins, as for launch's default.
+    given = LaunchFile(REPO / "launch" / filename, share=share,
+                       arguments={"output_dir": "out", "sigterm_timeout": "7",
+                                  "sigkill_timeout": "3"})
+    assert {(n["sigterm_timeout"], n["sigkill_timeout"]) for n in given.nodes()} == {("7", "3")}
 
 
 def test_every_executable_is_a_console_script(share):

@@ -56,7 +56,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from sfs_ros.cell_logic.paths import APPLIED_RIG
-from sfs_ros.process import KEEP_FREED_MEMORY_ENVIRONMENT, PROCESS_ENVIRONMENT
+from sfs_ros.process import KEEP_FREED_MEMORY_ENVIRONMENT, PROCESS_ENVIRONMENT, STOP_GRACE_S
 from sfs_ros.ros.names import CONFIGURATION_ERROR, NAMESPACE
 
 __all__ = ["NodeSpec", "Cell", "DDS_ENVIRONMENT", "RestartPolicy", "cell_nodes",
@@ -70,10 +70,6 @@ __all__ = ["NodeSpec", "Cell", "DDS_ENVIRONMENT", "RestartPolicy", "cell_nodes",
 #: 5053, 5469 and 2811 report the same): the cell's processes talk over UDP on the loopback.
 DDS_ENVIRONMENT = {"FASTDDS_BUILTIN_TRANSPORTS": "UDPv4"}
 
-#: Seconds a node gets to stop after SIGINT (then SIGTERM, then SIGKILL). On SIGINT a node
-#: finishes the work it has queued (a mesh's pictures after its answer): 10 s was not
-#: enough for the meshing node on a 2-core machine running two test suites.
-STOP_GRACE_S = 60.0
 #: Seconds a node that did not stop gets to write its threads' stacks (SIGUSR1) before SIGKILL.
 STACKS_S = 1.0
 

@@ -179,7 +179,7 @@ def _wait_future(future, timeout_s: float, what: str):
 class ScanGoal:
     """A ``Scan`` goal (:meth:`CellClient.send_scan`): :meth:`wait` for its result,
     :meth:`cancel` it. ``feedback``: the latest Scan.Feedback (None before one); each is
-    also handed to ``on_feedback``."""
+    also handed to ``on_feedback``, whose exceptions go to ``logger`` (the client node's)."""
 
     #: What the goal does, in messages.
     WHAT = "scan"
