@@ -194,17 +194,6 @@ def _features_kernel(rgb, out):
     return out
 
 
-def _enclosed_backdrop(mask: np.ndarray) -> np.ndarray:
-    """(h, w) bool: the pixels outside (h, w) uint8 ``mask`` (0 or 1) that it encloses, the
-    4-connected components of its backdrop that do not reach the array's edge."""
-    n, labels = cv2.connectedComponents((mask == 0).view(np.uint8), connectivity=4)
-    enclosed = np.ones(n, bool)
-    enclosed[0] = False                     # the mask's own pixels
-    for edge in (labels[0], labels[-1], labels[:, 0], labels[:, -1]):
-        enclosed[edge] = False
-    return enclosed[labels]
-
-
 def resegment(rgb: np.ndarray, prior: np.ndarray, mask: np.ndarray) -> np.ndarray:
     """Re-decide the object in one view with the hull's projection as a prior.
 
@@ -232,7 +221,8 @@ def resegment(rgb: np.ndarray, prior: np.ndarray, mask: np.ndarray) -> np.ndarra
     labels = np.full(p.shape, cv2.GC_BGD, np.uint8)
     labels[_dilated_by_disk(p, band) > 0] = cv2.GC_PR_BGD
     labels[p > 0] = cv2.GC_PR_FGD
-    labels[(p == 0) & _enclosed_backdrop(m)] = cv2.GC_BGD
+    every_hole_filled, _ = fill_small_holes(m, np.inf)
+    labels[(p == 0) & (every_hole_filled > m)] = cv2.GC_BGD
     sure = max(1, int(round(_SURE_FRACTION * size)))
     labels[cv2.erode(p & m, _disk(sure)) > 0] = cv2.GC_FGD
     chosen = coarse_to_fine_grabcut(crop, labels, work_pixels=_WORK_PIXELS,
