@@ -8,9 +8,9 @@ the cell's camera (640 x 480, 0.43 mm a pixel) from 16, 48 and 144 views. Timed:
 ``sfs-reconstruct`` with default options but the refinement below the hull
 (``--no-refine``; its own figures in ``bench_refine``), from reading the images to the
 mesh and its report written. Baseline: ``cv2.imread`` of every image of the set,
-measured in the same run. Ratio = baseline / ours. A note gives ours / decode and the
-mesh's silhouette IoU against the renderer's exact silhouettes of the true mesh (mean
-and worst view).
+measured in the same run. Ratio = baseline / ours. A note gives ours / decode, the run's
+CPU time (every thread's) and the cores it kept busy, and the mesh's silhouette IoU
+against the renderer's exact silhouettes of the true mesh (mean and worst view).
 
 Where the Middlebury rings are beside the repository (``../shared/datasets/middlebury``;
 not with ``--quick``), the same for dinoSparseRing and templeSparseRing (16 photographs
@@ -44,7 +44,7 @@ from sfs_ros.core.simulation.objects import make_object
 from sfs_ros.core.simulation.plan import ring_plan
 from sfs_ros.core.simulation.synthetic import exact_silhouettes, simulate_scan
 
-from .timing import best_of, main
+from .timing import best_of, best_of_with_cpu, main
 
 MIDDLEBURY = Path(__file__).resolve().parents[2] / "shared" / "datasets" / "middlebury"
 #: The rings: (par file, the README recipe's threshold).
@@ -93,6 +93,12 @@ def _reconstruct(argv: list[str]) -> None:
             raise RuntimeError(f"sfs-reconstruct failed on {argv[0]}")
 
 
+def _cores(seconds: float, cpu: float) -> str:
+    """A run's ``cpu`` seconds of CPU time and the cores they kept busy over its wall time
+    of ``seconds``."""
+    return f"CPU {cpu:.2f} s ({cpu / seconds:.2f} cores)"
+
+
 def _stages(report: dict) -> str:
     return ", ".join(f"{k} {v:.2f}" for k, v in report["timings_s"].items())
 
@@ -108,8 +114,9 @@ def middlebury_rows() -> list[dict]:
         decode = best_of(lambda: [cv2.imread(str(v.image_path)) for v in views], 3)
         with tempfile.TemporaryDirectory() as tmp:
             out = Path(tmp) / "mesh.ply"
-            seconds = best_of(lambda: _reconstruct([str(MIDDLEBURY / par), "-o", str(out), "-q",
-                                                    "--no-refine"]), 2)
+            seconds, cpu = best_of_with_cpu(
+                lambda: _reconstruct([str(MIDDLEBURY / par), "-o", str(out), "-q", "--no-refine"]),
+                2)
             report = json.loads(out.with_name("mesh.report.json").read_text())
             mesh = trimesh.load(out, force="mesh", process=False)
         ious = reprojection_ious(mesh.vertices, mesh.faces, [v.camera for v in views],
@@ -118,7 +125,8 @@ def middlebury_rows() -> list[dict]:
         again = (report.get("resegmentation") or {}).get("resegmented")
         rows.append({"name": f"sfs-reconstruct {name} vs imread", "seconds": seconds,
                      "baseline_seconds": decode, "ratio": decode / seconds,
-                     "notes": [f"{name}: {seconds / decode:.1f}x the decoding; grid "
+                     "notes": [f"{name}: {seconds / decode:.1f}x the decoding; "
+                               f"{_cores(seconds, cpu)}; grid "
                                f"{report['grid']['shape']}; IoU against the README masks "
                                f"{np.mean(ious):.4f} (worst {np.min(ious):.4f}); views cut "
                                f"again {again}; stages (s): "
@@ -134,8 +142,8 @@ def synthetic_row(name: str, rig: RigCalibration, per_ring: int) -> dict:
         images = sorted((session / "images").glob("*.png"))
         decode = best_of(lambda: [cv2.imread(str(p)) for p in images], 3)
         out = Path(tmp) / "mesh.ply"
-        seconds = best_of(lambda: _reconstruct([str(session), "-o", str(out), "-q",
-                                                "--no-refine"]), 2)
+        seconds, cpu = best_of_with_cpu(
+            lambda: _reconstruct([str(session), "-o", str(out), "-q", "--no-refine"]), 2)
         report = json.loads(out.with_name("mesh.report.json").read_text())
         ious = exact_silhouette_iou(session, obj, out)
     size = f"{rig.width}x{rig.height}"
@@ -143,7 +151,8 @@ def synthetic_row(name: str, rig: RigCalibration, per_ring: int) -> dict:
     return {"name": f"sfs-reconstruct {name} {len(images)} views {size} vs imread",
             "seconds": seconds, "baseline_seconds": decode, "ratio": decode / seconds,
             "notes": [f"{name} {len(images)} x {size}: {seconds / decode:.1f}x the decoding; "
-                      f"silhouette IoU against the exact silhouettes: mean "
+                      f"{_cores(seconds, cpu)}; silhouette IoU against the exact "
+                      f"silhouettes: mean "
                       f"{np.mean(ious):.4f}, worst {np.min(ious):.4f}; grid "
                       f"{report['grid']['shape']}, voxel "
                       f"{report['grid']['voxel_size_m'] * 1e3:.3f} mm "
