@@ -128,7 +128,8 @@ def run_hull_surface(quick: bool = False) -> list[dict]:
     return rows
 
 
-#: The Middlebury dino's grid (``sfs-reconstruct``'s footprint grid for dinoSparseRing).
+#: The Middlebury dino's grid at its finest pixel footprint (dinoSparseRing; ``sfs-reconstruct``
+#: carves it 1.5 footprints coarse by default: its silhouettes have next to no thin parts).
 DINO_SHAPE = (390, 506, 401)
 
 

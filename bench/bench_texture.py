@@ -9,7 +9,7 @@ difference (grey levels) from the held-out images over the pixels the mesh and t
 mug both cover, eroded by 2 px.
 
 Then the cost at default settings: the same mug, 48 views (three rings of 16), none
-held out, reconstructed as ``sfs-reconstruct`` does by default (the pixel-footprint grid,
+held out, reconstructed as ``sfs-reconstruct`` does by default (the grid from the pixel footprint,
 refined below the hull from the views' colours, no vertex colour; and the hull alone, as
 ``--no-refine``) and the refined mesh textured from its own views
 (:func:`texture_reconstruction`, 24 of them spread out, and all 48): the best of three
@@ -62,7 +62,7 @@ PLAN = ring_plan([15.0, 40.0, 65.0], 16, top_view=True)
 TEMPLE = (Path(__file__).resolve().parents[2] / "shared" / "datasets" / "middlebury"
           / "templeSparseRing" / "templeSR_par.txt")
 HELD_OUT = (3, 21, 38, 48)
-#: Grids: 40 and 64 voxels a side, and None (the pixel footprint, 0.84 mm voxels).
+#: Grids: 40 and 64 voxels a side, and None (the default, from the pixel footprint).
 RESOLUTIONS = (40, 64, None)
 #: Runs of the reconstruction and the texture at default settings, the best kept.
 REPEATS = 3
@@ -182,7 +182,7 @@ def main() -> None:
                                                   textured.faces, pixel_colors=textured.colour_at)
             vertex_error = held_out_colour_error(mug, held_out, RIG, result.vertices,
                                                  result.faces, vertex_colors=result.vertex_colors)
-            print(f"grid {resolution or 'footprint'}: {stats['faces']} faces; mesh {mesh_s:.2f} s "
+            print(f"grid {resolution or 'default'}: {stats['faces']} faces; mesh {mesh_s:.2f} s "
                   f"(colour {result.report['timings_s'].get('colour', 0):.2f} s), texture "
                   f"{texture_s:.2f} s {({k: round(v, 2) for k, v in stats['seconds'].items()})}; "
                   f"{stats['charts']} charts, {stats['seam_edges']} seam edges, atlas "

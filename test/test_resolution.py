@@ -9,13 +9,18 @@ from sfs_ros.core.carving.bounds import BoxCarve, footprint_masks, refine_bounds
 from sfs_ros.core.carving.carve import KeptCarve, carve
 from sfs_ros.core.carving.resolution import (
     BYTES_PER_VOXEL,
+    COARSE_FOOTPRINTS,
+    THIN_PART_PX,
+    THIN_SHARE_MAX,
     choose_voxel_size,
     grid_shape,
     parse_memory,
     pixel_footprints_m,
 )
+from sfs_ros.core.carving.thin_parts import thin_share
 from sfs_ros.core.geometry.grid import VoxelGrid
 from sfs_ros.core.geometry.rig import RigCalibration, rig_camera
+from sfs_ros.core.settings import RESOLUTION
 
 from analytic_masks import sphere_mask
 
@@ -51,6 +56,53 @@ def test_default_voxel_is_the_finest_footprint():
     assert choice.shape == grid_shape(BOX, 0.4 / FX)
     assert choice.memory_bytes == np.prod(choice.shape) * BYTES_PER_VOXEL
     assert "finest pixel footprint" in choice.reason
+
+
+def disk_with_strip(strip_width_px: int, frame=(300, 400)) -> tuple[np.ndarray, int]:
+    """A disk of radius 80 px with a horizontal strip ``strip_width_px`` wide and 100 px
+    long standing out of it, and the strip's pixels outside the disk."""
+    rows, cols = np.mgrid[:frame[0], :frame[1]]
+    disk = (rows - 150) ** 2 + (cols - 150) ** 2 <= 80 ** 2
+    strip = np.zeros(frame, dtype=bool)
+    strip[150 - strip_width_px // 2:150 + strip_width_px - strip_width_px // 2, 200:330] = True
+    return disk | strip, int(np.count_nonzero(strip & ~disk))
+
+
+def test_the_thin_share_is_the_area_of_the_parts_narrower_than_the_disk():
+    mask, strip_px = disk_with_strip(3)
+    share = thin_share([mask], THIN_PART_PX)
+    # The strip (3 x 100 px outside the disk) is thin, the disk is not, to within a few
+    # pixels where the strip meets the disk (a 7 px disk there holds some of the strip and
+    # trims the digital circle's steps).
+    assert strip_px - 8 <= share * np.count_nonzero(mask) <= strip_px + 2 * 8
+    wide, _ = disk_with_strip(THIN_PART_PX + 2)
+    assert thin_share([wide], THIN_PART_PX) * np.count_nonzero(wide) <= 2 * 8
+    # A thick part cut by the frame is not thin: the frame's edge is not the object's.
+    assert thin_share([mask[:, :220]], THIN_PART_PX) * np.count_nonzero(mask[:, :220]) <= 2 * 8
+    # Over several masks the share is of their area together; no foreground, no share.
+    empty = np.zeros_like(mask)
+    assert thin_share([mask, wide, empty], THIN_PART_PX) == pytest.approx(
+        (share * np.count_nonzero(mask) + thin_share([wide], THIN_PART_PX)
+         * np.count_nonzero(wide)) / (np.count_nonzero(mask) + np.count_nonzero(wide)))
+    assert thin_share([empty], THIN_PART_PX) == 0.0
+    with pytest.raises(ValueError, match="odd"):
+        thin_share([mask], 6)
+
+
+def test_silhouettes_without_thin_parts_get_a_coarser_voxel():
+    finest = DISTANCE_M / FX
+    coarse = choose_voxel_size(BOX, ring(), max_memory_bytes=GIB, thin_share=THIN_SHARE_MAX)
+    assert coarse.source == "footprint" and coarse.thin_share == THIN_SHARE_MAX
+    assert coarse.voxel_size_m == pytest.approx(COARSE_FOOTPRINTS * finest)
+    assert f"{COARSE_FOOTPRINTS:.3g} times the finest pixel footprint" in coarse.reason
+    fine = choose_voxel_size(BOX, ring(), max_memory_bytes=GIB, thin_share=2 * THIN_SHARE_MAX)
+    assert fine.voxel_size_m == pytest.approx(finest)
+    assert "keeping the parts under 7 px wide (0.4 % of the silhouettes' area)" in fine.reason
+    given = choose_voxel_size(BOX, ring(), resolution=100, max_memory_bytes=GIB, thin_share=0.0)
+    assert max(given.shape) == 100 and given.thin_share is None
+    # The setting's words for its default (the help and doc/reference.md) say the same.
+    assert f"({COARSE_FOOTPRINTS:.3g} of it" in RESOLUTION.default_text
+    assert f"under {THIN_PART_PX} px wide" in RESOLUTION.default_text
 
 
 def test_memory_budget_coarsens_the_footprint():

@@ -12,6 +12,7 @@ import trimesh
 
 from sfs_ros.core.carving.bounds import estimate_bounds, refine_bounds
 from sfs_ros.core.carving.fusion import reference_misses
+from sfs_ros.core.carving.resolution import THIN_SHARE_MAX
 from sfs_ros.core.exchange.nerf import read_transforms
 from sfs_ros.core.geometry.camera import Camera
 from sfs_ros.core.meshing.marching import band_marching_cubes
@@ -129,6 +130,11 @@ def test_rgba_views_are_carved_as_their_exact_alpha(scene, tmp_path):
     views = read_transforms(write_rgba_scan(tmp_path, mesh, cameras, masks))
     result = reconstruct(views)
     assert not result.report["fusion"]["overruled"]
+    # The legs (6 px wide) and the antenna (3 px) are parts a coarser grid loses: the
+    # voxel stays the finest footprint.
+    grid = result.report["grid"]
+    assert grid["thin_part_share"] > THIN_SHARE_MAX
+    assert grid["voxel_size_m"] == pytest.approx(grid["pixel_footprint_m"]["finest"])
     ious = []
     for view, mask in zip(views.views, masks):
         drawn = rasterize_silhouette(result.vertices, result.faces, view.camera)

@@ -64,8 +64,9 @@ class ReconstructionParams:
         Voxels along the longest side of the bounding box, in
         :data:`sfs_ros.core.settings.RESOLUTION`'s range (ignored when
         ``voxel_size_m`` is set). None: the voxel is the finest pixel footprint
-        at the box centre over the views, coarsened only to fit
-        ``max_memory_bytes`` (:func:`sfs_ros.core.carving.resolution.choose_voxel_size`).
+        at the box centre over the views (1.5 of it when the masks have next to no
+        thin parts), coarsened only to fit ``max_memory_bytes``
+        (:func:`sfs_ros.core.carving.resolution.choose_voxel_size`).
     voxel_size_m : float or None
         Voxel edge, metres.
     max_memory_bytes : int or None

@@ -112,7 +112,8 @@ class Setting:
 RESOLUTION = Setting(
     "resolution", "Voxels along the longest side of the carving box.", int, "--resolution",
     bounds=(8, 2048), unit="voxels", cell_default=192, recorded=True,
-    default_text="the finest pixel footprint at the object, within the memory budget")
+    default_text="the finest pixel footprint at the object (1.5 of it when next to none of "
+                 "the silhouettes lies in parts under 7 px wide), within the memory budget")
 BOUNDS_M = Setting(
     "bounds_m", "Carving box [xmin, ymin, zmin, xmax, ymax, zmax], metres, object frame.",
     float, "--bounds", length=6, unit="m",

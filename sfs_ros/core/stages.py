@@ -21,7 +21,13 @@ from .carving.carve import KeptCarve, PreparedMasks, kept_or_carved
 from .carving.consistency import bbox_clips_object
 from .carving.fusion import fuse_silhouettes, reference_misses
 from .carving.hull import drop_specks
-from .carving.resolution import ResolutionChoice, choose_voxel_size, default_memory_budget
+from .carving.resolution import (
+    THIN_PART_PX,
+    ResolutionChoice,
+    choose_voxel_size,
+    default_memory_budget,
+)
+from .carving.thin_parts import thin_share
 from .exchange.views import View, ViewSet, as_bounds, read_image
 from .geometry.camera import Camera
 from .geometry.grid import VoxelGrid
@@ -261,6 +267,7 @@ class GridChoice:
                 "resolution_source": choice.source, "resolution_reason": choice.reason,
                 "pixel_footprint_m": {"finest": choice.footprint_m,
                                       "median": choice.footprint_median_m},
+                "thin_part_share": choice.thin_share,
                 "memory_bytes": choice.memory_bytes,
                 "max_memory_bytes": choice.max_memory_bytes}
 
@@ -330,8 +337,10 @@ def choose_grid(views: list[View], used: UsedViews, *, given_box, input_box,
     if refined:
         bounds = refine_bounds(cameras, used.prepared, bounds,
                                max_misses=reference_misses(len(cameras)), known=known_box)
+    share = thin_share(used.masks, THIN_PART_PX) \
+        if resolution is None and voxel_size_m is None else None
     choice = choose_voxel_size(bounds, cameras, resolution=resolution,
-                               voxel_size_m=voxel_size_m,
+                               voxel_size_m=voxel_size_m, thin_share=share,
                                max_memory_bytes=max_memory_bytes or default_memory_budget())
     return GridChoice(bounds, VoxelGrid(bounds[0], bounds[1], choice.voxel_size_m), source,
                       refined, choice, clipped)

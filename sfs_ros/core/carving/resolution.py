@@ -6,8 +6,10 @@ silhouettes are only known to a pixel). The footprint of view ``v`` at the
 centre ``c`` of the carving box is ``depth_v(c) / f_v`` metres for a pinhole
 camera and ``1 / f_v`` for an orthographic one (``f_v`` the smaller of the focal
 lengths, pixels). The default voxel is the *finest* footprint over the views,
-so every view's pixels are resolved; it is enlarged only when the grid would
-not fit the memory budget.
+so every view's pixels are resolved, unless the silhouettes have next to no thin
+parts: then it is :data:`COARSE_FOOTPRINTS` footprints, which loses what is narrower
+than :data:`THIN_PART_PX` pixels (:mod:`.thin_parts`) and holds the rest as well. It is
+enlarged further only when the grid would not fit the memory budget.
 """
 
 from __future__ import annotations
@@ -23,7 +25,8 @@ from ..geometry.camera import Camera
 from ..geometry.grid import MAX_VOXELS, resolution_voxel_size
 from ..settings import RESOLUTION
 
-__all__ = ["BYTES_PER_VOXEL", "refuse_unfit_grid", "ResolutionChoice", "pixel_footprints_m", "parse_memory",
+__all__ = ["BYTES_PER_VOXEL", "COARSE_FOOTPRINTS", "THIN_PART_PX", "THIN_SHARE_MAX",
+           "refuse_unfit_grid", "ResolutionChoice", "pixel_footprints_m", "parse_memory",
            "default_memory_budget", "grid_shape", "choose_voxel_size"]
 
 #: Peak working memory of a reconstruction per voxel of its grid, bytes: the
@@ -33,6 +36,14 @@ __all__ = ["BYTES_PER_VOXEL", "refuse_unfit_grid", "ResolutionChoice", "pixel_fo
 BYTES_PER_VOXEL = 16
 #: Share of the machine's physical memory a reconstruction may use by default.
 DEFAULT_MEMORY_SHARE = 0.25
+
+#: The default voxel, in finest pixel footprints, for silhouettes with next to no thin parts.
+COARSE_FOOTPRINTS = 1.5
+#: Width, pixels, of the silhouette parts a grid of :data:`COARSE_FOOTPRINTS` loses.
+THIN_PART_PX = 7
+#: Largest share of the silhouettes' area in parts narrower than :data:`THIN_PART_PX` for
+#: the coarse voxel: about the silhouette IoU the coarse voxel may lose there.
+THIN_SHARE_MAX = 0.002
 
 _UNITS = {"": 1, "K": 1 << 10, "M": 1 << 20, "G": 1 << 30, "T": 1 << 40}
 
@@ -52,13 +63,16 @@ class ResolutionChoice:
     footprint_median_m : float
         Median over the views of the same, metres.
     source : str
-        ``"footprint"`` (voxel = finest footprint), ``"memory"`` (footprint
-        enlarged to fit ``max_memory_bytes``), ``"resolution"`` or
+        ``"footprint"`` (voxel = finest footprint, or :data:`COARSE_FOOTPRINTS` of it),
+        ``"memory"`` (enlarged to fit ``max_memory_bytes``), ``"resolution"`` or
         ``"voxel-size"`` (given by the caller).
     memory_bytes : int
         Working memory the grid needs (``BYTES_PER_VOXEL`` per voxel).
     max_memory_bytes : int
         The budget it had to fit.
+    thin_share : float or None
+        Share of the silhouettes' area in parts narrower than :data:`THIN_PART_PX`
+        pixels (None: not measured, or not needed: a size given by the caller).
     """
 
     voxel_size_m: float
@@ -68,18 +82,29 @@ class ResolutionChoice:
     source: str
     memory_bytes: int
     max_memory_bytes: int
+    thin_share: float | None = None
 
     @property
     def reason(self) -> str:
         """One sentence: why this voxel size."""
         mm = self.voxel_size_m * 1e3
         if self.source == "footprint":
-            return (f"{mm:.4g} mm: the finest pixel footprint at the box centre over the views "
-                    f"(median {self.footprint_median_m * 1e3:.4g} mm)")
+            times = "the" if self.voxel_size_m == self.footprint_m else \
+                f"{self.voxel_size_m / self.footprint_m:.3g} times the"
+            return (f"{mm:.4g} mm: {times} finest pixel footprint at the box centre over the "
+                    f"views (median {self.footprint_median_m * 1e3:.4g} mm){self._thin_parts()}")
         if self.source == "memory":
             return (f"{mm:.4g} mm: the finest pixel footprint ({self.footprint_m * 1e3:.4g} mm) "
                     f"coarsened to fit {self.max_memory_bytes / (1 << 30):.2f} GiB")
         return f"{mm:.4g} mm: from the given {self.source}"
+
+    def _thin_parts(self) -> str:
+        if self.thin_share is None:
+            return ""
+        share = f"{100 * self.thin_share:.2g} % of the silhouettes' area"
+        if self.thin_share <= THIN_SHARE_MAX:
+            return f"; parts under {THIN_PART_PX} px wide are {share}"
+        return f", keeping the parts under {THIN_PART_PX} px wide ({share})"
 
 
 def pixel_footprints_m(cameras: Sequence[Camera], point) -> np.ndarray:
@@ -182,11 +207,15 @@ def _refuse_coarse_voxel(size: float, source: str, bounds: np.ndarray, cameras,
 
 def choose_voxel_size(bounds_m, cameras: Sequence[Camera], *, max_memory_bytes: int,
                       resolution: int | None = None,
-                      voxel_size_m: float | None = None) -> ResolutionChoice:
+                      voxel_size_m: float | None = None,
+                      thin_share: float | None = None) -> ResolutionChoice:
     """The voxel size for carving ``bounds_m`` (2, 3), metres, seen by ``cameras``.
 
-    ``voxel_size_m`` or ``resolution`` (voxels along the box's longest side)
-    override the footprint; a grid they ask for that does not fit
+    By default the finest pixel footprint, :data:`COARSE_FOOTPRINTS` of it when
+    ``thin_share`` (the share of the silhouettes' area in parts narrower than
+    :data:`THIN_PART_PX` pixels, :func:`.thin_parts.thin_share`) is at most
+    :data:`THIN_SHARE_MAX`. ``voxel_size_m`` or ``resolution`` (voxels along the box's
+    longest side) override the footprint; a grid they ask for that does not fit
     ``max_memory_bytes`` (or more than ``MAX_VOXELS`` voxels) is refused with a
     ``ValueError`` giving the memory it would need, before anything is
     allocated. The footprint's grid is instead coarsened until it fits. A voxel
@@ -205,7 +234,8 @@ def choose_voxel_size(bounds_m, cameras: Sequence[Camera], *, max_memory_bytes: 
     elif resolution is not None:
         size, source = resolution_voxel_size(bounds[0], bounds[1], resolution), "resolution"
     else:
-        size, source = finest, "footprint"
+        coarse = thin_share is not None and thin_share <= THIN_SHARE_MAX
+        size, source = finest * (COARSE_FOOTPRINTS if coarse else 1.0), "footprint"
     shape = grid_shape(bounds, size)
     if not _fits(shape, max_memory_bytes):
         if source != "footprint":
@@ -225,4 +255,6 @@ def choose_voxel_size(bounds_m, cameras: Sequence[Camera], *, max_memory_bytes: 
     return ResolutionChoice(voxel_size_m=size, shape=shape, footprint_m=finest,
                             footprint_median_m=median, source=source,
                             memory_bytes=int(np.prod(shape)) * BYTES_PER_VOXEL,
-                            max_memory_bytes=int(max_memory_bytes))
+                            max_memory_bytes=int(max_memory_bytes),
+                            thin_share=None if source in ("resolution", "voxel-size")
+                            else thin_share)

@@ -194,12 +194,14 @@ def _texels(atlas: Atlas, vertices, faces, labels, images, cameras, gains, offse
     rows, cols = np.nonzero(atlas.face_index >= 0)
     face = atlas.face_index[rows, cols]
     bary = atlas.barycentric[rows, cols]
-    colour = np.einsum("kc,kcd->kd", bary, vertex_colour[faces[face]])
+    colour = np.empty((len(face), 3), np.result_type(bary, vertex_colour))
     label = labels[face]
-    single = label >= 0
-    if blend is not None:
-        single &= ~_blend_views(colour, face, bary, vertices, faces, blend, blur, images,
-                                cameras, gains, kernel)
+    blended = np.zeros(len(face), bool) if blend is None else \
+        _blend_views(colour, face, bary, vertices, faces, blend, blur, images, cameras, gains,
+                     kernel)
+    single = (label >= 0) & ~blended
+    unseen = np.flatnonzero((label < 0) & ~blended)
+    colour[unseen] = np.einsum("kc,kcd->kd", bary[unseen], vertex_colour[faces[face[unseen]]])
     for view in np.unique(label[single]):
         mine = np.flatnonzero(single & (label == view))
         points = np.einsum("kc,kcd->kd", bary[mine], vertices[faces[face[mine]]])
@@ -218,20 +220,12 @@ def _blend_views(colour, face, bary, vertices, faces, blend, blur, images, camer
     :func:`.agreement.blurred_views`) times its gain; returns (k,) bool the texels set."""
     blended = np.flatnonzero(blend.any(axis=1)[face])
     points = np.einsum("kc,kcd->kd", bary[blended], vertices[faces[face[blended]]])
-    # Every (texel, view) with a weight, grouped by view and blur (a stable radix sort of
-    # small keys), so that each view is read once at each blur.
-    weights = blend[face[blended]]
-    texel, view = np.nonzero(weights > 0)
-    weight = weights[texel, view]
     n_levels = len(images)
-    key = (view * n_levels + blur[face[blended]][texel]).astype(
-        np.int16 if blend.shape[1] * n_levels < 2 ** 15 else np.int64)
-    order = np.argsort(key, kind="stable")
-    bounds = np.searchsorted(key[order], np.arange(blend.shape[1] * n_levels + 1))
+    texel, weight, bounds = _blend_pairs(face[blended], blend, blur, n_levels)
     colour_here = np.empty((len(texel), 3), np.float32)
     for group in range(blend.shape[1] * n_levels):
-        mine = order[bounds[group]:bounds[group + 1]]
-        if mine.size:
+        mine = slice(bounds[group], bounds[group + 1])
+        if bounds[group + 1] > bounds[group]:
             at_view, blurred = divmod(group, n_levels)
             pixels = np.nan_to_num(cameras[at_view].project(points[texel[mine]]), nan=-1.0)
             colour_here[mine] = gains[at_view] * interpolate(
@@ -243,6 +237,35 @@ def _blend_views(colour, face, bary, vertices, faces, blend, blur, images, camer
     out = np.zeros(len(face), bool)
     out[blended] = True
     return out
+
+
+@njit(cache=True, nogil=True)
+def _blend_pairs(face, blend, blur, n_levels):
+    """Every (texel, view) with a weight, for texels of faces ``face`` (k,) weighed by
+    ``blend`` (m, V) and blurred at level ``blur`` (m,) of ``n_levels``: the texels (p,)
+    int64 and their weights (p,), grouped by ``view * n_levels + blur`` (a counting sort,
+    texels ascending within a group) so that each view is read once at each blur, and
+    the groups' bounds (V * n_levels + 1,) int64."""
+    n_views = blend.shape[1]
+    counts = np.zeros(n_views * n_levels + 1, np.int64)
+    for t in range(face.shape[0]):
+        f = face[t]
+        for v in range(n_views):
+            if blend[f, v] > 0:
+                counts[v * n_levels + blur[f] + 1] += 1
+    bounds = np.cumsum(counts)
+    at = bounds[:-1].copy()
+    texel = np.empty(bounds[-1], np.int64)
+    weight = np.empty(bounds[-1], blend.dtype)
+    for t in range(face.shape[0]):
+        f = face[t]
+        for v in range(n_views):
+            if blend[f, v] > 0:
+                group = v * n_levels + blur[f]
+                texel[at[group]] = t
+                weight[at[group]] = blend[f, v]
+                at[group] += 1
+    return texel, weight, bounds
 
 
 def _views_colours(vertices, faces, labels, neighbours, images, cameras, seen, level: bool,
