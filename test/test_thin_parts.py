@@ -12,7 +12,7 @@ import trimesh
 
 from sfs_ros.core.carving.bounds import estimate_bounds, refine_bounds
 from sfs_ros.core.carving.fusion import reference_misses
-from sfs_ros.core.carving.resolution import THIN_SHARE_MAX
+from sfs_ros.core.carving.resolution import COARSE_FOOTPRINTS, THIN_SHARE_MAX
 from sfs_ros.core.exchange.nerf import read_transforms
 from sfs_ros.core.geometry.camera import Camera
 from sfs_ros.core.meshing.marching import band_marching_cubes
@@ -140,6 +140,26 @@ def test_rgba_views_are_carved_as_their_exact_alpha(scene, tmp_path):
         drawn = rasterize_silhouette(result.vertices, result.faces, view.camera)
         ious.append(np.count_nonzero(drawn & mask) / np.count_nonzero(drawn | mask))
     assert min(ious) > 0.94 and np.mean(ious) > 0.97, (min(ious), np.mean(ious))
+
+
+def test_the_slab_alone_is_carved_on_a_coarser_grid_that_keeps_its_silhouettes(tmp_path):
+    # Without its legs and antenna the table's slab (at least 13 px thick in every view)
+    # has no part a grid of 1.5 footprints loses: the voxel is that. The grid bevels the
+    # box's edges, which make its whole outline, by a fraction of a voxel: measured, the
+    # mean IoU with the exact silhouettes 0.9780 (0.9821 with the finest footprint's voxel;
+    # the silhouettes are 2 000-16 000 px), the worst view 0.9370 (0.9375: a view at 1
+    # degree, where the slab is 14 px thick). Bounds: 0.003 and 0.007 below those.
+    slab = trimesh.creation.box(extents=(1.0, 0.8, 0.1),
+                                transform=trimesh.transformations.translation_matrix((0, 0, 0.05)))
+    cameras = hemisphere_cameras()
+    masks = [rasterize_silhouette(slab.vertices, slab.faces, c) for c in cameras]
+    result = reconstruct(read_transforms(write_rgba_scan(tmp_path, slab, cameras, masks)))
+    grid = result.report["grid"]
+    assert grid["thin_part_share"] <= THIN_SHARE_MAX
+    assert grid["voxel_size_m"] == pytest.approx(COARSE_FOOTPRINTS
+                                                 * grid["pixel_footprint_m"]["finest"])
+    ious = reprojection_ious(result.vertices, result.faces, cameras, masks)
+    assert ious.mean() > 0.975 and ious.min() > 0.93, (ious.mean(), ious.min())
 
 
 def mean_iou(result, cameras, masks) -> float:
