@@ -8,8 +8,9 @@ camera and ``1 / f_v`` for an orthographic one (``f_v`` the smaller of the focal
 lengths, pixels). The default voxel is the *finest* footprint over the views,
 so every view's pixels are resolved, unless the silhouettes have next to no thin
 parts: then it is :data:`COARSE_FOOTPRINTS` footprints, which loses what is narrower
-than :data:`THIN_PART_PX` pixels (:mod:`.thin_parts`) and holds the rest as well. It is
-enlarged further only when the grid would not fit the memory budget.
+than :data:`THIN_PART_PX` pixels (:mod:`.thin_parts`), bevels sharp edges a little more,
+and holds the rest about as well. It is enlarged further only when the grid would not fit
+the memory budget.
 """
 
 from __future__ import annotations
